@@ -1,0 +1,771 @@
+"""The TANGO instruction catalog: every instruction of the manual as data.
+
+One table (:data:`INSTRUCTIONS`, built in :mod:`tango_aio._catalog`) drives the whole
+package: validation and encoding of command lines (:func:`encode`, :func:`build`), the
+parsing of replies (:func:`parse_reply`), what the protocol core expects back
+(:attr:`Instruction.completion`, :func:`reply_rule`), the typed API and the emulator's
+command parser (:func:`parse`).
+
+The grammar of a command line (manual chapter 2 and 4)::
+
+    [!|?]name[ axis][ value ...]CR
+
+``!`` executes/sets, ``?`` reads; some instructions also have a *bare* form without a
+prefix, which either executes (``moa``, ``cal``) or reads (``version``, ``sa``). An axis is
+one of ``x y z a``. Without an axis letter, per-axis values are given in X Y Z A order and a
+single value goes to X (``moa 10.2`` == ``moa x 10.2``), except for the "all axes" group
+(``swtyp``, ``calbspeed``, ...), where one value group without a letter applies to every axis.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from decimal import Decimal
+from typing import Final
+
+from .errors import InvalidCommandError, ProtocolError, parse_error_reply
+
+__all__ = [
+    "AXES",
+    "INSTRUCTIONS",
+    "AxisRule",
+    "Bare",
+    "Command",
+    "Completion",
+    "Context",
+    "DetInfo",
+    "Form",
+    "Instruction",
+    "Kind",
+    "LineFn",
+    "LineRule",
+    "Param",
+    "Precision",
+    "Shape",
+    "Signature",
+    "VersionInfo",
+    "build",
+    "encode",
+    "format_number",
+    "lookup",
+    "parse",
+    "parse_reply",
+    "reply_rule",
+]
+
+#: Axis letters in wire order.
+AXES: Final = ("x", "y", "z", "a")
+
+#: Longest command line the controller accepts, CR included (manual L129-131).
+MAX_LINE_BYTES: Final = 255
+
+
+class Form(enum.Enum):
+    """How an instruction is prefixed on the wire."""
+
+    SET = "!"
+    READ = "?"
+    BARE = ""
+
+
+class Bare(enum.Enum):
+    """What the prefix-less form of an instruction does."""
+
+    NONE = "none"  #: not allowed
+    READ = "read"  #: reads, like ``?`` (``version``, ``sa``, ``err``)
+    EXECUTE = "execute"  #: executes, like ``!`` (``moa``, ``cal``, ``save``)
+
+
+class AxisRule(enum.Enum):
+    """How an axis letter and per-axis values are handled."""
+
+    NONE = "none"  #: no axis letter accepted
+    OPTIONAL = "optional"  #: optional letter; without it values go to X Y Z A in order
+    ALL = "all"  #: optional letter; without it one value group applies to all axes
+    REQUIRED = "required"  #: an axis letter is mandatory
+
+
+class Kind(enum.Enum):
+    """Type of a parameter value."""
+
+    FLOAT = "float"
+    INT = "int"
+    CHOICE = "choice"  #: one of :attr:`Param.choices` (numbers or words)
+    BITS = "bits"  #: a string of ``0``/``1`` characters, LSB first
+
+
+class Shape(enum.Enum):
+    """Shape of a reply, which selects the reply parser."""
+
+    NONE = "none"  #: no reply
+    INT = "int"  #: one integer
+    FLOAT = "float"  #: one number
+    TEXT = "text"  #: one line of text, returned as is
+    FLAGS = "flags"  #: a string of flag characters (``000100``), returned as str
+    AXES_FLOAT = "axes_float"  #: numbers per axis, X Y Z A order
+    AXES_INT = "axes_int"  #: integers per axis
+    AXES_TEXT = "axes_text"  #: words per axis (``0 0 e``)
+    NUMBERS = "numbers"  #: a list of numbers that is not per axis
+    STATUS = "status"  #: statusaxis letters (``@@@-.-`` or one letter)
+    ACK = "ack"  #: ``OK...`` or ``ERR n``
+    ERROR_NUMBER = "error_number"  #: ``?err``
+    HELP = "help"  #: ``ERROR n,text``
+    VERSION = "version"  #: ``TANGO-DT, Version 1.71, ...``
+    DET = "det"  #: the ``?det`` bit field
+    LINES = "lines"  #: several lines of text
+
+
+class Completion(enum.Enum):
+    """The autostatus completion an executing instruction produces."""
+
+    MOVE = "@"  #: moa, mor, m, moc, mol
+    CAL = "A"  #: cal
+    RM = "D"  #: rm
+
+
+@dataclass(frozen=True, slots=True)
+class Param:
+    """One parameter value with its documented range."""
+
+    name: str
+    kind: Kind
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[int | str, ...] = ()
+    optional: bool = False
+    unit: str = ""
+    #: The upper bound when the axis is in dim 9 (velocities in mm/s), if it differs.
+    hi_dim9: float | None = None
+    #: For :attr:`Kind.BITS`: the maximum number of characters.
+    width: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Precision:
+    """The optional trailing digit-count argument of some reads (``?vel y 4``)."""
+
+    lo: int = 0
+    hi: int = 16
+    default: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Signature:
+    """The argument grammar of one form of an instruction.
+
+    ``lead`` parameters come first and are global; then ``per_axis`` groups follow, one
+    group per axis, as many as the axis rule allows. ``arities`` restricts the total number
+    of values where the manual does (``!clim r`` or ``!clim x y r``).
+    """
+
+    axis: AxisRule = AxisRule.NONE
+    lead: tuple[Param, ...] = ()
+    per_axis: tuple[Param, ...] = ()
+    min_groups: int = 1
+    precision: Precision | None = None
+
+    @property
+    def max_values(self) -> int:
+        """The largest number of values the signature accepts (without an axis letter)."""
+        groups = 1 if self.axis is AxisRule.ALL else len(AXES)
+        return len(self.lead) + groups * len(self.per_axis) + (1 if self.precision else 0)
+
+
+@dataclass(frozen=True, slots=True)
+class LineRule:
+    """How many reply lines a read produces.
+
+    ``count`` lines always; then, if ``terminator`` is set, lines up to and including the
+    terminator line; or, if ``continuation`` is set, every following line that matches it
+    (the protocol follows such a request with a marker query so the end is seen).
+    """
+
+    count: int = 1
+    terminator: str | None = None
+    continuation: re.Pattern[str] | None = None
+
+
+@dataclass(frozen=True)
+class Instruction:
+    """One instruction of the manual, as data."""
+
+    name: str
+    summary: str
+    forms: frozenset[Form]
+    bare: Bare = Bare.NONE
+    aliases: tuple[str, ...] = ()
+    #: Grammar of the executing forms (``!`` and an executing bare form); alternatives in
+    #: order. Empty when the instruction has no executing form.
+    write: tuple[Signature, ...] = ()
+    #: Grammar of the reading forms (``?`` and a reading bare form).
+    read: tuple[Signature, ...] = ()
+    #: Shape of the reply to a read.
+    reply: Shape = Shape.NONE
+    #: Values per axis in a per-axis reply (``?lim`` has 2, ``?swtyp`` 3).
+    reply_group: int = 1
+    #: Shape of the reply to an executing form (``save`` always answers ``OK...``).
+    exec_reply: Shape = Shape.NONE
+    completion: Completion | None = None
+    #: Stored by ``save`` (the manual's "Save" column).
+    saved: bool = False
+    section: str = ""
+    line: int = 0
+    #: Reply-line rule for reads; see :func:`reply_rule`.
+    lines: LineFn | None = field(default=None, repr=False)
+
+    def allows(self, form: Form) -> bool:
+        """Whether the instruction accepts ``form``."""
+        return form in self.forms
+
+    def signatures(self, form: Form) -> tuple[Signature, ...]:
+        """The grammar alternatives of ``form``; the bare form uses the read or write one."""
+        return self.read if self.is_read(form) else self.write
+
+    def is_read(self, form: Form) -> bool:
+        """Whether ``form`` reads (``?`` or a reading bare form)."""
+        return form is Form.READ or (form is Form.BARE and self.bare is Bare.READ)
+
+
+LineFn = Callable[["Command", "Context"], LineRule]
+
+
+@dataclass(frozen=True, slots=True)
+class Context:
+    """Controller state that changes how lines validate and replies look.
+
+    ``dims`` holds the ``dim`` of X Y Z A (velocity limits depend on dim 9), ``axes`` the
+    number of configured axes, ``extmode`` the extended mode (``?lim`` formatting).
+    """
+
+    dims: tuple[int, int, int, int] = (2, 2, 2, 2)
+    axes: int = 4
+    extmode: int = 0
+
+
+DEFAULT_CONTEXT: Final = Context()
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A validated command line."""
+
+    instruction: Instruction
+    form: Form
+    axis: str | None
+    values: tuple[float | int | str, ...]
+    tokens: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        """The instruction's canonical name."""
+        return self.instruction.name
+
+    @property
+    def is_read(self) -> bool:
+        """Whether this command reads (and so expects a data reply)."""
+        return self.instruction.is_read(self.form)
+
+    @property
+    def executes(self) -> bool:
+        """Whether this command sets or executes something."""
+        return not self.is_read
+
+    @property
+    def line(self) -> str:
+        """The canonical text of the line, without CR."""
+        head = self.form.value + self.instruction.name
+        parts = [head, *([self.axis] if self.axis else []), *self.tokens]
+        return " ".join(parts)
+
+    def to_bytes(self) -> bytes:
+        """The exact bytes to write, CR included."""
+        return self.line.encode("ascii") + b"\r"
+
+
+# --------------------------------------------------------------------------------------
+# Number formatting and token parsing
+
+_NUMBER_RE: Final = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)$")
+_INT_RE: Final = re.compile(r"^[+-]?\d+$")
+
+
+def format_number(value: float | int) -> str:
+    """Format a number for the wire: decimal point, never exponent notation.
+
+    Integers are written without a fraction; floats use the shortest decimal that round
+    trips (``1e-06`` → ``0.000001``, ``10.0`` → ``10.0``).
+    """
+    if isinstance(value, bool):
+        raise TypeError("booleans are not numbers on the wire")
+    if isinstance(value, int):
+        return str(value)
+    if not math.isfinite(value):
+        raise ValueError(f"not a finite number: {value!r}")
+    text = format(Decimal(repr(value)), "f")
+    return text if "." in text else text + ".0"
+
+
+def _fail(
+    message: str, instruction: str | None, parameter: str | None = None, code: int = 4
+) -> InvalidCommandError:
+    return InvalidCommandError(message, instruction=instruction, parameter=parameter, code=code)
+
+
+def _check_range(param: Param, value: float, name: str, hi: float | None) -> None:
+    if param.lo is not None and value < param.lo:
+        raise _fail(f"{name}: {param.name}={value} is below {param.lo}", name, param.name, 5)
+    if hi is not None and value > hi:
+        raise _fail(f"{name}: {param.name}={value} is above {hi}", name, param.name, 5)
+
+
+def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int | str:
+    """Validate one token against ``param`` and return its typed value."""
+    if param.kind is Kind.BITS:
+        if not re.fullmatch(r"[01]+", token) or (param.width and len(token) > param.width):
+            raise _fail(f"{name}: {param.name} must be up to {param.width} 0/1 characters, "
+                        f"got {token!r}", name, param.name, 5)
+        return token
+    if param.kind is Kind.CHOICE and any(isinstance(c, str) for c in param.choices):
+        if token.lower() not in param.choices:
+            raise _fail(f"{name}: {param.name} must be one of {param.choices}, got {token!r}",
+                        name, param.name, 5)
+        return token.lower()
+    if not _NUMBER_RE.match(token):
+        raise _fail(f"{name}: {param.name} must be a number, got {token!r}", name, param.name, 5)
+    if param.kind is Kind.FLOAT:
+        value = float(token)
+        _check_range(param, value, name, param.hi_dim9 if dim == 9 and param.hi_dim9 else param.hi)
+        return value
+    if not _INT_RE.match(token):
+        raise _fail(f"{name}: {param.name} must be an integer, got {token!r}", name, param.name, 5)
+    number = int(token)
+    if param.kind is Kind.CHOICE and number not in param.choices:
+        raise _fail(f"{name}: {param.name} must be one of {param.choices}, got {number}",
+                    name, param.name, 5)
+    _check_range(param, number, name, param.hi)
+    return number
+
+
+# --------------------------------------------------------------------------------------
+# Catalog access
+
+
+def _catalog() -> dict[str, Instruction]:
+    from ._catalog import CATALOG
+
+    return {entry.name: entry for entry in CATALOG}
+
+
+#: Every instruction of the manual, by canonical name.
+INSTRUCTIONS: Final[Mapping[str, Instruction]] = _catalog()
+
+_BY_ALIAS: Final[dict[str, Instruction]] = {
+    alias: entry for entry in INSTRUCTIONS.values() for alias in (entry.name, *entry.aliases)
+}
+
+
+def lookup(name: str) -> Instruction:
+    """Return the instruction called ``name`` or one of its aliases (case-insensitive).
+
+    Raises :class:`InvalidCommandError` for an unknown name.
+    """
+    entry = _BY_ALIAS.get(name.lower())
+    if entry is None:
+        raise _fail(f"unknown instruction {name!r}", name, None, 4)
+    return entry
+
+
+# --------------------------------------------------------------------------------------
+# Parsing and encoding command lines
+
+_LINE_RE: Final = re.compile(r"^([!?]?)([A-Za-z]+)(?:\s+(.*))?$")
+
+
+def _check_line_text(line: str) -> None:
+    for char in ("\r", "\n", "\x03"):
+        if char in line:
+            raise _fail(f"control character {char!r} inside the command line", None, None, 4)
+    if not line.isascii():
+        raise _fail("the command line contains non-ASCII characters", None, None, 4)
+    if not line.isprintable():
+        raise _fail("the command line contains control characters", None, None, 4)
+
+
+def _split_form(line: str) -> tuple[Form, Instruction, list[str]]:
+    match = _LINE_RE.match(line.strip())
+    if match is None:
+        raise _fail(f"not a command line: {line!r}", None, None, 4)
+    prefix, name, rest = match.groups()
+    entry = lookup(name)
+    form = Form(prefix)
+    if not entry.allows(form):
+        code = 7 if form is Form.BARE else 4
+        allowed = ", ".join(repr(f.value or "bare") for f in sorted(entry.forms, key=str))
+        raise _fail(f"{entry.name}: form {form.value or 'bare'!r} not allowed ({allowed})",
+                    entry.name, None, code)
+    return form, entry, (rest or "").split()
+
+
+def _take_axis(entry: Instruction, sig: Signature, tokens: list[str]) -> str | None:
+    if not tokens or not tokens[0].isalpha():
+        if sig.axis is AxisRule.REQUIRED:
+            raise _fail(f"{entry.name}: an axis letter is required", entry.name, "axis", 1)
+        return None
+    letter = tokens[0].lower()
+    if sig.axis is AxisRule.NONE:
+        # A word where the grammar has none is a parameter (zwaxis z, anain c 3).
+        return None
+    if letter not in AXES:
+        raise _fail(f"{entry.name}: {tokens[0]!r} is not an axis (x, y, z, a)",
+                    entry.name, "axis", 1)
+    del tokens[0]
+    return letter
+
+
+def _values(
+    entry: Instruction, sig: Signature, axis: str | None, tokens: list[str], ctx: Context
+) -> tuple[float | int | str, ...]:
+    rest = list(tokens)
+    values: list[float | int | str] = []
+    for param in sig.lead:
+        if not rest:
+            if not param.optional:
+                raise _fail(f"{entry.name}: missing {param.name}", entry.name, param.name, 6)
+            break
+        values.append(_parse_value(param, rest.pop(0), entry.name, ctx.dims[0]))
+    if sig.per_axis:
+        values.extend(_axis_values(entry, sig, axis, rest, ctx))
+    elif sig.precision is not None and rest:
+        digits = Param("digits", Kind.INT, sig.precision.lo, sig.precision.hi)
+        values.append(_parse_value(digits, rest.pop(0), entry.name, 2))
+    if rest:
+        raise _fail(f"{entry.name}: too many values ({' '.join(tokens)})", entry.name, None, 6)
+    return tuple(values)
+
+
+def _axis_values(
+    entry: Instruction, sig: Signature, axis: str | None, rest: list[str], ctx: Context
+) -> list[float | int | str]:
+    """Consume every token of ``rest`` as per-axis groups and return their typed values."""
+    group = sig.per_axis
+    groups = 1 if axis is not None or sig.axis is AxisRule.ALL else len(AXES)
+    if len(rest) > groups * len(group):
+        raise _fail(f"{entry.name}: too many values, at most {groups * len(group)}",
+                    entry.name, None, 6)
+    taken = rest[:]
+    rest.clear()
+    required = sum(1 for p in group if not p.optional)
+    if len(taken) < sig.min_groups * required:
+        name = group[len(taken) % len(group)].name
+        raise _fail(f"{entry.name}: missing {name}", entry.name, name, 6)
+    if sig.axis is AxisRule.ALL and axis is None and taken and len(taken) < required:
+        raise _fail(f"{entry.name}: without an axis letter give {required} value(s) for all "
+                    "axes", entry.name, None, 6)
+    tail = len(taken) % len(group)
+    if tail and not group[tail].optional:
+        raise _fail(f"{entry.name}: missing {group[tail].name}", entry.name, group[tail].name, 6)
+    out: list[float | int | str] = []
+    for index, token in enumerate(taken):
+        axis_index = AXES.index(axis) if axis else index // len(group)
+        out.append(_parse_value(group[index % len(group)], token, entry.name,
+                                ctx.dims[axis_index]))
+    return out
+
+
+def parse(line: str, context: Context | None = None) -> Command:
+    """Validate a command line (without CR) and return the parsed :class:`Command`.
+
+    This is the parser of both :func:`encode` and the emulator. It raises
+    :class:`InvalidCommandError` whose ``code`` is the error number a controller would set.
+    """
+    ctx = context or DEFAULT_CONTEXT
+    _check_line_text(line)
+    form, entry, tokens = _split_form(line)
+    errors: list[InvalidCommandError] = []
+    for sig in entry.signatures(form) or (Signature(),):
+        rest = list(tokens)
+        try:
+            axis = _take_axis(entry, sig, rest)
+            values = _values(entry, sig, axis, rest, ctx)
+        except InvalidCommandError as exc:
+            errors.append(exc)
+            continue
+        canonical = tuple(_canonical(token) for token in rest)
+        return _checked_length(Command(entry, form, axis, values, canonical))
+    # Prefer an error about a value over one about the number of values: it is more
+    # specific when one alternative matched the count.
+    raise min(errors, key=lambda exc: exc.code == 6)
+
+
+def _checked_length(command: Command) -> Command:
+    if len(command.to_bytes()) > MAX_LINE_BYTES:
+        raise _fail(f"{command.name}: line is longer than {MAX_LINE_BYTES} bytes with its CR",
+                    command.name, None, 3)
+    return command
+
+
+def _canonical(token: str) -> str:
+    return token.lower() if token.isalpha() else token
+
+
+def encode(line: str, context: Context | None = None) -> bytes:
+    """Validate a raw command line such as ``"!vel y 12.5"`` and return its bytes, CR
+    included. Raises :class:`InvalidCommandError` (a :class:`ValueError`) for bad input."""
+    text = line.removesuffix("\r")
+    if len(text.encode("ascii", "replace")) + 1 > MAX_LINE_BYTES:
+        raise _fail(f"line is longer than {MAX_LINE_BYTES} bytes with its CR", None, None, 3)
+    return parse(text, context).to_bytes()
+
+
+Value = float | int | str
+AxisValues = Value | Sequence[Value]
+
+
+def build(
+    name: str,
+    *args: Value,
+    form: Form | str = Form.SET,
+    axis: str | None = None,
+    context: Context | None = None,
+    **axes: AxisValues,
+) -> Command:
+    """Build a validated command from Python values.
+
+    ``build("vel", x=10, y=5)`` gives ``!vel 10.0 5.0``; axes that are left out between
+    given ones are filled by reading is impossible, so per-axis keywords must be given
+    without gaps from X, or as a single axis (``build("vel", y=5)`` → ``!vel y 5.0``).
+    Positional ``args`` are the lead values (``build("trigp", -1, 2.5)``), ``form`` is
+    ``"!"``, ``"?"`` or ``""``.
+    """
+    entry = lookup(name)
+    the_form = form if isinstance(form, Form) else Form(form)
+    parts: list[str] = [the_form.value + entry.name]
+    letter, per_axis = _axis_part(entry, axis, axes)
+    if letter:
+        parts.append(letter)
+    parts.extend(_format_value(value) for value in args)
+    parts.extend(_format_value(value) for value in per_axis)
+    return parse(" ".join(parts), context)
+
+
+def _format_value(value: Value) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, float) and not math.isfinite(value):
+        raise _fail(f"not a finite number: {value!r}", None, None, 5)
+    return format_number(value)
+
+
+def _axis_part(
+    entry: Instruction, axis: str | None, axes: Mapping[str, AxisValues]
+) -> tuple[str | None, list[Value]]:
+    unknown = set(axes) - set(AXES)
+    if unknown:
+        raise _fail(f"{entry.name}: unknown axis keyword(s) {sorted(unknown)}",
+                    entry.name, "axis", 1)
+    given = [a for a in AXES if a in axes]
+    if not given:
+        return (axis.lower() if axis else None), []
+    if axis is not None:
+        raise _fail(f"{entry.name}: give either axis= or per-axis keywords", entry.name, "axis", 1)
+    if len(given) == 1 and given[0] != "x":
+        return given[0], _as_list(axes[given[0]])
+    if given != list(AXES[: len(given)]):
+        raise _fail(f"{entry.name}: per-axis values must start at x without gaps, got "
+                    f"{given}", entry.name, "axis", 1)
+    return None, [v for a in given for v in _as_list(axes[a])]
+
+
+def _as_list(value: AxisValues) -> list[Value]:
+    if isinstance(value, str | int | float):
+        return [value]
+    return list(value)
+
+
+# --------------------------------------------------------------------------------------
+# Replies
+
+
+def reply_rule(command: Command, context: Context | None = None) -> LineRule:
+    """How many lines the read ``command`` replies with (``count=0``: no data reply)."""
+    entry = command.instruction
+    if not command.is_read:
+        return LineRule(count=1 if entry.exec_reply is not Shape.NONE else 0)
+    if entry.reply is Shape.NONE:
+        return LineRule(count=0)
+    if entry.lines is not None:
+        return entry.lines(command, context or DEFAULT_CONTEXT)
+    return LineRule()
+
+
+@dataclass(frozen=True, slots=True)
+class VersionInfo:
+    """The parsed ``?version`` reply."""
+
+    model: str
+    firmware: str
+    build_date: str = ""
+    build_time: str = ""
+
+    @property
+    def firmware_tuple(self) -> tuple[int, ...]:
+        """The firmware version as numbers (``"1.71"`` → ``(1, 71)``)."""
+        return tuple(int(part) for part in re.findall(r"\d+", self.firmware))
+
+
+#: The ``?det`` option bits (manual L1119-1185).
+DET_FLAGS: Final[dict[str, int]] = {
+    "encoder_1vpp": 0x1,
+    "encoder_mr": 0x2,
+    "encoder_ttl": 0x4,
+    "encoder_universal": 0x8,
+    "display": 0x100,
+    "speedpoti": 0x200,
+    "handwheel": 0x400,
+    "snapshot": 0x800,
+    "tvr_in": 0x1000,
+    "trigger_out": 0x2000,
+    "tvr_out": 0x8000,
+    "io_extension": 0x10000,
+    "multi_io": 0x20000,
+    "trackball": 0x40000,
+    "ets": 0x80000,
+    "xpos": 0x100000,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class DetInfo:
+    """The decoded ``?det`` configuration bit field."""
+
+    value: int
+
+    @property
+    def axes(self) -> int:
+        """Number of configured axes (bits 4-7)."""
+        return (self.value >> 4) & 0xF
+
+    @property
+    def options(self) -> frozenset[str]:
+        """Names of the configured options (see :data:`DET_FLAGS`)."""
+        return frozenset(name for name, bit in DET_FLAGS.items() if self.value & bit)
+
+    def has(self, option: str) -> bool:
+        """Whether ``option`` (a :data:`DET_FLAGS` name) is configured."""
+        return bool(self.value & DET_FLAGS[option])
+
+
+def _number(token: str) -> float:
+    try:
+        return float(token)
+    except ValueError:
+        raise ProtocolError(f"expected a number, got {token!r}") from None
+
+
+def _integer(token: str) -> int:
+    try:
+        return int(token)
+    except ValueError:
+        raise ProtocolError(f"expected an integer, got {token!r}") from None
+
+
+def _per_axis(
+    command: Command, items: list[str | float | int], group: int
+) -> object:
+    """Map reply values to axes: a scalar (or tuple) with an axis letter, else a dict."""
+    grouped: list[object] = (
+        [tuple(items[i : i + group]) for i in range(0, len(items), group)]
+        if group > 1
+        else list(items)
+    )
+    if command.axis is not None:
+        if len(grouped) != 1:
+            raise ProtocolError(f"{command.name}: expected one axis value, got {items}")
+        return grouped[0]
+    if len(grouped) > len(AXES):
+        raise ProtocolError(f"{command.name}: more than {len(AXES)} axis values: {items}")
+    return dict(zip(AXES, grouped, strict=False))
+
+
+def _parse_version(text: str) -> VersionInfo:
+    parts = [p.strip() for p in text.split(",")]
+    match = re.search(r"Version\s+(\S+)", text)
+    if match is None:
+        if re.fullmatch(r"\d+\.\d+\w*", text.strip()):
+            return VersionInfo(model="", firmware=text.strip())
+        raise ProtocolError(f"not a version reply: {text!r}")
+    date = parts[2] if len(parts) > 2 else ""
+    time = parts[3] if len(parts) > 3 else ""
+    return VersionInfo(model=parts[0], firmware=match.group(1), build_date=date, build_time=time)
+
+
+def _parse_status(command: Command, text: str) -> object:
+    body = text.strip()
+    if command.axis is not None:
+        if len(body) != 1:
+            raise ProtocolError(f"statusaxis: expected one letter, got {text!r}")
+        return body
+    letters = body.split(".")[0]
+    return {axis: letter for axis, letter in zip(AXES, letters, strict=False) if letter != "-"}
+
+
+def _split_numbers(text: str) -> list[str]:
+    # ?lim in extmode 0 adds stray commas (manual L4559-4619).
+    return text.replace(",", " ").split()
+
+
+def parse_reply(command: Command, lines: Sequence[str]) -> object:
+    """Parse the reply lines of the read ``command`` into Python values.
+
+    Per-axis replies give ``{"x": 1.0, "y": 2.0}`` (only the axes present) or a scalar when
+    the command named an axis; groups (``?lim``) give tuples. ``?statusaxis`` gives letters,
+    ``?version`` a :class:`VersionInfo`, ``?det`` a :class:`DetInfo`, ``?err`` an int,
+    ``help`` an ``(int, text)`` pair, acknowledgements ``(code, None)``.
+    """
+    entry = command.instruction
+    shape = entry.reply if command.is_read else entry.exec_reply
+    if shape is Shape.LINES:
+        return list(lines)
+    text = " ".join(line.strip() for line in lines)
+    parser = _SCALAR_PARSERS.get(shape)
+    if parser is not None:
+        return parser(text)
+    if shape is Shape.STATUS:
+        return _parse_status(command, text)
+    if shape in (Shape.AXES_FLOAT, Shape.AXES_INT, Shape.AXES_TEXT):
+        convert = _AXIS_CONVERTERS[shape]
+        return _per_axis(command, [convert(t) for t in _split_numbers(text)], entry.reply_group)
+    if shape is Shape.NUMBERS:
+        return [_number(t) for t in _split_numbers(text)]
+    raise ProtocolError(f"{entry.name}: no reply expected, got {list(lines)}")
+
+
+def _parse_help(text: str) -> tuple[int | None, str | None]:
+    return parse_error_reply(text)
+
+
+def _parse_ack(text: str) -> tuple[int | None, str | None]:
+    return parse_error_reply(text)
+
+
+_SCALAR_PARSERS: Final[dict[Shape, Callable[[str], object]]] = {
+    Shape.INT: lambda text: _integer(text.strip()),
+    Shape.FLOAT: lambda text: _number(text.strip()),
+    Shape.TEXT: lambda text: text.strip(),
+    Shape.FLAGS: lambda text: text.strip(),
+    Shape.ERROR_NUMBER: lambda text: _integer(text.strip()),
+    Shape.HELP: _parse_help,
+    Shape.ACK: _parse_ack,
+    Shape.VERSION: _parse_version,
+    Shape.DET: lambda text: DetInfo(_integer(text.strip())),
+}
+
+_AXIS_CONVERTERS: Final[dict[Shape, Callable[[str], str | float | int]]] = {
+    Shape.AXES_FLOAT: _number,
+    Shape.AXES_INT: _integer,
+    Shape.AXES_TEXT: str,
+}

@@ -1,0 +1,522 @@
+"""Generate ``tango_aio/_catalog.py`` from the shared reference ``instructions.json``.
+
+The JSON holds what the manual says about each instruction; this script turns it into the
+package's compact, typed table. Where the JSON is ambiguous or the manual (firmware 1.71)
+says more, the ``OVERRIDES`` below decide, each with the manual line it comes from.
+
+Run from the repository root::
+
+    python tools/gen_catalog.py [path/to/instructions.json]
+
+``tests/test_catalog_sync.py`` checks that the committed table matches this script's output.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_JSON = ROOT.parent / "shared" / "reference" / "instructions.json"
+OUTPUT = ROOT / "tango_aio" / "_catalog.py"
+
+# --------------------------------------------------------------------------------------
+# Decisions the JSON leaves open. Keys are instruction names.
+
+#: Instructions whose every parameter belongs to the read form (``?x n``) although they
+#: also have a ``!`` form; the value is the list of read-only parameter names.
+READ_ONLY_PARAMS: dict[str, list[str]] = {
+    "pa": ["read_option"],
+    "calbspeed": ["all_axes_read"],
+    "calrefspeed": ["all_axes_read"],
+}
+
+#: Read-side lead parameters written out explicitly (Python source of Param tuples).
+READ_LEAD: dict[str, str] = {
+    "trigp": 'N("index", -1, 10000, optional=True)',
+    "snsa": 'N("index", -1, 1024)',
+    "snsv": 'N("index", -1024, 1024)',
+    "joyspeed": 'C("button", 1, 2, 3, optional=True)',
+    "zwtravel": 'C("index", 1, 2, 3, optional=True)',
+    "clim": 'C("active", 1, optional=True)',
+    "drop": 'C("query", 0, optional=True)',
+    "enctype": 'C("applied", 1, optional=True)',
+    "enc": 'C("once_activated", 1, optional=True)',
+    "adiginfunc": 'N("input", 0, 3, optional=True)',
+    "anaout": 'C("keyword", "c", optional=True), N("channel", 0, 2, optional=True)',
+    "ctrd": 'C("all_axes", -1, optional=True)',
+    "keyl": 'N("key", 1, 4, optional=True)',
+    "lock": 'N("bit", 0, 15, optional=True)',
+    "hdimode": 'N("bit", 0, 15, optional=True)',
+    **{name: f'N("index", 0, {width - 1}, optional=True)' for name, width in {
+        "digout": 8, "diginpol": 24, "digintyp": 6, "digoutpreset": 8, "edigout": 8,
+        "ediginpol": 12, "edigintyp": 12, "edigoutpreset": 8, "adigintyp": 4, "adigout": 4,
+    }.items()},
+}
+
+#: Bit-field parameters "0/1 string or index + state": name → number of bits.
+BIT_FIELDS: dict[str, int] = {
+    "lock": 16, "hdimode": 16, "digout": 8, "diginpol": 24, "digintyp": 6,
+    "digoutpreset": 8, "edigout": 8, "ediginpol": 12, "edigintyp": 12, "edigoutpreset": 8,
+    "adigintyp": 4, "adigout": 4,
+}
+
+#: Write signatures spelled out where the generic rules do not fit.
+WRITE_OVERRIDES: dict[str, str] = {
+    # '!trigp [axis] index [position]' (L13767-13802): the axis letter selects triga.
+    # '!trigp y 11.5' (example L13971) sets the axis and appends one position.
+    "trigp": 'S(OPT, lead=(N("index", -1, 10000), F("position", optional=True))), '
+             'S(REQ, lead=(F("position"),))',
+    # trigm 20/21 are set by trigr/trigp but may be written too (example L13560).
+    "trigm": 'S(NONE, lead=(C("mode", *range(12), 20, 21, *range(100, 106)),))',
+    # '!trigr [axis] start end count' (L13496).
+    "trigr": 'S(OPT, lead=(F("start"), F("end"), N("count", 1, 10000)))',
+    # '!snsa [axis] index pos...' (L15324-15389): index, then one position per axis;
+    # '!snsa 0' clears.
+    "snsa": 'S(OPT, lead=(N("index", -1, 1024),), per_axis=(F("position"),), min_groups=0)',
+    # '!clim r' or '!clim x y r' (L4622-4700); '!clim 0' disables.
+    "clim": 'S(NONE, lead=(F("radius", 0),)), '
+            'S(NONE, lead=(F("center_x"), F("center_y"), F("radius", 0)))',
+    # '!anaout l0 [l1 [l2]]' or '!anaout c|p channel level' (L9520-9570).
+    "anaout": 'S(NONE, lead=(F("level", 0, 100), F("level1", 0, 100, optional=True), '
+              'F("level2", 0, 100, optional=True))), '
+              'S(NONE, lead=(C("keyword", "c", "p"), N("channel", 0, 2), F("level", 0, 100)))',
+    # '!adiginfunc input fn', '!adiginfunc f0 f1 f2 f3' or '!adiginfunc -1' (L9330-9380).
+    "adiginfunc": 'S(NONE, lead=(N("input", 0, 3), C("function", 0, 1, 2))), '
+                  'S(NONE, lead=(C("f0", 0, 1, 2), C("f1", 0, 1, 2), C("f2", 0, 1, 2), '
+                  'C("f3", 0, 1, 2))), S(NONE, lead=(C("reset", -1),))',
+    # '!joyspeed button speed' (L7300).
+    "joyspeed": 'S(NONE, lead=(C("button", 1, 2, 3), F("speed", 0.000001, 200)))',
+    "zwtravel": 'S(NONE, lead=(C("index", 1, 2, 3), F("travel", -50, 50)))',
+    "snsv": 'S(NONE, lead=(N("index", 1, 1024), I("value")))',
+    # '!restore' reloads the saved set, 'restore -1' restores factory defaults (L1791-1813).
+    "restore": 'S(NONE, lead=(C("mode", -1, optional=True),))',
+    # '!trigc n' shortens the list, '!trigc' or '!trigc 0' clears (L14100-14129).
+    "trigc": 'S(NONE, lead=(N("entries", 0, 10000, optional=True),))',
+    "trigi": 'S(NONE, lead=(N("index", 1, 10000, optional=True),))',
+    "snsc": 'S(NONE, lead=(N("entries", 0, 1024, optional=True),))',
+    "snsi": 'S(NONE, lead=(N("index", 0, 1023, optional=True),))',
+    "keyl": 'S(NONE, lead=(N("key", 1, 4, optional=True),))',
+    # 'a [axis] [-1]' (L6785-6844).
+    "a": 'S(OPT, lead=(C("mode", -1, optional=True),))',
+    # 'brakepos axis [1|-1]' (L10132).
+    "brakepos": 'S(REQ, lead=(C("direction", 1, -1, optional=True),))',
+    # 'go' without values stops all axes, 'go y' stops Y (L6598-6712).
+    "go": 'S(OPT, per_axis=(F("position"),), min_groups=0)',
+    # '!posclr [axis]' clears the offset (L6960).
+    "posclr": "S(OPT)",
+    # '!lim z 45.37' sets only the lower limit (example L4545).
+    "lim": 'S(OPT, per_axis=(F("lower"), F("upper", optional=True)))',
+    # '!flash ms': +-0.00001 .. +-32500 ms (L13160).
+    "flash": 'S(NONE, lead=(F("duration", -32500, 32500),))',
+    # '!mrt' does not exist; '!encerr 0' resets (L11300).
+    "encerr": 'S(OPT, lead=(C("reset", 0),))',
+    # 'cur' upper bound is ?maxcur, checked by the controller (error 5, L3705).
+    "cur": 'S(OPT, per_axis=(F("current", 0.03),))',
+    # '!twi' window 0.00001 mm .. 1 mm in dim units (L11700); bounds depend on dim.
+    "twi": 'S(OPT, per_axis=(F("window", 0),))',
+    "ctrs": 'S(OPT, per_axis=(F("lock_in_range", 0),))',
+    "caliboffset": 'S(OPT, per_axis=(F("offset", 0),))',
+    "rmoffset": 'S(OPT, per_axis=(F("offset", 0),))',
+    "calpos": 'S(OPT, per_axis=(F("position", 0),))',
+    "trigd": 'S(NONE, lead=(F("distance", 0, 5000000),))',
+    # '!encpos 1' applies to all axes; '!encpos 1 1 0' is invalid (L11214-11232).
+    "encpos": 'S(ALL, per_axis=(C("source", 0, 1),))',
+    # 'vel' is up to 3000 mm/s in dim 9 (L3457).
+    "vel": 'S(OPT, per_axis=(F("velocity", 0.000001, 200, unit="rev/s", hi_dim9=3000),))',
+    "joyvel": 'S(OPT, per_axis=(F("velocity", 0.000001, 200, unit="rev/s", hi_dim9=3000),))',
+    # '!mrt' read only; '!mrp x 0 0' gives only the sine values (example L11440).
+    "mrp": 'S(OPT, per_axis=(N("sin_max", -2048, 2048), N("sin_min", -2048, 2048), '
+           'N("cos_max", -2048, 2048, optional=True), '
+           'N("cos_min", -2048, 2048, optional=True)))',
+    # '!hdimode 1' bit string; the two forms are alternatives.
+    "tvrjoy": 'S(NONE, lead=(C("assign", "0", "z", "a"),))',
+    "zwaxis": 'S(NONE, lead=(C("axis", "x", "y", "z", "a"),))',
+    "triga": 'S(NONE, lead=(C("axis", "x", "y", "z", "a"),))',
+    "zwpos": 'S(NONE, lead=(I("counter"),))',
+    "trigcount": 'S(NONE, lead=(N("count", 0, 2147483647),))',
+    "motortable": 'S(OPT, per_axis=(N("table", 0),))',
+    "lockaxis": 'S(OPT, per_axis=(C("apply", 0, 1),))',
+    "speed": 'S(OPT, per_axis=(F("speed", -100, 100, unit="rev/s", hi_dim9=3000),))',
+}
+
+#: Read signatures spelled out.
+READ_OVERRIDES: dict[str, str] = {
+    "help": 'S(NONE, lead=(I("error_number", optional=True),))',
+    "anain": 'S(NONE, lead=(C("keyword", "c", "v"), N("channel", 0, 31)))',
+    "mrt": 'S(OPT, lead=(N("samples", -32767, 32767, optional=True),))',
+    "encamp": 'S(OPT, lead=(C("decimals", 1, optional=True),))',
+    "stagesn": 'S(NONE, lead=(C("ets_address", -1, 0, 1, 2, 3, optional=True),))',
+    "version": 'S(NONE, lead=(C("version_only", 1, optional=True),))',
+    "maxcur": 'S(OPT, lead=(C("ets_limit", 1, optional=True),))',
+    "ctrstatus": 'S(OPT, lead=(C("query", 0, 1, 2, 3, optional=True),))',
+    "ctrdiff": 'S(OPT, lead=(C("option", 1, 2, 3, 4, optional=True),))',
+    "encsync": 'S(OPT, lead=(C("detail", -1, optional=True),))',
+    "hdi": 'S(NONE, lead=(C("verbose", -1, optional=True),))',
+    "key": 'S(NONE, lead=(N("key", 1, 4, optional=True),))',
+    "swin": 'S(NONE, lead=(N("index", 0, 7, optional=True),))',
+    "digin": 'S(NONE, lead=(N("input", 0, 23, optional=True),))',
+    "edigin": 'S(NONE, lead=(N("input", 0, 11, optional=True),))',
+    "adigin": 'S(NONE, lead=(N("input", 0, 3, optional=True),))',
+    "pa": 'S(NONE, lead=(C("all_axes", -1, optional=True),))',
+    "calbspeed": 'S(OPT, lead=(C("all_axes", -1, optional=True),))',
+    "calrefspeed": 'S(OPT, lead=(C("all_axes", -1, optional=True),))',
+    # 'trigr' and 'trigp' reads take no axis letter.
+    "trigr": "S(NONE)",
+    "snsa": 'S(OPT, lead=(N("index", -1, 1024),))',
+    # '?trigp x 3' names the axis redundantly (L14064).
+    "trigp": 'S(OPT, lead=(N("index", -1, 10000, optional=True),))',
+}
+
+#: Reply shapes (of the read form) where the generic rules guess wrong.
+REPLY: dict[str, str] = {
+    "version": "VERSION", "det": "DET", "detext": "LINES", "readsn": "TEXT", "ver": "TEXT",
+    "iver": "TEXT", "uptime": "INT", "temp": "FLOAT", "maxaxis": "TEXT", "maxcur": "NUMBERS",
+    "etspresent": "FLAGS", "stagesn": "TEXT", "save": "NONE", "restore": "ACK",
+    "status": "ACK", "err": "ERROR_NUMBER", "help": "HELP", "service": "LINES",
+    "statusaxis": "STATUS", "lockstate": "AXES_TEXT", "readsw": "FLAGS", "swin": "FLAGS",
+    "statuslimit": "FLAGS", "lock": "FLAGS", "hdimode": "FLAGS", "digin": "FLAGS",
+    "digout": "FLAGS", "diginpol": "FLAGS", "digintyp": "FLAGS", "digoutpreset": "FLAGS",
+    "edigin": "FLAGS", "edigout": "FLAGS", "ediginpol": "FLAGS", "edigintyp": "FLAGS",
+    "edigoutpreset": "FLAGS", "adigin": "FLAGS", "adigintyp": "FLAGS", "adigout": "FLAGS",
+    "adiginfunc": "NUMBERS", "key": "NUMBERS", "keyl": "NUMBERS", "anain": "FLOAT",
+    "anaout": "NUMBERS", "hdi": "TEXT", "encsync": "TEXT", "encerr": "AXES_TEXT",
+    "mrt": "LINES", "trigr": "NUMBERS", "trigs": "NUMBERS", "clim": "NUMBERS",
+    "zwtravel": "NUMBERS", "pa": "NUMBERS", "tvrjoy": "TEXT", "zwaxis": "TEXT",
+    "triga": "TEXT", "trigp": "FLOAT", "snsv": "FLOAT", "joyspeed": "FLOAT",
+    "ctrstatus": "AXES_TEXT", "ctrd": "NUMBERS", "snsa": "AXES_FLOAT", "calbspeed": "NUMBERS",
+    "calrefspeed": "NUMBERS", "encpos": "INT", "pci": "INT", "zwheel": "INT", "drop": "INT",
+    "trigbdelay": "FLOAT", "trigbwidth": "FLOAT", "trigbf": "FLOAT", "trigd": "FLOAT",
+    "trigf": "FLOAT", "scanvel": "FLOAT", "tvrjoyf": "FLOAT", "flash": "NONE",
+    "snse": "NONE", "trigger": "NONE", "ctrdiff": "AXES_FLOAT", "encamp": "AXES_FLOAT",
+    "calst": "AXES_INT", "corrst": "AXES_INT", "encrefstatus": "AXES_INT",
+    "encrefstatusl": "AXES_INT", "encnasstatus": "AXES_INT", "hwcount": "AXES_INT",
+    "motorsteps": "AXES_INT", "curdelay": "AXES_INT", "ecomove": "AXES_INT",
+    "ctrf": "AXES_INT", "mro": "AXES_INT", "mrp": "AXES_INT", "caltimeout": "AXES_INT",
+    "brake": "AXES_INT", "lockaxis": "AXES_INT", "zwpos": "INT", "trigcount": "INT",
+}
+
+#: Replies that come from the executing form (``save`` always answers, L1723-1760).
+EXEC_REPLY: dict[str, str] = {"save": "ACK"}
+
+#: Multi-line reply rules (Python source of a callable name in the catalog module).
+LINES: dict[str, str] = {
+    "service": "_service_lines",
+    "detext": "_detext_lines",
+    "mrt": "_mrt_lines",
+    "lim": "_grouped_lines",
+    "swtyp": "_grouped_lines",
+    "swpol": "_grouped_lines",
+    "swact": "_grouped_lines",
+}
+
+#: Completion kinds of executing forms.
+COMPLETION: dict[str, str] = {
+    "moa": "MOVE", "mor": "MOVE", "m": "MOVE", "moc": "MOVE", "mol": "MOVE",
+    "cal": "CAL", "rm": "RM",
+}
+
+#: Bare forms that execute (``restore``) where the JSON offers all three forms.
+BARE_EXECUTES = {"restore"}
+
+# --------------------------------------------------------------------------------------
+
+
+def _num(value: Any) -> str | None:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return repr(value)
+    return None
+
+
+def param_source(p: dict[str, Any], *, optional: bool | None = None) -> str:
+    """Python source of one parameter."""
+    opt = p["optional"] if optional is None else optional
+    tail = ", optional=True" if opt else ""
+    kind = p["type"]
+    unit = p.get("unit")
+    unit_src = f", unit={unit!r}" if unit and kind == "float" and len(str(unit)) < 40 else ""
+    if kind == "enum":
+        choices = ", ".join(repr(c) for c in p["values"])
+        return f'C({p["name"]!r}, {choices}{tail})'
+    lo = hi = None
+    rng = p.get("range")
+    if isinstance(rng, list) and len(rng) == 2:
+        lo, hi = _num(rng[0]), _num(rng[1])
+    bounds = ""
+    if lo is not None:
+        bounds += f", {lo}"
+        if hi is not None:
+            bounds += f", {hi}"
+    elif hi is not None:
+        bounds += f", None, {hi}"
+    if kind == "float":
+        return f'F({p["name"]!r}{bounds}{unit_src}{tail})'
+    if kind == "int":
+        return f'N({p["name"]!r}{bounds}{tail})' if bounds else f'I({p["name"]!r}{tail})'
+    return f'I({p["name"]!r}{tail})'
+
+
+def axis_rule(entry: dict[str, Any], *, write: bool) -> str:
+    mode = entry["axis_param_mode"]
+    if mode == "none":
+        return "NONE"
+    if mode in ("recommended", "optional_or_-1"):
+        return "ALL" if write else "OPT"
+    if mode == "required_for_set":
+        return "REQ" if write else "OPT"
+    if mode == "required":
+        return "REQ"
+    return "OPT"
+
+
+def bits_signatures(name: str, entry: dict[str, Any]) -> str:
+    width = BIT_FIELDS[name]
+    return (f'S(NONE, lead=(B("bits", {width}),)), '
+            f'S(NONE, lead=(N("index", 0, {width - 1}), C("state", 0, 1)))')
+
+
+def write_source(name: str, entry: dict[str, Any]) -> str | None:
+    forms = entry["forms"]
+    executes = "!" in forms or (name in BARE_EXECUTES)
+    if not executes:
+        return None
+    if name in WRITE_OVERRIDES:
+        return WRITE_OVERRIDES[name]
+    if name in BIT_FIELDS:
+        return bits_signatures(name, entry)
+    read_only = set(READ_ONLY_PARAMS.get(name, []))
+    params = [p for p in entry["params"] if p["name"] not in read_only]
+    rule = axis_rule(entry, write=True)
+    if entry["per_axis_values"] and params:
+        k = entry["values_per_axis"] or 1
+        group = ", ".join(param_source(p, optional=i > 0 and p["optional"])
+                          for i, p in enumerate(params[:k]))
+        lead = params[k:]
+        lead_src = f"lead=({', '.join(param_source(p) for p in lead)},), " if lead else ""
+        return f"S({rule}, {lead_src}per_axis=({group},))"
+    if not params:
+        return f"S({rule})"
+    lead_src = ", ".join(param_source(p) for p in params)
+    return f"S({rule}, lead=({lead_src},))"
+
+
+def read_source(name: str, entry: dict[str, Any]) -> str | None:
+    forms = entry["forms"]
+    reads = "?" in forms or ("bare" in forms and "!" not in forms) or name in ("err", "keyl",
+                                                                                 "zwpos")
+    if not reads:
+        return None
+    if name in READ_OVERRIDES:
+        return READ_OVERRIDES[name]
+    rule = axis_rule(entry, write=False)
+    precision = ""
+    rp = entry.get("read_precision")
+    if entry["read_precision_arg"] and rp and rp.get("digits_range") == "0..16":
+        precision = f", precision=P(0, 16, {rp['default_digits']})"
+    elif entry["read_precision_arg"] and rp and rp.get("digits_range") == "0..10":
+        precision = f", precision=P(0, 10, {rp['default_digits']})"
+    elif entry["read_precision_arg"]:
+        precision = ", precision=P(0, 16, None)"
+    lead = READ_LEAD.get(name)
+    if lead is None and "!" not in forms and entry["params"]:
+        lead = ", ".join(param_source(p, optional=True) for p in entry["params"])
+    lead_src = f", lead=({lead},)" if lead else ""
+    return f"S({rule}{lead_src}{precision})"
+
+
+def reply_shape(name: str, entry: dict[str, Any]) -> str:
+    if name in REPLY:
+        return REPLY[name]
+    if read_source(name, entry) is None:
+        return "NONE"
+    params = entry["params"]
+    if entry["per_axis_values"]:
+        if params and params[0]["type"] in ("int", "enum"):
+            return "AXES_INT"
+        return "AXES_FLOAT"
+    if params and params[0]["type"] == "float":
+        return "FLOAT"
+    return "INT"
+
+
+def bare_mode(name: str, forms: list[str]) -> str:
+    if "bare" not in forms:
+        return "NONE"
+    if name in BARE_EXECUTES or ("!" in forms and "?" not in forms):
+        return "EXECUTE"
+    return "READ"
+
+
+def entry_source(entry: dict[str, Any]) -> str:
+    name = entry["name"]
+    forms = "".join(f for f in ("!", "?") if f in entry["forms"])
+    if "bare" in entry["forms"]:
+        forms += "b"
+    summary = (entry["brief_table"] or {}).get("description") or entry["section_title"]
+    parts = [repr(name), repr(summary.strip()), repr(forms)]
+    bare = bare_mode(name, entry["forms"])
+    if bare != "NONE":
+        parts.append(f"bare=Bare.{bare}")
+    if entry["aliases"]:
+        parts.append(f"aliases={tuple(entry['aliases'])!r}")
+    write = write_source(name, entry)
+    if write:
+        parts.append(f"write=({write},)")
+    read = read_source(name, entry)
+    if read:
+        parts.append(f"read=({read},)")
+    shape = reply_shape(name, entry)
+    if shape != "NONE":
+        parts.append(f"reply=Shape.{shape}")
+    group = entry["values_per_axis"] or 1
+    if group > 1 and shape.startswith("AXES"):
+        parts.append(f"reply_group={group}")
+    if name in EXEC_REPLY:
+        parts.append(f"exec_reply=Shape.{EXEC_REPLY[name]}")
+    if name in COMPLETION:
+        parts.append(f"completion=Completion.{COMPLETION[name]}")
+    if name in LINES:
+        parts.append(f"lines={LINES[name]}")
+    if entry["saved"] in ("Y", "(Y)"):
+        parts.append("saved=True")
+    parts.append(f"section={entry['manual_section']!r}")
+    parts.append(f"line={entry['manual_lines'][0]}")
+    return "    E(" + ", ".join(parts) + "),"
+
+
+HEADER = '''"""The instruction table. GENERATED by tools/gen_catalog.py from the shared reference
+(instructions.json, manual firmware 1.71): edit the generator's OVERRIDES, not this file.
+
+Each ``E(...)`` is one instruction: name, summary, forms (``!``, ``?``, ``b`` = bare), the
+write and read signatures (alternatives in order), the reply shape of the read form, the
+completion kind and whether ``save`` stores it.
+"""
+
+# ruff: noqa: E501
+
+from __future__ import annotations
+
+import re
+
+from .instructions import (
+    AxisRule,
+    Bare,
+    Command,
+    Completion,
+    Context,
+    Form,
+    Instruction,
+    Kind,
+    LineFn,
+    LineRule,
+    Param,
+    Precision,
+    Shape,
+    Signature,
+)
+
+NONE, OPT, ALL, REQ = AxisRule.NONE, AxisRule.OPTIONAL, AxisRule.ALL, AxisRule.REQUIRED
+
+
+def F(name: str, lo: float | None = None, hi: float | None = None, *, unit: str = "",
+      hi_dim9: float | None = None, optional: bool = False) -> Param:
+    """A float parameter."""
+    return Param(name, Kind.FLOAT, lo, hi, unit=unit, hi_dim9=hi_dim9, optional=optional)
+
+
+def N(name: str, lo: float | None = None, hi: float | None = None, *,
+      optional: bool = False) -> Param:
+    """An integer parameter with a range."""
+    return Param(name, Kind.INT, lo, hi, optional=optional)
+
+
+def I(name: str, *, optional: bool = False) -> Param:  # noqa: E743
+    """An integer parameter without a documented range."""
+    return Param(name, Kind.INT, optional=optional)
+
+
+def C(name: str, *choices: int | str, optional: bool = False) -> Param:
+    """A parameter with a fixed set of values."""
+    return Param(name, Kind.CHOICE, choices=choices, optional=optional)
+
+
+def B(name: str, width: int) -> Param:
+    """A string of up to ``width`` 0/1 characters."""
+    return Param(name, Kind.BITS, width=width)
+
+
+def P(lo: int, hi: int, default: int | None) -> Precision:
+    """The read-precision (digit count) argument."""
+    return Precision(lo, hi, default)
+
+
+def S(axis: AxisRule, *, lead: tuple[Param, ...] = (), per_axis: tuple[Param, ...] = (),
+      min_groups: int = 1, precision: Precision | None = None) -> Signature:
+    """A signature."""
+    return Signature(axis, lead, per_axis, min_groups, precision)
+
+
+_FORMS = {"!": Form.SET, "?": Form.READ, "b": Form.BARE}
+
+
+def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
+      aliases: tuple[str, ...] = (), write: tuple[Signature, ...] = (),
+      read: tuple[Signature, ...] = (), reply: Shape = Shape.NONE, reply_group: int = 1,
+      exec_reply: Shape = Shape.NONE, completion: Completion | None = None,
+      lines: LineFn | None = None, saved: bool = False, section: str = "",
+      line: int = 0) -> Instruction:
+    """One catalog entry."""
+    return Instruction(
+        name=name, summary=summary, forms=frozenset(_FORMS[f] for f in forms), bare=bare,
+        aliases=aliases, write=write, read=read, reply=reply, reply_group=reply_group,
+        exec_reply=exec_reply, completion=completion, lines=lines, saved=saved,
+        section=section, line=line,
+    )
+
+
+def _service_lines(command: Command, context: Context) -> LineRule:
+    # From firmware 1.60C/1.61 the last line is END_SERVICE_PRINT. (L2937-2943).
+    return LineRule(count=0, terminator="END_SERVICE_PRINT.")
+
+
+_DETEXT_MORE = re.compile(r"^=")
+
+
+def _detext_lines(command: Command, context: Context) -> LineRule:
+    # The hex configuration, then one '= feature' line each; no end marker (L1189-1220).
+    return LineRule(count=1, continuation=_DETEXT_MORE)
+
+
+def _mrt_lines(command: Command, context: Context) -> LineRule:
+    # One line per sample, 10 by default; a negative count means the same number (L11474).
+    samples = abs(int(command.values[0])) if command.values else 10
+    return LineRule(count=samples)
+
+
+_GROUP_MORE = re.compile(r"^[-+\\d.,]+[ ,][-+\\d., ]*$")
+
+
+def _grouped_lines(command: Command, context: Context) -> LineRule:
+    # '?lim' and '?swtyp' without an axis print an extra CR between axes in extmode 0
+    # (L4559-4619, L4818-4822); read until the next request's reply.
+    if command.axis is not None or context.extmode != 0 or context.axes < 2:
+        return LineRule()
+    return LineRule(count=1, continuation=_GROUP_MORE)
+
+
+CATALOG: tuple[Instruction, ...] = (
+'''
+
+
+def main() -> None:
+    source = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_JSON
+    entries = json.loads(source.read_text(encoding="utf-8"))
+    body = "\n".join(entry_source(e) for e in entries)
+    OUTPUT.write_text(HEADER + body + "\n)\n", encoding="utf-8")
+    print(f"wrote {len(entries)} instructions to {OUTPUT.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
