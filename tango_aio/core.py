@@ -1,0 +1,541 @@
+"""The sans-IO protocol core: line reassembly and reply routing. No I/O, no asyncio.
+
+Theory of operation
+===================
+The TANGO interpreter executes one CR-terminated command line at a time, strictly in the
+order received, and everything it sends back is a CR-terminated line. A line is one of:
+
+1. a **data reply** to a read (``?pos`` → ``1.0000 2.0000``), one or more lines, in the
+   order of the reads;
+2. an **acknowledgement** ``OK...`` / ``ERR n`` of every ``!`` line in autostatus 2, sent
+   after the line was executed (``save`` and ``?restore`` answer like this in every mode);
+3. an **echo** of every executed set/move line in autostatus 4, sent before executing it;
+4. a **completion report** of a move, ``cal`` or ``rm``: ``@@@-.`` (modes 1, 2, 4) or an
+   empty line (mode 3). It is pushed when the axes stop, so it may fall between any two
+   other lines, and it is matched to the oldest move still waiting for one;
+5. anything else: unsolicited (``!joy 0`` reports ``@@@-.`` when it disables the joystick).
+
+Because the interpreter is sequential, items 1-3 arrive in the order the lines were
+written. :class:`ProtocolCore` therefore keeps a FIFO of *expectations*: for each line
+written, the items it still owes (echo, data, ack, in that order), computed from the
+instruction catalog and the autostatus mode in force when the line reaches the controller.
+The core tracks that mode from the ``!autostatus`` lines it encodes itself. Completion
+reports have a shape no reply has, so they are recognised by pattern first.
+
+When the stream can no longer be trusted (a reply was lost, or Ctrl+C made the controller
+discard its input buffer) the core *resynchronises*: every pending request is reported
+lost, a marker query ``?help N`` is sent, and every line up to its unique reply
+``ERROR N,...`` is dropped. Completion reports keep flowing during a resync.
+
+The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
+:meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
+ever raised for bad input; the core stays usable afterwards.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from collections import deque
+from collections.abc import Hashable, Iterator
+from dataclasses import dataclass, field
+from typing import Final, NoReturn
+
+from .errors import ERROR_DESCRIPTIONS, ProtocolError
+from .instructions import (
+    Command,
+    Completion,
+    Context,
+    Form,
+    LineRule,
+    Shape,
+    encode,
+    reply_rule,
+)
+
+__all__ = [
+    "Acknowledged",
+    "Completed",
+    "Dropped",
+    "Echoed",
+    "Event",
+    "LineAssembler",
+    "ProtocolCore",
+    "Replied",
+    "RequestLost",
+    "Unsolicited",
+    "is_completion_line",
+]
+
+#: Longest line the assembler buffers before it gives up on it. The controller's lines are
+#: far shorter; ``service`` output is the longest.
+DEFAULT_MAX_LINE: Final = 1024
+
+_CR: Final = 0x0D
+_LF: Final = 0x0A
+
+#: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
+#: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
+_COMPLETION_RE: Final = re.compile(r"^[@MJSADETCU\-]{1,4}\.$")
+_ACK_RE: Final = re.compile(r"^(OK\.*|ERR(?:\s+-?\d+)?)\s*$")
+
+
+def is_completion_line(line: str) -> bool:
+    """Whether ``line`` is an autostatus completion report such as ``@@@-.``."""
+    return bool(_COMPLETION_RE.match(line))
+
+
+class LineAssembler:
+    """Reassembles CR-terminated lines from arbitrary byte fragments.
+
+    The buffer is bounded: a line longer than ``max_line`` bytes raises
+    :class:`ProtocolError` once, and its bytes are discarded up to the next CR. Each byte
+    is scanned once (the CR search resumes where the previous one stopped). LF bytes are
+    dropped, so a terminal server that turns CR into CR LF does no harm; the controller
+    itself never sends LF (manual L82). Bytes are decoded as Latin-1, one char per byte.
+    """
+
+    def __init__(self, max_line: int = DEFAULT_MAX_LINE) -> None:
+        self._buffer = bytearray()
+        self._scanned = 0
+        self._discarding = False
+        self._max_line = max_line
+
+    @property
+    def buffered(self) -> int:
+        """Number of bytes held for an incomplete line."""
+        return len(self._buffer)
+
+    def feed(self, data: bytes) -> None:
+        """Add received bytes; collect the lines with :meth:`next_line`."""
+        self._buffer += data
+
+    def next_line(self) -> str | None:
+        """Return the next complete line (without CR), or ``None`` if there is none yet.
+
+        Raises :class:`ProtocolError` when a line exceeds the limit.
+        """
+        end = self._buffer.find(_CR, self._scanned)
+        if end < 0:
+            self._scanned = len(self._buffer)
+            if self._scanned > self._max_line and not self._discarding:
+                self._overflow()
+            if self._discarding:
+                self._buffer.clear()
+                self._scanned = 0
+            return None
+        raw = bytes(self._buffer[:end])
+        del self._buffer[: end + 1]
+        self._scanned = 0
+        if self._discarding:
+            self._discarding = False
+            return self.next_line()
+        if len(raw) > self._max_line:
+            raise ProtocolError(f"reply line of {len(raw)} bytes exceeds {self._max_line}")
+        return raw.replace(b"\n", b"").decode("latin-1")
+
+    def _overflow(self) -> NoReturn:
+        size = len(self._buffer)
+        self._buffer.clear()
+        self._scanned = 0
+        self._discarding = True
+        raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
+
+    def lines(self, data: bytes) -> list[str]:
+        """Feed ``data`` and return every complete line (raises on an over-long line)."""
+        self.feed(data)
+        out: list[str] = []
+        while (line := self.next_line()) is not None:
+            out.append(line)
+        return out
+
+
+# --------------------------------------------------------------------------------------
+# Events
+
+
+@dataclass(frozen=True, slots=True)
+class Replied:
+    """The data reply of request ``tag``. ``done``: the request owes nothing more."""
+
+    tag: Hashable
+    lines: tuple[str, ...]
+    done: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Acknowledged:
+    """``OK...`` (``code == 0``) or ``ERR n`` for request ``tag`` (``code`` None: no number)."""
+
+    tag: Hashable
+    code: int | None
+    line: str
+    done: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Echoed:
+    """The autostatus-4 echo of request ``tag``."""
+
+    tag: Hashable
+    line: str
+    done: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Completed:
+    """A completion report. ``tag`` is the move it belongs to, ``None`` if unsolicited.
+
+    ``letters`` maps each present axis to its status letter; it is ``None`` for the bare CR
+    of autostatus 3, which carries no status.
+    """
+
+    tag: Hashable | None
+    letters: dict[str, str] | None
+    line: str
+
+
+@dataclass(frozen=True, slots=True)
+class Unsolicited:
+    """A line that no request was waiting for."""
+
+    line: str
+
+
+@dataclass(frozen=True, slots=True)
+class Dropped:
+    """A line discarded while resynchronising."""
+
+    line: str
+
+
+@dataclass(frozen=True, slots=True)
+class RequestLost:
+    """Request ``tag`` will get no reply: its line was discarded, or the stream resynced."""
+
+    tag: Hashable
+
+
+Event = Replied | Acknowledged | Echoed | Completed | Unsolicited | Dropped | RequestLost
+
+
+# --------------------------------------------------------------------------------------
+# Expectations
+
+
+class _Item(enum.Enum):
+    ECHO = "echo"
+    DATA = "data"
+    ACK = "ack"
+
+
+@dataclass(slots=True)
+class _Pending:
+    tag: Hashable
+    items: deque[_Item]
+    echo: str = ""
+    rule: LineRule = field(default_factory=LineRule)
+    lines: list[str] = field(default_factory=list)
+    internal: bool = False
+    marker: str | None = None  # expected reply prefix of a resync marker
+
+    def done_after(self, item: _Item) -> bool:
+        return not self.items or (len(self.items) == 1 and self.items[0] is item)
+
+
+@dataclass(frozen=True, slots=True)
+class Expectation:
+    """What a command line owes: which reply items and which completion report."""
+
+    echo: bool
+    rule: LineRule
+    ack: bool
+    completion: Completion | None
+    mode_after: int
+
+    @property
+    def expects_reply(self) -> bool:
+        """Whether any line comes back for this request (besides a completion)."""
+        return self.echo or self.ack or _has_data(self.rule)
+
+
+def _has_data(rule: LineRule) -> bool:
+    return rule.count > 0 or rule.terminator is not None or rule.continuation is not None
+
+
+def _mode_after(command: Command, mode: int) -> int:
+    """Autostatus mode in force after ``command`` runs (``reset`` restarts in mode 1)."""
+    name = command.name
+    if name == "autostatus" and command.form is Form.SET and command.values:
+        return int(command.values[0])
+    if name == "reset" or (name == "restore" and command.values == (-1,)):
+        return 1  # power-on default (manual L2062); autostatus is never saved (L2071)
+    return mode
+
+
+def expectation(command: Command, mode: int, context: Context | None = None) -> Expectation:
+    """What ``command`` owes when it reaches the controller in autostatus ``mode``.
+
+    Decisions where the manual is silent (protocol_notes §5, open points), shared with the
+    emulator so that both sides agree by construction:
+
+    * Mode 4 echoes a line before executing it, for every executing line (``!`` or an
+      executing bare form such as ``moa``); reads are not echoed. So ``!autostatus 4``
+      sent in mode 1 is not echoed, and ``!autostatus 1`` sent in mode 4 is.
+    * Mode 2 acknowledges after executing, so the new mode decides: ``!autostatus 2`` is
+      acknowledged, ``!autostatus 1`` sent in mode 2 is not. ``?`` reads are never
+      acknowledged; an invalid ``!autostatus 7`` in mode 2 gets ``ERR 5``.
+    * A line that already answers with ``OK...``/``ERR`` (``save``) is not acknowledged a
+      second time in mode 2.
+    * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
+      the echo first and the report when the move ends, as in mode 1.
+    """
+    executes = command.executes
+    after = _mode_after(command, mode)
+    rule = reply_rule(command, context)
+    owns_ack = command.instruction.exec_reply is Shape.ACK and executes
+    return Expectation(
+        echo=mode == 4 and executes,
+        rule=rule,
+        ack=after == 2 and command.form is Form.SET and not owns_ack,
+        completion=command.instruction.completion if executes and after != 0 else None,
+        mode_after=after,
+    )
+
+
+#: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
+_MARKER_CODES: Final = tuple(sorted(ERROR_DESCRIPTIONS))
+_FOLLOW_UP: Final = encode("?err")
+
+
+class ProtocolCore:
+    """Routes the controller's lines to requests, acknowledgements and events.
+
+    Call :meth:`send` for every command line written (it returns the bytes to write) and
+    :meth:`receive_data` with every chunk read; then drain :meth:`next_event`.
+    """
+
+    def __init__(self, *, autostatus: int = 1, context: Context | None = None,
+                 max_line: int = DEFAULT_MAX_LINE) -> None:
+        self._assembler = LineAssembler(max_line)
+        self._pending: deque[_Pending] = deque()
+        self._moves: deque[Hashable] = deque()
+        self._events: deque[Event] = deque()
+        self._autostatus = autostatus
+        self.context = context or Context()
+        self._resync_marker: str | None = None
+        self._marker_index = 0
+
+    # -- state ------------------------------------------------------------------------
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode in force after the last line sent."""
+        return self._autostatus
+
+    @autostatus.setter
+    def autostatus(self, mode: int) -> None:
+        self._autostatus = mode
+
+    @property
+    def pending_tags(self) -> list[Hashable]:
+        """Tags of requests still owed a reply, oldest first."""
+        return [p.tag for p in self._pending if not p.internal]
+
+    @property
+    def awaiting_completion(self) -> list[Hashable]:
+        """Tags of moves still waiting for their completion report, oldest first."""
+        return list(self._moves)
+
+    @property
+    def resyncing(self) -> bool:
+        """Whether lines are being dropped until the resync marker's reply."""
+        return self._resync_marker is not None
+
+    # -- sending ------------------------------------------------------------------------
+
+    def send(self, command: Command, tag: Hashable) -> tuple[bytes, Expectation]:
+        """Register ``command`` under ``tag`` and return the bytes to write.
+
+        A read whose end can only be seen from the next line (``detext``) is followed by an
+        internal ``?err`` whose reply closes it; its bytes are included.
+        """
+        expect = expectation(command, self._autostatus, self.context)
+        self._autostatus = expect.mode_after
+        data = command.to_bytes()
+        if expect.expects_reply:
+            items: deque[_Item] = deque()
+            if expect.echo:
+                items.append(_Item.ECHO)
+            if _has_data(expect.rule):
+                items.append(_Item.DATA)
+            if expect.ack:
+                items.append(_Item.ACK)
+            self._pending.append(_Pending(tag, items, _normal(command.line), expect.rule))
+        if expect.completion is not None:
+            self._moves.append(tag)
+        if expect.rule.continuation is not None:
+            data += self._register_follow_up()
+        return data, expect
+
+    def _register_follow_up(self) -> bytes:
+        items = deque([_Item.DATA])
+        self._pending.append(_Pending(object(), items, internal=True))
+        return _FOLLOW_UP
+
+    def forget_completion(self, tag: Hashable) -> bool:
+        """Stop waiting for the completion report of ``tag`` (e.g. the move was refused)."""
+        try:
+            self._moves.remove(tag)
+        except ValueError:
+            return False
+        return True
+
+    def drop_completions(self) -> list[Hashable]:
+        """Stop waiting for every completion report; return the tags that were waiting."""
+        tags = list(self._moves)
+        self._moves.clear()
+        return tags
+
+    def resync(self, tag: Hashable, *, ctrl_c: bool = False) -> bytes:
+        """Start a resynchronisation; return the bytes to write.
+
+        Every pending request is reported lost (:class:`RequestLost` events). With
+        ``ctrl_c`` the bytes start with 0x03, which stops all axes and makes the
+        controller discard its input buffer (manual L6808-6814). The marker ``?help N`` is
+        registered under ``tag``; its :class:`Replied` event ends the resync.
+        """
+        for pending in self._pending:
+            if not pending.internal:
+                self._events.append(RequestLost(pending.tag))
+        self._pending.clear()
+        code = _MARKER_CODES[self._marker_index % len(_MARKER_CODES)]
+        self._marker_index += 1
+        marker = f"ERROR {code},"
+        self._resync_marker = marker
+        self._pending.append(_Pending(tag, deque([_Item.DATA]), marker=marker))
+        return (b"\x03" if ctrl_c else b"") + encode(f"?help {code}")
+
+    # -- receiving ------------------------------------------------------------------------
+
+    def receive_data(self, data: bytes) -> None:
+        """Feed bytes read from the controller."""
+        self._assembler.feed(data)
+
+    def next_event(self) -> Event | None:
+        """Return the next event, or ``None`` when more bytes are needed.
+
+        Raises :class:`ProtocolError` for an over-long line (then carries on with the
+        next line on the following call).
+        """
+        while not self._events:
+            line = self._assembler.next_line()
+            if line is None:
+                return None
+            self._route(line)
+        return self._events.popleft()
+
+    def events(self, data: bytes = b"") -> Iterator[Event]:
+        """Feed ``data`` and iterate over every event it completes."""
+        self.receive_data(data)
+        while (event := self.next_event()) is not None:
+            yield event
+
+    # -- routing ------------------------------------------------------------------------
+
+    def _route(self, line: str) -> None:
+        text = line.strip()
+        if self._route_completion(line, text):
+            return
+        if self._resync_marker is not None and not text.startswith(self._resync_marker):
+            self._events.append(Dropped(line))
+            return
+        if not self._pending:
+            self._events.append(Unsolicited(line))
+            return
+        head = self._pending[0]
+        item = head.items[0]
+        if item is _Item.ECHO:
+            self._route_echo(head, line, text)
+        elif item is _Item.DATA:
+            self._route_data(head, line, text)
+        else:
+            self._route_ack(head, line, text)
+
+    def _route_completion(self, line: str, text: str) -> bool:
+        if text == "":
+            # Autostatus 3 reports completion with a bare CR (manual L2107-2113, L2161);
+            # inside a multi-line reply an empty line is data.
+            if self._in_multiline():
+                return False
+            tag = self._moves.popleft() if self._moves else None
+            self._events.append(Completed(tag, None, line) if tag is not None
+                                else Unsolicited(line))
+            return True
+        if not is_completion_line(text):
+            return False
+        letters = dict(zip(("x", "y", "z", "a"), text[:-1], strict=False))
+        present = {axis: letter for axis, letter in letters.items() if letter != "-"}
+        tag = self._moves.popleft() if self._moves else None
+        self._events.append(Completed(tag, present, line))
+        return True
+
+    def _in_multiline(self) -> bool:
+        return bool(self._pending) and bool(self._pending[0].lines)
+
+    def _route_echo(self, head: _Pending, line: str, text: str) -> None:
+        if _normal(text) != head.echo:
+            self._events.append(Unsolicited(line))
+            return
+        done = head.done_after(_Item.ECHO)
+        self._advance(head)
+        self._emit(head, Echoed(head.tag, line, done))
+
+    def _route_ack(self, head: _Pending, line: str, text: str) -> None:
+        match = _ACK_RE.match(text)
+        if match is None:
+            self._events.append(Unsolicited(line))
+            return
+        number = re.search(r"-?\d+", text)
+        code = 0 if text.startswith("OK") else (int(number.group()) if number else None)
+        if code != 0:
+            self.forget_completion(head.tag)  # a refused move never completes
+        self._advance(head)
+        self._emit(head, Acknowledged(head.tag, code, line, True))
+
+    def _route_data(self, head: _Pending, line: str, text: str) -> None:
+        if head.marker is not None:
+            self._resync_marker = None
+        rule = head.rule
+        ended = rule.continuation is not None and not rule.continuation.match(text)
+        if ended and head.lines and len(head.lines) >= rule.count:
+            self._finish_data(head)
+            self._route(line)
+            return
+        head.lines.append(line)
+        if rule.terminator is not None:
+            if text == rule.terminator:
+                self._finish_data(head)
+        elif rule.continuation is None and len(head.lines) >= max(rule.count, 1):
+            self._finish_data(head)
+
+    def _finish_data(self, head: _Pending) -> None:
+        done = head.done_after(_Item.DATA)
+        lines = tuple(head.lines)
+        head.lines.clear()
+        self._advance(head)
+        self._emit(head, Replied(head.tag, lines, done))
+
+    def _advance(self, head: _Pending) -> None:
+        head.items.popleft()
+        if not head.items:
+            self._pending.popleft()
+
+    def _emit(self, head: _Pending, event: Event) -> None:
+        if not head.internal:
+            self._events.append(event)
+
+
+def _normal(text: str) -> str:
+    """Case- and space-insensitive form of a command line, to compare echoes."""
+    return " ".join(text.lower().split())
