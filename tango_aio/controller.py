@@ -1,0 +1,502 @@
+"""The :class:`Controller` API: identity, typed settings, awaitable motion, events."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+from .core import Completed, Dropped, Event, Unsolicited
+from .errors import (
+    ControllerTimeoutError,
+    InvalidCommandError,
+    MoveError,
+    ProtocolError,
+    controller_error,
+)
+from .events import (
+    ConnectionLost,
+    EventHub,
+    MoveAborted,
+    MoveFinished,
+    PositionUpdate,
+    StatusReport,
+    Subscription,
+    UnsolicitedLine,
+)
+from .instructions import (
+    AXES,
+    Command,
+    Completion,
+    Context,
+    DetInfo,
+    Form,
+    VersionInfo,
+    build,
+    build_axes,
+    parse,
+    parse_reply,
+)
+from .protocol import Response, Submission, TangoProtocol
+from .sim.units import UnitScale
+
+__all__ = ["Controller", "Identity"]
+
+log = logging.getLogger("tango_aio")
+
+#: Status letters that mean a move did not end where it should (manual L2689-2711).
+FAILED_LETTERS = frozenset("EST")
+
+_KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
+
+
+@dataclass(frozen=True, slots=True)
+class Identity:
+    """What ``?version`` and ``?det`` say about the controller."""
+
+    model: str
+    firmware: str
+    axes: int
+    version: VersionInfo
+    det: DetInfo
+
+
+@dataclass(slots=True)
+class _Settings:
+    """Per-axis settings the driver caches to compute move timeouts and contexts."""
+
+    dims: list[int] = field(default_factory=lambda: [2, 2, 2, 2])
+    pitch: list[float] = field(default_factory=lambda: [1.0] * 4)
+    vel: list[float] = field(default_factory=lambda: [10.0] * 4)
+    accel: list[float] = field(default_factory=lambda: [1.0] * 4)
+    secvel: list[float] = field(default_factory=lambda: [10.0] * 4)
+    extmode: int = 0
+
+
+class Controller:
+    """A connected TANGO controller. Get one with :func:`tango_aio.connect`.
+
+    Every method validates its input with the instruction catalog before a byte is
+    written (:class:`~tango_aio.errors.InvalidCommandError`), and reports errors the
+    controller signals as the typed :class:`~tango_aio.errors.ControllerError` subclass.
+
+    Motion methods return when the controller reports completion (autostatus 1-4), or,
+    in autostatus 0, when polling ``statusaxis`` shows the axes stopped. Moves on one
+    controller are serialised: a second concurrent move waits until the first finished,
+    so completion reports can never be mixed up.
+    """
+
+    def __init__(
+        self,
+        protocol: TangoProtocol,
+        *,
+        url: str = "",
+        reply_timeout: float = 5.0,
+        on_close: Callable[[], Awaitable[None]] | None = None,
+    ) -> None:
+        self.url = url
+        self.reply_timeout = reply_timeout
+        self._protocol = protocol
+        self._hub = EventHub()
+        self._motion_lock = asyncio.Lock()
+        self._settings = _Settings()
+        self._identity: Identity | None = None
+        self._on_close = on_close
+        protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    @property
+    def protocol(self) -> TangoProtocol:
+        """The underlying protocol (for diagnostics)."""
+        return self._protocol
+
+    @property
+    def identity(self) -> Identity | None:
+        """The identity read when connecting (``None`` if identification was skipped)."""
+        return self._identity
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode the driver believes is in force."""
+        return self._protocol.core.autostatus
+
+    @property
+    def context(self) -> Context:
+        """Controller state used to validate lines (dims, axis count, extmode)."""
+        return self._protocol.core.context
+
+    async def aclose(self) -> None:
+        """Close the connection. Pending requests fail with ConnectionLostError."""
+        self._protocol.close()
+        if self._on_close is not None:
+            await self._on_close()
+        self._hub.close()
+
+    async def __aenter__(self) -> Controller:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.aclose()
+
+    async def setup(self, *, autostatus: int | None = 1, identify: bool = True) -> None:
+        """Bring the controller into a known state (called by :func:`connect`).
+
+        Drains stale input by resynchronising, identifies the controller, reads the
+        settings the driver needs and selects ``autostatus`` (``None``: keep the mode the
+        controller is in and read it).
+        """
+        await self._protocol.resync(timeout=self.reply_timeout)
+        if autostatus is None:
+            self._protocol.core.autostatus = int(await self.get("autostatus"))
+        else:
+            await self.command(f"!autostatus {autostatus}")
+        if identify:
+            self._identity = await self.identify()
+        await self.refresh_settings()
+
+    # -- identity and raw access -------------------------------------------------------------
+
+    async def identify(self) -> Identity:
+        """Read ``?version`` and ``?det``: model, firmware and number of axes."""
+        version = await self.get("version")
+        det = await self.get("det")
+        assert isinstance(version, VersionInfo) and isinstance(det, DetInfo)
+        axes = det.axes or 4
+        core = self._protocol.core
+        core.context = Context(core.context.dims, axes, core.context.extmode)
+        return Identity(version.model, version.firmware, axes, version, det)
+
+    async def refresh_settings(self) -> None:
+        """Re-read dim, pitch, vel, accel, secvel and extmode (used for move timeouts)."""
+        settings = self._settings
+        settings.extmode = int(await self.get("extmode"))
+        for name in ("dim", "pitch", "vel", "accel", "secvel"):
+            values = await self.get(name)
+            assert isinstance(values, dict)
+            target = getattr(settings, "dims" if name == "dim" else name)
+            for index, axis in enumerate(AXES):
+                if axis in values:
+                    target[index] = type(target[index])(values[axis])
+        core = self._protocol.core
+        core.context = Context(tuple(settings.dims), core.context.axes,  # type: ignore[arg-type]
+                               settings.extmode)
+
+    async def query(self, line: str, timeout: float | None = None) -> str:
+        """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
+        ``"\\n"``). Raises :class:`InvalidCommandError` for a line that does not read."""
+        command = parse(line, self.context)
+        if not command.is_read:
+            raise InvalidCommandError(f"{command.line!r} does not read; use command()",
+                                      instruction=command.name)
+        response = await self._request(command, timeout)
+        return "\n".join(response.lines)
+
+    async def command(self, line: str, *, check: bool = True,
+                      timeout: float | None = None) -> None:
+        """Send a set/execute line such as ``"!vel y 12.5"``.
+
+        With ``check`` (the default) the controller's error state is read right after the
+        line (``?err``, or the acknowledgement in autostatus 2) and a non-zero error
+        raises the typed :class:`~tango_aio.errors.ControllerError`.
+        """
+        command = parse(line, self.context)
+        if command.is_read:
+            raise InvalidCommandError(f"{command.line!r} is a read; use query()",
+                                      instruction=command.name)
+        await self._execute(command, check=check, timeout=timeout)
+
+    async def _request(self, command: Command, timeout: float | None = None) -> Response:
+        return await self._protocol.request(command, self._timeout(timeout))
+
+    def _timeout(self, timeout: float | None) -> float:
+        return self.reply_timeout if timeout is None else timeout
+
+    async def _execute(self, command: Command, *, check: bool,
+                       timeout: float | None = None) -> Submission:
+        """Write ``command`` (and, to check it, ``?err`` right behind it) and wait."""
+        submission = self._protocol.submit(command)
+        probe = None
+        if check and not submission.expectation.ack:
+            # Written back to back with the command, so no other line can change the
+            # error state in between (each instruction overwrites it, manual L2853).
+            probe = self._protocol.submit(parse("?err"))
+        if submission.reply is not None:
+            await self._protocol.wait_reply(submission, self._timeout(timeout))
+        code = submission.response.ack if submission.expectation.ack else None
+        if probe is not None:
+            code = int((await self._protocol.wait_reply(probe, self._timeout(timeout))).lines[0])
+        if check and code:
+            self._protocol.forget_completion(submission)
+            raise controller_error(code, command.line)
+        self._track(command)
+        return submission
+
+    def _track(self, command: Command) -> None:
+        name = command.name
+        if name in ("dim", "pitch", "vel", "accel", "secvel", "extmode") and command.values:
+            index = AXES.index(command.axis) if command.axis else 0
+            target = {"dim": self._settings.dims}.get(name, getattr(self._settings, name, None))
+            if name == "extmode":
+                self._settings.extmode = int(command.values[0])
+                return
+            assert isinstance(target, list)
+            for offset, value in enumerate(command.values[: len(AXES) - index]):
+                target[index + offset] = type(target[index + offset])(value)
+            core = self._protocol.core
+            core.context = Context(tuple(self._settings.dims),  # type: ignore[arg-type]
+                                   core.context.axes, self._settings.extmode)
+
+    # -- typed access ---------------------------------------------------------------------
+
+    async def get(self, name: str, *args: float | int | str, axis: str | None = None,
+                  timeout: float | None = None) -> Any:
+        """Read instruction ``name`` and return its parsed reply.
+
+        Per-axis values come as ``{"x": 1.0, "y": 2.0}`` (only present axes), or a scalar
+        when ``axis`` is given. ``args`` are extra read arguments (``get("trigp", 3)``).
+        """
+        command = build(name, *args, form=Form.READ, axis=axis, context=self.context)
+        response = await self._request(command, timeout)
+        return parse_reply(command, response.lines)
+
+    async def set(self, name: str, *args: float | int | str, axis: str | None = None,
+                  check: bool = True, **axes: Any) -> None:
+        """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
+        ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
+        command = build(name, *args, form=Form.SET, axis=axis, context=self.context, **axes)
+        await self._execute(command, check=check)
+
+    async def position(self) -> dict[str, float]:
+        """The position of every present axis, in its dim unit."""
+        positions = await self.get("pos")
+        assert isinstance(positions, dict)
+        return {axis: float(value) for axis, value in positions.items()}
+
+    async def status(self) -> dict[str, str]:
+        """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
+        letters = await self.get("statusaxis")
+        assert isinstance(letters, dict)
+        return dict(letters)
+
+    # -- motion ---------------------------------------------------------------------------
+
+    async def move_to(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
+                      **axes: float) -> dict[str, str]:
+        """Move to absolute positions (``move_to(x=10, y=5)``) and wait until they are
+        reached. Returns the per-axis status letters; raises :class:`MoveError` if an axis
+        reports E (error/aborted), S (limit switch) or T (timeout)."""
+        return await self._motion(build_axes("moa", axes, context=self.context),
+                                  timeout, stop_on_cancel, axes)
+
+    async def move_by(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
+                      **axes: float) -> dict[str, str]:
+        """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
+        return await self._motion(build_axes("mor", axes, context=self.context),
+                                  timeout, stop_on_cancel, axes, relative=True)
+
+    async def calibrate(self, *axes: str, timeout: float | None = None,
+                        stop_on_cancel: bool = True) -> dict[str, str]:
+        """Calibrate (``cal``): travel to the lower limit switch and set the origin.
+        Without arguments all enabled axes calibrate together."""
+        return await self._per_axis_motion("cal", axes, timeout, stop_on_cancel)
+
+    async def measure_range(self, *axes: str, timeout: float | None = None,
+                            stop_on_cancel: bool = True) -> dict[str, str]:
+        """Range measure (``rm``): travel to the upper limit switch and set the upper
+        limit."""
+        return await self._per_axis_motion("rm", axes, timeout, stop_on_cancel)
+
+    async def move_to_center(self, *axes: str, timeout: float | None = None,
+                             stop_on_cancel: bool = True) -> dict[str, str]:
+        """Move to the centre of the measured range (``moc``)."""
+        return await self._per_axis_motion("moc", axes, timeout, stop_on_cancel)
+
+    async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
+                               stop_on_cancel: bool) -> dict[str, str]:
+        if not axes:
+            return await self._motion(build(name, form=Form.SET), timeout, stop_on_cancel, {})
+        letters: dict[str, str] = {}
+        for axis in axes:
+            command = build(name, form=Form.SET, axis=axis)
+            letters.update(await self._motion(command, timeout, stop_on_cancel, {}))
+        return letters
+
+    async def go(self, **axes: float) -> None:
+        """Start ``go`` moves to absolute targets (no completion report; use
+        :meth:`wait_idle`). A later ``go`` overrides the targets mid-move."""
+        await self._execute(build_axes("go", axes, context=self.context), check=True)
+
+    async def speed(self, **axes: float) -> None:
+        """Run axes at constant speed (rev/s, or mm/s in dim 9); 0 stops. No completion
+        report: use :meth:`wait_idle`."""
+        await self._execute(build_axes("speed", axes, context=self.context), check=True)
+
+    async def wait_idle(self, *, poll_interval: float = 0.05,
+                        timeout: float | None = None) -> dict[str, str]:
+        """Poll ``statusaxis`` until no axis is moving; return the letters."""
+        async with asyncio.timeout(timeout):
+            while True:
+                letters = await self.status()
+                if "M" not in letters.values():
+                    return letters
+                await asyncio.sleep(poll_interval)
+
+    async def abort(self, *, soft: bool = False, wait: bool = True) -> None:
+        """Stop all axes.
+
+        By default this sends Ctrl+C (0x03): it stops every axis and makes the controller
+        discard its input buffer, so requests still queued fail with
+        :class:`~tango_aio.errors.RequestAbortedError` and the reply stream is
+        resynchronised. ``soft=True`` sends ``a`` instead, which stops the axes but leaves
+        queued lines alone. Moves being awaited raise :class:`MoveError` (status ``E``).
+        With ``wait``, returns once the axes have stopped.
+        """
+        self._hub.publish(MoveAborted(ctrl_c=not soft))
+        if soft:
+            self._protocol.submit(build("a", form=Form.SET))
+        else:
+            await self._protocol.resync(ctrl_c=True, timeout=self.reply_timeout)
+        if wait:
+            letters = await self.wait_idle(timeout=60.0)
+            error = MoveError("move aborted", {a: "E" if s == "@" else s
+                                               for a, s in letters.items()})
+            self._protocol.fail_completions(error)
+
+    async def _motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
+                      targets: Mapping[str, float], relative: bool = False) -> dict[str, str]:
+        limit = timeout if timeout is not None else await self._motion_timeout(
+            command, targets, relative)
+        async with self._motion_lock:
+            submission = await self._execute(command, check=True)
+            try:
+                return await self._await_completion(submission, limit)
+            except asyncio.CancelledError:
+                if stop_on_cancel:
+                    await self._stop_after_cancel(submission)
+                raise
+
+    async def _await_completion(self, submission: Submission, limit: float) -> dict[str, str]:
+        future = submission.completion
+        if future is None:  # autostatus 0: poll
+            letters = await self.wait_idle(timeout=limit)
+        else:
+            try:
+                async with asyncio.timeout(limit):
+                    report = await asyncio.shield(future)
+            except TimeoutError:
+                report = await self._completion_timeout(submission, limit)
+            letters = report.letters if report.letters is not None else await self.status()
+        return _check_letters(submission.command, letters)
+
+    async def _completion_timeout(self, submission: Submission, limit: float) -> Completed:
+        # The report may never come (autostatus changed to 0 mid-move, or a firmware whose
+        # mode 4 echo replaces the report). If the axes are idle, take their status.
+        letters = await self.status()
+        if "M" not in letters.values():
+            log.warning("no completion report for %r; axes idle, using statusaxis",
+                        submission.command.line)
+            self._protocol.forget_completion(submission)
+            return Completed(submission.tag, letters, "")
+        self._protocol.submit(build("a", form=Form.SET))
+        self._protocol.forget_completion(submission)
+        raise ControllerTimeoutError(
+            f"{submission.command.line!r} did not complete within {limit:.1f} s; axes stopped"
+        )
+
+    async def _stop_after_cancel(self, submission: Submission) -> None:
+        """The awaiting task was cancelled: stop the axes and wait for them to stop."""
+        self._protocol.submit(build("a", form=Form.SET))
+        if submission.completion is None:
+            return
+        with contextlib.suppress(Exception, asyncio.CancelledError):
+            async with asyncio.timeout(10.0):
+                await asyncio.shield(submission.completion)
+
+    async def _motion_timeout(self, command: Command, targets: Mapping[str, float],
+                              relative: bool) -> float:
+        """A generous upper bound of the move duration: trapezoid time at the slowest
+        plausible speed (vel capped by secvel), doubled, plus two seconds."""
+        if command.instruction.completion in (Completion.CAL, Completion.RM):
+            return 150.0  # caltimeout is at most 120 s per axis (manual L5251)
+        if command.name == "moc" or not targets:
+            return 120.0
+        start = {} if relative else await self.position()
+        worst = 0.0
+        for axis, target in targets.items():
+            distance = abs(target - start.get(axis, 0.0)) if not relative else abs(target)
+            worst = max(worst, self._travel_time(AXES.index(axis), distance))
+        return 2.0 * worst + 2.0
+
+    def _travel_time(self, index: int, distance: float) -> float:
+        s = self._settings
+        scale = UnitScale(dim=s.dims[index], pitch=s.pitch[index])
+        revs = abs(scale.pos_from_user(distance))
+        speed = min(scale.vel_from_user(s.vel[index]), scale.mm_to_rev(s.secvel[index]))
+        accel = scale.accel_to_rev(s.accel[index])
+        if speed <= 0 or accel <= 0:
+            return 60.0
+        ramp = speed / accel
+        if revs < speed * ramp:
+            return 2.0 * math.sqrt(revs / accel)
+        return revs / speed + ramp
+
+    # -- events ---------------------------------------------------------------------------
+
+    def events(self, maxsize: int = 256) -> Subscription:
+        """Subscribe to the controller's events (an async iterator). When the buffer is
+        full the oldest events are dropped (counted in ``Subscription.dropped``)."""
+        return self._hub.subscribe(maxsize)
+
+    async def watch_position(self, interval: float = 0.1) -> AsyncIterator[PositionUpdate]:
+        """Yield positions every ``interval`` seconds while any axis moves, then once more
+        when all are idle. Each update is also published to :meth:`events`."""
+        while True:
+            letters = await self.status()
+            update = PositionUpdate(await self.position())
+            self._hub.publish(update)
+            yield update
+            if "M" not in letters.values():
+                return
+            await asyncio.sleep(interval)
+
+    def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
+        if isinstance(event, Completed):
+            self._publish_completion(event, submission)
+        elif isinstance(event, Unsolicited):
+            self._hub.publish(UnsolicitedLine(event.line))
+        elif isinstance(event, Dropped):
+            log.debug("dropped %r", event.line)
+
+    def _publish_completion(self, event: Completed, submission: Submission | None) -> None:
+        letters = event.letters or {}
+        if submission is None:
+            self._hub.publish(StatusReport(letters, event.line))
+            return
+        completion = submission.command.instruction.completion
+        kind = _KINDS.get(completion, "move") if completion else "move"
+        ok = not (set(letters.values()) & FAILED_LETTERS)
+        self._hub.publish(MoveFinished(kind, letters, ok))
+
+    def _on_connection_lost(self, exc: BaseException | None) -> None:
+        self._hub.publish(ConnectionLost(exc))
+        self._hub.close()
+
+
+def _check_letters(command: Command, letters: Mapping[str, str]) -> dict[str, str]:
+    if set(letters.values()) & FAILED_LETTERS:
+        raise MoveError(f"{command.line!r} ended with status {dict(letters)}", letters)
+    return dict(letters)
+
+
+__all__ += ["FAILED_LETTERS", "ProtocolError"]

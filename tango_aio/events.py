@@ -1,0 +1,202 @@
+"""Events pushed by a controller, and subscriptions to them.
+
+Events are frozen dataclasses. :meth:`EventHub.subscribe` returns an async iterator with a
+bounded buffer; several subscribers can exist at once and each sees every event published
+after it subscribed.
+
+Overflow policy: a subscriber that falls behind loses its *oldest* buffered events, never
+the newest, and never blocks the connection. :attr:`Subscription.dropped` counts what it
+lost. When the connection is lost, subscribers receive :class:`ConnectionLost` and then
+their iteration ends.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import AsyncIterator, Mapping
+from dataclasses import dataclass, field
+from types import TracebackType
+
+import anyio
+from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
+
+__all__ = [
+    "ConnectionLost",
+    "EventHub",
+    "MoveAborted",
+    "MoveFinished",
+    "PositionUpdate",
+    "Reconnected",
+    "StatusReport",
+    "Subscription",
+    "TangoEvent",
+    "UnsolicitedLine",
+]
+
+
+def _now() -> float:
+    return time.monotonic()
+
+
+@dataclass(frozen=True, slots=True)
+class MoveFinished:
+    """A move (``kind`` ``"move"``), calibration (``"cal"``) or range measure (``"rm"``)
+    ended. ``statuses`` maps each present axis to its status letter (empty when the
+    autostatus-3 bare CR carried none). ``ok`` is False if any axis reports E, S or T."""
+
+    kind: str
+    statuses: Mapping[str, str]
+    ok: bool
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class MoveAborted:
+    """Axes were stopped by an abort (``a`` or Ctrl+C)."""
+
+    ctrl_c: bool
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class StatusReport:
+    """A completion report that no move was waiting for (e.g. ``!joy 0`` disabling the
+    joystick, manual L7124)."""
+
+    statuses: Mapping[str, str]
+    line: str
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class UnsolicitedLine:
+    """A line the controller sent that no request was waiting for."""
+
+    line: str
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class PositionUpdate:
+    """Axis positions (dim units), from :meth:`Controller.watch_position`."""
+
+    positions: Mapping[str, float]
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectionLost:
+    """The link to the controller is gone; ``cause`` says why, when known."""
+
+    cause: BaseException | None
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class Reconnected:
+    """The driver connected again after a loss (automatic reconnect)."""
+
+    attempt: int
+    time: float = field(default_factory=_now)
+
+
+TangoEvent = (
+    MoveFinished
+    | MoveAborted
+    | StatusReport
+    | UnsolicitedLine
+    | PositionUpdate
+    | ConnectionLost
+    | Reconnected
+)
+
+
+class Subscription:
+    """An async iterator over events, with a bounded buffer (drops the oldest on overflow).
+
+    Use it as ``async with hub.subscribe() as events: async for event in events: ...`` or
+    iterate directly and call :meth:`aclose` when done.
+    """
+
+    def __init__(self, hub: EventHub, maxsize: int) -> None:
+        send, receive = anyio.create_memory_object_stream[TangoEvent](maxsize)
+        self._send: MemoryObjectSendStream[TangoEvent] = send
+        self._receive: MemoryObjectReceiveStream[TangoEvent] = receive
+        self._hub = hub
+        #: Number of events this subscriber lost because its buffer was full.
+        self.dropped = 0
+
+    def _offer(self, event: TangoEvent) -> None:
+        try:
+            self._send.send_nowait(event)
+        except anyio.WouldBlock:
+            self._receive.receive_nowait()  # drop the oldest
+            self.dropped += 1
+            self._send.send_nowait(event)
+        except (anyio.BrokenResourceError, anyio.ClosedResourceError):
+            self._hub._discard(self)
+
+    def _end(self) -> None:
+        self._send.close()
+
+    def __aiter__(self) -> AsyncIterator[TangoEvent]:
+        return self
+
+    async def __anext__(self) -> TangoEvent:
+        try:
+            return await self._receive.receive()
+        except (anyio.EndOfStream, anyio.ClosedResourceError):
+            raise StopAsyncIteration from None
+
+    async def aclose(self) -> None:
+        """Stop receiving events."""
+        self._hub._discard(self)
+        self._send.close()
+        await self._receive.aclose()
+
+    async def __aenter__(self) -> Subscription:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.aclose()
+
+
+class EventHub:
+    """Fans events out to every current :class:`Subscription`."""
+
+    def __init__(self) -> None:
+        self._subscribers: set[Subscription] = set()
+        self._closed = False
+
+    def subscribe(self, maxsize: int = 256) -> Subscription:
+        """A new subscription buffering up to ``maxsize`` events."""
+        subscription = Subscription(self, maxsize)
+        if self._closed:
+            subscription._end()
+        else:
+            self._subscribers.add(subscription)
+        return subscription
+
+    def publish(self, event: TangoEvent) -> None:
+        """Deliver ``event`` to every subscriber (never blocks)."""
+        for subscription in list(self._subscribers):
+            subscription._offer(event)
+
+    def close(self) -> None:
+        """End every subscription (after the events already buffered)."""
+        self._closed = True
+        for subscription in list(self._subscribers):
+            subscription._end()
+        self._subscribers.clear()
+
+    def reopen(self) -> None:
+        """Accept subscriptions again (after a reconnect)."""
+        self._closed = False
+
+    def _discard(self, subscription: Subscription) -> None:
+        self._subscribers.discard(subscription)

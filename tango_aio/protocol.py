@@ -1,0 +1,339 @@
+"""The asyncio protocol: connects the sans-IO core to a transport and to futures.
+
+:class:`TangoProtocol` is the only writer to the transport. It owns the FIFO of pending
+requests (inside :class:`~tango_aio.core.ProtocolCore`), resolves each request's future when
+its reply arrives, resolves move futures when their completion report arrives, and hands
+everything unsolicited to an event callback.
+
+Cancellation never desynchronises the stream: a cancelled request keeps its place in the
+core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
+different: its reply may be lost for good, so the protocol resynchronises (see the core's
+theory of operation), failing every request still pending with
+:class:`~tango_aio.errors.RequestAbortedError`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import time
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from typing import Any
+
+from .core import (
+    Acknowledged,
+    Completed,
+    Dropped,
+    Echoed,
+    Event,
+    Expectation,
+    ProtocolCore,
+    Replied,
+    RequestLost,
+    Unsolicited,
+)
+from .errors import (
+    ConnectionLostError,
+    ControllerTimeoutError,
+    ProtocolError,
+    RequestAbortedError,
+)
+from .instructions import Command, Context
+
+__all__ = ["Response", "Submission", "TangoProtocol"]
+
+wire_log = logging.getLogger("tango_aio.wire")
+log = logging.getLogger("tango_aio.protocol")
+
+
+@dataclass(slots=True)
+class Response:
+    """Everything a request got back: its echo, data lines and acknowledgement."""
+
+    lines: tuple[str, ...] = ()
+    ack: int | None = None
+    acked: bool = False
+    echo: str | None = None
+
+
+@dataclass(eq=False, slots=True)
+class Submission:
+    """A command written to the controller.
+
+    ``reply`` resolves with the :class:`Response` when the request owes a reply (else it
+    is ``None``); ``completion`` resolves with the :class:`~tango_aio.core.Completed`
+    report of a move, ``cal`` or ``rm``.
+    """
+
+    command: Command
+    tag: Hashable
+    expectation: Expectation
+    reply: asyncio.Future[Response] | None
+    completion: asyncio.Future[Completed] | None
+    response: Response = field(default_factory=Response)
+
+
+#: Called with each unsolicited event, completion report and dropped line; the second
+#: argument is the submission a completion belongs to (``None`` if unsolicited).
+EventCallback = Callable[[Event, "Submission | None"], None]
+
+
+class TangoProtocol(asyncio.Protocol):
+    """Routes the controller's lines to awaiting requests, moves and the event callback."""
+
+    def __init__(
+        self,
+        *,
+        autostatus: int = 1,
+        context: Context | None = None,
+        on_event: EventCallback | None = None,
+        on_lost: Callable[[BaseException | None], None] | None = None,
+    ) -> None:
+        self.core = ProtocolCore(autostatus=autostatus, context=context)
+        self._transport: asyncio.BaseTransport | None = None
+        self._tags = itertools.count(1)
+        self._submissions: dict[Hashable, Submission] = {}
+        self._markers: dict[Hashable, asyncio.Future[Response]] = {}
+        self._on_event = on_event
+        self._on_lost = on_lost
+        self._lost: ConnectionLostError | None = None
+        self._connected = asyncio.get_running_loop().create_future()
+
+    def set_callbacks(self, on_event: EventCallback | None,
+                      on_lost: Callable[[BaseException | None], None] | None) -> None:
+        """Set where unsolicited events and the connection loss are reported."""
+        self._on_event = on_event
+        self._on_lost = on_lost
+
+    # -- connection ------------------------------------------------------------------------
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        """Called by asyncio when the link is up."""
+        self._transport = transport
+        if not self._connected.done():
+            self._connected.set_result(None)
+
+    async def wait_connected(self) -> None:
+        """Wait until :meth:`connection_made` has run."""
+        await self._connected
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """Called by asyncio when the link is gone: fail everything that waits."""
+        error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
+        error.__cause__ = exc
+        self._lost = error
+        for submission in list(self._submissions.values()):
+            _fail(submission.reply, error)
+            _fail(submission.completion, error)
+        for marker in self._markers.values():
+            _fail(marker, error)
+        self._submissions.clear()
+        self._markers.clear()
+        if self._on_lost is not None:
+            self._on_lost(exc)
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether the link is up and not lost."""
+        return self._transport is not None and self._lost is None
+
+    def close(self) -> None:
+        """Close the transport (pending requests fail with ConnectionLostError)."""
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.close()
+
+    def check(self) -> None:
+        """Raise the connection error if the link is gone."""
+        if self._lost is not None:
+            raise ConnectionLostError(str(self._lost)) from self._lost.__cause__
+        if self._transport is None:
+            raise ConnectionLostError("not connected")
+
+    # -- writing ------------------------------------------------------------------------
+
+    def _write(self, data: bytes) -> None:
+        transport = self._transport
+        assert isinstance(transport, asyncio.WriteTransport)
+        if wire_log.isEnabledFor(logging.DEBUG):
+            wire_log.debug("%.6f -> %r", time.monotonic(), data)
+        transport.write(data)
+
+    def submit(self, command: Command) -> Submission:
+        """Write ``command`` and return its :class:`Submission` (futures for the reply and
+        the completion report, where the line owes them)."""
+        self.check()
+        tag = next(self._tags)
+        data, expect = self.core.send(command, tag)
+        loop = asyncio.get_running_loop()
+        submission = Submission(
+            command,
+            tag,
+            expect,
+            loop.create_future() if expect.expects_reply else None,
+            loop.create_future() if expect.completion is not None else None,
+        )
+        if submission.reply is not None or submission.completion is not None:
+            self._submissions[tag] = submission
+        self._write(data)
+        return submission
+
+    async def request(self, command: Command, timeout: float | None = 5.0) -> Response:
+        """Write ``command`` and wait for its reply (an empty Response if it owes none).
+
+        On timeout the stream is resynchronised and :class:`ControllerTimeoutError` raised.
+        """
+        submission = self.submit(command)
+        if submission.reply is None:
+            return submission.response
+        return await self.wait_reply(submission, timeout)
+
+    async def wait_reply(self, submission: Submission, timeout: float | None) -> Response:
+        """Wait for ``submission``'s reply; resync and raise on timeout."""
+        assert submission.reply is not None
+        try:
+            async with asyncio.timeout(timeout):
+                return await asyncio.shield(submission.reply)
+        except TimeoutError:
+            self.check()
+            await self.resync()
+            raise ControllerTimeoutError(
+                f"no reply to {submission.command.line!r} within {timeout} s"
+            ) from None
+
+    async def resync(self, *, ctrl_c: bool = False, timeout: float = 2.0) -> None:
+        """Resynchronise the reply stream (optionally sending Ctrl+C first).
+
+        Every pending request fails with :class:`RequestAbortedError`; the call returns
+        when the marker's reply has arrived.
+        """
+        self.check()
+        tag = next(self._tags)
+        loop = asyncio.get_running_loop()
+        marker: asyncio.Future[Response] = loop.create_future()
+        data = self.core.resync(tag, ctrl_c=ctrl_c)
+        self._markers[tag] = marker
+        self._dispatch_pending()
+        self._write(data)
+        try:
+            async with asyncio.timeout(timeout):
+                await asyncio.shield(marker)
+        except TimeoutError:
+            raise ControllerTimeoutError(
+                f"controller did not answer the resync marker within {timeout} s"
+            ) from None
+        finally:
+            self._markers.pop(tag, None)
+
+    def forget_completion(self, submission: Submission) -> None:
+        """Stop waiting for ``submission``'s completion (e.g. the move was refused)."""
+        for tag, known in list(self._submissions.items()):
+            if known is submission:
+                self.core.forget_completion(tag)
+                if submission.reply is None or submission.reply.done():
+                    del self._submissions[tag]
+        _cancel(submission.completion)
+
+    # -- receiving ------------------------------------------------------------------------
+
+    def data_received(self, data: bytes) -> None:
+        """Called by asyncio with bytes from the controller."""
+        if wire_log.isEnabledFor(logging.DEBUG):
+            wire_log.debug("%.6f <- %r", time.monotonic(), data)
+        self.core.receive_data(data)
+        self._dispatch_pending()
+
+    def _dispatch_pending(self) -> None:
+        while True:
+            try:
+                event = self.core.next_event()
+            except ProtocolError as exc:
+                log.warning("protocol error: %s", exc)
+                continue
+            if event is None:
+                return
+            self._dispatch(event)
+
+    def _dispatch(self, event: Event) -> None:
+        if isinstance(event, Completed) and self._on_event:
+            known = self._submissions.get(event.tag) if event.tag is not None else None
+            self._on_event(event, known)
+        if isinstance(event, Replied | Acknowledged | Echoed):
+            self._on_reply_part(event)
+        elif isinstance(event, Completed):
+            self._on_completed(event)
+        elif isinstance(event, RequestLost):
+            self._on_request_lost(event)
+        elif isinstance(event, Dropped):
+            log.debug("dropped while resynchronising: %r", event.line)
+        if isinstance(event, Unsolicited | Dropped) and self._on_event:
+            self._on_event(event, None)
+
+    def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
+        marker = self._markers.get(event.tag)
+        if marker is not None and isinstance(event, Replied):
+            if not marker.done():
+                marker.set_result(Response(lines=event.lines))
+            return
+        submission = self._submissions.get(event.tag)
+        if submission is None:
+            return
+        response = submission.response
+        if isinstance(event, Replied):
+            response.lines = event.lines
+        elif isinstance(event, Acknowledged):
+            response.ack, response.acked = event.code, True
+        else:
+            response.echo = event.line
+        if event.done:
+            if submission.reply is not None and not submission.reply.done():
+                submission.reply.set_result(response)
+            self._release(event.tag, submission)
+
+    def _on_completed(self, event: Completed) -> None:
+        if event.tag is None:
+            return
+        submission = self._submissions.get(event.tag)
+        if submission is None:
+            return
+        if submission.completion is not None and not submission.completion.done():
+            submission.completion.set_result(event)
+        self._release(event.tag, submission)
+
+    def _on_request_lost(self, event: RequestLost) -> None:
+        submission = self._submissions.get(event.tag)
+        if submission is None:
+            return
+        error = RequestAbortedError(
+            f"{submission.command.line!r} got no reply: the reply stream was resynchronised"
+        )
+        _fail(submission.reply, error)
+        if submission.completion is None or submission.completion.done():
+            del self._submissions[event.tag]
+
+    def _release(self, tag: Hashable, submission: Submission) -> None:
+        reply_open = submission.reply is not None and not submission.reply.done()
+        completion_open = submission.completion is not None and not submission.completion.done()
+        if not reply_open and not completion_open:
+            self._submissions.pop(tag, None)
+
+    def fail_completions(self, error: BaseException) -> None:
+        """Fail every move still waiting for its completion report."""
+        for tag in self.core.drop_completions():
+            submission = self._submissions.pop(tag, None)
+            if submission is not None:
+                _fail(submission.completion, error)
+                _fail(submission.reply, error)
+
+
+def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
+    if future is not None and not future.done():
+        future.set_exception(error)
+        # Mark the exception retrieved: nobody may be awaiting a move's future any more.
+        future.exception()
+
+
+def _cancel(future: asyncio.Future[Completed] | None) -> None:
+    if future is not None and not future.done():
+        future.cancel()
