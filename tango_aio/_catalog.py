@@ -33,15 +33,17 @@ NONE, OPT, ALL, REQ = AxisRule.NONE, AxisRule.OPTIONAL, AxisRule.ALL, AxisRule.R
 
 
 def F(name: str, lo: float | None = None, hi: float | None = None, *, unit: str = "",
-      hi_dim9: float | None = None, optional: bool = False) -> Param:
+      hi_dim9: float | None = None, min_abs: float | None = None,
+      optional: bool = False) -> Param:
     """A float parameter."""
-    return Param(name, Kind.FLOAT, lo, hi, unit=unit, hi_dim9=hi_dim9, optional=optional)
+    return Param(name, Kind.FLOAT, lo, hi, unit=unit, hi_dim9=hi_dim9, min_abs=min_abs,
+                 optional=optional)
 
 
 def N(name: str, lo: float | None = None, hi: float | None = None, *,
-      optional: bool = False) -> Param:
+      min_abs: float | None = None, optional: bool = False) -> Param:
     """An integer parameter with a range."""
-    return Param(name, Kind.INT, lo, hi, optional=optional)
+    return Param(name, Kind.INT, lo, hi, min_abs=min_abs, optional=optional)
 
 
 def I(name: str, *, optional: bool = False) -> Param:  # noqa: E743
@@ -76,6 +78,7 @@ _FORMS = {"!": Form.SET, "?": Form.READ, "b": Form.BARE}
 def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
       aliases: tuple[str, ...] = (), write: tuple[Signature, ...] = (),
       read: tuple[Signature, ...] = (), reply: Shape = Shape.NONE, reply_group: int = 1,
+      option_groups: tuple[tuple[int | str, int], ...] = (), digit_values: bool = False,
       exec_reply: Shape = Shape.NONE, completion: Completion | None = None,
       lines: LineFn | None = None, saved: bool = False, section: str = "",
       line: int = 0) -> Instruction:
@@ -83,7 +86,8 @@ def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
     return Instruction(
         name=name, summary=summary, forms=frozenset(_FORMS[f] for f in forms), bare=bare,
         aliases=aliases, write=write, read=read, reply=reply, reply_group=reply_group,
-        exec_reply=exec_reply, completion=completion, lines=lines, saved=saved,
+        option_groups=option_groups, digit_values=digit_values, exec_reply=exec_reply,
+        completion=completion, lines=lines, saved=saved,
         section=section, line=line,
     )
 
@@ -138,7 +142,7 @@ CATALOG: tuple[Instruction, ...] = (
     E('save', 'Save parameters to controller nonvolatile memory', '!b', bare=Bare.EXECUTE, write=(S(NONE),), exec_reply=Shape.ACK, section='8.1', line=1723),
     E('restore', 'Reload saved controller parameters from n.v. memory', '!?b', bare=Bare.EXECUTE, write=(S(NONE, lead=(C("mode", -1, optional=True),)),), read=(S(NONE),), reply=Shape.ACK, section='8.2', line=1768),
     E('reset', 'Reset controller (forces restart, similar to cycle power)', '!b', bare=Bare.EXECUTE, write=(S(NONE),), section='8.3', line=1828),
-    E('pa', 'Power amplifiers ON (OFF=0), also refer to ‘axis’ instr.', '!?', aliases=('poweramplifier',), write=(S(NONE, lead=(C('state', 0, 1, 2, optional=True),)),), read=(S(NONE, lead=(C("all_axes", -1, optional=True),)),), reply=Shape.NUMBERS, section='8.4', line=1870),
+    E('pa', 'Power amplifiers ON (OFF=0), also refer to ‘axis’ instr.', '!?', aliases=('poweramplifier',), write=(S(NONE, lead=(C('state', 0, 1, 2, optional=True),)),), read=(S(NONE, lead=(C("all_axes", -1, optional=True),)),), reply=Shape.INTS, section='8.4', line=1870),
     E('ipreter', 'Select optional Venus instruction set', '!?', write=(S(NONE, lead=(C('interpreter', 1, 2, 3, 4),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='8.5', line=1986),
     E('autostatus', 'Select autostatus response type 0 (=disabled), range: [04]', '!?', write=(S(NONE, lead=(C('mode', 0, 1, 2, 3, 4),)),), read=(S(NONE),), reply=Shape.INT, section='9.1', line=2060),
     E('extmode', 'Enable extended controller behavior', '!?', write=(S(NONE, lead=(C('mode', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='9.2.1', line=2236),
@@ -186,9 +190,9 @@ CATALOG: tuple[Instruction, ...] = (
     E('clim', 'Set circular limit at center X=50, Y=70 with radius 10', '!?', write=(S(NONE, lead=(F("radius", 0),)), S(NONE, lead=(F("center_x"), F("center_y"), F("radius", 0))),), read=(S(NONE, lead=(C("active", 1, optional=True),)),), reply=Shape.NUMBERS, section='12.2', line=4622),
     E('limctr', 'Disable axis limits for X axis, default = 1', '!?', write=(S(OPT, per_axis=(C('enable', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, section='12.3', line=4672),
     E('nosetlimit', 'Disable setting/overwriting of software limits during cal and rm for all axes (here: X Y Z A), default = 0', '!?', write=(S(OPT, per_axis=(C('mode', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='12.4', line=4727),
-    E('swtyp', 'Set limit switch type for all axes to NPN (pull-up resistor) Set limit switch type for Y to PNP (pull-down resistor)', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, lines=_grouped_lines, saved=True, section='12.5', line=4761),
-    E('swpol', 'Set limit switch polarity E0, EE for all axes (to active high) Set limit switch polarity E0, EE for Z (1=to active high)', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, lines=_grouped_lines, saved=True, section='12.6', line=4829),
-    E('swact', 'Enable cal and rm limit switches for all axes Enable cal limit switch for Y, disable ref and rm', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, lines=_grouped_lines, saved=True, section='12.7', line=4895),
+    E('swtyp', 'Set limit switch type for all axes to NPN (pull-up resistor) Set limit switch type for Y to PNP (pull-down resistor)', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, digit_values=True, lines=_grouped_lines, saved=True, section='12.5', line=4761),
+    E('swpol', 'Set limit switch polarity E0, EE for all axes (to active high) Set limit switch polarity E0, EE for Z (1=to active high)', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, digit_values=True, lines=_grouped_lines, saved=True, section='12.6', line=4829),
+    E('swact', 'Enable cal and rm limit switches for all axes Enable cal limit switch for Y, disable ref and rm', '!?', write=(S(ALL, per_axis=(C('E0', 0, 1), C('REF', 0, 1), C('EE', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=3, digit_values=True, lines=_grouped_lines, saved=True, section='12.7', line=4895),
     E('swdir', 'Swap CAL and RM endswitch assignment of X axis', '!?', write=(S(OPT, per_axis=(C('swap', 0, 1),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='12.8', line=4973),
     E('readsw', 'Read states of all limit switches (1=active and actuated)', '?b', bare=Bare.READ, read=(S(NONE),), reply=Shape.FLAGS, section='12.9', line=5027),
     E('swin', 'Read TTL signal level of all limit switch inputs (1=high)', '?b', bare=Bare.READ, read=(S(NONE, lead=(N("index", 0, 7, optional=True),)),), reply=Shape.FLAGS, section='12.10', line=5084),
@@ -235,8 +239,8 @@ CATALOG: tuple[Instruction, ...] = (
     E('keymode', 'Select joystick key mode 2 = high speed preselection', '!?', write=(S(NONE, lead=(C('mode', 0, 1, 2),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='15.7', line=7392),
     E('keyspeed', 'Set keymode joystick speed X low=5mm/s, high=20mm/s', '!?', write=(S(OPT, per_axis=(F('speed_slow', 1e-06, 3000, unit='mm/s'), F('speed_fast', 1e-06, 3000, unit='mm/s'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, reply_group=2, saved=True, section='15.8', line=7500),
     E('joycurve', 'Set joystick characteristic for Z ot linear', '!?', write=(S(OPT, per_axis=(C('curve', 0, 1, 2),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='15.9', line=7567),
-    E('key', 'Read state of all joystick buttons (0=released, 1=pressed)', '?b', bare=Bare.READ, read=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), reply=Shape.NUMBERS, section='15.10', line=7607),
-    E('keyl', 'Read and clear latched state of all joystick buttons', '!?b', bare=Bare.READ, write=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), read=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), reply=Shape.NUMBERS, section='15.11', line=7638),
+    E('key', 'Read state of all joystick buttons (0=released, 1=pressed)', '?b', bare=Bare.READ, read=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), reply=Shape.INTS, section='15.10', line=7607),
+    E('keyl', 'Read and clear latched state of all joystick buttons', '!?b', bare=Bare.READ, write=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), read=(S(NONE, lead=(N("key", 1, 4, optional=True),)),), reply=Shape.INTS, section='15.11', line=7638),
     E('hwfactor', 'One coaxial drive knob revolution in X is 1mm axis travel', '!?', write=(S(OPT, per_axis=(F('factor', -200.0, 200.0, unit='mm per knob revolution'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, saved=True, section='15.12', line=7676),
     E('hwfactorb', 'One coaxial drive knob revolution in X is 14mm axis travel', '!?', write=(S(OPT, per_axis=(F('factor', -200.0, 200.0, unit='mm per knob revolution'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, saved=True, section='15.13', line=7715),
     E('hwfilter', 'Deactivate coaxial drive noise reduction', '!?', write=(S(NONE, lead=(C('filter', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='15.14', line=7746),
@@ -264,7 +268,7 @@ CATALOG: tuple[Instruction, ...] = (
     E('edigrly', 'Multi I/O Extension: Switch optional relay on', '!?', write=(S(NONE, lead=(C('state', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, section='17.11', line=9035),
     E('adigin', 'Read all AUX I/O digital inputs Read logic level of AUX I/O digital input 2 only', '?b', bare=Bare.READ, read=(S(NONE, lead=(N("input", 0, 3, optional=True),)),), reply=Shape.FLAGS, section='17.12', line=9067),
     E('adigintyp', 'TANGO 3 mini: Apply pull-up resistors to all adigin inputs', '!?', write=(S(NONE, lead=(B("bits", 4),)), S(NONE, lead=(N("index", 0, 3), C("state", 0, 1))),), read=(S(NONE, lead=(N("index", 0, 3, optional=True),)),), reply=Shape.FLAGS, section='17.13', line=9126),
-    E('adiginfunc', 'TANGO 3 mini: Set adigin0 = snapshot and adigin3 = stop', '!?', write=(S(NONE, lead=(N("input", 0, 3), C("function", 0, 1, 2))), S(NONE, lead=(C("f0", 0, 1, 2), C("f1", 0, 1, 2), C("f2", 0, 1, 2), C("f3", 0, 1, 2))), S(NONE, lead=(C("reset", -1),)),), read=(S(NONE, lead=(N("input", 0, 3, optional=True),)),), reply=Shape.NUMBERS, section='17.14', line=9170),
+    E('adiginfunc', 'TANGO 3 mini: Set adigin0 = snapshot and adigin3 = stop', '!?', write=(S(NONE, lead=(N("input", 0, 3), C("function", 0, 1, 2))), S(NONE, lead=(C("f0", 0, 1, 2), C("f1", 0, 1, 2), C("f2", 0, 1, 2), C("f3", 0, 1, 2))), S(NONE, lead=(C("reset", -1),)),), read=(S(NONE, lead=(N("input", 0, 3, optional=True),)),), reply=Shape.INTS, section='17.14', line=9170),
     E('adigout', 'Set AUX I/O digital output 3 to high (logic level 1) Read back all digital output levels', '!?', write=(S(NONE, lead=(B("bits", 4),)), S(NONE, lead=(N("index", 0, 3), C("state", 0, 1))),), read=(S(NONE, lead=(N("index", 0, 3, optional=True),)),), reply=Shape.FLAGS, section='17.15', line=9264),
     E('anain', 'Read input of analogue channel 2', '?b', bare=Bare.READ, read=(S(NONE, lead=(C("keyword", "c", "v"), N("channel", 0, 31))),), reply=Shape.FLOAT, section='17.16', line=9340),
     E('anaout', 'Set analogue voltage of channel 1 to 17.5 percent (1.75V)', '!?', write=(S(NONE, lead=(F("level", 0, 100), F("level1", 0, 100, optional=True), F("level2", 0, 100, optional=True))), S(NONE, lead=(C("keyword", "c", "p"), N("channel", 0, 2), F("level", 0, 100))),), read=(S(NONE, lead=(C("keyword", "c", optional=True), N("channel", 0, 2, optional=True),)),), reply=Shape.NUMBERS, section='17.17', line=9453),
@@ -272,7 +276,7 @@ CATALOG: tuple[Instruction, ...] = (
     E('stoppol', 'Set AUX I/O stop input to active high', '!?', write=(S(NONE, lead=(C('mode', 0, 1, 2, 3, 4, 5, 8, 9, 10, 11, 12, 13),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='17.19', line=9685),
     E('stop', 'Release stop condition (in latched stoppol modes 4 or 5)', '!?', write=(S(NONE, lead=(C('state', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, section='17.20', line=9800),
     E('shutter', 'Set AUX I/O shutter out signal to TTL high', '!?', write=(S(NONE, lead=(C('level', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, section='17.21', line=9837),
-    E('flash', 'Send a 100µs high pulse to AUX I/O TAKT_OUT (LED)', '!?', write=(S(NONE, lead=(F("duration", -32500, 32500),)),), read=(S(NONE),), section='17.22', line=9861),
+    E('flash', 'Send a 100µs high pulse to AUX I/O TAKT_OUT (LED)', '!?', write=(S(NONE, lead=(F("duration", -32500, 32500, min_abs=0.00001),)),), read=(S(NONE),), section='17.22', line=9861),
     E('tvr', 'Enable AUX I/O TVR pulse and direction for Z axis', '!?', write=(S(OPT, per_axis=(C('mode', 0, 1, 2, 3, 4, 5),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='17.23', line=9914),
     E('brake', 'Enable Brake for Z axis on I/O extension output pin OUT0', '!?', write=(S(OPT, per_axis=(N('output', -255, 8),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='17.24', line=9972),
     E('brakepos', 'Move to initial motor pole position to avoid jump', '!b', bare=Bare.EXECUTE, write=(S(REQ, lead=(C("direction", 1, -1, optional=True),)),), section='17.25', line=10085),
@@ -301,23 +305,23 @@ CATALOG: tuple[Instruction, ...] = (
     E('mra', 'Read amplitude correction factor (sin/cos ratio) of X', '!?', write=(S(OPT, per_axis=(F('factor', 0.8, 1.2),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, section='19.1', line=11350),
     E('mro', 'Read offset correction value for all encoders', '!?', write=(S(OPT, per_axis=(N('sin_offset', -2048, 2048), N('cos_offset', -2048, 2048, optional=True),)),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=2, section='19.2', line=11393),
     E('mrp', 'Reset MR-signal peak-to-peak measurement result of X', '!?', write=(S(OPT, per_axis=(N("sin_max", -2048, 2048), N("sin_min", -2048, 2048), N("cos_max", -2048, 2048, optional=True), N("cos_min", -2048, 2048, optional=True))),), read=(S(OPT),), reply=Shape.AXES_INT, reply_group=4, section='19.3', line=11435),
-    E('mrt', 'List two measurement results of the Z input signals', '?', read=(S(OPT, lead=(N("samples", -32767, 32767, optional=True),)),), reply=Shape.LINES, lines=_mrt_lines, section='19.4', line=11474),
+    E('mrt', 'List two measurement results of the Z input signals', '?', read=(S(OPT, lead=(N("samples", -32767, 32767, min_abs=1, optional=True),)),), reply=Shape.LINES, lines=_mrt_lines, section='19.4', line=11474),
     E('ctr', 'Set closed loop mode of X Y Z to always active (=default)', '!?', write=(S(OPT, per_axis=(C('mode', 0, 1, 2, 3, 4),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='20.2', line=11761),
     E('ctrf', 'Closed loop factor for X axis is set to 2.0', '!?', write=(S(OPT, per_axis=(F('factor', 0.0, 25.0),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='20.3', line=11877),
     E('ctrff', 'Closed loop factors for X axis are set to 2 and 3.5', '!?', write=(S(REQ, per_axis=(F('factor_moving', 0.0, 25.0), F('factor_idle', 0.0, 25.0),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, reply_group=2, saved=True, section='20.4', line=11924),
-    E('ctrd', 'Closed loop in target window for 100 milliseconds', '!?', write=(S(ALL, per_axis=(N('delay', 0, 1000),)),), read=(S(OPT, lead=(C("all_axes", -1, optional=True),)),), reply=Shape.NUMBERS, saved=True, section='20.5', line=11986),
+    E('ctrd', 'Closed loop in target window for 100 milliseconds', '!?', write=(S(ALL, per_axis=(N('delay', 0, 1000),)),), read=(S(OPT, lead=(C("all_axes", -1, optional=True),)),), reply=Shape.INTS, saved=True, section='20.5', line=11986),
     E('ctrt', 'Closed loop control timeout after 200 milliseconds', '!?', write=(S(NONE, lead=(N('timeout', 0, 10000),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='20.6', line=12061),
     E('twi', 'Set target window for X Y Z to 10µm (assume dim=2)', '!?', write=(S(OPT, per_axis=(F("window", 0),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, saved=True, section='20.7', line=12099),
     E('ctrc', 'Closed loop control is called every 3 milliseconds', '!?', write=(S(NONE, lead=(N('interval', 1, 100),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='20.8', line=12150),
     E('ctrsm', 'Set X behavior outside lock-in range to “slow closed loop”', '!?', write=(S(OPT, per_axis=(C('mode', 0, 1, 2, 3, 4, 5),)),), read=(S(OPT),), reply=Shape.AXES_INT, saved=True, section='20.9', line=12184),
     E('ctrs', 'Set lock-in range for X to 0.2mm (assume dim=2)', '!?', write=(S(OPT, per_axis=(F("lock_in_range", 0),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, saved=True, section='20.10', line=12253),
-    E('ctrstatus', 'Get Closed Loop active state of all axes', '?b', bare=Bare.READ, read=(S(OPT, lead=(C("query", 0, 1, 2, 3, optional=True),)),), reply=Shape.AXES_TEXT, section='20.11', line=12285),
+    E('ctrstatus', 'Get Closed Loop active state of all axes', '?b', bare=Bare.READ, read=(S(OPT, lead=(C("query", 0, 1, 2, 3, optional=True),)),), reply=Shape.AXES_TEXT, option_groups=((0, 2),), section='20.11', line=12285),
     E('ctrdiff', 'Get Closed Loop position difference of all axes', '?b', bare=Bare.READ, read=(S(OPT, lead=(C("option", 1, 2, 3, 4, optional=True),)),), reply=Shape.AXES_FLOAT, section='20.12', line=12396),
     E('trig', 'Enable trigger functionality (the setup must be complete)', '!?', write=(S(NONE, lead=(C('enable', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, section='21.1', line=12565),
     E('trigm', 'Select trigger mode 0', '!?', write=(S(NONE, lead=(C("mode", *range(12), 20, 21, *range(100, 106)),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='21.2', line=12595),
     E('triga', 'Trigger function is related to X axis', '!?', write=(S(NONE, lead=(C("axis", "x", "y", "z", "a"),)),), read=(S(NONE),), reply=Shape.TEXT, saved=True, section='21.3', line=12837),
     E('trigo', 'Select the default trigger signal output', '!?', write=(S(NONE, lead=(N('outputs', 0, 15),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='21.4', line=12860),
-    E('trigs', 'Set trigger output signal length to 40 microseconds', '!?', write=(S(NONE, lead=(N('width', 0, 2500000), N('out2_delay', 0, 2500000, optional=True), N('out2_width', 0, 2500000, optional=True),)),), read=(S(NONE),), reply=Shape.NUMBERS, saved=True, section='21.5', line=12950),
+    E('trigs', 'Set trigger output signal length to 40 microseconds', '!?', write=(S(NONE, lead=(N('width', 0, 2500000), N('out2_delay', 0, 2500000, optional=True), N('out2_width', 0, 2500000, optional=True),)),), read=(S(NONE),), reply=Shape.INTS, saved=True, section='21.5', line=12950),
     E('trigd', 'Set trigger distance to 10 (mm if dim=2)', '!?', write=(S(NONE, lead=(F("distance", 0, 5000000),)),), read=(S(NONE),), reply=Shape.FLOAT, saved=True, section='21.6', line=13027),
     E('trigcomp', 'Compensate a trigger signal delay of 50µs', '!?', write=(S(NONE, lead=(N('compensation', -10000, 10000),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='21.7', line=13057),
     E('trigenc', 'Select encoder signal as trigger source (if available)', '!?', write=(S(NONE, lead=(C('source', 0, 1),)),), read=(S(NONE),), reply=Shape.INT, saved=True, section='21.8', line=13168),
@@ -342,7 +346,7 @@ CATALOG: tuple[Instruction, ...] = (
     E('snsp', 'Read last captured X position', '!?', write=(S(OPT, per_axis=(F('position', unit='dim units'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, section='23.9', line=15277),
     E('snsa', 'Read first position entry of snapshot array (all axes)', '!?', write=(S(OPT, lead=(N("index", -1, 1024),), per_axis=(F("position"),), min_groups=0),), read=(S(OPT, lead=(N("index", -1, 1024),)),), reply=Shape.AXES_FLOAT, section='23.10', line=15324),
     E('snse', 'Generate SnapShot event F2', '!b', bare=Bare.EXECUTE, write=(S(NONE, lead=(C('key', 1, 2, 3, 4),)),), section='23.11', line=15392),
-    E('snsv', 'Read captured ANIN0 voltage in mV of 3rd snapshot entry', '!?', write=(S(NONE, lead=(N("index", 1, 1024), I("value"))),), read=(S(NONE, lead=(N("index", -1024, 1024),)),), reply=Shape.FLOAT, section='23.12', line=15441),
+    E('snsv', 'Read captured ANIN0 voltage in mV of 3rd snapshot entry', '!?', write=(S(NONE, lead=(N("index", 1, 1024), I("value"))),), read=(S(NONE, lead=(N("index", -1024, 1024, min_abs=1),)),), reply=Shape.FLOAT, section='23.12', line=15441),
     E('snsj', 'Set snapshot jump distances (snapshot mode snsm 9)', '!?', write=(S(OPT, per_axis=(F('jump', unit='dim units'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, section='23.13', line=15487),
     E('prehome', 'Set prehome positions X Y Z to 10 20 1 (unit depends on dim setting)', '!?', write=(S(OPT, per_axis=(F('position', unit='dim units'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, section='23.14', line=15524),
     E('home', 'Set home positions X Y Z to 5 5 0 (unit depends on dim setting)', '!?', write=(S(OPT, per_axis=(F('position', unit='dim units'),)),), read=(S(OPT),), reply=Shape.AXES_FLOAT, section='23.15', line=15559),

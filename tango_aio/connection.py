@@ -73,8 +73,9 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
     if url.startswith("socket://"):
         _, protocol = await _open_socket(url, factory)
         return protocol, None
-    _, protocol = await _open_serial(url, factory, baudrate=int(options.get("baudrate", DEFAULT_BAUD)),
-                                     rtscts=bool(options.get("rtscts", False)))
+    baudrate = int(options.get("baudrate", DEFAULT_BAUD))
+    rtscts = bool(options.get("rtscts", False))
+    _, protocol = await _open_serial(url, factory, baudrate=baudrate, rtscts=rtscts)
     return protocol, None
 
 

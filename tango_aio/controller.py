@@ -43,7 +43,7 @@ from .instructions import (
     parse_reply,
 )
 from .protocol import Response, Submission, TangoProtocol
-from .sim.units import UnitScale
+from .units import UnitScale
 
 __all__ = ["Controller", "Identity"]
 

@@ -447,7 +447,9 @@ class ProtocolCore:
         text = line.strip()
         if self._route_completion(line, text):
             return
-        if self._resync_marker is not None and not text.startswith(self._resync_marker):
+        # The marker may follow stale bytes on the same line (a partial line that was in
+        # flight when the port was opened), so it is searched, not prefix-matched.
+        if self._resync_marker is not None and self._resync_marker not in text:
             self._events.append(Dropped(line))
             return
         if not self._pending:
@@ -481,7 +483,14 @@ class ProtocolCore:
         return True
 
     def _in_multiline(self) -> bool:
-        return bool(self._pending) and bool(self._pending[0].lines)
+        # Only a reply read by count or up to a terminator (service) can hold an empty
+        # line. A continuation reply (detext, ?lim) never does: there an empty line is an
+        # autostatus-3 completion, and ending the reply on it would desynchronise the
+        # stream (the internal ?err follow-up would swallow the reply's next line).
+        if not self._pending:
+            return False
+        head = self._pending[0]
+        return bool(head.lines) and head.rule.continuation is None
 
     def _route_echo(self, head: _Pending, line: str, text: str) -> None:
         if _normal(text) != head.echo:

@@ -265,17 +265,17 @@ class EncoderDetectedError(ControllerError):
 
 
 class MultiAxisMoveForbiddenError(ControllerError):
-    """Controller error 21: multiple axis moves are forbidden."""
+    """Controller error 21: multiple axis moves are forbidden (e.g. during initialization)."""
 
     code = 21
-    description = "multiple axis moves are forbidden"
+    description = "multiple axis moves are forbidden (e.g. during initialization)"
 
 
 class MoveNotAllowedError(ControllerError):
-    """Controller error 22: automatic or manual move is not allowed."""
+    """Controller error 22: automatic or manual move is not allowed (door open, init)."""
 
     code = 22
-    description = "automatic or manual move is not allowed"
+    description = "automatic or manual move is not allowed (e.g. door open or initialization)"
 
 
 class EmergencyStopError(ControllerError):
@@ -335,24 +335,24 @@ class ClosedLoopOffError(ControllerError):
 
 
 class AxisCorrectionError(ControllerError):
-    """Controller error 75: could not enable axis correction, or it was disabled."""
+    """Controller error 75: could not enable axis correction, or axis correction was disabled."""
 
     code = 75
-    description = "could not enable axis correction, or it was disabled"
+    description = "could not enable axis correction, or axis correction was disabled"
 
 
 class IoExtensionOverloadError(ControllerError):
-    """Controller error 76: io extension error (output overload)."""
+    """Controller error 76: io extension error (output overload on IO1 or Multi-IO connector)."""
 
     code = 76
-    description = "io extension error (output overload)"
+    description = "io extension error (output overload on IO1 or Multi-IO connector)"
 
 
 class IoExtensionBusError(ControllerError):
-    """Controller error 77: io extension internal communication error."""
+    """Controller error 77: io extension internal communication error (internal bus error)."""
 
     code = 77
-    description = "io extension internal communication error"
+    description = "io extension internal communication error (internal bus error)"
 
 
 class HdiDeviceError(ControllerError):

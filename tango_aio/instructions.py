@@ -49,6 +49,7 @@ __all__ = [
     "Signature",
     "VersionInfo",
     "build",
+    "build_axes",
     "encode",
     "format_number",
     "lookup",
@@ -110,6 +111,7 @@ class Shape(enum.Enum):
     AXES_INT = "axes_int"  #: integers per axis
     AXES_TEXT = "axes_text"  #: words per axis (``0 0 e``)
     NUMBERS = "numbers"  #: a list of numbers that is not per axis
+    INTS = "ints"  #: a list of integers that is not per axis (``key`` → ``0 1 0 0``)
     STATUS = "status"  #: statusaxis letters (``@@@-.-`` or one letter)
     ACK = "ack"  #: ``OK...`` or ``ERR n``
     ERROR_NUMBER = "error_number"  #: ``?err``
@@ -142,6 +144,9 @@ class Param:
     hi_dim9: float | None = None
     #: For :attr:`Kind.BITS`: the maximum number of characters.
     width: int = 0
+    #: The smallest magnitude allowed, for ranges such as ``±0.00001 .. ±32500`` that
+    #: exclude values around zero (``!flash``).
+    min_abs: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,6 +212,12 @@ class Instruction:
     reply: Shape = Shape.NONE
     #: Values per axis in a per-axis reply (``?lim`` has 2, ``?swtyp`` 3).
     reply_group: int = 1
+    #: ``(value, group)`` pairs: a read whose first value is ``value`` replies with
+    #: ``group`` values per axis instead (``?ctrstatus 0`` → ``2 7 2 7 0 0``).
+    option_groups: tuple[tuple[int | str, int], ...] = ()
+    #: Every per-axis reply value is a single digit; the controller may leave out the
+    #: space between axis groups (``?swtyp`` in extmode 0 → ``1 1 11 1 11 1 1``).
+    digit_values: bool = False
     #: Shape of the reply to an executing form (``save`` always answers ``OK...``).
     exec_reply: Shape = Shape.NONE
     completion: Completion | None = None
@@ -320,6 +331,9 @@ def _check_range(param: Param, value: float, name: str, hi: float | None) -> Non
         raise _fail(f"{name}: {param.name}={value} is below {param.lo}", name, param.name, 5)
     if hi is not None and value > hi:
         raise _fail(f"{name}: {param.name}={value} is above {hi}", name, param.name, 5)
+    if param.min_abs is not None and abs(value) < param.min_abs:
+        raise _fail(f"{name}: {param.name}={value} is closer to 0 than ±{param.min_abs}",
+                    name, param.name, 5)
 
 
 def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int | str:
@@ -431,12 +445,13 @@ def _values(
 ) -> tuple[float | int | str, ...]:
     rest = list(tokens)
     values: list[float | int | str] = []
+    dim = ctx.dims[AXES.index(axis) if axis else 0]
     for param in sig.lead:
         if not rest:
             if not param.optional:
                 raise _fail(f"{entry.name}: missing {param.name}", entry.name, param.name, 6)
             break
-        values.append(_parse_value(param, rest.pop(0), entry.name, ctx.dims[0]))
+        values.append(_parse_value(param, rest.pop(0), entry.name, dim))
     if sig.per_axis:
         values.extend(_axis_values(entry, sig, axis, rest, ctx))
     elif sig.precision is not None and rest:
@@ -513,12 +528,12 @@ def _canonical(token: str) -> str:
 
 
 def encode(line: str, context: Context | None = None) -> bytes:
-    """Validate a raw command line such as ``"!vel y 12.5"`` and return its bytes, CR
-    included. Raises :class:`InvalidCommandError` (a :class:`ValueError`) for bad input."""
-    text = line.removesuffix("\r")
-    if len(text.encode("ascii", "replace")) + 1 > MAX_LINE_BYTES:
-        raise _fail(f"line is longer than {MAX_LINE_BYTES} bytes with its CR", None, None, 3)
-    return parse(text, context).to_bytes()
+    """Validate a raw command line such as ``"!vel y 12.5"`` (without CR) and return its
+    canonical bytes, CR included. Raises :class:`InvalidCommandError` (a
+    :class:`ValueError`) for bad input, including any CR, LF or Ctrl+C inside ``line``."""
+    # The length limit applies to the canonical bytes that are sent (parse checks it):
+    # redundant spaces in ``line`` are collapsed and do not count.
+    return parse(line, context).to_bytes()
 
 
 Value = float | int | str
@@ -535,12 +550,24 @@ def build(
 ) -> Command:
     """Build a validated command from Python values.
 
-    ``build("vel", x=10, y=5)`` gives ``!vel 10.0 5.0``; axes that are left out between
-    given ones are filled by reading is impossible, so per-axis keywords must be given
-    without gaps from X, or as a single axis (``build("vel", y=5)`` → ``!vel y 5.0``).
+    Numbers are written by :func:`format_number`: Python ints as integers, floats with a
+    decimal point, never in exponent notation. ``build("vel", x=10, y=5.5)`` gives
+    ``!vel 10 5.5``. The wire has no way to skip an axis, so per-axis keywords must be
+    given without gaps from X, or as a single axis (``build("vel", y=5)`` → ``!vel y 5``).
     Positional ``args`` are the lead values (``build("trigp", -1, 2.5)``), ``form`` is
     ``"!"``, ``"?"`` or ``""``.
     """
+    return _build(name, args, form, axis, context, axes)
+
+
+def _build(
+    name: str,
+    args: Sequence[Value],
+    form: Form | str,
+    axis: str | None,
+    context: Context | None,
+    axes: Mapping[str, AxisValues],
+) -> Command:
     entry = lookup(name)
     the_form = form if isinstance(form, Form) else Form(form)
     parts: list[str] = [the_form.value + entry.name]
@@ -677,6 +704,9 @@ def _per_axis(
     command: Command, items: list[str | float | int], group: int
 ) -> object:
     """Map reply values to axes: a scalar (or tuple) with an axis letter, else a dict."""
+    if len(items) % group:
+        raise ProtocolError(f"{command.name}: {len(items)} values do not form groups of "
+                            f"{group}: {items}")
     grouped: list[object] = (
         [tuple(items[i : i + group]) for i in range(0, len(items), group)]
         if group > 1
@@ -693,7 +723,7 @@ def _per_axis(
 
 def _parse_version(text: str) -> VersionInfo:
     parts = [p.strip() for p in text.split(",")]
-    match = re.search(r"Version\s+(\S+)", text)
+    match = re.search(r"Version\s+([^\s,]+)", text)
     if match is None:
         if re.fullmatch(r"\d+\.\d+\w*", text.strip()):
             return VersionInfo(model="", firmware=text.strip())
@@ -738,10 +768,28 @@ def parse_reply(command: Command, lines: Sequence[str]) -> object:
         return _parse_status(command, text)
     if shape in (Shape.AXES_FLOAT, Shape.AXES_INT, Shape.AXES_TEXT):
         convert = _AXIS_CONVERTERS[shape]
-        return _per_axis(command, [convert(t) for t in _split_numbers(text)], entry.reply_group)
+        tokens = _split_numbers(text)
+        if entry.digit_values:
+            tokens = [digit for token in tokens for digit in _digits(token)]
+        return _per_axis(command, [convert(t) for t in tokens], _reply_group(command))
     if shape is Shape.NUMBERS:
         return [_number(t) for t in _split_numbers(text)]
+    if shape is Shape.INTS:
+        return [_integer(t) for t in _split_numbers(text)]
     raise ProtocolError(f"{entry.name}: no reply expected, got {list(lines)}")
+
+
+def _reply_group(command: Command) -> int:
+    entry = command.instruction
+    for value, group in entry.option_groups:
+        if command.values and command.values[0] == value:
+            return group
+    return entry.reply_group
+
+
+def _digits(token: str) -> list[str]:
+    # '1 1 11 1 11 1 1' is three groups '1 1 1' printed without the separating space.
+    return list(token) if token.isdigit() else [token]
 
 
 def _parse_help(text: str) -> tuple[int | None, str | None]:
@@ -769,3 +817,14 @@ _AXIS_CONVERTERS: Final[dict[Shape, Callable[[str], str | float | int]]] = {
     Shape.AXES_INT: _integer,
     Shape.AXES_TEXT: str,
 }
+
+
+def build_axes(
+    name: str,
+    axes: Mapping[str, AxisValues],
+    *,
+    form: Form | str = Form.SET,
+    context: Context | None = None,
+) -> Command:
+    """:func:`build` with the per-axis values given as a mapping (``{"x": 1, "y": 2}``)."""
+    return _build(name, (), form, None, context, axes)

@@ -37,7 +37,8 @@ READ_ONLY_PARAMS: dict[str, list[str]] = {
 READ_LEAD: dict[str, str] = {
     "trigp": 'N("index", -1, 10000, optional=True)',
     "snsa": 'N("index", -1, 1024)',
-    "snsv": 'N("index", -1024, 1024)',
+    # '?snsv n': 1 to 1024 or -1 to -1024; 0 is no entry (L15444, L15460).
+    "snsv": 'N("index", -1024, 1024, min_abs=1)',
     "joyspeed": 'C("button", 1, 2, 3, optional=True)',
     "zwtravel": 'C("index", 1, 2, 3, optional=True)',
     "clim": 'C("active", 1, optional=True)',
@@ -69,7 +70,7 @@ WRITE_OVERRIDES: dict[str, str] = {
     # '!trigp y 11.5' (example L13971) sets the axis and appends one position.
     "trigp": 'S(OPT, lead=(N("index", -1, 10000), F("position", optional=True))), '
              'S(REQ, lead=(F("position"),))',
-    # trigm 20/21 are set by trigr/trigp but may be written too (example L13560).
+    # trigm 20/21 are set by trigr/trigp but may be written too (examples L13628, L14000).
     "trigm": 'S(NONE, lead=(C("mode", *range(12), 20, 21, *range(100, 106)),))',
     # '!trigr [axis] start end count' (L13496).
     "trigr": 'S(OPT, lead=(F("start"), F("end"), N("count", 1, 10000)))',
@@ -79,15 +80,16 @@ WRITE_OVERRIDES: dict[str, str] = {
     # '!clim r' or '!clim x y r' (L4622-4700); '!clim 0' disables.
     "clim": 'S(NONE, lead=(F("radius", 0),)), '
             'S(NONE, lead=(F("center_x"), F("center_y"), F("radius", 0)))',
-    # '!anaout l0 [l1 [l2]]' or '!anaout c|p channel level' (L9520-9570).
+    # '!anaout l0 [l1 [l2]]' or '!anaout c|p channel level' (L9512-9516); ?anaout
+    # reports three channels (L9564), so a third level is accepted.
     "anaout": 'S(NONE, lead=(F("level", 0, 100), F("level1", 0, 100, optional=True), '
               'F("level2", 0, 100, optional=True))), '
               'S(NONE, lead=(C("keyword", "c", "p"), N("channel", 0, 2), F("level", 0, 100)))',
-    # '!adiginfunc input fn', '!adiginfunc f0 f1 f2 f3' or '!adiginfunc -1' (L9330-9380).
+    # '!adiginfunc input fn', '!adiginfunc f0 f1 f2 f3' or '!adiginfunc -1' (L9247-9259).
     "adiginfunc": 'S(NONE, lead=(N("input", 0, 3), C("function", 0, 1, 2))), '
                   'S(NONE, lead=(C("f0", 0, 1, 2), C("f1", 0, 1, 2), C("f2", 0, 1, 2), '
                   'C("f3", 0, 1, 2))), S(NONE, lead=(C("reset", -1),))',
-    # '!joyspeed button speed' (L7300).
+    # '!joyspeed button speed' (L7356-7391).
     "joyspeed": 'S(NONE, lead=(C("button", 1, 2, 3), F("speed", 0.000001, 200)))',
     "zwtravel": 'S(NONE, lead=(C("index", 1, 2, 3), F("travel", -50, 50)))',
     "snsv": 'S(NONE, lead=(N("index", 1, 1024), I("value")))',
@@ -107,15 +109,15 @@ WRITE_OVERRIDES: dict[str, str] = {
     "go": 'S(OPT, per_axis=(F("position"),), min_groups=0)',
     # '!posclr [axis]' clears the offset (L6960).
     "posclr": "S(OPT)",
-    # '!lim z 45.37' sets only the lower limit (example L4545).
+    # '!lim z 45.37' sets only the lower limit (example L4605).
     "lim": 'S(OPT, per_axis=(F("lower"), F("upper", optional=True)))',
-    # '!flash ms': +-0.00001 .. +-32500 ms (L13160).
-    "flash": 'S(NONE, lead=(F("duration", -32500, 32500),))',
-    # '!mrt' does not exist; '!encerr 0' resets (L11300).
+    # '!flash ms': +-0.00001 .. +-32500 ms, the sign selects the polarity (L9864-9883).
+    "flash": 'S(NONE, lead=(F("duration", -32500, 32500, min_abs=0.00001),))',
+    # '!encerr 0' resets the encoder error state (L11149).
     "encerr": 'S(OPT, lead=(C("reset", 0),))',
     # 'cur' upper bound is ?maxcur, checked by the controller (error 5, L3705).
     "cur": 'S(OPT, per_axis=(F("current", 0.03),))',
-    # '!twi' window 0.00001 mm .. 1 mm in dim units (L11700); bounds depend on dim.
+    # '!twi' window 0.00001 mm .. 1 mm in dim units (L12104); bounds depend on dim.
     "twi": 'S(OPT, per_axis=(F("window", 0),))',
     "ctrs": 'S(OPT, per_axis=(F("lock_in_range", 0),))',
     "caliboffset": 'S(OPT, per_axis=(F("offset", 0),))',
@@ -127,11 +129,11 @@ WRITE_OVERRIDES: dict[str, str] = {
     # 'vel' is up to 3000 mm/s in dim 9 (L3457).
     "vel": 'S(OPT, per_axis=(F("velocity", 0.000001, 200, unit="rev/s", hi_dim9=3000),))',
     "joyvel": 'S(OPT, per_axis=(F("velocity", 0.000001, 200, unit="rev/s", hi_dim9=3000),))',
-    # '!mrt' read only; '!mrp x 0 0' gives only the sine values (example L11440).
+    # '!mrp x 0 0' gives only the sine values (example L11468).
     "mrp": 'S(OPT, per_axis=(N("sin_max", -2048, 2048), N("sin_min", -2048, 2048), '
            'N("cos_max", -2048, 2048, optional=True), '
            'N("cos_min", -2048, 2048, optional=True)))',
-    # '!hdimode 1' bit string; the two forms are alternatives.
+    # Word choices: '!tvrjoy 0/z/a' (L8035-8085), '!zwaxis a' (L7927), '!triga x' (L12837).
     "tvrjoy": 'S(NONE, lead=(C("assign", "0", "z", "a"),))',
     "zwaxis": 'S(NONE, lead=(C("axis", "x", "y", "z", "a"),))',
     "triga": 'S(NONE, lead=(C("axis", "x", "y", "z", "a"),))',
@@ -146,7 +148,8 @@ WRITE_OVERRIDES: dict[str, str] = {
 READ_OVERRIDES: dict[str, str] = {
     "help": 'S(NONE, lead=(I("error_number", optional=True),))',
     "anain": 'S(NONE, lead=(C("keyword", "c", "v"), N("channel", 0, 31)))',
-    "mrt": 'S(OPT, lead=(N("samples", -32767, 32767, optional=True),))',
+    # '?mrt n': 1 to 32767 or -1 to -32767 samples (L11479); 0 is no count.
+    "mrt": 'S(OPT, lead=(N("samples", -32767, 32767, min_abs=1, optional=True),))',
     "encamp": 'S(OPT, lead=(C("decimals", 1, optional=True),))',
     "stagesn": 'S(NONE, lead=(C("ets_address", -1, 0, 1, 2, 3, optional=True),))',
     "version": 'S(NONE, lead=(C("version_only", 1, optional=True),))',
@@ -181,12 +184,12 @@ REPLY: dict[str, str] = {
     "digout": "FLAGS", "diginpol": "FLAGS", "digintyp": "FLAGS", "digoutpreset": "FLAGS",
     "edigin": "FLAGS", "edigout": "FLAGS", "ediginpol": "FLAGS", "edigintyp": "FLAGS",
     "edigoutpreset": "FLAGS", "adigin": "FLAGS", "adigintyp": "FLAGS", "adigout": "FLAGS",
-    "adiginfunc": "NUMBERS", "key": "NUMBERS", "keyl": "NUMBERS", "anain": "FLOAT",
+    "adiginfunc": "INTS", "key": "INTS", "keyl": "INTS", "anain": "FLOAT",
     "anaout": "NUMBERS", "hdi": "TEXT", "encsync": "TEXT", "encerr": "AXES_TEXT",
-    "mrt": "LINES", "trigr": "NUMBERS", "trigs": "NUMBERS", "clim": "NUMBERS",
-    "zwtravel": "NUMBERS", "pa": "NUMBERS", "tvrjoy": "TEXT", "zwaxis": "TEXT",
+    "mrt": "LINES", "trigr": "NUMBERS", "trigs": "INTS", "clim": "NUMBERS",
+    "zwtravel": "NUMBERS", "pa": "INTS", "tvrjoy": "TEXT", "zwaxis": "TEXT",
     "triga": "TEXT", "trigp": "FLOAT", "snsv": "FLOAT", "joyspeed": "FLOAT",
-    "ctrstatus": "AXES_TEXT", "ctrd": "NUMBERS", "snsa": "AXES_FLOAT", "calbspeed": "NUMBERS",
+    "ctrstatus": "AXES_TEXT", "ctrd": "INTS", "snsa": "AXES_FLOAT", "calbspeed": "NUMBERS",
     "calrefspeed": "NUMBERS", "encpos": "INT", "pci": "INT", "zwheel": "INT", "drop": "INT",
     "trigbdelay": "FLOAT", "trigbwidth": "FLOAT", "trigbf": "FLOAT", "trigd": "FLOAT",
     "trigf": "FLOAT", "scanvel": "FLOAT", "tvrjoyf": "FLOAT", "flash": "NONE",
@@ -197,6 +200,17 @@ REPLY: dict[str, str] = {
     "ctrf": "AXES_INT", "mro": "AXES_INT", "mrp": "AXES_INT", "caltimeout": "AXES_INT",
     "brake": "AXES_INT", "lockaxis": "AXES_INT", "zwpos": "INT", "trigcount": "INT",
 }
+
+#: Reads whose first value changes the number of reply values per axis.
+OPTION_GROUPS: dict[str, str] = {
+    # '?ctrstatus 0' → '2 7 2 7 0 0', mode and state bits per axis (L12348-12395).
+    "ctrstatus": "((0, 2),)",
+}
+
+#: Per-axis single-digit replies that the controller may print without the space between
+#: axis groups: '?swtyp' in extmode 0 → '1 1 11 1 11 1 1' (L4818-4822); swpol and swact
+#: share the E0 REF EE reply format (L4888, L4958).
+DIGIT_VALUES = {"swtyp", "swpol", "swact"}
 
 #: Replies that come from the executing form (``save`` always answers, L1723-1760).
 EXEC_REPLY: dict[str, str] = {"save": "ACK"}
@@ -373,6 +387,10 @@ def entry_source(entry: dict[str, Any]) -> str:
     group = entry["values_per_axis"] or 1
     if group > 1 and shape.startswith("AXES"):
         parts.append(f"reply_group={group}")
+    if name in OPTION_GROUPS:
+        parts.append(f"option_groups={OPTION_GROUPS[name]}")
+    if name in DIGIT_VALUES:
+        parts.append("digit_values=True")
     if name in EXEC_REPLY:
         parts.append(f"exec_reply=Shape.{EXEC_REPLY[name]}")
     if name in COMPLETION:
@@ -421,15 +439,17 @@ NONE, OPT, ALL, REQ = AxisRule.NONE, AxisRule.OPTIONAL, AxisRule.ALL, AxisRule.R
 
 
 def F(name: str, lo: float | None = None, hi: float | None = None, *, unit: str = "",
-      hi_dim9: float | None = None, optional: bool = False) -> Param:
+      hi_dim9: float | None = None, min_abs: float | None = None,
+      optional: bool = False) -> Param:
     """A float parameter."""
-    return Param(name, Kind.FLOAT, lo, hi, unit=unit, hi_dim9=hi_dim9, optional=optional)
+    return Param(name, Kind.FLOAT, lo, hi, unit=unit, hi_dim9=hi_dim9, min_abs=min_abs,
+                 optional=optional)
 
 
 def N(name: str, lo: float | None = None, hi: float | None = None, *,
-      optional: bool = False) -> Param:
+      min_abs: float | None = None, optional: bool = False) -> Param:
     """An integer parameter with a range."""
-    return Param(name, Kind.INT, lo, hi, optional=optional)
+    return Param(name, Kind.INT, lo, hi, min_abs=min_abs, optional=optional)
 
 
 def I(name: str, *, optional: bool = False) -> Param:  # noqa: E743
@@ -464,6 +484,7 @@ _FORMS = {"!": Form.SET, "?": Form.READ, "b": Form.BARE}
 def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
       aliases: tuple[str, ...] = (), write: tuple[Signature, ...] = (),
       read: tuple[Signature, ...] = (), reply: Shape = Shape.NONE, reply_group: int = 1,
+      option_groups: tuple[tuple[int | str, int], ...] = (), digit_values: bool = False,
       exec_reply: Shape = Shape.NONE, completion: Completion | None = None,
       lines: LineFn | None = None, saved: bool = False, section: str = "",
       line: int = 0) -> Instruction:
@@ -471,7 +492,8 @@ def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
     return Instruction(
         name=name, summary=summary, forms=frozenset(_FORMS[f] for f in forms), bare=bare,
         aliases=aliases, write=write, read=read, reply=reply, reply_group=reply_group,
-        exec_reply=exec_reply, completion=completion, lines=lines, saved=saved,
+        option_groups=option_groups, digit_values=digit_values, exec_reply=exec_reply,
+        completion=completion, lines=lines, saved=saved,
         section=section, line=line,
     )
 
@@ -510,11 +532,22 @@ CATALOG: tuple[Instruction, ...] = (
 '''
 
 
+def render(entries: list[dict[str, Any]]) -> str:
+    """The full text of ``tango_aio/_catalog.py`` for the JSON ``entries``."""
+    body = "\n".join(entry_source(e) for e in entries)
+    return HEADER + body + "\n)\n"
+
+
+def load(source: Path = DEFAULT_JSON) -> list[dict[str, Any]]:
+    """Read the reference ``instructions.json``."""
+    entries: list[dict[str, Any]] = json.loads(source.read_text(encoding="utf-8"))
+    return entries
+
+
 def main() -> None:
     source = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_JSON
-    entries = json.loads(source.read_text(encoding="utf-8"))
-    body = "\n".join(entry_source(e) for e in entries)
-    OUTPUT.write_text(HEADER + body + "\n)\n", encoding="utf-8")
+    entries = load(source)
+    OUTPUT.write_text(render(entries), encoding="utf-8", newline="\n")
     print(f"wrote {len(entries)} instructions to {OUTPUT.relative_to(ROOT)}")
 
 

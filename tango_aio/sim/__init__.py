@@ -1,0 +1,1 @@
+"""Emulator of a Märzhäuser TANGO controller: wire model, controller logic and serving layers."""

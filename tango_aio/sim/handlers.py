@@ -1,0 +1,447 @@
+"""Instructions of the emulator that do more than store a setting.
+
+Each method ``i_<name>`` handles one instruction (``?`` reads and ``!`` writes alike) and
+returns the reply lines, or ``None`` for no reply. Everything not listed here is a plain
+setting handled generically by :class:`~tango_aio.sim.model.ControllerModel`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from ..errors import ERROR_DESCRIPTIONS
+from ..instructions import AXES, Command
+from .lists import ListError
+from .motion import MotionConfig
+from .params import format_value
+
+if TYPE_CHECKING:
+    from .model import ControllerModel
+
+__all__ = ["Handlers", "build_handlers"]
+
+Reply = list[str] | None
+
+
+class Handlers:
+    """The special instructions of one :class:`ControllerModel`."""
+
+    def __init__(self, model: ControllerModel) -> None:
+        self.m = model
+
+    # -- identity --------------------------------------------------------------------------
+
+    def i_version(self, c: Command) -> Reply:
+        cfg = self.m.config
+        if c.values:
+            return [cfg.firmware]
+        return [f"{cfg.model}, Version {cfg.firmware}, {cfg.build}"]
+
+    def i_det(self, c: Command) -> Reply:
+        return [str(self.m.config.det)]
+
+    def i_detext(self, c: Command) -> Reply:
+        det = self.m.config.det
+        lines = [f"{det:05X}", f"= {self.m.axes} Axes"]
+        if det & 0x800:
+            lines.append("= Snapshot")
+        if det & 0x2000:
+            lines.append("= Trigger out")
+        return lines
+
+    def i_readsn(self, c: Command) -> Reply:
+        return [self.m.config.serial]
+
+    def i_ver(self, c: Command) -> Reply:
+        return [f"Vers:LS{self.m.axes}2.00.038"]
+
+    def i_iver(self, c: Command) -> Reply:
+        return ["T04.35.020004"]
+
+    def i_uptime(self, c: Command) -> Reply:
+        return [str(int(self.m.motion.now - self.m.session.booted))]
+
+    def i_temp(self, c: Command) -> Reply:
+        return ["28.5"]
+
+    def i_maxaxis(self, c: Command) -> Reply:
+        return [str(self.m.axes)]
+
+    def i_maxcur(self, c: Command) -> Reply:
+        return [" ".join("1.25" for _ in self.m.present(c))]
+
+    def i_etspresent(self, c: Command) -> Reply:
+        return ["0000"]
+
+    def i_stagesn(self, c: Command) -> Reply:
+        if c.values and c.values[0] != -1:
+            return ["---------"]
+        return [" ".join(["---------"] * 4)] if not c.values else ["---------"]
+
+    def i_maxpos(self, c: Command) -> Reply:
+        mm = (self.m.config.motion or MotionConfig()).maxpos_mm
+        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+            i, self.m.motion.units(i).mm_to_rev(mm)))]
+
+    def i_lockpos(self, c: Command) -> Reply:
+        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(i, 0.0))]
+
+    def i_pci(self, c: Command) -> Reply:
+        return ["0"]
+
+    # -- state and errors -------------------------------------------------------------------
+
+    def i_autostatus(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.autostatus)]
+        self.m.set_autostatus(int(c.values[0]))
+        return None
+
+    def i_err(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.error)]
+        self.m.session.err = 0
+        return None
+
+    def i_status(self, c: Command) -> Reply:
+        return ["OK..." if self.m.error == 0 else f"ERR {self.m.error}"]
+
+    def i_help(self, c: Command) -> Reply:
+        code = int(c.values[0]) if c.values else self.m.error
+        text = HELP.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
+        return [f"ERROR {code},{text}"]
+
+    def i_service(self, c: Command) -> Reply:
+        cfg = self.m.config
+        return [f"{cfg.model} service print", f"Firmware {cfg.firmware}",
+                f"Serial {cfg.serial}", f"Axes {self.m.axes}", "", "END_SERVICE_PRINT."]
+
+    def i_save(self, c: Command) -> Reply:
+        self.m.save()
+        return ["OK..."]
+
+    def i_restore(self, c: Command) -> Reply:
+        if c.values == (-1,):
+            path = self.m.config.state_file
+            if path is not None:
+                path.unlink(missing_ok=True)
+            self.m.reboot()
+            return None
+        self.m.reboot()
+        return ["OK..."] if c.is_read else None
+
+    def i_reset(self, c: Command) -> Reply:
+        self.m.reboot()
+        return None
+
+    def i_pa(self, c: Command) -> Reply:
+        if c.is_read:
+            state = str(self.m.params.first("pa"))
+            return [" ".join([state] * self.m.axes)] if c.values else [state]
+        self.m.params.put_global("pa", (int(c.values[0]) if c.values else 1,))
+        return None
+
+    # -- status of axes ---------------------------------------------------------------------
+
+    def i_statusaxis(self, c: Command) -> Reply:
+        letters = self.m.motion.status_letters()
+        if c.axis is not None:
+            return [letters[self.m.present(c)[0]]]
+        return [letters + ".-"]
+
+    def i_calst(self, c: Command) -> Reply:
+        return [self.m.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
+
+    def i_statuslimit(self, c: Command) -> Reply:
+        return [self.m.motion.statuslimit()]
+
+    def i_isvel(self, c: Command) -> Reply:
+        digits = int(c.values[-1]) if c.values else 3
+        return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+            self.m.motion.vel_to_user(i, self.m.motion.velocity(i)), digits))]
+
+    def i_readsw(self, c: Command) -> Reply:
+        bits = []
+        for index in range(4):
+            e0, ee = self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
+            bits += ["1" if e0 else "0", "0", "1" if ee else "0"]
+        return ["".join(bits)]
+
+    def i_swin(self, c: Command) -> Reply:
+        levels = []
+        for index in range(4):
+            e0, ee = self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
+            levels += ["0" if e0 else "1", "0" if ee else "1"]
+        if c.values:
+            return [levels[int(c.values[0])]]
+        return ["".join(levels)]
+
+    # -- positions ------------------------------------------------------------------------
+
+    def i_pos(self, c: Command) -> Reply:
+        motion = self.m.motion
+        if c.is_read:
+            return [self.m.axes_text(self.m.present(c),
+                                     lambda i: self.m.position_text(i, motion.position(i)))]
+        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+            motion.set_position(axis, revs)
+        return None
+
+    def i_posclr(self, c: Command) -> Reply:
+        motion = self.m.motion
+        if c.is_read:
+            return [self.m.axes_text(self.m.present(c),
+                                     lambda i: self.m.position_text(i, motion.position_offset(i)))]
+        for axis in self.m.present(c):
+            motion.clear_position_offset(axis)
+        return None
+
+    def i_zero(self, c: Command) -> Reply:
+        for axis in self.m.present(c):
+            self.m.motion.zero(axis)
+        return None
+
+    i_clearpos = i_zero
+
+    def i_distance(self, c: Command) -> Reply:
+        motion = self.m.motion
+        if c.is_read:
+            return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+                i, motion.settings(i).distance))]
+        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+            motion.set_distance(axis, revs)
+        return None
+
+    def i_lim(self, c: Command) -> Reply:
+        if c.is_read:
+            return self._read_lim(c)
+        values = [float(v) for v in c.values]
+        indices = self.m.present(c) if c.axis else list(range((len(values) + 1) // 2))
+        for slot, axis in enumerate(indices):
+            if axis >= self.m.axes:
+                raise ListError(1, "more values than axes")
+            pair = values[2 * slot: 2 * slot + 2]
+            lower = self.m.motion.from_user(axis, pair[0])
+            upper = self.m.motion.from_user(axis, pair[1]) if len(pair) > 1 else None
+            self.m.motion.set_limits(axis, lower, upper)
+        return None
+
+    def _read_lim(self, c: Command) -> Reply:
+        def pair(axis: int) -> str:
+            low, high = self.m.motion.limits(axis)
+            return f"{self.m.position_text(axis, low)} {self.m.position_text(axis, high)}"
+
+        indices = self.m.present(c)
+        if c.axis is None and len(indices) > 1 and int(self.m.params.first("extmode")) == 0:
+            # Firmware quirk (manual L4559-4619): an extra CR after the X pair.
+            return [pair(indices[0]) + ",", ", ".join(pair(i) for i in indices[1:])]
+        return [" ".join(pair(i) for i in indices)]
+
+    # -- motion ---------------------------------------------------------------------------
+
+    def i_moa(self, c: Command) -> Reply:
+        self.m.motion.move_absolute(self.m.to_revs(self.m.axis_map(c)))
+        return None
+
+    def i_mor(self, c: Command) -> Reply:
+        self.m.motion.move_relative(self.m.to_revs(self.m.axis_map(c)))
+        return None
+
+    def i_m(self, c: Command) -> Reply:
+        self.m.motion.move_repeat()
+        return None
+
+    def i_moc(self, c: Command) -> Reply:
+        self.m.motion.move_center(self.m.present(c) if c.axis else None)
+        return None
+
+    def i_mol(self, c: Command) -> Reply:
+        self.m.motion.move_lock(self.m.present(c) if c.axis else None)
+        return None
+
+    def i_cal(self, c: Command) -> Reply:
+        self.m.motion.calibrate(self.m.present(c) if c.axis else None)
+        return None
+
+    def i_rm(self, c: Command) -> Reply:
+        self.m.motion.range_measure(self.m.present(c) if c.axis else None)
+        return None
+
+    def i_vrm(self, c: Command) -> Reply:
+        self.m.motion.virtual_range_measure(self.m.to_revs(self.m.axis_map(c)))
+        return None
+
+    def i_go(self, c: Command) -> Reply:
+        if not c.values:
+            self.m.motion.go_stop(self.m.present(c) if c.axis else None)
+            return None
+        self.m.motion.go(self.m.to_revs(self.m.axis_map(c)))
+        return None
+
+    def i_speed(self, c: Command) -> Reply:
+        motion = self.m.motion
+        if c.is_read:
+            digits = int(c.values[-1]) if c.values else 3
+            return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+                motion.vel_to_user(i, motion.velocity(i)), digits))]
+        motion.speed({axis: motion.vel_from_user(axis, value)
+                      for axis, value in self.m.axis_map(c).items()})
+        return None
+
+    def i_a(self, c: Command) -> Reply:
+        axis = self.m.present(c)[0] if c.axis else None
+        self.m.motion.abort(axis, use_accel=-1 in c.values)
+        return None
+
+    def i_joy(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.params.first("joy"))]
+        before = int(self.m.params.first("joy"))
+        mode = int(c.values[0])
+        self.m.params.put_global("joy", (mode,))
+        if mode == 0 and before != 0:
+            # Disabling an enabled joystick sends a completion report (manual L7124-7154).
+            self.m.report(self.m.completion_letters())
+        return None
+
+    # -- trigger list ---------------------------------------------------------------------
+
+    def i_trigp(self, c: Command) -> Reply:
+        triggers = self.m.triggers
+        if c.is_read:
+            index = int(c.values[0]) if c.values else triggers.pointer
+            return [self._trigger_text(triggers.read(index))]
+        if len(c.values) == 1 and isinstance(c.values[0], float):
+            triggers.write(-1, c.values[0], c.axis)  # '!trigp y 11.5' (L13971)
+        elif c.values[0] == 0:
+            triggers.clear(c.axis)
+        else:
+            triggers.write(int(c.values[0]), float(c.values[1]), c.axis)
+        self._arm_triggers()
+        return None
+
+    def _trigger_axis(self) -> int:
+        letter = self.m.triggers.axis or str(self.m.params.first("triga"))
+        return AXES.index(letter)
+
+    def _trigger_text(self, value: float) -> str:
+        axis = self._trigger_axis()
+        return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+
+    def _arm_triggers(self) -> None:
+        axis = self._trigger_axis()
+        if self.m.triggers.axis is not None:
+            self.m.params.put_global("triga", (self.m.triggers.axis,))
+        entries = self.m.triggers.entries
+        self.m.motion.set_trigger_positions(axis, [self.m.motion.from_user(axis, p)
+                                                   for p in entries])
+        if len(entries) >= 2:
+            self.m.params.put_global("trigm", (20 if entries[1] > entries[0] else 21,))
+
+    def i_trigc(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.triggers.count())]
+        self.m.triggers.shorten(int(c.values[0]) if c.values else 0)
+        self._arm_triggers()
+        return None
+
+    def i_trigi(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.triggers.pointer)]
+        self.m.triggers.set_pointer(int(c.values[0]) if c.values else 1)
+        return None
+
+    def i_trigr(self, c: Command) -> Reply:
+        if c.is_read:
+            start, end, count = self._trigr
+            axis = self._trigger_axis()
+            return [f"{self._trigger_text(start)} {self._trigger_text(end)} {count}"
+                    if axis is not None else "0 0 0"]
+        start, end, count = float(c.values[0]), float(c.values[1]), int(c.values[2])
+        if c.axis is not None:
+            self.m.params.put_global("triga", (c.axis,))
+            self.m.triggers.axis = c.axis
+        self._trigr = (start, end, count)
+        self.m.triggers.clear()  # trigr replaces any trigp list (L13601)
+        axis = self._trigger_axis()
+        motion = self.m.motion
+        motion.set_trigger_range(axis, motion.from_user(axis, start),
+                                 motion.from_user(axis, end), count)
+        self.m.params.put_global("trigm", (20 if end > start else 21,))
+        return None
+
+    _trigr: tuple[float, float, int] = (0.0, 0.0, 0)
+
+    def i_trigcount(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.motion.trigger_count)]
+        self.m.motion.set_trigger_count(int(c.values[0]))
+        return None
+
+    # -- snapshot array -------------------------------------------------------------------
+
+    def _row_text(self, row: tuple[float, ...], indices: list[int]) -> str:
+        def one(axis: int) -> str:
+            value = row[axis] if axis < len(row) else 0.0
+            return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+
+        return self.m.axes_text(indices, one)
+
+    def i_snsa(self, c: Command) -> Reply:
+        snapshots = self.m.snapshots
+        if c.is_read:
+            return [self._row_text(snapshots.read(int(c.values[0])), self.m.present(c))]
+        index = int(c.values[0])
+        if index == 0:
+            snapshots.clear()
+            return None
+        values = self.m.axis_map(c, skip_lead=1)
+        row = tuple(values.get(axis, 0.0) for axis in range(self.m.axes))
+        snapshots.write(index, row)
+        return None
+
+    def i_snsc(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.snapshots.count())]
+        self.m.snapshots.shorten(int(c.values[0]) if c.values else 0)
+        return None
+
+    def i_snsi(self, c: Command) -> Reply:
+        if c.is_read:
+            return [str(self.m.snapshots.pointer)]
+        self.m.snapshots.set_pointer(int(c.values[0]) if c.values else 0)
+        return None
+
+    def i_snsp(self, c: Command) -> Reply:
+        snapshots = self.m.snapshots
+        if c.is_read:
+            return [self._row_text(snapshots.last, self.m.present(c))]
+        values = self.m.axis_map(c)
+        row = tuple(values.get(axis, 0.0) for axis in range(self.m.axes))
+        snapshots.capture(row)
+        return None
+
+    def i_snse(self, c: Command) -> Reply:
+        motion = self.m.motion
+        row = tuple(motion.to_user(i, motion.position(i)) for i in range(self.m.axes))
+        self.m.snapshots.capture(row)
+        return None
+
+    def i_snsv(self, c: Command) -> Reply:
+        voltages = self.m.snapshots.voltages
+        if c.is_read:
+            return [str(voltages.get(abs(int(c.values[0])), 0))]
+        voltages[int(c.values[0])] = int(c.values[1])
+        return None
+
+
+#: ``help`` texts documented by the manual (L2915-2919).
+HELP: dict[int, str] = {0: "no error", 5: "number outside range", 29: "servo amplifier off"}
+
+
+def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:
+    """Map instruction names to the bound ``i_<name>`` methods."""
+    handlers = Handlers(model)
+    return {name[2:]: getattr(handlers, name) for name in dir(Handlers)
+            if name.startswith("i_")}

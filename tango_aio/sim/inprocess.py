@@ -1,0 +1,94 @@
+"""``sim://`` URLs: an emulated controller inside the caller's event loop.
+
+Options go in the query string, e.g. ``sim://?axes=2&baud=0&latency=0.002``:
+
+=============  =========================================================  ===========
+option         meaning                                                    default
+=============  =========================================================  ===========
+axes           number of axes (1-4)                                       3
+baud           wire speed in Bd; ``0`` for instant mode (no pacing)       57600
+latency        extra reply latency in seconds (USB adapters)              0
+processing     interpreter time per line in seconds                       0
+stall_every    stall the interpreter every N lines ...                    0 (never)
+stall          ... for this many seconds                                  0
+fragment       probability that a reply is split into pieces              0
+seed           random seed for fragmentation and faults                   none
+model          the ``?version`` controller type                           TANGO-DT
+firmware       the firmware version                                       1.71
+state          path of a JSON file where ``save`` persists settings        none
+=============  =========================================================  ===========
+"""
+
+from __future__ import annotations
+
+import asyncio
+import urllib.parse
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import TypeVar
+
+from .model import ControllerModel, SimConfig
+from .serve import SimTransport, create_sim_connection
+from .wire import Emit, WireConfig
+
+__all__ = ["configs_from_url", "open_sim"]
+
+_P = TypeVar("_P", bound=asyncio.Protocol)
+
+
+def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
+    """Parse a ``sim://`` URL into the emulator's and the wire's configuration."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != "sim":
+        raise ValueError(f"not a sim:// URL: {url!r}")
+    query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
+    known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
+             "seed", "model", "firmware", "state"}
+    unknown = set(query) - known
+    if unknown:
+        raise ValueError(f"unknown sim:// option(s) {sorted(unknown)}; known: {sorted(known)}")
+    axes = int(query.get("axes", 3))
+    if not 1 <= axes <= 4:
+        raise ValueError(f"sim:// axes must be 1..4, got {axes}")
+    sim = SimConfig(
+        axes=axes,
+        model=query.get("model", "TANGO-DT"),
+        firmware=query.get("firmware", "1.71"),
+        state_file=Path(query["state"]) if "state" in query else None,
+    )
+    baud = int(query.get("baud", 57600))
+    wire = WireConfig(
+        baud=baud or None,
+        processing_time_per_line=float(query.get("processing", 0.0)),
+        stall_every_lines=int(query.get("stall_every", 0)),
+        stall_duration=float(query.get("stall", 0.0)),
+        reply_latency=float(query.get("latency", 0.0)),
+        fragment_probability=float(query.get("fragment", 0.0)),
+        seed=int(query["seed"]) if "seed" in query else None,
+    )
+    return sim, wire
+
+
+async def open_sim(
+    url: str, protocol_factory: Callable[[], _P]
+) -> tuple[_P, Callable[[], Awaitable[None]]]:
+    """Connect ``protocol_factory()`` to a fresh in-process emulator described by ``url``.
+
+    Returns the protocol and a coroutine function that shuts the emulator down.
+    """
+    sim, wire = configs_from_url(url)
+
+    def make_handler(emit: Emit) -> ControllerModel:
+        return ControllerModel(emit, sim)
+
+    transport, protocol = await create_sim_connection(protocol_factory, make_handler, wire)
+
+    async def close() -> None:
+        transport.close()
+        await _wait_closed(transport)
+
+    return protocol, close
+
+
+async def _wait_closed(transport: SimTransport) -> None:
+    await transport.wait_closed()

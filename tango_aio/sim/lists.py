@@ -1,0 +1,164 @@
+"""Trigger position list (``trigp``/``trigc``/``trigi``) and snapshot array (``snsa``...).
+
+Pure list semantics of the manual (L13767-14212, L15136-15389); positions are kept in the
+user (dim) units they were written in. Violations raise :class:`ListError` with the error
+number the emulator reports.
+
+Decisions where the manual is silent:
+
+* Writing an entry that breaks the monotonic order fixed by the first two entries, an index
+  beyond ``count + 1``, or more than the maximum number of entries: error 5.
+* Naming a different axis with ``!trigp`` while the list is not empty ("later attempts of
+  change are ignored and an error will be returned", L13798): error 1, list unchanged.
+* ``!trigc n`` / ``!snsc n`` with ``n`` larger than the count: error 5 (only shortening is
+  documented).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+__all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "TriggerList"]
+
+MAX_TRIGGERS = 10000
+MAX_SNAPSHOTS = 1024
+
+
+class ListError(Exception):
+    """A list operation was refused; ``code`` is the controller error number."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def _check_monotonic(entries: list[float]) -> None:
+    if len(entries) < 3:
+        return
+    rising = entries[1] > entries[0]
+    for before, after in itertools.pairwise(entries):
+        if (after <= before) if rising else (after >= before):
+            raise ListError(5, "trigger positions must be strictly monotonic")
+
+
+@dataclass
+class TriggerList:
+    """The ``!trigp`` trigger position list of the trigger axis."""
+
+    entries: list[float] = field(default_factory=list)
+    axis: str | None = None
+    pointer: int = 1
+
+    def count(self) -> int:
+        """Number of entries (``?trigc``)."""
+        return len(self.entries)
+
+    def clear(self, axis: str | None = None) -> None:
+        """Discard the list (``!trigp 0``); an axis letter also selects the trigger axis."""
+        self.entries.clear()
+        self.pointer = 1
+        if axis is not None:
+            self.axis = axis
+
+    def write(self, index: int, position: float, axis: str | None = None) -> None:
+        """``!trigp [axis] index position``: -1 or count+1 appends, 1..count overwrites."""
+        if axis is not None and self.entries and axis != self.axis:
+            raise ListError(1, f"trigger axis is {self.axis}; clear the list to change it")
+        count = len(self.entries)
+        slot = count + 1 if index == -1 else index
+        if not 1 <= slot <= count + 1:
+            raise ListError(5, f"index {index} outside 1..{count + 1}")
+        if slot > MAX_TRIGGERS:
+            raise ListError(5, f"the list holds at most {MAX_TRIGGERS} entries")
+        candidate = list(self.entries)
+        if slot == count + 1:
+            candidate.append(position)
+        else:
+            candidate[slot - 1] = position
+        _check_monotonic(candidate)
+        self.entries = candidate
+        if axis is not None:
+            self.axis = axis
+
+    def read(self, index: int) -> float:
+        """``?trigp n`` (1-based) or ``?trigp -1`` (last)."""
+        if not self.entries:
+            raise ListError(5, "the trigger list is empty")
+        slot = len(self.entries) if index == -1 else index
+        if not 1 <= slot <= len(self.entries):
+            raise ListError(5, f"index {index} outside 1..{len(self.entries)}")
+        return self.entries[slot - 1]
+
+    def shorten(self, count: int) -> None:
+        """``!trigc n``: keep the first n entries (0 clears)."""
+        if count > len(self.entries):
+            raise ListError(5, f"cannot grow the list to {count} entries")
+        del self.entries[count:]
+        self.pointer = min(self.pointer, max(1, count))
+
+    def set_pointer(self, index: int) -> None:
+        """``!trigi n``: the 1-based list pointer."""
+        if not 1 <= index <= max(1, len(self.entries)):
+            raise ListError(5, f"pointer {index} outside 1..{len(self.entries)}")
+        self.pointer = index
+
+
+@dataclass
+class SnapshotList:
+    """The snapshot position array (``snsa``, ``snsc``, ``snsi``, ``snsp``)."""
+
+    entries: list[tuple[float, ...]] = field(default_factory=list)
+    pointer: int = 0
+    last: tuple[float, ...] = ()
+    voltages: dict[int, int] = field(default_factory=dict)
+
+    def count(self) -> int:
+        """Number of entries (``?snsc``)."""
+        return len(self.entries)
+
+    def clear(self) -> None:
+        """``!snsa 0`` / ``!snsc 0``."""
+        self.entries.clear()
+        self.pointer = 0
+
+    def write(self, index: int, row: tuple[float, ...]) -> None:
+        """``!snsa index pos...``: -1 or count+1 appends, 1..count overwrites."""
+        count = len(self.entries)
+        slot = count + 1 if index == -1 else index
+        if not 1 <= slot <= count + 1:
+            raise ListError(5, f"index {index} outside 1..{count + 1}")
+        if slot > MAX_SNAPSHOTS:
+            raise ListError(5, f"the array holds at most {MAX_SNAPSHOTS} entries")
+        if slot == count + 1:
+            self.entries.append(row)
+        else:
+            self.entries[slot - 1] = row
+
+    def capture(self, row: tuple[float, ...]) -> None:
+        """A snapshot event: append the current position (captures always append)."""
+        self.last = row
+        if len(self.entries) < MAX_SNAPSHOTS:
+            self.entries.append(row)
+
+    def read(self, index: int) -> tuple[float, ...]:
+        """``?snsa n`` (1-based) or ``?snsa -1`` (last)."""
+        if not self.entries:
+            raise ListError(5, "the snapshot array is empty")
+        slot = len(self.entries) if index == -1 else index
+        if not 1 <= slot <= len(self.entries):
+            raise ListError(5, f"index {index} outside 1..{len(self.entries)}")
+        return self.entries[slot - 1]
+
+    def shorten(self, count: int) -> None:
+        """``!snsc n``: keep the first n entries."""
+        if count > len(self.entries):
+            raise ListError(5, f"cannot grow the array to {count} entries")
+        del self.entries[count:]
+        self.pointer = min(self.pointer, max(0, count - 1))
+
+    def set_pointer(self, index: int) -> None:
+        """``!snsi n``: the 0-based move pointer."""
+        if not 0 <= index <= max(0, len(self.entries) - 1):
+            raise ListError(5, f"pointer {index} outside 0..{len(self.entries) - 1}")
+        self.pointer = index

@@ -1,0 +1,461 @@
+"""Serve an emulated controller in real time: over a pty, over TCP, or in-process.
+
+A :class:`WireRunner` drives one sans-IO :class:`~tango_aio.sim.wire.Wire` against the
+event loop's clock (``loop.time()``, which is monotonic): it feeds arriving bytes in,
+writes the wire's output out, and sleeps until the wire's next deadline or new input.
+Everything runs on the event loop thread; nothing here is thread-safe.
+
+* :func:`serve_pty`: a pseudo-terminal whose slave path a host opens with pyserial.
+* :func:`serve_tcp`: a loopback TCP server, usable as ``socket://127.0.0.1:PORT``.
+* :func:`create_sim_connection`: an in-process :class:`asyncio.Transport` for ``sim://``.
+
+A disconnect fault (:meth:`Wire.disconnect`) ends the runner; the serving layer then closes
+the pty master, the TCP connection, or reports ``connection_lost`` to the protocol.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import os
+import socket
+import struct
+import termios
+import tty
+from collections.abc import Callable
+from typing import TypeVar
+
+from tango_aio.sim.wire import HandlerFactory, Wire, WireConfig
+
+__all__ = [
+    "PtyServer",
+    "SimTransport",
+    "TcpServer",
+    "WireRunner",
+    "create_sim_connection",
+    "serve_pty",
+    "serve_tcp",
+]
+
+_READ_SIZE = 4096
+
+DRAIN_GRACE = 0.5
+"""Seconds a pty waits for the host to read pending output before a disconnect closes it."""
+_DRAIN_POLL = 0.001
+_DRAIN_QUIET = 20
+
+_P = TypeVar("_P", bound=asyncio.Protocol)
+
+
+async def _wait_task(task: asyncio.Task[None]) -> None:
+    """Wait for ``task`` to end without cancelling it; re-raise its exception, if any."""
+    await asyncio.wait([task])
+    exc = None if task.cancelled() else task.exception()
+    if exc is not None:
+        raise exc
+
+
+class WireRunner:
+    """Drives a :class:`Wire` in real time and passes its output to ``write``.
+
+    Must be created on a running event loop. :meth:`run` returns when the wire is cut
+    (disconnect fault) and runs forever otherwise; cancel it to stop.
+    """
+
+    def __init__(self, wire: Wire, write: Callable[[bytes], None]) -> None:
+        self.wire = wire
+        """The driven wire (fault injection goes here)."""
+        self._write = write
+        self._loop = asyncio.get_running_loop()
+        self._wake = asyncio.Event()
+        wire.notify = self._wake.set
+        wire.clock = self._loop.time
+
+    def feed(self, data: bytes) -> None:
+        """Bytes arrived from the host now."""
+        self.wire.feed(data, self._loop.time())
+        self._wake.set()
+
+    async def run(self) -> None:
+        """Deliver output on time until the wire is cut."""
+        while True:
+            self._wake.clear()
+            for chunk in self.wire.poll_chunks(self._loop.time()):
+                self._write(chunk)
+            if self.wire.closed:
+                return
+            await self._sleep(self.wire.next_deadline())
+
+    async def _sleep(self, deadline: float | None) -> None:
+        """Sleep until ``deadline`` (None: indefinitely) or until woken by input or a fault.
+
+        The loop's timer resolution (about 1 ms with epoll) batches reply bytes into chunks
+        of a few bytes at 57600 Bd; the wire still computes exact byte times.
+        """
+        if deadline is None:
+            await self._wake.wait()
+            return
+        delay = deadline - self._loop.time()
+        if delay <= 0.0:
+            await asyncio.sleep(0)
+            return
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(delay):
+                await self._wake.wait()
+
+
+# ---------------------------------------------------------------------------------- pty
+
+
+class PtyServer:
+    """One emulated controller behind a pseudo-terminal.
+
+    A host opens :attr:`path` (e.g. ``serial.Serial(server.path, 57600)``). The pty serves
+    one session: after a disconnect fault or :meth:`close` the master is closed and the
+    host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
+    and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`.
+    """
+
+    def __init__(self, wire: Wire) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._master, self._slave = os.openpty()
+        # Raw mode on the slave: no echo, no CR/NL translation, for hosts that do not set
+        # their own termios (pyserial does set raw mode itself on open).
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path: str = os.ttyname(self._slave)
+        """Device path of the slave end, for the host to open."""
+        self.wire = wire
+        """The emulated link (fault injection, counters)."""
+        self._out = bytearray()
+        self._open = True
+        self._runner = WireRunner(wire, self._write)
+        self._loop.add_reader(self._master, self._on_readable)
+        self._task = self._loop.create_task(self._serve())
+
+    def close(self) -> None:
+        """Stop serving and close the pty."""
+        self._task.cancel()
+
+    async def wait_closed(self) -> None:
+        """Wait until serving has ended (close() or a disconnect fault)."""
+        await _wait_task(self._task)
+
+    async def __aenter__(self) -> PtyServer:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        self.close()
+        await self.wait_closed()
+
+    async def _serve(self) -> None:
+        try:
+            await self._runner.run()
+            await self._drain()
+        finally:
+            self._close_fds()
+
+    async def _drain(self) -> None:
+        """Before a disconnect, wait (up to :data:`DRAIN_GRACE`) until the host has read all.
+
+        Linux discards unread slave input when the master closes, so without this a host
+        would never see the partial reply of a mid-reply disconnect. The kernel moves
+        written bytes to the slave's input queue asynchronously, so the queue must stay
+        empty for :data:`_DRAIN_QUIET` polls in a row; there is no event for "read".
+        """
+        quiet = 0
+        for _ in range(int(DRAIN_GRACE / _DRAIN_POLL)):
+            quiet = quiet + 1 if not self._out and self._unread() == 0 else 0
+            if quiet >= _DRAIN_QUIET:
+                return
+            await asyncio.sleep(_DRAIN_POLL)
+
+    def _unread(self) -> int:
+        """Bytes written to the host that it has not read yet (slave input queue)."""
+        try:
+            raw = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+        except OSError:
+            return 0
+        return int(struct.unpack("i", raw)[0])
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self._master, _READ_SIZE)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # EIO: no slave open; cannot happen while we hold one.
+            return
+        if data:
+            self._runner.feed(data)
+
+    def _write(self, chunk: bytes) -> None:
+        self._out += chunk
+        self._flush()
+
+    def _flush(self) -> None:
+        """Write pending output; if the pty buffer is full, retry when it drains."""
+        while self._out and self._open:
+            try:
+                written = os.write(self._master, self._out)
+            except BlockingIOError:
+                self._loop.add_writer(self._master, self._flush)
+                return
+            except OSError:
+                self._out.clear()
+                break
+            del self._out[:written]
+        if self._open:
+            self._loop.remove_writer(self._master)
+
+    def _close_fds(self) -> None:
+        if not self._open:
+            return
+        self._flush()
+        self._open = False
+        self._loop.remove_reader(self._master)
+        self._loop.remove_writer(self._master)
+        os.close(self._master)
+        os.close(self._slave)
+
+
+async def serve_pty(factory: HandlerFactory, config: WireConfig | None = None) -> PtyServer:
+    """Start serving a fresh controller on a new pty; returns at once (see ``.path``)."""
+    return PtyServer(Wire(factory, config))
+
+
+# ---------------------------------------------------------------------------------- tcp
+
+
+class _TcpSession(asyncio.Protocol):
+    """One TCP connection: its own wire and controller logic."""
+
+    def __init__(self, server: TcpServer) -> None:
+        self._server = server
+        self._transport: asyncio.Transport | None = None
+        self._runner: WireRunner | None = None
+        self.task: asyncio.Task[None] | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self._transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        wire = Wire(self._server.factory, self._server.config)
+        self._runner = WireRunner(wire, transport.write)
+        self.task = asyncio.get_running_loop().create_task(self._serve())
+        self._server._opened(self, wire)
+
+    def data_received(self, data: bytes) -> None:
+        if self._runner is not None:
+            self._runner.feed(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.close()
+        self._server._closed(self)
+
+    def close(self) -> None:
+        """Stop the controller and close the connection."""
+        if self.task is not None:
+            self.task.cancel()
+        if self._transport is not None:
+            self._transport.close()
+
+    async def _serve(self) -> None:
+        assert self._runner is not None and self._transport is not None
+        await self._runner.run()
+        # run() only returns when the wire was cut: close() still flushes what was written,
+        # so a mid-reply disconnect delivers the partial reply before the FIN.
+        self._transport.close()
+
+
+class TcpServer:
+    """A loopback TCP server; every connection gets a fresh controller from the factory.
+
+    Choice: one controller per connection (no sharing), so a reconnect starts from
+    power-on state. A factory that wants shared state can close over it. Use
+    :func:`serve_tcp`.
+    """
+
+    def __init__(self, factory: HandlerFactory, config: WireConfig | None = None) -> None:
+        self.factory = factory
+        """Builds the controller logic for each connection."""
+        self.config = config
+        """Wire configuration shared by all connections (not mutated by wires)."""
+        self.host = ""
+        """Bound address."""
+        self.port = 0
+        """Bound port."""
+        self._server: asyncio.Server | None = None
+        self._sessions: dict[_TcpSession, Wire] = {}
+        self._tasks: list[asyncio.Task[None]] = []
+        self._new: asyncio.Queue[Wire] = asyncio.Queue()
+
+    @property
+    def wires(self) -> list[Wire]:
+        """Wires of the connections currently open, oldest first."""
+        return list(self._sessions.values())
+
+    async def next_connection(self) -> Wire:
+        """Wait for the next accepted connection and return its wire."""
+        return await self._new.get()
+
+    async def start(self, host: str, port: int) -> None:
+        """Bind and start accepting (called by :func:`serve_tcp`)."""
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: _TcpSession(self), host, port)
+        self.host, self.port = self._server.sockets[0].getsockname()[:2]
+
+    def close(self) -> None:
+        """Stop accepting and close every open connection."""
+        if self._server is not None:
+            self._server.close()
+        for session in list(self._sessions):
+            session.close()
+
+    async def wait_closed(self) -> None:
+        """Wait until the listener and all connection tasks have ended."""
+        if self._server is not None:
+            await self._server.wait_closed()
+        if self._tasks:
+            await asyncio.wait(self._tasks)
+
+    async def __aenter__(self) -> TcpServer:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        self.close()
+        await self.wait_closed()
+
+    def _opened(self, session: _TcpSession, wire: Wire) -> None:
+        self._sessions[session] = wire
+        if session.task is not None:
+            self._tasks.append(session.task)
+        self._new.put_nowait(wire)
+
+    def _closed(self, session: _TcpSession) -> None:
+        self._sessions.pop(session, None)
+
+
+async def serve_tcp(
+    factory: HandlerFactory,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    config: WireConfig | None = None,
+) -> TcpServer:
+    """Start a TCP server (loopback by default, port 0 = any free one); see ``.port``."""
+    server = TcpServer(factory, config)
+    await server.start(host, port)
+    return server
+
+
+# ---------------------------------------------------------------------------- in-process
+
+
+class SimTransport(asyncio.Transport):
+    """An in-process transport between an :class:`asyncio.Protocol` and an emulator.
+
+    ``write()`` feeds the wire; the wire's output reaches ``protocol.data_received`` on
+    the loop, one call per chunk (so fragmentation is visible). ``close()`` reports
+    ``connection_lost(None)``; a disconnect fault reports
+    ``connection_lost(ConnectionResetError)``. Extra info: ``"wire"`` and ``"peername"``.
+    """
+
+    def __init__(self, protocol: asyncio.Protocol, wire: Wire) -> None:
+        super().__init__({"wire": wire, "peername": "sim"})
+        self._loop = asyncio.get_running_loop()
+        self._protocol = protocol
+        self.wire = wire
+        """The emulated link (fault injection, counters)."""
+        self._closing = False
+        self._reading = True
+        self._paused: list[bytes] = []
+        self._runner = WireRunner(wire, self._deliver)
+        self._task = self._loop.create_task(self._serve())
+
+    def write(self, data: bytes | bytearray | memoryview) -> None:
+        """Send bytes to the controller (ignored once closing, like asyncio's transports)."""
+        if not self._closing:
+            self._runner.feed(bytes(data))
+
+    def close(self) -> None:
+        """Close the connection; the protocol gets ``connection_lost(None)`` soon."""
+        self._lose(None)
+
+    def abort(self) -> None:
+        """Same as :meth:`close` (nothing is buffered on the host side)."""
+        self._lose(None)
+
+    def is_closing(self) -> bool:
+        """True once closed or disconnected."""
+        return self._closing
+
+    def pause_reading(self) -> None:
+        """Hold controller output until :meth:`resume_reading`."""
+        self._reading = False
+
+    def resume_reading(self) -> None:
+        """Deliver held output and resume."""
+        self._reading = True
+        held, self._paused = self._paused, []
+        for chunk in held:
+            self._deliver(chunk)
+
+    def is_reading(self) -> bool:
+        """False while reading is paused."""
+        return self._reading
+
+    def get_write_buffer_size(self) -> int:
+        """Always 0: writes go straight into the wire's unbounded queue."""
+        return 0
+
+    def set_write_buffer_limits(self, high: int | None = None, low: int | None = None) -> None:
+        """Accepted and ignored (the write buffer is always empty)."""
+
+    def can_write_eof(self) -> bool:
+        """False: a serial line has no EOF."""
+        return False
+
+    async def wait_closed(self) -> None:
+        """Wait until the emulator task has ended."""
+        await _wait_task(self._task)
+
+    async def _serve(self) -> None:
+        await self._runner.run()
+        self._lose(ConnectionResetError("emulated controller disconnected"))
+
+    def _deliver(self, chunk: bytes) -> None:
+        if self._closing:
+            return
+        if not self._reading:
+            self._paused.append(chunk)
+            return
+        try:
+            self._protocol.data_received(chunk)
+        except Exception as exc:  # mirror asyncio: report and close the transport
+            self._loop.call_exception_handler(
+                {"message": "protocol.data_received() failed", "exception": exc,
+                 "transport": self, "protocol": self._protocol})
+            self.close()
+
+    def _lose(self, exc: Exception | None) -> None:
+        if self._closing:
+            return
+        self._closing = True
+        if asyncio.current_task() is not self._task:
+            self._task.cancel()
+        self._loop.call_soon(self._protocol.connection_lost, exc)
+
+
+async def create_sim_connection(
+    protocol_factory: Callable[[], _P],
+    handler_factory: HandlerFactory,
+    config: WireConfig | None = None,
+) -> tuple[SimTransport, _P]:
+    """Connect a new protocol to a fresh emulated controller, like ``create_connection``."""
+    protocol = protocol_factory()
+    transport = SimTransport(protocol, Wire(handler_factory, config))
+    protocol.connection_made(transport)
+    await asyncio.sleep(0)
+    return transport, protocol

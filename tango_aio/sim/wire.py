@@ -1,0 +1,642 @@
+"""Sans-IO model of the serial link of a TANGO controller.
+
+:class:`Wire` sits between a host and the controller logic (a :class:`LineHandler`). It
+models what the manual says, or implies, about the byte level of the link:
+
+* Both directions are paced by the baud rate. The default is 57600 Bd, 8N2, so one byte
+  is 11 bit times (manual L8-10). Bytes the host writes go into an unbounded queue (the
+  OS/USB buffers and the UART) and reach the controller one byte time apart. Reply bytes
+  leave one byte time apart as well. ``baud=None`` (or 0) switches pacing off.
+* The controller has a 256-byte input buffer (manual L129-131, L14093). A byte that
+  arrives while 256 bytes are held is lost without a trace; :attr:`Wire.lost_bytes`
+  counts such bytes.
+* The interpreter takes one CR-terminated line at a time, stays busy for the processing
+  time of that line, and only then takes the next one.
+* Ctrl+C (0x03) bypasses the parser (manual L6808-6814): it clears the input buffer and
+  stops all axes.
+
+Nothing here does I/O or reads a clock. Every entry point takes ``now`` (seconds, any
+monotonic time base), and :meth:`Wire.next_deadline` says when the wire next wants
+attention. :mod:`tango_aio.sim.serve` drives a wire in real time.
+
+Choices where the manual is silent are documented where they are implemented:
+
+* ``_try_start``: when bytes are freed, LF, empty lines, over-long lines.
+* ``_begin_line``: when the handler runs and when its replies leave.
+* ``_ctrl_c``: what Ctrl+C clears.
+* ``_schedule_reply``: latency, fragmentation and reply faults.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+__all__ = [
+    "BITS_PER_BYTE",
+    "CR",
+    "CTRL_C",
+    "DEFAULT_BAUD",
+    "INPUT_BUFFER_SIZE",
+    "LF",
+    "Emit",
+    "Faults",
+    "Garbler",
+    "HandlerFactory",
+    "LineHandler",
+    "Wire",
+    "WireConfig",
+    "flip_one_bit",
+]
+
+CR = 0x0D
+"""Carriage return: ends a command line and a reply line (manual L28-30, L82)."""
+LF = 0x0A
+"""Line feed: never mentioned by the manual; the emulated parser skips it."""
+CTRL_C = 0x03
+"""Ctrl+C: the stop character that bypasses the parser (manual L6808-6814)."""
+DEFAULT_BAUD = 57600
+"""Default baud rate of every TANGO COM port (manual L8-10)."""
+BITS_PER_BYTE = 11
+"""Bit times per byte at 8N2: 1 start bit, 8 data bits, 2 stop bits."""
+INPUT_BUFFER_SIZE = 256
+"""Size of the controller's input buffer in bytes (manual L14093)."""
+
+# Tolerance for comparing event times computed as ``start + k * byte_time``.
+_EPS = 1e-9
+
+Emit = Callable[[bytes], None]
+"""Callback the controller logic calls with one complete reply, CR included."""
+
+
+class LineHandler(Protocol):
+    """The controller logic that a :class:`Wire` drives.
+
+    The wire calls these methods; the logic answers through the :data:`Emit` callback it
+    received from its :data:`HandlerFactory`. All times are the wire's ``now``.
+    """
+
+    def handle_line(self, line: bytes, now: float) -> None:
+        """Execute one complete command line: no CR, LFs removed, case as received."""
+
+    def line_too_long(self, head: bytes, now: float) -> None:
+        """A line had more characters than fit in the input buffer; ``head`` is its start.
+
+        Called in place of :meth:`handle_line` when the line's CR arrives; the logic should
+        not execute it and should set error 3 ("too many characters in command line").
+        """
+
+    def ctrl_c(self, now: float) -> None:
+        """0x03 arrived: stop all axes. The wire has already cleared the input buffer."""
+
+    def processing_time(self, line: bytes) -> float:
+        """Extra seconds the interpreter is busy with ``line``.
+
+        The wire adds this to :attr:`WireConfig.processing_time_per_line`. Return 0.0 for
+        ordinary instructions and more for blocking ones (``brakepos``, ``reset``...).
+        """
+
+    def poll(self, now: float) -> None:
+        """Let time-driven logic (moves finishing, autostatus) run up to ``now``."""
+
+    def next_deadline(self) -> float | None:
+        """When :meth:`poll` must next be called, or None if nothing is pending."""
+
+
+HandlerFactory = Callable[[Emit], LineHandler]
+"""Builds the controller logic for one wire, given the wire's :meth:`Wire.emit`."""
+
+Garbler = Callable[[bytes, random.Random], bytes]
+"""Turns a reply into a garbled copy, using the wire's seeded random generator."""
+
+
+def flip_one_bit(data: bytes, rng: random.Random) -> bytes:
+    """Flip one of the low 7 bits of one byte of ``data``, never touching or creating a CR.
+
+    Keeping CRs intact leaves the line structure alone, so the host sees a corrupted line
+    rather than two lines; the default garbler models noise that corrupts content only.
+    """
+    candidates = [i for i, byte in enumerate(data) if byte != CR]
+    if not candidates:
+        return data
+    index = rng.choice(candidates)
+    out = bytearray(data)
+    for bit in rng.sample(range(7), 7):
+        if out[index] ^ (1 << bit) != CR:
+            out[index] ^= 1 << bit
+            break
+    return bytes(out)
+
+
+@dataclass
+class WireConfig:
+    """Timing and size parameters of an emulated link.
+
+    A benchmark setting: ``WireConfig(processing_time_per_line=0.0005, stall_every_lines=1000,
+    stall_duration=0.05, reply_latency=0.002)``.
+    """
+
+    baud: int | None = DEFAULT_BAUD
+    """Baud rate; None or 0 means instant mode (no pacing at all)."""
+    bits_per_byte: int = BITS_PER_BYTE
+    """Bit times per byte on the line."""
+    input_buffer_size: int = INPUT_BUFFER_SIZE
+    """Capacity of the controller's input buffer in bytes."""
+    processing_time_per_line: float = 0.0
+    """Seconds the interpreter is busy with every line (the handler may add to it)."""
+    stall_every_lines: int = 0
+    """Every N-th line also stalls the interpreter for :attr:`stall_duration`; 0 = never."""
+    stall_duration: float = 0.0
+    """Length of the periodic stall in seconds."""
+    reply_latency: float = 0.0
+    """Constant delay added to every reply byte (e.g. 0.002 for a USB adapter)."""
+    fragment_probability: float = 0.0
+    """Probability that a reply is split into 2-4 separately delivered pieces."""
+    fragment_gap: float = 0.0
+    """Upper bound of the random extra delay before each piece after the first."""
+    seed: int | None = None
+    """Seed of the wire's :class:`random.Random` (fragmentation, garbling)."""
+
+    def __post_init__(self) -> None:
+        if self.baud is not None and self.baud < 0:
+            raise ValueError("baud must be positive, 0 or None")
+        if self.bits_per_byte <= 0:
+            raise ValueError("bits_per_byte must be positive")
+        if self.input_buffer_size < 2:
+            raise ValueError("input_buffer_size must hold at least one character and a CR")
+        if not 0.0 <= self.fragment_probability <= 1.0:
+            raise ValueError("fragment_probability must be within [0, 1]")
+        if min(self.processing_time_per_line, self.stall_duration, self.reply_latency,
+               self.fragment_gap) < 0.0 or self.stall_every_lines < 0:
+            raise ValueError("times and counts must not be negative")
+
+    @property
+    def byte_time(self) -> float:
+        """Seconds one byte occupies the line; 0.0 in instant mode."""
+        if not self.baud:
+            return 0.0
+        return self.bits_per_byte / self.baud
+
+    @property
+    def max_line_length(self) -> int:
+        """Longest command line (without CR) that fits in the input buffer: 255."""
+        return self.input_buffer_size - 1
+
+
+@dataclass
+class Faults:
+    """Faults the wire injects into its output; the counters count down as they are used.
+
+    A "reply" is one call of :meth:`Wire.emit`.
+    """
+
+    drop_replies: int = 0
+    """Silently drop this many of the next replies."""
+    garble_replies: int = 0
+    """Pass this many of the next replies through :attr:`garbler`."""
+    garbler: Garbler = flip_one_bit
+    """How a reply is garbled."""
+    delay_replies: int = 0
+    """Delay this many of the next replies by :attr:`reply_delay` (later output waits too)."""
+    reply_delay: float = 0.0
+    """Seconds a delayed reply waits before its first byte is sent."""
+    disconnect_mid_reply: bool = False
+    """Send only the first half of the next reply, then close the connection."""
+
+
+@dataclass
+class _Segment:
+    """A run of bytes on the line: byte ``i`` of ``data`` passes at ``start + (i+1)*bt``.
+
+    ``pos`` bytes have already been consumed. A ``close`` segment is a disconnect marker
+    that takes effect at ``start``.
+    """
+
+    start: float
+    data: bytes
+    pos: int = 0
+    close: bool = False
+
+    def due_at(self, byte_time: float) -> float:
+        """Time the next unconsumed byte (or the marker) passes."""
+        if self.close:
+            return self.start
+        return self.start + (self.pos + 1) * byte_time
+
+    def due_count(self, now: float, byte_time: float) -> int:
+        """Number of unconsumed bytes that have passed by ``now``."""
+        if byte_time == 0.0:
+            passed = len(self.data) if self.start <= now + _EPS else 0
+        else:
+            passed = int((now + _EPS - self.start) / byte_time)
+        return max(0, min(len(self.data), passed) - self.pos)
+
+
+class Wire:
+    """The sans-IO link and input buffer of one emulated controller.
+
+    Use :meth:`feed` for bytes from the host, :meth:`poll` (or :meth:`poll_chunks`) for
+    bytes to the host, and :meth:`next_deadline` to know when to call :meth:`poll` next.
+    ``now`` must not decrease between calls (a smaller value is treated as the last one).
+    """
+
+    def __init__(self, make_handler: HandlerFactory, config: WireConfig | None = None) -> None:
+        self.config: WireConfig = config if config is not None else WireConfig()
+        """The timing configuration (read once: change it before the first call)."""
+        self.faults: Faults = Faults()
+        """Fault injection settings, consulted for every reply."""
+        self.rng: random.Random = random.Random(self.config.seed)
+        """Random generator for fragmentation and garbling."""
+        self.lost_bytes = 0
+        """Bytes lost because they arrived while the input buffer was full."""
+        self.lines_processed = 0
+        """Lines taken by the interpreter, over-long lines included."""
+        self.ctrl_c_count = 0
+        """Ctrl+C characters received."""
+        self.dropped_replies = 0
+        """Replies swallowed by :attr:`Faults.drop_replies`."""
+        self.closed = False
+        """True once the connection was cut (:meth:`disconnect` or a mid-reply fault)."""
+        self.notify: Callable[[], None] | None = None
+        """Called when something changes outside :meth:`feed`/:meth:`poll` (serving hook)."""
+        self.clock: Callable[[], float] | None = None
+        """Time source for fault calls made without ``now`` (set by the serving layer)."""
+        self._bt = self.config.byte_time
+        self._now = float("-inf")
+        self._rx: deque[_Segment] = deque()
+        self._rx_free_at = float("-inf")
+        self._tx: deque[_Segment] = deque()
+        self._tx_free_at = float("-inf")
+        self._buffer = bytearray()
+        self._busy_until: float | None = None
+        self._busy_len = 0
+        self._held: list[bytes] = []
+        self._discard_head: bytes | None = None
+        self._handler_polled_at = float("-inf")
+        self.handler: LineHandler = make_handler(self.emit)
+        """The controller logic built by the factory."""
+        self._handler_deadline = self.handler.next_deadline()
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def now(self) -> float:
+        """The latest time the wire has been advanced to."""
+        return self._now
+
+    @property
+    def buffered(self) -> int:
+        """Bytes in the input buffer, the line being processed included."""
+        return len(self._buffer) + self._busy_len
+
+    @property
+    def busy(self) -> bool:
+        """True while the interpreter processes a line (or stalls)."""
+        return self._busy_until is not None
+
+    @property
+    def rx_pending(self) -> int:
+        """Bytes written by the host that have not reached the controller yet."""
+        return sum(len(seg.data) - seg.pos for seg in self._rx)
+
+    @property
+    def tx_pending(self) -> int:
+        """Reply bytes that have not reached the host yet."""
+        return sum(len(seg.data) - seg.pos for seg in self._tx)
+
+    def feed(self, data: bytes, now: float) -> None:
+        """The host wrote ``data`` at ``now``; it reaches the controller at the baud rate."""
+        self._advance(now)
+        if self.closed or not data:
+            return
+        start = max(self._now, self._rx_free_at)
+        self._rx.append(_Segment(start, bytes(data)))
+        self._rx_free_at = start + len(data) * self._bt
+        self._advance(self._now)
+
+    def poll_chunks(self, now: float) -> list[bytes]:
+        """Advance to ``now`` and return the reply bytes that reached the host by then.
+
+        Each chunk comes from one piece of one reply, so fragmentation is visible to a
+        serving layer that writes chunks separately.
+        """
+        self._advance(now)
+        out: list[bytes] = []
+        while self._tx and not self.closed:
+            seg = self._tx[0]
+            if seg.close:
+                if seg.start <= self._now + _EPS:
+                    self._cut()
+                break
+            count = seg.due_count(self._now, self._bt)
+            if count:
+                out.append(seg.data[seg.pos : seg.pos + count])
+                seg.pos += count
+            if seg.pos < len(seg.data):
+                break
+            self._tx.popleft()
+        return out
+
+    def poll(self, now: float) -> bytes:
+        """Advance to ``now`` and return the reply bytes that reached the host by then."""
+        return b"".join(self.poll_chunks(now))
+
+    def next_deadline(self) -> float | None:
+        """When :meth:`poll` should next be called, or None if only new input can matter."""
+        if self.closed:
+            return None
+        tx_next = self._tx[0].due_at(self._bt) if self._tx else None
+        candidates = (self._rx_next(), self._busy_until, self._handler_due(), tx_next)
+        times = [t for t in candidates if t is not None]
+        return min(times) if times else None
+
+    def emit(self, data: bytes) -> None:
+        """Queue one reply from the controller logic (CR included).
+
+        While the interpreter is busy the reply is held until processing ends, so replies
+        leave in order and only after the processing time.
+        """
+        if self.closed or not data:
+            return
+        if self._busy_until is not None:
+            self._held.append(bytes(data))
+        else:
+            self._schedule_reply(bytes(data), self._now)
+        self._notify()
+
+    def stall(self, seconds: float, now: float | None = None) -> None:
+        """Freeze the interpreter for ``seconds`` more (from now if it is idle).
+
+        Input still fills the buffer and overflows; output the logic emits meanwhile is
+        held. Time-driven logic (moves) keeps running, as motion is done by hardware.
+        Without ``now`` the time is taken from :attr:`clock`, else the last time seen.
+        """
+        if now is None and self.clock is not None:
+            now = self.clock()
+        if now is not None:
+            self._advance(now)
+        if self._busy_until is not None:
+            self._busy_until += seconds
+        else:
+            self._busy_until = self._now + seconds
+        self._notify()
+
+    def disconnect(self, mid_reply: bool = False) -> None:
+        """Cut the connection now, or (``mid_reply``) halfway through the next reply."""
+        if mid_reply:
+            self.faults.disconnect_mid_reply = True
+        else:
+            self._cut()
+        self._notify()
+
+    # ------------------------------------------------------------------ event loop
+
+    def _advance(self, until: float) -> None:
+        """Run every event up to ``until`` in time order, then poll the handler at it."""
+        until = max(until, self._now)
+        if self.closed:
+            self._now = until
+            return
+        self._handler_deadline = self.handler.next_deadline()
+        while not self.closed and self._step(until):
+            pass
+        self._now = max(self._now, until)
+        if not self.closed:
+            self._poll_handler(self._now)
+
+    def _step(self, until: float) -> bool:
+        """Run the earliest event due by ``until``; False if there is none.
+
+        Ties go to the interpreter finishing a line, then the handler, then input bytes,
+        so a byte arriving exactly as a line completes finds the freed space.
+        """
+        busy, handler, rx = self._busy_until, self._handler_due(), self._rx_next()
+        candidates = [(t, rank) for rank, t in enumerate((busy, handler, rx)) if t is not None]
+        if not candidates:
+            return False
+        when, rank = min(candidates)
+        if when > until + _EPS:
+            return False
+        self._now = max(self._now, when)
+        if rank == 0:
+            self._finish_line()
+            self._try_start()
+        elif rank == 1:
+            self._poll_handler(self._now)
+        else:
+            others = [t for t in (busy, handler) if t is not None]
+            self._rx_run(until, min(others, default=float("inf")))
+        return True
+
+    def _poll_handler(self, now: float) -> None:
+        self._handler_polled_at = now
+        self.handler.poll(now)
+        self._handler_deadline = self.handler.next_deadline()
+
+    def _handler_due(self) -> float | None:
+        """The handler's deadline, ignoring one it already had its poll for.
+
+        A deadline at or before the last poll would make the loop spin; the poll that ends
+        every :meth:`_advance` covers it.
+        """
+        deadline = self._handler_deadline
+        if deadline is None or deadline <= self._handler_polled_at:
+            return None
+        return deadline
+
+    def _notify(self) -> None:
+        if self.notify is not None:
+            self.notify()
+
+    # ------------------------------------------------------------------ input side
+
+    def _rx_next(self) -> float | None:
+        return self._rx[0].due_at(self._bt) if self._rx else None
+
+    def _rx_run(self, until: float, before: float) -> None:
+        """Deliver input bytes due by ``until`` and before ``before`` (the next other event).
+
+        Stops early when a byte made the handler run, since that can change deadlines.
+        """
+        while self._rx:
+            seg = self._rx[0]
+            when = seg.due_at(self._bt)
+            if when > until + _EPS or when >= before:
+                return
+            self._now = max(self._now, when)
+            byte = seg.data[seg.pos]
+            seg.pos += 1
+            if seg.pos == len(seg.data):
+                self._rx.popleft()
+            if self._receive(byte):
+                return
+
+    def _receive(self, byte: int) -> bool:
+        """One byte reaches the controller's UART; True if the handler was called.
+
+        Ctrl+C is taken by the receive interrupt before anything is buffered, so it is
+        never lost, even with a full buffer (the manual says it bypasses the parser).
+        """
+        if byte == CTRL_C:
+            self._ctrl_c()
+            return True
+        if self.buffered >= self.config.input_buffer_size:
+            self.lost_bytes += 1
+            return False
+        self._buffer.append(byte)
+        if self._busy_until is not None:
+            return False
+        full = self.buffered >= self.config.input_buffer_size
+        if byte == CR or full or self._discard_head is not None:
+            return self._try_start()
+        return False
+
+    def _ctrl_c(self) -> None:
+        """Clear everything not yet taken by the interpreter, then tell the handler.
+
+        Choice: the line the interpreter is already working on has executed (the handler
+        ran when processing started) and still completes, and its reply is still sent;
+        Ctrl+C clears only the unprocessed input, partial line included, and ends the
+        skipping of an over-long line. Pending output is not touched.
+        """
+        self._buffer.clear()
+        self._discard_head = None
+        self.ctrl_c_count += 1
+        self.handler.ctrl_c(self._now)
+        self._handler_deadline = self.handler.next_deadline()
+
+    # ------------------------------------------------------------------ interpreter
+
+    def _try_start(self) -> bool:
+        """Let an idle interpreter take lines from the buffer; True if the handler ran.
+
+        Choices where the manual is silent:
+
+        * The bytes of a line stay in the buffer (and count against its 256 bytes) until
+          processing of that line *ends*. With this, a host that keeps its unanswered
+          bytes within 256 never loses data, and one that does not loses data as soon as
+          processing slows down.
+        * LF is stored in the buffer like any byte (the receive interrupt does not filter
+          it) but the parser skips it: it neither ends a line nor is part of it.
+        * An empty line (a lone CR) is passed to the handler like any other.
+        * The buffer full without a CR means the line cannot fit: the parser keeps its
+          first 255 characters, frees the buffer and skips input up to the next CR, then
+          reports the line with :meth:`LineHandler.line_too_long` (error 3).
+        """
+        ran = False
+        while self._busy_until is None and not self.closed:
+            cr = self._buffer.find(CR)
+            if self._discard_head is not None:
+                if cr < 0:
+                    self._buffer.clear()
+                    return ran
+                del self._buffer[: cr + 1]
+                head, self._discard_head = self._discard_head, None
+                self._begin_line(head, 0, too_long=True)
+            elif cr >= 0:
+                line = bytes(self._buffer[:cr]).replace(b"\n", b"")
+                del self._buffer[: cr + 1]
+                self._begin_line(line, cr + 1, too_long=False)
+            elif len(self._buffer) >= self.config.input_buffer_size:
+                content = bytes(self._buffer).replace(b"\n", b"")
+                self._discard_head = content[: self.config.max_line_length]
+                self._buffer.clear()
+                continue
+            else:
+                return ran
+            ran = True
+        return ran
+
+    def _begin_line(self, line: bytes, size: int, *, too_long: bool) -> None:
+        """Start processing one line that occupied ``size`` buffer bytes.
+
+        Choice: the handler runs at the *start* of processing (so a move starts before a
+        Ctrl+C that arrives during processing stops it), but what it emits is held until
+        processing ends, so every reply includes the processing time.
+        """
+        self.lines_processed += 1
+        duration = self._duration(line, too_long)
+        self._busy_len = size
+        self._busy_until = self._now + duration
+        if too_long:
+            self.handler.line_too_long(line, self._now)
+        else:
+            self.handler.handle_line(line, self._now)
+        self._handler_deadline = self.handler.next_deadline()
+        if duration <= 0.0:
+            self._finish_line()
+
+    def _duration(self, line: bytes, too_long: bool) -> float:
+        """Processing time of one line: base + handler's extra (not for over-long lines)."""
+        config = self.config
+        duration = config.processing_time_per_line
+        if not too_long:
+            duration += max(0.0, self.handler.processing_time(line))
+        if config.stall_every_lines and self.lines_processed % config.stall_every_lines == 0:
+            duration += config.stall_duration
+        return duration
+
+    def _finish_line(self) -> None:
+        """Processing ended: free the line's bytes and send what was emitted meanwhile."""
+        self._busy_until = None
+        self._busy_len = 0
+        held, self._held = self._held, []
+        for reply in held:
+            self._schedule_reply(reply, self._now)
+
+    # ------------------------------------------------------------------ output side
+
+    def _schedule_reply(self, data: bytes, ready: float) -> None:
+        """Put one reply on the line, applying faults, latency and fragmentation.
+
+        The UART sends bytes back to back; a reply starts when it is ready and the previous
+        one has left. Latency shifts every byte equally (like a USB adapter), so order is
+        kept. A delayed reply holds back everything after it, as on a serial line.
+        """
+        faults = self.faults
+        if faults.drop_replies > 0:
+            faults.drop_replies -= 1
+            self.dropped_replies += 1
+            return
+        if faults.garble_replies > 0:
+            faults.garble_replies -= 1
+            data = faults.garbler(data, self.rng)
+        if faults.delay_replies > 0:
+            faults.delay_replies -= 1
+            ready += faults.reply_delay
+        cut = faults.disconnect_mid_reply
+        if cut:
+            faults.disconnect_mid_reply = False
+            data = data[: max(1, len(data) // 2)]
+        start = max(ready, self._tx_free_at)
+        for index, piece in enumerate(self._fragments(data)):
+            if index and self.config.fragment_gap:
+                start += self.rng.uniform(0.0, self.config.fragment_gap)
+            self._tx.append(_Segment(start + self.config.reply_latency, piece))
+            start += len(piece) * self._bt
+        self._tx_free_at = start
+        if cut:
+            self._tx.append(_Segment(start + self.config.reply_latency, b"", close=True))
+
+    def _fragments(self, data: bytes) -> list[bytes]:
+        """Split ``data`` at 1-3 random points with :attr:`WireConfig.fragment_probability`."""
+        probability = self.config.fragment_probability
+        if len(data) < 2 or not probability or self.rng.random() >= probability:
+            return [data]
+        count = self.rng.randint(1, min(3, len(data) - 1))
+        cuts = sorted(self.rng.sample(range(1, len(data)), count))
+        return [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
+
+    def _cut(self) -> None:
+        """The connection is gone: drop everything in flight and stop driving the handler."""
+        self.closed = True
+        self._rx.clear()
+        self._tx.clear()
+        self._buffer.clear()
+        self._held.clear()
+        self._busy_until = None
+        self._busy_len = 0
+        self._discard_head = None

@@ -1,0 +1,73 @@
+"""The committed ``tango_aio/_catalog.py`` is exactly what ``tools/gen_catalog.py`` makes."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GENERATOR = ROOT / "tools" / "gen_catalog.py"
+CATALOG = ROOT / "tango_aio" / "_catalog.py"
+REFERENCE = ROOT.parent / "shared" / "reference" / "instructions.json"
+
+pytestmark = pytest.mark.skipif(
+    not REFERENCE.exists(),
+    reason=f"the reference {REFERENCE} is absent, so the catalog cannot be regenerated",
+)
+
+
+@pytest.fixture(scope="module")
+def generator() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("gen_catalog", GENERATOR)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def entries(generator: ModuleType) -> list[dict[str, object]]:
+    loaded: list[dict[str, object]] = generator.load(REFERENCE)
+    return loaded
+
+
+def test_generator_reads_the_shared_reference(generator: ModuleType) -> None:
+    assert generator.DEFAULT_JSON.resolve() == REFERENCE.resolve()
+
+
+def test_committed_catalog_is_the_generated_one(
+    generator: ModuleType, entries: list[dict[str, object]]
+) -> None:
+    expected = generator.render(entries).encode("utf-8")
+    actual = CATALOG.read_bytes()
+    assert actual == expected, (
+        "tango_aio/_catalog.py is out of date or was edited by hand: "
+        "run `.venv/bin/python tools/gen_catalog.py`"
+    )
+
+
+def test_render_is_deterministic(generator: ModuleType, entries: list[dict[str, object]]) -> None:
+    assert generator.render(entries) == generator.render(entries)
+
+
+def test_override_tables_name_real_instructions(
+    generator: ModuleType, entries: list[dict[str, object]]
+) -> None:
+    # A misspelt key would be silently ignored by the generator.
+    names = {entry["name"] for entry in entries}
+    tables = ["READ_ONLY_PARAMS", "READ_LEAD", "BIT_FIELDS", "WRITE_OVERRIDES",
+              "READ_OVERRIDES", "REPLY", "EXEC_REPLY", "LINES", "COMPLETION",
+              "BARE_EXECUTES", "OPTION_GROUPS", "DIGIT_VALUES"]
+    for table in tables:
+        unknown = set(getattr(generator, table)) - names
+        assert not unknown, f"{table} names unknown instructions {sorted(unknown)}"
+
+
+def test_reply_table_uses_real_shapes(generator: ModuleType) -> None:
+    from tango_aio.instructions import Shape
+
+    for name, shape in {**generator.REPLY, **generator.EXEC_REPLY}.items():
+        assert shape in Shape.__members__, (name, shape)
