@@ -4,22 +4,33 @@ This is the TANGO motion controller made by Märzhäuser Wetzlar (microscope sta
 positioning axes), not the "Tango Controls" SCADA toolkit.
 """
 
+from .connection import connect
+from .controller import Controller, Identity
 from .errors import (
     ConnectionLostError,
     ControllerError,
+    ControllerTimeoutError,
     InvalidCommandError,
     MoveError,
     ProtocolError,
+    RequestAbortedError,
     TangoError,
 )
+from .events import TangoEvent
 
 __all__ = [
     "ConnectionLostError",
+    "Controller",
     "ControllerError",
+    "ControllerTimeoutError",
+    "Identity",
     "InvalidCommandError",
     "MoveError",
     "ProtocolError",
+    "RequestAbortedError",
     "TangoError",
+    "TangoEvent",
+    "connect",
 ]
 
 __version__ = "0.1.0"

@@ -459,14 +459,15 @@ class Controller:
         return self._hub.subscribe(maxsize)
 
     async def watch_position(self, interval: float = 0.1) -> AsyncIterator[PositionUpdate]:
-        """Yield positions every ``interval`` seconds while any axis moves, then once more
-        when all are idle. Each update is also published to :meth:`events`."""
+        """Yield positions every ``interval`` seconds while any axis moves or a move of
+        this driver is in flight, then once more when all is idle. Each update is also
+        published to :meth:`events`."""
         while True:
             letters = await self.status()
             update = PositionUpdate(await self.position())
             self._hub.publish(update)
             yield update
-            if "M" not in letters.values():
+            if "M" not in letters.values() and not self._motion_lock.locked():
                 return
             await asyncio.sleep(interval)
 
