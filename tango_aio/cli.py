@@ -195,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tango-aio`` command."""
     args = _parser().parse_args(argv)
     try:
-        return asyncio.run(args.run(args))
+        run: Command = args.run
+        return asyncio.run(run(args))
     except KeyboardInterrupt:
         return 130
     except (TangoError, OSError, ValueError) as exc:
