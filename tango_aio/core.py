@@ -37,7 +37,7 @@ from __future__ import annotations
 import enum
 import re
 from collections import deque
-from collections.abc import Hashable, Iterator
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import Final, NoReturn
 
@@ -435,11 +435,14 @@ class ProtocolCore:
             self._route(line)
         return self._events.popleft()
 
-    def events(self, data: bytes = b"") -> Iterator[Event]:
-        """Feed ``data`` and iterate over every event it completes."""
+    def events(self, data: bytes = b"") -> list[Event]:
+        """Feed ``data`` and return every event it completes (raises on an over-long
+        line; use :meth:`next_event` to carry on past one)."""
         self.receive_data(data)
+        out: list[Event] = []
         while (event := self.next_event()) is not None:
-            yield event
+            out.append(event)
+        return out
 
     # -- routing ------------------------------------------------------------------------
 
@@ -467,7 +470,9 @@ class ProtocolCore:
     def _route_completion(self, line: str, text: str) -> bool:
         if text == "":
             # Autostatus 3 reports completion with a bare CR (manual L2107-2113, L2161);
-            # inside a multi-line reply an empty line is data.
+            # inside a multi-line reply an empty line is data. It is accepted as a
+            # completion in every mode: the mode that matters is the one in force when
+            # the move ends, which may differ from the mode of the last line written.
             if self._in_multiline():
                 return False
             tag = self._moves.popleft() if self._moves else None
