@@ -1,0 +1,131 @@
+"""Write-credit accounting: never overrun the controller's 256-byte input buffer.
+
+Theory of operation
+===================
+The controller buffers received bytes until its interpreter has processed the line they
+belong to; bytes that arrive while 256 are buffered are lost without notice (manual
+L129-131, L14093). The driver therefore counts every byte it writes as *outstanding* until
+it knows the controller has processed it, and never lets the outstanding bytes exceed the
+*limit* (255 by default).
+
+What confirms bytes: a line's reply is sent after the line was processed, so a reply to
+request R confirms R's bytes and every byte written before them. (An autostatus-4 echo is
+sent *before* executing, so it confirms only the bytes before its line.)
+
+Lines that owe no reply (``!trigp -1 2.5`` in autostatus 1) confirm nothing. So when such
+lines pile up, the driver appends a *marker*: the bare read ``err`` (4 bytes), whose reply
+confirms everything before it and tells whether the last line before it failed. Markers
+are inserted every ``chunk`` bytes of reply-less traffic, so several are in flight and
+credit keeps coming back while the link stays busy; and whenever the queue is blocked on
+credit with unconfirmed reply-less bytes at the tail. Ordinary request/reply traffic never
+needs one.
+
+This module is sans-IO: :class:`CreditWindow` only does the arithmetic; the protocol
+decides what to write.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Hashable
+from dataclasses import dataclass
+from typing import Final
+
+__all__ = ["DEFAULT_CHUNK", "DEFAULT_LIMIT", "MARKER", "CreditWindow"]
+
+#: At most this many bytes written and not yet confirmed (the buffer holds 256).
+DEFAULT_LIMIT: Final = 255
+#: Reply-less bytes after which a marker is appended. 120 keeps two chunks and their
+#: markers within the limit, so one is always in flight, at 3 % overhead.
+DEFAULT_CHUNK: Final = 120
+#: The marker line: the bare read form of ``err`` (manual L2824), 4 bytes.
+MARKER: Final = b"err\r"
+
+
+@dataclass(slots=True)
+class _Written:
+    size: int
+    tag: Hashable | None  # the request whose reply confirms this line, if any
+
+
+class CreditWindow:
+    """Counts outstanding bytes and says when a marker is needed."""
+
+    def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK) -> None:
+        if limit < len(MARKER) + 1:
+            raise ValueError(f"credit limit {limit} is too small")
+        self.limit = limit
+        self.chunk = min(chunk, limit - len(MARKER))
+        self._written: deque[_Written] = deque()
+        self.outstanding = 0
+        #: Reply-less bytes written since the last line that owes a reply.
+        self.unmarked = 0
+        #: Highest number of outstanding bytes seen (for tests and benchmarks).
+        self.peak = 0
+
+    def fits(self, size: int, has_reply: bool) -> bool:
+        """Whether a line of ``size`` bytes may be written now.
+
+        A reply-less line must also leave room for the marker that will confirm it. A line
+        too long for that is written only when nothing is outstanding (it can only happen
+        for lines of more than ``limit - 4`` bytes, which no typed API produces).
+        """
+        reserve = 0 if has_reply else len(MARKER)
+        if size + reserve > self.limit:
+            return self.outstanding == 0
+        return self.outstanding + size + reserve <= self.limit
+
+    def marker_due(self, next_size: int | None, next_has_reply: bool) -> bool:
+        """Whether a marker should be written before the next line (``None``: the queue
+        is empty)."""
+        if self.unmarked == 0:
+            return False
+        if self.unmarked >= self.chunk:
+            return True
+        if next_size is None:
+            return False
+        if not next_has_reply and self.unmarked + next_size > self.chunk:
+            return True
+        # Blocked on credit with nothing in flight that could confirm the tail.
+        return not self.fits(next_size, next_has_reply)
+
+    def marker_fits(self) -> bool:
+        """Whether a marker may be written now.
+
+        Also when it overshoots the limit but nothing in flight could ever confirm the
+        outstanding bytes: that only follows a reply-less line longer than
+        ``limit - 4`` bytes, and waiting would never end.
+        """
+        if self.outstanding + len(MARKER) <= self.limit:
+            return True
+        return all(item.tag is None for item in self._written)
+
+    def wrote(self, size: int, tag: Hashable | None) -> None:
+        """Record ``size`` bytes written; ``tag`` is the request whose reply confirms them
+        (``None`` for a reply-less line)."""
+        self._written.append(_Written(size, tag))
+        self.outstanding += size
+        self.peak = max(self.peak, self.outstanding)
+        self.unmarked = 0 if tag is not None else self.unmarked + size
+
+    def confirm(self, tag: Hashable, *, inclusive: bool = True) -> None:
+        """The reply of ``tag`` arrived: its line (with ``inclusive``) and all before it
+        are processed. Unknown tags confirm nothing."""
+        if not any(item.tag == tag for item in self._written):
+            return
+        while self._written:
+            head = self._written[0]
+            if head.tag == tag and not inclusive:
+                return
+            self._written.popleft()
+            self.outstanding -= head.size
+            if head.tag == tag:
+                break
+        if not any(item.tag is None for item in self._written):
+            self.unmarked = 0
+
+    def cleared(self) -> None:
+        """The controller discarded its input buffer (Ctrl+C): nothing is outstanding."""
+        self._written.clear()
+        self.outstanding = 0
+        self.unmarked = 0
