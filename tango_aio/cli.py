@@ -69,6 +69,7 @@ async def _demo_scan(tango: Controller, *, rows: int, points: int) -> int:
     for index in range(points):
         await tango.command(f"!trigp -1 {index * step + 0.5:.4f}")
     await tango.command("!trigcount 0")
+    await tango.command("!trig 1")  # the list only fires once enabled (manual L12565)
     with _progress() as progress:
         task = progress.add_task("raster scan", total=rows)
         for row in range(rows):

@@ -11,10 +11,11 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from ..errors import ERROR_DESCRIPTIONS
-from ..instructions import AXES, Command
-from .lists import ListError
+from ..instructions import Command
+from .lists import MAX_TRIGGERS, ListError
 from .motion import MotionConfig
 from .params import format_value
+from .peripherals import Peripherals
 
 if TYPE_CHECKING:
     from .model import ControllerModel
@@ -24,7 +25,7 @@ __all__ = ["Handlers", "build_handlers"]
 Reply = list[str] | None
 
 
-class Handlers:
+class Handlers(Peripherals):
     """The special instructions of one :class:`ControllerModel`."""
 
     def __init__(self, model: ControllerModel) -> None:
@@ -123,12 +124,13 @@ class Handlers:
 
     def i_restore(self, c: Command) -> Reply:
         if c.values == (-1,):
+            # Factory reset: the saved set is deleted, then a software reset (L1805-1813).
             path = self.m.config.state_file
             if path is not None:
                 path.unlink(missing_ok=True)
             self.m.reboot()
             return None
-        self.m.reboot()
+        self.m.restore()
         return ["OK..."] if c.is_read else None
 
     def i_reset(self, c: Command) -> Reply:
@@ -141,6 +143,12 @@ class Handlers:
             return [" ".join([state] * self.m.axes)] if c.values else [state]
         self.m.params.put_global("pa", (int(c.values[0]) if c.values else 1,))
         return None
+
+    def i_swtyp(self, c: Command) -> Reply:
+        if not c.is_read:
+            self.m.store(c)
+            return None
+        return [self.swtyp_text(c) or self.m.params.read(c, self.m.axes)]
 
     # -- status of axes ---------------------------------------------------------------------
 
@@ -306,72 +314,73 @@ class Handlers:
         return None
 
     # -- trigger list ---------------------------------------------------------------------
+    # The model arms the list in the motion model lazily (ControllerModel.arm_triggers).
 
     def i_trigp(self, c: Command) -> Reply:
         triggers = self.m.triggers
         if c.is_read:
-            index = int(c.values[0]) if c.values else triggers.pointer
+            index = int(c.values[0]) if c.values else self.m.trigger_pointer()
             return [self._trigger_text(triggers.read(index))]
-        if len(c.values) == 1 and isinstance(c.values[0], float):
-            triggers.write(-1, c.values[0], c.axis)  # '!trigp y 11.5' (L13971)
-        elif c.values[0] == 0:
-            triggers.clear(c.axis)
+        if c.values == (0,):
+            triggers.clear(c.axis)  # '!trigp 0', '!trigp x 0' (L13835)
+        elif len(c.values) == 1 and c.axis is not None:
+            # '!trigp y 11.5' sets the axis and appends (L13971); a whole number is a
+            # position here too, not an index without position.
+            triggers.write(-1, float(c.values[0]), c.axis)
+        elif len(c.values) == 1:
+            raise ListError(6, "!trigp needs an index and a position")
         else:
             triggers.write(int(c.values[0]), float(c.values[1]), c.axis)
-        self._arm_triggers()
+        self._list_written()
         return None
 
-    def _trigger_axis(self) -> int:
-        letter = self.m.triggers.axis or str(self.m.params.first("triga"))
-        return AXES.index(letter)
-
     def _trigger_text(self, value: float) -> str:
-        axis = self._trigger_axis()
+        axis = self.m.trigger_axis()
         return self.m.position_text(axis, self.m.motion.from_user(axis, value))
 
-    def _arm_triggers(self) -> None:
-        axis = self._trigger_axis()
-        if self.m.triggers.axis is not None:
-            self.m.params.put_global("triga", (self.m.triggers.axis,))
-        entries = self.m.triggers.entries
-        self.m.motion.set_trigger_positions(axis, [self.m.motion.from_user(axis, p)
-                                                   for p in entries])
+    def _list_written(self) -> None:
+        """The list names the trigger axis and sets trigm 20/21 (L13767-13790)."""
+        triggers = self.m.triggers
+        if triggers.axis is not None:
+            self.m.params.put_global("triga", (triggers.axis,))
+        entries = triggers.entries
         if len(entries) >= 2:
             self.m.params.put_global("trigm", (20 if entries[1] > entries[0] else 21,))
+        elif len(entries) == 1:
+            # One entry: the direction follows from the current position (L13814).
+            axis = self.m.trigger_axis()
+            here = self.m.motion.to_user(axis, self.m.motion.position(axis))
+            self.m.params.put_global("trigm", (20 if entries[0] >= here else 21,))
 
     def i_trigc(self, c: Command) -> Reply:
         if c.is_read:
             return [str(self.m.triggers.count())]
         self.m.triggers.shorten(int(c.values[0]) if c.values else 0)
-        self._arm_triggers()
         return None
 
     def i_trigi(self, c: Command) -> Reply:
         if c.is_read:
-            return [str(self.m.triggers.pointer)]
+            return [str(self.m.trigger_pointer())]
         self.m.triggers.set_pointer(int(c.values[0]) if c.values else 1)
         return None
 
     def i_trigr(self, c: Command) -> Reply:
+        triggers = self.m.triggers
         if c.is_read:
-            start, end, count = self._trigr
-            axis = self._trigger_axis()
-            return [f"{self._trigger_text(start)} {self._trigger_text(end)} {count}"
-                    if axis is not None else "0 0 0"]
+            start, end, count = triggers.span
+            return [f"{self._trigger_text(start)} {self._trigger_text(end)} {count}"]
         start, end, count = float(c.values[0]), float(c.values[1]), int(c.values[2])
-        if c.axis is not None:
-            self.m.params.put_global("triga", (c.axis,))
-            self.m.triggers.axis = c.axis
-        self._trigr = (start, end, count)
-        self.m.triggers.clear()  # trigr replaces any trigp list (L13601)
-        axis = self._trigger_axis()
-        motion = self.m.motion
-        motion.set_trigger_range(axis, motion.from_user(axis, start),
-                                 motion.from_user(axis, end), count)
-        self.m.params.put_global("trigm", (20 if end > start else 21,))
+        if not 1 <= count <= MAX_TRIGGERS:
+            raise ListError(5, f"trigger count {count} not in 1..{MAX_TRIGGERS}")
+        # "!trigr internally writes its positions to the trigp list" (L13601-13603).
+        step = (end - start) / (count - 1) if count > 1 else 0.0
+        positions = [start + i * step for i in range(count)] if start != end else [start]
+        triggers.fill(positions, c.axis)
+        triggers.span = (start, end, count)
+        self._list_written()
+        if start != end:
+            self.m.params.put_global("trigm", (20 if end > start else 21,))
         return None
-
-    _trigr: tuple[float, float, int] = (0.0, 0.0, 0)
 
     def i_trigcount(self, c: Command) -> Reply:
         if c.is_read:
@@ -423,6 +432,12 @@ class Handlers:
         return None
 
     def i_snse(self, c: Command) -> Reply:
+        """Emulate key F1..F4 (L15392): the key is latched (``keyl``) and, with snapshots
+        enabled (``sns 1``), the current position is captured. Choice: every key captures;
+        the key-specific snsm functions are not modelled."""
+        self.m.session.keys_latched[int(c.values[0]) - 1] = 1
+        if int(self.m.params.first("sns")) != 1:
+            return None
         motion = self.m.motion
         row = tuple(motion.to_user(i, motion.position(i)) for i in range(self.m.axes))
         self.m.snapshots.capture(row)

@@ -6,10 +6,12 @@ number the emulator reports.
 
 Decisions where the manual is silent:
 
-* Writing an entry that breaks the monotonic order fixed by the first two entries, an index
-  beyond ``count + 1``, or more than the maximum number of entries: error 5.
-* Naming a different axis with ``!trigp`` while the list is not empty ("later attempts of
-  change are ignored and an error will be returned", L13798): error 1, list unchanged.
+* Writing an entry that breaks the monotonic order fixed by the first two entries (equal
+  neighbours included: they give no direction), an index beyond ``count + 1``, or more
+  than the maximum number of entries: error 5.
+* Naming an axis with ``!trigp`` while the list is not empty ("later attempts of change are
+  ignored and an error will be returned", L13798; "``!trigp x -1 9``: only possible if the
+  list is empty", L13838): error 1, list unchanged.
 * ``!trigc n`` / ``!snsc n`` with ``n`` larger than the count: error 5 (only shortening is
   documented).
 """
@@ -34,10 +36,29 @@ class ListError(Exception):
 
 
 def _check_monotonic(entries: list[float]) -> None:
-    if len(entries) < 3:
+    """Every step in the direction of the first one; equal neighbours are refused."""
+    if len(entries) < 2:
         return
     rising = entries[1] > entries[0]
     for before, after in itertools.pairwise(entries):
+        if (after <= before) if rising else (after >= before):
+            raise ListError(5, "trigger positions must be strictly monotonic")
+
+
+def _check_slot(entries: list[float], slot: int, position: float) -> None:
+    """Check writing ``position`` to 1-based ``slot`` in constant time where possible.
+
+    Only a write to one of the first two entries (which set the direction) rechecks the
+    whole list, so uploading a long list entry by entry stays linear.
+    """
+    if slot <= 2:
+        candidate = list(entries)
+        candidate[slot - 1: slot] = [position]
+        _check_monotonic(candidate)
+        return
+    neighbours = [*entries[slot - 2: slot - 1], position, *entries[slot: slot + 1]]
+    rising = entries[1] > entries[0]
+    for before, after in itertools.pairwise(neighbours):
         if (after <= before) if rising else (after >= before):
             raise ListError(5, "trigger positions must be strictly monotonic")
 
@@ -49,6 +70,8 @@ class TriggerList:
     entries: list[float] = field(default_factory=list)
     axis: str | None = None
     pointer: int = 1
+    #: ``?trigr``: start, end and count of the last ``!trigr``.
+    span: tuple[float, float, int] = (0.0, 0.0, 0)
 
     def count(self) -> int:
         """Number of entries (``?trigc``)."""
@@ -63,21 +86,28 @@ class TriggerList:
 
     def write(self, index: int, position: float, axis: str | None = None) -> None:
         """``!trigp [axis] index position``: -1 or count+1 appends, 1..count overwrites."""
-        if axis is not None and self.entries and axis != self.axis:
-            raise ListError(1, f"trigger axis is {self.axis}; clear the list to change it")
+        if axis is not None and self.entries:
+            # "!trigp x -1 9: Only possible if the list is empty" (L13838).
+            raise ListError(1, f"trigger axis is {self.axis}; clear the list to name it")
         count = len(self.entries)
         slot = count + 1 if index == -1 else index
         if not 1 <= slot <= count + 1:
             raise ListError(5, f"index {index} outside 1..{count + 1}")
         if slot > MAX_TRIGGERS:
             raise ListError(5, f"the list holds at most {MAX_TRIGGERS} entries")
-        candidate = list(self.entries)
+        _check_slot(self.entries, slot, position)
         if slot == count + 1:
-            candidate.append(position)
+            self.entries.append(position)
         else:
-            candidate[slot - 1] = position
-        _check_monotonic(candidate)
-        self.entries = candidate
+            self.entries[slot - 1] = position
+        if axis is not None:
+            self.axis = axis
+
+    def fill(self, positions: list[float], axis: str | None = None) -> None:
+        """Replace the whole list (``!trigr``); an axis letter selects the trigger axis."""
+        _check_monotonic(positions)
+        self.entries = list(positions)
+        self.pointer = 1
         if axis is not None:
             self.axis = axis
 

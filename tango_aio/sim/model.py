@@ -18,7 +18,14 @@ How it answers (the same decisions as the driver's core, by construction: both c
 * a read that fails for a semantic reason (``?trigp 99`` beyond the list) still answers
   with a zero value and sets the error, so a host waiting for a line never hangs; a line
   rejected by the parser answers nothing (a real interpreter cannot know its shape);
-* an empty line is ignored without touching the error state.
+* a read whose catalog reply is "none" (``?flash``, "Response: None") answers nothing;
+* an empty line is ignored without touching the error state;
+* ``restore`` reloads the saved parameters only; ``reset`` and ``restore -1`` restart
+  (autostatus 1, moves stopped, counters 0 at the power-on position);
+* the trigger list is handed to the motion model lazily, before the next instruction that
+  is not a trigger-list instruction (see :meth:`ControllerModel.arm_triggers`);
+* an unexpected exception in a handler (an emulator bug) does not stop the controller:
+  the line sets error 2 and the exception is kept in ``internal_errors`` for tests.
 """
 
 from __future__ import annotations
@@ -98,6 +105,8 @@ _GLOBAL_SETTINGS: dict[str, str] = {
     "usteps": "usteps", "scanmode": "scanmode", "scanvel": "scanvel", "pause": "pause_ms",
     "delay": "delay_ms", "extmode": "extmode",
 }
+#: Instructions that change the trigger list or whether it fires (re-armed lazily).
+_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr"})
 #: Reads/writes of these instructions never change the error state (manual L2837).
 _ERROR_NEUTRAL = frozenset({"err", "status", "help"})
 
@@ -109,8 +118,12 @@ class _Session:
     autostatus: int = 1
     err: int = 0
     booted: float = 0.0
-    trigger_count_base: int = 0
     keys_latched: list[int] = field(default_factory=lambda: [0, 0, 0, 0])
+    #: ``?drop``: drops counted since ``!drop 0``.
+    drops: int = 0
+    #: ``clim``: centre X, centre Y, radius in user units, and whether it is active.
+    clim: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    clim_active: bool = False
 
 
 class ControllerModel:
@@ -120,6 +133,8 @@ class ControllerModel:
                  now: float | None = None) -> None:
         self.config = config or SimConfig()
         self._emit = emit
+        #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
+        self.internal_errors: list[str] = []
         self._handlers = self._build_handlers()
         # The servers run the wire on the event loop's clock, which is time.monotonic().
         self._boot(time.monotonic() if now is None else now)
@@ -133,6 +148,10 @@ class ControllerModel:
         self.session = _Session(booted=now)
         self.triggers = TriggerList()
         self.snapshots = SnapshotList()
+        #: Where the last cal of each axis completed, user frame, revolutions.
+        self.cal_zero = [0.0] * len(AXES)
+        self._triggers_dirty = False
+        self._trigger_base = 0
         self._load_saved()
         self._sync_all()
 
@@ -192,6 +211,8 @@ class ControllerModel:
         """Advance the motion model and report finished moves."""
         for event in self.motion.advance(now):
             if isinstance(event, MoveFinished):
+                if event.kind == "cal":
+                    self._record_cal_zero(event.letters)
                 self._report_completion(event.letters)
 
     def next_deadline(self) -> float | None:
@@ -212,13 +233,17 @@ class ControllerModel:
         expect = expectation(command, self.session.autostatus, self.context())
         if expect.echo:
             self._send(text)
+        self._prepare_triggers(command)
         try:
             lines = self._execute(command)
             code = 0
-        except Refused as exc:
-            code, lines = exc.code, self._fallback_reply(command)
-        except (MotionRefused, ListError) as exc:
-            code, lines = exc.code, self._fallback_reply(command)
+        except (Refused, MotionRefused, ListError) as exc:
+            code, lines = exc.code, self._fallback_reply(command, exc.code)
+        except Exception as exc:
+            # Safety net: a bug in a handler must not take the served controller down.
+            # The line counts as not executable (error 2) and the bug is recorded for tests.
+            self.internal_errors.append(f"{text!r}: {exc!r}")
+            code, lines = 2, self._fallback_reply(command, 2)
         if command.name not in _ERROR_NEUTRAL:
             self.session.err = code
         for reply in lines or ():
@@ -230,14 +255,16 @@ class ControllerModel:
         handler = self._handlers.get(command.name)
         if handler is not None:
             return handler(command)
+        if command.is_read and command.instruction.reply is Shape.NONE:
+            return None  # '?flash' is a legal form with "Response: None" (L9880)
         if command.is_read:
             return [self._generic_read(command)]
         self._generic_write(command)
         return None
 
-    def _fallback_reply(self, command: Command) -> list[str] | None:
+    def _fallback_reply(self, command: Command, code: int) -> list[str] | None:
         if not command.is_read:
-            return ["ERR"] if command.instruction.exec_reply is Shape.ACK else None
+            return [f"ERR {code}"] if command.instruction.exec_reply is Shape.ACK else None
         return ["0"]
 
     def _send(self, text: str) -> None:
@@ -266,6 +293,10 @@ class ControllerModel:
         if sig is not None and sig.precision is not None and command.values:
             return int(command.values[-1])
         return None
+
+    def store(self, command: Command) -> None:
+        """Keep the values of a plain set command in the settings store."""
+        self._generic_write(command)
 
     def _generic_write(self, command: Command) -> None:
         first = command.instruction.write[0] if command.instruction.write else None
@@ -349,7 +380,12 @@ class ControllerModel:
         path = self.config.state_file
         if path is None or not path.exists():
             return
-        data = json.loads(path.read_text(encoding="utf-8"))
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            # Choice: unreadable saved parameters act like none saved (firmware defaults),
+            # as after an eeprom checksum error; the file is only replaced by 'save'.
+            return
         for name, value in data.get("axes", {}).items():
             if name in self.params.axis_values:
                 self.params.axis_values[name] = [tuple(group) for group in value]
@@ -358,7 +394,12 @@ class ControllerModel:
                 self.params.global_values[name] = tuple(value)
 
     def save(self) -> None:
-        """Persist the saved parameters to :attr:`SimConfig.state_file` atomically."""
+        """Persist the saved parameters to :attr:`SimConfig.state_file` atomically.
+
+        A failed write is refused with error 73 ("internal error, e.g. eeprom data
+        corruption"; the manual names no number for a failed save) and leaves the previous
+        file intact.
+        """
         path = self.config.state_file
         if path is None:
             return
@@ -368,7 +409,26 @@ class ControllerModel:
             "global": {n: self.params.global_values[n] for n in names
                        if n in self.params.global_values},
         }
-        _atomic_write(path, json.dumps(data, indent=1))
+        try:
+            _atomic_write(path, json.dumps(data, indent=1))
+        except OSError as exc:
+            raise Refused(73, f"save failed: {exc}") from exc
+
+    def restore(self) -> None:
+        """Reload the saved parameters like at power-on, without a restart (L1791-1800):
+        positions, moves, lists and the autostatus mode stay as they are.
+
+        Choice: only the parameters ``save`` stores are reloaded (their factory value when
+        nothing was saved); unsaved settings such as ``joy`` or ``trig`` keep their value.
+        """
+        factory = ParamStore()
+        for name in self._saved_names():
+            if name in factory.axis_values:
+                self.params.axis_values[name] = list(factory.axis_values[name])
+            else:
+                self.params.global_values[name] = factory.global_values[name]
+        self._load_saved()
+        self._sync_all()
 
     # -- handlers --------------------------------------------------------------------------
 
@@ -422,6 +482,63 @@ class ControllerModel:
     def set_autostatus(self, mode: int) -> None:
         """Switch the autostatus mode."""
         self.session.autostatus = mode
+
+    # -- trigger list ----------------------------------------------------------------------
+
+    def _prepare_triggers(self, command: Command) -> None:
+        """Arm the trigger list in the motion model lazily.
+
+        An executed trigger-list instruction marks the list changed, and the list is armed
+        before the next other instruction runs (moves included), not after each edit:
+        arming converts the whole list, and uploading 10000 ``!trigp`` entries one by one
+        must stay linear. The positions are fixed in the physical frame when armed.
+        """
+        if command.name in _TRIGGER_LIST and command.executes:
+            self._triggers_dirty = True
+        elif self._triggers_dirty:
+            self.arm_triggers()
+
+    def arm_triggers(self) -> None:
+        """Hand the list to the motion model from the list pointer on.
+
+        Choices: list triggers fire only while ``trig`` is 1 and ``trigm`` is 20 or 21
+        ("Trigcount increments on every executed trigger pulse", L13387; the trigger is
+        globally disabled by ``!trig 0``, L12565). Every re-arm (any list instruction,
+        ``!trig 1`` included) starts again at the stored pointer, which is 1 unless
+        ``!trigi n`` moved it; the list then re-arms by travelling back behind that entry.
+        """
+        self._triggers_dirty = False
+        entries = self.triggers.entries
+        enabled = int(self.params.first("trig")) == 1 and \
+            int(self.params.first("trigm")) in (20, 21)
+        if not entries or not enabled:
+            self.motion.clear_triggers()
+            return
+        axis = self.trigger_axis()
+        units = self.motion.units(axis)
+        self._trigger_base = self.triggers.pointer - 1
+        try:
+            self.motion.set_trigger_positions(
+                axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
+        except MotionRefused:
+            self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def trigger_axis(self) -> int:
+        """Index of the trigger axis (``triga``, or the axis the list was written for)."""
+        letter = self.triggers.axis or str(self.params.first("triga"))
+        return min(AXES.index(letter), self.axes - 1)
+
+    def trigger_pointer(self) -> int:
+        """``?trigi``: where the armed list is (1-based), else the stored pointer."""
+        armed = self.motion.trigger_index()
+        if self._triggers_dirty or armed == 0:
+            return self.triggers.pointer
+        return self._trigger_base + armed
+
+    def _record_cal_zero(self, letters: str) -> None:
+        for index, letter in enumerate(letters[: self.axes]):
+            if letter == "A":
+                self.cal_zero[index] = self.motion.position(index)
 
     def reboot(self, now: float | None = None) -> None:
         """Restart like a power cycle: settings reload from the state file."""

@@ -14,7 +14,7 @@ from typing import Final
 
 from ..instructions import AXES, INSTRUCTIONS, AxisRule, Command, Kind, Param, Signature
 
-__all__ = ["DEFAULTS", "DIGITS", "POSITION_VALUED", "ParamStore", "format_value"]
+__all__ = ["DEFAULTS", "DIGITS", "INDEXED", "POSITION_VALUED", "ParamStore", "format_value"]
 
 Value = float | int | str
 
@@ -37,6 +37,18 @@ DEFAULTS: Final[dict[str, tuple[Value, ...]]] = {
     "twi": (0.001,), "ctrs": (0.5,), "mra": (1.0,), "trigf": (1000.0,), "trigbf": (1000.0,),
     "trigbwidth": (40.0,), "trigs": (40,), "trigo": (1,), "triga": ("x",), "trigl": (1,),
     "sns": (1,), "snsf": (10,), "anaout": (0.0,), "trigd": (1.0,), "noled": (0,),
+}
+
+#: Settings written as ``index value`` (``!joyspeed 2 25``, ``!anaout c 1 25.3``): the store
+#: keeps one value per index, not the written pair. Defaults where the manual gives them:
+#: adiginfunc "SnapShot is assigned to the SnapShot input (3) and stop ... to the not
+#: available input 2" (L9195); zwtravel presets 0.1 / 0.01 / 1.0 mm/rev (L7863); anaout
+#: channels 0-2 at 0 %. The joyspeed presets are not documented: chosen.
+INDEXED: Final[dict[str, tuple[Value, ...]]] = {
+    "adiginfunc": (0, 0, 1, 2),
+    "zwtravel": (0.1, 0.01, 1.0),
+    "joyspeed": (1.0, 10.0, 30.0),
+    "anaout": (0.0, 0.0, 0.0),
 }
 
 #: Fractional digits of float replies, from the manual's examples (protocol_notes §3).
@@ -113,7 +125,7 @@ class ParamStore:
             if sig.per_axis:
                 self.axis_values[name] = [_initial(sig, name)] * len(AXES)
             else:
-                self.global_values[name] = _initial(sig, name)
+                self.global_values[name] = INDEXED.get(name) or _initial(sig, name)
 
     # -- access ---------------------------------------------------------------------------
 
