@@ -17,11 +17,13 @@ from .errors import (
     TangoError,
 )
 from .events import TangoEvent
+from .group import ControllerGroup, discover
 
 __all__ = [
     "ConnectionLostError",
     "Controller",
     "ControllerError",
+    "ControllerGroup",
     "ControllerTimeoutError",
     "Identity",
     "InvalidCommandError",
@@ -31,6 +33,7 @@ __all__ = [
     "TangoError",
     "TangoEvent",
     "connect",
+    "discover",
 ]
 
 __version__ = "0.1.0"
