@@ -6,18 +6,23 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
 from .core import Completed, Dropped, Event, Unsolicited
 from .errors import (
+    ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
     MoveError,
     ProtocolError,
+    RequestAbortedError,
+    TangoError,
+    UnknownControllerError,
     controller_error,
+    parse_error_reply,
 )
 from .events import (
     ConnectionLost,
@@ -66,6 +71,15 @@ class Identity:
     det: DetInfo
 
 
+@dataclass(frozen=True, slots=True)
+class _Sent:
+    """A command written by :meth:`Controller._send`, with its ``?err`` probe."""
+
+    submission: Submission
+    probe: Submission | None
+    check: bool
+
+
 @dataclass(slots=True)
 class _Settings:
     """Per-axis settings the driver caches to compute move timeouts and contexts."""
@@ -107,6 +121,7 @@ class Controller:
         self._settings = _Settings()
         self._identity: Identity | None = None
         self._on_close = on_close
+        self._detached: asyncio.Future[None] | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -133,6 +148,8 @@ class Controller:
 
     async def aclose(self) -> None:
         """Close the connection. Pending requests fail with ConnectionLostError."""
+        if self._detached is not None:
+            self._detached.cancel()
         self._protocol.close()
         if self._on_close is not None:
             await self._on_close()
@@ -154,12 +171,14 @@ class Controller:
 
         Drains stale input by resynchronising, identifies the controller, reads the
         settings the driver needs and selects ``autostatus`` (``None``: keep the mode the
-        controller is in and read it).
+        controller is in). The mode in force is read first (reads are neither echoed nor
+        acknowledged in any mode): a previous session may have left any mode behind, and
+        how ``!autostatus`` itself is answered depends on it.
         """
         await self._protocol.resync(timeout=self.reply_timeout)
-        if autostatus is None:
-            self._protocol.core.autostatus = int(await self.get("autostatus"))
-        else:
+        current = int(await self.get("autostatus"))
+        self._protocol.core.autostatus = current
+        if autostatus is not None and autostatus != current:
             await self.command(f"!autostatus {autostatus}")
         if identify:
             self._identity = await self.identify()
@@ -216,7 +235,18 @@ class Controller:
                                       instruction=command.name)
         await self._execute(command, check=check, timeout=timeout)
 
+    def _check_axes(self, command: Command, names: Iterable[str] = ()) -> None:
+        """Refuse an axis the controller does not have, before anything is written."""
+        present = AXES[: self.context.axes]
+        for letter in (*names, *(command.axis or "")):
+            if letter not in present:
+                raise InvalidCommandError(
+                    f"{command.line!r}: the controller has no {letter.upper()} axis "
+                    f"({self.context.axes} axes)",
+                    instruction=command.name, parameter="axis", code=1)
+
     async def _request(self, command: Command, timeout: float | None = None) -> Response:
+        self._check_axes(command)
         return await self._protocol.request(command, self._timeout(timeout))
 
     def _timeout(self, timeout: float | None) -> float:
@@ -225,22 +255,44 @@ class Controller:
     async def _execute(self, command: Command, *, check: bool,
                        timeout: float | None = None) -> Submission:
         """Write ``command`` (and, to check it, ``?err`` right behind it) and wait."""
+        sent = self._send(command, check=check)
+        await self._confirm(sent, timeout)
+        return sent.submission
+
+    def _send(self, command: Command, *, check: bool) -> _Sent:
+        """Write ``command``, followed by the ``?err`` probe when it must be checked and
+        autostatus 2 does not acknowledge it."""
+        self._check_axes(command)
         submission = self._protocol.submit(command)
         probe = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853).
             probe = self._protocol.submit(parse("?err"))
+        return _Sent(submission, probe, check)
+
+    async def _confirm(self, sent: _Sent, timeout: float | None = None) -> None:
+        """Wait for the replies of a :meth:`_send`; raise the controller's error, if any."""
+        error = await self._error_of(sent, self._timeout(timeout))
+        if error is not None:
+            self._protocol.forget_completion(sent.submission)
+            raise error
+        self._track(sent.submission.command)
+
+    async def _error_of(self, sent: _Sent, timeout: float) -> ControllerError | None:
+        submission, line = sent.submission, sent.submission.command.line
         if submission.reply is not None:
-            await self._protocol.wait_reply(submission, self._timeout(timeout))
-        code = submission.response.ack if submission.expectation.ack else None
-        if probe is not None:
-            code = int((await self._protocol.wait_reply(probe, self._timeout(timeout))).lines[0])
-        if check and code:
-            self._protocol.forget_completion(submission)
-            raise controller_error(code, command.line)
-        self._track(command)
-        return submission
+            response = await self._protocol.wait_reply(submission, timeout)
+            if sent.check and submission.expectation.ack and response.ack != 0:
+                if response.ack is None:  # a bare "ERR"
+                    return UnknownControllerError(None, line)
+                return controller_error(response.ack, line)
+        if sent.probe is not None:
+            reply = await self._protocol.wait_reply(sent.probe, timeout)
+            code, _ = parse_error_reply(reply.lines[0])
+            if code:
+                return controller_error(code, line)
+        return None
 
     def _track(self, command: Command) -> None:
         name = command.name
@@ -275,6 +327,7 @@ class Controller:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
         ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
         command = build(name, *args, form=Form.SET, axis=axis, context=self.context, **axes)
+        self._check_axes(command, axes)
         await self._execute(command, check=check)
 
     async def position(self) -> dict[str, float]:
@@ -335,12 +388,16 @@ class Controller:
     async def go(self, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
         :meth:`wait_idle`). A later ``go`` overrides the targets mid-move."""
-        await self._execute(build_axes("go", axes, context=self.context), check=True)
+        command = build_axes("go", axes, context=self.context)
+        self._check_axes(command, axes)
+        await self._execute(command, check=True)
 
     async def speed(self, **axes: float) -> None:
         """Run axes at constant speed (rev/s, or mm/s in dim 9); 0 stops. No completion
         report: use :meth:`wait_idle`."""
-        await self._execute(build_axes("speed", axes, context=self.context), check=True)
+        command = build_axes("speed", axes, context=self.context)
+        self._check_axes(command, axes)
+        await self._execute(command, check=True)
 
     async def wait_idle(self, *, poll_interval: float = 0.05,
                         timeout: float | None = None) -> dict[str, str]:
@@ -363,65 +420,138 @@ class Controller:
         With ``wait``, returns once the axes have stopped.
         """
         self._hub.publish(MoveAborted(ctrl_c=not soft))
+        moving = self._protocol.core.awaiting_completion
         if soft:
             self._protocol.submit(build("a", form=Form.SET))
         else:
             await self._protocol.resync(ctrl_c=True, timeout=self.reply_timeout)
+            # A discarded line may have been an !autostatus the core already counted.
+            self._protocol.core.autostatus = int(await self.get("autostatus"))
         if wait:
             letters = await self.wait_idle(timeout=60.0)
+            # Moves whose line Ctrl+C discarded never report: stop waiting for them.
             error = MoveError("move aborted", {a: "E" if s == "@" else s
                                                for a, s in letters.items()})
-            self._protocol.fail_completions(error)
+            self._protocol.fail_completions(error, only=moving)
 
     async def _motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
                       targets: Mapping[str, float], relative: bool = False) -> dict[str, str]:
+        self._check_axes(command, targets)
         limit = timeout if timeout is not None else await self._motion_timeout(
             command, targets, relative)
         async with self._motion_lock:
-            submission = await self._execute(command, check=True)
+            await self._join_detached()
+            sent = self._send(command, check=True)
             try:
-                return await self._await_completion(submission, limit)
+                return await self._run_motion(sent, limit)
             except asyncio.CancelledError:
                 if stop_on_cancel:
-                    await self._stop_after_cancel(submission)
+                    await self._stop_after_cancel(sent)
+                else:
+                    self._detached = asyncio.ensure_future(self._finish_detached(sent, limit))
                 raise
 
+    async def _run_motion(self, sent: _Sent, limit: float) -> dict[str, str]:
+        try:
+            await self._confirm(sent)
+        except (RequestAbortedError, ControllerTimeoutError):
+            # The check was lost (Ctrl+C or a resync): the move may or may not run.
+            await self._settle(sent.submission)
+            letters = _reported_letters(sent.submission)
+            if letters:  # it ran, and reported before the axes stood still
+                return _check_letters(sent.submission.command, letters)
+            raise
+        return await self._await_completion(sent.submission, limit)
+
+    async def _settle(self, submission: Submission) -> None:
+        """Stop the axes, wait until they stand still and forget ``submission``'s report."""
+        with contextlib.suppress(TangoError, TimeoutError):
+            self._protocol.submit(build("a", form=Form.SET))
+            await self.wait_idle(timeout=60.0)
+        self._protocol.forget_completion(submission)
+
     async def _await_completion(self, submission: Submission, limit: float) -> dict[str, str]:
-        future = submission.completion
-        if future is None:  # autostatus 0: poll
-            letters = await self.wait_idle(timeout=limit)
-        else:
-            try:
-                async with asyncio.timeout(limit):
-                    report = await asyncio.shield(future)
-            except TimeoutError:
-                report = await self._completion_timeout(submission, limit)
-            letters = report.letters if report.letters is not None else await self.status()
+        try:
+            async with asyncio.timeout(limit) as scope:
+                letters = await self._completion_letters(submission)
+        except TimeoutError:
+            if not scope.expired():
+                raise
+            letters = await self._completion_timeout(submission, limit)
         return _check_letters(submission.command, letters)
 
-    async def _completion_timeout(self, submission: Submission, limit: float) -> Completed:
+    async def _completion_letters(self, submission: Submission) -> dict[str, str]:
+        """The status letters of a finished move: from its report, or by polling
+        ``statusaxis`` (autostatus 0, and the bare CR of autostatus 3)."""
+        if submission.completion is not None:
+            report = await asyncio.shield(submission.completion)
+            if report.letters is not None:
+                return dict(report.letters)
+        return await self._poll_idle()
+
+    async def _poll_idle(self, poll_interval: float = 0.05) -> dict[str, str]:
+        """Like :meth:`wait_idle`, but a poll lost to a resync (Ctrl+C) is repeated."""
+        while True:
+            try:
+                letters = await self.status()
+            except RequestAbortedError:
+                continue
+            if "M" not in letters.values():
+                return letters
+            await asyncio.sleep(poll_interval)
+
+    async def _completion_timeout(self, submission: Submission, limit: float
+                                  ) -> dict[str, str]:
         # The report may never come (autostatus changed to 0 mid-move, or a firmware whose
         # mode 4 echo replaces the report). If the axes are idle, take their status.
         letters = await self.status()
+        self._protocol.forget_completion(submission)
         if "M" not in letters.values():
             log.warning("no completion report for %r; axes idle, using statusaxis",
                         submission.command.line)
-            self._protocol.forget_completion(submission)
-            return Completed(submission.tag, letters, "")
+            return letters
         self._protocol.submit(build("a", form=Form.SET))
-        self._protocol.forget_completion(submission)
         raise ControllerTimeoutError(
             f"{submission.command.line!r} did not complete within {limit:.1f} s; axes stopped"
         )
 
-    async def _stop_after_cancel(self, submission: Submission) -> None:
+    async def _stop_after_cancel(self, sent: _Sent) -> None:
         """The awaiting task was cancelled: stop the axes and wait for them to stop."""
-        self._protocol.submit(build("a", form=Form.SET))
+        with contextlib.suppress(TangoError):
+            self._protocol.submit(build("a", form=Form.SET))
+        try:
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                async with asyncio.timeout(10.0):
+                    if not await self._refused(sent):
+                        await self._stopped(sent.submission)
+        finally:
+            self._protocol.forget_completion(sent.submission)
+
+    async def _refused(self, sent: _Sent) -> bool:
+        """Wait for the check of a sent motion line; True if the controller refused it."""
+        error = await self._error_of(sent, self.reply_timeout)
+        return error is not None
+
+    async def _stopped(self, submission: Submission) -> None:
         if submission.completion is None:
-            return
-        with contextlib.suppress(Exception, asyncio.CancelledError):
-            async with asyncio.timeout(10.0):
-                await asyncio.shield(submission.completion)
+            await self._poll_idle()
+        else:
+            await asyncio.shield(submission.completion)
+
+    async def _finish_detached(self, sent: _Sent, limit: float) -> None:
+        """Let a move whose caller was cancelled (``stop_on_cancel=False``) run to its end,
+        consuming its report, so that the next move starts after it."""
+        try:
+            with contextlib.suppress(Exception):
+                if not await self._refused(sent):
+                    await self._await_completion(sent.submission, limit)
+        finally:
+            self._protocol.forget_completion(sent.submission)
+
+    async def _join_detached(self) -> None:
+        detached, self._detached = self._detached, None
+        if detached is not None:
+            await asyncio.shield(detached)
 
     async def _motion_timeout(self, command: Command, targets: Mapping[str, float],
                               relative: bool) -> float:
@@ -492,6 +622,14 @@ class Controller:
     def _on_connection_lost(self, exc: BaseException | None) -> None:
         self._hub.publish(ConnectionLost(exc))
         self._hub.close()
+
+
+def _reported_letters(submission: Submission) -> Mapping[str, str] | None:
+    """The letters of ``submission``'s completion report, if it has arrived."""
+    report = submission.completion
+    if report is None or not report.done() or report.cancelled() or report.exception():
+        return None
+    return report.result().letters
 
 
 def _check_letters(command: Command, letters: Mapping[str, str]) -> dict[str, str]:

@@ -12,13 +12,12 @@ their iteration ends.
 
 from __future__ import annotations
 
+import asyncio
 import time
+from collections import deque
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
-
-import anyio
-from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 
 __all__ = [
     "ConnectionLost",
@@ -114,45 +113,65 @@ TangoEvent = (
 class Subscription:
     """An async iterator over events, with a bounded buffer (drops the oldest on overflow).
 
-    Use it as ``async with hub.subscribe() as events: async for event in events: ...`` or
-    iterate directly and call :meth:`aclose` when done.
+    Use it as ``async with controller.events() as events: async for event in events: ...``
+    or iterate directly and call :meth:`aclose` when done. Forgetting to close it leaks
+    nothing but the buffered events.
     """
 
     def __init__(self, hub: EventHub, maxsize: int) -> None:
-        send, receive = anyio.create_memory_object_stream[TangoEvent](maxsize)
-        self._send: MemoryObjectSendStream[TangoEvent] = send
-        self._receive: MemoryObjectReceiveStream[TangoEvent] = receive
+        if maxsize < 1:
+            raise ValueError(f"maxsize must be at least 1, got {maxsize}")
+        self._buffer: deque[TangoEvent] = deque()
+        self._maxsize = maxsize
+        self._ready = asyncio.Event()
+        self._ended = False
         self._hub = hub
         #: Number of events this subscriber lost because its buffer was full.
         self.dropped = 0
 
+    @property
+    def pending(self) -> int:
+        """Number of events buffered and not yet received."""
+        return len(self._buffer)
+
     def _offer(self, event: TangoEvent) -> None:
-        try:
-            self._send.send_nowait(event)
-        except anyio.WouldBlock:
-            self._receive.receive_nowait()  # drop the oldest
+        if self._ended:
+            return
+        if len(self._buffer) >= self._maxsize:
+            self._buffer.popleft()  # drop the oldest
             self.dropped += 1
-            self._send.send_nowait(event)
-        except (anyio.BrokenResourceError, anyio.ClosedResourceError):
-            self._hub._discard(self)
+        self._buffer.append(event)
+        self._ready.set()
 
     def _end(self) -> None:
-        self._send.close()
+        """No more events: iteration ends once the buffer is drained."""
+        self._ended = True
+        self._ready.set()
 
     def __aiter__(self) -> AsyncIterator[TangoEvent]:
         return self
 
     async def __anext__(self) -> TangoEvent:
-        try:
-            return await self._receive.receive()
-        except (anyio.EndOfStream, anyio.ClosedResourceError):
-            raise StopAsyncIteration from None
+        while not self._buffer:
+            if self._ended:
+                raise StopAsyncIteration
+            self._ready.clear()
+            await self._ready.wait()
+        return self._buffer.popleft()
+
+    def get_nowait(self) -> TangoEvent | None:
+        """The next buffered event, or ``None`` if there is none."""
+        return self._buffer.popleft() if self._buffer else None
+
+    def close(self) -> None:
+        """Stop receiving events; buffered ones are discarded and iteration ends."""
+        self._hub._discard(self)
+        self._buffer.clear()
+        self._end()
 
     async def aclose(self) -> None:
-        """Stop receiving events."""
-        self._hub._discard(self)
-        self._send.close()
-        await self._receive.aclose()
+        """Stop receiving events (same as :meth:`close`)."""
+        self.close()
 
     async def __aenter__(self) -> Subscription:
         return self
@@ -170,7 +189,7 @@ class EventHub:
     """Fans events out to every current :class:`Subscription`."""
 
     def __init__(self) -> None:
-        self._subscribers: set[Subscription] = set()
+        self._subscribers: dict[Subscription, None] = {}
         self._closed = False
 
     def subscribe(self, maxsize: int = 256) -> Subscription:
@@ -179,7 +198,7 @@ class EventHub:
         if self._closed:
             subscription._end()
         else:
-            self._subscribers.add(subscription)
+            self._subscribers[subscription] = None
         return subscription
 
     def publish(self, event: TangoEvent) -> None:
@@ -199,4 +218,4 @@ class EventHub:
         self._closed = False
 
     def _discard(self, subscription: Subscription) -> None:
-        self._subscribers.discard(subscription)
+        self._subscribers.pop(subscription, None)

@@ -9,7 +9,15 @@ Cancellation never desynchronises the stream: a cancelled request keeps its plac
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
 different: its reply may be lost for good, so the protocol resynchronises (see the core's
 theory of operation), failing every request still pending with
-:class:`~tango_aio.errors.RequestAbortedError`.
+:class:`~tango_aio.errors.RequestAbortedError`. When resyncs overlap, the reply to the
+newest marker ends all of them.
+
+A lost link fails every pending future with :class:`~tango_aio.errors.ConnectionLostError`
+whose ``__cause__`` is the transport's error (a :class:`ConnectionResetError` when the other
+end closed cleanly); later calls raise the same class at once.
+
+Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
+every line received (``<-``), CR removed, with a monotonic timestamp.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import asyncio
 import itertools
 import logging
 import time
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Collection, Hashable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +47,8 @@ from .errors import (
     ControllerTimeoutError,
     ProtocolError,
     RequestAbortedError,
+    UnknownControllerError,
+    controller_error,
 )
 from .instructions import Command, Context
 
@@ -99,6 +109,9 @@ class TangoProtocol(asyncio.Protocol):
         self._on_event = on_event
         self._on_lost = on_lost
         self._lost: ConnectionLostError | None = None
+        self._closing = False
+        self._peer_eof = False
+        self._trace_buffer = b""
         self._connected = asyncio.get_running_loop().create_future()
 
     def set_callbacks(self, on_event: EventCallback | None,
@@ -119,8 +132,20 @@ class TangoProtocol(asyncio.Protocol):
         """Wait until :meth:`connection_made` has run."""
         await self._connected
 
+    def eof_received(self) -> bool | None:
+        """Called by asyncio when the other end closed a stream (TCP): close as well."""
+        self._peer_eof = True
+        return None
+
     def connection_lost(self, exc: Exception | None) -> None:
-        """Called by asyncio when the link is gone: fail everything that waits."""
+        """Called by asyncio when the link is gone: fail everything that waits.
+
+        The error's ``__cause__`` is ``exc``; when the other end closed the link without
+        an error, a :class:`ConnectionResetError` saying so stands in for it.
+        """
+        if exc is None and not self._closing:
+            how = "the other end closed the connection" if self._peer_eof else "link closed"
+            exc = ConnectionResetError(how)
         error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
         error.__cause__ = exc
         self._lost = error
@@ -135,12 +160,18 @@ class TangoProtocol(asyncio.Protocol):
             self._on_lost(exc)
 
     @property
+    def transport(self) -> asyncio.BaseTransport | None:
+        """The transport (``None`` before :meth:`connection_made`)."""
+        return self._transport
+
+    @property
     def is_connected(self) -> bool:
         """Whether the link is up and not lost."""
         return self._transport is not None and self._lost is None
 
     def close(self) -> None:
         """Close the transport (pending requests fail with ConnectionLostError)."""
+        self._closing = True
         if self._transport is not None and not self._transport.is_closing():
             self._transport.close()
 
@@ -157,8 +188,21 @@ class TangoProtocol(asyncio.Protocol):
         transport = self._transport
         assert isinstance(transport, asyncio.WriteTransport)
         if wire_log.isEnabledFor(logging.DEBUG):
-            wire_log.debug("%.6f -> %r", time.monotonic(), data)
+            for line in data.split(b"\r")[:-1]:
+                wire_log.debug("%.6f -> %r", time.monotonic(), line)
         transport.write(data)
+
+    def _trace_received(self, data: bytes) -> None:
+        """Log each complete received line (CR removed) on the ``tango_aio.wire`` logger."""
+        if not wire_log.isEnabledFor(logging.DEBUG):
+            self._trace_buffer = b""
+            return
+        *lines, self._trace_buffer = (self._trace_buffer + data).split(b"\r")
+        for line in lines:
+            wire_log.debug("%.6f <- %r", time.monotonic(), line)
+        if len(self._trace_buffer) > 4096:
+            wire_log.debug("%.6f <- %r (no CR yet)", time.monotonic(), self._trace_buffer)
+            self._trace_buffer = b""
 
     def submit(self, command: Command) -> Submission:
         """Write ``command`` and return its :class:`Submission` (futures for the reply and
@@ -190,14 +234,15 @@ class TangoProtocol(asyncio.Protocol):
         return await self.wait_reply(submission, timeout)
 
     async def wait_reply(self, submission: Submission, timeout: float | None) -> Response:
-        """Wait for ``submission``'s reply; resync and raise on timeout."""
+        """Wait for ``submission``'s reply; on timeout resync (the marker gets the same
+        time) and raise :class:`ControllerTimeoutError`."""
         assert submission.reply is not None
         try:
             async with asyncio.timeout(timeout):
                 return await asyncio.shield(submission.reply)
         except TimeoutError:
             self.check()
-            await self.resync()
+            await self.resync(timeout=timeout if timeout is not None else 2.0)
             raise ControllerTimeoutError(
                 f"no reply to {submission.command.line!r} within {timeout} s"
             ) from None
@@ -239,8 +284,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         """Called by asyncio with bytes from the controller."""
-        if wire_log.isEnabledFor(logging.DEBUG):
-            wire_log.debug("%.6f <- %r", time.monotonic(), data)
+        self._trace_received(data)
         self.core.receive_data(data)
         self._dispatch_pending()
 
@@ -271,10 +315,11 @@ class TangoProtocol(asyncio.Protocol):
             self._on_event(event, None)
 
     def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
-        marker = self._markers.get(event.tag)
-        if marker is not None and isinstance(event, Replied):
-            if not marker.done():
-                marker.set_result(Response(lines=event.lines))
+        if event.tag in self._markers and isinstance(event, Replied):
+            # The core only waits for the newest marker; its reply ends older resyncs too.
+            for marker in self._markers.values():
+                if not marker.done():
+                    marker.set_result(Response(lines=event.lines))
             return
         submission = self._submissions.get(event.tag)
         if submission is None:
@@ -284,6 +329,8 @@ class TangoProtocol(asyncio.Protocol):
             response.lines = event.lines
         elif isinstance(event, Acknowledged):
             response.ack, response.acked = event.code, True
+            if event.code != 0:  # a refused move never completes (the core forgot it)
+                _fail(submission.completion, _ack_error(event.code, submission))
         else:
             response.echo = event.line
         if event.done:
@@ -318,9 +365,15 @@ class TangoProtocol(asyncio.Protocol):
         if not reply_open and not completion_open:
             self._submissions.pop(tag, None)
 
-    def fail_completions(self, error: BaseException) -> None:
-        """Fail every move still waiting for its completion report."""
-        for tag in self.core.drop_completions():
+    def fail_completions(self, error: BaseException,
+                         only: Collection[Hashable] | None = None) -> None:
+        """Fail every move still waiting for its completion report (or those of ``only``,
+        a list of tags from ``core.awaiting_completion``)."""
+        if only is None:
+            tags = self.core.drop_completions()
+        else:
+            tags = [tag for tag in only if self.core.forget_completion(tag)]
+        for tag in tags:
             submission = self._submissions.pop(tag, None)
             if submission is not None:
                 _fail(submission.completion, error)
@@ -332,6 +385,11 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.set_exception(error)
         # Mark the exception retrieved: nobody may be awaiting a move's future any more.
         future.exception()
+
+
+def _ack_error(code: int | None, submission: Submission) -> Exception:
+    line = submission.command.line
+    return UnknownControllerError(None, line) if code is None else controller_error(code, line)
 
 
 def _cancel(future: asyncio.Future[Completed] | None) -> None:

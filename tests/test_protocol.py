@@ -1,0 +1,490 @@
+"""Tier 2: :class:`TangoProtocol` (and :class:`Controller` input checks) on a fake transport.
+
+No emulator: the fake transport records what the protocol writes, and each test feeds the
+controller's bytes by hand, split at arbitrary points, byte by byte, delayed, interleaved
+with completion reports and unsolicited lines.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import random
+from collections.abc import Callable
+
+import pytest
+from conftest import FakeLink
+
+from tango_aio.controller import Controller
+from tango_aio.core import Completed, Dropped, Unsolicited
+from tango_aio.errors import (
+    ConnectionLostError,
+    ControllerError,
+    ControllerTimeoutError,
+    InvalidCommandError,
+    OutOfRangeError,
+    RequestAbortedError,
+)
+from tango_aio.instructions import parse
+from tango_aio.protocol import Submission
+
+pytestmark = pytest.mark.timeout(30)
+
+LinkFactory = Callable[..., FakeLink]
+XYZ = {"x": "@", "y": "@", "z": "@"}
+
+
+def reply_of(submission: Submission) -> tuple[str, ...]:
+    """The data lines of a resolved request."""
+    assert submission.reply is not None and submission.reply.done()
+    return submission.reply.result().lines
+
+
+# --------------------------------------------------------------------------------------
+# Reassembly and routing
+
+
+async def test_reply_fed_byte_by_byte_with_delays(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    task = asyncio.create_task(link.protocol.request(parse("?pos"), timeout=2.0))
+    await link.wait_written(b"?pos\r")
+    assert link.transport.writes == [b"?pos\r"]
+    await link.feed_bytewise(b"1.0000 2.0000 3.0000\r", delay=0.001)
+    assert (await task).lines == ("1.0000 2.0000 3.0000",)
+
+
+async def test_pipelined_replies_in_one_chunk_each_reach_their_request(
+        fake_link: LinkFactory) -> None:
+    link = fake_link()
+    subs = [link.protocol.submit(parse(line)) for line in ("?vel x", "?vel y", "?err")]
+    assert link.transport.sent == b"?vel x\r?vel y\r?err\r"
+    link.feed(b"11.500\r12.250\r0\r")
+    assert [reply_of(s) for s in subs] == [("11.500",), ("12.250",), ("0",)]
+
+
+STREAM = b"11.500 12.250 13.125\r@@@-.\r0\r1.0000 2.0000 3.0000\r"
+
+
+def _check_stream_results(vel: Submission, move: Submission, err: Submission,
+                          pos: Submission) -> None:
+    assert reply_of(vel) == ("11.500 12.250 13.125",)
+    assert move.reply is None and move.completion is not None
+    assert move.completion.result().letters == XYZ
+    assert reply_of(err) == ("0",)
+    assert reply_of(pos) == ("1.0000 2.0000 3.0000",)
+
+
+def _submit_stream_requests(link: FakeLink) -> tuple[Submission, ...]:
+    return tuple(link.protocol.submit(parse(line))
+                 for line in ("?vel", "!moa 1 2 3", "?err", "?pos"))
+
+
+async def test_stream_split_at_every_point(fake_link: LinkFactory) -> None:
+    for cut in range(len(STREAM) + 1):
+        link = fake_link()
+        subs = _submit_stream_requests(link)
+        link.feed(STREAM[:cut])
+        link.feed(STREAM[cut:])
+        _check_stream_results(*subs)
+
+
+async def test_stream_split_at_random_points_with_delays(fake_link: LinkFactory) -> None:
+    rng = random.Random(1)
+    for _ in range(100):
+        link = fake_link()
+        subs = _submit_stream_requests(link)
+        cuts = sorted(rng.sample(range(1, len(STREAM)), rng.randint(1, 8)))
+        for start, end in zip([0, *cuts], [*cuts, len(STREAM)], strict=True):
+            link.feed(STREAM[start:end])
+            if rng.random() < 0.3:
+                await asyncio.sleep(0)
+        _check_stream_results(*subs)
+
+
+@pytest.mark.parametrize("position", [0, 1, 2, 3])
+async def test_completion_report_between_any_two_replies(fake_link: LinkFactory,
+                                                        position: int) -> None:
+    link = fake_link()
+    move = link.protocol.submit(parse("!moa 1 2 3"))
+    subs = [link.protocol.submit(parse(line)) for line in ("?err", "?vel x", "?pos x")]
+    replies = [b"0\r", b"11.500\r", b"1.0000\r"]
+    replies.insert(position, b"@@E-.\r")
+    await link.feed_bytewise(b"".join(replies))
+    assert move.completion is not None
+    assert move.completion.result().letters == {"x": "@", "y": "@", "z": "E"}
+    assert [reply_of(s) for s in subs] == [("0",), ("11.500",), ("1.0000",)]
+    completed = [event for event, _ in link.events if isinstance(event, Completed)]
+    assert [event.tag for event in completed] == [move.tag]
+
+
+async def test_delayed_completion_resolves_the_move(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    move = link.protocol.submit(parse("moa x 5"))
+    assert move.completion is not None
+    waiter = asyncio.ensure_future(move.completion)
+    await asyncio.sleep(0.02)
+    assert not waiter.done()
+    await link.feed_bytewise(b"@@@-.\r", delay=0.002)
+    assert (await waiter).letters == XYZ
+
+
+async def test_unsolicited_lines_go_to_the_event_callback(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    link.feed(b"hello\r@@@-.\r")
+    sub = link.protocol.submit(parse("?vel x"))
+    link.feed(b"10.000\r")
+    assert reply_of(sub) == ("10.000",)
+    kinds = [(type(event).__name__, submission) for event, submission in link.events]
+    assert kinds == [("Unsolicited", None), ("Completed", None)]
+    assert link.events[0][0] == Unsolicited("hello")
+    completed = link.events[1][0]
+    assert isinstance(completed, Completed) and completed.tag is None
+
+
+async def test_over_long_line_is_logged_and_the_stream_recovers(
+        fake_link: LinkFactory, caplog: pytest.LogCaptureFixture) -> None:
+    link = fake_link()
+    sub = link.protocol.submit(parse("?vel x"))
+    with caplog.at_level(logging.WARNING, logger="tango_aio.protocol"):
+        link.feed(b"x" * 3000)
+        link.feed(b"\r10.000\r")
+    assert reply_of(sub) == ("10.000",)
+    assert any("exceeds" in record.getMessage() for record in caplog.records)
+
+
+# --------------------------------------------------------------------------------------
+# Autostatus modes
+
+
+async def test_mode0_moves_owe_no_completion(fake_link: LinkFactory) -> None:
+    link = fake_link(autostatus=0)
+    move = link.protocol.submit(parse("!moa x 1"))
+    assert move.completion is None and move.reply is None
+
+
+async def test_mode2_acknowledges_sets_and_moves(fake_link: LinkFactory) -> None:
+    link = fake_link(autostatus=2)
+    vel = link.protocol.submit(parse("!vel x 5"))
+    move = link.protocol.submit(parse("!moa x 1"))
+    await link.feed_bytewise(b"OK...\rOK...\r@@@-.\r")
+    assert vel.reply is not None and vel.reply.result().acked
+    assert vel.reply.result().ack == 0
+    assert move.completion is not None and move.completion.result().letters == XYZ
+
+
+async def test_mode2_refused_move_fails_its_completion(fake_link: LinkFactory) -> None:
+    link = fake_link(autostatus=2)
+    move = link.protocol.submit(parse("!moa x 1"))
+    after = link.protocol.submit(parse("!moa x 2"))
+    link.feed(b"ERR 5\rOK...\r@@@-.\r")
+    assert move.reply is not None and move.reply.result().ack == 5
+    assert move.completion is not None and move.completion.done()
+    with pytest.raises(OutOfRangeError):
+        move.completion.result()
+    assert after.completion is not None and after.completion.result().letters == XYZ
+    assert link.protocol.core.awaiting_completion == []
+
+
+async def test_mode3_bare_cr_completes_a_move(fake_link: LinkFactory) -> None:
+    link = fake_link(autostatus=3)
+    move = link.protocol.submit(parse("!moa x 1"))
+    err = link.protocol.submit(parse("?err"))
+    link.feed(b"0\r\r")
+    assert reply_of(err) == ("0",)
+    assert move.completion is not None and move.completion.result().letters is None
+
+
+async def test_mode4_echo_then_completion(fake_link: LinkFactory) -> None:
+    link = fake_link(autostatus=4)
+    move = link.protocol.submit(parse("!moa x 1"))
+    err = link.protocol.submit(parse("?err"))
+    await link.feed_bytewise(b"!moa x 1\r0\r@@@-.\r")
+    assert move.reply is not None and move.reply.result().echo == "!moa x 1"
+    assert reply_of(err) == ("0",)
+    assert move.completion is not None and move.completion.result().letters == XYZ
+
+
+async def test_switching_mode_changes_what_moves_owe(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    link.protocol.submit(parse("!autostatus 3"))
+    move = link.protocol.submit(parse("!moa x 1"))
+    link.feed(b"\r")
+    assert move.completion is not None and move.completion.result().letters is None
+
+
+# --------------------------------------------------------------------------------------
+# Cancellation
+
+
+async def test_cancelled_request_late_reply_is_consumed(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    task = asyncio.create_task(link.protocol.request(parse("?vel x")))
+    await link.wait_written(b"?vel x\r")
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    pos = link.protocol.submit(parse("?pos x"))
+    link.feed(b"11.500\r1.0000\r")
+    assert reply_of(pos) == ("1.0000",)
+    assert not any(isinstance(event, Unsolicited) for event, _ in link.events)
+
+
+async def test_random_cancellation_never_desynchronises(fake_link: LinkFactory) -> None:
+    """Requests are cancelled at random moments while their replies trickle in; every
+    request that is not cancelled gets exactly its own reply."""
+    rng = random.Random(7)
+    link = fake_link()
+    for round_ in range(150):
+        count = rng.randint(1, 5)
+        tasks = [asyncio.create_task(link.protocol.request(parse(f"?vel {axis}")))
+                 for axis in rng.choices("xyz", k=count)]
+        await link.wait_written(b"\r", count=len(link.sent_lines()) + count)
+        victims = set(rng.sample(range(count), rng.randint(0, count)))
+        stream = b"".join(f"{round_}.{i:03d}\r".encode() for i in range(count))
+        cuts = sorted(rng.sample(range(len(stream) + 1), rng.randint(0, 4)))
+        for start, end in zip([0, *cuts], [*cuts, len(stream)], strict=True):
+            for index in list(victims):
+                if rng.random() < 0.5:
+                    tasks[index].cancel()
+                    victims.discard(index)
+            link.feed(stream[start:end])
+            await asyncio.sleep(0)
+        for index, task in enumerate(tasks):
+            if task.cancelled():
+                continue
+            assert (await task).lines == (f"{round_}.{index:03d}",)
+    assert link.protocol.core.pending_tags == []
+
+
+# --------------------------------------------------------------------------------------
+# Timeouts and resynchronisation
+
+
+async def test_timeout_resyncs_and_drops_the_late_reply(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    task = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.05))
+    await link.wait_written(b"?help ")
+    assert link.sent_lines()[-1].startswith(b"?help ")
+    link.feed(b"11.500\r")  # the late reply, written before the marker's
+    link.answer_marker()
+    with pytest.raises(ControllerTimeoutError):
+        await task
+    assert (Dropped("11.500"), None) in link.events
+    pos = link.protocol.submit(parse("?pos x"))
+    link.feed(b"1.0000\r")
+    assert reply_of(pos) == ("1.0000",)
+
+
+async def test_timeout_fails_requests_queued_behind(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.05))
+    await asyncio.sleep(0)
+    behind = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
+    await link.wait_written(b"?help ")
+    link.answer_marker()
+    with pytest.raises(ControllerTimeoutError):
+        await first
+    with pytest.raises(RequestAbortedError):
+        await behind
+
+
+async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    tasks = [asyncio.create_task(link.protocol.request(parse(line), timeout=0.05))
+             for line in ("?vel x", "?vel y")]
+    await link.wait_written(b"?help ", count=2)
+    link.answer_marker(0)  # the first marker's reply: dropped, a newer marker is pending
+    link.answer_marker(1)
+    async with asyncio.timeout(0.5):
+        for task in tasks:
+            with pytest.raises(ControllerTimeoutError, match="no reply"):
+                await task
+    assert not link.protocol.core.resyncing
+
+
+async def test_resync_with_ctrl_c(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    move = link.protocol.submit(parse("!moa x 1"))
+    queued = [link.protocol.submit(parse(line)) for line in ("?vel x", "?pos")]
+    task = asyncio.create_task(link.protocol.resync(ctrl_c=True))
+    await link.wait_written(b"?help ")
+    assert link.transport.writes[-1].startswith(b"\x03?help ")
+    for sub in queued:
+        assert sub.reply is not None
+        with pytest.raises(RequestAbortedError):
+            sub.reply.result()
+    # A stale reply is dropped; the completion report still reaches the move; the marker
+    # may follow stale bytes on the same line.
+    code = link.marker_codes()[-1]
+    link.feed(b"11.500\rE@@-.\rgarbage" + f"ERROR {code},x\r".encode())
+    await task
+    assert move.completion is not None
+    assert move.completion.result().letters == {"x": "E", "y": "@", "z": "@"}
+    assert (Dropped("11.500"), None) in link.events
+    after = link.protocol.submit(parse("?vel z"))
+    link.feed(b"13.125\r")
+    assert reply_of(after) == ("13.125",)
+
+
+async def test_resync_times_out_when_the_marker_never_answers(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    with pytest.raises(ControllerTimeoutError, match="resync marker"):
+        await link.protocol.resync(timeout=0.05)
+
+
+# --------------------------------------------------------------------------------------
+# Connection loss
+
+
+async def test_connection_loss_fails_everything_pending(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    move = link.protocol.submit(parse("!moa x 1"))
+    resync = asyncio.create_task(link.protocol.resync())
+    await link.wait_written(b"?help ")
+    query = link.protocol.submit(parse("?vel x"))
+    cause = OSError(5, "Input/output error")
+    link.protocol.connection_lost(cause)
+    for future in (query.reply, move.completion):
+        assert future is not None
+        with pytest.raises(ConnectionLostError) as info:
+            future.result()
+        assert info.value.__cause__ is cause
+    with pytest.raises(ConnectionLostError):
+        await resync
+    assert link.lost == [cause]
+    with pytest.raises(ConnectionLostError) as later:
+        link.protocol.submit(parse("?vel x"))
+    assert later.value.__cause__ is cause
+    assert not link.protocol.is_connected
+
+
+async def test_peer_close_without_error_still_has_a_cause(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    task = asyncio.create_task(link.protocol.request(parse("?vel x")))
+    await link.wait_written(b"?vel x\r")
+    link.protocol.eof_received()
+    link.protocol.connection_lost(None)
+    with pytest.raises(ConnectionLostError) as info:
+        await task
+    assert info.value.__cause__ is not None
+    with pytest.raises(ConnectionLostError):
+        await link.protocol.request(parse("?pos"))
+
+
+# --------------------------------------------------------------------------------------
+# Wire tracing
+
+
+async def test_wire_logger_traces_every_line(fake_link: LinkFactory,
+                                             caplog: pytest.LogCaptureFixture) -> None:
+    link = fake_link()
+    with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
+        link.protocol.submit(parse("?pos"))
+        link.protocol.submit(parse("!moa x 1"))
+        await link.feed_bytewise(b"1.0000 2.0000 3.0000\r")
+        link.feed(b"@@@-.\rhel")
+        link.feed(b"lo\r")
+    messages = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
+    out = [m for m in messages if "->" in m]
+    received = [m for m in messages if "<-" in m]
+    assert len(out) == 2 and "?pos" in out[0] and "!moa x 1" in out[1]
+    assert len(received) == 3
+    assert "1.0000 2.0000 3.0000" in received[0]
+    assert "@@@-." in received[1] and "hello" in received[2]
+
+
+async def test_wire_logger_is_quiet_above_debug(fake_link: LinkFactory,
+                                                caplog: pytest.LogCaptureFixture) -> None:
+    link = fake_link()
+    with caplog.at_level(logging.INFO, logger="tango_aio.wire"):
+        link.protocol.submit(parse("?pos"))
+        link.feed(b"1.0000\r")
+    assert not [r for r in caplog.records if r.name == "tango_aio.wire"]
+
+
+# --------------------------------------------------------------------------------------
+# Controller on the fake transport: input validation and error checks
+
+
+INVALID_CALLS = {
+    "query unknown axis": lambda t: t.query("?vel q"),
+    "query of a set": lambda t: t.query("!vel x 5"),
+    "command of a read": lambda t: t.command("?vel"),
+    "unknown instruction": lambda t: t.command("!frobnicate 1"),
+    "vel out of range": lambda t: t.set("vel", x=500),
+    "vel not finite": lambda t: t.set("vel", x=float("nan")),
+    "axis gap": lambda t: t.set("vel", x=1, z=2),
+    "get unknown axis": lambda t: t.get("vel", axis="q"),
+    "move unknown axis": lambda t: t.move_to(q=1.0),
+    "move not a number": lambda t: t.move_by(x="far"),
+    "cal unknown axis": lambda t: t.calibrate("q"),
+}
+
+
+@pytest.mark.parametrize("call", INVALID_CALLS.values(), ids=INVALID_CALLS.keys())
+async def test_invalid_input_raises_before_a_byte_is_written(fake_link: LinkFactory,
+                                                             call: Callable) -> None:
+    link = fake_link()
+    tango = Controller(link.protocol)
+    with pytest.raises(InvalidCommandError):
+        await call(tango)
+    assert link.transport.writes == []
+
+
+async def test_bad_set_raises_typed_error_from_err_probe(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    tango = Controller(link.protocol)
+    task = asyncio.create_task(tango.command("!lim x 10 5"))
+    await link.wait_written(b"?err\r")
+    assert link.transport.sent == b"!lim x 10 5\r?err\r"  # back to back
+    link.feed(b"5\r")
+    with pytest.raises(OutOfRangeError) as info:
+        await task
+    assert info.value.code == 5 and info.value.error_code == 5
+    assert info.value.command == "!lim x 10 5"
+
+
+@pytest.mark.parametrize(("ack", "code"), [(b"ERR 5\r", 5), (b"ERR\r", None)])
+async def test_mode2_err_ack_raises(fake_link: LinkFactory, ack: bytes,
+                                    code: int | None) -> None:
+    link = fake_link(autostatus=2)
+    tango = Controller(link.protocol)
+    task = asyncio.create_task(tango.command("!lim x 10 5"))
+    await link.wait_written(b"!lim x 10 5\r")
+    assert b"?err" not in link.transport.sent  # the acknowledgement is the check
+    link.feed(ack)
+    with pytest.raises(ControllerError) as info:
+        await task
+    if code is not None:
+        assert isinstance(info.value, OutOfRangeError)
+    assert info.value.command == "!lim x 10 5"
+
+
+async def test_controller_query_timeout(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    tango = Controller(link.protocol)
+    task = asyncio.create_task(tango.query("?vel x", timeout=0.05))
+    await link.wait_written(b"?help ")
+    link.feed(b"11.500\r")
+    link.answer_marker()
+    with pytest.raises(ControllerTimeoutError):
+        await task
+    second = asyncio.create_task(tango.query("?vel y"))
+    await link.wait_written(b"?vel y\r")
+    link.feed(b"12.250\r")
+    assert await second == "12.250"
+
+
+async def test_stream_recovers_after_a_resync_that_timed_out(fake_link: LinkFactory) -> None:
+    """The controller stalls past the marker's timeout, then catches up: its late lines
+    are dropped up to the marker's reply, and the next request gets its own reply."""
+    link = fake_link()
+    first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.02))
+    with pytest.raises(ControllerTimeoutError):
+        await first  # no reply, and no marker reply within the resync timeout either
+    assert link.protocol.core.resyncing
+    task = asyncio.create_task(link.protocol.request(parse("?vel y")))
+    await link.wait_written(b"?vel y\r")
+    code = link.marker_codes()[-1]
+    link.feed(f"11.500\rERROR {code},x\r12.250\r".encode())
+    assert (await task).lines == ("12.250",)
