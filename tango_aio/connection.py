@@ -19,6 +19,7 @@ from typing import Any
 
 from .controller import Controller
 from .errors import ConnectionLostError
+from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT
 from .protocol import TangoProtocol
 
 __all__ = ["DEFAULT_BAUD", "Connecting", "connect"]
@@ -80,9 +81,10 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
 
 
 async def _connect(url: str, *, autostatus: int | None = 1, identify: bool = True,
-                   reply_timeout: float = 5.0, **options: Any) -> Controller:
+                   reply_timeout: float = 5.0, credit_limit: int = DEFAULT_LIMIT,
+                   marker_chunk: int = DEFAULT_CHUNK, **options: Any) -> Controller:
     def factory() -> TangoProtocol:
-        return TangoProtocol()
+        return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk)
 
     protocol, closer = await _open(url, factory, options)
     await protocol.wait_connected()
@@ -124,6 +126,7 @@ def connect(url: str = "sim://", **options: Any) -> Connecting:
 
     Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports; ``autostatus``
     (1; ``None`` keeps the controller's mode), ``identify`` (True), ``reply_timeout``
-    (5.0 s).
+    (5.0 s); ``credit_limit`` (255 bytes written but not yet processed, at most) and
+    ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control.
     """
     return Connecting(url, options)

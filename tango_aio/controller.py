@@ -6,11 +6,20 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
+from .bulk import (
+    ListTransfer,
+    Progress,
+    check_axis,
+    snapshot_spec,
+    trigger_spec,
+    validate_rows,
+    validate_trigger_positions,
+)
 from .core import Completed, Dropped, Event, Unsolicited
 from .errors import (
     ControllerError,
@@ -580,6 +589,52 @@ class Controller:
         if revs < speed * ramp:
             return 2.0 * math.sqrt(revs / accel)
         return revs / speed + ramp
+
+    # -- trigger and snapshot lists ---------------------------------------------------------
+
+    def _transfer(self) -> ListTransfer:
+        return ListTransfer(self._protocol, self.reply_timeout)
+
+    async def upload_trigger_positions(self, positions: Sequence[float], axis: str = "x",
+                                       progress: Progress | None = None) -> None:
+        """Replace the trigger position list of ``axis`` with ``positions`` at wire speed.
+
+        The list is validated first (at most 10000 finite, strictly monotonic values),
+        cleared with ``!trigp axis 0``, then every entry is appended through the write-credit
+        limiter and the count is checked along the way. ``progress(done, total)`` is called
+        at each checkpoint. A rejected entry raises :class:`~tango_aio.bulk.UploadError`
+        with its index and error code. Cancelling stops sending and leaves the driver in
+        sync (the list then holds what was sent so far).
+        """
+        values = validate_trigger_positions(positions)
+        await self.command(f"!trigp {check_axis(axis)} 0")
+        await self._transfer().upload(trigger_spec(), [[v] for v in values], progress)
+
+    async def read_trigger_positions(self) -> list[float]:
+        """Read the whole trigger position list with pipelined ``?trigp n`` reads."""
+        rows = await self._transfer().download(trigger_spec())
+        return [row[0] for row in rows]
+
+    async def set_trigger_range(self, start: float, end: float, count: int,
+                                axis: str | None = None) -> None:
+        """Set equidistant trigger positions (``!trigr [axis] start end count``); ``count``
+        includes both ends."""
+        command = build("trigr", start, end, count, axis=axis, context=self.context)
+        await self._execute(command, check=True)
+
+    async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
+                                        progress: Progress | None = None) -> None:
+        """Replace the snapshot array with ``rows`` (at most 1024 rows of per-axis
+        positions, X first), like :meth:`upload_trigger_positions`."""
+        axes = self._identity.axes if self._identity else len(AXES)
+        values = validate_rows(rows, axes)
+        await self.command("!snsa 0")
+        await self._transfer().upload(snapshot_spec(), values, progress)
+
+    async def read_snapshot_positions(self) -> list[list[float]]:
+        """Read every snapshot entry (``?snsc`` of them) with pipelined ``?snsa n`` reads;
+        each row holds the positions of the present axes."""
+        return await self._transfer().download(snapshot_spec())
 
     # -- events ---------------------------------------------------------------------------
 

@@ -35,9 +35,10 @@ __all__ = ["DEFAULT_CHUNK", "DEFAULT_LIMIT", "MARKER", "CreditWindow"]
 
 #: At most this many bytes written and not yet confirmed (the buffer holds 256).
 DEFAULT_LIMIT: Final = 255
-#: Reply-less bytes after which a marker is appended. 120 keeps two chunks and their
-#: markers within the limit, so one is always in flight, at 3 % overhead.
-DEFAULT_CHUNK: Final = 120
+#: Reply-less bytes after which a marker is appended. With 160, a marker costs 2.5 % of the
+#: bytes, and when its reply frees the credit about 90 bytes (16 ms at 57600 Bd) are still
+#: in flight, which covers the reply latency of USB adapters (benchmarks/upload.py).
+DEFAULT_CHUNK: Final = 160
 #: The marker line: the bare read form of ``err`` (manual L2824), 4 bytes.
 MARKER: Final = b"err\r"
 
@@ -86,8 +87,10 @@ class CreditWindow:
             return False
         if not next_has_reply and self.unmarked + next_size > self.chunk:
             return True
-        # Blocked on credit with nothing in flight that could confirm the tail.
-        return not self.fits(next_size, next_has_reply)
+        # The next line would not fit even once everything confirmable is confirmed:
+        # only a marker can ever confirm the tail.
+        reserve = 0 if next_has_reply else len(MARKER)
+        return self.unmarked + next_size + reserve > self.limit
 
     def marker_fits(self) -> bool:
         """Whether a marker may be written now.

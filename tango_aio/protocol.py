@@ -16,6 +16,13 @@ A lost link fails every pending future with :class:`~tango_aio.errors.Connection
 whose ``__cause__`` is the transport's error (a :class:`ConnectionResetError` when the other
 end closed cleanly); later calls raise the same class at once.
 
+Flow control: every line goes through a write queue and is written only while the bytes
+written but not yet confirmed by a reply stay within the credit limit (255 by default), so
+the controller's 256-byte input buffer never overflows (:mod:`tango_aio.flow`). Runs of
+reply-less lines are confirmed by ``err`` markers the protocol inserts itself; a marker
+reporting an error marks the lines it covers (:attr:`Submission.chunk_error`). A line is
+registered with the core when it is written, so a queued line can still be withdrawn.
+
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
 every line received (``<-``), CR removed, with a monotonic timestamp.
 """
@@ -26,7 +33,8 @@ import asyncio
 import itertools
 import logging
 import time
-from collections.abc import Callable, Collection, Hashable
+from collections import deque
+from collections.abc import Callable, Collection, Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +49,7 @@ from .core import (
     Replied,
     RequestLost,
     Unsolicited,
+    expectation,
 )
 from .errors import (
     ConnectionLostError,
@@ -50,7 +59,8 @@ from .errors import (
     UnknownControllerError,
     controller_error,
 )
-from .instructions import Command, Context
+from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
+from .instructions import Command, Context, parse
 
 __all__ = ["Response", "Submission", "TangoProtocol"]
 
@@ -83,6 +93,25 @@ class Submission:
     reply: asyncio.Future[Response] | None
     completion: asyncio.Future[Completed] | None
     response: Response = field(default_factory=Response)
+    #: Whether the line has been written (it may wait in the queue for credit).
+    written: bool = False
+    #: Error number reported by the credit marker that followed this reply-less line
+    #: (``?err`` reports the state after the last line before it), if non-zero.
+    chunk_error: int | None = None
+
+    @property
+    def confirming(self) -> bool:
+        """Whether a reply (data or acknowledgement) will confirm this line's bytes."""
+        expect = self.expectation
+        rule = expect.rule
+        return expect.ack or rule.count > 0 or rule.terminator is not None \
+            or rule.continuation is not None
+
+    @property
+    def size(self) -> int:
+        """Bytes this line takes on the wire (with a read's internal follow-up)."""
+        follow_up = 5 if self.expectation.rule.continuation is not None else 0
+        return len(self.command.to_bytes()) + follow_up
 
 
 #: Called with each unsolicited event, completion report and dropped line; the second
@@ -100,8 +129,16 @@ class TangoProtocol(asyncio.Protocol):
         context: Context | None = None,
         on_event: EventCallback | None = None,
         on_lost: Callable[[BaseException | None], None] | None = None,
+        credit_limit: int = DEFAULT_LIMIT,
+        marker_chunk: int = DEFAULT_CHUNK,
     ) -> None:
         self.core = ProtocolCore(autostatus=autostatus, context=context)
+        #: The write-credit account (see :mod:`tango_aio.flow`).
+        self.credit = CreditWindow(credit_limit, marker_chunk)
+        self._queue: deque[Submission] = deque()
+        self._queued_mode = autostatus
+        self._unmarked: list[Submission] = []
+        self._credit_markers: dict[Hashable, list[Submission]] = {}
         self._transport: asyncio.BaseTransport | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
@@ -156,6 +193,7 @@ class TangoProtocol(asyncio.Protocol):
             _fail(marker, error)
         self._submissions.clear()
         self._markers.clear()
+        self._queue.clear()
         if self._on_lost is not None:
             self._on_lost(exc)
 
@@ -205,11 +243,17 @@ class TangoProtocol(asyncio.Protocol):
             self._trace_buffer = b""
 
     def submit(self, command: Command) -> Submission:
-        """Write ``command`` and return its :class:`Submission` (futures for the reply and
-        the completion report, where the line owes them)."""
+        """Queue ``command`` for writing and return its :class:`Submission` (futures for
+        the reply and the completion report, where the line owes them).
+
+        The line is written at once when the credit allows, else as soon as replies free
+        enough credit; lines are always written in submission order.
+        """
         self.check()
         tag = next(self._tags)
-        data, expect = self.core.send(command, tag)
+        mode = self._queued_mode if self._queue else self.core.autostatus
+        expect = expectation(command, mode, self.core.context)
+        self._queued_mode = expect.mode_after
         loop = asyncio.get_running_loop()
         submission = Submission(
             command,
@@ -220,8 +264,96 @@ class TangoProtocol(asyncio.Protocol):
         )
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
-        self._write(data)
+        self._queue.append(submission)
+        self._flush()
         return submission
+
+    @property
+    def queued(self) -> int:
+        """Number of lines waiting in the write queue for credit."""
+        return len(self._queue)
+
+    def withdraw(self, submissions: Iterable[Submission]) -> int:
+        """Take lines that are still queued out of the queue; return how many were.
+
+        Their futures are cancelled. Lines already written are not affected.
+        """
+        doomed = {id(s) for s in submissions if not s.written}
+        if not doomed:
+            return 0
+        kept = deque(s for s in self._queue if id(s) not in doomed)
+        removed = [s for s in self._queue if id(s) in doomed]
+        self._queue = kept
+        for submission in removed:
+            self._submissions.pop(submission.tag, None)
+            _cancel(submission.reply)
+            _cancel(submission.completion)
+        self._reproject()
+        return len(removed)
+
+    def _reproject(self) -> None:
+        mode = self.core.autostatus
+        for submission in self._queue:
+            mode = expectation(submission.command, mode, self.core.context).mode_after
+        self._queued_mode = mode
+
+    def _flush(self) -> None:
+        """Write queued lines while the credit allows, inserting markers where due."""
+        if self._transport is None or self._lost is not None:
+            return
+        out = bytearray()
+        while self._queue:
+            head = self._queue[0]
+            if self.credit.marker_due(head.size, head.confirming):
+                if not self.credit.marker_fits():
+                    break
+                out += self._marker()
+                continue
+            if not self.credit.fits(head.size, head.confirming):
+                break
+            self._queue.popleft()
+            out += self._register(head)
+        if out:
+            self._write(bytes(out))
+
+    def _register(self, submission: Submission) -> bytes:
+        data, _ = self.core.send(submission.command, submission.tag)
+        submission.written = True
+        confirming = submission.confirming
+        self.credit.wrote(len(data), submission.tag if confirming else None)
+        if not confirming:
+            self._unmarked.append(submission)
+        return data
+
+    def _marker(self) -> bytes:
+        tag = next(self._tags)
+        data, _ = self.core.send(_MARKER, tag)
+        self.credit.wrote(len(data), tag)
+        self._credit_markers[tag] = self._unmarked
+        self._unmarked = []
+        return data
+
+    def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
+        covered = self._credit_markers.pop(tag)
+        try:
+            code = int(lines[0])
+        except (IndexError, ValueError):
+            log.warning("credit marker got a garbled reply %r", lines)
+            return
+        if code:
+            log.warning("error %d after %s", code, covered[-1].command.line if covered else "?")
+            for submission in covered:
+                submission.chunk_error = code
+
+    def _drop_queue(self) -> None:
+        """Forget every line not yet written (their futures fail: they were never sent)."""
+        error = RequestAbortedError("the line was not sent: the stream was resynchronised")
+        for submission in self._queue:
+            self._submissions.pop(submission.tag, None)
+            _fail(submission.reply, error)
+            _fail(submission.completion, error)
+        self._queue.clear()
+        self._queued_mode = self.core.autostatus
 
     async def request(self, command: Command, timeout: float | None = 5.0) -> Response:
         """Write ``command`` and wait for its reply (an empty Response if it owes none).
@@ -257,10 +389,17 @@ class TangoProtocol(asyncio.Protocol):
         tag = next(self._tags)
         loop = asyncio.get_running_loop()
         marker: asyncio.Future[Response] = loop.create_future()
+        self._drop_queue()
         data = self.core.resync(tag, ctrl_c=ctrl_c)
+        # Ctrl+C empties the controller's buffer; after a timeout the controller is
+        # assumed to have caught up (a lost reply would otherwise never return its credit).
+        self.credit.cleared()
+        self._credit_markers.clear()
+        self._unmarked = []
         self._markers[tag] = marker
         self._dispatch_pending()
         self._write(data)
+        self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
@@ -287,6 +426,7 @@ class TangoProtocol(asyncio.Protocol):
         self._trace_received(data)
         self.core.receive_data(data)
         self._dispatch_pending()
+        self._flush()
 
     def _dispatch_pending(self) -> None:
         while True:
@@ -315,6 +455,12 @@ class TangoProtocol(asyncio.Protocol):
             self._on_event(event, None)
 
     def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
+        if not isinstance(event, Echoed):
+            # A reply is sent after its line was executed: everything up to it is processed.
+            self.credit.confirm(event.tag)
+        if event.tag in self._credit_markers and isinstance(event, Replied):
+            self._on_credit_marker(event.tag, event.lines)
+            return
         if event.tag in self._markers and isinstance(event, Replied):
             # The core only waits for the newest marker; its reply ends older resyncs too.
             for marker in self._markers.values():
@@ -380,6 +526,10 @@ class TangoProtocol(asyncio.Protocol):
                 _fail(submission.reply, error)
 
 
+#: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
+_MARKER = parse("err")
+
+
 def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
     if future is not None and not future.done():
         future.set_exception(error)
@@ -392,6 +542,6 @@ def _ack_error(code: int | None, submission: Submission) -> Exception:
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
 
 
-def _cancel(future: asyncio.Future[Completed] | None) -> None:
+def _cancel(future: asyncio.Future[Any] | None) -> None:
     if future is not None and not future.done():
         future.cancel()

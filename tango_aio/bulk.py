@@ -1,0 +1,230 @@
+"""Bulk transfers of trigger and snapshot lists at wire speed.
+
+Uploads stream their lines through the protocol's write-credit limiter (see
+:mod:`tango_aio.flow`), which never lets more than 255 unprocessed bytes reach the
+controller and confirms them with pipelined ``err`` markers, so the link stays busy and
+nothing overflows. Every ``CHECKPOINT`` entries the upload also asks for the list's length
+(``?trigc`` / ``?snsc``): its reply reports progress and proves that every entry so far was
+accepted. When the count falls short, the upload stops, finds the first rejected entry by
+reading the list back, and raises :class:`UploadError` with its index and error code.
+
+Downloads pipeline one read per entry; each reply confirms its own bytes, so no markers
+are needed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from .errors import InvalidCommandError, TangoError, controller_error
+from .instructions import AXES, Command, Form, build
+from .protocol import Submission, TangoProtocol
+
+__all__ = [
+    "CHECKPOINT",
+    "MAX_SNAPSHOTS",
+    "MAX_TRIGGERS",
+    "ListTransfer",
+    "Progress",
+    "UploadError",
+    "check_axis",
+    "snapshot_spec",
+    "trigger_spec",
+    "validate_rows",
+    "validate_trigger_positions",
+]
+
+MAX_TRIGGERS = 10000
+MAX_SNAPSHOTS = 1024
+#: Entries between two length checks (progress reports and early error detection).
+CHECKPOINT = 200
+
+Progress = Callable[[int, int], None]
+
+
+class UploadError(TangoError):
+    """An entry of a list upload was rejected by the controller.
+
+    ``index`` is the 0-based index of the first rejected entry, ``code`` the controller's
+    error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
+    controller then holds the entries before ``index``.
+    """
+
+    def __init__(self, index: int, code: int, command: str) -> None:
+        super().__init__(f"entry {index} ({command!r}) was rejected with error {code}")
+        self.index = index
+        self.code = code
+        self.command = command
+
+
+@dataclass(frozen=True, slots=True)
+class _ListSpec:
+    """How one list is written, counted and read."""
+
+    append: Callable[[Sequence[float]], Command]
+    count: str  # the instruction that counts (``?trigc``) and truncates (``!trigc n``)
+    read: Callable[[int], Command]
+
+
+def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
+    """Check a trigger list before anything is sent: at most 10000 finite values, strictly
+    increasing or strictly decreasing (manual L13767-13830)."""
+    values = [float(p) for p in positions]
+    if len(values) > MAX_TRIGGERS:
+        raise InvalidCommandError(f"trigp: {len(values)} entries, at most {MAX_TRIGGERS}",
+                                  instruction="trigp", parameter="position", code=5)
+    for index, value in enumerate(values):
+        if not math.isfinite(value):
+            raise InvalidCommandError(f"trigp: entry {index} is not finite ({value})",
+                                      instruction="trigp", parameter="position", code=5)
+    if len(values) >= 2:
+        rising = values[1] > values[0]
+        for index in range(1, len(values)):
+            step = values[index] - values[index - 1]
+            if step == 0 or (step > 0) != rising:
+                raise InvalidCommandError(
+                    f"trigp: entry {index} ({values[index]}) breaks the monotonic order",
+                    instruction="trigp", parameter="position", code=5)
+    return values
+
+
+class ListTransfer:
+    """Pipelined list uploads and downloads on one protocol."""
+
+    def __init__(self, protocol: TangoProtocol, reply_timeout: float = 5.0) -> None:
+        self._protocol = protocol
+        self._timeout = reply_timeout
+
+    # -- generic machinery ------------------------------------------------------------------
+
+    async def _query(self, name: str, *args: int) -> str:
+        command = build(name, *args, form=Form.READ)
+        response = await self._protocol.request(command, self._timeout)
+        return response.lines[0]
+
+    async def _count(self, spec: _ListSpec) -> int:
+        return int(await self._query(spec.count))
+
+    async def upload(self, spec: _ListSpec, rows: Sequence[Sequence[float]],
+                     progress: Progress | None) -> None:
+        """Append ``rows`` (already validated and cleared) with checkpoints."""
+        self._total = len(rows)  # for progress reports
+        commands: list[Command] = []
+        pending: list[tuple[int, Submission, list[Submission]]] = []
+        try:
+            for start in range(0, len(rows), CHECKPOINT):
+                # Built batch by batch, so the first lines go out while later ones are built.
+                chunk = [spec.append(row) for row in rows[start:start + CHECKPOINT]]
+                commands.extend(chunk)
+                batch = [self._protocol.submit(c) for c in chunk]
+                check = self._protocol.submit(build(spec.count, form=Form.READ))
+                pending.append((start + len(batch), check, batch))
+                if len(pending) > 1:
+                    await self._checkpoint(spec, commands, pending, progress)
+            while pending:
+                await self._checkpoint(spec, commands, pending, progress)
+        finally:
+            # Cancelled or failed: lines still queued are never sent.
+            self._protocol.withdraw(s for _, check, batch in pending for s in (*batch, check))
+
+    async def _checkpoint(self, spec: _ListSpec, commands: list[Command],
+                          pending: list[tuple[int, Submission, list[Submission]]],
+                          progress: Progress | None) -> None:
+        """Await the oldest checkpoint; on a short count stop the upload and raise."""
+        expected, check, _batch = pending[0]
+        response = await self._protocol.wait_reply(check, self._timeout)
+        pending.pop(0)  # only now: if the wait is cancelled, the caller withdraws it
+        count = int(response.lines[0])
+        if count != expected:
+            self._protocol.withdraw(s for _, c, batch in pending for s in (*batch, c))
+            pending.clear()
+            await self._locate_rejection(spec, commands, count)
+        if progress is not None:
+            progress(count, self._total)
+
+    async def _locate_rejection(self, spec: _ListSpec, commands: list[Command],
+                                count: int) -> None:
+        """Find the first entry that did not make it, get its error and raise.
+
+        The reads below are answered only after every line already written was processed,
+        so the list no longer changes when it is truncated to the accepted entries.
+        """
+        rows = await self.download(spec, count)
+        first = next((i for i, row in enumerate(rows) if not _same(row, commands[i])), count)
+        await self._command(spec.count, first)
+        code = await self._probe(commands[first])
+        await self._command(spec.count, first)
+        raise UploadError(first, code or 5, commands[first].line) from (
+            controller_error(code or 5, commands[first].line))
+
+    async def _probe(self, command: Command) -> int:
+        self._protocol.submit(command)
+        return int(await self._query("err"))
+
+    async def _command(self, name: str, *args: int) -> None:
+        command = build(name, *args)
+        self._protocol.submit(command)
+        code = int(await self._query("err"))
+        if code:
+            raise controller_error(code, command.line)
+
+    async def download(self, spec: _ListSpec, count: int | None = None) -> list[list[float]]:
+        """Read entries 1..count (default: the whole list) with pipelined reads."""
+        total = await self._count(spec) if count is None else count
+        submissions = [self._protocol.submit(spec.read(i)) for i in range(1, total + 1)]
+        try:
+            replies = [await self._protocol.wait_reply(s, self._timeout) for s in submissions]
+        finally:
+            self._protocol.withdraw(submissions)
+        return [[float(v) for v in r.lines[0].split()] for r in replies]
+
+
+def _same(row: Sequence[float], command: Command) -> bool:
+    sent = [float(v) for v in command.values[1:]]
+    return len(row) >= len(sent) and all(
+        math.isclose(a, b, abs_tol=1e-3) for a, b in zip(row, sent, strict=False))
+
+
+def trigger_spec() -> _ListSpec:
+    """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``)."""
+    return _ListSpec(
+        append=lambda row: build("trigp", -1, row[0]),
+        count="trigc",
+        read=lambda index: build("trigp", index, form=Form.READ),
+    )
+
+
+def snapshot_spec() -> _ListSpec:
+    """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``)."""
+    return _ListSpec(
+        append=lambda row: build("snsa", -1, *row),
+        count="snsc",
+        read=lambda index: build("snsa", index, form=Form.READ),
+    )
+
+
+def check_axis(axis: str) -> str:
+    """Validate an axis letter."""
+    letter = axis.lower()
+    if letter not in AXES:
+        raise InvalidCommandError(f"{axis!r} is not an axis (x, y, z, a)", parameter="axis",
+                                  code=1)
+    return letter
+
+
+def validate_rows(rows: Sequence[Sequence[float]], axes: int) -> list[list[float]]:
+    """Check snapshot rows: at most 1024, each 1..axes finite values."""
+    if len(rows) > MAX_SNAPSHOTS:
+        raise InvalidCommandError(f"snsa: {len(rows)} rows, at most {MAX_SNAPSHOTS}",
+                                  instruction="snsa", code=5)
+    out: list[list[float]] = []
+    for index, row in enumerate(rows):
+        values = [float(v) for v in row]
+        if not 1 <= len(values) <= axes or not all(math.isfinite(v) for v in values):
+            raise InvalidCommandError(f"snsa: row {index} must hold 1..{axes} finite values",
+                                      instruction="snsa", parameter="position", code=5)
+        out.append(values)
+    return out
+
