@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
+import anyio
+
 from .bulk import (
     ListTransfer,
     Progress,
@@ -62,6 +64,9 @@ from .units import UnitScale
 __all__ = ["Controller", "Identity"]
 
 log = logging.getLogger("tango_aio")
+
+#: Longest wait for the axes to stop after a cancelled move (seconds).
+STOP_WAIT = 10.0
 
 #: Status letters that mean a move did not end where it should (manual L2689-2711).
 FAILED_LETTERS = frozenset("EST")
@@ -529,10 +534,13 @@ class Controller:
         with contextlib.suppress(TangoError):
             self._protocol.submit(build("a", form=Form.SET))
         try:
-            with contextlib.suppress(Exception, asyncio.CancelledError):
-                async with asyncio.timeout(10.0):
-                    if not await self._refused(sent):
-                        await self._stopped(sent.submission)
+            # Shielded (with a time limit) so that the stop is awaited even when the
+            # cancellation comes from a level-triggered anyio scope that would otherwise
+            # cancel every await of this clean-up at once.
+            with contextlib.suppress(Exception, asyncio.CancelledError), \
+                    anyio.move_on_after(STOP_WAIT, shield=True):
+                if not await self._refused(sent):
+                    await self._stopped(sent.submission)
         finally:
             self._protocol.forget_completion(sent.submission)
 
