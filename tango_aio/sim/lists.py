@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 __all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "TriggerList"]
 
@@ -63,6 +64,45 @@ def _check_slot(entries: list[float], slot: int, position: float) -> None:
             raise ListError(5, "trigger positions must be strictly monotonic")
 
 
+T = TypeVar("T")
+
+
+def _write_slot(entries: list[T], index: int, maximum: int, what: str) -> int:
+    """The 1-based slot ``!trigp``/``!snsa`` writes: -1 or count+1 appends."""
+    count = len(entries)
+    slot = count + 1 if index == -1 else index
+    if not 1 <= slot <= count + 1:
+        raise ListError(5, f"index {index} outside 1..{count + 1}")
+    if slot > maximum:
+        raise ListError(5, f"the {what} holds at most {maximum} entries")
+    return slot
+
+
+def _put(entries: list[T], slot: int, value: T) -> None:
+    if slot == len(entries) + 1:
+        entries.append(value)
+    else:
+        entries[slot - 1] = value
+
+
+def _read(entries: list[T], index: int, what: str) -> T:
+    """``?trigp n`` / ``?snsa n`` (1-based) or ``-1`` (the last entry)."""
+    if not entries:
+        raise ListError(5, f"the {what} is empty")
+    slot = len(entries) if index == -1 else index
+    if not 1 <= slot <= len(entries):
+        raise ListError(5, f"index {index} outside 1..{len(entries)}")
+    return entries[slot - 1]
+
+
+def _truncate(entries: list[T], count: int, what: str) -> None:
+    """``!trigc n`` / ``!snsc n``: keep the first n entries (only shortening)."""
+    if count > len(entries):
+        raise ListError(5, f"cannot grow the {what} to {count} entries")
+    del entries[count:]
+
+
+
 @dataclass
 class TriggerList:
     """The ``!trigp`` trigger position list of the trigger axis."""
@@ -89,17 +129,9 @@ class TriggerList:
         if axis is not None and self.entries:
             # "!trigp x -1 9: Only possible if the list is empty" (L13838).
             raise ListError(1, f"trigger axis is {self.axis}; clear the list to name it")
-        count = len(self.entries)
-        slot = count + 1 if index == -1 else index
-        if not 1 <= slot <= count + 1:
-            raise ListError(5, f"index {index} outside 1..{count + 1}")
-        if slot > MAX_TRIGGERS:
-            raise ListError(5, f"the list holds at most {MAX_TRIGGERS} entries")
+        slot = _write_slot(self.entries, index, MAX_TRIGGERS, "list")
         _check_slot(self.entries, slot, position)
-        if slot == count + 1:
-            self.entries.append(position)
-        else:
-            self.entries[slot - 1] = position
+        _put(self.entries, slot, position)
         if axis is not None:
             self.axis = axis
 
@@ -113,18 +145,11 @@ class TriggerList:
 
     def read(self, index: int) -> float:
         """``?trigp n`` (1-based) or ``?trigp -1`` (last)."""
-        if not self.entries:
-            raise ListError(5, "the trigger list is empty")
-        slot = len(self.entries) if index == -1 else index
-        if not 1 <= slot <= len(self.entries):
-            raise ListError(5, f"index {index} outside 1..{len(self.entries)}")
-        return self.entries[slot - 1]
+        return _read(self.entries, index, "trigger list")
 
     def shorten(self, count: int) -> None:
         """``!trigc n``: keep the first n entries (0 clears)."""
-        if count > len(self.entries):
-            raise ListError(5, f"cannot grow the list to {count} entries")
-        del self.entries[count:]
+        _truncate(self.entries, count, "list")
         self.pointer = min(self.pointer, max(1, count))
 
     def set_pointer(self, index: int) -> None:
@@ -154,16 +179,7 @@ class SnapshotList:
 
     def write(self, index: int, row: tuple[float, ...]) -> None:
         """``!snsa index pos...``: -1 or count+1 appends, 1..count overwrites."""
-        count = len(self.entries)
-        slot = count + 1 if index == -1 else index
-        if not 1 <= slot <= count + 1:
-            raise ListError(5, f"index {index} outside 1..{count + 1}")
-        if slot > MAX_SNAPSHOTS:
-            raise ListError(5, f"the array holds at most {MAX_SNAPSHOTS} entries")
-        if slot == count + 1:
-            self.entries.append(row)
-        else:
-            self.entries[slot - 1] = row
+        _put(self.entries, _write_slot(self.entries, index, MAX_SNAPSHOTS, "array"), row)
 
     def capture(self, row: tuple[float, ...]) -> None:
         """A snapshot event: append the current position (captures always append)."""
@@ -173,18 +189,11 @@ class SnapshotList:
 
     def read(self, index: int) -> tuple[float, ...]:
         """``?snsa n`` (1-based) or ``?snsa -1`` (last)."""
-        if not self.entries:
-            raise ListError(5, "the snapshot array is empty")
-        slot = len(self.entries) if index == -1 else index
-        if not 1 <= slot <= len(self.entries):
-            raise ListError(5, f"index {index} outside 1..{len(self.entries)}")
-        return self.entries[slot - 1]
+        return _read(self.entries, index, "snapshot array")
 
     def shorten(self, count: int) -> None:
         """``!snsc n``: keep the first n entries."""
-        if count > len(self.entries):
-            raise ListError(5, f"cannot grow the array to {count} entries")
-        del self.entries[count:]
+        _truncate(self.entries, count, "array")
         self.pointer = min(self.pointer, max(0, count - 1))
 
     def set_pointer(self, index: int) -> None:
