@@ -11,6 +11,7 @@ from conftest import EmulatorFactory
 
 from tango_aio import InvalidCommandError, TangoError
 from tango_aio.bulk import UploadError
+from tango_aio.instructions import parse
 from tango_aio.sim.lists import ListError
 
 REALTIME = "sim://?baud=57600&latency=0.002&processing=0.0005"
@@ -134,3 +135,18 @@ async def test_trigger_range_and_snapshot_round_trip(emulator: EmulatorFactory) 
     assert await emu.tango.read_snapshot_positions() == rows
     await emu.tango.upload_snapshot_positions([[1.0], [2.0]])
     assert await emu.tango.read_snapshot_positions() == [[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+
+
+async def test_marker_errors_are_attributed_to_the_lines_they_cover(
+        emulator: EmulatorFactory) -> None:
+    """With a marker after every reply-less line, the one the controller refused is
+    marked with the error number and the others are not."""
+    emu = await emulator()
+    protocol = emu.tango.protocol
+    protocol.credit.chunk = 1  # a marker after every reply-less line
+    await emu.tango.command("!trigp x 0")
+    lines = ["!trigp -1 1.0", "!trigp -1 2.0", "!trigp -1 1.5", "!trigp -1 3.0"]
+    submissions = [protocol.submit(parse(line)) for line in lines]
+    await emu.tango.query("?trigc")
+    assert [s.chunk_error for s in submissions] == [None, None, 5, None]
+    assert await emu.tango.read_trigger_positions() == [1.0, 2.0, 3.0]
