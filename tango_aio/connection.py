@@ -7,13 +7,18 @@ URLs:
 * ``socket://host:port`` for ser2net and terminal servers (a plain asyncio TCP connection);
 * ``sim://`` for the in-process emulator, options in the query
   (``sim://?axes=3&baud=57600``).
+
+Opening is cancel-safe: a ``connect()`` cancelled at any point closes what it opened
+(the serial port, even while it is being opened in a thread; the socket; the emulator).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import functools
 import urllib.parse
-from collections.abc import Awaitable, Callable, Generator
+from collections.abc import Callable, Generator
 from types import TracebackType
 from typing import Any
 
@@ -21,6 +26,7 @@ from .controller import Controller
 from .errors import ConnectionLostError
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT
 from .protocol import TangoProtocol
+from .reconnect import Closer, Reconnect, ReconnectPolicy
 
 __all__ = ["DEFAULT_BAUD", "Connecting", "connect"]
 
@@ -28,7 +34,6 @@ __all__ = ["DEFAULT_BAUD", "Connecting", "connect"]
 DEFAULT_BAUD = 57600
 
 ProtocolFactory = Callable[[], TangoProtocol]
-Closer = Callable[[], Awaitable[None]]
 
 
 async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
@@ -38,19 +43,46 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
 
     def open_port() -> Any:
         # pyserial-asyncio 0.6 opens the port on the event loop, which blocks; open it
-        # in a thread instead and hand the open port over.
+        # in a thread instead and hand the open port over. ``exclusive``: a second program
+        # (or a second connect()) writing to the same controller would interleave lines
+        # and steal replies, so the port is locked (flock on POSIX; Windows ports are
+        # exclusive anyway); URL handlers such as loop:// accept and ignore it.
         port = serial.serial_for_url(url, baudrate=baudrate, bytesize=8, parity="N",
-                                     stopbits=2, rtscts=rtscts, timeout=0)
-        port.reset_input_buffer()
+                                     stopbits=2, rtscts=rtscts, timeout=0, exclusive=True)
+        try:
+            port.reset_input_buffer()
+        except BaseException:
+            port.close()
+            raise
         return port
 
     try:
-        port = await asyncio.to_thread(open_port)
+        port = await _in_thread(open_port)
     except (OSError, serial.SerialException) as exc:
         raise ConnectionLostError(f"cannot open {url!r}: {exc}") from exc
     loop = asyncio.get_running_loop()
-    transport, protocol = await serial_asyncio.connection_for_serial(loop, factory, port)
+    try:
+        transport, protocol = await serial_asyncio.connection_for_serial(loop, factory, port)
+    except BaseException:
+        port.close()
+        raise
     return transport, protocol
+
+
+async def _in_thread(open_port: Callable[[], Any]) -> Any:
+    """Run ``open_port`` in a thread; if the caller is cancelled meanwhile, the thread
+    still finishes (threads cannot be interrupted), and the port it opened is closed."""
+    task = asyncio.ensure_future(asyncio.to_thread(open_port))
+    try:
+        return await asyncio.shield(task)
+    except asyncio.CancelledError:
+        task.add_done_callback(_close_opened)
+        raise
+
+
+def _close_opened(task: asyncio.Future[Any]) -> None:
+    if not task.cancelled() and task.exception() is None:
+        task.result().close()
 
 
 async def _open_socket(url: str, factory: ProtocolFactory
@@ -80,20 +112,66 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
     return protocol, None
 
 
+async def _open_link(url: str, make: ProtocolFactory, options: dict[str, Any]
+                     ) -> tuple[TangoProtocol, Closer | None]:
+    """Open ``url`` and wait until the protocol is connected; on any failure, including
+    cancellation, close whatever was opened (no leaked port, socket or emulator task)."""
+    made: list[TangoProtocol] = []
+
+    def factory() -> TangoProtocol:
+        made.append(make())
+        return made[-1]
+
+    closer: Closer | None = None
+    try:
+        protocol, closer = await _open(url, factory, options)
+        await protocol.wait_connected()
+    except BaseException:
+        await _discard(made, closer)
+        raise
+    return protocol, closer
+
+
+async def _discard(made: list[TangoProtocol], closer: Closer | None) -> None:
+    """Close the transports of ``made`` (a transport not yet handed to its protocol is
+    closed when it is, see :meth:`TangoProtocol.connection_made`) and run ``closer``."""
+    for protocol in made:
+        protocol.close()
+        wait_closed = getattr(protocol.transport, "wait_closed", None)
+        if closer is None and wait_closed is not None:  # the sim:// emulator task
+            with contextlib.suppress(Exception):
+                await asyncio.shield(wait_closed())
+    if closer is not None:
+        with contextlib.suppress(Exception):
+            await asyncio.shield(closer())
+
+
+def _reconnect_policy(options: dict[str, Any]) -> ReconnectPolicy | None:
+    """Take the ``reconnect*`` options out of ``options`` (validated before opening)."""
+    enabled = bool(options.pop("reconnect", False))
+    policy = ReconnectPolicy(initial=float(options.pop("reconnect_initial", 0.1)),
+                             maximum=float(options.pop("reconnect_max", 5.0)),
+                             attempts=options.pop("reconnect_attempts", None))
+    return policy if enabled else None
+
+
 async def _connect(url: str, *, autostatus: int | None = 1, identify: bool = True,
                    reply_timeout: float = 5.0, credit_limit: int = DEFAULT_LIMIT,
                    marker_chunk: int = DEFAULT_CHUNK, **options: Any) -> Controller:
     def factory() -> TangoProtocol:
         return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk)
 
-    protocol, closer = await _open(url, factory, options)
-    await protocol.wait_connected()
+    policy = _reconnect_policy(options)
+    opener = functools.partial(_open_link, url, factory, options)
+    protocol, closer = await opener()
     controller = Controller(protocol, url=url, reply_timeout=reply_timeout, on_close=closer)
     try:
         await controller.setup(autostatus=autostatus, identify=identify)
     except BaseException:
         await controller.aclose()
         raise
+    if policy is not None:  # only once set up: a failing first connect() just raises
+        controller._enable_reconnect(Reconnect(policy, opener, identify))
     return controller
 
 
@@ -124,9 +202,22 @@ def connect(url: str = "sim://", **options: Any) -> Connecting:
     ``async with tango_aio.connect("/dev/ttyUSB0") as tango: ...`` or
     ``tango = await tango_aio.connect("sim://?axes=3")`` then ``await tango.aclose()``.
 
-    Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports; ``autostatus``
-    (1; ``None`` keeps the controller's mode), ``identify`` (True), ``reply_timeout``
-    (5.0 s); ``credit_limit`` (255 bytes written but not yet processed, at most) and
-    ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control.
+    Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports, which are opened
+    exclusively (a second open of the same port fails); ``autostatus`` (1; ``None`` keeps
+    the controller's mode), ``identify`` (True), ``reply_timeout`` (5.0 s: a request
+    unanswered for that long raises ControllerTimeoutError after the stream was
+    resynchronised); ``credit_limit`` (255 bytes written but not yet processed, at most)
+    and ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control.
+
+    Automatic reconnect (off by default): ``reconnect=True`` keeps the Controller usable
+    across link losses. After a loss it waits ``reconnect_initial`` (0.1 s), opens the same
+    URL again, resynchronises, checks that the same model and firmware answer (else it
+    stops with :class:`~tango_aio.reconnect.IdentityMismatchError` as the cause), selects
+    the autostatus mode that was in force and publishes
+    :class:`~tango_aio.events.Reconnected`; each failed attempt doubles the wait, up to
+    ``reconnect_max`` (5.0 s), for at most ``reconnect_attempts`` attempts (``None``: until
+    :meth:`~tango_aio.controller.Controller.aclose`). What was in flight at the loss fails
+    with ConnectionLostError and is not retried; calls made while the link is down fail at
+    once with ConnectionLostError (``await tango.wait_connected(timeout)`` waits instead).
     """
     return Connecting(url, options)

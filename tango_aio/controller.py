@@ -24,6 +24,7 @@ from .bulk import (
 )
 from .core import Completed, Dropped, Event, Unsolicited
 from .errors import (
+    ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
@@ -41,6 +42,7 @@ from .events import (
     MoveAborted,
     MoveFinished,
     PositionUpdate,
+    Reconnected,
     StatusReport,
     Subscription,
     UnsolicitedLine,
@@ -59,6 +61,7 @@ from .instructions import (
     parse_reply,
 )
 from .protocol import Response, Submission, TangoProtocol
+from .reconnect import Closer, IdentityMismatchError, Reconnect
 from .units import UnitScale
 
 __all__ = ["Controller", "Identity"]
@@ -117,6 +120,15 @@ class Controller:
     in autostatus 0, when polling ``statusaxis`` shows the axes stopped. Moves on one
     controller are serialised: a second concurrent move waits until the first finished,
     so completion reports can never be mixed up.
+
+    Connection loss: everything awaited fails with
+    :class:`~tango_aio.errors.ConnectionLostError` (``__cause__`` says why) and
+    :meth:`events` yields :class:`~tango_aio.events.ConnectionLost`. Without automatic
+    reconnect the event streams then end. With ``connect(url, reconnect=True)`` they go on:
+    the object stays valid, the same URL is opened again in the background (see
+    :mod:`tango_aio.reconnect`) and :class:`~tango_aio.events.Reconnected` follows. Calls
+    made while the link is down fail at once with ConnectionLostError, they do not wait;
+    :meth:`wait_connected` waits for the link.
     """
 
     def __init__(
@@ -136,6 +148,12 @@ class Controller:
         self._identity: Identity | None = None
         self._on_close = on_close
         self._detached: asyncio.Future[None] | None = None
+        self._closing = False
+        self._reconnect: Reconnect | None = None
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._reconnect_attempt = 0
+        #: Set (and replaced) whenever the link goes up or down: wakes wait_connected().
+        self._link_event = asyncio.Event()
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -161,13 +179,21 @@ class Controller:
         return self._protocol.core.context
 
     async def aclose(self) -> None:
-        """Close the connection. Pending requests fail with ConnectionLostError."""
+        """Close the connection and stop reconnecting. Pending requests fail with
+        ConnectionLostError."""
+        self._closing = True
         if self._detached is not None:
             self._detached.cancel()
+        task, self._reconnect_task = self._reconnect_task, None
+        if task is not None:
+            task.cancel()  # it closes a link it was setting up
+            await asyncio.wait([task])
         self._protocol.close()
-        if self._on_close is not None:
-            await self._on_close()
+        closer, self._on_close = self._on_close, None
+        if closer is not None:
+            await closer()
         self._hub.close()
+        self._link_changed()
 
     async def __aenter__(self) -> Controller:
         return self
@@ -197,6 +223,129 @@ class Controller:
         if identify:
             self._identity = await self.identify()
         await self.refresh_settings()
+
+    # -- connection state and automatic reconnect ----------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        """Whether the link is up (False once lost, while reconnecting, after aclose)."""
+        return self._protocol.is_connected
+
+    @property
+    def reconnecting(self) -> bool:
+        """Whether an automatic reconnect is under way."""
+        return self._reconnect_task is not None and not self._reconnect_task.done()
+
+    @property
+    def reconnect_attempt(self) -> int:
+        """Number of the current (or last) reconnect attempt of the latest outage (0:
+        none yet)."""
+        return self._reconnect_attempt
+
+    async def wait_connected(self, timeout: float | None = None) -> None:
+        """Return once the link is up (at once if it is).
+
+        Raises :class:`~tango_aio.errors.ConnectionLostError` when it will not come back:
+        no automatic reconnect, reconnecting gave up (``__cause__`` says why, e.g.
+        :class:`~tango_aio.reconnect.IdentityMismatchError`), or :meth:`aclose` was
+        called; :class:`TimeoutError` after ``timeout`` seconds.
+        """
+        async with asyncio.timeout(timeout):
+            while not self.connected:
+                if not self.reconnecting:
+                    self._protocol.check()
+                    raise ConnectionLostError("not connected")
+                await self._link_event.wait()
+
+    def _enable_reconnect(self, reconnect: Reconnect) -> None:
+        """Reconnect on its own after a loss (called by :func:`~tango_aio.connect`)."""
+        self._reconnect = reconnect
+
+    def _link_changed(self) -> None:
+        event, self._link_event = self._link_event, asyncio.Event()
+        event.set()
+
+    def _on_connection_lost(self, exc: BaseException | None) -> None:
+        self._hub.publish(ConnectionLost(exc))
+        if self._reconnect is not None and not self._closing and not self.reconnecting:
+            self._reconnect_attempt = 0
+            mode = self._protocol.core.autostatus
+            self._reconnect_task = asyncio.get_running_loop().create_task(
+                self._reconnect_loop(self._reconnect, mode), name=f"tango_aio reconnect {self.url}")
+        else:
+            self._hub.close()
+        self._link_changed()
+
+    async def _reconnect_loop(self, reconnect: Reconnect, mode: int) -> None:
+        """Try again after each delay of the policy until a link is up or it gives up."""
+        error: BaseException | None = None
+        for attempt, delay in enumerate(reconnect.policy.delays(), start=1):
+            await asyncio.sleep(delay)
+            self._reconnect_attempt = attempt
+            try:
+                await self._reconnect_once(reconnect, mode)
+            except IdentityMismatchError as exc:
+                error = exc
+                break  # not transient: see tango_aio.reconnect
+            except (TangoError, OSError, TimeoutError) as exc:
+                error = exc
+                log.warning("reconnect attempt %d to %s failed: %s", attempt, self.url, exc)
+                continue
+            except Exception as exc:  # a bug: do not retry it forever
+                log.exception("reconnect attempt %d to %s failed", attempt, self.url)
+                error = exc
+                break
+            self._hub.publish(Reconnected(attempt))
+            self._link_changed()
+            return
+        self._give_up(error)
+
+    async def _reconnect_once(self, reconnect: Reconnect, mode: int) -> None:
+        """Open the URL again, set the new link up like the lost one and swap it in.
+
+        The set-up runs on a throw-away Controller, so calls made meanwhile still fail
+        at once on the lost link instead of reaching a half-set-up one.
+        """
+        closer, self._on_close = self._on_close, None
+        if closer is not None:
+            await closer()  # e.g. the sim:// emulator of the lost link
+        protocol, closer = await reconnect.opener()
+        fresh = Controller(protocol, url=self.url, reply_timeout=self.reply_timeout,
+                           on_close=closer)
+        try:
+            await fresh.setup(autostatus=mode, identify=reconnect.identify)
+            self._check_identity(fresh.identity)
+            protocol.check()  # the new link may have dropped at the very end
+        except BaseException:
+            await fresh.aclose()
+            raise
+        self._adopt(fresh, closer)
+
+    def _check_identity(self, found: Identity | None) -> None:
+        known = self._identity
+        if known is None or found is None:
+            return
+        if (found.model, found.firmware, found.axes) != (known.model, known.firmware,
+                                                         known.axes):
+            raise IdentityMismatchError(
+                f"{self.url}: expected {known.model} firmware {known.firmware} with "
+                f"{known.axes} axes, found {found.model} firmware {found.firmware} with "
+                f"{found.axes} axes; not reconnecting")
+
+    def _adopt(self, fresh: Controller, closer: Closer | None) -> None:
+        """Take over ``fresh``'s link, settings and identity (no await: atomic)."""
+        self._protocol = fresh._protocol
+        self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        self._settings = fresh._settings
+        self._identity = fresh._identity or self._identity
+        self._on_close = closer
+
+    def _give_up(self, error: BaseException | None) -> None:
+        lost = ConnectionLostError(f"reconnecting to {self.url!r} gave up: {error}")
+        lost.__cause__ = error
+        self._protocol.give_up(lost)
+        self._hub.close()
+        self._link_changed()
 
     # -- identity and raw access -------------------------------------------------------------
 
@@ -504,8 +653,15 @@ class Controller:
         return await self._poll_idle()
 
     async def _poll_idle(self, poll_interval: float = 0.05) -> dict[str, str]:
-        """Like :meth:`wait_idle`, but a poll lost to a resync (Ctrl+C) is repeated."""
+        """Like :meth:`wait_idle`, but a poll lost to a resync (Ctrl+C) is repeated.
+
+        Polls only the link the caller's move was sent on: should that link be lost
+        between two polls and a reconnect be quick, the new link's idle axes must not
+        pass for the end of the move (it fails with ConnectionLostError instead).
+        """
+        link = self._protocol
         while True:
+            link.check()
             try:
                 letters = await self.status()
             except RequestAbortedError:
@@ -682,9 +838,6 @@ class Controller:
         ok = not (set(letters.values()) & FAILED_LETTERS)
         self._hub.publish(MoveFinished(kind, letters, ok))
 
-    def _on_connection_lost(self, exc: BaseException | None) -> None:
-        self._hub.publish(ConnectionLost(exc))
-        self._hub.close()
 
 
 def _reported_letters(submission: Submission) -> Mapping[str, str] | None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import Any, ClassVar
 
 __all__ = [
     "ERROR_DESCRIPTIONS",
@@ -125,6 +125,11 @@ class MoveError(TangoError):
     def __init__(self, message: str, statuses: Mapping[str, str]) -> None:
         super().__init__(message)
         self.statuses: dict[str, str] = dict(statuses)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # BaseException pickles as ``cls(*self.args)``, which lacks ``statuses``; the
+        # instance dict (``statuses``, ``__notes__``...) is restored as the state.
+        return type(self), (str(self), self.statuses), self.__dict__
 
 
 class ControllerError(TangoError):

@@ -7,7 +7,8 @@ after it subscribed.
 Overflow policy: a subscriber that falls behind loses its *oldest* buffered events, never
 the newest, and never blocks the connection. :attr:`Subscription.dropped` counts what it
 lost. When the connection is lost, subscribers receive :class:`ConnectionLost` and then
-their iteration ends.
+their iteration ends, unless the controller was opened with ``reconnect=True``: then the
+stream goes on, and :class:`Reconnected` follows once the link is back.
 """
 
 from __future__ import annotations

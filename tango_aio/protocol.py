@@ -54,6 +54,7 @@ from .core import (
 from .errors import (
     ConnectionLostError,
     ControllerTimeoutError,
+    InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
     UnknownControllerError,
@@ -164,6 +165,10 @@ class TangoProtocol(asyncio.Protocol):
         self._transport = transport
         if not self._connected.done():
             self._connected.set_result(None)
+        if self._closing:
+            # close() ran first (e.g. a cancelled connect(): a serial transport reports
+            # connection_made one loop iteration after it was created): do not leak it.
+            transport.close()
 
     async def wait_connected(self) -> None:
         """Wait until :meth:`connection_made` has run."""
@@ -213,6 +218,12 @@ class TangoProtocol(asyncio.Protocol):
         if self._transport is not None and not self._transport.is_closing():
             self._transport.close()
 
+    def give_up(self, error: ConnectionLostError) -> None:
+        """Record why a lost link will not come back: later calls raise ``error``'s class
+        with its message and cause (used when an automatic reconnect gives up)."""
+        if self._lost is not None:
+            self._lost = error
+
     def check(self) -> None:
         """Raise the connection error if the link is gone."""
         if self._lost is not None:
@@ -250,6 +261,7 @@ class TangoProtocol(asyncio.Protocol):
         enough credit; lines are always written in submission order.
         """
         self.check()
+        _check_framing(command)
         tag = next(self._tags)
         mode = self._queued_mode if self._queue else self.core.autostatus
         expect = expectation(command, mode, self.core.context)
@@ -528,6 +540,20 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
+
+
+def _check_framing(command: Command) -> None:
+    """Refuse a line that would frame more than one line, or Ctrl+C, on the wire.
+
+    :func:`~tango_aio.instructions.parse` already rejects these; this guards
+    :class:`Command` objects built by hand (defence in depth: CR would end the line early
+    and smuggle in a second command, 0x03 would abort every axis).
+    """
+    line = command.line
+    if any(char in line for char in ("\r", "\n", "\x03")) or not line.isascii():
+        raise InvalidCommandError(
+            f"control or non-ASCII character inside the command line {line!r}",
+            instruction=command.name, code=4)
 
 
 def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
