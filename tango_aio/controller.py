@@ -848,8 +848,25 @@ def _reported_letters(submission: Submission) -> Mapping[str, str] | None:
     return report.result().letters
 
 
+def _moved_axes(command: Command) -> set[str] | None:
+    """The axes a motion command moves (``None``: every enabled axis, e.g. ``cal``)."""
+    if command.axis is not None:
+        return {command.axis}
+    if command.values:
+        return set(AXES[: len(command.values)])
+    return None
+
+
 def _check_letters(command: Command, letters: Mapping[str, str]) -> dict[str, str]:
-    if set(letters.values()) & FAILED_LETTERS:
+    """Raise :class:`MoveError` if an axis the command moved reports E, S or T.
+
+    Only the moved axes count: letters polled from ``statusaxis`` (autostatus 0 and 3)
+    keep the sticky ``E`` of an axis aborted earlier, which says nothing about this move.
+    """
+    moved = _moved_axes(command)
+    failed = {axis for axis, letter in letters.items()
+              if letter in FAILED_LETTERS and (moved is None or axis in moved)}
+    if failed:
         raise MoveError(f"{command.line!r} ended with status {dict(letters)}", letters)
     return dict(letters)
 
