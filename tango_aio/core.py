@@ -47,6 +47,7 @@ from .instructions import (
     Completion,
     Context,
     Form,
+    Instruction,
     LineRule,
     Shape,
     encode,
@@ -290,17 +291,38 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
       the echo first and the report when the move ends, as in mode 1.
     """
+    entry = command.instruction
+    # Most lines owe what their instruction, form and the mode say, whatever their values:
+    # those expectations are computed once (the protocol asks twice per line written).
+    # Not cached: lines that change the mode, and reads whose reply length depends on the
+    # values or the context (entry.lines).
+    key = (entry.name, command.form, mode)
+    cacheable = entry.name not in _MODE_SETTERS and (entry.lines is None or command.executes)
+    if cacheable:
+        hit = _EXPECTATIONS.get(key)
+        if hit is not None and hit[0] is entry:
+            return hit[1]
     executes = command.executes
     after = _mode_after(command, mode)
     rule = reply_rule(command, context)
-    owns_ack = command.instruction.exec_reply is Shape.ACK and executes
-    return Expectation(
+    owns_ack = entry.exec_reply is Shape.ACK and executes
+    result = Expectation(
         echo=mode == 4 and executes,
         rule=rule,
         ack=after == 2 and command.form is Form.SET and not owns_ack,
-        completion=command.instruction.completion if executes and after != 0 else None,
+        completion=entry.completion if executes and after != 0 else None,
         mode_after=after,
     )
+    if cacheable:
+        _EXPECTATIONS[key] = (entry, result)
+    return result
+
+
+#: Instructions whose lines may change the autostatus mode (see :func:`_mode_after`).
+_MODE_SETTERS: Final = frozenset({"autostatus", "reset", "restore"})
+#: Cached expectations by (instruction name, form, mode), with the instruction they were
+#: computed for (a hand-made Instruction of the same name does not share them).
+_EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 
 
 #: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
@@ -468,7 +490,11 @@ class ProtocolCore:
             self._route_ack(head, line, text)
 
     def _route_completion(self, line: str, text: str) -> bool:
-        if text == "":
+        # Only a truly empty line is the bare CR of autostatus 3. A line of blanks is not:
+        # a one-bit error turns the '0' of '?err' into ' ', and taking that for a
+        # completion left the probe waiting, so it took the *next* request's reply
+        # (tests/test_faults.py::test_garbled_zero_to_blank_stays_with_its_caller).
+        if line == "":
             # Autostatus 3 reports completion with a bare CR (manual L2107-2113, L2161);
             # inside a multi-line reply an empty line is data. It is accepted as a
             # completion in every mode: the mode that matters is the one in force when

@@ -269,6 +269,11 @@ class Command:
     axis: str | None
     values: tuple[float | int | str, ...]
     tokens: tuple[str, ...]
+    # The line text and its bytes, computed once on first use: the protocol asks for them
+    # several times per line (size, credit, framing check, write), which showed in the
+    # scaling benchmark (benchmarks/scaling.py).
+    _line: str | None = field(default=None, init=False, repr=False, compare=False)
+    _bytes: bytes | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def name(self) -> str:
@@ -288,13 +293,20 @@ class Command:
     @property
     def line(self) -> str:
         """The canonical text of the line, without CR."""
-        head = self.form.value + self.instruction.name
-        parts = [head, *([self.axis] if self.axis else []), *self.tokens]
-        return " ".join(parts)
+        line = self._line
+        if line is None:
+            head = self.form._value_ + self.instruction.name  # _value_: .value, cheaper
+            line = " ".join([head, *([self.axis] if self.axis else []), *self.tokens])
+            object.__setattr__(self, "_line", line)
+        return line
 
     def to_bytes(self) -> bytes:
         """The exact bytes to write, CR included."""
-        return self.line.encode("ascii") + b"\r"
+        data = self._bytes
+        if data is None:
+            data = self.line.encode("ascii") + b"\r"  # a non-ASCII token raises here
+            object.__setattr__(self, "_bytes", data)
+        return data
 
 
 # --------------------------------------------------------------------------------------
@@ -316,6 +328,12 @@ def format_number(value: float | int) -> str:
         return str(value)
     if not math.isfinite(value):
         raise ValueError(f"not a finite number: {value!r}")
+    if type(value) is float:
+        text = repr(value)
+        if "e" not in text:
+            # Already plain decimal notation with a point ("0.0123", "-10.0"): what the
+            # Decimal round trip below would give, at a fraction of the cost.
+            return text
     text = format(Decimal(repr(value)), "f")
     return text if "." in text else text + ".0"
 
@@ -416,12 +434,16 @@ def _split_form(line: str) -> tuple[Form, Instruction, list[str]]:
     prefix, name, rest = match.groups()
     entry = lookup(name)
     form = Form(prefix)
+    _check_form(entry, form)
+    return form, entry, (rest or "").split()
+
+
+def _check_form(entry: Instruction, form: Form) -> None:
     if not entry.allows(form):
         code = 7 if form is Form.BARE else 4
         allowed = ", ".join(repr(f.value or "bare") for f in sorted(entry.forms, key=str))
         raise _fail(f"{entry.name}: form {form.value or 'bare'!r} not allowed ({allowed})",
                     entry.name, None, code)
-    return form, entry, (rest or "").split()
 
 
 def _take_axis(entry: Instruction, sig: Signature, tokens: list[str]) -> str | None:
@@ -500,6 +522,11 @@ def parse(line: str, context: Context | None = None) -> Command:
     ctx = context or DEFAULT_CONTEXT
     _check_line_text(line)
     form, entry, tokens = _split_form(line)
+    return _parse_tokens(entry, form, tokens, ctx)
+
+
+def _parse_tokens(entry: Instruction, form: Form, tokens: list[str], ctx: Context) -> Command:
+    """The part of :func:`parse` after the line was split into form, name and tokens."""
     errors: list[InvalidCommandError] = []
     for sig in entry.signatures(form) or (Signature(),):
         rest = list(tokens)
@@ -571,11 +598,23 @@ def _build(
     entry = lookup(name)
     the_form = form if isinstance(form, Form) else Form(form)
     parts: list[str] = [the_form.value + entry.name]
-    letter, per_axis = _axis_part(entry, axis, axes)
+    if axes:
+        letter, per_axis = _axis_part(entry, axis, axes)
+    else:  # what _axis_part gives without per-axis keywords
+        letter, per_axis = (axis.lower() if axis else None), []
     if letter:
         parts.append(letter)
-    parts.extend(_format_value(value) for value in args)
-    parts.extend(_format_value(value) for value in per_axis)
+    textual = False
+    for values in (args, per_axis):
+        for value in values:
+            textual = textual or isinstance(value, str)
+            parts.append(_format_value(value))
+    if (not letter or letter in AXES) and _BY_ALIAS.get(entry.name) is entry and not textual:
+        # Fast path, same result as parsing the joined line: the parts are the canonical
+        # name, an axis letter and formatted numbers, so the text checks and the split
+        # that parse() does cannot fail and would give back these very tokens.
+        _check_form(entry, the_form)
+        return _parse_tokens(entry, the_form, parts[1:], context or DEFAULT_CONTEXT)
     return parse(" ".join(parts), context)
 
 

@@ -172,7 +172,8 @@ class ControllerModel:
 
     def context(self) -> Context:
         """The parser context: dims, axes, extmode."""
-        dims = tuple(int(self.params.first("dim", i)) for i in range(len(AXES)))
+        groups = self.params.axis_values["dim"]  # what params.first("dim", i) reads
+        dims = tuple(int(groups[i][0]) for i in range(len(AXES)))
         return Context(dims, self.axes, int(self.params.first("extmode")))  # type: ignore[arg-type]
 
     # -- LineHandler protocol ----------------------------------------------------------------
@@ -183,12 +184,13 @@ class ControllerModel:
         text = line.decode("latin-1").strip()
         if not text:
             return
+        context = self.context()
         try:
-            command = parse(text, self.context())
+            command = parse(text, context)
         except InvalidCommandError as exc:
             self._rejected(text, exc.code)
             return
-        self._run(command, text)
+        self._run(command, text, context)
 
     def line_too_long(self, head: bytes, now: float) -> None:
         """A line over 255 characters: error 3, nothing executed."""
@@ -229,8 +231,9 @@ class ControllerModel:
         if mode == 2 and text.startswith("!"):
             self._send(f"ERR {code}")
 
-    def _run(self, command: Command, text: str) -> None:
-        expect = expectation(command, self.session.autostatus, self.context())
+    def _run(self, command: Command, text: str, context: Context | None = None) -> None:
+        # ``context``: what self.context() is now (handle_line computed it for parsing).
+        expect = expectation(command, self.session.autostatus, context or self.context())
         if expect.echo:
             self._send(text)
         self._prepare_triggers(command)
