@@ -16,7 +16,6 @@ the pty master, the TCP connection, or reports ``connection_lost`` to the protoc
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import fcntl
 import os
 import socket
@@ -85,7 +84,10 @@ class WireRunner:
                 self._write(chunk)
             if self.wire.closed:
                 return
-            await self._sleep(self.wire.next_deadline())
+            # Not next_deadline(): waking for every input byte made a busy link cost a
+            # core per few controllers; input that only fills the buffer is taken, at its
+            # exact times, on the next wake-up (benchmarks/scaling.py).
+            await self._sleep(self.wire.next_wakeup())
 
     async def _sleep(self, deadline: float | None) -> None:
         """Sleep until ``deadline`` (None: indefinitely) or until woken by input or a fault.
@@ -96,13 +98,16 @@ class WireRunner:
         if deadline is None:
             await self._wake.wait()
             return
-        delay = deadline - self._loop.time()
-        if delay <= 0.0:
+        if deadline <= self._loop.time():
             await asyncio.sleep(0)
             return
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(delay):
-                await self._wake.wait()
+        # A plain timer rather than asyncio.timeout(): this runs hundreds of times per
+        # second per served controller, and the timeout machinery showed in profiles.
+        timer = self._loop.call_at(deadline, self._wake.set)
+        try:
+            await self._wake.wait()
+        finally:
+            timer.cancel()
 
 
 # ---------------------------------------------------------------------------------- pty

@@ -67,6 +67,8 @@ INPUT_BUFFER_SIZE = 256
 
 # Tolerance for comparing event times computed as ``start + k * byte_time``.
 _EPS = 1e-9
+_CR_BYTE = bytes([CR])
+_CTRL_C_BYTE = bytes([CTRL_C])
 
 Emit = Callable[[bytes], None]
 """Callback the controller logic calls with one complete reply, CR included."""
@@ -353,6 +355,56 @@ class Wire:
         times = [t for t in candidates if t is not None]
         return min(times) if times else None
 
+    def next_wakeup(self) -> float | None:
+        """When a real-time driver must next call :meth:`poll`: :meth:`next_deadline`
+        without the input bytes that only go into the buffer.
+
+        Input is still taken byte by byte at its exact times, whenever the wire is next
+        advanced; calling :meth:`poll` at these times instead of every deadline gives the
+        same output at the same times, the same handler calls and the same counters once
+        the input has arrived. It wakes for: output due, the interpreter finishing, the
+        handler's deadline, the next input byte that can run the handler (Ctrl+C; while
+        the interpreter is idle also CR, and the byte that fills the buffer), and the last
+        input byte in flight (so the counters are up to date when input has arrived).
+        """
+        if self.closed:
+            return None
+        tx_next = self._tx[0].due_at(self._bt) if self._tx else None
+        candidates = (self._rx_wakeup(), self._busy_until, self._handler_due(), tx_next)
+        times = [t for t in candidates if t is not None]
+        return min(times) if times else None
+
+    def _rx_wakeup(self) -> float | None:
+        """Due time of the first pending input byte that can run the handler, or of the
+        last pending one."""
+        if not self._rx:
+            return None
+        bt = self._bt
+        idle = self._busy_until is None
+        # Bytes to go (1-based) until the one that fills the buffer of an idle interpreter;
+        # a skipped over-long line keeps the buffer empty.
+        to_fill = self.config.input_buffer_size - self.buffered \
+            if idle and self._discard_head is None else None
+        for seg in self._rx:
+            data, pos = seg.data, seg.pos
+            first = data.find(_CTRL_C_BYTE, pos)
+            if idle:
+                cr = data.find(_CR_BYTE, pos)
+                if cr >= 0 and (first < 0 or cr < first):
+                    first = cr
+            if to_fill is not None:
+                if to_fill <= 0:
+                    first = pos
+                elif pos + to_fill - 1 < len(data):
+                    fill = pos + to_fill - 1
+                    first = fill if first < 0 else min(first, fill)
+                else:
+                    to_fill -= len(data) - pos
+            if first >= 0:
+                return seg.start + (first + 1) * bt
+        last = self._rx[-1]
+        return last.start + len(last.data) * bt
+
     def emit(self, data: bytes) -> None:
         """Queue one reply from the controller logic (CR included).
 
@@ -466,6 +518,10 @@ class Wire:
             when = seg.due_at(self._bt)
             if when > until + _EPS or when >= before:
                 return
+            plain = self._plain_run(seg, until, before)
+            if plain:
+                self._take_plain(seg, plain)
+                continue
             self._now = max(self._now, when)
             byte = seg.data[seg.pos]
             seg.pos += 1
@@ -473,6 +529,60 @@ class Wire:
                 self._rx.popleft()
             if self._receive(byte):
                 return
+
+    def _due_end(self, seg: _Segment, until: float, before: float) -> int:
+        """End (exclusive index into ``seg.data``) of the bytes that :meth:`_rx_run` would
+        take one by one now: due by ``until`` and before ``before``. The next byte is due."""
+        bt, start, size, pos = self._bt, seg.start, len(seg.data), seg.pos
+
+        def due(index: int) -> bool:  # the very test _rx_run applies to each byte
+            when = start + (index + 1) * bt
+            return when <= until + _EPS and when < before
+
+        if bt == 0.0:
+            return size  # every byte passes at ``start``, and the first one is due
+        span = (min(until + _EPS, before) - start) / bt
+        end = size if span >= size else max(pos + 1, int(span))
+        while end > pos + 1 and not due(end - 1):
+            end -= 1
+        while end < size and due(end):
+            end += 1
+        return end
+
+    def _plain_run(self, seg: _Segment, until: float, before: float) -> int:
+        """How many of the next due bytes of ``seg`` :meth:`_receive` would only buffer
+        (or count as lost) without running anything: no Ctrl+C, and while the interpreter
+        is idle no CR, no byte that fills the buffer and no over-long line being skipped.
+        They are taken in one go (:meth:`_take_plain`), which is what makes a busy link
+        cheap to emulate; the result is the same as byte by byte."""
+        data, pos = seg.data, seg.pos
+        end = self._due_end(seg, until, before)
+        stop = data.find(_CTRL_C_BYTE, pos, end)
+        end = end if stop < 0 else stop
+        if self._busy_until is not None:
+            return end - pos
+        if self._discard_head is not None:
+            return 0
+        stop = data.find(_CR_BYTE, pos, end)
+        end = end if stop < 0 else stop
+        room = self.config.input_buffer_size - self.buffered - 1
+        return max(0, min(end - pos, room))
+
+    def _take_plain(self, seg: _Segment, count: int) -> None:
+        """Take ``count`` bytes found by :meth:`_plain_run` (as ``count`` calls of
+        :meth:`_receive` would)."""
+        pos = seg.pos
+        new = pos + count
+        if self._busy_until is not None:
+            kept = max(0, min(count, self.config.input_buffer_size - self.buffered))
+            self.lost_bytes += count - kept
+        else:
+            kept = count
+        self._buffer += seg.data[pos : pos + kept]
+        seg.pos = new
+        self._now = max(self._now, seg.start + new * self._bt)  # when the last one passed
+        if new == len(seg.data):
+            self._rx.popleft()
 
     def _receive(self, byte: int) -> bool:
         """One byte reaches the controller's UART; True if the handler was called.

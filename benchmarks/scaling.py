@@ -1,0 +1,300 @@
+"""Scaling benchmark: one driver process keeps N emulated controllers busy at wire speed.
+
+The emulated controllers run in separate *emulator processes* (``--per-process`` of them
+in each, default 16), each serving its controllers on ptys at 57600 Bd 8N2 from one event
+loop. The benchmark process is the *driver*: it opens every pty with
+``tango_aio.connect(path)``, exactly as it would open ``/dev/ttyUSB0``, and then streams a
+trigger-list upload of ``--entries`` positions (about 10 s at wire speed) to every
+controller at the same time, each through its own write-credit limiter.
+
+Reported per N:
+
+* aggregate throughput: ``!trigp`` payload bytes of all links per second, and its ratio to
+  N x the wire bound (57600 / 11 bytes/s per link, host to controller, the saturated
+  direction); a ratio of 1.0 means every link ran at wire speed all the time;
+* the driver process's CPU seconds per controller-second
+  (``time.process_time()`` / (N x elapsed)) and the cores it used; and its CPU seconds per
+  second of one link's payload at wire speed (``drv/wire-s``), which does not depend on
+  how fast the links actually ran: N x that is what N links at wire speed cost the driver;
+* the emulator processes' CPU, summed, and the cores they used, so a limit of the
+  emulator is not mistaken for one of the driver;
+* how many cores of the whole machine were busy, idle and stolen by the hypervisor
+  meanwhile (Linux ``/proc/stat``): busy includes the kernel's pty work and other users;
+* bytes the emulators lost to input-buffer overflow (must be 0), and the slowest link's
+  own ratio; every link's list is checked with ``?trigc`` afterwards.
+
+Usage::
+
+    python benchmarks/scaling.py                          # N = 1, 8, 32, 64
+    python benchmarks/scaling.py --counts 64 --per-process 8 --entries 3000
+    python benchmarks/scaling.py --profile driver.prof --counts 64   # cProfile the driver
+    python benchmarks/scaling.py --serve 16               # (internal) an emulator process
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import cProfile
+import json
+import math
+import os
+import pstats
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+
+import tango_aio
+from tango_aio.instructions import build
+
+BAUD = 57600
+BITS_PER_BYTE = 11
+#: Bytes per second one link can carry in one direction at 57600 Bd 8N2.
+LINK_BYTES_PER_S = BAUD / BITS_PER_BYTE
+
+
+# ------------------------------------------------------------------ emulator process
+
+
+async def serve(count: int) -> None:
+    """Serve ``count`` emulated controllers on ptys; talk to the driver over stdio.
+
+    Prints ``{"paths": [...]}`` once serving; then answers each ``stats`` line on stdin
+    with ``{"cpu": s, "user": s, "system": s, "lost": n, "lines": n}`` and exits on
+    ``quit`` or end of input.
+    """
+    from tango_aio.sim.model import ControllerModel, SimConfig
+    from tango_aio.sim.serve import serve_pty
+    from tango_aio.sim.wire import Emit, WireConfig
+
+    def factory(emit: Emit) -> ControllerModel:
+        return ControllerModel(emit, SimConfig())
+
+    servers = [await serve_pty(factory, WireConfig(baud=BAUD)) for _ in range(count)]
+    print(json.dumps({"paths": [server.path for server in servers]}), flush=True)
+    loop = asyncio.get_running_loop()
+    reader = asyncio.StreamReader()
+    await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    while (line := (await reader.readline()).decode().strip()) not in ("", "quit"):
+        if line == "stats":
+            times = os.times()
+            print(json.dumps({"cpu": time.process_time(), "user": times.user,
+                              "system": times.system,
+                              "lost": sum(s.wire.lost_bytes for s in servers),
+                              "lines": sum(s.wire.lines_processed for s in servers)}),
+                  flush=True)
+    for server in servers:
+        server.close()
+    for server in servers:
+        await server.wait_closed()
+
+
+class Emulators:
+    """The emulator processes of one run (``per_process`` controllers each)."""
+
+    def __init__(self, count: int, per_process: int, profile_dir: str | None = None) -> None:
+        extra = ["--emulator-profile", profile_dir] if profile_dir else []
+        sizes = [per_process] * (count // per_process)
+        if count % per_process:
+            sizes.append(count % per_process)
+        self.procs = [subprocess.Popen(
+            [sys.executable, __file__, "--serve", str(size), *extra],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for size in sizes]
+        self.paths: list[str] = []
+        for proc in self.procs:
+            assert proc.stdout is not None
+            self.paths += json.loads(proc.stdout.readline())["paths"]
+
+    def stats(self) -> dict[str, float]:
+        """CPU seconds, lost bytes and lines processed, summed over the processes."""
+        total = {"cpu": 0.0, "user": 0.0, "system": 0.0, "lost": 0.0, "lines": 0.0}
+        for proc in self.procs:
+            assert proc.stdin is not None and proc.stdout is not None
+            proc.stdin.write("stats\n")
+            proc.stdin.flush()
+        for proc in self.procs:
+            assert proc.stdout is not None
+            for key, value in json.loads(proc.stdout.readline()).items():
+                total[key] += value
+        return total
+
+    def close(self) -> None:
+        for proc in self.procs:
+            assert proc.stdin is not None
+            proc.stdin.write("quit\n")
+            proc.stdin.close()
+        for proc in self.procs:
+            proc.wait(timeout=30)
+
+
+# ------------------------------------------------------------------ driver
+
+
+@dataclass
+class Result:
+    """One run with ``controllers`` links."""
+
+    controllers: int
+    emulator_processes: int
+    seconds: float
+    payload_bytes: int
+    lost_bytes: int
+    driver_cpu: float
+    emulator_cpu: float
+    slowest_link_ratio: float
+    #: Cores of the whole machine busy, idle and stolen (by the hypervisor) meanwhile.
+    machine_busy: float
+    machine_idle: float
+    machine_steal: float
+
+    @property
+    def throughput(self) -> float:
+        """Aggregate payload bytes per second."""
+        return self.payload_bytes / self.seconds
+
+    @property
+    def bound(self) -> float:
+        """N x the wire bound in bytes per second."""
+        return self.controllers * LINK_BYTES_PER_S
+
+    @property
+    def ratio(self) -> float:
+        """Aggregate throughput divided by N x the wire bound."""
+        return self.throughput / self.bound
+
+    @property
+    def driver_cpu_per_link_second(self) -> float:
+        """Driver CPU seconds per controller-second."""
+        return self.driver_cpu / (self.controllers * self.seconds)
+
+    @property
+    def driver_cpu_per_wire_second(self) -> float:
+        """Driver CPU seconds per second of one link's payload at wire speed: what a link
+        kept at wire speed would cost, whatever speed the links actually ran at."""
+        return self.driver_cpu / (self.payload_bytes / LINK_BYTES_PER_S)
+
+    @property
+    def driver_cores(self) -> float:
+        return self.driver_cpu / self.seconds
+
+    @property
+    def emulator_cores(self) -> float:
+        return self.emulator_cpu / self.seconds
+
+
+def machine_times() -> list[float]:
+    """Seconds the machine's CPUs spent busy, idle and stolen (Linux ``/proc/stat``);
+    empty where that file does not exist."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = [int(v) for v in stat.readline().split()[1:]]
+    except OSError:
+        return []
+    tick = os.sysconf("SC_CLK_TCK")
+    user, nice, system, idle, iowait, irq, softirq, steal = fields[:8]
+    return [(user + nice + system + irq + softirq) / tick, (idle + iowait) / tick,
+            steal / tick]
+
+
+def positions(count: int) -> list[float]:
+    """A monotonic trigger list with 4-decimal positions (as in benchmarks/upload.py)."""
+    return [round(0.0123 + index * 0.0137, 4) for index in range(count)]
+
+
+async def run(count: int, entries: int, per_process: int,
+              profile: cProfile.Profile | None, profile_dir: str | None = None) -> Result:
+    emulators = Emulators(count, per_process, profile_dir)
+    try:
+        controllers = await asyncio.gather(*(tango_aio.connect(path, reply_timeout=30.0)
+                                             for path in emulators.paths))
+        try:
+            values = positions(entries)
+            payload = sum(len(build("trigp", -1, v).to_bytes()) for v in values)
+            link_seconds: list[float] = []
+
+            async def upload(tango: tango_aio.Controller) -> None:
+                start = time.perf_counter()
+                await tango.upload_trigger_positions(values)
+                link_seconds.append(time.perf_counter() - start)
+
+            before = emulators.stats()
+            machine0 = machine_times()
+            cpu0, t0 = time.process_time(), time.perf_counter()
+            if profile is not None:
+                profile.enable()
+            await asyncio.gather(*(upload(tango) for tango in controllers))
+            if profile is not None:
+                profile.disable()
+            seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+            machine = [b - a for a, b in zip(machine0, machine_times(), strict=False)]
+            after = emulators.stats()
+            counts = await asyncio.gather(*(tango.get("trigc") for tango in controllers))
+            assert all(int(c) == entries for c in counts), counts
+        finally:
+            await asyncio.gather(*(tango.aclose() for tango in controllers))
+        wire_seconds = payload / LINK_BYTES_PER_S
+        return Result(count, len(emulators.procs), seconds, payload * count,
+                      int(after["lost"]), cpu, after["cpu"] - before["cpu"],
+                      wire_seconds / max(link_seconds),
+                      *(value / seconds for value in machine or [math.nan] * 3))
+    finally:
+        emulators.close()
+
+
+def report(results: list[Result], entries: int) -> None:
+    print(f"{entries} trigger positions per controller, 57600 Bd 8N2 ptys; "
+          f"wire bound {LINK_BYTES_PER_S:.0f} B/s per link; {os.cpu_count()} cores")
+    print(f"{'N':>3} {'emu':>4} {'seconds':>8} {'aggr B/s':>9} {'N x bound':>9} "
+          f"{'of bound':>8} {'slowest':>7} {'drv cores':>9} {'drv/ctl-s':>9} "
+          f"{'drv/wire-s':>10} {'emu cores':>9} {'busy':>5} {'idle':>5} {'steal':>5} "
+          f"{'lost':>4}")
+    for r in results:
+        print(f"{r.controllers:3d} {r.emulator_processes:4d} {r.seconds:8.2f} "
+              f"{r.throughput:9.0f} {r.bound:9.0f} {r.ratio:8.3f} "
+              f"{r.slowest_link_ratio:7.3f} {r.driver_cores:9.3f} "
+              f"{r.driver_cpu_per_link_second:9.5f} {r.driver_cpu_per_wire_second:10.5f} "
+              f"{r.emulator_cores:9.3f} {r.machine_busy:5.2f} {r.machine_idle:5.2f} "
+              f"{r.machine_steal:5.2f} {r.lost_bytes:4d}")
+    print("columns: emu = emulator processes; slowest = the slowest link's own ratio; "
+          "drv/ctl-s = driver CPU s per controller-second; drv/wire-s = driver CPU s per "
+          "second of one link's payload at wire speed; busy/idle/steal = cores of the "
+          "whole machine")
+    print(json.dumps([asdict(r) | {"ratio": r.ratio, "driver_cores": r.driver_cores,
+                                   "emulator_cores": r.emulator_cores,
+                                   "driver_cpu_per_wire_second": r.driver_cpu_per_wire_second}
+                      for r in results]))
+
+
+async def main(args: argparse.Namespace) -> list[Result]:
+    profile = cProfile.Profile() if args.profile else None
+    results = []
+    for count in args.counts:
+        results.append(await run(count, args.entries, args.per_process, profile,
+                                 args.emulator_profile))
+        print(f"N={count}: {results[-1].ratio:.3f} of the bound", file=sys.stderr)
+    if profile is not None:
+        profile.dump_stats(args.profile)
+        pstats.Stats(profile).sort_stats("tottime").print_stats(25)
+    return results
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--counts", type=int, nargs="+", default=[1, 8, 32, 64])
+    parser.add_argument("--entries", type=int, default=3000,
+                        help="trigger positions per controller (3000: about 10 s)")
+    parser.add_argument("--per-process", type=int, default=16,
+                        help="controllers per emulator process (default 16)")
+    parser.add_argument("--profile", metavar="FILE", help="cProfile the driver's uploads")
+    parser.add_argument("--emulator-profile", metavar="DIR",
+                        help="cProfile each emulator process into DIR/emulator-PID.prof")
+    parser.add_argument("--serve", type=int, metavar="N", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve and args.emulator_profile:
+        cProfile.run("asyncio.run(serve(args.serve))",
+                     os.path.join(args.emulator_profile, f"emulator-{os.getpid()}.prof"))
+    elif args.serve:
+        asyncio.run(serve(args.serve))
+    else:
+        report(asyncio.run(main(args)), args.entries)
