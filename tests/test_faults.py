@@ -111,6 +111,14 @@ def truth(emu: Emulated, line: str) -> str:
     return model.params.read(parse(line, model.context()), model.axes)
 
 
+
+def tally(counts: Counter[str], emu: Emulated, lines: list[str],
+          results: list[object]) -> None:
+    """Count the outcome of each pipelined request (own, garbled, misdelivered, error)."""
+    for line, result in zip(lines, results, strict=True):
+        counts[classify(emu, line, result) if isinstance(result, str)
+               else outcome(result)] += 1
+
 def classify(emu: Emulated, line: str, reply: str) -> str:
     """``own``, ``garbled own`` (one character differs) or ``MISDELIVERED``."""
     expected = truth(emu, line)
@@ -246,9 +254,7 @@ async def test_dropped_reply_among_pipelined_requests_misdelivers() -> None:
             script_replies(emu, lambda i, data, k=lost: b"" if i == k else data, len(lines))
             results = await asyncio.gather(*(emu.tango.query(line) for line in lines),
                                            return_exceptions=True)
-            for line, result in zip(lines, results, strict=True):
-                counts[classify(emu, line, result) if isinstance(result, str)
-                       else outcome(result)] += 1
+            tally(counts, emu, lines, results)
             await settle(emu)
             await check_in_step(emu)
         finally:
@@ -622,9 +628,7 @@ async def test_noise_line_while_reads_pending_is_not_a_reply() -> None:
             # ahead of the replies of the others.
             emu.wire.emit(_junk(rng, cr=True))
             results = await asyncio.gather(*calls, return_exceptions=True)
-            for line, result in zip(lines, results, strict=True):
-                counts[classify(emu, line, result) if isinstance(result, str)
-                       else outcome(result)] += 1
+            tally(counts, emu, lines, results)
             await settle(emu)
             await check_in_step(emu)
         finally:
