@@ -113,13 +113,16 @@ class ListTransfer:
         self._total = len(rows)  # for progress reports
         commands: list[Command] = []
         pending: list[tuple[int, Submission, list[Submission]]] = []
+        # All or nothing: a lost or added reply anywhere fails the whole upload, so its
+        # lines may be pipelined even where their replies look alike (tango_aio.patterns).
+        whole = object()
         try:
             for start in range(0, len(rows), CHECKPOINT):
                 # Built batch by batch, so the first lines go out while later ones are built.
                 chunk = [spec.append(row) for row in rows[start:start + CHECKPOINT]]
                 commands.extend(chunk)
-                batch = [self._protocol.submit(c) for c in chunk]
-                check = self._protocol.submit(build(spec.count, form=Form.READ))
+                batch = [self._protocol.submit(c, batch=whole) for c in chunk]
+                check = self._protocol.submit(build(spec.count, form=Form.READ), batch=whole)
                 pending.append((start + len(batch), check, batch))
                 if len(pending) > 1:
                     await self._checkpoint(spec, commands, pending, progress)
@@ -173,7 +176,9 @@ class ListTransfer:
     async def download(self, spec: _ListSpec, count: int | None = None) -> list[list[float]]:
         """Read entries 1..count (default: the whole list) with pipelined reads."""
         total = await self._count(spec) if count is None else count
-        submissions = [self._protocol.submit(spec.read(i)) for i in range(1, total + 1)]
+        whole = object()  # all or nothing, like an upload
+        submissions = [self._protocol.submit(spec.read(i), batch=whole)
+                       for i in range(1, total + 1)]
         try:
             replies = [await self._protocol.wait_reply(s, self._timeout) for s in submissions]
         finally:

@@ -53,6 +53,7 @@ from .instructions import (
     encode,
     reply_rule,
 )
+from .patterns import ACK_PATTERN, ReplyKind, ReplyPattern, echo_pattern, reply_pattern
 
 __all__ = [
     "Acknowledged",
@@ -61,11 +62,13 @@ __all__ = [
     "Echoed",
     "Event",
     "LineAssembler",
+    "Mismatched",
     "ProtocolCore",
     "Replied",
     "RequestLost",
     "Unsolicited",
     "is_completion_line",
+    "owed_pattern",
 ]
 
 #: Longest line the assembler buffers before it gives up on it. The controller's lines are
@@ -78,7 +81,6 @@ _LF: Final = 0x0A
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
 _COMPLETION_RE: Final = re.compile(r"^[@MJSADETCU\-]{1,4}\.$")
-_ACK_RE: Final = re.compile(r"^(OK\.*|ERR(?:\s+-?\d+)?)\s*$")
 
 
 def is_completion_line(line: str) -> bool:
@@ -211,13 +213,27 @@ class Dropped:
 
 
 @dataclass(frozen=True, slots=True)
+class Mismatched:
+    """A line arrived for request ``tag`` that cannot be its reply (see
+    :mod:`tango_aio.patterns`): a reply went missing or a line was added. ``tag`` is
+    ``None`` for the core's own follow-up query. The core drops every line (completion
+    reports excepted) until :meth:`ProtocolCore.resync` is called.
+    """
+
+    tag: Hashable | None
+    line: str
+    expected: ReplyPattern
+
+
+@dataclass(frozen=True, slots=True)
 class RequestLost:
     """Request ``tag`` will get no reply: its line was discarded, or the stream resynced."""
 
     tag: Hashable
 
 
-Event = Replied | Acknowledged | Echoed | Completed | Unsolicited | Dropped | RequestLost
+Event = (Replied | Acknowledged | Echoed | Completed | Unsolicited | Dropped | RequestLost
+         | Mismatched)
 
 
 # --------------------------------------------------------------------------------------
@@ -234,14 +250,35 @@ class _Item(enum.Enum):
 class _Pending:
     tag: Hashable
     items: deque[_Item]
-    echo: str = ""
+    echo: ReplyPattern | None = None
     rule: LineRule = field(default_factory=LineRule)
+    pattern: ReplyPattern = ACK_PATTERN  # of the data lines
     lines: list[str] = field(default_factory=list)
     internal: bool = False
     marker: str | None = None  # expected reply prefix of a resync marker
 
     def done_after(self, item: _Item) -> bool:
         return not self.items or (len(self.items) == 1 and self.items[0] is item)
+
+    def last_pattern(self) -> ReplyPattern:
+        """The pattern of the last line this request still owes."""
+        return _item_pattern(self, self.items[-1])
+
+
+def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
+    if item is _Item.ECHO and pending.echo is not None:
+        return pending.echo
+    return pending.pattern if item is _Item.DATA else ACK_PATTERN
+
+
+def owed_pattern(command: Command, expect: Expectation,
+                 context: Context | None = None) -> ReplyPattern | None:
+    """The pattern of the first line ``command`` owes (``None``: it owes no line)."""
+    if expect.echo:
+        return echo_pattern(command)
+    if _has_data(expect.rule):
+        return reply_pattern(command, context)
+    return ACK_PATTERN if expect.ack else None
 
 
 @dataclass(frozen=True, slots=True)
@@ -328,6 +365,7 @@ _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 #: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
 _MARKER_CODES: Final = tuple(sorted(ERROR_DESCRIPTIONS))
 _FOLLOW_UP: Final = encode("?err")
+_ONE_NUMBER: Final = ReplyPattern(ReplyKind.NUMBERS)
 
 
 class ProtocolCore:
@@ -338,7 +376,7 @@ class ProtocolCore:
     """
 
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
-                 max_line: int = DEFAULT_MAX_LINE) -> None:
+                 max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True) -> None:
         self._assembler = LineAssembler(max_line)
         self._pending: deque[_Pending] = deque()
         self._moves: deque[Hashable] = deque()
@@ -347,6 +385,10 @@ class ProtocolCore:
         self.context = context or Context()
         self._resync_marker: str | None = None
         self._marker_index = 0
+        self._desynced = False
+        #: Whether each data reply is checked against its instruction's pattern
+        #: (:mod:`tango_aio.patterns`); off, any line is taken in order.
+        self.check_replies = check_replies
 
     # -- state ------------------------------------------------------------------------
 
@@ -374,6 +416,17 @@ class ProtocolCore:
         """Whether lines are being dropped until the resync marker's reply."""
         return self._resync_marker is not None
 
+    @property
+    def tail(self) -> tuple[Hashable, ReplyPattern] | None:
+        """Tag and pattern of the last line owed (by the newest request still owed one);
+        ``None`` when nothing is owed. A line whose reply :meth:`ReplyPattern.overlaps`
+        this pattern should wait until the tail is answered (:mod:`tango_aio.patterns`).
+        Internal lines (follow-ups, markers) have tags of their own."""
+        if not self._pending:
+            return None
+        last = self._pending[-1]
+        return last.tag, last.last_pattern()
+
     # -- sending ------------------------------------------------------------------------
 
     def send(self, command: Command, tag: Hashable) -> tuple[bytes, Expectation]:
@@ -393,7 +446,10 @@ class ProtocolCore:
                 items.append(_Item.DATA)
             if expect.ack:
                 items.append(_Item.ACK)
-            self._pending.append(_Pending(tag, items, _normal(command.line), expect.rule))
+            echo = echo_pattern(command) if expect.echo else None
+            pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
+                else ACK_PATTERN
+            self._pending.append(_Pending(tag, items, echo, expect.rule, pattern))
         if expect.completion is not None:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
@@ -402,7 +458,7 @@ class ProtocolCore:
 
     def _register_follow_up(self) -> bytes:
         items = deque([_Item.DATA])
-        self._pending.append(_Pending(object(), items, internal=True))
+        self._pending.append(_Pending(object(), items, internal=True, pattern=_ONE_NUMBER))
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -431,6 +487,7 @@ class ProtocolCore:
             if not pending.internal:
                 self._events.append(RequestLost(pending.tag))
         self._pending.clear()
+        self._desynced = False
         code = _MARKER_CODES[self._marker_index % len(_MARKER_CODES)]
         self._marker_index += 1
         marker = f"ERROR {code},"
@@ -471,6 +528,9 @@ class ProtocolCore:
     def _route(self, line: str) -> None:
         text = line.strip()
         if self._route_completion(line, text):
+            return
+        if self._desynced:
+            self._events.append(Dropped(line))
             return
         # The marker may follow stale bytes on the same line (a partial line that was in
         # flight when the port was opened), so it is searched, not prefix-matched.
@@ -524,7 +584,7 @@ class ProtocolCore:
         return bool(head.lines) and head.rule.continuation is None
 
     def _route_echo(self, head: _Pending, line: str, text: str) -> None:
-        if _normal(text) != head.echo:
+        if head.echo is not None and not head.echo.accepts(text):
             self._events.append(Unsolicited(line))
             return
         done = head.done_after(_Item.ECHO)
@@ -532,8 +592,7 @@ class ProtocolCore:
         self._emit(head, Echoed(head.tag, line, done))
 
     def _route_ack(self, head: _Pending, line: str, text: str) -> None:
-        match = _ACK_RE.match(text)
-        if match is None:
+        if not ACK_PATTERN.accepts(text):
             self._events.append(Unsolicited(line))
             return
         number = re.search(r"-?\d+", text)
@@ -546,6 +605,13 @@ class ProtocolCore:
     def _route_data(self, head: _Pending, line: str, text: str) -> None:
         if head.marker is not None:
             self._resync_marker = None
+        elif not head.lines and self.check_replies and not head.pattern.accepts(text):
+            # Not this request's reply: its own was lost, or the line is extra. Handing it
+            # over would shift every later reply by one request (tango_aio.patterns).
+            self._desynced = True
+            tag = None if head.internal else head.tag
+            self._events.append(Mismatched(tag, line, head.pattern))
+            return
         rule = head.rule
         ended = rule.continuation is not None and not rule.continuation.match(text)
         if ended and head.lines and len(head.lines) >= rule.count:
@@ -575,7 +641,3 @@ class ProtocolCore:
         if not head.internal:
             self._events.append(event)
 
-
-def _normal(text: str) -> str:
-    """Case- and space-insensitive form of a command line, to compare echoes."""
-    return " ".join(text.lower().split())

@@ -55,6 +55,7 @@ __all__ = [
     "lookup",
     "parse",
     "parse_reply",
+    "reply_group",
     "reply_rule",
 ]
 
@@ -810,7 +811,7 @@ def parse_reply(command: Command, lines: Sequence[str]) -> object:
         tokens = _split_numbers(text)
         if entry.digit_values:
             tokens = [digit for token in tokens for digit in _digits(token)]
-        return _per_axis(command, [convert(t) for t in tokens], _reply_group(command))
+        return _per_axis(command, [convert(t) for t in tokens], reply_group(command))
     if shape is Shape.NUMBERS:
         return [_number(t) for t in _split_numbers(text)]
     if shape is Shape.INTS:
@@ -818,7 +819,8 @@ def parse_reply(command: Command, lines: Sequence[str]) -> object:
     raise ProtocolError(f"{entry.name}: no reply expected, got {list(lines)}")
 
 
-def _reply_group(command: Command) -> int:
+def reply_group(command: Command) -> int:
+    """Values per axis in the reply to the read ``command`` (``?lim``: 2)."""
     entry = command.instruction
     for value, group in entry.option_groups:
         if command.values and command.values[0] == value:

@@ -30,6 +30,7 @@ every line received (``<-``), CR removed, with a monotonic timestamp.
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import logging
 import time
@@ -45,11 +46,13 @@ from .core import (
     Echoed,
     Event,
     Expectation,
+    Mismatched,
     ProtocolCore,
     Replied,
     RequestLost,
     Unsolicited,
     expectation,
+    owed_pattern,
 )
 from .errors import (
     ConnectionLostError,
@@ -62,6 +65,7 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, parse
+from .patterns import ReplyPattern
 
 __all__ = ["Response", "Submission", "TangoProtocol"]
 
@@ -99,6 +103,12 @@ class Submission:
     #: Error number reported by the credit marker that followed this reply-less line
     #: (``?err`` reports the state after the last line before it), if non-zero.
     chunk_error: int | None = None
+    #: Lines of one all-or-nothing batch (``None``: on its own) may be pipelined even
+    #: when their replies look alike (:mod:`tango_aio.patterns`).
+    batch: object | None = None
+    #: Pattern of the first line owed, ``None`` if none (set when first needed).
+    owes: ReplyPattern | None = None
+    _owes_known: bool = False
 
     @property
     def confirming(self) -> bool:
@@ -140,6 +150,7 @@ class TangoProtocol(asyncio.Protocol):
         self._queued_mode = autostatus
         self._unmarked: list[Submission] = []
         self._credit_markers: dict[Hashable, list[Submission]] = {}
+        self._marker_batches: dict[Hashable, object] = {}
         self._transport: asyncio.BaseTransport | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
@@ -253,12 +264,14 @@ class TangoProtocol(asyncio.Protocol):
             wire_log.debug("%.6f <- %r (no CR yet)", time.monotonic(), self._trace_buffer)
             self._trace_buffer = b""
 
-    def submit(self, command: Command) -> Submission:
+    def submit(self, command: Command, *, batch: object | None = None) -> Submission:
         """Queue ``command`` for writing and return its :class:`Submission` (futures for
         the reply and the completion report, where the line owes them).
 
         The line is written at once when the credit allows, else as soon as replies free
-        enough credit; lines are always written in submission order.
+        enough credit; lines are always written in submission order. A line whose reply
+        could be taken for the reply of the newest line in flight waits until that one is
+        answered, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
         """
         self.check()
         _check_framing(command)
@@ -273,6 +286,7 @@ class TangoProtocol(asyncio.Protocol):
             expect,
             loop.create_future() if expect.expects_reply else None,
             loop.create_future() if expect.completion is not None else None,
+            batch=batch,
         )
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
@@ -317,16 +331,47 @@ class TangoProtocol(asyncio.Protocol):
         while self._queue:
             head = self._queue[0]
             if self.credit.marker_due(head.size, head.confirming):
-                if not self.credit.marker_fits():
+                if not self.credit.marker_fits() or self._must_wait(_MARKER_OWES,
+                                                                    self._marker_batch()):
                     break
                 out += self._marker()
                 continue
-            if not self.credit.fits(head.size, head.confirming):
+            if not self.credit.fits(head.size, head.confirming) or \
+                    self._must_wait(self._owes(head), head.batch):
                 break
             self._queue.popleft()
             out += self._register(head)
         if out:
             self._write(bytes(out))
+
+    def _owes(self, submission: Submission) -> ReplyPattern | None:
+        if not submission._owes_known:
+            submission.owes = owed_pattern(submission.command, submission.expectation,
+                                           self.core.context)
+            submission._owes_known = True
+        return submission.owes
+
+    def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
+        """Whether a line owing ``owes`` must wait for the newest line in flight to be
+        answered: their replies could be taken for each other (tango_aio.patterns)."""
+        if owes is None:
+            return False
+        tail = self.core.tail
+        if tail is None or not tail[1].overlaps(owes):
+            return False
+        return batch is None or self._batch_of(tail[0]) is not batch
+
+    def _batch_of(self, tag: Hashable) -> object | None:
+        submission = self._submissions.get(tag)
+        if submission is not None:
+            return submission.batch
+        return self._marker_batches.get(tag)
+
+    def _marker_batch(self) -> object:
+        """A credit marker joins the batch of the lines it confirms; markers after lines
+        of no batch form a batch of their own (their replies only return credit)."""
+        last = self._unmarked[-1].batch if self._unmarked else None
+        return last if last is not None else _MARKERS
 
     def _register(self, submission: Submission) -> bytes:
         data, _ = self.core.send(submission.command, submission.tag)
@@ -342,11 +387,13 @@ class TangoProtocol(asyncio.Protocol):
         data, _ = self.core.send(_MARKER, tag)
         self.credit.wrote(len(data), tag)
         self._credit_markers[tag] = self._unmarked
+        self._marker_batches[tag] = self._marker_batch()
         self._unmarked = []
         return data
 
     def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
         covered = self._credit_markers.pop(tag)
+        self._marker_batches.pop(tag, None)
         try:
             code = int(lines[0])
         except (IndexError, ValueError):
@@ -398,20 +445,7 @@ class TangoProtocol(asyncio.Protocol):
         when the marker's reply has arrived.
         """
         self.check()
-        tag = next(self._tags)
-        loop = asyncio.get_running_loop()
-        marker: asyncio.Future[Response] = loop.create_future()
-        self._drop_queue()
-        data = self.core.resync(tag, ctrl_c=ctrl_c)
-        # Ctrl+C empties the controller's buffer; after a timeout the controller is
-        # assumed to have caught up (a lost reply would otherwise never return its credit).
-        self.credit.cleared()
-        self._credit_markers.clear()
-        self._unmarked = []
-        self._markers[tag] = marker
-        self._dispatch_pending()
-        self._write(data)
-        self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
+        tag, marker = self._begin_resync(ctrl_c)
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
@@ -421,6 +455,27 @@ class TangoProtocol(asyncio.Protocol):
             ) from None
         finally:
             self._markers.pop(tag, None)
+
+    def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
+                      ) -> tuple[Hashable, asyncio.Future[Response]]:
+        """Write the resync marker (see :meth:`resync`); return its tag and future. Lines
+        still queued are dropped, or with ``keep_queue`` written after the marker."""
+        tag = next(self._tags)
+        marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
+        if not keep_queue:
+            self._drop_queue()
+        data = self.core.resync(tag, ctrl_c=ctrl_c)
+        # Ctrl+C empties the controller's buffer; after a timeout the controller is
+        # assumed to have caught up (a lost reply would otherwise never return its credit).
+        self.credit.cleared()
+        self._credit_markers.clear()
+        self._marker_batches.clear()
+        self._unmarked = []
+        self._markers[tag] = marker
+        self._dispatch_pending()
+        self._write(data)
+        self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
+        return tag, marker
 
     def forget_completion(self, submission: Submission) -> None:
         """Stop waiting for ``submission``'s completion (e.g. the move was refused)."""
@@ -461,6 +516,8 @@ class TangoProtocol(asyncio.Protocol):
             self._on_completed(event)
         elif isinstance(event, RequestLost):
             self._on_request_lost(event)
+        elif isinstance(event, Mismatched):
+            self._on_mismatch(event)
         elif isinstance(event, Dropped):
             log.debug("dropped while resynchronising: %r", event.line)
         if isinstance(event, Unsolicited | Dropped) and self._on_event:
@@ -517,6 +574,30 @@ class TangoProtocol(asyncio.Protocol):
         if submission.completion is None or submission.completion.done():
             del self._submissions[event.tag]
 
+    def _on_mismatch(self, event: Mismatched) -> None:
+        """A line that cannot be the reply it would be taken for: fail that request with
+        :class:`ProtocolError` and resynchronise: the other lines in flight fail with
+        :class:`RequestAbortedError`; lines still queued are written after the marker."""
+        submission = self._submissions.get(event.tag)
+        command = submission.command.line if submission is not None else "a marker"
+        line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
+        log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
+                    line, command, event.expected.kind.value)
+        if submission is not None:
+            _fail(submission.reply, ProtocolError(
+                f"{line} cannot be the reply to {command!r} "
+                f"({event.expected.kind.value} expected): a line was lost or added; "
+                "the reply stream was resynchronised"))
+        # The controller answers fine (a line was lost or added on the way), so lines not
+        # yet written go out after the marker.
+        tag, marker = self._begin_resync(keep_queue=True)
+        # Nobody awaits this marker: its reply ends the resync in the core; if it never
+        # comes, the next request's timeout resyncs again.
+        marker.add_done_callback(functools.partial(self._forget_marker, tag))
+
+    def _forget_marker(self, tag: Hashable, _future: asyncio.Future[Response]) -> None:
+        self._markers.pop(tag, None)
+
     def _release(self, tag: Hashable, submission: Submission) -> None:
         reply_open = submission.reply is not None and not submission.reply.done()
         completion_open = submission.completion is not None and not submission.completion.done()
@@ -540,6 +621,9 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
+_MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+#: The batch of credit markers that confirm lines of no batch.
+_MARKERS = object()
 
 
 def _check_framing(command: Command) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import random
 from collections.abc import Callable, Hashable, Iterable
 
+from fuzzkit import CONTEXT, REQUESTS, TOKENS, noise, plausible_answer
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -20,60 +21,33 @@ from tango_aio.core import (
     Dropped,
     Echoed,
     Event,
+    Mismatched,
     ProtocolCore,
     Replied,
     RequestLost,
     Unsolicited,
 )
 from tango_aio.errors import ProtocolError
-from tango_aio.instructions import Context, parse
+from tango_aio.instructions import parse
 
 MAX_LINE = 64
-CONTEXT = Context(extmode=0, axes=3)
-
-#: Requests covering every routing path: reads, multi-line reads (terminator, count,
-#: continuation + follow-up), sets, moves, ``save`` and mode switches.
-REQUESTS = [
-    "?pos", "?vel x", "statusaxis", "sa x", "?err", "service", "?mrt x 3", "?mrt 2", "detext",
-    "?lim", "!vel 10", "!pos 0", "!moa 1", "moa 2", "!mor x 1", "m", "cal", "!rm", "save",
-    "!save", "!autostatus 0", "!autostatus 1", "!autostatus 2", "!autostatus 3",
-    "!autostatus 4", "reset",
-]
-
-#: Fragments of realistic controller output, glued at random with random bytes.
-TOKENS = [
-    b"\r", b"\r", b"\r", b"\n", b"\r\n", b"\x03", b"\x00", b"\xff", b" ",
-    b"@@@-.", b"AAA-.", b"D@D-.", b"@@@-.-", b"M", b"OK...", b"ERR 5", b"ERR", b"ERR -1",
-    b"ERROR 0,no error", b"ERROR 1,", b"ERROR 5,number outside range",
-    b"END_SERVICE_PRINT.", b"= MR Encoder", b"02832", b"-2600 2600,", b"-800 800",
-    b"0", b"12", b"1.0000 2.0000 3.0000", b"!vel 10", b"!MOA 1", b"moa 2", b"save",
-    b"!autostatus 2", b"x" * 40, b"y" * 70, b"z" * 200,
-]
 
 
-
-def noise(seed: int, size: int, token_share: float) -> bytes:
+def _noise(seed: int, size: int, token_share: float) -> bytes:
     """``size``-ish bytes of tokens and random bytes (large inputs hypothesis rarely makes)."""
-    rng = random.Random(seed)
-    parts: list[bytes] = []
-    total = 0
-    while total < size:
-        part = (rng.choice(TOKENS) if rng.random() < token_share
-                else rng.randbytes(rng.randint(1, 16)))
-        parts.append(part)
-        total += len(part)
-    return b"".join(parts)
+    return noise(random.Random(seed), size, token_share)
 
 
 _BYTES = st.one_of(
     st.binary(max_size=8192),
     st.binary(min_size=2048, max_size=8192),
     st.lists(st.sampled_from(TOKENS) | st.binary(max_size=6), max_size=400).map(b"".join),
-    st.builds(noise, st.integers(0, 2**32), st.integers(0, 20_000), st.sampled_from([0.0, 0.5,
+    st.builds(_noise, st.integers(0, 2**32), st.integers(0, 20_000), st.sampled_from([0.0, 0.5,
                                                                                   0.9])),
 )
 
-_EVENT_TYPES = (Replied, Acknowledged, Echoed, Completed, Unsolicited, Dropped, RequestLost)
+_EVENT_TYPES = (Replied, Acknowledged, Echoed, Completed, Unsolicited, Dropped, RequestLost,
+                Mismatched)
 
 
 def chunked(data: bytes, sizes: Iterable[int]) -> list[bytes]:
@@ -147,12 +121,14 @@ _ACTIONS = st.one_of(
 
 
 def _play(mode: int, actions: list[tuple[str, object]], data: bytes,
-          cut: Callable[[bytes], list[bytes]],
-          answers: list[bytes] | None = None) -> tuple[Harness, list[bytes]]:
-    """Run ``actions`` then ``data`` through a fresh core; ``answer`` bytes are computed
-    from the core's state, or replayed from ``answers``. Returns the harness and answers."""
-    harness = Harness(ProtocolCore(autostatus=mode, context=CONTEXT, max_line=MAX_LINE),
-                      MAX_LINE)
+          cut: Callable[[bytes], list[bytes]], answers: list[bytes] | None = None,
+          check: bool = True) -> tuple[Harness, list[bytes]]:
+    """Run ``actions`` then ``data`` through a fresh core (checking replies or not);
+    ``answer`` bytes are computed from the core's state, or replayed from ``answers``.
+    Returns the harness and answers."""
+    core = ProtocolCore(autostatus=mode, context=CONTEXT, max_line=MAX_LINE,
+                        check_replies=check)
+    harness = Harness(core, MAX_LINE)
     given_answers = iter(answers or [])
     made: list[bytes] = []
     for index, (kind, arg) in enumerate(actions):
@@ -166,7 +142,7 @@ def _play(mode: int, actions: list[tuple[str, object]], data: bytes,
         if kind == "answer":
             assert isinstance(arg, int)
             piece = (next(given_answers) if answers is not None
-                     else _answer(harness.core, random.Random(arg)))
+                     else plausible_answer(harness.core, random.Random(arg)))
             made.append(piece)
         else:
             assert isinstance(arg, bytes)
@@ -185,14 +161,17 @@ def _play(mode: int, actions: list[tuple[str, object]], data: bytes,
     actions=st.lists(_ACTIONS, max_size=60),
     data=_BYTES,
     sizes=st.lists(st.integers(1, 700), max_size=40),
+    check=st.booleans(),
 )
 def test_fuzz_arbitrary_bytes(mode: int, actions: list[tuple[str, object]], data: bytes,
-                              sizes: list[int]) -> None:
-    harness, answers = _play(mode, actions, data, lambda piece: chunked(piece, sizes))
+                              sizes: list[int], check: bool) -> None:
+    harness, answers = _play(mode, actions, data, lambda piece: chunked(piece, sizes),
+                             check=check)
     # Replayed in tiny pieces on a fresh core, the same bytes give the same events.
     tiny = [1, 2, 1, 3, 5, 1, 8, 13]
     again, _ = _play(mode, actions, data,
-                     lambda piece: chunked(piece, tiny * (len(piece) // 4 + 1)), answers)
+                     lambda piece: chunked(piece, tiny * (len(piece) // 4 + 1)), answers,
+                     check)
     assert again.events == harness.events
     assert again.errors == harness.errors
 
@@ -205,25 +184,6 @@ def test_fuzz_default_limit_without_requests(data: bytes, size: int) -> None:
     for chunk in chunked(data, [size] * (len(data) // size + 1)):
         harness.feed(chunk)
     assert all(isinstance(e, Unsolicited | Completed) for e in harness.events)
-
-
-def _answer(core: ProtocolCore, rng: random.Random) -> bytes:
-    """A plausible line for what the oldest request owes, so that every path is reached."""
-    if not core._pending:
-        return rng.choice([b"@@@-.", b"", b"R"]) + b"\r"
-    head = core._pending[0]
-    item = head.items[0].value
-    if item == "echo":
-        text = rng.choice([head.echo, head.echo.upper(), "  " + head.echo])
-    elif item == "ack":
-        text = rng.choice(["OK...", "OK...", "OK", "ERR 5", "ERR", "ERR -1", "ERR 12"])
-    elif head.marker is not None:
-        text = head.marker + "no error"
-    elif head.rule.terminator is not None:
-        text = rng.choice(["line", "", head.rule.terminator])
-    else:
-        text = rng.choice(["0", "R", "= F", "-1 1,", "1 2 3"])
-    return text.encode("latin-1") + b"\r"
 
 
 def test_long_random_run() -> None:
@@ -245,9 +205,9 @@ def test_long_random_run() -> None:
             core.drop_completions()
         else:
             if action < 0.8:
-                data = b"".join(_answer(core, rng) for _ in range(rng.randint(1, 4)))
+                data = b"".join(plausible_answer(core, rng) for _ in range(rng.randint(1, 4)))
             else:
-                data = noise(rng.getrandbits(32), rng.randint(1, 300), 0.8)
+                data = _noise(rng.getrandbits(32), rng.randint(1, 300), 0.8)
             fed += len(data)
             for chunk in chunked(data, [rng.randint(1, 50) for _ in range(20)]):
                 harness.feed(chunk)

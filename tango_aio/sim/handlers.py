@@ -144,6 +144,16 @@ class Handlers(Peripherals):
         self.m.params.put_global("pa", (int(c.values[0]) if c.values else 1,))
         return None
 
+    def i_encpos(self, c: Command) -> Reply:
+        if not c.is_read:
+            self.m.store(c)
+            return None
+        if c.axis is None:
+            # '?encpos' reads the "ored" source of all axes: just one 0 or 1 (L11238-11240).
+            values = self.m.params.read(c, self.m.axes).split()
+            return ["1" if "1" in values else "0"]
+        return [self.m.params.read(c, self.m.axes)]
+
     def i_swtyp(self, c: Command) -> Reply:
         if not c.is_read:
             self.m.store(c)

@@ -1,0 +1,165 @@
+"""What a reply line looks like, so that a line is never taken for a reply it is not.
+
+The controller's replies carry no request id: the protocol core matches them to requests
+by order alone (see :mod:`tango_aio.core`). When one line goes missing (a dropped reply) or
+one line too many arrives (line noise, a garbled completion report), every later reply
+would be taken by the request before its own. Two rules stop that:
+
+1. **Check.** Every reply line is checked against the pattern its request's instruction
+   gives (:func:`reply_pattern`, from the catalog's reply shape): ``?vel x`` must answer
+   one number, ``?statusaxis`` status letters, a mode-2 acknowledgement ``OK``/``ERR n``.
+   A line that does not fit is not this request's reply: the core reports a mismatch and
+   the protocol resynchronises instead of handing it over.
+2. **Separate.** Two requests whose replies could be taken for each other are never in
+   flight at the same time (:meth:`ReplyPattern.overlaps`): the second waits in the write
+   queue until the first has its reply. ``?vel x`` then ``?accel y`` (one number each) go
+   one after the other; ``?vel x`` then ``?statusaxis`` are pipelined. So when a reply is
+   lost, the next line that arrives is always one the waiting request rejects.
+
+Together they guarantee that a single lost, extra or garbled line between two replies is
+never delivered to the wrong caller: it ends in a timeout, a :class:`ProtocolError` or a
+resync. (A garbled line that still fits its own pattern reaches its own caller, garbled:
+no protocol without checksums can tell.) Two faults in a row can still fool the check;
+the separation rule only looks at the newest request in flight.
+
+Lines of one all-or-nothing batch (a list upload or download, which fails as a whole when
+any of its lines fails) may be pipelined even when their replies look alike.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from dataclasses import dataclass
+from typing import Final
+
+from .instructions import Command, Context, Shape, reply_group, reply_rule
+
+__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ReplyKind", "ReplyPattern", "echo_pattern",
+           "reply_pattern"]
+
+#: Most values a list reply (``NUMBERS``, ``INTS``) is expected to hold.
+_MANY: Final = 1 << 16
+
+_NUMBER_RE: Final = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
+_STATUS_RE: Final = re.compile(r"[@A-Za-z\-]{1,8}(?:\.[@A-Za-z\-]*)?$")
+_ACK_RE: Final = re.compile(r"(?:OK\.*|ERR(?:\s+-?\d+)?)$")
+
+
+class ReplyKind(enum.Enum):
+    """The families of reply lines."""
+
+    NUMBERS = "numbers"  #: ``low``..``high`` numbers separated by blanks or commas
+    WORDS = "words"  #: ``low``..``high`` blank-separated words of any kind
+    STATUS = "status"  #: status letters (``@@@-.-`` or one letter)
+    HELP = "help"  #: ``ERROR n,text``
+    ACK = "ack"  #: ``OK...`` or ``ERR n``
+    ECHO = "echo"  #: the autostatus-4 echo of one particular line
+    ANY = "any"  #: free text: accepts every line
+
+
+@dataclass(frozen=True, slots=True)
+class ReplyPattern:
+    """The lines a reply item may be. ``text`` is the expected line of an echo."""
+
+    kind: ReplyKind
+    low: int = 1
+    high: int = 1
+    text: str = ""
+
+    def accepts(self, line: str) -> bool:
+        """Whether ``line`` (CR removed) can be this reply."""
+        kind = self.kind
+        if kind is ReplyKind.NUMBERS:
+            tokens = line.replace(",", " ").split()
+            return self.low <= len(tokens) <= self.high and \
+                all(_NUMBER_RE.match(token) for token in tokens)
+        if kind is ReplyKind.WORDS:
+            return self.low <= len(line.split()) <= self.high
+        if kind is ReplyKind.STATUS:
+            return _STATUS_RE.match(line.strip()) is not None
+        if kind is ReplyKind.HELP:
+            return line.lstrip().startswith("ERROR")
+        if kind is ReplyKind.ACK:
+            return _ACK_RE.match(line.strip()) is not None
+        if kind is ReplyKind.ECHO:
+            return normal_line(line) == self.text
+        return True
+
+    def overlaps(self, other: ReplyPattern) -> bool:
+        """Whether some line fits both patterns (conservatively: ``True`` when unsure)."""
+        a, b = sorted((self, other), key=lambda p: _ORDER[p.kind])
+        if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
+            return True
+        if a.kind is b.kind:
+            if a.kind is ReplyKind.ECHO:
+                return a.text == b.text
+            return a.low <= b.high and b.low <= a.high
+        if a.kind is ReplyKind.NUMBERS and b.kind is ReplyKind.WORDS:
+            return a.low <= b.high and b.low <= a.high
+        # Words may be anything else; the specific kinds exclude each other.
+        return ReplyKind.WORDS in (a.kind, b.kind)
+
+
+_ORDER: Final = {kind: index for index, kind in enumerate(ReplyKind)}
+
+#: An acknowledgement of a ``!`` line (autostatus 2, ``save``).
+ACK_PATTERN: Final = ReplyPattern(ReplyKind.ACK)
+#: A reply of free text.
+ANY_PATTERN: Final = ReplyPattern(ReplyKind.ANY)
+_ONE_NUMBER: Final = ReplyPattern(ReplyKind.NUMBERS)
+
+_SCALARS: Final = {
+    Shape.INT: _ONE_NUMBER,
+    Shape.FLOAT: _ONE_NUMBER,
+    Shape.ERROR_NUMBER: _ONE_NUMBER,
+    Shape.DET: _ONE_NUMBER,
+    Shape.FLAGS: ReplyPattern(ReplyKind.WORDS),
+    Shape.STATUS: ReplyPattern(ReplyKind.STATUS),
+    Shape.HELP: ReplyPattern(ReplyKind.HELP),
+    Shape.ACK: ACK_PATTERN,
+    Shape.NUMBERS: ReplyPattern(ReplyKind.NUMBERS, 1, _MANY),
+    Shape.INTS: ReplyPattern(ReplyKind.NUMBERS, 1, _MANY),
+}
+_PER_AXIS: Final = {
+    Shape.AXES_FLOAT: ReplyKind.NUMBERS,
+    Shape.AXES_INT: ReplyKind.NUMBERS,
+    Shape.AXES_TEXT: ReplyKind.WORDS,
+}
+
+
+def normal_line(text: str) -> str:
+    """Case- and space-insensitive form of a command line, to compare echoes."""
+    return " ".join(text.lower().split())
+
+
+def echo_pattern(command: Command) -> ReplyPattern:
+    """The autostatus-4 echo of ``command``."""
+    return ReplyPattern(ReplyKind.ECHO, text=normal_line(command.line))
+
+
+def reply_pattern(command: Command, context: Context | None = None) -> ReplyPattern:
+    """The pattern of each data line ``command`` replies with (reads, and the ``OK``/``ERR``
+    of ``save``); :data:`ANY_PATTERN` for free text and replies of several lines.
+
+    Per-axis replies name the axes present, so without an axis letter they hold between one
+    and four axes' values (the driver's idea of the axis count may be stale).
+    """
+    entry = command.instruction
+    shape = entry.reply if command.is_read else entry.exec_reply
+    rule = reply_rule(command, context)
+    if rule.count != 1 or rule.terminator is not None or rule.continuation is not None:
+        return ANY_PATTERN
+    scalar = _SCALARS.get(shape)
+    if scalar is not None:
+        return scalar
+    kind = _PER_AXIS.get(shape)
+    if kind is None:
+        return ANY_PATTERN  # TEXT, VERSION ('1.71' alone is a version), LINES
+    group = reply_group(command)
+    if command.axis is not None:
+        return ReplyPattern(kind, group, group)
+    # '1 1 11 1 11 1 1': one-digit values may run together (Instruction.digit_values).
+    low = 1 if entry.digit_values else group
+    return ReplyPattern(kind, low, 4 * group)
+
