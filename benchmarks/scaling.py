@@ -36,13 +36,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 import cProfile
+import fcntl
 import json
 import math
 import os
 import pstats
+import struct
 import subprocess
 import sys
+import termios
 import time
+import tty
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import tango_aio
@@ -73,6 +78,104 @@ async def serve(count: int) -> None:
 
     servers = [await serve_pty(factory, WireConfig(baud=BAUD)) for _ in range(count)]
     print(json.dumps({"paths": [server.path for server in servers]}), flush=True)
+    await _answer_stats(lambda: {"lost": sum(s.wire.lost_bytes for s in servers),
+                                 "lines": sum(s.wire.lines_processed for s in servers)})
+    for server in servers:
+        server.close()
+    for server in servers:
+        await server.wait_closed()
+
+
+# ------------------------------------------------------------------ lean stand-in
+
+#: Seconds between two turns of the lean stand-in's loop.
+LEAN_TICK = 0.004
+
+
+class LeanLink:
+    """A stand-in controller on a pty, for the driver side of the benchmark (``--lean``).
+
+    It takes the host's bytes at wire speed (57600 Bd 8N2) and never faster, as the real
+    controller's input buffer fills from the wire, and records how many bytes the host had
+    written but the wire had not yet delivered (``peak``): over 256, a real controller
+    would have lost bytes (counted in ``lost``). The line an upload repeats,
+    ``!trigp -1 pos``, is appended to the trigger list directly; every other line (the
+    connect-time reads, the ``err`` markers, ``?trigc``) goes to the full emulator
+    (:class:`ControllerModel`), so the driver sees the same replies. Cheap enough that one
+    process serves 64 links on a core, which the full emulator cannot.
+    """
+
+    def __init__(self) -> None:
+        from tango_aio.sim.model import ControllerModel, SimConfig
+
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.model = ControllerModel(self._emit, SimConfig())
+        self.partial = b""
+        self.allowance = 0.0
+        self.peak = 0
+        self.lost = 0
+        self.lines = 0
+
+    def _emit(self, data: bytes) -> None:
+        os.write(self.master, data)  # replies are short; the host reads them at once
+
+    def turn(self, elapsed: float, now: float) -> None:
+        """Let the wire deliver ``elapsed`` seconds' worth of the host's bytes."""
+        waiting = struct.unpack("i", fcntl.ioctl(self.master, termios.FIONREAD, b"\0" * 4))[0]
+        self.peak = max(self.peak, waiting)
+        self.lost = max(self.lost, waiting - 256)
+        if waiting == 0:
+            self.allowance = 0.0  # an idle wire carries nothing later
+            return
+        self.allowance += elapsed * LINK_BYTES_PER_S
+        take = min(int(self.allowance), waiting)
+        if take == 0:
+            return
+        self.allowance -= take
+        *lines, self.partial = (self.partial + os.read(self.master, take)).split(b"\r")
+        for line in lines:
+            self.lines += 1
+            if line.startswith(b"!trigp -1 "):
+                try:
+                    self.model.triggers.write(-1, float(line[10:]))
+                    continue
+                except Exception:  # the full emulator then sets the error
+                    pass
+            self.model.handle_line(line, now)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+async def serve_lean(count: int) -> None:
+    """Serve ``count`` lean stand-ins from one loop turn every LEAN_TICK (stdio as serve)."""
+    links = [LeanLink() for _ in range(count)]
+    print(json.dumps({"paths": [link.path for link in links]}), flush=True)
+
+    async def pump() -> None:
+        last = time.monotonic()
+        while True:
+            await asyncio.sleep(LEAN_TICK)
+            now = time.monotonic()
+            for link in links:
+                link.turn(now - last, now)
+            last = now
+
+    task = asyncio.create_task(pump())
+    await _answer_stats(lambda: {"lost": sum(link.lost for link in links),
+                                 "lines": sum(link.lines for link in links)})
+    task.cancel()
+    for link in links:
+        link.close()
+
+
+async def _answer_stats(counters: Callable[[], dict[str, int]]) -> None:
+    """Answer each ``stats`` line on stdin with CPU times and ``counters()``; return on
+    ``quit`` or end of input."""
     loop = asyncio.get_running_loop()
     reader = asyncio.StreamReader()
     await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
@@ -80,26 +183,21 @@ async def serve(count: int) -> None:
         if line == "stats":
             times = os.times()
             print(json.dumps({"cpu": time.process_time(), "user": times.user,
-                              "system": times.system,
-                              "lost": sum(s.wire.lost_bytes for s in servers),
-                              "lines": sum(s.wire.lines_processed for s in servers)}),
-                  flush=True)
-    for server in servers:
-        server.close()
-    for server in servers:
-        await server.wait_closed()
+                              "system": times.system, **counters()}), flush=True)
 
 
 class Emulators:
     """The emulator processes of one run (``per_process`` controllers each)."""
 
-    def __init__(self, count: int, per_process: int, profile_dir: str | None = None) -> None:
+    def __init__(self, count: int, per_process: int, profile_dir: str | None = None,
+                 lean: bool = False) -> None:
         extra = ["--emulator-profile", profile_dir] if profile_dir else []
+        serve = "--serve-lean" if lean else "--serve"
         sizes = [per_process] * (count // per_process)
         if count % per_process:
             sizes.append(count % per_process)
         self.procs = [subprocess.Popen(
-            [sys.executable, __file__, "--serve", str(size), *extra],
+            [sys.executable, __file__, serve, str(size), *extra],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for size in sizes]
         self.paths: list[str] = []
         for proc in self.procs:
@@ -203,10 +301,13 @@ def positions(count: int) -> list[float]:
 
 
 async def run(count: int, entries: int, per_process: int,
-              profile: cProfile.Profile | None, profile_dir: str | None = None) -> Result:
-    emulators = Emulators(count, per_process, profile_dir)
+              profile: cProfile.Profile | None, profile_dir: str | None = None,
+              lean: bool = False, marker_chunk: int | None = None) -> Result:
+    emulators = Emulators(count, per_process, profile_dir, lean)
+    options = {} if marker_chunk is None else {"marker_chunk": marker_chunk}
     try:
-        controllers = await asyncio.gather(*(tango_aio.connect(path, reply_timeout=30.0)
+        controllers = await asyncio.gather(*(tango_aio.connect(path, reply_timeout=30.0,
+                                                               **options)
                                              for path in emulators.paths))
         try:
             values = positions(entries)
@@ -218,6 +319,8 @@ async def run(count: int, entries: int, per_process: int,
                 await tango.upload_trigger_positions(values)
                 link_seconds.append(time.perf_counter() - start)
 
+            lags: list[float] = []
+            probe = asyncio.create_task(_loop_lag(lags))
             before = emulators.stats()
             machine0 = machine_times()
             cpu0, t0 = time.process_time(), time.perf_counter()
@@ -227,6 +330,10 @@ async def run(count: int, entries: int, per_process: int,
             if profile is not None:
                 profile.disable()
             seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+            probe.cancel()
+            lags.sort()
+            print(f"N={count}: event-loop lag median {lags[len(lags) // 2] * 1e3:.1f} ms, "
+                  f"p95 {lags[int(len(lags) * 0.95)] * 1e3:.1f} ms", file=sys.stderr)
             machine = [b - a for a, b in zip(machine0, machine_times(), strict=False)]
             after = emulators.stats()
             counts = await asyncio.gather(*(tango.get("trigc") for tango in controllers))
@@ -240,6 +347,14 @@ async def run(count: int, entries: int, per_process: int,
                       *(value / seconds for value in machine or [math.nan] * 3))
     finally:
         emulators.close()
+
+
+async def _loop_lag(lags: list[float], period: float = 0.005) -> None:
+    """Record how late the driver's event loop wakes a sleeper (its latency under load)."""
+    while True:
+        start = time.perf_counter()
+        await asyncio.sleep(period)
+        lags.append(time.perf_counter() - start - period)
 
 
 def report(results: list[Result], entries: int) -> None:
@@ -271,7 +386,7 @@ async def main(args: argparse.Namespace) -> list[Result]:
     results = []
     for count in args.counts:
         results.append(await run(count, args.entries, args.per_process, profile,
-                                 args.emulator_profile))
+                                 args.emulator_profile, args.lean, args.marker_chunk))
         print(f"N={count}: {results[-1].ratio:.3f} of the bound", file=sys.stderr)
     if profile is not None:
         profile.dump_stats(args.profile)
@@ -289,12 +404,19 @@ if __name__ == "__main__":
     parser.add_argument("--profile", metavar="FILE", help="cProfile the driver's uploads")
     parser.add_argument("--emulator-profile", metavar="DIR",
                         help="cProfile each emulator process into DIR/emulator-PID.prof")
+    parser.add_argument("--lean", action="store_true",
+                        help="serve lean stand-ins (LeanLink) instead of full emulators")
+    parser.add_argument("--marker-chunk", type=int, metavar="BYTES",
+                        help="reply-less bytes between credit markers (default: the driver's)")
     parser.add_argument("--serve", type=int, metavar="N", help=argparse.SUPPRESS)
+    parser.add_argument("--serve-lean", type=int, metavar="N", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve and args.emulator_profile:
         cProfile.run("asyncio.run(serve(args.serve))",
                      os.path.join(args.emulator_profile, f"emulator-{os.getpid()}.prof"))
     elif args.serve:
         asyncio.run(serve(args.serve))
+    elif args.serve_lean:
+        asyncio.run(serve_lean(args.serve_lean))
     else:
         report(asyncio.run(main(args)), args.entries)

@@ -14,12 +14,14 @@ are needed.
 
 from __future__ import annotations
 
+import asyncio
+import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from .errors import InvalidCommandError, TangoError, controller_error
-from .instructions import AXES, Command, Form, build
+from .instructions import AXES, Command, Form, build, build_rows
 from .protocol import Submission, TangoProtocol
 
 __all__ = [
@@ -40,6 +42,8 @@ MAX_TRIGGERS = 10000
 MAX_SNAPSHOTS = 1024
 #: Entries between two length checks (progress reports and early error detection).
 CHECKPOINT = 200
+#: Entries built and queued between two turns of the event loop.
+SLICE = 25
 
 Progress = Callable[[int, int], None]
 
@@ -63,7 +67,7 @@ class UploadError(TangoError):
 class _ListSpec:
     """How one list is written, counted and read."""
 
-    append: Callable[[Sequence[float]], Command]
+    append: Callable[[Sequence[Sequence[float]]], Iterator[Command]]  # the append lines
     count: str  # the instruction that counts (``?trigc``) and truncates (``!trigc n``)
     read: Callable[[int], Command]
 
@@ -112,25 +116,34 @@ class ListTransfer:
         """Append ``rows`` (already validated and cleared) with checkpoints."""
         self._total = len(rows)  # for progress reports
         commands: list[Command] = []
+        lines = spec.append(rows)
         pending: list[tuple[int, Submission, list[Submission]]] = []
         # All or nothing: a lost or added reply anywhere fails the whole upload, so its
         # lines may be pipelined even where their replies look alike (tango_aio.patterns).
         whole = object()
+        loose: list[Submission] = []  # submitted, not yet under a checkpoint
         try:
             for start in range(0, len(rows), CHECKPOINT):
                 # Built batch by batch, so the first lines go out while later ones are built.
-                chunk = [spec.append(row) for row in rows[start:start + CHECKPOINT]]
+                chunk = list(itertools.islice(lines, CHECKPOINT))
                 commands.extend(chunk)
-                batch = [self._protocol.submit(c, batch=whole) for c in chunk]
+                for offset in range(0, len(chunk), SLICE):
+                    loose += [self._protocol.submit(c, batch=whole)
+                              for c in chunk[offset:offset + SLICE]]
+                    # Let the replies of other links through: with many controllers on one
+                    # loop, building 200 lines at once delayed them (benchmarks/scaling.py).
+                    await asyncio.sleep(0)
                 check = self._protocol.submit(build(spec.count, form=Form.READ), batch=whole)
-                pending.append((start + len(batch), check, batch))
+                pending.append((start + len(chunk), check, loose))
+                loose = []
                 if len(pending) > 1:
                     await self._checkpoint(spec, commands, pending, progress)
             while pending:
                 await self._checkpoint(spec, commands, pending, progress)
         finally:
             # Cancelled or failed: lines still queued are never sent.
-            self._protocol.withdraw(s for _, check, batch in pending for s in (*batch, check))
+            self._protocol.withdraw([*loose, *(s for _, check, batch in pending
+                                               for s in (*batch, check))])
 
     async def _checkpoint(self, spec: _ListSpec, commands: list[Command],
                           pending: list[tuple[int, Submission, list[Submission]]],
@@ -195,7 +208,7 @@ def _same(row: Sequence[float], command: Command) -> bool:
 def trigger_spec() -> _ListSpec:
     """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``)."""
     return _ListSpec(
-        append=lambda row: build("trigp", -1, row[0]),
+        append=lambda rows: build_rows("trigp", [-1], rows),
         count="trigc",
         read=lambda index: build("trigp", index, form=Form.READ),
     )
@@ -204,7 +217,7 @@ def trigger_spec() -> _ListSpec:
 def snapshot_spec() -> _ListSpec:
     """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``)."""
     return _ListSpec(
-        append=lambda row: build("snsa", -1, *row),
+        append=lambda rows: build_rows("snsa", [-1], rows),
         count="snsc",
         read=lambda index: build("snsa", index, form=Form.READ),
     )

@@ -429,13 +429,20 @@ class ProtocolCore:
 
     # -- sending ------------------------------------------------------------------------
 
-    def send(self, command: Command, tag: Hashable) -> tuple[bytes, Expectation]:
+    def send(self, command: Command, tag: Hashable,
+             known: tuple[int, Expectation] | None = None) -> tuple[bytes, Expectation]:
         """Register ``command`` under ``tag`` and return the bytes to write.
 
         A read whose end can only be seen from the next line (``detext``) is followed by an
-        internal ``?err`` whose reply closes it; its bytes are included.
+        internal ``?err`` whose reply closes it; its bytes are included. ``known`` is an
+        expectation the caller already computed and the mode it computed it for: it is
+        used when that is the mode in force (and the reply does not depend on the context).
         """
-        expect = expectation(command, self._autostatus, self.context)
+        if known is not None and known[0] == self._autostatus \
+                and command.instruction.lines is None:  # else it depends on the context
+            expect = known[1]
+        else:
+            expect = expectation(command, self._autostatus, self.context)
         self._autostatus = expect.mode_after
         data = command.to_bytes()
         if expect.expects_reply:

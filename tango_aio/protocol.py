@@ -109,20 +109,21 @@ class Submission:
     #: Pattern of the first line owed, ``None`` if none (set when first needed).
     owes: ReplyPattern | None = None
     _owes_known: bool = False
+    #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
+    confirming: bool = field(init=False)
+    #: Bytes this line takes on the wire (with a read's internal follow-up).
+    size: int = field(init=False)
+    #: The autostatus mode ``expectation`` was computed for.
+    mode: int = 1
 
-    @property
-    def confirming(self) -> bool:
-        """Whether a reply (data or acknowledgement) will confirm this line's bytes."""
+    def __post_init__(self) -> None:
+        # Both are asked for on every flush while the line waits for credit: computed once.
         expect = self.expectation
         rule = expect.rule
-        return expect.ack or rule.count > 0 or rule.terminator is not None \
+        self.confirming = expect.ack or rule.count > 0 or rule.terminator is not None \
             or rule.continuation is not None
-
-    @property
-    def size(self) -> int:
-        """Bytes this line takes on the wire (with a read's internal follow-up)."""
-        follow_up = 5 if self.expectation.rule.continuation is not None else 0
-        return len(self.command.to_bytes()) + follow_up
+        follow_up = 5 if rule.continuation is not None else 0
+        self.size = len(self.command.to_bytes()) + follow_up
 
 
 #: Called with each unsolicited event, completion report and dropped line; the second
@@ -276,7 +277,8 @@ class TangoProtocol(asyncio.Protocol):
         self.check()
         _check_framing(command)
         tag = next(self._tags)
-        mode = self._queued_mode if self._queue else self.core.autostatus
+        was_queued = bool(self._queue)
+        mode = self._queued_mode if was_queued else self.core.autostatus
         expect = expectation(command, mode, self.core.context)
         self._queued_mode = expect.mode_after
         loop = asyncio.get_running_loop()
@@ -287,11 +289,15 @@ class TangoProtocol(asyncio.Protocol):
             loop.create_future() if expect.expects_reply else None,
             loop.create_future() if expect.completion is not None else None,
             batch=batch,
+            mode=mode,
         )
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
         self._queue.append(submission)
-        self._flush()
+        if not was_queued:
+            # Otherwise the head of the queue is still waiting for credit or a reply, and
+            # this line can only follow it: nothing could be written now.
+            self._flush()
         return submission
 
     @property
@@ -374,7 +380,8 @@ class TangoProtocol(asyncio.Protocol):
         return last if last is not None else _MARKERS
 
     def _register(self, submission: Submission) -> bytes:
-        data, _ = self.core.send(submission.command, submission.tag)
+        data, _ = self.core.send(submission.command, submission.tag,
+                                 (submission.mode, submission.expectation))
         submission.written = True
         confirming = submission.confirming
         self.credit.wrote(len(data), submission.tag if confirming else None)
@@ -634,7 +641,8 @@ def _check_framing(command: Command) -> None:
     and smuggle in a second command, 0x03 would abort every axis).
     """
     line = command.line
-    if any(char in line for char in ("\r", "\n", "\x03")) or not line.isascii():
+    # CR, LF and 0x03 are not printable: one test covers all three.
+    if not (line.isascii() and line.isprintable()):
         raise InvalidCommandError(
             f"control or non-ASCII character inside the command line {line!r}",
             instruction=command.name, code=4)
