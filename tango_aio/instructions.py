@@ -628,7 +628,7 @@ def build_rows(
     form: Form | str = Form.SET,
     context: Context | None = None,
 ) -> Iterator[Command]:
-    """``build(name, *lead, *row)`` for each row, several times faster: list entries such
+    """``build(name, *lead, *row)`` for each row, about twice as fast: list entries such
     as ``!trigp -1 pos`` differ only in their trailing numbers.
 
     The first row of each length is built in full; the grammar alternative it matched then
