@@ -53,7 +53,7 @@ from .instructions import (
     encode,
     reply_rule,
 )
-from .patterns import ACK_PATTERN, ReplyKind, ReplyPattern, echo_pattern, reply_pattern
+from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, echo_pattern, reply_pattern
 
 __all__ = [
     "Acknowledged",
@@ -365,7 +365,6 @@ _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 #: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
 _MARKER_CODES: Final = tuple(sorted(ERROR_DESCRIPTIONS))
 _FOLLOW_UP: Final = encode("?err")
-_ONE_NUMBER: Final = ReplyPattern(ReplyKind.NUMBERS)
 
 
 class ProtocolCore:
@@ -465,7 +464,7 @@ class ProtocolCore:
 
     def _register_follow_up(self) -> bytes:
         items = deque([_Item.DATA])
-        self._pending.append(_Pending(object(), items, internal=True, pattern=_ONE_NUMBER))
+        self._pending.append(_Pending(object(), items, internal=True, pattern=ONE_NUMBER))
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:

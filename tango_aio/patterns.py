@@ -35,8 +35,8 @@ from typing import Final
 
 from .instructions import Command, Context, Shape, reply_group, reply_rule
 
-__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ReplyKind", "ReplyPattern", "echo_pattern",
-           "reply_pattern"]
+__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "ReplyKind", "ReplyPattern",
+           "echo_pattern", "reply_pattern"]
 
 #: Most values a list reply (``NUMBERS``, ``INTS``) is expected to hold.
 _MANY: Final = 1 << 16
@@ -107,13 +107,14 @@ _ORDER: Final = {kind: index for index, kind in enumerate(ReplyKind)}
 ACK_PATTERN: Final = ReplyPattern(ReplyKind.ACK)
 #: A reply of free text.
 ANY_PATTERN: Final = ReplyPattern(ReplyKind.ANY)
-_ONE_NUMBER: Final = ReplyPattern(ReplyKind.NUMBERS)
+#: One number (``?err``, ``?vel x``).
+ONE_NUMBER: Final = ReplyPattern(ReplyKind.NUMBERS)
 
 _SCALARS: Final = {
-    Shape.INT: _ONE_NUMBER,
-    Shape.FLOAT: _ONE_NUMBER,
-    Shape.ERROR_NUMBER: _ONE_NUMBER,
-    Shape.DET: _ONE_NUMBER,
+    Shape.INT: ONE_NUMBER,
+    Shape.FLOAT: ONE_NUMBER,
+    Shape.ERROR_NUMBER: ONE_NUMBER,
+    Shape.DET: ONE_NUMBER,
     Shape.FLAGS: ReplyPattern(ReplyKind.WORDS),
     Shape.STATUS: ReplyPattern(ReplyKind.STATUS),
     Shape.HELP: ReplyPattern(ReplyKind.HELP),

@@ -106,9 +106,8 @@ class Submission:
     #: Lines of one all-or-nothing batch (``None``: on its own) may be pipelined even
     #: when their replies look alike (:mod:`tango_aio.patterns`).
     batch: object | None = None
-    #: Pattern of the first line owed, ``None`` if none (set when first needed).
+    #: Pattern of the first line owed, ``None`` if none.
     owes: ReplyPattern | None = None
-    _owes_known: bool = False
     #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
     confirming: bool = field(init=False)
     #: Bytes this line takes on the wire (with a read's internal follow-up).
@@ -289,6 +288,7 @@ class TangoProtocol(asyncio.Protocol):
             loop.create_future() if expect.expects_reply else None,
             loop.create_future() if expect.completion is not None else None,
             batch=batch,
+            owes=owed_pattern(command, expect, self.core.context),
             mode=mode,
         )
         if submission.reply is not None or submission.completion is not None:
@@ -343,19 +343,12 @@ class TangoProtocol(asyncio.Protocol):
                 out += self._marker()
                 continue
             if not self.credit.fits(head.size, head.confirming) or \
-                    self._must_wait(self._owes(head), head.batch):
+                    self._must_wait(head.owes, head.batch):
                 break
             self._queue.popleft()
             out += self._register(head)
         if out:
             self._write(bytes(out))
-
-    def _owes(self, submission: Submission) -> ReplyPattern | None:
-        if not submission._owes_known:
-            submission.owes = owed_pattern(submission.command, submission.expectation,
-                                           self.core.context)
-            submission._owes_known = True
-        return submission.owes
 
     def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
         """Whether a line owing ``owes`` must wait for the newest line in flight to be
