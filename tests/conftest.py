@@ -15,9 +15,9 @@ from tango_aio.connection import connect
 from tango_aio.controller import Controller
 from tango_aio.core import Event
 from tango_aio.protocol import Submission, TangoProtocol
-from tango_aio.sim.model import ControllerModel
+from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
-from tango_aio.sim.wire import Wire
+from tango_aio.sim.wire import Emit, Wire
 
 # No per-example deadline: the first examples pay for imports and would flake on a busy CI.
 settings.register_profile("tango_aio", deadline=None)
@@ -29,6 +29,24 @@ settings.load_profile("tango_aio")
 
 #: The in-process emulator without line pacing (motion still runs in real time).
 INSTANT = "sim://?baud=0"
+#: Distinctive per-axis velocities: a reply routed to the wrong request cannot match.
+VELS = {"x": 11.5, "y": 12.25, "z": 13.125}
+VEL_TEXT = "11.500 12.250 13.125"
+
+
+def make_model(emit: Emit) -> ControllerModel:
+    """Handler factory of the pty and TCP servers: a default 3-axis controller (TANGO-DT,
+    firmware 1.71)."""
+    return ControllerModel(emit, SimConfig())
+
+
+def wire_of(tango: Controller) -> Wire:
+    """The emulated link behind a ``sim://`` controller's current transport."""
+    transport = tango.protocol.transport
+    assert transport is not None
+    wire = transport.get_extra_info("wire")
+    assert isinstance(wire, Wire)
+    return wire
 
 
 class FakeTransport(asyncio.Transport):
@@ -123,11 +141,7 @@ class Emulated:
     @property
     def wire(self) -> Wire:
         """The emulated link (fault injection)."""
-        transport = self.tango.protocol.transport
-        assert transport is not None
-        wire = transport.get_extra_info("wire")
-        assert isinstance(wire, Wire)
-        return wire
+        return wire_of(self.tango)
 
     @property
     def model(self) -> ControllerModel:

@@ -17,7 +17,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 import pytest
-from conftest import INSTANT, Emulated, EmulatorFactory
+from conftest import INSTANT, VEL_TEXT, VELS, Emulated, EmulatorFactory, make_model
 
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
@@ -29,22 +29,13 @@ from tango_aio.errors import (
     OutOfRangeError,
     RequestAbortedError,
 )
-from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.serve import serve_pty, serve_tcp
-from tango_aio.sim.wire import Emit, Wire
+from tango_aio.sim.wire import Wire
 
 pytestmark = pytest.mark.timeout(60)
 
-#: Distinctive per-axis velocities: a reply routed to the wrong request cannot match.
-VELS = {"x": 11.5, "y": 12.25, "z": 13.125}
-VEL_TEXT = "11.500 12.250 13.125"
 #: Travel between the limit switches of the shortened emulated axes (mm).
 TRAVEL = 10.0
-
-
-def make_model(emit: Emit) -> ControllerModel:
-    """Handler factory of the pty and TCP servers: a default 3-axis controller."""
-    return ControllerModel(emit, SimConfig())
 
 
 async def start_slow_move(tango: Controller, **target: float) -> asyncio.Task[Any]:

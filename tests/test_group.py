@@ -17,7 +17,7 @@ from typing import Any
 
 import anyio
 import pytest
-from conftest import Emulated
+from conftest import Emulated, wire_of
 
 import tango_aio
 import tango_aio.group as group_module
@@ -39,7 +39,7 @@ from tango_aio.group import (
 )
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.serve import PtyServer, serve_pty
-from tango_aio.sim.wire import Emit, Wire
+from tango_aio.sim.wire import Emit
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -54,14 +54,6 @@ FOUR = {"a": "sim://?baud=0&axes=1", "b": "sim://?baud=0&axes=2",
 
 def notes(exc: BaseException) -> list[str]:
     return list(getattr(exc, "__notes__", []))
-
-
-def wire_of(controller: Controller) -> Wire:
-    transport = controller.protocol.transport
-    assert transport is not None
-    wire = transport.get_extra_info("wire")
-    assert isinstance(wire, Wire)
-    return wire
 
 
 async def wait_moving(controller: Controller) -> None:

@@ -23,7 +23,15 @@ from typing import Any
 
 import pytest
 import serial
-from conftest import INSTANT, EmulatorFactory, FakeTransport
+from conftest import (
+    INSTANT,
+    VEL_TEXT,
+    VELS,
+    EmulatorFactory,
+    FakeTransport,
+    make_model,
+    wire_of,
+)
 
 from tango_aio.cli import Shell
 from tango_aio.connection import connect
@@ -45,29 +53,13 @@ from tango_aio.sim.wire import Emit, Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)
 
-VELS = {"x": 11.5, "y": 12.25, "z": 13.125}
-VEL_TEXT = "11.500 12.250 13.125"
 #: Fast backoff for the tests: 0.05, 0.1, 0.2, 0.2, ... s.
 FAST = {"reconnect": True, "reconnect_initial": 0.05, "reconnect_max": 0.2}
-
-
-def make_model(emit: Emit) -> ControllerModel:
-    """A default 3-axis controller (TANGO-DT, firmware 1.71)."""
-    return ControllerModel(emit, SimConfig())
 
 
 def make_other_firmware(emit: Emit) -> ControllerModel:
     """The same model with another firmware: not the controller the driver knew."""
     return ControllerModel(emit, SimConfig(firmware="1.69"))
-
-
-def wire_of(tango: Controller) -> Wire:
-    """The emulated link behind a ``sim://`` controller's current transport."""
-    transport = tango.protocol.transport
-    assert transport is not None
-    wire = transport.get_extra_info("wire")
-    assert isinstance(wire, Wire)
-    return wire
 
 
 async def next_event(events: Subscription, timeout: float = 3.0) -> TangoEvent:
