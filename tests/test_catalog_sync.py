@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 GENERATOR = ROOT / "tools" / "gen_catalog.py"
 CATALOG = ROOT / "tango_aio" / "_catalog.py"
-REFERENCE = ROOT.parent / "shared" / "reference" / "instructions.json"
+REFERENCE = ROOT / "reference" / "instructions.json"
 
 pytestmark = pytest.mark.skipif(
     not REFERENCE.exists(),

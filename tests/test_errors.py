@@ -23,7 +23,7 @@ from tango_aio.errors import (
     parse_error_reply,
 )
 
-REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "errors.json"
+REFERENCE = Path(__file__).resolve().parents[1] / "reference" / "errors.json"
 DOCUMENTED: list[dict[str, Any]] = (
     json.loads(REFERENCE.read_text(encoding="utf-8"))["errors"] if REFERENCE.exists() else []
 )

@@ -48,7 +48,7 @@ from tango_aio.instructions import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = ROOT.parent / "shared" / "reference" / "instructions.json"
+REFERENCE = ROOT / "reference" / "instructions.json"
 SPEC: list[dict[str, Any]] = (
     json.loads(REFERENCE.read_text(encoding="utf-8")) if REFERENCE.exists() else []
 )

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_JSON = ROOT.parent / "shared" / "reference" / "instructions.json"
+DEFAULT_JSON = ROOT / "reference" / "instructions.json"
 OUTPUT = ROOT / "tango_aio" / "_catalog.py"
 
 # --------------------------------------------------------------------------------------

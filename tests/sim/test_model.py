@@ -38,9 +38,8 @@ from tango_aio.sim.wire import Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)
 
-#: The manual's examples, as the other reference tests find them (``../shared``).
-REFERENCE = Path(__file__).resolve().parents[2].parent / "shared" / "reference" / \
-    "instructions.json"
+#: The manual's examples, from the reference data the repository carries.
+REFERENCE = Path(__file__).resolve().parents[2] / "reference" / "instructions.json"
 
 
 # ---------------------------------------------------------------------------------------
