@@ -27,17 +27,18 @@ async def coalescer(emu: Emulated) -> AsyncIterator[MoveCoalescer]:
     await merger.aclose()
 
 
+def motion_lines(caplog: pytest.LogCaptureFixture) -> list[str]:
+    """The ``!mo...`` lines in the ``tango_aio.wire`` trace, numbers normalised."""
+    lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
+             if r.name == "tango_aio.wire"]
+    return [_normalised(line[5:-1]) for line in lines if line.startswith("-> b'!mo")]
+
+
 @pytest.fixture
 def moves(caplog: pytest.LogCaptureFixture) -> Callable[[], list[str]]:
     """The motion lines written so far (from the ``tango_aio.wire`` trace)."""
     caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
-
-    def written() -> list[str]:
-        lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
-                 if r.name == "tango_aio.wire"]
-        return [_normalised(line[5:-1]) for line in lines if line.startswith("-> b'!mo")]
-
-    return written
+    return lambda: motion_lines(caplog)
 
 
 def emulated_position(emu: Emulated, axis: str) -> float:
