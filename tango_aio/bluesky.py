@@ -42,6 +42,9 @@ Behaviour that follows from the controller:
   never keeps its parent device as an attribute, because ophyd-async would adopt it as a
   child.
 * Numbers from plans are numpy scalars; they are converted with ``float()`` here.
+* ``init_devices(mock=True)`` connects the stage without a controller: the axes move
+  instantly (ophyd-async's mock behaviour), for testing plans. The flyer needs a
+  controller.
 """
 
 from __future__ import annotations
@@ -325,7 +328,8 @@ class _Backend(SoftSignalBackend[float]):
 
     def __init__(self, source: str, units: str | None = None, *,
                  getter: Callable[[], Any] | None = None,
-                 setter: Callable[[float | None], Awaitable[None]] | None = None) -> None:
+                 setter: Callable[[float | None], Awaitable[float | None]] | None = None
+                 ) -> None:
         super().__init__(float, 0.0, units, getter=getter, setter=setter)
         self._source = source
 
@@ -345,8 +349,13 @@ class _AxisLogic(MovableLogic[float]):
     axis: str
     #: Resolved when the latest move() has ended (its clean-up included).
     ended: asyncio.Future[None] | None = dataclasses.field(default=None, init=False)
+    #: Connected with ``mock=True``: ophyd-async's mock signals move instantly, no
+    #: controller is involved (for testing plans without hardware).
+    mocked: bool = dataclasses.field(default=False, init=False)
 
     async def stop(self) -> None:
+        if self.mocked:
+            return
         # Called before StandardMovable.stop cancels our move: no waiting here, or the
         # move would end (with the letters of the abort) before it is cancelled.
         await self.link.halt()
@@ -362,6 +371,8 @@ class _AxisLogic(MovableLogic[float]):
         if not math.isfinite(target):
             raise StageLimitsError(f"{self.axis}: target {target!r} is not a finite number",
                                    instruction="moa", parameter="position", code=5)
+        if self.mocked:
+            return
         low, high = await _limits(self.link, self.axis)
         if not low <= target <= high:
             raise StageLimitsError(
@@ -376,6 +387,9 @@ class _AxisLogic(MovableLogic[float]):
         # The controller bounds each move with its own estimate (Controller.move_to);
         # an explicit set(timeout=...) is applied on top.
         target = float(new_position)
+        if self.mocked:
+            await super().move(target, timeout)
+            return
         self.ended = ended = asyncio.get_running_loop().create_future()
         try:
             await self.setpoint.set(target)
@@ -451,18 +465,34 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float]):
                 backend.metadata["precision"] = precision
         self._velocity.metadata["units"] = self._link.velocity_units.get(self._axis, "")
 
+    # Getters and setters of the signals; connected with mock=True they keep the value
+    # in the signal and never reach for a controller.
+
+    def _mocked(self, backend: _Backend) -> float | None:
+        return float(backend.reading["value"]) if self.movable_logic.mocked else None
+
     async def _read_position(self) -> float:
-        return await self._link.position(self._axis)
+        cached = self._mocked(self._readback)
+        return await self._link.position(self._axis) if cached is None else cached
 
     async def _get(self, name: str) -> float:
+        cached = self._mocked(self._velocity if name == "vel" else self._acceleration)
+        if cached is not None:
+            return cached
         return float(await self._link.controller.get(name, axis=self._axis))
 
-    async def _put(self, name: str, value: float | None) -> None:
+    async def _put(self, name: str, value: float | None) -> float | None:
         if value is None:
             raise ValueError(f"{self.name}: {name} needs a number")
+        if self.movable_logic.mocked:
+            return float(value)
         await self._link.controller.set(name, float(value), axis=self._axis)
+        return None  # read back from the controller
 
     async def _limit(self, which: int) -> float:
+        cached = self._mocked(self._high if which else self._low)
+        if cached is not None:
+            return cached
         return (await _limits(self._link, self._axis))[which]
 
     async def connect(self, mock: bool | DeviceMock[Any] = False, timeout: float = DEFAULT_TIMEOUT,
@@ -470,6 +500,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float]):
         """Connect (the stage has opened the link); take units, precision and the current
         position as the setpoint, so that ``locate()`` is right from the start."""
         await super().connect(mock=mock, timeout=timeout, force_reconnect=force_reconnect)
+        self.movable_logic.mocked = bool(mock)
         if not mock:
             self._set_units()
             await self.user_setpoint.set(await self._read_position())
@@ -633,9 +664,12 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
     link: StageLink
     results: list[_PassResult]
     running: list[_Pass] = dataclasses.field(default_factory=list)
+    #: The latest pass prepared (describe_collect needs to know about snapshots).
+    prepared: TriggerScan | None = None
 
     async def on_prepare(self, value: TriggerScan) -> _Pass:
         scan, ctx = value, _Pass(value)
+        self.prepared = scan
         controller = self.link.controller
         # Settings first with the output disabled, then !trig 1 (L12529, L12565).
         await controller.set("trig", 0)
@@ -789,8 +823,8 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
         return streams
 
     def _snapshots_prepared(self) -> bool:
-        ctx = self._fly_ctx
-        return isinstance(ctx, _Pass) and ctx.scan.snapshots
+        scan = self.flyable_logic.prepared
+        return scan is not None and scan.snapshots
 
     def collect(self) -> Iterator[PartialEvent]:
         """One event per completed pass (trigger count), and one per snapshot row."""

@@ -445,3 +445,14 @@ def test_pause_during_a_fly_pass_then_resume(
         {"flyer-trigger_count": 3, "flyer-triggers_expected": 3}] * 2
     assert emulated(stage) == {"x": -0.25, "y": 1.0}
     assert [doc for name, doc in documents if name == "stop"][-1]["exit_status"] == "success"
+
+
+def test_mock_mode_needs_no_controller(RE: RunEngine, documents: list[Any]) -> None:
+    with init_devices(mock=True):
+        stage = MarzhauserStage("sim://?baud=0", axes="xy")
+    RE(bps.mv(stage.x.velocity, 3))
+    RE(bp.scan([stage], stage.x, 0, 1, stage.y, 2, 3, 2))
+    assert events(documents) == [{"stage-x": 0.0, "stage-y": 2.0},
+                                 {"stage-x": 1.0, "stage-y": 3.0}]
+    assert run(stage.x.velocity.get_value()) == 3.0
+    assert not stage.link.connected
