@@ -21,6 +21,18 @@ pytest.importorskip("ophyd_async")
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 from bluesky import RunEngine, RunEngineInterrupted
+from bluesky.protocols import (
+    Checkable,
+    Collectable,
+    Configurable,
+    Flyable,
+    Locatable,
+    Movable,
+    Pausable,
+    Preparable,
+    Readable,
+    Stoppable,
+)
 from bluesky.run_engine import call_in_bluesky_event_loop
 from bluesky.utils import FailedStatus
 from conftest import wire_of
@@ -33,6 +45,7 @@ from tango_aio.bluesky import (
     MissingAxisError,
     StageLimitsError,
     TriggerScan,
+    close_stage,
     fly_raster,
 )
 from tango_aio.errors import MoveError
@@ -146,6 +159,14 @@ def test_stage_has_one_child_per_axis_with_units_and_precision(
     config = run(stage.x.describe_configuration())
     assert config["stage-x-velocity"]["units"] == "rev/s"
     assert config["stage-x-acceleration"]["units"] == "m/s^2"
+
+
+def test_axes_follow_the_bluesky_protocols(
+        stage: MarzhauserStage, flyer: MarzhauserFlyer) -> None:
+    for protocol in (Movable, Locatable, Stoppable, Readable, Configurable, Checkable):
+        assert isinstance(stage.x, protocol), protocol
+    for protocol in (Flyable, Preparable, Collectable, Stoppable, Pausable):
+        assert isinstance(flyer, protocol), protocol
 
 
 def test_axes_do_not_keep_the_parent_device(stage: MarzhauserStage) -> None:
@@ -456,3 +477,12 @@ def test_mock_mode_needs_no_controller(RE: RunEngine, documents: list[Any]) -> N
                                  {"stage-x": 1.0, "stage-y": 3.0}]
     assert run(stage.x.velocity.get_value()) == 3.0
     assert not stage.link.connected
+
+
+def test_close_stage_plan_closes_the_controller(RE: RunEngine) -> None:
+    with init_devices():
+        stage = MarzhauserStage(URL, axes="x")
+    controller = stage.controller
+    RE(close_stage(stage))
+    assert not stage.link.connected
+    assert not controller.connected
