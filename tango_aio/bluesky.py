@@ -88,7 +88,7 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
 from .coalesce import MoveCoalescer
 from .connection import connect
 from .controller import STOP_WAIT, Controller
-from .errors import InvalidCommandError, MoveError, TangoError
+from .errors import ControllerTimeoutError, InvalidCommandError, MoveError, TangoError
 from .instructions import AXES
 from .units import DIM_MM_VEL
 
@@ -109,7 +109,7 @@ log = logging.getLogger(__name__)
 #: Position unit of each ``dim`` (manual L3061-3144); dim 9 is mm with velocities in mm/s.
 DIM_UNITS = {0: "µstep", 1: "µm", 2: "mm", 3: "deg", 4: "rev", 5: "cm", 6: "m",
              7: "in", 8: "mil", 9: "mm"}
-#: ``accel`` is always in m/s² (manual L226; see tango_aio.units).
+#: ``accel`` is always in m/s² (manual L3303, L3329; see tango_aio.units).
 ACCEL_UNIT = "m/s^2"
 
 
@@ -302,11 +302,19 @@ class StageLink:
         await controller.abort(soft=True, wait=False)
 
     async def wait_still(self) -> None:
-        """Wait until no axis moves (polling ``statusaxis``), at most ``STOP_WAIT``."""
+        """Wait until no axis moves (polling ``statusaxis``); raise
+        :class:`~tango_aio.errors.ControllerTimeoutError` if one still moves after
+        ``STOP_WAIT`` seconds."""
         controller = self._controller
-        if controller is not None:
-            with contextlib.suppress(TangoError, TimeoutError):
-                await controller.wait_idle(timeout=STOP_WAIT)
+        if controller is None:
+            return
+        try:
+            await controller.wait_idle(timeout=STOP_WAIT)
+        except ControllerTimeoutError:
+            raise  # a status query went unanswered
+        except TimeoutError:
+            raise ControllerTimeoutError(
+                f"{self.url!r}: axes still moving {STOP_WAIT} s after the stop") from None
 
 
 class _LinkConnector(DeviceConnector):
