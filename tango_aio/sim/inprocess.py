@@ -16,7 +16,11 @@ seed           random seed for fragmentation and faults                   none
 model          the ``?version`` controller type                           TANGO-DT
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
+speed          the controller's time runs this many times as fast          1
 =============  =========================================================  ===========
+
+``speed`` (a finite number > 0) scales motion, pauses and the controller's timeouts; the
+wire keeps its baud rate, latency and processing times (:mod:`tango_aio.sim.clock`).
 """
 
 from __future__ import annotations
@@ -27,11 +31,12 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TypeVar
 
+from .clock import check_speed
 from .model import ControllerModel, SimConfig
 from .serve import SimTransport, create_sim_connection
 from .wire import Emit, WireConfig
 
-__all__ = ["configs_from_url", "open_sim"]
+__all__ = ["configs_from_url", "open_sim", "speed_from_url"]
 
 _P = TypeVar("_P", bound=asyncio.Protocol)
 
@@ -43,7 +48,7 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         raise ValueError(f"not a sim:// URL: {url!r}")
     query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
     known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
-             "seed", "model", "firmware", "state"}
+             "seed", "model", "firmware", "state", "speed"}
     unknown = set(query) - known
     if unknown:
         raise ValueError(f"unknown sim:// option(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -69,6 +74,16 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
     return sim, wire
 
 
+def speed_from_url(url: str) -> float:
+    """The ``speed`` option of a ``sim://`` URL (1 if absent); ValueError if not > 0."""
+    query = dict(urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query))
+    text = query.get("speed", "1")
+    try:
+        return check_speed(float(text))
+    except ValueError:
+        raise ValueError(f"sim:// speed must be a finite number > 0, got {text!r}") from None
+
+
 async def open_sim(
     url: str, protocol_factory: Callable[[], _P]
 ) -> tuple[_P, Callable[[], Awaitable[None]]]:
@@ -77,11 +92,13 @@ async def open_sim(
     Returns the protocol and a coroutine function that shuts the emulator down.
     """
     sim, wire = configs_from_url(url)
+    speed = speed_from_url(url)
 
     def make_handler(emit: Emit) -> ControllerModel:
         return ControllerModel(emit, sim)
 
-    transport, protocol = await create_sim_connection(protocol_factory, make_handler, wire)
+    transport, protocol = await create_sim_connection(protocol_factory, make_handler, wire,
+                                                      speed=speed)
 
     async def close() -> None:
         transport.close()

@@ -181,8 +181,9 @@ async def test_tcp_round_trip_with_pyserial_url() -> None:
         assert await asyncio.to_thread(host) == b"pong\r"
 
 
-async def test_tcp_each_connection_gets_a_fresh_controller() -> None:
-    async with await serve_tcp(PingHandler, config=WireConfig(baud=None)) as server:
+async def test_tcp_per_connection_gives_each_connection_a_fresh_controller() -> None:
+    async with await serve_tcp(PingHandler, config=WireConfig(baud=None),
+                               shared=False) as server:
 
         def host(text: bytes) -> bytes:
             with socket.create_connection(("127.0.0.1", server.port), timeout=1) as sock:
