@@ -2,16 +2,33 @@
 
 from __future__ import annotations
 
+import ast
 import asyncio
+import contextlib
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import pytest
 import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from tango_aio.sim.serve import SimTransport, create_sim_connection, serve_pty, serve_tcp
-from tango_aio.sim.wire import Wire, WireConfig
+from tango_aio.sim.clock import EmulatorClock, ScaledHandler
+from tango_aio.sim.inprocess import open_sim, speed_from_url
+from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.serve import (
+    SharedController,
+    SimTransport,
+    create_sim_connection,
+    serve_pty,
+    serve_tcp,
+)
+from tango_aio.sim.wire import Emit, HandlerFactory, Wire, WireConfig
 
 from .test_wire import BT, PingHandler
 
@@ -382,3 +399,295 @@ async def test_sim_connection_overflow_and_ctrl_c() -> None:
     assert wire.lost_bytes == 300 - 256
     assert handler_of(wire).texts == [b"?ping"]
     transport.close()
+
+
+# ------------------------------------------------------------------------- time scale
+
+
+def scaled_model_wire(speed: float, config: WireConfig | None = None) -> Wire:
+    """A wire to a ControllerModel on emulator time, both clocks starting at 0."""
+
+    def model(emit: Emit) -> ControllerModel:
+        return ControllerModel(emit, SimConfig(), now=0.0)
+
+    return Wire(lambda emit: ScaledHandler(model, emit, speed, origin=0.0),
+                config or WireConfig(baud=None))
+
+
+def reply_times(wire: Wire, line: bytes, count: int, at: float = 0.0
+                ) -> list[tuple[float, bytes]]:
+    """Feed ``line`` at ``at`` and step the wire deadline by deadline (virtual time) until
+    ``count`` reply lines arrived; each with the wire time its CR arrived."""
+    wire.feed(line, at)
+    replies: list[tuple[float, bytes]] = []
+    pending = b""
+    while len(replies) < count:
+        deadline = wire.next_deadline()
+        assert deadline is not None, replies
+        pending += wire.poll(deadline)
+        while b"\r" in pending:
+            text, _, pending = pending.partition(b"\r")
+            replies.append((deadline, text))
+    return replies
+
+
+@pytest.mark.parametrize("line", [b"!moa 10 -5 2\r", b"!cal\r"])
+def test_speed_runs_moves_and_calibration_faster_in_emulator_time(line: bytes) -> None:
+    [(normal, report)] = reply_times(scaled_model_wire(1.0), line, 1)
+    [(fast, fast_report)] = reply_times(scaled_model_wire(20.0), line, 1)
+    assert fast_report == report and report.endswith(b".")
+    assert normal > 1.0  # a real move, not an instant one
+    assert fast == pytest.approx(normal / 20, rel=1e-9)
+
+
+def test_speed_leaves_the_wire_at_its_baud_rate() -> None:
+    line = b"!mor 1\r"
+    [(normal, report)] = reply_times(scaled_model_wire(1.0, WireConfig()), line, 1)
+    [(fast, _)] = reply_times(scaled_model_wire(20.0, WireConfig()), line, 1)
+    wire_time = (len(line) + len(report) + 1) * BT  # the line in, the report out
+    assert fast - wire_time == pytest.approx((normal - wire_time) / 20, rel=1e-6)
+    # A read involves no controller time: byte for byte the same at any speed.
+    assert reply_times(scaled_model_wire(20.0, WireConfig()), b"?pos\r", 1) == \
+        reply_times(scaled_model_wire(1.0, WireConfig()), b"?pos\r", 1)
+
+
+def test_speed_scales_the_controllers_own_processing_time() -> None:
+    wire = scaled_model_wire(20.0)
+    handler = wire.handler
+    assert isinstance(handler, ScaledHandler)
+    model = handler.handler
+    assert isinstance(model, ControllerModel)
+    assert handler.processing_time(b"reset") == model.processing_time(b"reset") / 20 > 0
+
+
+def test_speed_positions_follow_emulator_time() -> None:
+    [(done, _)] = reply_times(scaled_model_wire(10.0), b"!moa 20\r", 1)
+    wire = scaled_model_wire(10.0)
+    [(_, start)] = reply_times(wire, b"!moa 20\r?pos x\r", 1)
+    [(_, middle)] = reply_times(wire, b"?pos x\r", 1, at=done / 2)
+    [(_, report), (_, end)] = reply_times(wire, b"?pos x\r", 2, at=done)
+    assert (start, report, end) == (b"0.0000", b"@@@-.", b"20.0000")
+    assert 0.0 < float(middle) < 20.0
+
+
+@settings(max_examples=300, deadline=None)
+@given(origin=st.floats(0, 1e7), speed=st.floats(1e-3, 1e4), ahead=st.floats(0, 1e5))
+def test_emulator_clock_deadlines_round_up(origin: float, speed: float, ahead: float) -> None:
+    clock = EmulatorClock(speed, origin)
+    deadline = origin + ahead
+    host = clock.to_host(deadline)
+    assert clock.to_emulator(host) >= deadline  # polling then finds the deadline passed
+    assert host == pytest.approx(origin + ahead / speed, rel=1e-12, abs=1e-9)
+
+
+@pytest.mark.parametrize("speed", ["0", "-1", "nan", "inf", "fast"])
+def test_a_bad_speed_is_refused(speed: str) -> None:
+    with pytest.raises(ValueError, match="speed must be a finite number > 0"):
+        speed_from_url(f"sim://?speed={speed}")
+
+
+async def test_sim_url_speed_reaches_the_emulator() -> None:
+    protocol, close = await open_sim("sim://?baud=0&speed=20&profile=legacy", Collector)
+    try:
+        transport = protocol.made[0]
+        assert isinstance(transport, SimTransport)
+        handler = transport.wire.handler
+        assert isinstance(handler, ScaledHandler) and handler.clock.speed == 20
+        transport.write(b"?pos\r")
+        assert await protocol.read_until() == b"0.0000 0.0000 0.0000\r"
+    finally:
+        await close()
+    protocol, close = await open_sim("sim://?baud=0", Collector)
+    await close()
+    assert isinstance(protocol.made[0].get_extra_info("wire").handler, ControllerModel)
+
+
+# ---------------------------------------------------------------------------- imports
+
+
+def test_the_readme_imports_work() -> None:
+    import tango_aio.sim as package
+    from tango_aio.sim import (  # the README's promise
+        ControllerModel,
+        SimConfig,
+        Wire,
+        WireConfig,
+        create_sim_connection,
+        model,
+        serve,
+        serve_pty,
+        serve_tcp,
+        wire,
+    )
+
+    assert (ControllerModel, SimConfig) == (model.ControllerModel, model.SimConfig)
+    assert (Wire, WireConfig) == (wire.Wire, wire.WireConfig)
+    assert (create_sim_connection, serve_pty, serve_tcp) == (
+        serve.create_sim_connection, serve.serve_pty, serve.serve_tcp)
+    assert set(package.__all__) <= set(dir(package))
+    with pytest.raises(AttributeError):
+        package.no_such_name  # noqa: B018
+
+
+def test_importing_the_package_loads_none_of_its_modules() -> None:
+    code = ("import sys, tango_aio.sim, tango_aio.sim.wire; "
+            "print(sorted(m for m in sys.modules if m.startswith('tango_aio.sim.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "['tango_aio.sim.wire']"
+
+
+DRIVER = frozenset({"tango_aio.core", "tango_aio.protocol", "tango_aio.patterns",
+                    "tango_aio.controller"})
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _imports(module: str) -> set[str]:
+    """The tango_aio modules that ``module``'s own source imports (any depth of code)."""
+    path = ROOT / (module.replace(".", "/") + ".py")
+    if not path.exists():
+        path = ROOT / module.replace(".", "/") / "__init__.py"
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            found.add(base)
+            found.update(f"{base}.{alias.name}" for alias in node.names)
+    return {name for name in found if name.startswith("tango_aio.")
+            and ((ROOT / (name.replace(".", "/") + ".py")).exists()
+                 or (ROOT / name.replace(".", "/") / "__init__.py").exists())}
+
+
+def test_the_emulator_imports_nothing_of_the_driver() -> None:
+    """Everything tango_aio.sim's code imports, followed through tango_aio's modules
+    (except the top-level package ``tango_aio/__init__.py``, which any import of a
+    submodule runs), stays clear of the driver's rules."""
+    todo = [f"tango_aio.sim.{path.stem}" for path in (ROOT / "tango_aio" / "sim").glob("*.py")
+            if path.stem != "__init__"] + ["tango_aio.sim"]
+    seen: set[str] = set()
+    while todo:
+        module = todo.pop()
+        if module in seen:
+            continue
+        seen.add(module)
+        todo.extend(_imports(module))
+    assert len(seen) > 10
+    assert "tango_aio.instructions" in seen  # the catalog is shared data
+    assert not seen & DRIVER
+
+
+# ------------------------------------------------------- one controller for a server's life
+
+
+async def ask(port: int, *lines: bytes, replies: int | None = None) -> list[bytes]:
+    """Connect, send ``lines``, read ``replies`` lines (default one per line), close."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(b"".join(lines))
+        count = len(lines) if replies is None else replies
+        return [(await reader.readuntil(b"\r"))[:-1] for _ in range(count)]
+    finally:
+        writer.close()
+        await writer.wait_closed()
+
+
+def model_factory(**config: Any) -> HandlerFactory:
+    def make(emit: Emit) -> ControllerModel:
+        return ControllerModel(emit, SimConfig(**config))
+
+    return make
+
+
+async def test_tcp_state_survives_a_reconnect() -> None:
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None),
+                               speed=50) as server:
+        assert await ask(server.port, b"!cal\r") == [b"AAA-."]
+        assert (await ask(server.port, b"?statusaxis\r"))[0].startswith(b"AAA")
+        assert await ask(server.port, b"!moa 2 1\r") == [b"@@@-."]
+        assert await ask(server.port, b"!vel x 3\r?vel x\r", replies=1) == [b"3.000"]
+        assert await ask(server.port, b"?pos\r", b"?vel x\r") == [
+            b"2.0000 1.0000 0.0000", b"3.000"]
+        assert server.shared is not None
+        assert isinstance(server.shared.handler, ScaledHandler)
+
+
+async def test_tcp_per_connection_starts_each_connection_at_power_on() -> None:
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None),
+                               shared=False) as server:
+        assert server.shared is None
+        assert await ask(server.port, b"!moa 0.1\r") == [b"@@@-."]
+        assert await ask(server.port, b"?pos\r") == [b"0.0000 0.0000 0.0000"]
+
+
+async def test_tcp_a_new_connection_starts_with_an_empty_input_buffer() -> None:
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None)) as server:
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        writer.write(b"!moa 1\r?po")  # a half-sent line, then the client goes away
+        assert await reader.readuntil(b"\r") == b"@@@-.\r"
+        wire = await server.next_connection()
+        assert wire.buffered == 3
+        writer.close()
+        await writer.wait_closed()
+        assert await ask(server.port, b"?pos\r", b"?err\r") == [b"1.0000 0.0000 0.0000", b"0"]
+
+
+async def test_tcp_a_new_connection_takes_over_from_the_open_one() -> None:
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None)) as server:
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        writer.write(b"!moa 1\r")
+        assert await reader.readuntil(b"\r") == b"@@@-.\r"
+        assert await ask(server.port, b"?pos\r") == [b"1.0000 0.0000 0.0000"]
+        assert await reader.read() == b""  # the first connection was closed
+        writer.close()
+        await writer.wait_closed()
+
+
+def test_a_detached_controller_runs_on_and_its_output_is_lost() -> None:
+    made: list[ControllerModel] = []
+
+    def make(emit: Emit) -> ControllerModel:
+        made.append(ControllerModel(emit, SimConfig(), now=0.0))
+        return made[-1]
+
+    shared = SharedController(make)
+    first = Wire(lambda emit: shared.attach(emit, 0.0), WireConfig(baud=None))
+    first.feed(b"!moa 10\r", 0.0)
+    shared.detach(first.emit)
+    second = Wire(lambda emit: shared.attach(emit, 100.0), WireConfig(baud=None))
+    assert second.handler is first.handler is made[0] and len(made) == 1
+    assert second.poll(100.0) == b""  # the move's report went to no one
+    assert first.poll(100.0) == b""
+    second.feed(b"?pos x\r", 100.0)
+    assert second.poll(100.0) == b"10.0000\r"
+    shared.detach(first.emit)  # a stale wire does not detach the attached one
+    second.feed(b"?pos y\r", 100.0)
+    assert second.poll(100.0) == b"0.0000\r"
+
+
+async def test_tcp_a_factory_that_fails_closes_the_connection_at_once() -> None:
+    errors: list[dict[str, Any]] = []
+    loop = asyncio.get_running_loop()
+    loop.set_exception_handler(lambda _, context: errors.append(context))
+
+    def broken(emit: Emit) -> PingHandler:
+        raise RuntimeError("no controller today")
+
+    try:
+        async with await serve_tcp(broken, shared=False) as server:
+            reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+            writer.write(b"?ping\r")
+            with contextlib.suppress(ConnectionResetError):
+                assert await reader.read() == b""
+            writer.close()
+            with contextlib.suppress(ConnectionResetError):
+                await writer.wait_closed()
+            assert server.wires == []
+    finally:
+        loop.set_exception_handler(None)
+    assert [str(context["exception"]) for context in errors] == ["no controller today"]
