@@ -356,11 +356,17 @@ class SharedController:
             self._target(data)
 
 
-class _TcpSession(asyncio.Protocol):
-    """One TCP connection: its own wire, and the shared or its own controller logic."""
+class _TcpSession(asyncio.BufferedProtocol):
+    """One TCP connection: its own wire, and the shared or its own controller logic.
+
+    Reads at most :data:`_READ_SIZE` bytes at a time (a buffered protocol; asyncio reads
+    up to 256 KiB otherwise), so the replies to one read stay small and a client that does
+    not read them is stopped after a few reads.
+    """
 
     def __init__(self, server: TcpServer) -> None:
         self._server = server
+        self._buffer = memoryview(bytearray(_READ_SIZE))
         self._transport: asyncio.Transport | None = None
         self._runner: WireRunner | None = None
         self._writing = True
@@ -381,13 +387,18 @@ class _TcpSession(asyncio.Protocol):
                 "transport": transport, "protocol": self})
             transport.abort()  # the client sees the connection end at once, not a hang
             return
-        self._runner = WireRunner(wire, transport.write, throttle=self._throttle)
+        self._runner = WireRunner(wire, self._write, throttle=self._throttle)
         self.task = loop.create_task(self._serve())
         self._server._opened(self, wire)
 
-    def data_received(self, data: bytes) -> None:
+    def get_buffer(self, sizehint: int) -> memoryview:
+        """Where the transport puts the next bytes read (at most :data:`_READ_SIZE`)."""
+        return self._buffer
+
+    def buffer_updated(self, nbytes: int) -> None:
+        """``nbytes`` arrived in the buffer."""
         if self._runner is not None:
-            self._runner.feed(data)
+            self._runner.feed(bytes(self._buffer[:nbytes]))
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.close()
@@ -409,6 +420,11 @@ class _TcpSession(asyncio.Protocol):
             self.task.cancel()
         if self._transport is not None:
             self._transport.close()
+
+    def _write(self, chunk: bytes) -> None:
+        assert self._transport is not None
+        if not self._transport.is_closing():  # the client has gone: nothing to send to
+            self._transport.write(chunk)
 
     def _throttle(self, paused: bool) -> None:
         self._update_reading()

@@ -5,10 +5,13 @@ from __future__ import annotations
 import ast
 import asyncio
 import contextlib
+import gc
+import os
 import socket
 import subprocess
 import sys
 import time
+import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -22,8 +25,13 @@ from tango_aio.sim.clock import EmulatorClock, ScaledHandler
 from tango_aio.sim.inprocess import open_sim, speed_from_url
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.serve import (
+    CONNECTION_BACKLOG,
+    INPUT_QUEUE_LIMIT,
+    INPUT_QUEUE_RESUME,
     SharedController,
     SimTransport,
+    TcpServer,
+    WireRunner,
     create_sim_connection,
     serve_pty,
     serve_tcp,
@@ -691,3 +699,171 @@ async def test_tcp_a_factory_that_fails_closes_the_connection_at_once() -> None:
     finally:
         loop.set_exception_handler(None)
     assert [str(context["exception"]) for context in errors] == ["no controller today"]
+
+
+# ------------------------------------------------------------- bounded, for days of service
+
+
+async def settle(server: TcpServer) -> None:
+    """Wait until every closed connection's bookkeeping is gone (events, not time)."""
+    if server._tasks:  # a connection ends with its task (the server saw the close)
+        await asyncio.wait(list(server._tasks))
+    await asyncio.sleep(0)  # the tasks' done callbacks
+    assert not server._tasks and not server.wires
+    gc.collect()
+
+
+async def churn(server: TcpServer, count: int, line: bytes, reply: bytes) -> None:
+    for _ in range(count):
+        assert await ask(server.port, line) == [reply]
+
+
+@pytest.mark.parametrize(("factory", "shared"), [(model_factory(), True),
+                                                 (PingHandler, False)])
+async def test_tcp_memory_stays_flat_over_1000_connections(
+        factory: HandlerFactory, shared: bool) -> None:
+    line, reply = (b"?pos\r", b"0.0000 0.0000 0.0000") if shared else (b"?ping\r", b"pong")
+    async with await serve_tcp(factory, config=WireConfig(baud=None), shared=shared) as server:
+        tracemalloc.start()
+        try:
+            await churn(server, 100, line, reply)  # fills the backlog and every cache
+            await settle(server)
+            before, tasks = tracemalloc.get_traced_memory()[0], len(asyncio.all_tasks())
+            await churn(server, 1000, line, reply)
+            await settle(server)
+            grown = tracemalloc.get_traced_memory()[0] - before
+        finally:
+            tracemalloc.stop()
+        assert len(asyncio.all_tasks()) == tasks
+        assert len(server._new) == CONNECTION_BACKLOG
+        assert grown < 100_000  # < 100 bytes a connection (it was about 47 kB each)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+async def test_tcp_memory_stays_flat_over_1000_connections_with_a_model_each() -> None:
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None),
+                               shared=False) as server:
+        tracemalloc.start()
+        try:
+            await churn(server, 100, b"?pos\r", b"0.0000 0.0000 0.0000")
+            await settle(server)
+            before = tracemalloc.get_traced_memory()[0]
+            await churn(server, 1000, b"?pos\r", b"0.0000 0.0000 0.0000")
+            await settle(server)
+            grown = tracemalloc.get_traced_memory()[0] - before
+        finally:
+            tracemalloc.stop()
+        assert grown < 100_000
+
+
+async def test_runner_stops_and_resumes_reading_input_beyond_its_limit() -> None:
+    calls: list[bool] = []
+    resumed = asyncio.Event()
+
+    def throttle(paused: bool) -> None:
+        calls.append(paused)
+        if not paused:
+            resumed.set()
+
+    out = bytearray()
+    runner = WireRunner(Wire(PingHandler), out.extend, throttle=throttle)
+    stream = b"?ping\r" * 700  # 4200 bytes: more than INPUT_QUEUE_LIMIT
+    runner.feed(stream[:3000])
+    assert calls == []
+    runner.feed(stream[3000:])
+    assert calls == [True] and runner.input_paused
+    task = asyncio.create_task(runner.run())
+    await resumed.wait()  # the line carried the excess away at the baud rate
+    assert calls == [True, False]
+    assert INPUT_QUEUE_RESUME - 6 <= runner.wire.rx_pending <= INPUT_QUEUE_RESUME
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+
+
+def push(port: int, data: bytes, chunk: int = 65536) -> int:
+    """Send ``data`` until done or the server stops taking it for 0.5 s; bytes sent."""
+    sent = 0
+    with socket.create_connection(("127.0.0.1", port), timeout=0.5) as sock:
+        try:
+            while sent < len(data):
+                sent += sock.send(data[sent:sent + chunk])
+        except TimeoutError:
+            pass
+    return sent
+
+
+async def test_tcp_a_client_streaming_10_mb_is_held_back_not_buffered() -> None:
+    garbage = bytes(range(4, 256)) * (10_000_000 // 252)  # no CR, no Ctrl+C
+    async with await serve_tcp(PingHandler) as server:
+        tracemalloc.start()
+        try:
+            task = asyncio.create_task(asyncio.to_thread(push, server.port, garbage))
+            wire = await server.next_connection()
+            sent = await task
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert sent < len(garbage)  # the client was held back, as by a real port
+        assert wire.rx_pending <= INPUT_QUEUE_LIMIT + 256 * 1024  # plus one socket read
+        assert wire.buffered <= 256
+        assert peak < 2_000_000
+
+
+class Pong(PingHandler):
+    """Answers every line with ``pong`` and records nothing (memory tests)."""
+
+    def handle_line(self, line: bytes, now: float) -> None:
+        self.emit(b"pong\r")
+
+
+async def test_tcp_a_client_that_never_reads_is_not_read_from_either() -> None:
+    lines = b"\r" * 10**7  # empty lines: the most replies per byte
+    async with await serve_tcp(Pong, config=WireConfig(baud=None)) as server:
+        tracemalloc.start()
+        try:
+            task = asyncio.create_task(asyncio.to_thread(push, server.port, lines))
+            wire = await server.next_connection()
+            sent = await task
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert sent < len(lines)  # the client was held back
+    assert wire.lines_processed < sent
+    assert peak < 1_000_000  # replies held: the transport's limit, plus one read's worth
+
+
+async def test_pty_a_host_writing_faster_than_the_line_is_held_back() -> None:
+    async with await serve_pty(PingHandler) as server:
+        fd = os.open(server.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            sent, refused = 0, 0
+            while refused < 20 and sent < 10_000_000:
+                try:
+                    sent += os.write(fd, b"x" * 4096)
+                    refused = 0
+                except BlockingIOError:
+                    refused += 1
+                await asyncio.sleep(0.005)
+        finally:
+            os.close(fd)
+        assert sent < 1_000_000  # the kernel's pty buffer, then the host waits
+        assert server.wire.rx_pending <= INPUT_QUEUE_LIMIT + 4096
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+async def test_tcp_10_mb_of_garbage_pass_through_in_bounded_memory() -> None:
+    garbage = (b"x" * 99 + b"\r") * 100_000
+    async with await serve_tcp(model_factory(), config=WireConfig(baud=None)) as server:
+        tracemalloc.start()
+        try:
+            assert await asyncio.to_thread(push, server.port, garbage) == len(garbage)
+            wire = await server.next_connection()
+            await settle(server)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert wire.lines_processed == 100_000
+    assert peak < 2_000_000
