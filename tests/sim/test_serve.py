@@ -6,6 +6,8 @@ import ast
 import asyncio
 import contextlib
 import gc
+import json
+import math
 import os
 import socket
 import subprocess
@@ -36,6 +38,7 @@ from tango_aio.sim.serve import (
     serve_pty,
     serve_tcp,
 )
+from tango_aio.sim.state import FORMAT, MAX_SIZE, VERSION, StateFileError, save_state
 from tango_aio.sim.wire import Emit, HandlerFactory, Wire, WireConfig
 
 from .test_wire import BT, PingHandler
@@ -861,3 +864,137 @@ async def test_tcp_10_mb_of_garbage_pass_through_in_bounded_memory() -> None:
     assert sent == len(garbage)
     assert wire.lines_processed == 100_000
     assert peak < 2_000_000
+
+
+# ------------------------------------------------------------------------- state file
+
+
+def saved_model(path: Path) -> ControllerModel:
+    return ControllerModel(lambda data: None, SimConfig(state_file=path), now=0.0)
+
+
+def valid_state(**changes: Any) -> dict[str, Any]:
+    data: dict[str, Any] = {"format": FORMAT, "version": VERSION,
+                            "axes": {"vel": [[3.0], [4.0], [5.0], [6.0]]},
+                            "global": {"usteps": [40000]}}
+    data.update(changes)
+    return data
+
+
+@pytest.mark.parametrize(("text", "reason"), [
+    ("[]", "not a JSON object"),
+    ('"tango"', "not a JSON object"),
+    ('{"foo": 1}', "no 'tango_aio.sim state' marker"),
+    ('{"format": "other", "version": 1}', "format 'other'"),
+    ('{"format": "tango_aio.sim state", "version": 2}', "unsupported version 2"),
+    ('{"axes": []}', "axes: expected an object of parameters"),
+    ('{"axes": {"vel": [[1.0]]}}', "axes.vel: expected 4 value groups"),
+    ('{"axes": {"vel": [1, 2, 3, 4]}}', "axes.vel[0]: expected a non-empty list"),
+    ('{"axes": {"vel": [[], [1], [1], [1]]}}', "axes.vel[0]: expected a non-empty list"),
+    ('{"axes": {"nosuch": [[1], [1], [1], [1]]}}', "'nosuch' is not a per-axis parameter"),
+    ('{"axes": {"usteps": [[1], [1], [1], [1]]}}', "'usteps' is not a per-axis parameter"),
+    ('{"global": {"vel": [1]}}', "'vel' is not a global parameter"),
+    ('{"global": {"usteps": ["many"]}}', "global.usteps[0]: expected a number"),
+    ('{"global": {"triga": [1]}}', "global.triga[0]: expected a text"),
+    ('{"global": {"usteps": [true]}}', "global.usteps[0]: True is not a text or a number"),
+    ('{"global": {"usteps": [null]}}', "is not a text or a number"),
+    ('{"global": {"usteps": [[1]]}}', "is not a text or a number"),
+    ('{"global": {"usteps": 40000}}', "global.usteps: expected a non-empty list"),
+    ('{"axes": {}, "global": {}, "extra": 1}', "no 'tango_aio.sim state' marker"),
+    ('{"format": "tango_aio.sim state", "version": 1, "extra": 1}', "unknown key(s) ['extra']"),
+    ('{"global": {"usteps": [NaN]}}', "NaN is not a valid value"),
+    ('{"global": {"usteps": [Infinity]}}', "Infinity is not a valid value"),
+    ('{"global": {"usteps": [-Infinity]}}', "-Infinity is not a valid value"),
+    ('{"global": {"usteps": [1e999]}}', "1e999 is not a finite number"),
+    ('{"global": {"usteps": [-1e999]}}', "-1e999 is not a finite number"),
+    ('{"global": {"usteps": [1' + "0" * 400 + ']}}', "is not a finite number"),
+    ('{"axes": {"vel": [[1', "not a tango_aio emulator state file"),
+    ("\udcff", "not a tango_aio emulator state file"),
+])
+def test_a_state_file_of_the_wrong_shape_is_refused_with_the_reason(
+        tmp_path: Path, text: str, reason: str) -> None:
+    path = tmp_path / "state.json"
+    path.write_bytes(text.encode("utf-8", "surrogateescape"))
+    with pytest.raises(StateFileError) as info:
+        saved_model(path)
+    assert reason in str(info.value)
+    assert str(path) in str(info.value)
+    assert path.read_bytes() == text.encode("utf-8", "surrogateescape")
+
+
+def test_a_large_file_is_not_ours(tmp_path: Path) -> None:
+    path = tmp_path / "big.json"
+    path.write_bytes(b" " * (MAX_SIZE + 1))
+    with pytest.raises(StateFileError, match="not a tango_aio emulator state file"):
+        saved_model(path)
+
+
+def test_a_valid_state_file_loads_and_a_legacy_one_too(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    path.write_text(json.dumps(valid_state()), encoding="utf-8")
+    assert saved_model(path).params.axis_values["vel"][:3] == [(3.0,), (4.0,), (5.0,)]
+    legacy = valid_state()
+    del legacy["format"], legacy["version"]  # written before the marker existed
+    path.write_text(json.dumps(legacy), encoding="utf-8")
+    model = saved_model(path)
+    assert model.params.axis_values["vel"][1] == (4.0,)
+    model.save()
+    assert json.loads(path.read_text(encoding="utf-8"))["format"] == FORMAT
+
+
+@pytest.mark.parametrize("content", [b"", b"  \n"])
+def test_an_empty_file_counts_as_nothing_saved_and_is_written(
+        tmp_path: Path, content: bytes) -> None:
+    path = tmp_path / "state.json"
+    path.write_bytes(content)
+    model = saved_model(path)
+    assert model.params.axis_values["vel"][0] == (10.0,)
+    model.save()
+    data = json.loads(path.read_text(encoding="utf-8"))
+    assert (data["format"], data["version"]) == (FORMAT, VERSION)
+    assert data["axes"]["vel"][0] == [10.0]
+
+
+@pytest.mark.parametrize("foreign", [b"my notes\n", b'{"foo": 1}', b"[1, 2]",
+                                     b'{"global": {"usteps": [NaN]}}'])
+def test_save_never_overwrites_a_file_that_is_not_ours(tmp_path: Path, foreign: bytes) -> None:
+    path = tmp_path / "state.json"
+    wire = Wire(lambda emit: ControllerModel(emit, SimConfig(state_file=path), now=0.0),
+                WireConfig(baud=None))
+    wire.feed(b"!vel x 3\rsave\r", 0.0)
+    assert wire.poll(0.0) == b"OK...\r"
+    path.write_bytes(foreign)  # someone put another file there meanwhile
+    wire.feed(b"save\r?err\r", 0.0)
+    assert wire.poll(0.0) == b"ERR 73\r73\r"
+    assert path.read_bytes() == foreign
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_save_refuses_a_value_that_is_not_finite(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    model = saved_model(path)
+    model.params.put_axis("vel", 0, (math.inf,))
+    with pytest.raises(StateFileError, match="not finite"):
+        save_state(path, model.params, ["vel"])
+    assert not path.exists()
+
+
+async def test_tcp_a_bad_state_file_fails_at_start_once(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    path.write_text('{"axes": {"vel": 3}}', encoding="utf-8")
+    with pytest.raises(StateFileError, match=r"axes\.vel: expected 4 value groups"):
+        await serve_tcp(model_factory(state_file=path))
+    with pytest.raises(StateFileError):
+        await serve_pty(model_factory(state_file=path))
+
+
+def test_cli_a_bad_state_file_is_one_line_at_start(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    path.write_text("1e999", encoding="utf-8")
+    for extra in ([], ["--per-connection"]):
+        result = subprocess.run(
+            [sys.executable, "-m", "tango_aio", "sim", "--tcp", "127.0.0.1:0", "--state",
+             str(path), *extra], capture_output=True, text=True, timeout=60, check=False)
+        assert result.returncode == 1
+        assert result.stdout.splitlines() == [
+            f"error: state file {path}: 1e999 is not a finite number"]
