@@ -34,7 +34,7 @@ import termios
 import tty
 from collections import deque
 from collections.abc import Callable
-from typing import TypeVar
+from typing import TypeVar, cast
 
 from tango_aio.sim.clock import host_now, scaled_factory
 from tango_aio.sim.wire import Emit, HandlerFactory, LineHandler, Wire, WireConfig
@@ -373,8 +373,9 @@ class _TcpSession(asyncio.BufferedProtocol):
         self.task: asyncio.Task[None] | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self._transport = transport
+        # A read-write transport; not an isinstance check: uvloop's TCPTransport does not
+        # derive from asyncio.Transport.
+        self._transport = cast(asyncio.Transport, transport)
         sock = transport.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 import tracemalloc
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -998,3 +998,60 @@ def test_cli_a_bad_state_file_is_one_line_at_start(tmp_path: Path) -> None:
         assert result.returncode == 1
         assert result.stdout.splitlines() == [
             f"error: state file {path}: 1e999 is not a finite number"]
+
+
+# --------------------------------------------------------------------------------- uvloop
+
+
+def run_under_uvloop(main: Callable[[], Coroutine[Any, Any, None]]) -> None:
+    uvloop = pytest.importorskip("uvloop")
+    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+        runner.run(main())
+
+
+class OffsetClockLoop(asyncio.SelectorEventLoop):
+    """An event loop whose clock is 1000 s behind ``time.monotonic()``."""
+
+    def time(self) -> float:
+        return super().time() - 1000.0
+
+
+def test_the_emulators_clock_starts_from_the_loops_clock() -> None:
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        before = loop.time()
+        model = ControllerModel(lambda data: None)
+        assert before <= model.motion.now <= loop.time()
+        model.handle_line(b"!moa 1", loop.time())  # not "time must not go backwards"
+        assert model.error == 0
+        async with await serve_tcp(model_factory(), shared=False) as server:
+            assert await ask(server.port, b"!moa 1\r") == [b"@@@-."]
+
+    with asyncio.Runner(loop_factory=OffsetClockLoop) as runner:
+        runner.run(main())
+    run_under_uvloop(main)
+
+
+def test_served_emulators_run_under_uvloop() -> None:
+    async def main() -> None:
+        async with await serve_tcp(model_factory()) as server:
+            assert await ask(server.port, b"!moa 1\r") == [b"@@@-."]
+            assert await ask(server.port, b"?pos\r") == [b"1.0000 0.0000 0.0000"]
+        async with await serve_tcp(model_factory(), shared=False, speed=20) as server:
+            position, report = await ask(server.port, b"!moa 1\r?pos x\r", replies=2)
+            assert 0.0 < float(position) < 1.0 and report == b"@@@-."
+        async with await serve_pty(model_factory()) as pty:
+
+            def host() -> bytes:
+                with serial.Serial(pty.path, 57600, timeout=2) as port:
+                    port.write(b"?pos\r")
+                    return bytes(port.read_until(b"\r"))
+
+            assert await asyncio.to_thread(host) == b"0.0000 0.0000 0.0000\r"
+        transport, protocol = await create_sim_connection(Collector, model_factory())
+        transport.write(b"?pos\r")
+        assert await protocol.read_until() == b"0.0000 0.0000 0.0000\r"
+        transport.close()
+        await transport.wait_closed()
+
+    run_under_uvloop(main)
