@@ -23,9 +23,12 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tango_aio.cli import _parser, _sim_url, _tcp_address
+from tango_aio.cli import main as cli_main
 from tango_aio.sim.clock import EmulatorClock, ScaledHandler
-from tango_aio.sim.inprocess import open_sim, speed_from_url
+from tango_aio.sim.inprocess import configs_from_url, open_sim, speed_from_url
 from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.profiles import PROFILES, Firmware
 from tango_aio.sim.serve import (
     CONNECTION_BACKLOG,
     INPUT_QUEUE_LIMIT,
@@ -1055,3 +1058,70 @@ def test_served_emulators_run_under_uvloop() -> None:
         await transport.wait_closed()
 
     run_under_uvloop(main)
+
+
+# ---------------------------------------------------------------------------- command line
+
+
+@pytest.mark.parametrize(("text", "address"), [
+    ("127.0.0.1:4001", ("127.0.0.1", 4001)), (":4001", ("127.0.0.1", 4001)),
+    ("[::1]:4001", ("::1", 4001)), ("localhost:0", ("localhost", 0)),
+    ("0.0.0.0:65535", ("0.0.0.0", 65535))])
+def test_cli_tcp_addresses(text: str, address: tuple[str, int]) -> None:
+    assert _tcp_address(text) == address
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--tcp", "127.0.0.1:99999"], "the port must be a number 0-65535"),
+    (["--tcp", ":abc"], "the port must be a number 0-65535"),
+    (["--tcp", "127.0.0.1:-1"], "the port must be a number 0-65535"),
+    (["--tcp", "::1:4001"], "write an IPv6 address in brackets"),
+    (["--tcp", "4001"], "expected HOST:PORT"),
+    (["--speed", "0"], "--speed '0': expected a finite number > 0"),
+    (["--speed", "nan"], "--speed 'nan': expected a finite number > 0"),
+    (["--switch", "echo"], "expected NAME=VALUE"),
+    (["--switch", "baud=0"], "unknown firmware switch 'baud'"),
+    (["--switch", "echo=sideways"], "echo='sideways' is not allowed; allowed: before, after"),
+    (["--profile", "newest"], "unknown firmware profile 'newest'; allowed: manual, legacy"),
+    (["--per-connection"], "--per-connection needs --tcp"),
+])
+def test_cli_sim_bad_values_are_one_line_errors(
+        args: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli_main(["sim", *args]) == 1
+    out = capsys.readouterr().out
+    assert len(out.splitlines()) == 1 and out.startswith("error: ") and message in out
+
+
+def test_cli_sim_options_make_the_emulators_configuration() -> None:
+    args = _parser().parse_args(["sim", "--profile", "legacy", "--switch", "echo=after",
+                                 "--switch", "line_end=crlf", "--speed", "20", "--axes", "2"])
+    url = _sim_url(args)
+    sim, _ = configs_from_url(url)
+    assert sim.firmware == Firmware.from_options("legacy", echo="after", line_end="crlf")
+    assert sim.axes == 2
+    assert speed_from_url(url) == 20.0
+    defaults = _sim_url(_parser().parse_args(["sim"]))
+    assert configs_from_url(defaults)[0].firmware == PROFILES["manual"]
+    assert speed_from_url(defaults) == 1.0
+
+
+@pytest.mark.parametrize(("extra", "position"), [([], b"2.0000"),
+                                                 (["--per-connection"], b"0.0000")])
+def test_cli_sim_tcp_keeps_one_controller_unless_per_connection(
+        extra: list[str], position: bytes) -> None:
+    command = [sys.executable, "-m", "tango_aio", "sim", "--tcp", "127.0.0.1:0", "--baud", "0",
+               "--axes", "1", "--switch", "line_end=crlf", "--speed", "50", *extra]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as proc:
+        try:
+            assert proc.stdout is not None
+            url = proc.stdout.readline().strip()
+            for lines, reply in ((b"!moa 2\r", b"@---.\r\n"), (b"?pos\r", position + b"\r\n")):
+                port = serial.serial_for_url(url, timeout=5)
+                try:
+                    port.write(lines)
+                    assert port.read_until(b"\n") == reply
+                finally:
+                    port.close()
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
