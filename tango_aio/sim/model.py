@@ -53,7 +53,6 @@ from ..instructions import (
     AXES,
     INSTRUCTIONS,
     Command,
-    Completion,
     Context,
     Form,
     Kind,
@@ -365,14 +364,14 @@ class ControllerModel:
             self._send(self._restyle(reply, numeric))
         if ack is not None:
             if (code == 0 and firmware.move_ok == "completion" and self.last_job is not None
-                    and command.instruction.completion is not None):
-                # Switch move_ok=completion: the OK... comes with the report.
+                    and self.motion.has_job(self.last_job)):
+                # Switch move_ok=completion: the OK... comes with the report (a move that
+                # reports nothing, zero_move_report=no, is acknowledged at once).
                 self.session.ok_owed.add(self.last_job)
             else:
                 self._send(ack)
-        if code and firmware.refused_move_report == "yes" and \
-                command.instruction.completion is not None and command.executes:
-            self._report_refused(command)
+        if code and command.instruction.completion is not None and command.executes:
+            self._refused_move(command)
         if firmware.echo == "after" and self._echoes(command, after):
             self._send(echo)
         self._send_stop_report()
@@ -424,18 +423,26 @@ class ControllerModel:
             reply = _POSITIVE.sub(_plus, reply)
         return reply
 
-    def _report_refused(self, command: Command) -> None:
-        """Switch ``refused_move_report=yes``: a refused move also reports, ``E`` for the
-        axes it named (L2705: "E => error response, move aborted or not executed")."""
+    def _refused_move(self, command: Command) -> None:
+        """A move, cal or rm that was refused (error set, nothing moved).
+
+        Choice from L2705 ("E => error response, move aborted or not executed"): the
+        status letter of the axes it named becomes ``E``, so a client polling ``sa``
+        sees that the move was not executed; in mode 1 nothing is sent (no line of the
+        manual shows a report for a move that never started). Switch
+        ``refused_move_report=yes``: it also reports, ``E`` for those axes.
+        """
         named = set(range(self.axes))
         if command.axis is not None:
-            named = {AXES.index(command.axis)}
-        elif command.values and command.instruction.completion is Completion.MOVE \
-                and command.name in ("moa", "mor"):
+            named = {AXES.index(command.axis)} if AXES.index(command.axis) < self.axes \
+                else set()
+        elif command.values and command.name in ("moa", "mor"):
             named = set(range(min(len(command.values), self.axes)))
-        letters = "".join("-" if i >= self.axes else "E" if i in named else "@"
-                          for i in range(len(AXES)))
-        self._report_completion(letters)
+        self.motion.mark_not_executed(named)
+        if self.firmware.refused_move_report == "yes":
+            letters = "".join("-" if i >= self.axes else "E" if i in named else "@"
+                              for i in range(len(AXES)))
+            self._report_completion(letters)
 
     def _execute(self, command: Command) -> list[str] | None:
         handler = self._handlers.get(command.name)

@@ -882,6 +882,13 @@ class MotionModel:
             job.targets = {}
             job.report_time = self._time
 
+    def mark_not_executed(self, axes: Iterable[AxisRef]) -> None:
+        """A move for ``axes`` was refused: idle axes show ``E`` ("not executed", L2705)."""
+        for ref in axes:
+            ax = self._axis(ref)
+            if not self._busy(ax) and ax.settings.enable == 1:
+                ax.letter = "E"
+
     def has_job(self, job_id: int) -> bool:
         """Whether job ``job_id`` still owes its report."""
         return any(job.id == job_id for job in self._jobs)
