@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import random
 from pathlib import Path
 
 import pytest
@@ -560,3 +561,27 @@ def test_a_common_session_under_every_variant(firmware: Firmware) -> None:
     left = lines(s.send("!autostatus 1"))
     assert left == ([] if firmware.ack_mode_change == "new" else ["OK..."])
     assert s.model.internal_errors == []
+
+
+RANDOM_LINES = (
+    "!moa 1 2", "!mor 0.5", "m", "!moa 0", "a", "a x", "!autostatus 0", "!autostatus 1",
+    "!autostatus 2", "!autostatus 3", "!autostatus 4", "?pos", "sa", "?err", "!joy 0",
+    "!joy 2", "!delay 100", "!pause 50", "!delay 0", "!pause 0", "!cal", "!rm y",
+    "!moa 99999", "!go 3", "!speed 1", "!speed 0", "!lim x -3 3", "?lim", "?help 5",
+    "service", "!vel -1", "!moa y 1", "!encmask 1", "!ctrd x 100", "\x03", "?version",
+    "!mor 0", "!moc", "!axis y 0", "!axis y 1")
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("firmware", [f for _, f in VARIANTS], ids=VARIANT_IDS)
+def test_random_sessions_never_break_the_emulator(firmware: Firmware, seed: int) -> None:
+    rng = random.Random(seed)
+    s = Sim(axes=rng.choice([1, 2, 3, 4]), firmware=firmware)
+    replies: list[str] = []
+    for _ in range(60):
+        s.write((rng.choice(RANDOM_LINES) + "\r").encode())
+        s.now += rng.choice([0.0, 0.0, 0.01, 0.1, 0.5, 2.0])
+        replies += s.take()
+    replies += s.settle(120.0)
+    assert s.model.internal_errors == []
+    assert all(line.lstrip("\n").isprintable() for line in replies)
