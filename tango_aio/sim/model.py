@@ -33,7 +33,15 @@ choice is named first below:
 * the trigger list is handed to the motion model lazily, before the next instruction that
   is not a trigger-list instruction (see :meth:`ControllerModel.arm_triggers`);
 * an unexpected exception in a handler (an emulator bug) does not stop the controller:
-  the line sets error 2 and the exception is kept in ``internal_errors`` for tests.
+  the line sets error 2 and the exception is kept in ``internal_errors`` for tests;
+* a refused move, cal or rm sends nothing in mode 1 and its axes show ``E`` in ``sa``
+  (L2705; switch ``refused_move_report`` adds a report);
+* :meth:`ControllerModel.inject_internal_error` raises an internal error (>= 20) that
+  ``?err`` shows while the last instruction was fine (L2853-2867);
+* ``reset`` and ``restore -1`` reboot for ``reset_time`` seconds, during which the wire
+  loses all input (:meth:`ControllerModel.reboots`, L1837-1857);
+* the joystick is on at power-on and ``!joy 0`` then reports, also during a move
+  (L2093, L7142-7154); closed loop delays a move's report by ``ctrd`` (L11616-11631).
 """
 
 from __future__ import annotations
@@ -49,7 +57,6 @@ from ..instructions import (
     AXES,
     INSTRUCTIONS,
     Command,
-    Completion,
     Context,
     Form,
     Kind,
@@ -275,7 +282,6 @@ class ControllerModel:
         """Ctrl+C stops every axis (the wire already cleared the input buffer)."""
         self.poll(now)
         self.motion.emergency_stop()
-        self.session.ok_owed.clear()
         if self.firmware.ctrl_c == "stop_report":
             self.session.stop_report_owed = True
             self._send_stop_report()
@@ -364,14 +370,14 @@ class ControllerModel:
             self._send(self._restyle(reply, numeric))
         if ack is not None:
             if (code == 0 and firmware.move_ok == "completion" and self.last_job is not None
-                    and command.instruction.completion is not None):
-                # Switch move_ok=completion: the OK... comes with the report.
+                    and self.motion.has_job(self.last_job)):
+                # Switch move_ok=completion: the OK... comes with the report (a move that
+                # reports nothing, zero_move_report=no, is acknowledged at once).
                 self.session.ok_owed.add(self.last_job)
             else:
                 self._send(ack)
-        if code and firmware.refused_move_report == "yes" and \
-                command.instruction.completion is not None and command.executes:
-            self._report_refused(command)
+        if code and command.instruction.completion is not None and command.executes:
+            self._refused_move(command)
         if firmware.echo == "after" and self._echoes(command, after):
             self._send(echo)
         self._send_stop_report()
@@ -423,18 +429,26 @@ class ControllerModel:
             reply = _POSITIVE.sub(_plus, reply)
         return reply
 
-    def _report_refused(self, command: Command) -> None:
-        """Switch ``refused_move_report=yes``: a refused move also reports, ``E`` for the
-        axes it named (L2705: "E => error response, move aborted or not executed")."""
+    def _refused_move(self, command: Command) -> None:
+        """A move, cal or rm that was refused (error set, nothing moved).
+
+        Choice from L2705 ("E => error response, move aborted or not executed"): the
+        status letter of the axes it named becomes ``E``, so a client polling ``sa``
+        sees that the move was not executed; in mode 1 nothing is sent (no line of the
+        manual shows a report for a move that never started). Switch
+        ``refused_move_report=yes``: it also reports, ``E`` for those axes.
+        """
         named = set(range(self.axes))
         if command.axis is not None:
-            named = {AXES.index(command.axis)}
-        elif command.values and command.instruction.completion is Completion.MOVE \
-                and command.name in ("moa", "mor"):
+            named = {AXES.index(command.axis)} if AXES.index(command.axis) < self.axes \
+                else set()
+        elif command.values and command.name in ("moa", "mor"):
             named = set(range(min(len(command.values), self.axes)))
-        letters = "".join("-" if i >= self.axes else "E" if i in named else "@"
-                          for i in range(len(AXES)))
-        self._report_completion(letters)
+        self.motion.mark_not_executed(named)
+        if self.firmware.refused_move_report == "yes":
+            letters = "".join("-" if i >= self.axes else "E" if i in named else "@"
+                              for i in range(len(AXES)))
+            self._report_completion(letters)
 
     def _execute(self, command: Command) -> list[str] | None:
         handler = self._handlers.get(command.name)

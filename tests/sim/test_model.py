@@ -906,7 +906,7 @@ def test_soft_limits_refuse_moves_with_error_5() -> None:
     sim.send("!lim x -5 5")
     assert sim.ask("?lim x") == "-5.0000 5.0000"
     sim.send("!moa 6")
-    assert sim.send("?err", "sa x") == ["5", "@"]
+    assert sim.send("?err", "sa x") == ["5", "E"]  # not executed (L2705)
     assert sim.settle() == []
     sim.send("!moa 5")
     assert sim.settle() == ["@@@-."]
