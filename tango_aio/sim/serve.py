@@ -1,9 +1,10 @@
 """Serve an emulated controller in real time: over a pty, over TCP, or in-process.
 
 A :class:`WireRunner` drives one sans-IO :class:`~tango_aio.sim.wire.Wire` against the
-event loop's clock (``loop.time()``, which is monotonic): it feeds arriving bytes in,
-writes the wire's output out, and sleeps until the wire's next deadline or new input.
-Everything runs on the event loop thread; nothing here is thread-safe.
+event loop's clock (``loop.time()``, monotonic, but not ``time.monotonic()`` under
+uvloop): it feeds arriving bytes in, writes the wire's output out, and sleeps until the
+wire's next deadline or new input. Everything runs on the event loop thread; nothing here
+is thread-safe.
 
 * :func:`serve_pty`: a pseudo-terminal whose slave path a host opens with pyserial.
 * :func:`serve_tcp`: a loopback TCP server, usable as ``socket://127.0.0.1:PORT``.
@@ -40,7 +41,10 @@ from tango_aio.sim.clock import host_now, scaled_factory
 from tango_aio.sim.wire import Emit, HandlerFactory, LineHandler, Wire, WireConfig
 
 __all__ = [
+    "CONNECTION_BACKLOG",
     "INPUT_QUEUE_LIMIT",
+    "INPUT_QUEUE_RESUME",
+    "OUTPUT_QUEUE_LIMIT",
     "PtyServer",
     "SharedController",
     "SimTransport",

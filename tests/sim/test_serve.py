@@ -445,8 +445,9 @@ def reply_times(wire: Wire, line: bytes, count: int, at: float = 0.0
     return replies
 
 
-@pytest.mark.parametrize("line", [b"!moa 10 -5 2\r", b"!cal\r"])
-def test_speed_runs_moves_and_calibration_faster_in_emulator_time(line: bytes) -> None:
+@pytest.mark.parametrize("line", [b"!moa 10 -5 2\r", b"!cal\r", b"!pause 1000\r!moa 1\r",
+                                  b"!delay 1000\r!moa 1\r"])
+def test_speed_runs_moves_calibration_and_pauses_faster_in_emulator_time(line: bytes) -> None:
     [(normal, report)] = reply_times(scaled_model_wire(1.0), line, 1)
     [(fast, fast_report)] = reply_times(scaled_model_wire(20.0), line, 1)
     assert fast_report == report and report.endswith(b".")
