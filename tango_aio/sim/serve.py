@@ -390,7 +390,7 @@ class _TcpSession(asyncio.BufferedProtocol):
             loop.call_exception_handler({
                 "message": "emulator: cannot serve a new connection", "exception": exc,
                 "transport": transport, "protocol": self})
-            transport.abort()  # the client sees the connection end at once, not a hang
+            self._transport.abort()  # the client sees the connection end at once, not a hang
             return
         self._runner = WireRunner(wire, self._write, throttle=self._throttle)
         self.task = loop.create_task(self._serve())
