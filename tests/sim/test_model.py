@@ -34,6 +34,7 @@ from tango_aio.instructions import (
 from tango_aio.patterns import reply_pattern
 from tango_aio.sim.lists import MAX_SNAPSHOTS, MAX_TRIGGERS
 from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.state import StateFileError
 from tango_aio.sim.wire import Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)
@@ -905,7 +906,7 @@ def test_soft_limits_refuse_moves_with_error_5() -> None:
     sim.send("!lim x -5 5")
     assert sim.ask("?lim x") == "-5.0000 5.0000"
     sim.send("!moa 6")
-    assert sim.send("?err", "sa x") == ["5", "@"]
+    assert sim.send("?err", "sa x") == ["5", "E"]  # not executed (L2705)
     assert sim.settle() == []
     sim.send("!moa 5")
     assert sim.settle() == ["@@@-."]
@@ -1225,10 +1226,11 @@ def test_a_failed_save_keeps_the_old_file(tmp_path: Path,
     assert sim.model.internal_errors == []
 
 
-def test_a_corrupt_state_file_boots_with_defaults(tmp_path: Path) -> None:
+def test_a_corrupt_state_file_is_refused_at_start(tmp_path: Path) -> None:
     state = tmp_path / "tango.json"
     state.write_text('{"axes": {"vel": [[1', encoding="utf-8")
-    assert Sim(state_file=state).ask("?vel x") == "10.000"
+    with pytest.raises(StateFileError, match="not a tango_aio emulator state file"):
+        Sim(state_file=state)  # more cases: tests/sim/test_serve.py
 
 
 def test_restore_reloads_the_saved_set_without_restarting(tmp_path: Path) -> None:
@@ -1263,11 +1265,14 @@ def test_reset_restarts_in_mode_1_and_takes_a_second(tmp_path: Path) -> None:
     sim.take()
     sim.write(b"reset\r?err\r")
     assert sim.take() == []
-    sim.now += 0.999
+    sim.now += 0.5
+    sim.write(b"?err\r")  # the manual's poll loop (L1837-1857): lost while rebooting
+    sim.now += 0.499
     assert sim.take() == []  # not responding while rebooting
     sim.now += 0.002
-    assert sim.take() == ["0"]
-    assert sim.send("?autostatus", "?vel x", "?pos x") == ["1", "3.000", "0.0000"]
+    assert sim.take() == []  # both '?err' lines were lost
+    assert sim.wire.lost_bytes == 10
+    assert sim.send("?err", "?autostatus", "?vel x", "?pos x") == ["0", "1", "3.000", "0.0000"]
 
 
 def test_saved_settings_sweep(tmp_path: Path) -> None:
