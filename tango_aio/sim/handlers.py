@@ -185,7 +185,7 @@ class Handlers(Peripherals):
         2-axis unit, L2721). ``sa z`` on a 2-axis unit therefore answers ``-`` (not error
         1); the all-axes form shows ``-`` or leaves them out (switch ``absent_axes``).
         """
-        letters = self.m.motion.status_letters()
+        letters = self.m.joystick_letters(self.m.motion.status_letters())
         if c.axis is not None:
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":

@@ -542,6 +542,7 @@ def test_instruction_set(instruction_set: str) -> None:
 
 
 def _report(firmware: Firmware, letters: str, axes: int) -> str:
+    letters = letters.replace("@", firmware.joystick_letter)  # the joystick is on
     if firmware.report_width == "axes":
         letters = letters[:axes]
     return letters + "."
@@ -552,6 +553,7 @@ def _number(firmware: Firmware, text: str) -> str:
 
 
 def _status(firmware: Firmware, letters: str) -> str:
+    letters = letters.replace("@", firmware.joystick_letter)
     if firmware.absent_axes == "omit":
         letters = letters.replace("-", "")
     return letters + ".-"
@@ -612,3 +614,15 @@ def test_random_sessions_never_break_the_emulator(firmware: Firmware, seed: int)
     replies += s.settle(120.0)
     assert s.model.internal_errors == []
     assert all(line.lstrip("\n").isprintable() for line in replies)
+
+
+@pytest.mark.parametrize("joystick_letter", values_of("joystick_letter"))
+def test_joystick_letter(joystick_letter: str) -> None:
+    s = sim(axes=2, joystick_letter=joystick_letter)
+    j = joystick_letter
+    assert s.ask("sa") == f"{j}{j}--.-"
+    s.send("!moa y 1")
+    assert s.ask("sa") == f"{j}M--.-"  # the manual's example JM--.- (L2721)
+    assert s.settle() == [f"{j}{j}--."]
+    assert s.send("!joy 0") == ["@@--."]  # the joystick is off from then on
+    assert s.send("sa", "!moa 0 0") + s.settle() == ["@@--.-", "@@--."]
