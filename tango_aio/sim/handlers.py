@@ -118,7 +118,8 @@ class Handlers(Peripherals):
         """``help``: ``ERROR 5,number outside range`` (L2915-2919); ``?help N`` repeats N,
         or gives the text only with switch ``help_number=no``."""
         code = int(c.values[0]) if c.values else self.m.error
-        text = HELP.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
+        texts = OLDER_HELP if self.m.firmware.instruction_set == "older" else HELP
+        text = texts.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
         if c.values and self.m.firmware.help_number == "no":
             return [text]
         return [f"ERROR {code},{text}"]
@@ -500,6 +501,8 @@ class Handlers(Peripherals):
 
 #: ``help`` texts documented by the manual (L2915-2919).
 HELP: dict[int, str] = {0: "no error", 5: "number outside range", 29: "servo amplifier off"}
+#: ... and by the older edition: ``help => ERROR 4,unknown keyword`` (old L819).
+OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
 def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:
