@@ -486,6 +486,7 @@ class ControllerModel:
             self.session.ok_owed.discard(job)
             if mode == 2:
                 self._send("OK...")
+        letters = self.joystick_letters(letters)
         if self.firmware.report_width == "axes":
             letters = letters[: self.axes]
         if mode == 4 and move and self.firmware.echo_report == "no":
@@ -503,6 +504,13 @@ class ControllerModel:
             return
         self.session.stop_report_owed = False
         self._report_completion(self.stopped_letters())
+
+    def joystick_letters(self, letters: str) -> str:
+        """Switch ``joystick_letter=J``: ``@`` shows as ``J`` while the joystick is
+        enabled (``joy`` not 0; L2697, L2721, L6341)."""
+        if self.firmware.joystick_letter == "J" and int(self.params.first("joy")) != 0:
+            return letters.replace("@", "J")
+        return letters
 
     def stopped_letters(self) -> str:
         """Report letters of the axes as they stand: their last letter (``E``/``@`` after
