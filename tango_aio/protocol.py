@@ -56,18 +56,20 @@ from .core import (
 )
 from .errors import (
     ConnectionLostError,
+    ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
     UnknownControllerError,
     controller_error,
+    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, parse
+from .instructions import Command, Context, Form, build, parse
 from .patterns import ReplyPattern
 
-__all__ = ["Response", "Submission", "TangoProtocol"]
+__all__ = ["MoveHandle", "Response", "Submission", "TangoProtocol"]
 
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")
@@ -123,6 +125,63 @@ class Submission:
             or rule.continuation is not None
         follow_up = 5 if rule.continuation is not None else 0
         self.size = len(self.command.to_bytes()) + follow_up
+
+
+@dataclass(eq=False, slots=True)
+class MoveHandle:
+    """A motion line (move, ``cal``, ``rm``...) written by :meth:`TangoProtocol.start_move`,
+    with the ``?err`` probe that checks it (``None`` when autostatus 2 acknowledges it, or
+    unchecked)."""
+
+    protocol: TangoProtocol
+    submission: Submission
+    probe: Submission | None
+    check: bool
+
+    @property
+    def command(self) -> Command:
+        """The motion line."""
+        return self.submission.command
+
+    @property
+    def expects_report(self) -> bool:
+        """Whether a completion report is awaited (not in autostatus 0)."""
+        return self.submission.completion is not None
+
+    async def error(self, timeout: float | None) -> ControllerError | None:
+        """Wait for the line's check; the controller's error, ``None`` if it was accepted
+        (or unchecked). Raises ControllerTimeoutError/RequestAbortedError/
+        ConnectionLostError when the check itself is lost."""
+        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+
+    async def confirm(self, timeout: float | None) -> None:
+        """Like :meth:`error`, but raise the controller's error (and forget the report)."""
+        error = await self.error(timeout)
+        if error is not None:
+            self.forget()
+            raise error
+
+    async def report(self) -> Completed:
+        """Wait for the completion report (only when :attr:`expects_report`); cancelling
+        the wait leaves the report awaited."""
+        completion = self.submission.completion
+        if completion is None:
+            raise RuntimeError(f"{self.command.line!r} expects no completion report")
+        return await asyncio.shield(completion)
+
+    @property
+    def reported_letters(self) -> dict[str, str] | None:
+        """The letters of the completion report if it has arrived (``None`` otherwise,
+        and for the bare CR of autostatus 3)."""
+        report = self.submission.completion
+        if report is None or not report.done() or report.cancelled() or report.exception():
+            return None
+        letters = report.result().letters
+        return None if letters is None else dict(letters)
+
+    def forget(self) -> None:
+        """Stop waiting for the completion report (refused, settled by polling...)."""
+        self.protocol.forget_completion(self.submission)
 
 
 #: Called with each unsolicited event, completion report and dropped line; the second
@@ -241,6 +300,96 @@ class TangoProtocol(asyncio.Protocol):
             raise ConnectionLostError(str(self._lost)) from self._lost.__cause__
         if self._transport is None:
             raise ConnectionLostError("not connected")
+
+    # -- intents: what the Controller asks for ----------------------------------------
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode in force after the last line written (known for certain
+        after :meth:`read_autostatus` and after every mode change through
+        :meth:`execute`)."""
+        return self.core.autostatus
+
+    @property
+    def context(self) -> Context:
+        """Controller state that shapes replies and validates lines (dims, axes, extmode)."""
+        return self.core.context
+
+    @context.setter
+    def context(self, context: Context) -> None:
+        self.core.context = context
+
+    @property
+    def moves_awaiting(self) -> tuple[Hashable, ...]:
+        """Tags of the moves still waiting for their completion report, oldest first (pass
+        them to :meth:`fail_completions`)."""
+        return tuple(self.core.awaiting_completion)
+
+    async def query(self, command: Command, *, timeout: float | None) -> Response:
+        """Write the read ``command`` and return its reply lines."""
+        return await self.request(command, timeout)
+
+    async def execute(self, command: Command, *, timeout: float | None,
+                      check: bool = True) -> Response:
+        """Write a set/execute line and wait until it is confirmed.
+
+        With ``check`` the controller's verdict is read right behind it (the autostatus-2
+        acknowledgement, else an ``?err`` probe written back to back with the line) and an
+        error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
+        a completion report go through :meth:`start_move` instead.
+        """
+        handle = self._send_checked(command, check)
+        await handle.confirm(timeout)
+        return handle.submission.response
+
+    def start_move(self, command: Command, *, check: bool = True) -> MoveHandle:
+        """Write a motion line (and its check) and return its :class:`MoveHandle`: await
+        :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`."""
+        return self._send_checked(command, check)
+
+    def _send_checked(self, command: Command, check: bool) -> MoveHandle:
+        submission = self.submit(command)
+        probe = None
+        if check and not submission.expectation.ack:
+            # Written back to back with the command, so no other line can change the
+            # error state in between (each instruction overwrites it, manual L2853).
+            probe = self.submit(_PROBE)
+        return MoveHandle(self, submission, probe, check)
+
+    async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
+                        timeout: float | None) -> ControllerError | None:
+        line = submission.command.line
+        if submission.reply is not None:
+            response = await self.wait_reply(submission, timeout)
+            if check and submission.expectation.ack and response.ack != 0:
+                return _ack_error(response.ack, submission)
+        if probe is not None:
+            reply = await self.wait_reply(probe, timeout)
+            code, _ = parse_error_reply(reply.lines[0])
+            if code:
+                return controller_error(code, line)
+        return None
+
+    async def stop_axes(self, soft: bool, *, timeout: float = 5.0) -> None:
+        """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
+        makes the controller discard its input buffer: requests in flight fail with
+        :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
+        the mode in force is read again (a discarded line may have changed it). Returns
+        once ``a`` is queued, or once the stream is in step after Ctrl+C."""
+        if soft:
+            self.submit(_SOFT_STOP)
+            return
+        await self.resync(ctrl_c=True, timeout=timeout)
+        await self.read_autostatus(timeout=timeout)
+
+    async def read_autostatus(self, *, timeout: float | None) -> int:
+        """Read the mode in force (``?autostatus``; reads are neither echoed nor
+        acknowledged in any mode, L2079-2161) and adopt it; return it."""
+        response = await self.request(_READ_MODE, timeout)
+        mode = int(response.lines[0].strip())
+        self.core.autostatus = mode
+        self._reproject()
+        return mode
 
     # -- writing ------------------------------------------------------------------------
 
@@ -622,6 +771,12 @@ class TangoProtocol(asyncio.Protocol):
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
 _MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+#: The check written behind a set/execute line.
+_PROBE = parse("?err")
+#: The soft stop (manual L6797).
+_SOFT_STOP = build("a", form=Form.SET)
+#: The read of the mode in force.
+_READ_MODE = parse("?autostatus")
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS = object()
 
@@ -648,7 +803,7 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.exception()
 
 
-def _ack_error(code: int | None, submission: Submission) -> Exception:
+def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
 
