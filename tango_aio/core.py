@@ -35,6 +35,7 @@ ever raised for bad input; the core stays usable afterwards.
 from __future__ import annotations
 
 import enum
+import random
 import re
 from collections import deque
 from collections.abc import Hashable
@@ -53,7 +54,16 @@ from .instructions import (
     encode,
     reply_rule,
 )
-from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, echo_pattern, reply_pattern
+from .patterns import (
+    ACK_PATTERN,
+    ANY_PATTERN,
+    ONE_NUMBER,
+    ReplyKind,
+    ReplyPattern,
+    echo_pattern,
+    marker_pattern,
+    reply_pattern,
+)
 
 __all__ = [
     "Acknowledged",
@@ -370,6 +380,10 @@ _MODE_SETTERS: Final = frozenset({"autostatus", "reset", "restore"})
 _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 
 
+#: Separators that need no marker number: ``err`` answers one number, ``help`` its text
+#: ``ERROR n,...`` (see :meth:`ProtocolCore.separate`).
+_SEPARATORS: Final = ((b"err\r", ONE_NUMBER), (b"help\r", ReplyPattern(ReplyKind.HELP)))
+
 #: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
 _MARKER_CODES: Final = tuple(sorted(ERROR_DESCRIPTIONS))
 _FOLLOW_UP: Final = encode("?err")
@@ -385,7 +399,8 @@ class ProtocolCore:
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
                  max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True,
                  max_reply_lines: int = MAX_REPLY_LINES,
-                 max_reply_bytes: int = MAX_REPLY_BYTES) -> None:
+                 max_reply_bytes: int = MAX_REPLY_BYTES,
+                 marker_seed: int | None = None) -> None:
         self._assembler = LineAssembler(max_line)
         self._pending: deque[_Pending] = deque()
         self._moves: deque[Hashable] = deque()
@@ -393,7 +408,11 @@ class ProtocolCore:
         self._autostatus = autostatus
         self.context = context or Context()
         self._resync_marker: str | None = None
-        self._marker_index = 0
+        # Each session starts at a random marker number, so that the reply to a marker an
+        # earlier program (or session) left on the line is unlikely to be taken for ours
+        # (``marker_seed`` fixes it, for reproducible tests).
+        self._marker_index = random.randrange(len(_MARKER_CODES)) if marker_seed is None \
+            else marker_seed
         self._desynced = False
         #: Whether each data reply is checked against its instruction's pattern
         #: (:mod:`tango_aio.patterns`); off, any line is taken in order.
@@ -505,12 +524,40 @@ class ProtocolCore:
                 self._events.append(RequestLost(pending.tag))
         self._pending.clear()
         self._desynced = False
-        code = _MARKER_CODES[self._marker_index % len(_MARKER_CODES)]
-        self._marker_index += 1
+        code = self._next_marker_code()
         marker = f"ERROR {code},"
         self._resync_marker = marker
         self._pending.append(_Pending(tag, deque([_Item.DATA]), marker=marker))
         return (b"\x03" if ctrl_c else b"") + encode(f"?help {code}")
+
+    def _next_marker_code(self) -> int:
+        code = _MARKER_CODES[self._marker_index % len(_MARKER_CODES)]
+        self._marker_index += 1
+        return code
+
+    def separate(self, tag: Hashable, *neighbours: ReplyPattern) -> bytes:
+        """Register a *separator* under ``tag`` and return its bytes: a short read whose
+        reply cannot be taken for the replies of its ``neighbours`` (the last line owed
+        before it and the first owed after it). Written between two requests whose
+        replies look alike, it turns a line too many (or too few) between them into a
+        :class:`Mismatched` instead of a reply shifted onto the next request (#14 item 1,
+        :mod:`tango_aio.patterns`).
+
+        Only reads that leave the error state alone qualify: "each instruction
+        overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
+        unchecked line. The cheapest that fits: ``err`` (the error number, L2824-2850),
+        else ``help`` (``ERROR n,text`` of the current state, which "is not cleared",
+        L2882-2919), else ``?help N`` (``ERROR N,text``), whose reply holds a number of
+        this session's and looks like nothing else.
+        """
+        data, pattern = next(((line, fits) for line, fits in _SEPARATORS
+                              if not any(fits.overlaps(other) for other in neighbours)),
+                             (b"", ANY_PATTERN))
+        if not data:
+            code = self._next_marker_code()
+            data, pattern = encode(f"?help {code}"), marker_pattern(f"ERROR {code},")
+        self._pending.append(_Pending(tag, deque([_Item.DATA]), pattern=pattern))
+        return data
 
     # -- receiving ------------------------------------------------------------------------
 

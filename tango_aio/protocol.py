@@ -71,7 +71,7 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, parse
-from .patterns import ReplyPattern
+from .patterns import ONE_NUMBER, ReplyPattern
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -124,6 +124,10 @@ class Submission:
     batch: object | None = None
     #: Pattern of the first line owed, ``None`` if none.
     owes: ReplyPattern | None = None
+    #: The pattern compared with the last line owed before this one to decide whether a
+    #: separator goes first (``owes``, or for a line owing nothing that is checked by the
+    #: probe behind it, the probe's: the separator must not go between the two).
+    guard: ReplyPattern | None = None
     #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
     confirming: bool = field(init=False)
     #: Bytes this line takes on the wire (with a read's internal follow-up).
@@ -132,6 +136,8 @@ class Submission:
     mode: int = 1
     #: The mode the core believed in force when the line was written.
     written_mode: int = field(default=-1, init=False)
+    #: Number of the line among those written on the link (0: not written yet).
+    serial: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         # Both are asked for on every flush while the line waits for credit: computed once.
@@ -220,6 +226,7 @@ class TangoProtocol(asyncio.Protocol):
         reply_timeout: float = 5.0,
         dead_after: int = DEAD_AFTER,
         keepalive: float | None = None,
+        separators: bool = True,
     ) -> None:
         if not (math.isfinite(reply_timeout) and reply_timeout > 0):
             raise ValueError(f"reply_timeout must be a positive number, got {reply_timeout}")
@@ -235,7 +242,14 @@ class TangoProtocol(asyncio.Protocol):
         self.dead_after = dead_after
         #: Seconds of silence after which an idle link is probed (``None``: never).
         self.keepalive = keepalive
+        #: Look-alike requests: ``True`` writes a separator between two in a row (a stray
+        #: line is detected, see :meth:`_needs_separator`); ``False`` only keeps them from
+        #: being in flight together (no extra line, but a stray line that fits the
+        #: waiting request shifts the replies after it: for benchmarks and hand-fed tests).
+        self.separators = separators
         self._silent = 0  # consecutive unanswered requests
+        self._written_lines = 0  # lines written so far (requests, markers, separators)
+        self._counted_upto = 0  # lines written when the last unanswered one was counted
         self._last_reply = 0.0  # loop time of the last reply line routed
         self._keepalive_task: asyncio.Task[None] | None = None
         self._loop = asyncio.get_running_loop()
@@ -245,7 +259,10 @@ class TangoProtocol(asyncio.Protocol):
         self._queued_mode = autostatus
         self._unmarked: list[Submission] = []
         self._credit_markers: dict[Hashable, list[Submission]] = {}
-        self._marker_batches: dict[Hashable, object] = {}
+        #: What the last line written owes last, and its batch (see _needs_separator).
+        self._last_owed: ReplyPattern | None = None
+        self._last_batch: object | None = None
+        self._separators: set[Hashable] = set()
         self._transport: asyncio.BaseTransport | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
@@ -411,12 +428,16 @@ class TangoProtocol(asyncio.Protocol):
         return self._send_checked(command, check)
 
     def _send_checked(self, command: Command, check: bool) -> MoveHandle:
-        submission = self.submit(command)
+        submission = self.submit(command, hold=True)
         probe = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
-            # error state in between (each instruction overwrites it, manual L2853).
-            probe = self.submit(_PROBE)
+            # error state in between (each instruction overwrites it, manual L2853): a
+            # separator the probe needs goes before the command.
+            probe = self.submit(_PROBE, hold=True)
+            if submission.owes is None:
+                submission.guard, probe.guard = probe.owes, None
+        self._flush()
         return MoveHandle(self, submission, probe, check)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
@@ -532,14 +553,15 @@ class TangoProtocol(asyncio.Protocol):
                            _traced(self._trace_buffer))
             self._trace_buffer = b""
 
-    def submit(self, command: Command, *, batch: object | None = None) -> Submission:
+    def submit(self, command: Command, *, batch: object | None = None,
+               hold: bool = False) -> Submission:
         """Queue ``command`` for writing and return its :class:`Submission` (futures for
         the reply and the completion report, where the line owes them).
 
         The line is written at once when the credit allows, else as soon as replies free
         enough credit; lines are always written in submission order. A line whose reply
-        could be taken for the reply of the newest line in flight waits until that one is
-        answered, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
+        could be taken for the reply of the line written before it gets a separator
+        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
         """
         self.check()
         _check_framing(command)
@@ -559,12 +581,14 @@ class TangoProtocol(asyncio.Protocol):
             owes=owed_pattern(command, expect, self.core.context),
             mode=mode,
         )
+        submission.guard = submission.owes
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
         self._queue.append(submission)
-        if not was_queued:
+        if not was_queued and not hold:
             # Otherwise the head of the queue is still waiting for credit or a reply, and
-            # this line can only follow it: nothing could be written now.
+            # this line can only follow it: nothing could be written now. (``hold``: the
+            # caller flushes once the lines that belong together are queued.)
             self._flush()
         return submission
 
@@ -607,23 +631,31 @@ class TangoProtocol(asyncio.Protocol):
         while self._queue:
             head = self._queue[0]
             if self.credit.marker_due(head.size, head.confirming):
-                if not self.credit.marker_fits() or self._must_wait(_MARKER_OWES,
-                                                                    self._marker_batch()):
+                batch = self._marker_batch()
+                separate = self._needs_separator(_MARKER_OWES, batch)
+                if not self.credit.marker_fits() or self._must_wait(_MARKER_OWES, batch) or (
+                        separate and not self.credit.fits(_SEPARATOR_SIZE + 4, True)):
                     break
-                out += self._marker()
+                if separate:
+                    out += self._separator(_MARKER_OWES)
+                out += self._marker(batch)
                 continue
-            if not self.credit.fits(head.size, head.confirming) or \
+            separate = self._needs_separator(head.guard, head.batch)
+            size = head.size + (_SEPARATOR_SIZE if separate else 0)
+            if not self.credit.fits(size, head.confirming) or \
                     self._must_wait(head.owes, head.batch):
                 break
             self._queue.popleft()
+            if separate and head.guard is not None:
+                out += self._separator(head.guard)
             out += self._register(head)
         if out:
             self._write(bytes(out))
 
     def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
-        """Whether a line owing ``owes`` must wait for the newest line in flight to be
-        answered: their replies could be taken for each other (tango_aio.patterns)."""
-        if owes is None:
+        """Without separators: whether a line owing ``owes`` must wait for the newest
+        line in flight to be answered (their replies could be taken for each other)."""
+        if self.separators or owes is None:
             return False
         tail = self.core.tail
         if tail is None or not tail[1].overlaps(owes):
@@ -634,7 +666,33 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(tag)
         if submission is not None:
             return submission.batch
-        return self._marker_batches.get(tag)
+        return _MARKERS if tag in self._credit_markers else None
+
+    def _needs_separator(self, owes: ReplyPattern | None, batch: object | None) -> bool:
+        """Whether a separator must go before a line owing ``owes``: the last line owed
+        by the line written before it looks alike, so a line too many (or too few)
+        between them would shift a reply onto the wrong request (#14 item 1,
+        :mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
+        last = self._last_owed
+        if not self.separators or owes is None or last is None or not last.overlaps(owes):
+            return False
+        return batch is None or batch is not self._last_batch
+
+    def _separator(self, following: ReplyPattern) -> bytes:
+        tag = next(self._tags)
+        assert self._last_owed is not None
+        data = self.core.separate(tag, self._last_owed, following)
+        self._separators.add(tag)
+        self.credit.wrote(len(data), tag)
+        tail = self.core.tail
+        self._last_owed, self._last_batch = (tail[1] if tail else None), None
+        return data
+
+    def _owed(self, tag: Hashable, batch: object | None) -> None:
+        """Remember what the line just registered under ``tag`` owes last."""
+        tail = self.core.tail
+        if tail is not None and tail[0] == tag:
+            self._last_owed, self._last_batch = tail[1], batch
 
     def _marker_batch(self) -> object:
         """A credit marker joins the batch of the lines it confirms; markers after lines
@@ -644,27 +702,30 @@ class TangoProtocol(asyncio.Protocol):
 
     def _register(self, submission: Submission) -> bytes:
         submission.written_mode = self.core.autostatus
+        self._written_lines += 1
+        submission.serial = self._written_lines
         data, _ = self.core.send(submission.command, submission.tag,
                                  (submission.mode, submission.expectation))
         submission.written = True
+        if submission.owes is not None:
+            self._owed(submission.tag, submission.batch)
         confirming = submission.confirming
         self.credit.wrote(len(data), submission.tag if confirming else None)
         if not confirming:
             self._unmarked.append(submission)
         return data
 
-    def _marker(self) -> bytes:
+    def _marker(self, batch: object) -> bytes:
         tag = next(self._tags)
         data, _ = self.core.send(_MARKER, tag)
+        self._owed(tag, batch)
         self.credit.wrote(len(data), tag)
         self._credit_markers[tag] = self._unmarked
-        self._marker_batches[tag] = self._marker_batch()
         self._unmarked = []
         return data
 
     def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
         covered = self._credit_markers.pop(tag)
-        self._marker_batches.pop(tag, None)
         try:
             code = int(lines[0])
         except (IndexError, ValueError):
@@ -721,16 +782,22 @@ class TangoProtocol(asyncio.Protocol):
                 # (the resync marker has its own deadline).
                 self.withdraw([submission])
                 raise error from None
-            if self._unanswered(error):
+            if self._unanswered(error, submission.serial):
                 self.check()
             self._background_resync(timeout if timeout is not None else self.reply_timeout)
             raise error from None
 
-    def _unanswered(self, error: TangoError) -> bool:
+    def _unanswered(self, error: TangoError, serial: int) -> bool:
         """Count a request (or marker) that got no reply in time; declare the link lost
         after :attr:`dead_after` in a row with no reply line in between (a link that stays
         open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
-        power-cycled behind one). Returns whether the link was declared lost."""
+        power-cycled behind one). ``serial`` numbers the line among those written: lines
+        that were in flight together count once (they time out together when one reply is
+        lost), so each count is a line written after the previous count. Returns whether
+        the link was declared lost."""
+        if serial <= self._counted_upto:
+            return False
+        self._counted_upto = self._written_lines
         self._silent += 1
         if self._silent < self.dead_after or self._lost is not None:
             return False
@@ -749,16 +816,17 @@ class TangoProtocol(asyncio.Protocol):
         if self._lost is not None or self._transport is None:
             return
         tag, marker = self._begin_resync(keep_queue=True)
-        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout)
+        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout,
+                                       self._written_lines)
         marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
 
     def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
-                         timeout: float) -> None:
+                         timeout: float, serial: int) -> None:
         if marker.done() or self._lost is not None:
             return
         error = ControllerTimeoutError(
             f"controller did not answer the resync marker within {timeout} s")
-        if not self._unanswered(error) and self.core.resyncing \
+        if not self._unanswered(error, serial) and self.core.resyncing \
                 and self._newest_marker() == tag:
             self._background_resync(timeout)
 
@@ -773,6 +841,7 @@ class TangoProtocol(asyncio.Protocol):
         """
         self.check()
         tag, marker = self._begin_resync(ctrl_c)
+        serial = self._written_lines
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
@@ -780,7 +849,7 @@ class TangoProtocol(asyncio.Protocol):
             self.check()
             error = ControllerTimeoutError(
                 f"controller did not answer the resync marker within {timeout} s")
-            if self._unanswered(error):
+            if self._unanswered(error, serial):
                 self.check()
             raise error from None
         finally:
@@ -799,11 +868,13 @@ class TangoProtocol(asyncio.Protocol):
         # assumed to have caught up (a lost reply would otherwise never return its credit).
         self.credit.cleared()
         self._credit_markers.clear()
-        self._marker_batches.clear()
+        self._separators.clear()
+        self._last_owed, self._last_batch = None, None  # the marker's reply is unique
         self._unmarked = []
         self._markers[tag] = marker
         self._dispatch_pending()
         self._write(data)
+        self._written_lines += 1
         self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
         return tag, marker
 
@@ -858,6 +929,9 @@ class TangoProtocol(asyncio.Protocol):
         if not isinstance(event, Echoed):
             # A reply is sent after its line was executed: everything up to it is processed.
             self.credit.confirm(event.tag)
+        if event.tag in self._separators:
+            self._separators.discard(event.tag)
+            return
         if event.tag in self._credit_markers and isinstance(event, Replied):
             self._on_credit_marker(event.tag, event.lines)
             return
@@ -958,13 +1032,15 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
-_MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+_MARKER_OWES: ReplyPattern = ONE_NUMBER
 #: The check written behind a set/execute line.
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
 #: The read of the mode in force.
 _READ_MODE = parse("?autostatus")
+#: Longest separator line (``?help NN`` and CR; ``sa x`` and ``err`` are shorter).
+_SEPARATOR_SIZE = 9
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS = object()
 
