@@ -145,8 +145,20 @@ _PER_AXIS: Final = {
 
 
 def normal_line(text: str) -> str:
-    """Case- and space-insensitive form of a command line, to compare echoes."""
-    return " ".join(text.lower().split())
+    """The form in which a command line and its mode-4 echo are compared: the echo is
+    matched by instruction, not by exact text (#13: some firmware re-formats it, e.g.
+    ``!MOA 1.50`` echoed as ``!moa 1.5``). Case, blanks and the way numbers are written
+    do not count; the instruction, axis and values do."""
+    return " ".join(_normal_token(token) for token in text.lower().split())
+
+
+def _normal_token(token: str) -> str:
+    if _NUMBER_RE.match(token):
+        try:
+            return repr(float(token))
+        except ValueError:  # pragma: no cover - the pattern only lets numbers through
+            return token
+    return token
 
 
 def marker_pattern(text: str) -> ReplyPattern:

@@ -603,7 +603,7 @@ async def test_keepalive_restores_the_mode_after_a_restart_behind_the_adapter(
     emu = await emulator(autostatus=2, keepalive=0.02)
     emu.model.reboot()
     for _ in range(200):
-        if emu.model.autostatus == 2:
+        if emu.model.autostatus == 2 == emu.tango.autostatus:
             break
         await asyncio.sleep(0.01)
     assert emu.model.autostatus == 2 == emu.tango.autostatus

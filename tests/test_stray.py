@@ -89,13 +89,13 @@ async def test_without_separators_a_stray_line_shifts_replies(
 async def test_separator_between_look_alike_reads_on_the_wire(fake_link: LinkFactory) -> None:
     """Hand-fed: ``?vel x``, separator, ``?vel y`` go out together; a stray number before
     the first reply is taken by ``?vel x``, its real reply then hits the separator, and
-    ``?vel y`` fails typed instead of taking it. The separator is ``help`` (``ERROR n,text``:
+    ``?vel y`` fails typed instead of taking it. The separator is ``?help`` (``ERROR n,text``:
     nothing like a number)."""
     link = fake_link(separators=True)
     first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=1.0))
     second = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=1.0))
     await link.wait_written(b"?vel y\r")
-    assert link.transport.sent == b"?vel x\rhelp\r?vel y\r"
+    assert link.transport.sent == b"?vel x\r?help\r?vel y\r"
     link.feed(b"95.125\r11.500\r")  # the stray, then ?vel x's own reply
     assert (await first).lines == ("95.125",)  # the request the stray line reached
     with pytest.raises(RequestAbortedError):
@@ -117,11 +117,11 @@ async def test_separator_reply_in_step_delivers_both(fake_link: LinkFactory) -> 
 
 
 async def test_separator_choice_depends_on_the_neighbours(fake_link: LinkFactory) -> None:
-    """Between two status reads the separator answers a number (``err``); between two
+    """Between two status reads the separator answers a number (``?err``); between two
     free-text reads, a marker whose reply holds a number of this session's."""
     link = fake_link(separators=True)
     for line in ("?statusaxis", "?statusaxis", "?version", "?version"):
         link.protocol.submit(parse(line))
     first, second = link.marker_codes()  # free text looks like anything
-    assert link.transport.sent == (f"?statusaxis\rerr\r?statusaxis\r?help {first}\r"
+    assert link.transport.sent == (f"?statusaxis\r?err\r?statusaxis\r?help {first}\r"
                                    f"?version\r?help {second}\r?version\r").encode()
