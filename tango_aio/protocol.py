@@ -267,6 +267,7 @@ class TangoProtocol(asyncio.Protocol):
         self._last_batch: object | None = None
         self._separators: set[Hashable] = set()
         self._transport: asyncio.BaseTransport | None = None
+        self._writer: Callable[[bytes], object] | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
         self._markers: dict[Hashable, asyncio.Future[Response]] = {}
@@ -304,6 +305,10 @@ class TangoProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         """Called by asyncio when the link is up."""
+        write = getattr(transport, "write", None)
+        if not callable(write):
+            raise TypeError(f"{type(transport).__name__} cannot write")
+        self._writer = write
         self._transport = transport
         self._last_reply = self._loop.time()
         if not self._connected.done():
@@ -597,12 +602,15 @@ class TangoProtocol(asyncio.Protocol):
     # -- writing ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
-        transport = self._transport
-        assert isinstance(transport, asyncio.WriteTransport)
+        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass (#19);
+        # every transport asyncio hands to a stream protocol has write().
+        write = self._writer
+        if write is None:
+            raise ConnectionLostError("not connected")
         if wire_log.isEnabledFor(logging.DEBUG):
             for line in data.split(b"\r")[:-1]:
                 wire_log.debug("%.6f -> %s", time.monotonic(), _traced(line))
-        transport.write(data)
+        write(data)
 
     def _trace_received(self, data: bytes) -> None:
         """Log each complete received line (CR removed) on the ``tango_aio.wire`` logger."""
