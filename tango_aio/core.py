@@ -25,7 +25,13 @@ reports have a shape no reply has, so they are recognised by pattern first.
 When the stream can no longer be trusted (a reply was lost, or Ctrl+C made the controller
 discard its input buffer) the core *resynchronises*: every pending request is reported
 lost, a marker query ``?help N`` is sent, and every line up to its unique reply
-``ERROR N,...`` is dropped. Completion reports keep flowing during a resync.
+``ERROR N,...`` is dropped (or, on firmware whose ``help`` takes no number, every line
+until the protocol sees the link quiet after the reply of ``help``: :class:`HelpStyle`).
+Completion reports keep flowing during a resync.
+
+Where the manual is silent on whether a line comes at all (a read echoed in mode 4, a
+read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
+when the next line fits it, skipped otherwise (:func:`_owed_items`).
 
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is

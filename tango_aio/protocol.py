@@ -7,10 +7,13 @@ everything unsolicited to an event callback.
 
 Cancellation never desynchronises the stream: a cancelled request keeps its place in the
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
-different: its reply may be lost for good, so the protocol resynchronises (see the core's
-theory of operation), failing every request still pending with
-:class:`~tango_aio.errors.RequestAbortedError`. When resyncs overlap, the reply to the
-newest marker ends all of them.
+different: its reply may be lost for good. Its caller gets
+:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout, and the protocol
+resynchronises in the background (see the core's theory of operation): requests still in
+flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still queued wait
+until the marker is answered. When resyncs overlap, the reply to the newest marker ends
+all of them. Lines that get no reply ``dead_after`` times in a row (a link that stays open
+but no longer forwards) declare the link lost.
 
 A lost link fails every pending future with :class:`~tango_aio.errors.ConnectionLostError`
 whose ``__cause__`` is the transport's error (a :class:`ConnectionResetError` when the other
