@@ -25,16 +25,12 @@ from .bulk import (
 from .core import Completed, Dropped, Event, Unsolicited
 from .errors import (
     ConnectionLostError,
-    ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
     MoveError,
     ProtocolError,
     RequestAbortedError,
     TangoError,
-    UnknownControllerError,
-    controller_error,
-    parse_error_reply,
 )
 from .events import (
     ConnectionLost,
@@ -60,7 +56,7 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .protocol import Response, Submission, TangoProtocol
+from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
 from .units import UnitScale
 
@@ -86,15 +82,6 @@ class Identity:
     axes: int
     version: VersionInfo
     det: DetInfo
-
-
-@dataclass(frozen=True, slots=True)
-class _Sent:
-    """A command written by :meth:`Controller._send`, with its ``?err`` probe."""
-
-    submission: Submission
-    probe: Submission | None
-    check: bool
 
 
 @dataclass(slots=True)
@@ -171,12 +158,12 @@ class Controller:
     @property
     def autostatus(self) -> int:
         """The autostatus mode the driver believes is in force."""
-        return self._protocol.core.autostatus
+        return self._protocol.autostatus
 
     @property
     def context(self) -> Context:
         """Controller state used to validate lines (dims, axis count, extmode)."""
-        return self._protocol.core.context
+        return self._protocol.context
 
     async def aclose(self) -> None:
         """Close the connection and stop reconnecting. Pending requests fail with
@@ -216,8 +203,7 @@ class Controller:
         how ``!autostatus`` itself is answered depends on it.
         """
         await self._protocol.resync(timeout=self.reply_timeout)
-        current = int(await self.get("autostatus"))
-        self._protocol.core.autostatus = current
+        current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
         if autostatus is not None and autostatus != current:
             await self.command(f"!autostatus {autostatus}")
         if identify:
@@ -269,7 +255,7 @@ class Controller:
         self._hub.publish(ConnectionLost(exc))
         if self._reconnect is not None and not self._closing and not self.reconnecting:
             self._reconnect_attempt = 0
-            mode = self._protocol.core.autostatus
+            mode = self._protocol.autostatus
             self._reconnect_task = asyncio.get_running_loop().create_task(
                 self._reconnect_loop(self._reconnect, mode), name=f"tango_aio reconnect {self.url}")
         else:
@@ -355,8 +341,8 @@ class Controller:
         det = await self.get("det")
         assert isinstance(version, VersionInfo) and isinstance(det, DetInfo)
         axes = det.axes or 4
-        core = self._protocol.core
-        core.context = Context(core.context.dims, axes, core.context.extmode)
+        context = self._protocol.context
+        self._protocol.context = Context(context.dims, axes, context.extmode)
         return Identity(version.model, version.firmware, axes, version, det)
 
     async def refresh_settings(self) -> None:
@@ -370,9 +356,13 @@ class Controller:
             for index, axis in enumerate(AXES):
                 if axis in values:
                     target[index] = type(target[index])(values[axis])
-        core = self._protocol.core
-        core.context = Context(tuple(settings.dims), core.context.axes,  # type: ignore[arg-type]
-                               settings.extmode)
+        self._update_context()
+
+    def _update_context(self) -> None:
+        settings = self._settings
+        self._protocol.context = Context(
+            tuple(settings.dims), self._protocol.context.axes,  # type: ignore[arg-type]
+            settings.extmode)
 
     async def query(self, line: str, timeout: float | None = None) -> str:
         """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
@@ -410,52 +400,29 @@ class Controller:
 
     async def _request(self, command: Command, timeout: float | None = None) -> Response:
         self._check_axes(command)
-        return await self._protocol.request(command, self._timeout(timeout))
+        return await self._protocol.query(command, timeout=self._timeout(timeout))
 
     def _timeout(self, timeout: float | None) -> float:
         return self.reply_timeout if timeout is None else timeout
 
     async def _execute(self, command: Command, *, check: bool,
-                       timeout: float | None = None) -> Submission:
-        """Write ``command`` (and, to check it, ``?err`` right behind it) and wait."""
-        sent = self._send(command, check=check)
-        await self._confirm(sent, timeout)
-        return sent.submission
-
-    def _send(self, command: Command, *, check: bool) -> _Sent:
-        """Write ``command``, followed by the ``?err`` probe when it must be checked and
-        autostatus 2 does not acknowledge it."""
+                       timeout: float | None = None) -> Response:
+        """Write ``command`` (checked, see :meth:`TangoProtocol.execute`) and wait."""
         self._check_axes(command)
-        submission = self._protocol.submit(command)
-        probe = None
-        if check and not submission.expectation.ack:
-            # Written back to back with the command, so no other line can change the
-            # error state in between (each instruction overwrites it, manual L2853).
-            probe = self._protocol.submit(parse("?err"))
-        return _Sent(submission, probe, check)
+        response = await self._protocol.execute(command, timeout=self._timeout(timeout),
+                                                check=check)
+        self._track(command)
+        return response
 
-    async def _confirm(self, sent: _Sent, timeout: float | None = None) -> None:
-        """Wait for the replies of a :meth:`_send`; raise the controller's error, if any."""
-        error = await self._error_of(sent, self._timeout(timeout))
-        if error is not None:
-            self._protocol.forget_completion(sent.submission)
-            raise error
-        self._track(sent.submission.command)
+    def _send(self, command: Command, *, check: bool) -> MoveHandle:
+        """Write a motion line and its check (see :meth:`TangoProtocol.start_move`)."""
+        self._check_axes(command)
+        return self._protocol.start_move(command, check=check)
 
-    async def _error_of(self, sent: _Sent, timeout: float) -> ControllerError | None:
-        submission, line = sent.submission, sent.submission.command.line
-        if submission.reply is not None:
-            response = await self._protocol.wait_reply(submission, timeout)
-            if sent.check and submission.expectation.ack and response.ack != 0:
-                if response.ack is None:  # a bare "ERR"
-                    return UnknownControllerError(None, line)
-                return controller_error(response.ack, line)
-        if sent.probe is not None:
-            reply = await self._protocol.wait_reply(sent.probe, timeout)
-            code, _ = parse_error_reply(reply.lines[0])
-            if code:
-                return controller_error(code, line)
-        return None
+    async def _confirm(self, sent: MoveHandle, timeout: float | None = None) -> None:
+        """Wait for the check of a :meth:`_send`; raise the controller's error, if any."""
+        await sent.confirm(self._timeout(timeout))
+        self._track(sent.command)
 
     def _track(self, command: Command) -> None:
         name = command.name
@@ -468,9 +435,7 @@ class Controller:
             assert isinstance(target, list)
             for offset, value in enumerate(command.values[: len(AXES) - index]):
                 target[index + offset] = type(target[index + offset])(value)
-            core = self._protocol.core
-            core.context = Context(tuple(self._settings.dims),  # type: ignore[arg-type]
-                                   core.context.axes, self._settings.extmode)
+            self._update_context()
 
     # -- typed access ---------------------------------------------------------------------
 
@@ -583,13 +548,8 @@ class Controller:
         With ``wait``, returns once the axes have stopped.
         """
         self._hub.publish(MoveAborted(ctrl_c=not soft))
-        moving = self._protocol.core.awaiting_completion
-        if soft:
-            self._protocol.submit(build("a", form=Form.SET))
-        else:
-            await self._protocol.resync(ctrl_c=True, timeout=self.reply_timeout)
-            # A discarded line may have been an !autostatus the core already counted.
-            self._protocol.core.autostatus = int(await self.get("autostatus"))
+        moving = self._protocol.moves_awaiting
+        await self._protocol.stop_axes(soft, timeout=self.reply_timeout)
         if wait:
             letters = await self.wait_idle(timeout=60.0)
             # Moves whose line Ctrl+C discarded never report: stop waiting for them.
@@ -614,26 +574,26 @@ class Controller:
                     self._detached = asyncio.ensure_future(self._finish_detached(sent, limit))
                 raise
 
-    async def _run_motion(self, sent: _Sent, limit: float) -> dict[str, str]:
+    async def _run_motion(self, sent: MoveHandle, limit: float) -> dict[str, str]:
         try:
             await self._confirm(sent)
         except (RequestAbortedError, ControllerTimeoutError):
             # The check was lost (Ctrl+C or a resync): the move may or may not run.
-            await self._settle(sent.submission)
-            letters = _reported_letters(sent.submission)
+            await self._settle(sent)
+            letters = sent.reported_letters
             if letters:  # it ran, and reported before the axes stood still
-                return _check_letters(sent.submission.command, letters)
+                return _check_letters(sent.command, letters)
             raise
-        return await self._await_completion(sent.submission, limit)
+        return await self._await_completion(sent, limit)
 
-    async def _settle(self, submission: Submission) -> None:
+    async def _settle(self, submission: MoveHandle) -> None:
         """Stop the axes, wait until they stand still and forget ``submission``'s report."""
         with contextlib.suppress(TangoError, TimeoutError):
-            self._protocol.submit(build("a", form=Form.SET))
+            await self._protocol.stop_axes(True)
             await self.wait_idle(timeout=60.0)
-        self._protocol.forget_completion(submission)
+        submission.forget()
 
-    async def _await_completion(self, submission: Submission, limit: float) -> dict[str, str]:
+    async def _await_completion(self, submission: MoveHandle, limit: float) -> dict[str, str]:
         try:
             async with asyncio.timeout(limit) as scope:
                 letters = await self._completion_letters(submission)
@@ -643,11 +603,11 @@ class Controller:
             letters = await self._completion_timeout(submission, limit)
         return _check_letters(submission.command, letters)
 
-    async def _completion_letters(self, submission: Submission) -> dict[str, str]:
+    async def _completion_letters(self, submission: MoveHandle) -> dict[str, str]:
         """The status letters of a finished move: from its report, or by polling
         ``statusaxis`` (autostatus 0, and the bare CR of autostatus 3)."""
-        if submission.completion is not None:
-            report = await asyncio.shield(submission.completion)
+        if submission.expects_report:
+            report = await submission.report()
             if report.letters is not None:
                 return dict(report.letters)
         return await self._poll_idle()
@@ -670,25 +630,25 @@ class Controller:
                 return letters
             await asyncio.sleep(poll_interval)
 
-    async def _completion_timeout(self, submission: Submission, limit: float
+    async def _completion_timeout(self, submission: MoveHandle, limit: float
                                   ) -> dict[str, str]:
         # The report may never come (autostatus changed to 0 mid-move, or a firmware whose
         # mode 4 echo replaces the report). If the axes are idle, take their status.
         letters = await self.status()
-        self._protocol.forget_completion(submission)
+        submission.forget()
         if "M" not in letters.values():
             log.warning("no completion report for %r; axes idle, using statusaxis",
                         submission.command.line)
             return letters
-        self._protocol.submit(build("a", form=Form.SET))
+        await self._protocol.stop_axes(True)
         raise ControllerTimeoutError(
             f"{submission.command.line!r} did not complete within {limit:.1f} s; axes stopped"
         )
 
-    async def _stop_after_cancel(self, sent: _Sent) -> None:
+    async def _stop_after_cancel(self, sent: MoveHandle) -> None:
         """The awaiting task was cancelled: stop the axes and wait for them to stop."""
         with contextlib.suppress(TangoError):
-            self._protocol.submit(build("a", form=Form.SET))
+            await self._protocol.stop_axes(True)
         try:
             # Shielded (with a time limit) so that the stop is awaited even when the
             # cancellation comes from a level-triggered anyio scope that would otherwise
@@ -696,30 +656,30 @@ class Controller:
             with contextlib.suppress(Exception, asyncio.CancelledError), \
                     anyio.move_on_after(STOP_WAIT, shield=True):
                 if not await self._refused(sent):
-                    await self._stopped(sent.submission)
+                    await self._stopped(sent)
         finally:
-            self._protocol.forget_completion(sent.submission)
+            sent.forget()
 
-    async def _refused(self, sent: _Sent) -> bool:
+    async def _refused(self, sent: MoveHandle) -> bool:
         """Wait for the check of a sent motion line; True if the controller refused it."""
-        error = await self._error_of(sent, self.reply_timeout)
+        error = await sent.error(self.reply_timeout)
         return error is not None
 
-    async def _stopped(self, submission: Submission) -> None:
-        if submission.completion is None:
+    async def _stopped(self, submission: MoveHandle) -> None:
+        if not submission.expects_report:
             await self._poll_idle()
         else:
-            await asyncio.shield(submission.completion)
+            await submission.report()
 
-    async def _finish_detached(self, sent: _Sent, limit: float) -> None:
+    async def _finish_detached(self, sent: MoveHandle, limit: float) -> None:
         """Let a move whose caller was cancelled (``stop_on_cancel=False``) run to its end,
         consuming its report, so that the next move starts after it."""
         try:
             with contextlib.suppress(Exception):
                 if not await self._refused(sent):
-                    await self._await_completion(sent.submission, limit)
+                    await self._await_completion(sent, limit)
         finally:
-            self._protocol.forget_completion(sent.submission)
+            sent.forget()
 
     async def _join_detached(self) -> None:
         detached, self._detached = self._detached, None
@@ -838,14 +798,6 @@ class Controller:
         ok = not (set(letters.values()) & FAILED_LETTERS)
         self._hub.publish(MoveFinished(kind, letters, ok))
 
-
-
-def _reported_letters(submission: Submission) -> Mapping[str, str] | None:
-    """The letters of ``submission``'s completion report, if it has arrived."""
-    report = submission.completion
-    if report is None or not report.done() or report.cancelled() or report.exception():
-        return None
-    return report.result().letters
 
 
 def _moved_axes(command: Command) -> set[str] | None:

@@ -7,10 +7,13 @@ everything unsolicited to an event callback.
 
 Cancellation never desynchronises the stream: a cancelled request keeps its place in the
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
-different: its reply may be lost for good, so the protocol resynchronises (see the core's
-theory of operation), failing every request still pending with
-:class:`~tango_aio.errors.RequestAbortedError`. When resyncs overlap, the reply to the
-newest marker ends all of them.
+different: its reply may be lost for good. Its caller gets
+:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout, and the protocol
+resynchronises in the background (see the core's theory of operation): requests still in
+flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still queued wait
+until the marker is answered. When resyncs overlap, the reply to the newest marker ends
+all of them. Lines that get no reply ``dead_after`` times in a row (a link that stays open
+but no longer forwards) declare the link lost.
 
 A lost link fails every pending future with :class:`~tango_aio.errors.ConnectionLostError`
 whose ``__cause__`` is the transport's error (a :class:`ConnectionResetError` when the other
@@ -24,15 +27,19 @@ reporting an error marks the lines it covers (:attr:`Submission.chunk_error`). A
 registered with the core when it is written, so a queued line can still be withdrawn.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
-every line received (``<-``), CR removed, with a monotonic timestamp.
+every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
+most the first :data:`TRACE_LINE` (256) bytes of its line and the line's length.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import itertools
 import logging
+import math
+import re
 import time
 from collections import deque
 from collections.abc import Callable, Collection, Hashable, Iterable
@@ -46,6 +53,7 @@ from .core import (
     Echoed,
     Event,
     Expectation,
+    HelpStyle,
     Mismatched,
     ProtocolCore,
     Replied,
@@ -56,21 +64,34 @@ from .core import (
 )
 from .errors import (
     ConnectionLostError,
+    ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
+    TangoError,
     UnknownControllerError,
     controller_error,
+    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, parse
-from .patterns import ReplyPattern
+from .instructions import Command, Context, Form, build, encode, parse
+from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, normal_line
 
-__all__ = ["Response", "Submission", "TangoProtocol"]
+__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
+           "WrongEventLoopError"]
 
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")
+
+
+#: Consecutive unanswered requests after which a link that stays open is declared lost.
+#: Two: a request's own timeout, then the resync marker written after it.
+DEAD_AFTER = 2
+
+
+class WrongEventLoopError(TangoError, RuntimeError):
+    """A connection was used from another event loop than the one it was opened on."""
 
 
 @dataclass(slots=True)
@@ -108,12 +129,20 @@ class Submission:
     batch: object | None = None
     #: Pattern of the first line owed, ``None`` if none.
     owes: ReplyPattern | None = None
+    #: The pattern compared with the last line owed before this one to decide whether a
+    #: separator goes first (``owes``, or for a line owing nothing that is checked by the
+    #: probe behind it, the probe's: the separator must not go between the two).
+    guard: ReplyPattern | None = None
     #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
     confirming: bool = field(init=False)
     #: Bytes this line takes on the wire (with a read's internal follow-up).
     size: int = field(init=False)
     #: The autostatus mode ``expectation`` was computed for.
     mode: int = 1
+    #: The mode the core believed in force when the line was written.
+    written_mode: int = field(default=-1, init=False)
+    #: Number of the line among those written on the link (0: not written yet).
+    serial: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         # Both are asked for on every flush while the line waits for credit: computed once.
@@ -123,6 +152,63 @@ class Submission:
             or rule.continuation is not None
         follow_up = 5 if rule.continuation is not None else 0
         self.size = len(self.command.to_bytes()) + follow_up
+
+
+@dataclass(eq=False, slots=True)
+class MoveHandle:
+    """A motion line (move, ``cal``, ``rm``...) written by :meth:`TangoProtocol.start_move`,
+    with the ``?err`` probe that checks it (``None`` when autostatus 2 acknowledges it, or
+    unchecked)."""
+
+    protocol: TangoProtocol
+    submission: Submission
+    probe: Submission | None
+    check: bool
+
+    @property
+    def command(self) -> Command:
+        """The motion line."""
+        return self.submission.command
+
+    @property
+    def expects_report(self) -> bool:
+        """Whether a completion report is awaited (not in autostatus 0)."""
+        return self.submission.completion is not None
+
+    async def error(self, timeout: float | None) -> ControllerError | None:
+        """Wait for the line's check; the controller's error, ``None`` if it was accepted
+        (or unchecked). Raises ControllerTimeoutError/RequestAbortedError/
+        ConnectionLostError when the check itself is lost."""
+        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+
+    async def confirm(self, timeout: float | None) -> None:
+        """Like :meth:`error`, but raise the controller's error (and forget the report)."""
+        error = await self.error(timeout)
+        if error is not None:
+            self.forget()
+            raise error
+
+    async def report(self) -> Completed:
+        """Wait for the completion report (only when :attr:`expects_report`); cancelling
+        the wait leaves the report awaited."""
+        completion = self.submission.completion
+        if completion is None:
+            raise RuntimeError(f"{self.command.line!r} expects no completion report")
+        return await asyncio.shield(completion)
+
+    @property
+    def reported_letters(self) -> dict[str, str] | None:
+        """The letters of the completion report if it has arrived (``None`` otherwise,
+        and for the bare CR of autostatus 3)."""
+        report = self.submission.completion
+        if report is None or not report.done() or report.cancelled() or report.exception():
+            return None
+        letters = report.result().letters
+        return None if letters is None else dict(letters)
+
+    def forget(self) -> None:
+        """Stop waiting for the completion report (refused, settled by polling...)."""
+        self.protocol.forget_completion(self.submission)
 
 
 #: Called with each unsolicited event, completion report and dropped line; the second
@@ -142,16 +228,49 @@ class TangoProtocol(asyncio.Protocol):
         on_lost: Callable[[BaseException | None], None] | None = None,
         credit_limit: int = DEFAULT_LIMIT,
         marker_chunk: int = DEFAULT_CHUNK,
+        reply_timeout: float = 5.0,
+        dead_after: int = DEAD_AFTER,
+        keepalive: float | None = None,
+        separators: bool = True,
+        detect: bool = False,
     ) -> None:
+        if not (math.isfinite(reply_timeout) and reply_timeout > 0):
+            raise ValueError(f"reply_timeout must be a positive number, got {reply_timeout}")
+        if dead_after < 2:
+            raise ValueError(f"dead_after must be at least 2, got {dead_after}")
+        if keepalive is not None and not (math.isfinite(keepalive) and keepalive > 0):
+            raise ValueError(f"keepalive must be None or a positive number, got {keepalive}")
         self.core = ProtocolCore(autostatus=autostatus, context=context)
+        #: Time a resync marker or keepalive read the protocol writes itself may take.
+        self.reply_timeout = reply_timeout
+        #: Consecutive unanswered requests (resync markers included) after which a link
+        #: that stays open is declared lost (see :meth:`_unanswered`).
+        self.dead_after = dead_after
+        #: Seconds of silence after which an idle link is probed (``None``: never).
+        self.keepalive = keepalive
+        #: Look-alike requests: ``True`` writes a separator between two in a row (a stray
+        #: line is detected, see :meth:`_needs_separator`); ``False`` only keeps them from
+        #: being in flight together (no extra line, but a stray line that fits the
+        #: waiting request shifts the replies after it: for benchmarks and hand-fed tests).
+        self.separators = separators
+        self._silent = 0  # consecutive unanswered requests
+        self._written_lines = 0  # lines written so far (requests, markers, separators)
+        self._counted_upto = 0  # lines written when the last unanswered one was counted
+        self._last_reply = 0.0  # loop time of the last reply line routed
+        self._keepalive_task: asyncio.Task[None] | None = None
+        self._loop = asyncio.get_running_loop()
         #: The write-credit account (see :mod:`tango_aio.flow`).
         self.credit = CreditWindow(credit_limit, marker_chunk)
         self._queue: deque[Submission] = deque()
         self._queued_mode = autostatus
         self._unmarked: list[Submission] = []
         self._credit_markers: dict[Hashable, list[Submission]] = {}
-        self._marker_batches: dict[Hashable, object] = {}
+        #: What the last line written owes last, and its batch (see _needs_separator).
+        self._last_owed: ReplyPattern | None = None
+        self._last_batch: object | None = None
+        self._separators: set[Hashable] = set()
         self._transport: asyncio.BaseTransport | None = None
+        self._writer: Callable[[bytes], object] | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
         self._markers: dict[Hashable, asyncio.Future[Response]] = {}
@@ -161,7 +280,23 @@ class TangoProtocol(asyncio.Protocol):
         self._closing = False
         self._peer_eof = False
         self._trace_buffer = b""
-        self._connected = asyncio.get_running_loop().create_future()
+        self._connected = self._loop.create_future()
+        #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
+        self.detect_at_connect = detect
+        self._detected: dict[str, str] = {}
+        #: Seconds of silence after the reply of ``help`` that end a resync without a
+        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`).
+        self.quiet_interval = 0.05
+        self._quiet_help = False
+        self._quiet_timer: asyncio.TimerHandle | None = None
+        self._collect: list[str] | None = None
+        self._collect_help = False
+        self._collected: asyncio.Future[None] | None = None
+        self._barrier_lock = asyncio.Lock()
+        #: Lines submitted after this tag wait (a mode change is under way).
+        self._hold_after: int | None = None
+        self._last_tag = 0
+        self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -173,9 +308,17 @@ class TangoProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         """Called by asyncio when the link is up."""
+        write = getattr(transport, "write", None)
+        if not callable(write):
+            raise TypeError(f"{type(transport).__name__} cannot write")
+        self._writer = write
         self._transport = transport
+        self._last_reply = self._loop.time()
         if not self._connected.done():
             self._connected.set_result(None)
+        if self.keepalive is not None and self._keepalive_task is None:
+            self._keepalive_task = self._loop.create_task(
+                self._keep_alive(self.keepalive), name="tango_aio keepalive")
         if self._closing:
             # close() ran first (e.g. a cancelled connect(): a serial transport reports
             # connection_made one loop iteration after it was created): do not leak it.
@@ -196,9 +339,18 @@ class TangoProtocol(asyncio.Protocol):
         The error's ``__cause__`` is ``exc``; when the other end closed the link without
         an error, a :class:`ConnectionResetError` saying so stands in for it.
         """
+        if self._keepalive_task is not None:
+            self._keepalive_task.cancel()
+        if self._lost is not None:
+            return  # declared lost already (a dead link, see _unanswered)
         if exc is None and not self._closing:
             how = "the other end closed the connection" if self._peer_eof else "link closed"
             exc = ConnectionResetError(how)
+        self._fail_all(exc)
+
+    def _fail_all(self, exc: BaseException | None) -> None:
+        """Fail everything that waits with ConnectionLostError (cause ``exc``) and tell
+        the owner (once)."""
         error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
         error.__cause__ = exc
         self._lost = error
@@ -236,21 +388,232 @@ class TangoProtocol(asyncio.Protocol):
             self._lost = error
 
     def check(self) -> None:
-        """Raise the connection error if the link is gone."""
+        """Raise the connection error if the link is gone; raise
+        :class:`WrongEventLoopError` when called from another event loop than the one the
+        link was opened on (its callbacks run there; a future made here would never be
+        resolved)."""
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is not self._loop:
+            raise WrongEventLoopError(
+                "this connection belongs to another event loop: a Controller can only be "
+                "used from the event loop it was connected on (open one per loop or thread)")
         if self._lost is not None:
             raise ConnectionLostError(str(self._lost)) from self._lost.__cause__
         if self._transport is None:
             raise ConnectionLostError("not connected")
 
+    # -- intents: what the Controller asks for ----------------------------------------
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode in force after the last line written (known for certain
+        after :meth:`read_autostatus` and after every mode change through
+        :meth:`execute`)."""
+        return self.core.autostatus
+
+    @property
+    def context(self) -> Context:
+        """Controller state that shapes replies and validates lines (dims, axes, extmode)."""
+        return self.core.context
+
+    @context.setter
+    def context(self, context: Context) -> None:
+        self.core.context = context
+
+    @property
+    def moves_awaiting(self) -> tuple[Hashable, ...]:
+        """Tags of the moves still waiting for their completion report, oldest first (pass
+        them to :meth:`fail_completions`)."""
+        return tuple(self.core.awaiting_completion)
+
+    async def query(self, command: Command, *, timeout: float | None) -> Response:
+        """Write the read ``command`` and return its reply lines."""
+        return await self.request(command, timeout)
+
+    async def execute(self, command: Command, *, timeout: float | None,
+                      check: bool = True) -> Response:
+        """Write a set/execute line and wait until it is confirmed.
+
+        With ``check`` the controller's verdict is read right behind it (the autostatus-2
+        acknowledgement, else an ``?err`` probe written back to back with the line) and an
+        error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
+        a completion report go through :meth:`start_move` instead.
+        """
+        if command.name == "autostatus" and command.form is Form.SET and command.values:
+            return await self._change_mode(command, int(command.values[0]), timeout)
+        handle = self._send_checked(command, check)
+        await handle.confirm(timeout)
+        return handle.submission.response
+
+    async def _change_mode(self, command: Command, mode: int, timeout: float | None
+                           ) -> Response:
+        """A mode change is a barrier (#13 section 3). Whether ``!autostatus n`` is echoed
+        (mode 4 echoes before or after executing?) or acknowledged (per the old or the new
+        mode?), and whether mode 2 acknowledges reads, the manual leaves open
+        (L2079-2161): see :meth:`_mode_exchange`. A controller that kept another mode
+        raises :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
+        if await self._mode_exchange([command.line], timeout) != mode:
+            raise UnknownControllerError(None, command.line)
+        return Response()
+
+    async def _mode_exchange(self, lines: list[str], timeout: float | None,
+                             expected: list[int] | None = None) -> int:
+        """Once every line before is answered (later lines wait), write ``lines``,
+        ``?autostatus`` and ``?help`` with the core dropping every line; collect what
+        comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
+        :attr:`quiet_interval`. From those lines: the mode in force (adopted), and in
+        mode 2 whether reads are acknowledged, before or after their data (an ``OK...``
+        between the two replies, or after the last). Echoes (of any of the lines, mode 4)
+        and acknowledgements of ``lines`` are whatever they are: they are dropped."""
+        sent = [*lines, "?autostatus", "?help"]
+        async with self._barrier_lock:
+            try:
+                async with asyncio.timeout(timeout):
+                    await self._idle()
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
+            if expected is not None:
+                expected.append(self.core.autostatus)  # the driver's, once all is answered
+            received = await self._exchange(sent, timeout, until_help=True)
+        self._heard()
+        normals = {normal_line(line) for line in sent}
+        kept = [line.strip() for line in received if normal_line(line) not in normals]
+        numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
+        helps = [index for index, line in enumerate(kept) if line.startswith("ERROR")]
+        if not numbers or not helps:
+            raise ProtocolError(f"{sent!r}: no ?autostatus reply among {kept!r}")
+        actual = int(kept[numbers[0]])
+        self.core.autostatus = actual
+        if actual == 2:
+            between = kept[numbers[0] + 1:helps[-1]]
+            after = kept[helps[-1] + 1:]
+            self.core.ack_reads = "after" if any(ACK_PATTERN.accepts(x) for x in after) \
+                else "before" if any(ACK_PATTERN.accepts(x) for x in between) else "no"
+            self._detected["ack_reads"] = self.core.ack_reads
+        self._reproject()
+        return actual
+
+    async def _idle(self) -> None:
+        """Hold lines submitted from now on and wait until every line before is written
+        and answered (polled: mode changes are rare)."""
+        hold = self._hold_after = self._last_tag
+        dropped = self._queue_drops
+        try:
+            while self.core.pending_tags or self.core.resyncing or any(
+                    isinstance(s.tag, int) and s.tag <= hold for s in self._queue):
+                self.check()
+                if self._queue_drops != dropped:  # Ctrl+C discarded what was queued
+                    raise RequestAbortedError(
+                        "the mode change was not sent: the stream was resynchronised")
+                await asyncio.sleep(0.002)
+        except BaseException:
+            self._hold_after = None
+            self._flush()
+            raise
+
+    def start_move(self, command: Command, *, check: bool = True) -> MoveHandle:
+        """Write a motion line (and its check) and return its :class:`MoveHandle`: await
+        :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`."""
+        return self._send_checked(command, check)
+
+    def _send_checked(self, command: Command, check: bool) -> MoveHandle:
+        submission = self.submit(command, hold=True)
+        probe = None
+        if check and not submission.expectation.ack:
+            # Written back to back with the command, so no other line can change the
+            # error state in between (each instruction overwrites it, manual L2853): a
+            # separator the probe needs goes before the command.
+            probe = self.submit(_PROBE, hold=True)
+            if submission.owes is None:
+                submission.guard, probe.guard = probe.owes, None
+        self._flush()
+        return MoveHandle(self, submission, probe, check)
+
+    async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
+                        timeout: float | None) -> ControllerError | None:
+        line = submission.command.line
+        if submission.reply is not None:
+            response = await self.wait_reply(submission, timeout)
+            if check and submission.expectation.ack and response.ack != 0:
+                return _ack_error(response.ack, submission)
+        if probe is not None:
+            reply = await self.wait_reply(probe, timeout)
+            code, _ = parse_error_reply(reply.lines[0])
+            if code:
+                return controller_error(code, line)
+        return None
+
+    async def stop_axes(self, soft: bool, *, timeout: float = 5.0) -> None:
+        """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
+        makes the controller discard its input buffer: requests in flight fail with
+        :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
+        the mode in force is read again (a discarded line may have changed it). Returns
+        once ``a`` is queued, or once the stream is in step after Ctrl+C."""
+        if soft:
+            self.submit(_SOFT_STOP)
+            return
+        await self.resync(ctrl_c=True, timeout=timeout)
+        await self.read_autostatus(timeout=timeout)
+
+    async def read_autostatus(self, *, timeout: float | None) -> int:
+        """Read the mode in force and adopt it; return it. Any mode may be in force (an
+        earlier session's), and how reads are answered in it is not known yet: read the
+        way a mode change is confirmed (:meth:`_mode_exchange`)."""
+        return await self._mode_exchange([], timeout)
+
+    # -- liveness and the mode -----------------------------------------------------------
+
+    async def _keep_alive(self, interval: float) -> None:
+        """While the link is idle, read ``?autostatus`` every ``interval`` seconds without
+        a reply: an unanswered probe counts towards declaring the link dead
+        (:meth:`_unanswered`), and a mode other than the one in force means the controller
+        restarted behind an adapter that stayed up (it restores the mode)."""
+        while self._lost is None:
+            wait = self._last_reply + interval - self._loop.time()
+            if wait > 0:
+                await asyncio.sleep(wait)
+                continue
+            if self._submissions or self._queue or self._markers or self.core.pending_tags \
+                    or self._barrier_lock.locked():
+                await asyncio.sleep(interval)  # requests in flight have their own deadlines
+                continue
+            with contextlib.suppress(TangoError):
+                await self.verify_autostatus(timeout=self.reply_timeout)
+            self._last_reply = max(self._last_reply, self._loop.time() - interval / 2)
+
+    async def verify_autostatus(self, *, timeout: float | None) -> bool:
+        """Read the mode in force (the way a mode change is confirmed, so that whatever
+        the controller's mode, its reply is understood) and compare it with the mode the
+        driver has in force; if they differ (the controller restarted: power-on mode 1,
+        L2062), restore the driver's mode before any later line. Returns whether the mode
+        had to be restored."""
+        before: list[int] = []
+        actual = await self._mode_exchange([], timeout, before)
+        expected = before[0]
+        if actual == expected:
+            return False
+        log.warning("the controller is in autostatus %d, the driver had %d in force: it "
+                    "restarted; restoring autostatus %d", actual, expected, expected)
+        await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
+                                timeout)
+        return True
+
     # -- writing ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
-        transport = self._transport
-        assert isinstance(transport, asyncio.WriteTransport)
+        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass (#19);
+        # every transport asyncio hands to a stream protocol has write().
+        write = self._writer
+        if write is None:
+            raise ConnectionLostError("not connected")
         if wire_log.isEnabledFor(logging.DEBUG):
             for line in data.split(b"\r")[:-1]:
-                wire_log.debug("%.6f -> %r", time.monotonic(), line)
-        transport.write(data)
+                wire_log.debug("%.6f -> %s", time.monotonic(), _traced(line))
+        write(data)
 
     def _trace_received(self, data: bytes) -> None:
         """Log each complete received line (CR removed) on the ``tango_aio.wire`` logger."""
@@ -259,23 +622,25 @@ class TangoProtocol(asyncio.Protocol):
             return
         *lines, self._trace_buffer = (self._trace_buffer + data).split(b"\r")
         for line in lines:
-            wire_log.debug("%.6f <- %r", time.monotonic(), line)
-        if len(self._trace_buffer) > 4096:
-            wire_log.debug("%.6f <- %r (no CR yet)", time.monotonic(), self._trace_buffer)
+            wire_log.debug("%.6f <- %s", time.monotonic(), _traced(line))
+        if len(self._trace_buffer) > TRACE_LINE:
+            wire_log.debug("%.6f <- %s (no CR yet)", time.monotonic(),
+                           _traced(self._trace_buffer))
             self._trace_buffer = b""
 
-    def submit(self, command: Command, *, batch: object | None = None) -> Submission:
+    def submit(self, command: Command, *, batch: object | None = None,
+               hold: bool = False) -> Submission:
         """Queue ``command`` for writing and return its :class:`Submission` (futures for
         the reply and the completion report, where the line owes them).
 
         The line is written at once when the credit allows, else as soon as replies free
         enough credit; lines are always written in submission order. A line whose reply
-        could be taken for the reply of the newest line in flight waits until that one is
-        answered, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
+        could be taken for the reply of the line written before it gets a separator
+        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
         """
         self.check()
         _check_framing(command)
-        tag = next(self._tags)
+        tag = self._last_tag = next(self._tags)
         was_queued = bool(self._queue)
         mode = self._queued_mode if was_queued else self.core.autostatus
         expect = expectation(command, mode, self.core.context)
@@ -291,12 +656,14 @@ class TangoProtocol(asyncio.Protocol):
             owes=owed_pattern(command, expect, self.core.context),
             mode=mode,
         )
+        submission.guard = submission.owes
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
         self._queue.append(submission)
-        if not was_queued:
+        if not was_queued and not hold:
             # Otherwise the head of the queue is still waiting for credit or a reply, and
-            # this line can only follow it: nothing could be written now.
+            # this line can only follow it: nothing could be written now. (``hold``: the
+            # caller flushes once the lines that belong together are queued.)
             self._flush()
         return submission
 
@@ -331,28 +698,42 @@ class TangoProtocol(asyncio.Protocol):
 
     def _flush(self) -> None:
         """Write queued lines while the credit allows, inserting markers where due."""
-        if self._transport is None or self._lost is not None:
+        if self._transport is None or self._lost is not None or self.core.resyncing:
+            # During a resync nothing is written until its marker is answered: the lines
+            # queued behind it go out once the stream is in step.
             return
         out = bytearray()
         while self._queue:
             head = self._queue[0]
+            if self._hold_after is not None and isinstance(head.tag, int) \
+                    and head.tag > self._hold_after:
+                break  # behind a mode change
             if self.credit.marker_due(head.size, head.confirming):
-                if not self.credit.marker_fits() or self._must_wait(_MARKER_OWES,
-                                                                    self._marker_batch()):
+                batch = self._marker_batch()
+                separator = self._separator_for(_MARKER_OWES, batch)
+                if not self.credit.marker_fits() or (
+                        separator is _WAIT and self._must_wait(_MARKER_OWES, batch)) or (
+                        separator and not self.credit.fits(_SEPARATOR_SIZE + 4, True)):
                     break
-                out += self._marker()
+                if isinstance(separator, tuple):
+                    out += self._separator(separator)
+                out += self._marker(batch)
                 continue
-            if not self.credit.fits(head.size, head.confirming) or \
-                    self._must_wait(head.owes, head.batch):
+            separator = self._separator_for(head.guard, head.batch)
+            size = head.size + (_SEPARATOR_SIZE if separator else 0)
+            if not self.credit.fits(size, head.confirming) or (
+                    separator is _WAIT and self._must_wait(head.owes, head.batch)):
                 break
             self._queue.popleft()
+            if isinstance(separator, tuple):
+                out += self._separator(separator)
             out += self._register(head)
         if out:
             self._write(bytes(out))
 
     def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
-        """Whether a line owing ``owes`` must wait for the newest line in flight to be
-        answered: their replies could be taken for each other (tango_aio.patterns)."""
+        """Without a separator: whether a line owing ``owes`` must wait for the newest
+        line in flight to be answered (their replies could be taken for each other)."""
         if owes is None:
             return False
         tail = self.core.tail
@@ -364,7 +745,38 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(tag)
         if submission is not None:
             return submission.batch
-        return self._marker_batches.get(tag)
+        return _MARKERS if tag in self._credit_markers else None
+
+    def _separator_for(self, owes: ReplyPattern | None, batch: object | None
+                       ) -> tuple[bytes, ReplyPattern] | object | None:
+        """The separator to write before a line owing ``owes`` (``None``: none needed;
+        :data:`_WAIT`: none exists, wait for the reply instead). One is needed when the
+        last line owed by the line written before looks alike: a line too many (or too
+        few) between them would shift a reply onto the wrong request (#14 item 1,
+        :mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
+        last = self._last_owed
+        if owes is None or last is None or not last.overlaps(owes):
+            return None
+        if batch is not None and batch is self._last_batch:
+            return None
+        if not self.separators:
+            return _WAIT
+        return self.core.separator(last, owes) or _WAIT
+
+    def _separator(self, separator: tuple[bytes, ReplyPattern]) -> bytes:
+        tag = next(self._tags)
+        data = self.core.separate(tag, separator)
+        self._separators.add(tag)
+        self.credit.wrote(len(data), tag)
+        tail = self.core.tail
+        self._last_owed, self._last_batch = (tail[1] if tail else None), None
+        return data
+
+    def _owed(self, tag: Hashable, batch: object | None) -> None:
+        """Remember what the line just registered under ``tag`` owes last."""
+        tail = self.core.tail
+        if tail is not None and tail[0] == tag:
+            self._last_owed, self._last_batch = tail[1], batch
 
     def _marker_batch(self) -> object:
         """A credit marker joins the batch of the lines it confirms; markers after lines
@@ -373,27 +785,31 @@ class TangoProtocol(asyncio.Protocol):
         return last if last is not None else _MARKERS
 
     def _register(self, submission: Submission) -> bytes:
+        submission.written_mode = self.core.autostatus
+        self._written_lines += 1
+        submission.serial = self._written_lines
         data, _ = self.core.send(submission.command, submission.tag,
                                  (submission.mode, submission.expectation))
         submission.written = True
+        if submission.owes is not None:
+            self._owed(submission.tag, submission.batch)
         confirming = submission.confirming
         self.credit.wrote(len(data), submission.tag if confirming else None)
         if not confirming:
             self._unmarked.append(submission)
         return data
 
-    def _marker(self) -> bytes:
+    def _marker(self, batch: object) -> bytes:
         tag = next(self._tags)
         data, _ = self.core.send(_MARKER, tag)
+        self._owed(tag, batch)
         self.credit.wrote(len(data), tag)
         self._credit_markers[tag] = self._unmarked
-        self._marker_batches[tag] = self._marker_batch()
         self._unmarked = []
         return data
 
     def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
         covered = self._credit_markers.pop(tag)
-        self._marker_batches.pop(tag, None)
         try:
             code = int(lines[0])
         except (IndexError, ValueError):
@@ -407,6 +823,7 @@ class TangoProtocol(asyncio.Protocol):
     def _drop_queue(self) -> None:
         """Forget every line not yet written (their futures fail: they were never sent)."""
         error = RequestAbortedError("the line was not sent: the stream was resynchronised")
+        self._queue_drops += 1
         for submission in self._queue:
             self._submissions.pop(submission.tag, None)
             _fail(submission.reply, error)
@@ -425,36 +842,241 @@ class TangoProtocol(asyncio.Protocol):
         return await self.wait_reply(submission, timeout)
 
     async def wait_reply(self, submission: Submission, timeout: float | None) -> Response:
-        """Wait for ``submission``'s reply; on timeout resync (the marker gets the same
-        time) and raise :class:`ControllerTimeoutError`."""
+        """Wait for ``submission``'s reply.
+
+        After ``timeout`` seconds raise :class:`ControllerTimeoutError` naming the line,
+        at once: the reply may be lost for good, so a resync starts in the background
+        (its marker gets ``timeout`` too) and holds the lines queued behind it until the
+        stream is in step. The timeout counts towards declaring a dead link lost
+        (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
+        the timeout as its cause.
+        """
         assert submission.reply is not None
         try:
             async with asyncio.timeout(timeout):
                 return await asyncio.shield(submission.reply)
         except TimeoutError:
             self.check()
-            await self.resync(timeout=timeout if timeout is not None else 2.0)
-            raise ControllerTimeoutError(
-                f"no reply to {submission.command.line!r} within {timeout} s"
-            ) from None
+            if submission.reply.done() and not submission.reply.cancelled() \
+                    and submission.reply.exception() is None:
+                return submission.reply.result()  # answered at the very deadline
+            error = ControllerTimeoutError(
+                f"no reply to {submission.command.line!r} within {timeout} s")
+            if not submission.written:
+                # Held behind a resync that has not ended: never sent, nothing to count
+                # (the resync marker has its own deadline).
+                self.withdraw([submission])
+                raise error from None
+            if self._unanswered(error, submission.serial):
+                self.check()
+            self._background_resync(timeout if timeout is not None else self.reply_timeout)
+            raise error from None
+
+    def _unanswered(self, error: TangoError, serial: int) -> bool:
+        """Count a request (or marker) that got no reply in time; declare the link lost
+        after :attr:`dead_after` in a row with no reply line in between (a link that stays
+        open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
+        power-cycled behind one). ``serial`` numbers the line among those written: lines
+        that were in flight together count once (they time out together when one reply is
+        lost), so each count is a line written after the previous count. Returns whether
+        the link was declared lost."""
+        if serial <= self._counted_upto:
+            return False
+        self._counted_upto = self._written_lines
+        self._silent += 1
+        if self._silent < self.dead_after or self._lost is not None:
+            return False
+        cause = ConnectionAbortedError(
+            f"{self._silent} requests in a row got no reply: the link is dead ({error})")
+        log.warning("%s", cause)
+        self._fail_all(cause)
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.close()
+        return True
+
+    def _background_resync(self, timeout: float) -> None:
+        """Resync without anybody awaiting it: lines still queued wait for its end; if its
+        marker is not answered within ``timeout`` it counts as unanswered and the next
+        resync starts."""
+        if self._lost is not None or self._transport is None:
+            return
+        tag, marker = self._begin_resync(keep_queue=True)
+        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout,
+                                       self._written_lines)
+        marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
+
+    def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
+                         timeout: float, serial: int) -> None:
+        if marker.done() or self._lost is not None:
+            return
+        error = ControllerTimeoutError(
+            f"controller did not answer the resync marker within {timeout} s")
+        if not self._unanswered(error, serial) and self.core.resyncing \
+                and self._newest_marker() == tag:
+            self._background_resync(timeout)
+
+    def _newest_marker(self) -> Hashable | None:
+        return next(reversed(self._markers), None)
 
     async def resync(self, *, ctrl_c: bool = False, timeout: float = 2.0) -> None:
         """Resynchronise the reply stream (optionally sending Ctrl+C first).
 
         Every pending request fails with :class:`RequestAbortedError`; the call returns
-        when the marker's reply has arrived.
+        when the marker's reply has arrived. The first resync of a link opened by
+        ``connect`` runs :meth:`detect` instead.
         """
         self.check()
+        if self.detect_at_connect and not self._detected and not ctrl_c:
+            await self.detect(timeout=timeout)
+            return
         tag, marker = self._begin_resync(ctrl_c)
+        serial = self._written_lines
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
         except TimeoutError:
-            raise ControllerTimeoutError(
-                f"controller did not answer the resync marker within {timeout} s"
-            ) from None
+            self.check()
+            error = ControllerTimeoutError(
+                f"controller did not answer the resync marker within {timeout} s")
+            if self._unanswered(error, serial):
+                self.check()
+            raise error from None
         finally:
             self._markers.pop(tag, None)
+
+    # -- what this controller does where the manual is silent ---------------------------
+
+    @property
+    def detected(self) -> dict[str, str]:
+        """What the driver found out about this controller (#13): ``help_number``
+        (``"yes"``: ``?help N`` answers ``ERROR N,text``; ``"no"``: the text only;
+        ``"none"``: not at all), found by :meth:`detect` at connect; and, once seen,
+        ``optional_echo`` / ``optional_ack``: how many echoes and acknowledgements arrived
+        that the manual does not promise (a read echoed in mode 4 or acknowledged in mode
+        2, a mode change echoed or acknowledged) and were tolerated."""
+        found = dict(self._detected)
+        for item, count in self.core.tolerated.items():
+            found["optional_" + item.rstrip("?")] = str(count)
+        return found
+
+    async def detect(self, *, timeout: float) -> dict[str, str]:
+        """Bring the stream in step without relying on a unique reply, then find out how
+        ``?help N`` answers, and make the markers accordingly (#13 section 3).
+
+        1. A resync that needs no unique reply: ``help`` is written and every line is
+           dropped until the last one looks like its reply (``ERROR n,text``, the form
+           both editions document: L2915-2919, old L805-819) and the link has been quiet
+           for :attr:`quiet_interval`.
+        2. ``?help N`` then ``?err`` (N a marker number picked at random, so that this
+           session's markers differ from an earlier program's). The lines before the
+           ``?err`` number tell: ``ERROR N,...`` (firmware 1.71, L2919), the text alone
+           (some firmware: then the markers use N and wait for that text), or nothing
+           (older firmware, whose ``help`` takes no parameter: resyncs wait for quiet).
+        """
+        self.core.help_style = HelpStyle.NONE
+        self._detected = {"help_number": "none"}
+        await self.resync(timeout=timeout)
+        code = self.core.pick_marker_code()
+        sent = [f"?help {code}", "?err"]
+        lines = await self._exchange(sent, timeout)
+        normals = {normal_line(line) for line in sent}
+        answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
+                   if not ACK_PATTERN.accepts(line.strip()) and normal_line(line) not in normals]
+        if any(f"ERROR {code}," in line for line in answers):
+            self.core.help_style = HelpStyle.NUMBER
+        elif answers and answers[-1]:
+            self.core.help_style = HelpStyle.TEXT
+            self.core.help_text = (code, answers[-1])
+        self._detected = {"help_number": self.core.help_style.value}
+        return self.detected
+
+    async def _exchange(self, lines: list[str], timeout: float | None, *,
+                        until_help: bool = False) -> list[str]:
+        """Write ``lines`` with the core dropping every line; return the lines received
+        up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
+        then :attr:`quiet_interval` of silence). Only call it when nothing is owed."""
+        self.core.drop_all()
+        self._quiet_help = False
+        collected: list[str] = []
+        self._collect = collected
+        self._collect_help = until_help
+        self._collected = self._loop.create_future()
+        in_step = False
+        try:
+            self._write(b"".join(encode(line) for line in lines))
+            self._written_lines += len(lines)
+            serial = self._written_lines
+            try:
+                async with asyncio.timeout(timeout):
+                    await self._collected
+            except TimeoutError:
+                error = ControllerTimeoutError(f"no reply to {lines!r} within {timeout} s")
+                self._collect = self._collected = None
+                self.core.end_resync()
+                if self._unanswered(error, serial):
+                    self.check()
+                self._background_resync(timeout if timeout is not None
+                                        else self.reply_timeout)
+                raise error from None
+            in_step = True
+        finally:
+            self._collect = self._collected = None
+            self._hold_after = None
+            if self._quiet_timer is not None:
+                self._quiet_timer.cancel()
+            if in_step:
+                self.core.end_resync()
+                self.credit.cleared()
+                self._last_owed, self._last_batch = None, None
+            elif self.core.quiet:  # cancelled: its replies may still come
+                self.core.end_resync()
+                self._background_resync(self.reply_timeout)
+            self._flush()
+        return collected
+
+    def _on_dropped(self, line: str) -> None:
+        """A line dropped while resynchronising (or collected by :meth:`_exchange`)."""
+        if self._collect is not None:
+            self._collect.append(line)
+            if self._collect_help:
+                # Sticky: an acknowledgement of ?help itself may follow its reply.
+                self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
+                if self._quiet_timer is not None:
+                    self._quiet_timer.cancel()
+                self._quiet_timer = self._loop.call_later(self.quiet_interval,
+                                                          self._quiet_check)
+            elif _INTEGER.match(line) and self._collected is not None \
+                    and not self._collected.done():
+                self._collected.set_result(None)
+            return
+        if not self.core.quiet:
+            return
+        text = line.strip()
+        if text.startswith("ERROR"):
+            self._quiet_help = True
+        elif normal_line(text) != "help" and not ACK_PATTERN.accepts(text):
+            # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
+            # its reply: that reply was not the last line yet.
+            self._quiet_help = False
+        if self._quiet_timer is not None:
+            self._quiet_timer.cancel()
+        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+
+    def _quiet_check(self) -> None:
+        """End a quiet resync once ``help``'s reply was the last line and all is quiet."""
+        self._quiet_timer = None
+        if not self.core.quiet or not self._quiet_help or self._lost is not None:
+            return
+        if self._collect is not None:
+            if self._collected is not None and not self._collected.done():
+                self._collected.set_result(None)
+            return
+        self.core.end_resync()
+        self.credit.cleared()
+        for marker in self._markers.values():
+            if not marker.done():
+                marker.set_result(Response())
+        self._flush()
 
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
@@ -469,11 +1091,14 @@ class TangoProtocol(asyncio.Protocol):
         # assumed to have caught up (a lost reply would otherwise never return its credit).
         self.credit.cleared()
         self._credit_markers.clear()
-        self._marker_batches.clear()
+        self._separators.clear()
+        self._last_owed, self._last_batch = None, None  # the marker's reply is unique
         self._unmarked = []
         self._markers[tag] = marker
         self._dispatch_pending()
+        self._quiet_help = False
         self._write(data)
+        self._written_lines += 1
         self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
         return tag, marker
 
@@ -520,13 +1145,18 @@ class TangoProtocol(asyncio.Protocol):
             self._on_mismatch(event)
         elif isinstance(event, Dropped):
             log.debug("dropped while resynchronising: %r", event.line)
+            self._on_dropped(event.line)
         if isinstance(event, Unsolicited | Dropped) and self._on_event:
             self._on_event(event, None)
 
     def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
+        self._heard()
         if not isinstance(event, Echoed):
             # A reply is sent after its line was executed: everything up to it is processed.
             self.credit.confirm(event.tag)
+        if event.tag in self._separators:
+            self._separators.discard(event.tag)
+            return
         if event.tag in self._credit_markers and isinstance(event, Replied):
             self._on_credit_marker(event.tag, event.lines)
             return
@@ -553,7 +1183,13 @@ class TangoProtocol(asyncio.Protocol):
                 submission.reply.set_result(response)
             self._release(event.tag, submission)
 
+    def _heard(self) -> None:
+        """A reply line arrived: the link is alive."""
+        self._silent = 0
+        self._last_reply = self._loop.time()
+
     def _on_completed(self, event: Completed) -> None:
+        self._heard()
         if event.tag is None:
             return
         submission = self._submissions.get(event.tag)
@@ -584,18 +1220,18 @@ class TangoProtocol(asyncio.Protocol):
         log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
                     line, command, event.expected.kind.value)
         if submission is not None:
+            why = event.reason or (f"{line} cannot be the reply to {command!r} "
+                                   f"({event.expected.kind.value} expected): a line was "
+                                   "lost or added")
             _fail(submission.reply, ProtocolError(
-                f"{line} cannot be the reply to {command!r} "
-                f"({event.expected.kind.value} expected): a line was lost or added; "
-                "the reply stream was resynchronised"))
+                f"{why} ({command!r}); the reply stream was resynchronised"))
         # The controller answers fine (a line was lost or added on the way), so lines not
         # yet written go out after the marker.
-        tag, marker = self._begin_resync(keep_queue=True)
-        # Nobody awaits this marker: its reply ends the resync in the core; if it never
-        # comes, the next request's timeout resyncs again.
-        marker.add_done_callback(functools.partial(self._forget_marker, tag))
+        self._background_resync(self.reply_timeout)
 
-    def _forget_marker(self, tag: Hashable, _future: asyncio.Future[Response]) -> None:
+    def _forget_marker(self, tag: Hashable, deadline: asyncio.TimerHandle,
+                       _future: asyncio.Future[Response]) -> None:
+        deadline.cancel()
         self._markers.pop(tag, None)
 
     def _release(self, tag: Hashable, submission: Submission) -> None:
@@ -621,7 +1257,17 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
-_MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+_MARKER_OWES: ReplyPattern = ONE_NUMBER
+#: The check written behind a set/execute line.
+_PROBE = parse("?err")
+#: The soft stop (manual L6797).
+_SOFT_STOP = build("a", form=Form.SET)
+#: The read of the mode in force.
+_READ_MODE = parse("?autostatus")
+#: "No separator fits: wait for the reply" (see TangoProtocol._separator_for).
+_WAIT = object()
+#: Longest separator line (``?help NN`` and CR; ``sa x`` and ``err`` are shorter).
+_SEPARATOR_SIZE = 9
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS = object()
 
@@ -648,9 +1294,30 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.exception()
 
 
-def _ack_error(code: int | None, submission: Submission) -> Exception:
+def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+#: Bytes of one line a wire-log record shows at most (#14 item 9: one 1 MB line was one
+#: 1 MB record); the rest is counted, not shown.
+TRACE_LINE = 256
+
+
+def _traced(line: bytes) -> str:
+    """``repr`` of a traced line, cut at :data:`TRACE_LINE` bytes."""
+    if len(line) <= TRACE_LINE:
+        return repr(line)
+    return f"{line[:TRACE_LINE]!r}... ({len(line)} bytes)"
+
+
+_INTEGER = re.compile(r"\s*-?\d+\s*$")
+
+
+def _consume(future: asyncio.Future[Any]) -> None:
+    """Mark a future's outcome retrieved (nobody awaits it)."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _cancel(future: asyncio.Future[Any] | None) -> None:

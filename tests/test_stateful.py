@@ -302,13 +302,15 @@ class DriverMachine(RuleBasedStateMachine):
         async def go() -> str:
             try:
                 await call
-            except ControllerTimeoutError:
-                return "ControllerTimeoutError"
+            except (ControllerTimeoutError, RequestAbortedError) as exc:
+                # RequestAbortedError: the reply dropped was the separator's before this
+                # request (#14 item 1); its own then landed where it did not fit.
+                return type(exc).__name__
             return "no timeout"
 
         outcome = self.run(go())
-        assert outcome == "ControllerTimeoutError"
-        assert self.emu.wire.faults.drop_replies == 0  # it was this request's reply
+        assert outcome in ("ControllerTimeoutError", "RequestAbortedError")
+        assert self.emu.wire.faults.drop_replies == 0  # a reply really was dropped
         self.step(f"timeout {kind}", outcome)
 
     @rule(mode=st.sampled_from([1, 2, 4, 1, 2, 4, 0, 3]))
