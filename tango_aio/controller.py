@@ -496,7 +496,7 @@ class Controller:
         response = await self._request(command, timeout)
         return parse_reply(command, response.lines)
 
-    async def set(self, name: str, *args: float | int | str, axis: str | None = None,
+    async def set(self, name: str, /, *args: float | int | str, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
         ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
@@ -519,7 +519,7 @@ class Controller:
 
     # -- motion ---------------------------------------------------------------------------
 
-    async def move_to(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
+    async def move_to(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move to absolute positions (``move_to(x=10, y=5)``) and wait until they are
         reached. Returns the per-axis status letters; raises :class:`MoveError` if an axis
@@ -530,7 +530,7 @@ class Controller:
         return await self._motion(build_axes("moa", axes, context=self.context),
                                   timeout, stop_on_cancel, axes)
 
-    async def move_by(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
+    async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
         axes = await self._to_controller(axes, unit, 0)
@@ -564,7 +564,7 @@ class Controller:
             letters.update(await self._motion(command, timeout, stop_on_cancel, {}))
         return letters
 
-    async def go(self, *, unit: str | None = None, **axes: float) -> None:
+    async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
         :meth:`wait_idle`). A later ``go`` overrides the targets mid-move. Targets in
         ``unit`` as for :meth:`move_to`."""
@@ -573,7 +573,7 @@ class Controller:
         self._check_axes(command, axes)
         await self._execute(command, check=True)
 
-    async def speed(self, *, unit: str | None = None, **axes: float) -> None:
+    async def speed(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Run axes at constant speed (rev/s, or mm/s in dim 9; or in ``unit``, e.g.
         ``"mm/s"``, default the connection's ``units`` per second); 0 stops. No completion
         report: use :meth:`wait_idle`."""
@@ -865,7 +865,7 @@ class Controller:
         (``"mm/s"``; default: the connection's ``units`` per second)."""
         return await self._from_controller(await self.get("vel"), unit, 1)
 
-    async def set_velocity(self, *, unit: str | None = None, **axes: float) -> None:
+    async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
         await self.set("vel", **await self._to_controller(axes, unit, 1))
 
@@ -874,7 +874,7 @@ class Controller:
         default: the connection's ``units`` per second squared)."""
         return await self._from_controller(await self.get("accel"), unit, 2)
 
-    async def set_acceleration(self, *, unit: str | None = None, **axes: float) -> None:
+    async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``accel`` per axis, see :meth:`acceleration`."""
         await self.set("accel", **await self._to_controller(axes, unit, 2))
 
@@ -886,7 +886,7 @@ class Controller:
         upper = await self._from_controller({a: p[1] for a, p in pairs.items()}, unit, 0)
         return {axis: (lower[axis], upper[axis]) for axis in pairs}
 
-    async def set_limits(self, *, unit: str | None = None,
+    async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:
         """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``)."""
         lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit, 0)
