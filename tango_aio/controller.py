@@ -57,6 +57,7 @@ from .instructions import (
     Context,
     DetInfo,
     Form,
+    Value,
     VersionInfo,
     build,
     build_axes,
@@ -485,7 +486,7 @@ class Controller:
 
     # -- typed access ---------------------------------------------------------------------
 
-    async def get(self, name: str, *args: float | int | str, axis: str | None = None,
+    async def get(self, name: str, *args: Value, axis: str | None = None,
                   timeout: float | None = None) -> Any:
         """Read instruction ``name`` and return its parsed reply.
 
@@ -496,7 +497,7 @@ class Controller:
         response = await self._request(command, timeout)
         return parse_reply(command, response.lines)
 
-    async def set(self, name: str, /, *args: float | int | str, axis: str | None = None,
+    async def set(self, name: str, /, *args: Value, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
         ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""

@@ -50,6 +50,7 @@ __all__ = [
     "Precision",
     "Shape",
     "Signature",
+    "Value",
     "VersionInfo",
     "build",
     "build_axes",

@@ -164,7 +164,7 @@ class Emulated:
         """Fast motion on every axis: 100 mm/s, 20 m/s², quick cal/rm release."""
         present = "xyza"[: self.tango.context.axes]
         for name, value in (("secvel", 100), ("vel", 100), ("accel", 20), ("stopaccel", 20)):
-            await self.tango.set(name, **{a: value for a in present})
+            await self.tango.set(name, axis=None, check=True, **dict.fromkeys(present, value))
         await self.tango.set("calbspeed", 8000)
 
 

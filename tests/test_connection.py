@@ -113,7 +113,8 @@ async def test_identity_is_not_optional() -> None:
 
 
 async def test_axis_status() -> None:
-    assert AxisStatus("M") is AxisStatus.MOVING == "M"
+    assert AxisStatus("M") is AxisStatus.MOVING
+    assert str(AxisStatus.MOVING) == "M"
     assert AxisStatus.of("U") is AxisStatus.MANUAL_ADJUSTMENT
     assert {s for s in AxisStatus if s.is_failure} == {AxisStatus.ERROR,
                                                        AxisStatus.LIMIT_SWITCH,
