@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field, replace
@@ -18,6 +19,18 @@ from tango_aio.protocol import Submission, TangoProtocol
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire
+
+# TANGO_AIO_TEST_LOOP=uvloop runs every async test on uvloop's event loop (tango-aio[uvloop]),
+# the way CI runs the end-to-end tier under it.
+if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
+    import uvloop
+
+    def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
+                                      ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+        """Run the async tests on uvloop (a pytest-asyncio hook)."""
+        return {"uvloop": uvloop.new_event_loop}
+elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") != "asyncio":
+    raise pytest.UsageError("TANGO_AIO_TEST_LOOP must be asyncio or uvloop")
 
 # No per-example deadline: the first examples pay for imports and would flake on a busy CI.
 settings.register_profile("tango_aio", deadline=None)

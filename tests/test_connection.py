@@ -140,3 +140,10 @@ async def test_trigger_helpers() -> None:
         assert await tango.trigger_count() == 5
         with pytest.raises(TypeError):
             await tango.set_trigger_enabled(1)  # type: ignore[arg-type]
+
+
+async def test_the_loop_under_test() -> None:
+    """TANGO_AIO_TEST_LOOP=uvloop really runs the tests on uvloop."""
+    loop = asyncio.get_running_loop()
+    expected = os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio")
+    assert ("uvloop" in type(loop).__module__) == (expected == "uvloop")

@@ -3,6 +3,8 @@ controller's ``unit=``/``units=`` parameters on the emulator, whatever ``dim`` a
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 
 import tango_aio
@@ -125,3 +127,32 @@ async def test_no_unit_reads_nothing_extra() -> None:
         before = wire_of(tango).lines_processed
         await tango.move_to(x=2, unit="mm")
         assert wire_of(tango).lines_processed - before == moved + 4  # dim pitch gear usteps
+
+
+async def test_watch_position_follows_a_whole_scan() -> None:
+    """follow=True goes on through the idle moments between the moves of a scan (issue 15
+    item 6); the default stops at the first idle moment."""
+    async with tango_aio.connect(INSTANT, units="mm") as tango:
+        await tango.set("vel", x=100, axis=None, check=True)
+        targets = (0.5, 1.0, 1.5)
+        reached = {target: asyncio.Event() for target in targets}
+        seen: list[float] = []
+
+        async def scan() -> None:
+            for target in targets:
+                await tango.move_to(x=target)
+                await reached[target].wait()  # idle until the watcher has seen it
+
+        task = asyncio.create_task(scan())
+        async for update in tango.watch_position(0.01, follow=True):
+            x = update.positions["x"]
+            seen.append(x)
+            if x in reached:
+                reached[x].set()
+            if x == targets[-1]:
+                break
+        await task
+        assert set(targets) <= set(seen)  # the watch went on through every idle stop
+        assert seen == sorted(seen)
+        once = [u async for u in tango.watch_position(0.01)]  # idle: one update, then done
+        assert len(once) == 1 and once[0].positions["x"] == 1.5
