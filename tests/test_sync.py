@@ -7,8 +7,10 @@ import concurrent.futures
 import inspect
 import os
 import signal
+import textwrap
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -162,3 +164,39 @@ def test_group() -> None:
         assert future.result() == {"stage": {"x": "@", "y": "@", "z": "@"}}
         assert group.position()["stage"]["x"] == 2.0
         assert group.url("focus").endswith("axes=1")
+
+
+@pytest.mark.slow
+def test_in_a_real_ipython_kernel() -> None:
+    """In Jupyter the main thread already runs an event loop; the blocking API works
+    there (and a top-level ``await tango_aio.connect(...)`` does too)."""
+    manager_module = pytest.importorskip("jupyter_client.manager")
+    pytest.importorskip("ipykernel")
+    manager, client = manager_module.start_new_kernel(kernel_name="python3")
+    try:
+        code = textwrap.dedent('''
+            import asyncio, tango_aio, tango_aio.sync
+            asyncio.get_running_loop()  # the kernel's own loop runs in this thread
+            with tango_aio.sync.connect("sim://?baud=0") as tango:
+                print("moved", tango.move_to(x=1.25)["x"], tango.position()["x"])
+            tango = await tango_aio.connect("sim://?baud=0")
+            print("async", (await tango.position())["x"])
+            await tango.aclose()
+        ''')
+        reply = client.execute_interactive(code, timeout=60, output_hook=_collect)
+        assert reply["content"]["status"] == "ok", reply["content"]
+        assert "moved @ 1.25" in "".join(_OUTPUT)
+        assert "async 0.0" in "".join(_OUTPUT)
+    finally:
+        client.stop_channels()
+        manager.shutdown_kernel(now=True)
+
+
+_OUTPUT: list[str] = []
+
+
+def _collect(message: dict[str, Any]) -> None:
+    if message["msg_type"] == "stream":
+        _OUTPUT.append(message["content"]["text"])
+    elif message["msg_type"] == "error":
+        _OUTPUT.append("\n".join(message["content"]["traceback"]))
