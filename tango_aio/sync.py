@@ -29,11 +29,14 @@ members (``group["stage"]``) are blocking controllers on the group's thread.
 
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import contextlib
 import functools
 import os
+import queue
 import threading
+import weakref
 from collections.abc import (
     AsyncIterator,
     Awaitable,
@@ -71,13 +74,32 @@ class Portal:
 
     The loop is asyncio; it is uvloop's when the environment variable
     ``TANGO_AIO_LOOP=uvloop`` is set and uvloop is installed (``tango-aio[uvloop]``).
+    The thread is a daemon thread, so a script that forgets ``close()`` still exits: what
+    is still open is closed at interpreter exit (:mod:`atexit`), while the loop runs.
     """
 
     def __init__(self) -> None:
         options = {"use_uvloop": True} if os.environ.get("TANGO_AIO_LOOP") == "uvloop" else {}
-        self._manager = anyio.from_thread.start_blocking_portal(
-            "asyncio", options, name="tango_aio driver loop")
-        self.portal = self._manager.__enter__()
+        handed: queue.Queue[anyio.from_thread.BlockingPortal | BaseException] = queue.Queue()
+
+        async def serve() -> None:
+            async with anyio.from_thread.BlockingPortal() as portal:
+                handed.put(portal)
+                await portal.sleep_until_stopped()
+
+        def run() -> None:
+            try:
+                anyio.run(serve, backend="asyncio", backend_options=options)
+            except BaseException as exc:  # e.g. uvloop missing: tell the caller
+                handed.put(exc)
+
+        self._thread = threading.Thread(target=run, name="tango_aio driver loop",
+                                        daemon=True)
+        self._thread.start()
+        got = handed.get()
+        if isinstance(got, BaseException):
+            raise got
+        self.portal = got
 
     def call(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs) -> R:
         """Run ``func(*args, **kwargs)`` in the driver's thread and wait for its result.
@@ -123,7 +145,10 @@ class Portal:
 
     def stop(self) -> None:
         """Stop the loop and join its thread."""
-        self._manager.__exit__(None, None, None)
+        if self._thread.is_alive():
+            with contextlib.suppress(RuntimeError):  # already stopping
+                self.portal.call(self.portal.stop)
+            self._thread.join()
 
 
 async def _anext(source: AsyncIterator[T]) -> T:
@@ -184,6 +209,17 @@ class _Starter(Generic[A, P, R]):
 
         start.__doc__ = self.__doc__
         return start
+
+
+#: Blocking objects not closed yet; closed at interpreter exit.
+_OPEN: weakref.WeakSet[Controller | ControllerGroup] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open() -> None:
+    for wrapper in list(_OPEN):
+        with contextlib.suppress(Exception):
+            wrapper.close()
 
 
 class _Wrapper(Generic[A]):
@@ -312,6 +348,7 @@ class Controller(_Wrapper[AsyncController]):
 
     def close(self) -> None:
         """Close the connection (``aclose()``) and stop the driver's thread."""
+        _OPEN.discard(self)
         try:
             self._portal.call(self.aio.aclose)
         finally:
@@ -347,7 +384,9 @@ def connect(url: str = "sim://", **options: Any) -> Controller:
     except BaseException:
         portal.stop()
         raise
-    return Controller(controller, portal, owns_portal=True)
+    wrapper = Controller(controller, portal, owns_portal=True)
+    _OPEN.add(wrapper)
+    return wrapper
 
 
 async def _await(awaitable: Awaitable[T]) -> T:
@@ -371,6 +410,7 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
         super().__init__(group, portal, owns_portal=True)
         self._members = {name: Controller(member, portal, owns_portal=False)
                          for name, member in group.items()}
+        _OPEN.add(self)
 
     each = _Blocking(AsyncGroup.each)
     move_to = _Blocking(AsyncGroup.move_to)
@@ -425,6 +465,7 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
 
     def close(self) -> None:
         """Close every member (``aclose()``) and stop the driver's thread."""
+        _OPEN.discard(self)
         try:
             self._portal.call(self.aio.aclose)
         finally:

@@ -7,6 +7,8 @@ import concurrent.futures
 import inspect
 import os
 import signal
+import subprocess
+import sys
 import textwrap
 import threading
 from collections.abc import Iterator
@@ -200,3 +202,13 @@ def _collect(message: dict[str, Any]) -> None:
         _OUTPUT.append(message["content"]["text"])
     elif message["msg_type"] == "error":
         _OUTPUT.append("\n".join(message["content"]["traceback"]))
+
+
+def test_a_script_that_forgets_close_still_exits() -> None:
+    script = ("import tango_aio.sync\n"
+              "tango = tango_aio.sync.connect('sim://?baud=0')\n"
+              "print(tango.move_to(x=0.5))\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=60, check=False)
+    assert result.returncode == 0, result.stderr
+    assert "'x': '@'" in result.stdout
