@@ -67,7 +67,7 @@ from .instructions import (
 from .protocol import Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
 from .status import AxisStatus, axis_statuses
-from .units import UnitScale, from_controller, to_controller
+from .units import UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
 
@@ -508,9 +508,10 @@ class Controller:
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
         ``units``, else the axis' dim unit)."""
+        chosen = self._reading_unit(unit, 0)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
-        return await self._from_controller(positions, unit, 0)
+        return await self._from_controller(positions, chosen, 0)
 
     async def status(self) -> dict[str, str]:
         """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
@@ -847,24 +848,45 @@ class Controller:
         if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
             return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
                     for axis, value in values.items()}
+        try:  # checked before anything is read or written
+            given = {axis: plain(value, chosen, power) for axis, value in values.items()}
+        except (TypeError, ValueError) as exc:
+            raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
         scales = await self.unit_scales()
-        return {axis: to_controller(value, chosen, power, scales[axis])
-                if axis in scales else value for axis, value in values.items()}
+        return {axis: to_controller(number, of, power, scales[axis]) if axis in scales
+                else number for axis, (number, of) in given.items()}
 
-    async def _from_controller(self, values: Mapping[str, Any], unit: str | None,
-                               power: int) -> dict[str, float]:
-        """Per-axis readings converted from the controller's unit to ``unit``."""
+    def _reading_unit(self, unit: str | None, power: int) -> str | None:
+        """The unit a reading is converted to (see :meth:`_unit`), checked before
+        anything is read."""
         chosen = self._unit(unit, power)
-        if chosen is None:
-            return {axis: float(value) for axis, value in values.items()}
-        scales = await self.unit_scales()
-        return {axis: from_controller(float(value), chosen, power, scales[axis])
+        if chosen is not None:
+            try:
+                plain(0.0, chosen, power)
+            except ValueError as exc:
+                raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
+        return chosen
+
+    async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
+                               power: int) -> dict[str, Any]:
+        """Per-axis readings (numbers, or sequences of numbers) converted from the
+        controller's unit to ``chosen`` (from :meth:`_reading_unit`)."""
+        scales = await self.unit_scales() if chosen is not None else {}
+
+        def convert(axis: str, value: float) -> float:
+            if chosen is None:
+                return float(value)
+            return from_controller(float(value), chosen, power, scales[axis])
+
+        return {axis: tuple(convert(axis, v) for v in value)
+                if isinstance(value, list | tuple) else convert(axis, value)
                 for axis, value in values.items()}
 
     async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
         (``"mm/s"``; default: the connection's ``units`` per second)."""
-        return await self._from_controller(await self.get("vel"), unit, 1)
+        chosen = self._reading_unit(unit, 1)
+        return await self._from_controller(await self.get("vel"), chosen, 1)
 
     async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
@@ -873,7 +895,8 @@ class Controller:
     async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
         default: the connection's ``units`` per second squared)."""
-        return await self._from_controller(await self.get("accel"), unit, 2)
+        chosen = self._reading_unit(unit, 2)
+        return await self._from_controller(await self.get("accel"), chosen, 2)
 
     async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``accel`` per axis, see :meth:`acceleration`."""
@@ -882,10 +905,9 @@ class Controller:
     async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
         """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
         ``unit`` (default: the connection's ``units``, else the dim unit)."""
+        chosen = self._reading_unit(unit, 0)
         pairs = await self.get("lim")
-        lower = await self._from_controller({a: p[0] for a, p in pairs.items()}, unit, 0)
-        upper = await self._from_controller({a: p[1] for a, p in pairs.items()}, unit, 0)
-        return {axis: (lower[axis], upper[axis]) for axis in pairs}
+        return await self._from_controller(pairs, chosen, 0)
 
     async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:

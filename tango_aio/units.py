@@ -56,6 +56,7 @@ __all__ = [
     "check_unit",
     "from_controller",
     "mm_per_rev",
+    "plain",
     "split_unit",
     "to_controller",
     "user_per_rev",
@@ -263,10 +264,7 @@ def _dim_units_per(base: str, scale: UnitScale) -> Fraction:
 
 def _factor(unit: str, power: int, scale: UnitScale) -> Fraction:
     """Controller units per caller unit for a quantity of ``power`` (0, 1, 2)."""
-    base, given = split_unit(unit)
-    if given != power:
-        kinds = ("position", "velocity", "acceleration")
-        raise ValueError(f"{unit!r} is a {kinds[given]} unit where a {kinds[power]} goes")
+    base = _kind(unit, power)
     if power == 0:
         return _dim_units_per(base, scale)
     if power == 1:  # rev/s in dims 0-8, mm/s in dim 9 (L189)
@@ -281,9 +279,11 @@ def _factor(unit: str, power: int, scale: UnitScale) -> Fraction:
     return mm / 1000
 
 
-def _magnitude(value: object, unit: str | None, power: int) -> tuple[float, str | None]:
-    """A plain number and its unit; a pint Quantity is converted to mm-based units (or
-    revolutions, for angles) and its magnitude taken."""
+def plain(value: object, unit: str | None, power: int) -> tuple[float, str | None]:
+    """``value`` as a plain number and the unit it is in, checked without any controller
+    settings: a pint Quantity is converted to mm-based units (or revolutions, for angles)
+    and its magnitude taken; ``unit`` must be of the kind ``power`` asks for.
+    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit."""
     if hasattr(value, "magnitude") and hasattr(value, "to"):
         quantity: Any = value
         suffix = ("", "/s", "/s**2")[power]
@@ -296,14 +296,25 @@ def _magnitude(value: object, unit: str | None, power: int) -> tuple[float, str 
                          + ("" if not power else " per second" * power))
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"not a number: {value!r}")
+    if unit is not None:
+        _kind(unit, power)
     return float(value), unit
+
+
+def _kind(unit: str, power: int) -> str:
+    """The base of ``unit``; ``ValueError`` unless it is of the kind ``power`` asks for."""
+    base, given = split_unit(unit)
+    if given != power:
+        kinds = ("position", "velocity", "acceleration")
+        raise ValueError(f"{unit!r} is a {kinds[given]} unit where a {kinds[power]} goes")
+    return base
 
 
 def to_controller(value: object, unit: str | None, power: int, scale: UnitScale) -> float:
     """Convert ``value`` (a number in ``unit``, or a pint Quantity) to the controller's
     unit on an axis with ``scale``: its dim unit (``power`` 0), rev/s or mm/s in dim 9
     (1), m/s² (2). ``unit=None`` and a plain number: already in the controller's unit."""
-    number, given = _magnitude(value, unit, power)
+    number, given = plain(value, unit, power)
     if given is None:
         return number
     return float(Fraction(number) * _factor(given, power, scale))

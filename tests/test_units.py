@@ -156,3 +156,19 @@ async def test_watch_position_follows_a_whole_scan() -> None:
         assert seen == sorted(seen)
         once = [u async for u in tango.watch_position(0.01)]  # idle: one update, then done
         assert len(once) == 1 and once[0].positions["x"] == 1.5
+
+
+async def test_bad_values_and_units_are_refused_before_anything_is_sent() -> None:
+    from conftest import wire_of
+
+    async with tango_aio.connect(INSTANT) as tango:
+        before = wire_of(tango).lines_processed
+        for call in (tango.move_to(x="1 2", unit="mm"),  # type: ignore[arg-type]
+                     tango.move_to(x=True, unit="mm"),
+                     tango.move_to(x=1.0, unit="furlong"),
+                     tango.move_to(x=1.0, unit="mm/s"),
+                     tango.set_velocity(x=1.0, unit="mm"),
+                     tango.position(unit="parsec")):
+            with pytest.raises(tango_aio.InvalidCommandError):
+                await call
+        assert wire_of(tango).lines_processed == before
