@@ -28,7 +28,7 @@ from typing import Any
 from ._checks import check_count, check_timeout
 from .controller import Controller
 from .errors import ConnectionLostError
-from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT
+from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .protocol import TangoProtocol
 from .reconnect import Closer, Reconnect, ReconnectPolicy
 from .units import check_unit
@@ -215,6 +215,7 @@ class ConnectOptions:
         check_timeout(self.reply_timeout, "reply_timeout")
         check_count(self.credit_limit, "credit_limit")
         check_count(self.marker_chunk, "marker_chunk")
+        CreditWindow(self.credit_limit, self.marker_chunk)  # its own limits, e.g. too small
         if self.units is not None:
             check_unit(self.units)
         self.policy()  # checks the reconnect options

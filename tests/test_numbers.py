@@ -121,7 +121,8 @@ async def test_bad_sizes_are_refused(tango: Controller) -> None:
 
 
 @pytest.mark.parametrize("options", [
-    {"credit_limit": math.nan}, {"credit_limit": 0}, {"reply_timeout": math.nan},
+    {"credit_limit": math.nan}, {"credit_limit": 0}, {"credit_limit": 3},
+    {"reply_timeout": math.nan},
     {"reply_timeout": 0}, {"marker_chunk": -1}, {"autostatus": 7}, {"units": "furlong"},
     {"reconnect": True, "reconnect_initial": math.nan},
 ], ids=repr)
