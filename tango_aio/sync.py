@@ -33,6 +33,7 @@ import atexit
 import concurrent.futures
 import contextlib
 import functools
+import inspect
 import os
 import queue
 import threading
@@ -370,6 +371,19 @@ async def _subscribe(controller: AsyncController | AsyncGroup, maxsize: int) -> 
     return controller.events(maxsize)
 
 
+def _parameters_of(source: Callable[P, object]
+                   ) -> Callable[[Callable[..., T]], Callable[P, T]]:
+    """Give the decorated function ``source``'s parameters (for type checkers, editors
+    and ``inspect.signature``), keeping its own return type and docstring."""
+    def decorate(func: Callable[..., T]) -> Callable[P, T]:
+        own = inspect.signature(func).return_annotation
+        func.__signature__ = inspect.signature(source).replace(  # type: ignore[attr-defined]
+            return_annotation=own)
+        return func
+    return decorate
+
+
+@_parameters_of(_connection.connect)
 def connect(url: str = "sim://", **options: Any) -> Controller:
     """Connect to a TANGO controller and return a blocking :class:`Controller`.
 

@@ -141,7 +141,7 @@ def test_events_iterator(tango: tango_aio.sync.Controller) -> None:
 def test_options_are_checked_before_a_thread_starts() -> None:
     before = threading.active_count()
     with pytest.raises(TypeError):
-        tango_aio.sync.connect(INSTANT, reply_timout=1)
+        tango_aio.sync.connect(INSTANT, reply_timout=1)  # type: ignore[call-arg]
     with pytest.raises(ValueError, match="reply_timeout"):
         tango_aio.sync.connect(INSTANT, reply_timeout=float("nan"))
     assert threading.active_count() == before
