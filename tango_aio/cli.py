@@ -154,35 +154,83 @@ async def _info(args: argparse.Namespace) -> int:
 
 async def _sim(args: argparse.Namespace) -> int:
     """Serve an emulated controller on a pty or a TCP port until interrupted."""
-    from .sim.inprocess import configs_from_url
+    from .sim.inprocess import configs_from_url, speed_from_url
     from .sim.model import ControllerModel
     from .sim.serve import serve_pty, serve_tcp
     from .sim.wire import Emit
 
-    sim_config, wire_config = configs_from_url(_sim_url(args))
+    address = _tcp_address(args.tcp) if args.tcp else None
+    if args.per_connection and address is None:
+        raise ValueError("--per-connection needs --tcp (a pty serves one controller)")
+    url = _sim_url(args)
+    sim_config, wire_config = configs_from_url(url)
+    speed = speed_from_url(url)
 
     def factory(emit: Emit) -> ControllerModel:
         return ControllerModel(emit, sim_config)
 
-    if args.tcp:
-        host, _, port = args.tcp.rpartition(":")
-        server = await serve_tcp(factory, host=host or "127.0.0.1", port=int(port),
-                                 config=wire_config)
-        print(f"socket://{server.host}:{server.port}", flush=True)
+    factory(lambda data: None)  # a bad --state file: one error now, not one per connection
+    if address is not None:
+        server = await serve_tcp(factory, host=address[0], port=address[1],
+                                 config=wire_config, speed=speed,
+                                 shared=not args.per_connection)
+        host = f"[{server.host}]" if ":" in server.host else server.host
+        print(f"socket://{host}:{server.port}", flush=True)
     else:
-        server = await serve_pty(factory, config=wire_config)  # type: ignore[assignment]
+        server = await serve_pty(factory, config=wire_config,  # type: ignore[assignment]
+                                 speed=speed)
         print(server.path, flush=True)  # type: ignore[attr-defined]
     async with server:
         await server.wait_closed()
     return 0
 
 
+def _tcp_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, ``:PORT`` (127.0.0.1) or ``[IPv6]:PORT`` as (host, port); ValueError
+    with the reason for anything else."""
+    host, sep, port_text = text.rpartition(":")
+    if not sep:
+        raise ValueError(f"--tcp {text!r}: expected HOST:PORT, e.g. 127.0.0.1:4001")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    elif ":" in host:
+        raise ValueError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. [::1]:4001")
+    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+        raise ValueError(f"--tcp {text!r}: the port must be a number 0-65535 (0: any free one)")
+    return host or "127.0.0.1", int(port_text)
+
+
 def _sim_url(args: argparse.Namespace) -> str:
-    query = [f"axes={args.axes}", f"baud={args.baud}", f"latency={args.latency}",
-             f"processing={args.processing}"]
+    """The ``sim://`` URL of the sim command's options (checked by its parser)."""
+    from urllib.parse import urlencode
+
+    from .sim.profiles import Firmware
+
+    switches = dict(_switch(text) for text in args.switch)
+    Firmware.from_options(args.profile, **switches)  # unknown names or values: ValueError
+    query: dict[str, object] = {
+        "axes": args.axes, "baud": args.baud, "latency": args.latency,
+        "processing": args.processing, "speed": _speed(args.speed), "profile": args.profile,
+        **switches}
     if args.state:
-        query.append(f"state={args.state}")
-    return "sim://?" + "&".join(query)
+        query["state"] = args.state
+    return "sim://?" + urlencode(query)
+
+
+def _speed(text: str) -> float:
+    from .sim.clock import check_speed
+
+    try:
+        return check_speed(float(text))
+    except ValueError:
+        raise ValueError(f"--speed {text!r}: expected a finite number > 0, e.g. 20") from None
+
+
+def _switch(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise ValueError(f"--switch {text!r}: expected NAME=VALUE, e.g. echo=after")
+    return name.strip(), value.strip()
 
 
 # -- decoding of replies and events -----------------------------------------------------
@@ -655,6 +703,17 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--latency", type=float, default=0.0, help="reply latency in s")
     sim.add_argument("--processing", type=float, default=0.0, help="time per line in s")
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
+    sim.add_argument("--profile", default="manual",
+                     help="firmware profile: manual (1.71, default) or legacy (older edition)")
+    sim.add_argument("--switch", action="append", default=[], metavar="NAME=VALUE",
+                     help="a firmware switch on top of the profile (repeatable), "
+                          "e.g. echo=after; see the README's switch table")
+    sim.add_argument("--speed", default="1", metavar="X",
+                     help="run motion, pauses and timeouts X times as fast (the wire "
+                          "keeps its baud rate)")
+    sim.add_argument("--per-connection", action="store_true",
+                     help="with --tcp: a fresh controller for every connection (default: "
+                          "one controller for the server's life)")
     sim.set_defaults(run=_sim)
     _add_new_commands(commands)
     return parser

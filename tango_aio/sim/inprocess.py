@@ -18,9 +18,12 @@ firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
+speed          the controller's time runs this many times as fast          1
 =============  =========================================================  ===========
 
 Example: ``sim://?profile=legacy&echo=after`` (the profile first, single switches on top).
+``speed`` (a finite number > 0) scales motion, pauses and the controller's timeouts; the
+wire keeps its baud rate, latency and processing times (:mod:`tango_aio.sim.clock`).
 """
 
 from __future__ import annotations
@@ -31,12 +34,13 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TypeVar
 
+from .clock import check_speed
 from .model import ControllerModel, SimConfig
 from .profiles import SWITCHES, Firmware
 from .serve import SimTransport, create_sim_connection
 from .wire import Emit, WireConfig
 
-__all__ = ["configs_from_url", "open_sim"]
+__all__ = ["configs_from_url", "open_sim", "speed_from_url"]
 
 _P = TypeVar("_P", bound=asyncio.Protocol)
 
@@ -48,7 +52,7 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         raise ValueError(f"not a sim:// URL: {url!r}")
     query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
     known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
-             "seed", "model", "firmware", "state", "profile", *SWITCHES}
+             "seed", "model", "firmware", "state", "profile", "speed", *SWITCHES}
     unknown = set(query) - known
     if unknown:
         raise ValueError(f"unknown sim:// option(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -76,6 +80,16 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
     return sim, wire
 
 
+def speed_from_url(url: str) -> float:
+    """The ``speed`` option of a ``sim://`` URL (1 if absent); ValueError if not > 0."""
+    query = dict(urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query))
+    text = query.get("speed", "1")
+    try:
+        return check_speed(float(text))
+    except ValueError:
+        raise ValueError(f"sim:// speed must be a finite number > 0, got {text!r}") from None
+
+
 async def open_sim(
     url: str, protocol_factory: Callable[[], _P]
 ) -> tuple[_P, Callable[[], Awaitable[None]]]:
@@ -84,11 +98,13 @@ async def open_sim(
     Returns the protocol and a coroutine function that shuts the emulator down.
     """
     sim, wire = configs_from_url(url)
+    speed = speed_from_url(url)
 
     def make_handler(emit: Emit) -> ControllerModel:
         return ControllerModel(emit, sim)
 
-    transport, protocol = await create_sim_connection(protocol_factory, make_handler, wire)
+    transport, protocol = await create_sim_connection(protocol_factory, make_handler, wire,
+                                                      speed=speed)
 
     async def close() -> None:
         transport.close()

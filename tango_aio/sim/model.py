@@ -46,11 +46,7 @@ choice is named first below:
 
 from __future__ import annotations
 
-import json
-import os
 import re
-import tempfile
-import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from decimal import Decimal
@@ -67,10 +63,12 @@ from ..instructions import (
     Shape,
     parse,
 )
+from .clock import host_now
 from .lists import ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
 from .params import ParamStore, format_value, position_digits
 from .profiles import Firmware
+from .state import StateFileError, load_state, save_state
 from .wire import Emit
 
 __all__ = ["ControllerModel", "Refused", "SimConfig"]
@@ -180,8 +178,9 @@ class ControllerModel:
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
         self.internal_errors: list[str] = []
         self._handlers = self._build_handlers()
-        # The servers run the wire on the event loop's clock, which is time.monotonic().
-        self._boot(time.monotonic() if now is None else now)
+        # The servers run the wire on the running loop's clock (not time.monotonic()
+        # under uvloop), so the default start time is that clock's now.
+        self._boot(host_now() if now is None else now)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -630,21 +629,7 @@ class ControllerModel:
                 and (n in self.params.axis_values or n in self.params.global_values)]
 
     def _load_saved(self) -> None:
-        path = self.config.state_file
-        if path is None or not path.exists():
-            return
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            # Choice: unreadable saved parameters act like none saved (firmware defaults),
-            # as after an eeprom checksum error; the file is only replaced by 'save'.
-            return
-        for name, value in data.get("axes", {}).items():
-            if name in self.params.axis_values:
-                self.params.axis_values[name] = [tuple(group) for group in value]
-        for name, value in data.get("global", {}).items():
-            if name in self.params.global_values:
-                self.params.global_values[name] = tuple(value)
+        load_state(self.config.state_file, self.params)  # choices: tango_aio/sim/state.py
 
     def save(self) -> None:
         """Persist the saved parameters to :attr:`SimConfig.state_file` atomically.
@@ -656,15 +641,9 @@ class ControllerModel:
         path = self.config.state_file
         if path is None:
             return
-        names = self._saved_names()
-        data = {
-            "axes": {n: self.params.axis_values[n] for n in names if n in self.params.axis_values},
-            "global": {n: self.params.global_values[n] for n in names
-                       if n in self.params.global_values},
-        }
         try:
-            _atomic_write(path, json.dumps(data, indent=1))
-        except OSError as exc:
+            save_state(path, self.params, self._saved_names())
+        except (OSError, StateFileError) as exc:
             raise Refused(73, f"save failed: {exc}") from exc
 
     def restore(self) -> None:
@@ -833,18 +812,3 @@ def _bits_read(command: Command) -> bool:
     entry = command.instruction
     return bool(entry.write) and bool(entry.write[0].lead) and \
         entry.write[0].lead[0].kind is Kind.BITS
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers see the old or the new file, never half."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -34,6 +34,7 @@ from tango_aio.instructions import (
 from tango_aio.patterns import reply_pattern
 from tango_aio.sim.lists import MAX_SNAPSHOTS, MAX_TRIGGERS
 from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.state import StateFileError
 from tango_aio.sim.wire import Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)
@@ -1225,10 +1226,11 @@ def test_a_failed_save_keeps_the_old_file(tmp_path: Path,
     assert sim.model.internal_errors == []
 
 
-def test_a_corrupt_state_file_boots_with_defaults(tmp_path: Path) -> None:
+def test_a_corrupt_state_file_is_refused_at_start(tmp_path: Path) -> None:
     state = tmp_path / "tango.json"
     state.write_text('{"axes": {"vel": [[1', encoding="utf-8")
-    assert Sim(state_file=state).ask("?vel x") == "10.000"
+    with pytest.raises(StateFileError, match="not a tango_aio emulator state file"):
+        Sim(state_file=state)  # more cases: tests/sim/test_serve.py
 
 
 def test_restore_reloads_the_saved_set_without_restarting(tmp_path: Path) -> None:

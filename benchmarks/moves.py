@@ -1,0 +1,146 @@
+"""Move-rate benchmark: tiny moves through the driver against a minimal raw client.
+
+The emulator runs in a process of its own (``tango-aio sim --pty``, 57600 Bd 8N2, 3 axes),
+so that its CPU is not the driver's. On the same pty, in one run, side by side:
+
+* ``move_to``: ``await tango.move_to(x=...)`` alternating between two targets 0.01 mm
+  apart, autostatus 1;
+* ``move_by``: ``await tango.move_by(x=±0.01)``;
+* the raw client: pyserial, blocking, the smallest correct loop a lab script would write:
+  write ``!moa x`` (or ``!mor``), read until the completion report ``...\\r``;
+* the raw client with the move's check: ``!moa x`` then ``?err`` read back, then the report.
+
+Each is reported in moves per second and as the driver's ratio to the raw client of the same
+kind. Usage::
+
+    python benchmarks/moves.py [--moves 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import serial
+
+import tango_aio
+
+STEP = 0.01
+
+
+@dataclass
+class Rate:
+    """Moves per second of one way of moving."""
+
+    name: str
+    moves: int
+    seconds: float
+
+    @property
+    def per_second(self) -> float:
+        """Moves per second."""
+        return self.moves / self.seconds
+
+
+@contextlib.contextmanager
+def emulator_pty() -> Iterator[str]:
+    """Start ``tango-aio sim --pty`` in its own process; yield the device path."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "tango_aio", "sim", "--pty"],
+        stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    try:
+        assert process.stdout is not None
+        path = process.stdout.readline().strip().split()[-1]
+        if not path.startswith("/dev/"):
+            raise RuntimeError(f"the emulator did not print a device path: {path!r}")
+        yield path
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def raw_moves(path: str, moves: int, line: Callable[[int], str], check: bool) -> Rate:
+    """A pyserial loop: write the move (and ``?err``), read until the completion report."""
+    with serial.Serial(path, 57600, stopbits=2, timeout=5) as port:
+        port.write(b"\r")
+        port.reset_input_buffer()
+        start = time.perf_counter()
+        for index in range(moves):
+            port.write(line(index).encode() + (b"\r?err\r" if check else b"\r"))
+            if check:
+                _read_until(port, lambda text: text.isdigit())
+            _read_until(port, lambda text: text.endswith("."))
+        seconds = time.perf_counter() - start
+    return Rate(f"raw {'check ' if check else ''}{line(0).split()[0]}", moves, seconds)
+
+
+def _read_until(port: serial.Serial, done: Callable[[str], bool]) -> None:
+    while True:
+        raw = port.read_until(b"\r")
+        if not raw.endswith(b"\r"):
+            raise TimeoutError("no reply from the emulator")
+        if done(raw[:-1].decode("latin-1")):
+            return
+
+
+async def driver_moves(path: str, moves: int, relative: bool) -> Rate:
+    """``move_to`` / ``move_by`` through the driver."""
+    async with tango_aio.connect(path) as tango:
+        start = time.perf_counter()
+        for index in range(moves):
+            if relative:
+                await tango.move_by(x=STEP if index % 2 == 0 else -STEP)
+            else:
+                await tango.move_to(x=STEP if index % 2 == 0 else 0.0)
+        seconds = time.perf_counter() - start
+    return Rate("driver move_by" if relative else "driver move_to", moves, seconds)
+
+
+def absolute(index: int) -> str:
+    """The raw client's absolute move line."""
+    return f"!moa x {STEP if index % 2 == 0 else 0.0}"
+
+
+def relative(index: int) -> str:
+    """The raw client's relative move line."""
+    return f"!mor x {STEP if index % 2 == 0 else -STEP}"
+
+
+def run(moves: int) -> list[tuple[Rate, Rate]]:
+    """Every pair (driver, raw baseline), measured one after the other on one emulator."""
+    with emulator_pty() as path:
+        return [
+            (asyncio.run(driver_moves(path, moves, relative=False)),
+             raw_moves(path, moves, absolute, check=False)),
+            (asyncio.run(driver_moves(path, moves, relative=False)),
+             raw_moves(path, moves, absolute, check=True)),
+            (asyncio.run(driver_moves(path, moves, relative=True)),
+             raw_moves(path, moves, relative, check=False)),
+        ]
+
+
+def table(pairs: list[tuple[Rate, Rate]]) -> str:
+    """The Markdown table BENCHMARKS.md records."""
+    rows = ["| driver | moves/s | raw client | moves/s | ratio |", "|---|---:|---|---:|---:|"]
+    for driver, raw in pairs:
+        rows.append(f"| {driver.name} | {driver.per_second:.1f} | {raw.name} | "
+                    f"{raw.per_second:.1f} | **{driver.per_second / raw.per_second:.2f}** |")
+    return "\n".join(rows)
+
+
+def main() -> None:
+    """Run the benchmark and print its table."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--moves", type=int, default=200, help="moves per case")
+    args = parser.parse_args()
+    print(table(run(args.moves)))
+
+
+if __name__ == "__main__":
+    main()
