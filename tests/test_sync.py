@@ -212,3 +212,16 @@ def test_a_script_that_forgets_close_still_exits() -> None:
                             timeout=60, check=False)
     assert result.returncode == 0, result.stderr
     assert "'x': '@'" in result.stdout
+
+
+def test_the_driver_loop_can_be_uvloop() -> None:
+    pytest.importorskip("uvloop")
+    script = ("import asyncio, tango_aio.sync\n"
+              "with tango_aio.sync.connect('sim://?baud=0') as tango:\n"
+              "    loop = tango.portal.portal.call(asyncio.get_running_loop)\n"
+              "    print(type(loop).__module__, tango.get('vel')['x'])\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=60, check=False,
+                            env={**os.environ, "TANGO_AIO_LOOP": "uvloop"})
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["uvloop", "10.0"]
