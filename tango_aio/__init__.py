@@ -157,4 +157,15 @@ __all__ = [
     "discover",
 ]
 
+# Error and event classes added to their modules later are exported too (their modules'
+# own __all__ lists are the source); the explicit imports above are for readers and IDEs.
+from . import errors as _errors
+from . import events as _events
+from .errors import *  # noqa: F403
+from .events import *  # noqa: F403
+
+__all__ += [name for name in (*_errors.__all__, *_events.__all__)
+            if name[0].isupper() and name not in __all__ and name != "ERROR_DESCRIPTIONS"
+            and name != "EventHub"]
+
 __version__ = "0.1.0"
