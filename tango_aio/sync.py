@@ -50,6 +50,7 @@ from collections.abc import (
 from types import TracebackType
 from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
 
+import anyio
 import anyio.from_thread
 
 from . import connection as _connection
@@ -109,8 +110,15 @@ class Portal:
         re-raised once its clean-up (e.g. stopping the axes) is done.
         """
         finished = threading.Event()
+        state = threading.Lock()
+        started = interrupted = False
 
         async def run() -> R:
+            nonlocal started
+            with state:
+                if interrupted:  # Ctrl+C came before the call began: do not begin it
+                    raise anyio.get_cancelled_exc_class()
+                started = True
             try:
                 return await func(*args, **kwargs)
             finally:
@@ -120,8 +128,12 @@ class Portal:
         try:
             return future.result()
         except KeyboardInterrupt:
+            with state:
+                interrupted = True
+                began = started
             future.cancel()
-            finished.wait(STOP_WAIT)
+            if began:  # wait for its clean-up, e.g. the axes stopped
+                finished.wait(STOP_WAIT)
             raise
 
     def start(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
