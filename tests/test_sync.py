@@ -225,3 +225,26 @@ def test_the_driver_loop_can_be_uvloop() -> None:
                             env={**os.environ, "TANGO_AIO_LOOP": "uvloop"})
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["uvloop", "10.0"]
+
+
+def test_ctrl_c_during_a_blocking_group_move_stops_every_member() -> None:
+    specs = {"stage": INSTANT, "focus": "sim://?baud=0&axes=1"}
+    with tango_aio.sync.ControllerGroup(specs) as group:
+        for member in group.values():
+            member.set("vel", x=0.5)
+
+        def interrupt_once_moving() -> None:
+            while not all(member.status()["x"] == "M" for member in group.values()):
+                pass
+            os.kill(os.getpid(), signal.SIGINT)
+
+        helper = threading.Thread(target=interrupt_once_moving)
+        helper.start()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                group.move_to({"stage": {"x": 100.0}, "focus": {"x": 100.0}})
+        finally:
+            helper.join()
+        for member in group.values():
+            assert "M" not in member.status().values()
+            assert 0 < member.position()["x"] < 100
