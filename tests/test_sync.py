@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import inspect
 import os
 import signal
@@ -11,7 +12,7 @@ import subprocess
 import sys
 import textwrap
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -88,22 +89,28 @@ def test_wait_idle_raises_a_started_move_failure(tango: tango_aio.sync.Controlle
     assert future.done()
 
 
-def test_ctrl_c_during_a_blocking_move_stops_the_axes(tango: tango_aio.sync.Controller
-                                                      ) -> None:
-    tango.set("vel", x=0.5)  # 100 mm at 0.5 rev/s and 1 mm pitch: minutes of travel
-
-    def interrupt_once_moving() -> None:
-        while tango.status()["x"] != "M":
+@contextlib.contextmanager
+def _ctrl_c_once(ready: Callable[[], bool]) -> Iterator[None]:
+    """Press Ctrl+C (a real SIGINT to this process) as soon as ``ready()`` holds, from a
+    helper thread, while the body blocks in the main thread."""
+    def press() -> None:
+        while not ready():
             pass
         os.kill(os.getpid(), signal.SIGINT)
 
-    helper = threading.Thread(target=interrupt_once_moving)
+    helper = threading.Thread(target=press)
     helper.start()
     try:
-        with pytest.raises(KeyboardInterrupt):
-            tango.move_to(x=100)
+        yield
     finally:
         helper.join()
+
+
+def test_ctrl_c_during_a_blocking_move_stops_the_axes(tango: tango_aio.sync.Controller
+                                                      ) -> None:
+    tango.set("vel", x=0.5)  # 100 mm at 0.5 rev/s and 1 mm pitch: minutes of travel
+    with _ctrl_c_once(lambda: tango.status()["x"] == "M"), pytest.raises(KeyboardInterrupt):
+        tango.move_to(x=100)
     # The interrupt came back only once the axes were stopped by the cancelled move.
     assert "M" not in tango.status().values()  # "E": aborted
     assert 0 < tango.position()["x"] < 100
@@ -232,19 +239,9 @@ def test_ctrl_c_during_a_blocking_group_move_stops_every_member() -> None:
     with tango_aio.sync.ControllerGroup(specs) as group:
         for member in group.values():
             member.set("vel", x=0.5)
-
-        def interrupt_once_moving() -> None:
-            while not all(member.status()["x"] == "M" for member in group.values()):
-                pass
-            os.kill(os.getpid(), signal.SIGINT)
-
-        helper = threading.Thread(target=interrupt_once_moving)
-        helper.start()
-        try:
-            with pytest.raises(KeyboardInterrupt):
-                group.move_to({"stage": {"x": 100.0}, "focus": {"x": 100.0}})
-        finally:
-            helper.join()
+        moving = lambda: all(member.status()["x"] == "M" for member in group.values())  # noqa: E731
+        with _ctrl_c_once(moving), pytest.raises(KeyboardInterrupt):
+            group.move_to({"stage": {"x": 100.0}, "focus": {"x": 100.0}})
         for member in group.values():
             assert "M" not in member.status().values()
             assert 0 < member.position()["x"] < 100
