@@ -1,10 +1,12 @@
-"""Use the emulator in your own pytest tests, as a fixture.
+"""Use the emulator in your own pytest tests: the ``tango_emulator`` fixture.
 
-Copy the ``tango`` fixture into your ``conftest.py``: every test gets a fresh emulated
-controller in its own event loop (``sim://?baud=0`` skips the wire pacing so tests are
-fast; moves still run in real time at the configured speeds). The fixture and tests use
-pytest-asyncio (``pip install pytest-asyncio``) with explicit markers, so they also work
-without ``asyncio_mode = "auto"``.
+Installing tango-aio registers the pytest plugin :mod:`tango_aio.testing`, so nothing needs
+copying into your ``conftest.py``: ask for ``tango_emulator`` and every test gets a fresh
+emulated controller (``.tango``) with a fault-injection handle (``.faults``), closed after
+the test. Options come from a marker (``@pytest.mark.tango_emulator(axes=2)``), the command
+line (``--tango-profile legacy --tango-axes 2 --tango-speed real``) or the ini file. The
+async fixtures use pytest-asyncio (explicit markers here, so this also works without
+``asyncio_mode = "auto"``); ``tango_emulator_sync`` gives a blocking controller instead.
 
 This file is both a test module and a script; run it either way:
 
@@ -15,42 +17,21 @@ This file is both a test module and a script; run it either way:
 from __future__ import annotations
 
 import sys
-from collections.abc import AsyncIterator
 
 import pytest
-import pytest_asyncio
 
 import tango_aio
-
-
-@pytest_asyncio.fixture
-async def tango() -> AsyncIterator[tango_aio.Controller]:
-    """A controller connected to a fresh in-process emulator, closed after the test."""
-    controller = await tango_aio.connect("sim://?baud=0")
-    try:
-        yield controller
-    finally:
-        await controller.aclose()
+from tango_aio.testing import Emulated, EmulatedSync
 
 
 @pytest.mark.asyncio
-async def test_identifies_as_a_tango(tango: tango_aio.Controller) -> None:
-    assert tango.identity is not None
+@pytest.mark.tango_emulator(axes=2)
+async def test_moves_and_settings(tango_emulator: Emulated) -> None:
+    tango = tango_emulator.tango
     assert tango.identity.model == "TANGO-DT"
-    assert tango.identity.axes == 3
-
-
-@pytest.mark.asyncio
-async def test_move_reaches_the_target(tango: tango_aio.Controller) -> None:
-    letters = await tango.move_to(x=1.5, y=-0.5)
-    assert letters == {"x": "@", "y": "@", "z": "@"}
-    position = await tango.position()
-    assert position["x"] == pytest.approx(1.5)
-    assert position["y"] == pytest.approx(-0.5)
-
-
-@pytest.mark.asyncio
-async def test_settings_round_trip_and_errors(tango: tango_aio.Controller) -> None:
+    assert tango.identity.axes == 2
+    assert await tango.move_to(x=1.5, y=-0.5, unit="mm") == {"x": "@", "y": "@"}
+    assert await tango.position() == pytest.approx({"x": 1.5, "y": -0.5})
     await tango.set("vel", 12.5, axis="y")
     assert await tango.get("vel", axis="y") == 12.5
     with pytest.raises(tango_aio.ControllerError) as caught:  # refused by the controller
@@ -58,6 +39,26 @@ async def test_settings_round_trip_and_errors(tango: tango_aio.Controller) -> No
     assert caught.value.error_code == 5
     with pytest.raises(tango_aio.InvalidCommandError):  # refused before sending
         await tango.set("vel", -1, axis="x")
+
+
+@pytest.mark.asyncio
+async def test_a_lost_reply_fails_one_request_only(tango_emulator: Emulated) -> None:
+    tango = tango_emulator.tango
+    tango_emulator.faults.drop()  # the next reply never arrives
+    with pytest.raises(tango_aio.ControllerTimeoutError):
+        await tango.get("pos", timeout=0.3)
+    assert await tango.status() == {"x": "@", "y": "@", "z": "@"}  # the next call works
+    tango_emulator.faults.disconnect()
+    with pytest.raises(tango_aio.ConnectionLostError):
+        await tango.get("pos")
+
+
+def test_blocking_controller(tango_emulator_sync: EmulatedSync) -> None:
+    tango = tango_emulator_sync.tango
+    future = tango.start_move_to(x=2.0)  # returns at once
+    tango.wait_idle()
+    assert future.result() == {"x": "@", "y": "@", "z": "@"}
+    assert tango.position(unit="um")["x"] == pytest.approx(2000.0)
 
 
 if __name__ == "__main__":

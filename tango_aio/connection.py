@@ -15,38 +15,49 @@ Opening is cancel-safe: a ``connect()`` cancelled at any point closes what it op
 from __future__ import annotations
 
 import asyncio
+import collections.abc
 import contextlib
 import functools
+import logging
 import urllib.parse
 from collections.abc import Callable, Generator
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
+from ._checks import check_count, check_timeout
 from .controller import Controller
 from .errors import ConnectionLostError
-from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT
-from .protocol import TangoProtocol
+from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
+from .protocol import DEAD_AFTER, TangoProtocol
 from .reconnect import Closer, Reconnect, ReconnectPolicy
+from .units import check_unit
 
-__all__ = ["DEFAULT_BAUD", "Connecting", "connect"]
+__all__ = ["DEFAULT_BAUD", "ConnectOptions", "Connecting", "connect"]
 
 #: The TANGO's default line settings: 57600 Bd, 8 data bits, no parity, 2 stop bits (L8-10).
 DEFAULT_BAUD = 57600
 
 ProtocolFactory = Callable[[], TangoProtocol]
 
+log = logging.getLogger("tango_aio")
 
-async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
-                       rtscts: bool) -> tuple[asyncio.BaseTransport, TangoProtocol]:
+
+#: Longest wait in :meth:`Controller.aclose` for a serial port to be released (seconds).
+RELEASE_WAIT = 5.0
+
+
+async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rtscts: bool
+                       ) -> tuple[asyncio.BaseTransport, TangoProtocol, Closer]:
     import serial
-    import serial_asyncio
+    import serial_asyncio_fast
 
     def open_port() -> Any:
-        # pyserial-asyncio 0.6 opens the port on the event loop, which blocks; open it
-        # in a thread instead and hand the open port over. ``exclusive``: a second program
-        # (or a second connect()) writing to the same controller would interleave lines
-        # and steal replies, so the port is locked (flock on POSIX; Windows ports are
-        # exclusive anyway); URL handlers such as loop:// accept and ignore it.
+        # Opened in a thread, not on the event loop (opening can block). ``exclusive``: a
+        # second program (or a second connect()) writing to the same controller would
+        # interleave lines and steal replies, so the port is locked (flock on POSIX;
+        # Windows ports are exclusive anyway); URL handlers such as loop:// accept and
+        # ignore it.
         port = serial.serial_for_url(url, baudrate=baudrate, bytesize=8, parity="N",
                                      stopbits=2, rtscts=rtscts, timeout=0, exclusive=True)
         try:
@@ -61,12 +72,47 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
     except (OSError, serial.SerialException) as exc:
         raise ConnectionLostError(f"cannot open {url!r}: {exc}") from exc
     loop = asyncio.get_running_loop()
+    released = _watch_release(port, loop)
     try:
-        transport, protocol = await serial_asyncio.connection_for_serial(loop, factory, port)
+        transport, protocol = await serial_asyncio_fast.connection_for_serial(
+            loop, factory, port)
     except BaseException:
         port.close()
         raise
-    return transport, protocol
+    assert isinstance(protocol, TangoProtocol)
+
+    async def release() -> None:
+        """Close the transport and return once the port itself is closed (and its lock
+        released): pyserial-asyncio-fast closes it in a worker thread after
+        ``transport.close()`` returned, and a ``connect()`` to the same port right after
+        ``aclose()`` must not find it still locked."""
+        transport.close()
+        try:
+            await asyncio.wait_for(asyncio.shield(released), RELEASE_WAIT)
+        except TimeoutError:
+            log.warning("%s: the port was not released within %.0f s", url, RELEASE_WAIT)
+
+    return transport, protocol, release
+
+
+def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future[None]:
+    """A future that is done once ``port.close()`` has returned, in whatever thread."""
+    released: asyncio.Future[None] = loop.create_future()
+    close = port.close
+
+    def set_released() -> None:
+        if not released.done():
+            released.set_result(None)
+
+    def close_and_tell() -> None:
+        try:
+            close()
+        finally:
+            with contextlib.suppress(RuntimeError):  # the loop is already closed
+                loop.call_soon_threadsafe(set_released)
+
+    port.close = close_and_tell
+    return released
 
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:
@@ -106,10 +152,9 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
     if url.startswith("socket://"):
         _, protocol = await _open_socket(url, factory)
         return protocol, None
-    baudrate = int(options.get("baudrate", DEFAULT_BAUD))
-    rtscts = bool(options.get("rtscts", False))
-    _, protocol = await _open_serial(url, factory, baudrate=baudrate, rtscts=rtscts)
-    return protocol, None
+    _, protocol, release = await _open_serial(url, factory, baudrate=options["baudrate"],
+                                              rtscts=options["rtscts"])
+    return protocol, release
 
 
 async def _open_link(url: str, make: ProtocolFactory, options: dict[str, Any]
@@ -146,52 +191,109 @@ async def _discard(made: list[TangoProtocol], closer: Closer | None) -> None:
             await asyncio.shield(closer())
 
 
-def _reconnect_policy(options: dict[str, Any]) -> ReconnectPolicy | None:
-    """Take the ``reconnect*`` options out of ``options`` (validated before opening)."""
-    enabled = bool(options.pop("reconnect", False))
-    policy = ReconnectPolicy(initial=float(options.pop("reconnect_initial", 0.1)),
-                             maximum=float(options.pop("reconnect_max", 5.0)),
-                             attempts=options.pop("reconnect_attempts", None))
-    return policy if enabled else None
+@dataclass(frozen=True, slots=True)
+class ConnectOptions:
+    """The options of one :func:`connect` call, checked before anything is opened."""
+
+    baudrate: int = DEFAULT_BAUD
+    rtscts: bool = False
+    autostatus: int | None = 1
+    identify: bool = True
+    reply_timeout: float = 5.0
+    credit_limit: int = DEFAULT_LIMIT
+    marker_chunk: int = DEFAULT_CHUNK
+    reconnect: bool = False
+    reconnect_initial: float = 0.1
+    reconnect_max: float = 5.0
+    reconnect_attempts: int | None = None
+    units: str | None = None
+    dead_after: int = DEAD_AFTER
+    keepalive: float | None = None
+
+    def __post_init__(self) -> None:
+        check_count(self.baudrate, "baudrate")
+        if self.autostatus is not None and self.autostatus not in range(5):
+            raise ValueError(f"autostatus must be None or 0..4, got {self.autostatus!r}")
+        check_timeout(self.reply_timeout, "reply_timeout")
+        check_count(self.credit_limit, "credit_limit")
+        check_count(self.marker_chunk, "marker_chunk")
+        CreditWindow(self.credit_limit, self.marker_chunk)  # its own limits, e.g. too small
+        if self.units is not None:
+            check_unit(self.units)
+        check_count(self.dead_after, "dead_after", minimum=2)
+        if self.keepalive is not None:
+            check_timeout(self.keepalive, "keepalive")
+        self.policy()  # checks the reconnect options
+
+    def policy(self) -> ReconnectPolicy | None:
+        """The reconnect policy, or ``None`` when reconnecting is off."""
+        policy = ReconnectPolicy(initial=self.reconnect_initial, maximum=self.reconnect_max,
+                                 attempts=self.reconnect_attempts)
+        return policy if self.reconnect else None
 
 
-async def _connect(url: str, *, autostatus: int | None = 1, identify: bool = True,
-                   reply_timeout: float = 5.0, credit_limit: int = DEFAULT_LIMIT,
-                   marker_chunk: int = DEFAULT_CHUNK, **options: Any) -> Controller:
-    liveness = {name: options.pop(name) for name in ("dead_after", "keepalive")
-                if name in options}
-
+async def _connect(url: str, options: ConnectOptions) -> Controller:
     def factory() -> TangoProtocol:
-        return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk,
-                             reply_timeout=reply_timeout, detect=True, **liveness)
+        return TangoProtocol(credit_limit=options.credit_limit,
+                             marker_chunk=options.marker_chunk,
+                             reply_timeout=options.reply_timeout, detect=True,
+                             dead_after=options.dead_after, keepalive=options.keepalive)
 
-    policy = _reconnect_policy(options)
-    opener = functools.partial(_open_link, url, factory, options)
+    policy = options.policy()
+    opener = functools.partial(_open_link, url, factory,
+                               {"baudrate": options.baudrate, "rtscts": options.rtscts})
     protocol, closer = await opener()
-    controller = Controller(protocol, url=url, reply_timeout=reply_timeout, on_close=closer)
+    controller = Controller(protocol, url=url, reply_timeout=options.reply_timeout,
+                            on_close=closer)
+    controller.units = options.units
     try:
-        await controller.setup(autostatus=autostatus, identify=identify)
+        await controller.setup(autostatus=options.autostatus, identify=options.identify)
     except BaseException:
         await controller.aclose()
         raise
     if policy is not None:  # only once set up: a failing first connect() just raises
-        controller._enable_reconnect(Reconnect(policy, opener, identify))
+        controller._enable_reconnect(Reconnect(policy, opener, options.identify))
     return controller
 
 
-class Connecting:
-    """What :func:`connect` returns: await it, or use it with ``async with``."""
+class Connecting(collections.abc.Coroutine[Any, Any, Controller]):
+    """What :func:`connect` returns: await it, use it with ``async with``, or hand it to
+    anything that takes a coroutine (``asyncio.run(tango_aio.connect(url))``,
+    ``asyncio.create_task``): it is one, created lazily, so a ``Connecting`` that is never
+    awaited opens nothing and warns about nothing."""
 
-    def __init__(self, url: str, options: dict[str, Any]) -> None:
-        self._url = url
-        self._options = options
+    def __init__(self, url: str, options: ConnectOptions) -> None:
+        self.url = url
+        self.options = options
         self._controller: Controller | None = None
+        self._coroutine: collections.abc.Coroutine[Any, Any, Controller] | None = None
+
+    def _started(self) -> collections.abc.Coroutine[Any, Any, Controller]:
+        if self._coroutine is None:
+            self._coroutine = _connect(self.url, self.options)
+        return self._coroutine
 
     def __await__(self) -> Generator[Any, None, Controller]:
-        return _connect(self._url, **self._options).__await__()
+        return self._started().__await__()
+
+    def send(self, value: Any) -> Any:
+        """Coroutine protocol: resume the connection attempt."""
+        return self._started().send(value)
+
+    def throw(self, typ: Any, val: Any = None, tb: Any = None) -> Any:
+        """Coroutine protocol: raise an exception inside the connection attempt."""
+        if val is None and tb is None:
+            return self._started().throw(typ)
+        return self._started().throw(typ, val, tb)  # pragma: no cover - legacy signature
+
+    def close(self) -> None:
+        """Coroutine protocol: abandon the connection attempt (nothing to do if it never
+        started)."""
+        if self._coroutine is not None:
+            self._coroutine.close()
 
     async def __aenter__(self) -> Controller:
-        self._controller = await _connect(self._url, **self._options)
+        self._controller = await _connect(self.url, self.options)
         return self._controller
 
     async def __aexit__(self, exc_type: type[BaseException] | None,
@@ -200,11 +302,19 @@ class Connecting:
             await self._controller.aclose()
 
 
-def connect(url: str = "sim://", **options: Any) -> Connecting:
+def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool = False,
+            autostatus: int | None = 1, identify: bool = True, reply_timeout: float = 5.0,
+            credit_limit: int = DEFAULT_LIMIT, marker_chunk: int = DEFAULT_CHUNK,
+            reconnect: bool = False, reconnect_initial: float = 0.1,
+            reconnect_max: float = 5.0, reconnect_attempts: int | None = None,
+            units: str | None = None, dead_after: int = DEAD_AFTER,
+            keepalive: float | None = None) -> Connecting:
     """Connect to a TANGO controller.
 
     ``async with tango_aio.connect("/dev/ttyUSB0") as tango: ...`` or
     ``tango = await tango_aio.connect("sim://?axes=3")`` then ``await tango.aclose()``.
+    Every option is a keyword (a misspelt one raises :class:`TypeError`) and is checked
+    before anything is opened (:class:`ValueError`).
 
     Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports, which are opened
     exclusively (a second open of the same port fails); ``autostatus`` (1; ``None`` keeps
@@ -217,6 +327,9 @@ def connect(url: str = "sim://", **options: Any) -> Connecting:
     reconnect when enabled), and ``keepalive`` (None; seconds) probes an idle link with
     ``?autostatus`` so that a dead link, or a controller that restarted behind an adapter
     that stayed up (its mode is restored), is noticed without traffic of the caller's.
+    ``units`` (``None``: the controller's ``dim`` unit) is the physical unit of positions
+    for the whole connection (``"mm"``, ``"um"``, ...; see :mod:`tango_aio.units`);
+    velocities are then in ``units`` per second, accelerations per second squared.
 
     Automatic reconnect (off by default): ``reconnect=True`` keeps the Controller usable
     across link losses. After a loss it waits ``reconnect_initial`` (0.1 s), opens the same
@@ -229,4 +342,10 @@ def connect(url: str = "sim://", **options: Any) -> Connecting:
     with ConnectionLostError and is not retried; calls made while the link is down fail at
     once with ConnectionLostError (``await tango.wait_connected(timeout)`` waits instead).
     """
+    options = ConnectOptions(
+        baudrate=baudrate, rtscts=rtscts, autostatus=autostatus, identify=identify,
+        reply_timeout=reply_timeout, credit_limit=credit_limit, marker_chunk=marker_chunk,
+        reconnect=reconnect, reconnect_initial=reconnect_initial,
+        reconnect_max=reconnect_max, reconnect_attempts=reconnect_attempts, units=units,
+        dead_after=dead_after, keepalive=keepalive)
     return Connecting(url, options)

@@ -8,11 +8,14 @@ import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from decimal import Decimal
+from fractions import Fraction
 from types import TracebackType
 from typing import Any
 
 import anyio
 
+from ._checks import check_count, check_timeout
 from .bulk import (
     ListTransfer,
     Progress,
@@ -50,6 +53,7 @@ from .instructions import (
     Context,
     DetInfo,
     Form,
+    Value,
     VersionInfo,
     build,
     build_axes,
@@ -58,7 +62,8 @@ from .instructions import (
 )
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
-from .units import UnitScale
+from .status import AxisStatus, axis_statuses
+from .units import UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
 
@@ -141,6 +146,9 @@ class Controller:
         self._reconnect_attempt = 0
         #: Set (and replaced) whenever the link goes up or down: wakes wait_connected().
         self._link_event = asyncio.Event()
+        #: The physical position unit of this connection (``connect(url, units="mm")``);
+        #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
+        self.units: str | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -151,8 +159,12 @@ class Controller:
         return self._protocol
 
     @property
-    def identity(self) -> Identity | None:
-        """The identity read when connecting (``None`` if identification was skipped)."""
+    def identity(self) -> Identity:
+        """The identity read when connecting. Raises :class:`RuntimeError` if
+        identification was skipped (``connect(url, identify=False)``)."""
+        if self._identity is None:
+            raise RuntimeError("the controller was not identified: connect(identify=False) "
+                               "skips it (identify() reads the identity)")
         return self._identity
 
     @property
@@ -236,7 +248,7 @@ class Controller:
         :class:`~tango_aio.reconnect.IdentityMismatchError`), or :meth:`aclose` was
         called; :class:`TimeoutError` after ``timeout`` seconds.
         """
-        async with asyncio.timeout(timeout):
+        async with asyncio.timeout(check_timeout(timeout, zero=True)):
             while not self.connected:
                 if not self.reconnecting:
                     self._protocol.check()
@@ -300,7 +312,7 @@ class Controller:
                            on_close=closer)
         try:
             await fresh.setup(autostatus=mode, identify=reconnect.identify)
-            self._check_identity(fresh.identity)
+            self._check_identity(fresh._identity)
             protocol.check()  # the new link may have dropped at the very end
         except BaseException:
             await fresh.aclose()
@@ -403,7 +415,7 @@ class Controller:
         return await self._protocol.query(command, timeout=self._timeout(timeout))
 
     def _timeout(self, timeout: float | None) -> float:
-        return self.reply_timeout if timeout is None else timeout
+        return self.reply_timeout if timeout is None else check_timeout(timeout) or 0.0
 
     async def _execute(self, command: Command, *, check: bool,
                        timeout: float | None = None) -> Response:
@@ -439,7 +451,7 @@ class Controller:
 
     # -- typed access ---------------------------------------------------------------------
 
-    async def get(self, name: str, *args: float | int | str, axis: str | None = None,
+    async def get(self, name: str, *args: Value, axis: str | None = None,
                   timeout: float | None = None) -> Any:
         """Read instruction ``name`` and return its parsed reply.
 
@@ -450,7 +462,7 @@ class Controller:
         response = await self._request(command, timeout)
         return parse_reply(command, response.lines)
 
-    async def set(self, name: str, *args: float | int | str, axis: str | None = None,
+    async def set(self, name: str, /, *args: Value, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
         ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
@@ -458,11 +470,13 @@ class Controller:
         self._check_axes(command, axes)
         await self._execute(command, check=check)
 
-    async def position(self) -> dict[str, float]:
-        """The position of every present axis, in its dim unit."""
+    async def position(self, *, unit: str | None = None) -> dict[str, float]:
+        """The position of every present axis, in ``unit`` (default: the connection's
+        ``units``, else the axis' dim unit)."""
+        chosen = self._reading_unit(unit, 0)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
-        return {axis: float(value) for axis, value in positions.items()}
+        return await self._from_controller(positions, chosen, 0)
 
     async def status(self) -> dict[str, str]:
         """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
@@ -472,17 +486,21 @@ class Controller:
 
     # -- motion ---------------------------------------------------------------------------
 
-    async def move_to(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      **axes: float) -> dict[str, str]:
+    async def move_to(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
+                      unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move to absolute positions (``move_to(x=10, y=5)``) and wait until they are
         reached. Returns the per-axis status letters; raises :class:`MoveError` if an axis
-        reports E (error/aborted), S (limit switch) or T (timeout)."""
+        reports E (error/aborted), S (limit switch) or T (timeout). Positions are in
+        ``unit`` (``move_to(x=1.5, unit="mm")``; default: the connection's ``units``,
+        else the dim unit) or pint Quantities."""
+        axes = await self._to_controller(axes, unit, 0)
         return await self._motion(build_axes("moa", axes, context=self.context),
                                   timeout, stop_on_cancel, axes)
 
-    async def move_by(self, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      **axes: float) -> dict[str, str]:
+    async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
+                      unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
+        axes = await self._to_controller(axes, unit, 0)
         return await self._motion(build_axes("mor", axes, context=self.context),
                                   timeout, stop_on_cancel, axes, relative=True)
 
@@ -513,16 +531,20 @@ class Controller:
             letters.update(await self._motion(command, timeout, stop_on_cancel, {}))
         return letters
 
-    async def go(self, **axes: float) -> None:
+    async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
-        :meth:`wait_idle`). A later ``go`` overrides the targets mid-move."""
+        :meth:`wait_idle`). A later ``go`` overrides the targets mid-move. Targets in
+        ``unit`` as for :meth:`move_to`."""
+        axes = await self._to_controller(axes, unit, 0)
         command = build_axes("go", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
 
-    async def speed(self, **axes: float) -> None:
-        """Run axes at constant speed (rev/s, or mm/s in dim 9); 0 stops. No completion
+    async def speed(self, /, *, unit: str | None = None, **axes: float) -> None:
+        """Run axes at constant speed (rev/s, or mm/s in dim 9; or in ``unit``, e.g.
+        ``"mm/s"``, default the connection's ``units`` per second); 0 stops. No completion
         report: use :meth:`wait_idle`."""
+        axes = await self._to_controller(axes, unit, 1)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
@@ -530,7 +552,7 @@ class Controller:
     async def wait_idle(self, *, poll_interval: float = 0.05,
                         timeout: float | None = None) -> dict[str, str]:
         """Poll ``statusaxis`` until no axis is moving; return the letters."""
-        async with asyncio.timeout(timeout):
+        async with asyncio.timeout(check_timeout(timeout)):
             while True:
                 letters = await self.status()
                 if "M" not in letters.values():
@@ -560,7 +582,7 @@ class Controller:
     async def _motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
                       targets: Mapping[str, float], relative: bool = False) -> dict[str, str]:
         self._check_axes(command, targets)
-        limit = timeout if timeout is not None else await self._motion_timeout(
+        limit = check_timeout(timeout) or await self._motion_timeout(
             command, targets, relative)
         async with self._motion_lock:
             await self._join_detached()
@@ -760,23 +782,152 @@ class Controller:
         each row holds the positions of the present axes."""
         return await self._transfer().download(snapshot_spec())
 
+    # -- physical units and typed settings ------------------------------------------------
+
+    async def unit_scales(self) -> dict[str, UnitScale]:
+        """The unit conversion of every present axis: its ``dim``, ``pitch``, ``gear`` and
+        the global ``usteps``, read now (four pipelined reads)."""
+        dims, pitch, gear, usteps = await asyncio.gather(
+            self.get("dim"), self.get("pitch"), self.get("gear"), self.get("usteps"))
+        return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
+                                int(usteps)) for axis in dims}
+
+    def _unit(self, unit: str | None, power: int) -> str | None:
+        """The caller's unit, else the connection's ``units`` per second ``power``."""
+        if unit is not None or self.units is None:
+            return unit
+        return self.units + ("", "/s", "/s2")[power]
+
+    async def _to_controller(self, values: Mapping[str, Any], unit: str | None,
+                             power: int) -> dict[str, Any]:
+        """Per-axis ``values`` in the controller's unit (``power`` 0 position, 1 velocity,
+        2 acceleration; see :func:`tango_aio.units.to_controller`). Without a unit and
+        without pint Quantities nothing is read and they are returned as they are, but
+        for Decimal and Fraction as floats (the move-time estimate computes with them)."""
+        chosen = self._unit(unit, power)
+        if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
+            return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
+                    for axis, value in values.items()}
+        try:  # checked before anything is read or written
+            given = {axis: plain(value, chosen, power) for axis, value in values.items()}
+        except (TypeError, ValueError) as exc:
+            raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
+        scales = await self.unit_scales()
+        return {axis: to_controller(number, of, power, scales[axis]) if axis in scales
+                else number for axis, (number, of) in given.items()}
+
+    def _reading_unit(self, unit: str | None, power: int) -> str | None:
+        """The unit a reading is converted to (see :meth:`_unit`), checked before
+        anything is read."""
+        chosen = self._unit(unit, power)
+        if chosen is not None:
+            try:
+                plain(0.0, chosen, power)
+            except ValueError as exc:
+                raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
+        return chosen
+
+    async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
+                               power: int) -> dict[str, Any]:
+        """Per-axis readings (numbers, or sequences of numbers) converted from the
+        controller's unit to ``chosen`` (from :meth:`_reading_unit`)."""
+        scales = await self.unit_scales() if chosen is not None else {}
+
+        def convert(axis: str, value: float) -> float:
+            if chosen is None:
+                return float(value)
+            return from_controller(float(value), chosen, power, scales[axis])
+
+        return {axis: tuple(convert(axis, v) for v in value)
+                if isinstance(value, list | tuple) else convert(axis, value)
+                for axis, value in values.items()}
+
+    async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
+        """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
+        (``"mm/s"``; default: the connection's ``units`` per second)."""
+        chosen = self._reading_unit(unit, 1)
+        return await self._from_controller(await self.get("vel"), chosen, 1)
+
+    async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
+        """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
+        await self.set("vel", **await self._to_controller(axes, unit, 1))
+
+    async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
+        """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
+        default: the connection's ``units`` per second squared)."""
+        chosen = self._reading_unit(unit, 2)
+        return await self._from_controller(await self.get("accel"), chosen, 2)
+
+    async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
+        """Set ``accel`` per axis, see :meth:`acceleration`."""
+        await self.set("accel", **await self._to_controller(axes, unit, 2))
+
+    async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
+        """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
+        ``unit`` (default: the connection's ``units``, else the dim unit)."""
+        chosen = self._reading_unit(unit, 0)
+        pairs = await self.get("lim")
+        return await self._from_controller(pairs, chosen, 0)
+
+    async def set_limits(self, /, *, unit: str | None = None,
+                         **axes: tuple[float, float]) -> None:
+        """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``)."""
+        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit, 0)
+        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit, 0)
+        await self.set("lim", axis=None, check=True,
+                       **{axis: [lower[axis], upper[axis]] for axis in axes})
+
+    async def trigger_count(self) -> int:
+        """The number of trigger events generated so far (``?trigcount``)."""
+        return int(await self.get("trigcount"))
+
+    async def set_trigger_count(self, count: int = 0) -> None:
+        """Set (usually reset) the trigger event counter (``!trigcount``)."""
+        await self.set("trigcount", count)
+
+    async def trigger_enabled(self) -> bool:
+        """Whether the trigger output is switched on (``?trig``)."""
+        return bool(await self.get("trig"))
+
+    async def set_trigger_enabled(self, enabled: bool) -> None:
+        """Switch the trigger output on or off (``!trig 1`` / ``!trig 0``); the trigger
+        setup must be complete before switching it on."""
+        if not isinstance(enabled, bool):
+            raise TypeError(f"enabled must be True or False, got {enabled!r}")
+        await self.set("trig", int(enabled))
+
+    async def axis_status(self) -> dict[str, AxisStatus]:
+        """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members."""
+        return axis_statuses(await self.status())
+
     # -- events ---------------------------------------------------------------------------
 
     def events(self, maxsize: int = 256) -> Subscription:
         """Subscribe to the controller's events (an async iterator). When the buffer is
         full the oldest events are dropped (counted in ``Subscription.dropped``)."""
-        return self._hub.subscribe(maxsize)
+        return self._hub.subscribe(check_count(maxsize, "maxsize"))
 
-    async def watch_position(self, interval: float = 0.1) -> AsyncIterator[PositionUpdate]:
-        """Yield positions every ``interval`` seconds while any axis moves or a move of
-        this driver is in flight, then once more when all is idle. Each update is also
-        published to :meth:`events`."""
+    async def watch_position(self, interval: float = 0.1, *, follow: bool = False,
+                             unit: str | None = None) -> AsyncIterator[PositionUpdate]:
+        """Yield positions (in ``unit``, as :meth:`position`) every ``interval`` seconds
+        while any axis moves or a move of this driver is in flight, then once more when
+        all is idle. Each update is also published to :meth:`events`.
+
+        ``follow=True`` follows a whole scan: it goes on through the idle moments between
+        moves, until the caller stops iterating (``break``) or cancels; while all is idle
+        it yields only when a position changed, so a paused scan does not flood the
+        caller."""
+        check_timeout(interval, "interval")
+        last: Mapping[str, float] | None = None
         while True:
             letters = await self.status()
-            update = PositionUpdate(await self.position())
-            self._hub.publish(update)
-            yield update
-            if "M" not in letters.values() and not self._motion_lock.locked():
+            update = PositionUpdate(await self.position(unit=unit))
+            idle = "M" not in letters.values() and not self._motion_lock.locked()
+            if not (follow and idle and update.positions == last):
+                self._hub.publish(update)
+                yield update
+            last = update.positions
+            if idle and not follow:
                 return
             await asyncio.sleep(interval)
 

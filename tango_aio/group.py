@@ -486,7 +486,8 @@ class ControllerGroup(Mapping[str, Controller]):
         def call(axes: Mapping[str, float]) -> Callable[[Controller], Awaitable[dict[str, str]]]:
             async def run(controller: Controller) -> dict[str, str]:
                 method = controller.move_to if instruction == "moa" else controller.move_by
-                return await method(timeout=timeout, stop_on_cancel=stop_on_cancel, **axes)
+                return await method(timeout=timeout, stop_on_cancel=stop_on_cancel, unit=None,
+                                    **axes)
             return run
 
         return await self._run(op, {name: call(axes) for name, axes in targets.items()},

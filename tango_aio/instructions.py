@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import enum
 import math
+import numbers
 import re
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
+from fractions import Fraction
 from typing import Final
 
 from .errors import InvalidCommandError, ProtocolError, parse_error_reply
@@ -48,6 +50,7 @@ __all__ = [
     "Precision",
     "Shape",
     "Signature",
+    "Value",
     "VersionInfo",
     "build",
     "build_axes",
@@ -339,26 +342,59 @@ _NUMBER_RE: Final = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)$")
 _INT_RE: Final = re.compile(r"^[+-]?\d+$")
 
 
-def format_number(value: float | int) -> str:
+def format_number(value: float | int | Decimal | Fraction) -> str:
     """Format a number for the wire: decimal point, never exponent notation.
 
     Integers are written without a fraction; floats use the shortest decimal that round
-    trips (``1e-06`` → ``0.000001``, ``10.0`` → ``10.0``).
+    trips (``1e-06`` → ``0.000001``, ``10.0`` → ``10.0``). Any real number type is
+    accepted as labs have them (:func:`wire_number`): numpy scalars, :class:`Decimal`
+    (written exactly), :class:`Fraction`. ``TypeError`` for a non-number (``bool``
+    included), ``ValueError`` for NaN and infinities.
     """
-    if isinstance(value, bool):
-        raise TypeError("booleans are not numbers on the wire")
-    if isinstance(value, int):
-        return str(value)
-    if not math.isfinite(value):
+    number = wire_number(value)
+    if isinstance(number, int):
+        return str(number)
+    if isinstance(number, Decimal):
+        if not number.is_finite():
+            raise ValueError(f"not a finite number: {value!r}")
+        return format(number, "f")
+    if not math.isfinite(number):
         raise ValueError(f"not a finite number: {value!r}")
-    if type(value) is float:
-        text = repr(value)
-        if "e" not in text:
-            # Already plain decimal notation with a point ("0.0123", "-10.0"): what the
-            # Decimal round trip below would give, at a fraction of the cost.
-            return text
-    text = format(Decimal(repr(value)), "f")
+    text = repr(number)
+    if "e" not in text:
+        # Already plain decimal notation with a point ("0.0123", "-10.0"): what the
+        # Decimal round trip below would give, at a fraction of the cost.
+        return text
+    text = format(Decimal(text), "f")
     return text if "." in text else text + ".0"
+
+
+def wire_number(value: object) -> int | float | Decimal:
+    """``value`` as the Python number whose text goes on the wire, or ``TypeError``.
+
+    Labs pass numbers of many types (bluesky always passes numpy): integers of any kind
+    (``int``, ``numpy.int64``: anything registered as :class:`numbers.Integral`) become
+    ``int``; :class:`Decimal` stays exact; other reals (``float``, ``numpy.float64``,
+    ``numpy.float32``, :class:`Fraction`) become ``float``. A ``numpy.float32`` is taken
+    at its own shortest text (``float32(0.1)`` is written ``0.1``, not
+    ``0.10000000149011612``). Booleans, strings, sequences and complex numbers are not
+    numbers here: ``True`` where a velocity goes is a bug, not ``1``.
+    """
+    if isinstance(value, bool) or type(value).__name__ == "bool_":  # numpy.bool_ too
+        raise TypeError(f"a boolean is not a number on the wire: {value!r}")
+    if type(value) is float or type(value) is int:
+        return value  # the common case, checked first
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, Decimal):
+        return value
+    if isinstance(value, numbers.Real):
+        if isinstance(value, float | Fraction):
+            return float(value)
+        # Other reals (numpy.float32/float16...): their str() is the shortest text that
+        # round trips in their own precision.
+        return float(str(value))
+    raise TypeError(f"not a number: {value!r} ({type(value).__name__})")
 
 
 def _fail(
@@ -559,7 +595,8 @@ def _parse_tokens(entry: Instruction, form: Form, tokens: list[str], ctx: Contex
         except InvalidCommandError as exc:
             errors.append(exc)
             continue
-        canonical = tuple(_canonical(token) for token in rest)
+        canonical = tuple(_canonical(token, value) for token, value in zip(rest, values,
+                                                                             strict=True))
         return _checked_length(Command(entry, form, axis, values, canonical))
     # Prefer an error about a value over one about the number of values: it is more
     # specific when one alternative matched the count.
@@ -573,7 +610,12 @@ def _checked_length(command: Command) -> Command:
     return command
 
 
-def _canonical(token: str) -> str:
+def _canonical(token: str, value: float | int | str) -> str:
+    """The token as it goes on the wire: words in lower case, integers (counts, modes,
+    enumerated choices) in their plain form (``-0`` → ``0``, ``+1`` → ``1``, ``007`` →
+    ``7``). Floats keep their text: its digits are the precision the caller chose."""
+    if isinstance(value, int):
+        return str(value)
     return token.lower() if token.isalpha() else token
 
 
@@ -586,7 +628,9 @@ def encode(line: str, context: Context | None = None) -> bytes:
     return parse(line, context).to_bytes()
 
 
-Value = float | int | str
+#: A number as callers have them (numpy scalars are accepted too, see wire_number).
+Number = float | int | Decimal | Fraction
+Value = Number | str
 AxisValues = Value | Sequence[Value]
 
 
@@ -622,23 +666,45 @@ def _build(
     the_form = form if isinstance(form, Form) else Form(form)
     parts: list[str] = [the_form.value + entry.name]
     if axes:
-        letter, per_axis = _axis_part(entry, axis, axes)
+        _check_lead_count(entry, the_form, args)
+        letter, per_axis = _axis_part(entry, the_form, axis, axes)
     else:  # what _axis_part gives without per-axis keywords
         letter, per_axis = (axis.lower() if axis else None), []
     if letter:
         parts.append(letter)
+    given = [*args, *per_axis]
     textual = False
-    for values in (args, per_axis):
-        for value in values:
-            textual = textual or isinstance(value, str)
-            parts.append(_format_value(value))
+    for value in given:
+        textual = textual or isinstance(value, str)
+        parts.append(_format_value(value, entry.name))
     if (not letter or letter in AXES) and _BY_ALIAS.get(entry.name) is entry and not textual:
         # Fast path, same result as parsing the joined line: the parts are the canonical
         # name, an axis letter and formatted numbers, so the text checks and the split
         # that parse() does cannot fail and would give back these very tokens.
         _check_form(entry, the_form)
         return _parse_tokens(entry, the_form, parts[1:], context or DEFAULT_CONTEXT)
-    return parse(" ".join(parts), context)
+    command = parse(" ".join(parts), context)
+    _check_words(command, given)
+    return command
+
+
+def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> None:
+    """Positional values are the lead (global) parameters only: with per-axis keywords,
+    ``set("vel", 5, x=3)`` would otherwise send ``!vel 5 3`` and set Y to 3."""
+    most = max((len(sig.lead) for sig in entry.signatures(form)), default=0)
+    if len(args) > most:
+        raise _fail(f"{entry.name}: positional values {list(args)} cannot be mixed with "
+                    "per-axis keywords (give every axis as a keyword)", entry.name, None, 6)
+
+
+def _check_words(command: Command, given: Sequence[Value]) -> None:
+    """A string value must be one whole token of a word or bit-pattern parameter: where
+    a number goes, ``"5"`` is a caller's bug and ``"1 2"`` would smuggle in a second
+    value (``move_to(x="1 2")`` sending ``!moa 1 2`` moves Y)."""
+    for value, parsed in zip(given, command.values, strict=False):
+        if isinstance(value, str) and not isinstance(parsed, str):
+            raise _fail(f"{command.name}: {value!r} is a string where a number goes",
+                        command.name, None, 5)
 
 
 def build_rows(
@@ -739,16 +805,23 @@ def _checked_number(param: Param, value: float | int, name: str,
     return number
 
 
-def _format_value(value: Value) -> str:
+def _format_value(value: object, name: str | None = None) -> str:
+    """The wire text of one value given by the caller (a word, or a number of any real
+    type, see :func:`wire_number`); InvalidCommandError for anything else."""
     if isinstance(value, str):
+        if not value or value.split() != [value]:
+            raise _fail(f"{name}: {value!r} is not one value", name, None, 5)
         return value
-    if isinstance(value, float) and not math.isfinite(value):
-        raise _fail(f"not a finite number: {value!r}", None, None, 5)
-    return format_number(value)
+    try:
+        return format_number(value)  # type: ignore[arg-type]  # checked by wire_number
+    except TypeError as exc:
+        raise _fail(f"{name}: {exc}", name, None, 5) from None
+    except ValueError:
+        raise _fail(f"{name}: not a finite number: {value!r}", name, None, 5) from None
 
 
 def _axis_part(
-    entry: Instruction, axis: str | None, axes: Mapping[str, AxisValues]
+    entry: Instruction, form: Form, axis: str | None, axes: Mapping[str, AxisValues]
 ) -> tuple[str | None, list[Value]]:
     unknown = set(axes) - set(AXES)
     if unknown:
@@ -759,17 +832,25 @@ def _axis_part(
         return (axis.lower() if axis else None), []
     if axis is not None:
         raise _fail(f"{entry.name}: give either axis= or per-axis keywords", entry.name, "axis", 1)
+    group = max((len(sig.per_axis) for sig in entry.signatures(form)), default=0)
     if len(given) == 1 and given[0] != "x":
-        return given[0], _as_list(axes[given[0]])
+        return given[0], _as_list(entry, group, axes[given[0]])
     if given != list(AXES[: len(given)]):
         raise _fail(f"{entry.name}: per-axis values must start at x without gaps, got "
                     f"{given}", entry.name, "axis", 1)
-    return None, [v for a in given for v in _as_list(axes[a])]
+    return None, [v for a in given for v in _as_list(entry, group, axes[a])]
 
 
-def _as_list(value: AxisValues) -> list[Value]:
-    if isinstance(value, str | int | float):
+def _as_list(entry: Instruction, group: int, value: AxisValues) -> list[Value]:
+    """The values of one axis: one value, or a sequence of at most ``group`` values for
+    instructions that take several per axis. A list where one number goes is refused
+    (``move_to(x=[1, 2])`` would send ``!moa 1 2``)."""
+    if isinstance(value, str) or not isinstance(value, Sequence):
         return [value]
+    if group < 2 or len(value) > group:
+        raise _fail(f"{entry.name}: {value!r} is not a single value per axis"
+                    if group < 2 else f"{entry.name}: at most {group} values per axis, got "
+                    f"{len(value)}", entry.name, None, 6)
     return list(value)
 
 

@@ -30,7 +30,10 @@ and to distances.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
+from fractions import Fraction
+from typing import Any, Protocol
 
 __all__ = [
     "DEFAULT_USTEPS",
@@ -44,10 +47,18 @@ __all__ = [
     "DIM_REV",
     "DIM_UM",
     "DIM_USTEPS",
+    "LENGTH_UNITS",
     "MM_PER_INCH",
+    "MOTOR_UNITS",
+    "Quantity",
     "UnitScale",
     "accel_to_rev",
+    "check_unit",
+    "from_controller",
     "mm_per_rev",
+    "plain",
+    "split_unit",
+    "to_controller",
     "user_per_rev",
 ]
 
@@ -155,3 +166,162 @@ class UnitScale:
     def accel_to_rev(self, accel_m_s2: float) -> float:
         """Convert an acceleration in m/s² to motor rev/s²."""
         return accel_to_rev(accel_m_s2, self.pitch, self.gear)
+
+
+# --------------------------------------------------------------------------------------
+# Physical units at the driver's public boundary (``move_to(x=1.5, unit="mm")``)
+#
+# What the controller's numbers mean (manual L3061-3144, L189, L3298): positions are in
+# the axis' ``dim`` unit, velocities in motor rev/s (mm/s in dim 9) and accelerations in
+# m/s² whatever the dim. A caller's unit names a length (``"mm"``), motor revolutions
+# (``"rev"``) or microsteps (``"ustep"``); ``"/s"`` makes it a velocity and ``"/s2"``
+# (also ``"/s^2"``, ``"/s**2"``, ``"/s²"``) an acceleration. Conversions go through exact
+# rational factors so that ``1.5 mm`` is ``1500.0`` in dim 1, not ``1499.9999999999998``.
+
+#: Millimetres per length unit a caller may name.
+LENGTH_UNITS: dict[str, Fraction] = {
+    "nm": Fraction(1, 1_000_000),
+    "um": Fraction(1, 1000),
+    "µm": Fraction(1, 1000),
+    "mm": Fraction(1),
+    "cm": Fraction(10),
+    "m": Fraction(1000),
+    "in": Fraction(254, 10),
+    "inch": Fraction(254, 10),
+    "mil": Fraction(254, 10_000),
+}
+
+#: Units that count motor revolutions (``rev``) and microsteps (``ustep``, see ``usteps``).
+MOTOR_UNITS = ("rev", "ustep")
+
+# Millimetres per dim unit for every dim except 0 (dims 3 and 4 are derived from mm, see
+# the module docstring; dim 9 is mm for positions).
+_MM_PER_DIM: dict[int, Fraction] = {
+    DIM_UM: Fraction(1, 1000), DIM_MM: Fraction(1), DIM_DEG: Fraction(1, 360),
+    DIM_REV: Fraction(1), DIM_CM: Fraction(10), DIM_M: Fraction(1000),
+    DIM_INCH: Fraction(254, 10), DIM_MIL: Fraction(254, 10_000), DIM_MM_VEL: Fraction(1),
+}
+
+_PER_SECOND = ("/s",)
+_PER_SECOND2 = ("/s2", "/s^2", "/s**2", "/s²")
+
+
+class Quantity(Protocol):
+    """What is used of a pint ``Quantity`` (``tango-aio[pint]``): ``to()`` and
+    ``magnitude``."""
+
+    @property
+    def magnitude(self) -> Any:
+        """The number, in the quantity's own unit."""
+
+    def to(self, unit: str) -> Quantity:
+        """The same quantity in ``unit``."""
+
+
+def split_unit(unit: str) -> tuple[str, int]:
+    """``"mm/s"`` → ``("mm", 1)``: the base unit and the power of seconds it is divided
+    by (0 position, 1 velocity, 2 acceleration). ``ValueError`` for an unknown unit."""
+    text = unit.strip()
+    power = 0
+    for suffixes, level in ((_PER_SECOND2, 2), (_PER_SECOND, 1)):
+        for suffix in suffixes:
+            if text.endswith(suffix):
+                text, power = text[: -len(suffix)], level
+                break
+        if power:
+            break
+    if text not in LENGTH_UNITS and text not in MOTOR_UNITS:
+        known = ", ".join([*LENGTH_UNITS, *MOTOR_UNITS])
+        raise ValueError(f"unknown unit {unit!r}: use one of {known}, optionally with /s "
+                         "(velocity) or /s2 (acceleration)")
+    return text, power
+
+
+def check_unit(unit: str) -> str:
+    """``unit`` if it is a known position unit (a length, ``rev`` or ``ustep``)."""
+    if not isinstance(unit, str):
+        raise TypeError(f"a unit is a string such as 'mm', got {unit!r}")
+    if split_unit(unit)[1] != 0:
+        raise ValueError(f"{unit!r} is not a position unit (give the length, e.g. 'mm')")
+    return unit
+
+
+def _revs_per(base: str, scale: UnitScale) -> Fraction:
+    """Motor revolutions in one ``base`` unit on an axis with ``scale``."""
+    if base == "rev":
+        return Fraction(1)
+    if base == "ustep":
+        return Fraction(1, scale.usteps)
+    return LENGTH_UNITS[base] / Fraction(scale.mm_per_rev)
+
+
+def _dim_units_per(base: str, scale: UnitScale) -> Fraction:
+    """Controller position units (per ``scale.dim``) in one ``base`` unit."""
+    if base in LENGTH_UNITS and scale.dim != DIM_USTEPS:
+        return LENGTH_UNITS[base] / _MM_PER_DIM[scale.dim]  # exact: no pitch involved
+    return _revs_per(base, scale) * Fraction(scale.user_per_rev)
+
+
+def _factor(unit: str, power: int, scale: UnitScale) -> Fraction:
+    """Controller units per caller unit for a quantity of ``power`` (0, 1, 2)."""
+    base = _kind(unit, power)
+    if power == 0:
+        return _dim_units_per(base, scale)
+    if power == 1:  # rev/s in dims 0-8, mm/s in dim 9 (L189)
+        revs = _revs_per(base, scale)
+        if scale.dim == DIM_MM_VEL:
+            return LENGTH_UNITS[base] if base in LENGTH_UNITS else revs * Fraction(
+                scale.mm_per_rev)
+        return revs
+    # accelerations: m/s² always (L3298)
+    mm = LENGTH_UNITS[base] if base in LENGTH_UNITS else (
+        _revs_per(base, scale) * Fraction(scale.mm_per_rev))
+    return mm / 1000
+
+
+def plain(value: object, unit: str | None, power: int) -> tuple[float, str | None]:
+    """``value`` as a plain number and the unit it is in, checked without any controller
+    settings: a pint Quantity is converted to mm-based units (or revolutions, for angles)
+    and its magnitude taken; ``unit`` must be of the kind ``power`` asks for.
+    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit."""
+    if hasattr(value, "magnitude") and hasattr(value, "to"):
+        quantity: Any = value
+        suffix = ("", "/s", "/s**2")[power]
+        for ours, pints in (("mm", "mm"), ("rev", "revolution")):
+            try:
+                return float(quantity.to(pints + suffix).magnitude), ours + suffix
+            except Exception:  # pint's DimensionalityError, without importing pint
+                continue
+        raise ValueError(f"{value!r} is not a length or an angle"
+                         + ("" if not power else " per second" * power))
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"not a number: {value!r}")
+    if unit is not None:
+        _kind(unit, power)
+    return float(value), unit
+
+
+def _kind(unit: str, power: int) -> str:
+    """The base of ``unit``; ``ValueError`` unless it is of the kind ``power`` asks for."""
+    base, given = split_unit(unit)
+    if given != power:
+        kinds = ("position", "velocity", "acceleration")
+        raise ValueError(f"{unit!r} is a {kinds[given]} unit where a {kinds[power]} goes")
+    return base
+
+
+def to_controller(value: object, unit: str | None, power: int, scale: UnitScale) -> float:
+    """Convert ``value`` (a number in ``unit``, or a pint Quantity) to the controller's
+    unit on an axis with ``scale``: its dim unit (``power`` 0), rev/s or mm/s in dim 9
+    (1), m/s² (2). ``unit=None`` and a plain number: already in the controller's unit."""
+    number, given = plain(value, unit, power)
+    if given is None:
+        return number
+    return float(Fraction(number) * _factor(given, power, scale))
+
+
+def from_controller(value: float, unit: str | None, power: int, scale: UnitScale) -> float:
+    """The inverse of :func:`to_controller` for a plain number (a reading)."""
+    if unit is None:
+        return value
+    return float(Fraction(value) / _factor(unit, power, scale))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field, replace
@@ -18,6 +19,18 @@ from tango_aio.protocol import Submission, TangoProtocol
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire
+
+# TANGO_AIO_TEST_LOOP=uvloop runs every async test on uvloop's event loop (tango-aio[uvloop]),
+# the way CI runs the end-to-end tier under it.
+if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
+    import uvloop
+
+    def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
+                                      ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+        """Run the async tests on uvloop (a pytest-asyncio hook)."""
+        return {"uvloop": uvloop.new_event_loop}
+elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") != "asyncio":
+    raise pytest.UsageError("TANGO_AIO_TEST_LOOP must be asyncio or uvloop")
 
 # No per-example deadline: the first examples pay for imports and would flake on a busy CI.
 settings.register_profile("tango_aio", deadline=None)
@@ -167,7 +180,7 @@ class Emulated:
         """Fast motion on every axis: 100 mm/s, 20 m/s², quick cal/rm release."""
         present = "xyza"[: self.tango.context.axes]
         for name, value in (("secvel", 100), ("vel", 100), ("accel", 20), ("stopaccel", 20)):
-            await self.tango.set(name, **{a: value for a in present})
+            await self.tango.set(name, axis=None, check=True, **dict.fromkeys(present, value))
         await self.tango.set("calbspeed", 8000)
 
 

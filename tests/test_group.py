@@ -127,7 +127,8 @@ async def test_options_per_member_and_common() -> None:
         assert group["plain"].reply_timeout == 3.0
         assert group["plain"].identity is not None
         assert group["own"].reply_timeout == 1.5
-        assert group["own"].identity is None
+        with pytest.raises(RuntimeError, match="not identified"):
+            group["own"].identity  # noqa: B018
 
 
 async def test_not_open_and_unknown_names() -> None:

@@ -989,7 +989,7 @@ def test_build_validates() -> None:
     assert info.value.code == 5
     with pytest.raises(InvalidCommandError):
         build("nosuch")
-    with pytest.raises(TypeError):
+    with pytest.raises(InvalidCommandError):
         build("joy", True)
 
 

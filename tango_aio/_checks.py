@@ -1,0 +1,40 @@
+"""Checks of the caller's numeric options (timeouts, sizes, limits) at the public boundary.
+
+A NaN compares false with everything, so ``timeout < 0`` lets it through and an
+``asyncio.timeout(nan)`` never fires; these checks refuse it, and other values that cannot
+mean what the caller wants, with a :class:`ValueError` that names the option.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+__all__ = ["check_count", "check_timeout"]
+
+
+def check_timeout(value: float | None, name: str = "timeout", *,
+                  zero: bool = False) -> float | None:
+    """``value`` as seconds (``None`` stays ``None``: no limit, or the default).
+
+    Refuses NaN, infinities, zero and negative values: a zero or negative time limit would
+    fail every request before its reply could come, and would still have written the line.
+    ``zero=True`` allows 0 where it means "do not wait" (``wait_connected(timeout=0)``).
+    """
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number of seconds or None, got {value!r}")
+    seconds = float(value)
+    if not math.isfinite(seconds) or seconds < 0.0 or (seconds == 0.0 and not zero):
+        raise ValueError(f"{name} must be a finite number of seconds > 0 (or None), got {value!r}")
+    return seconds
+
+
+def check_count(value: int, name: str, minimum: int = 1) -> int:
+    """``value`` as an integer of at least ``minimum`` (NaN, floats and bools refused)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be at least {minimum}, got {value!r}")
+    return int(value)

@@ -1,0 +1,85 @@
+"""What the letters of ``statusaxis`` and of autostatus completion reports mean.
+
+:class:`AxisStatus` is a :class:`~enum.StrEnum`, so a member compares equal to its letter
+(``AxisStatus.MOVING == "M"``) and the driver's plain letter dictionaries keep working.
+Source: manual L2693-2711 (firmware 1.71); older firmware adds ``C`` and ``U``
+(old L747-767). ``-`` (axis not enabled or not present) never reaches the caller: such
+axes are left out of the per-axis dictionaries.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+
+__all__ = ["AxisStatus", "axis_statuses"]
+
+
+class AxisStatus(enum.StrEnum):
+    """The state of one axis, by its ``statusaxis`` letter."""
+
+    #: ``@``: not moving and ready (L2693).
+    READY = "@"
+    #: ``M``: moving (L2695).
+    MOVING = "M"
+    #: ``J``: ready, and may also be moved by hand with the joystick (L2697).
+    JOYSTICK = "J"
+    #: ``S``: limit switches are actuated and prevent further automatic moves (L2699).
+    LIMIT_SWITCH = "S"
+    #: ``A``: the ok report after ``cal`` (L2701).
+    CALIBRATED = "A"
+    #: ``D``: the ok report after ``rm`` (L2703).
+    RANGE_MEASURED = "D"
+    #: ``E``: error: move aborted or not executed (cal/rm error, stop input) (L2705-2707).
+    ERROR = "E"
+    #: ``T``: timeout (see ``caltimeout``) (L2709).
+    TIMEOUT = "T"
+    #: ``C``: in closed loop (older firmware, old L753).
+    CLOSED_LOOP = "C"
+    #: ``U``: manual adjustment, e.g. first setup (older firmware, old L763).
+    MANUAL_ADJUSTMENT = "U"
+
+    @property
+    def meaning(self) -> str:
+        """A short human-readable meaning of the letter."""
+        return _MEANINGS[self]
+
+    @property
+    def is_moving(self) -> bool:
+        """Whether the axis is moving (the manual's test is ``!= 'M'`` for "done",
+        L2685)."""
+        return self is AxisStatus.MOVING
+
+    @property
+    def is_failure(self) -> bool:
+        """Whether a move that ended with this letter did not reach its target (E, S, T)."""
+        return self in (AxisStatus.ERROR, AxisStatus.LIMIT_SWITCH, AxisStatus.TIMEOUT)
+
+    @classmethod
+    def of(cls, letter: str) -> AxisStatus:
+        """The member for ``letter``; ``ValueError`` for a letter the manuals do not
+        document."""
+        try:
+            return cls(letter)
+        except ValueError:
+            raise ValueError(f"unknown axis status letter {letter!r}") from None
+
+
+
+_MEANINGS: dict[AxisStatus, str] = {
+    AxisStatus.READY: "ready",
+    AxisStatus.MOVING: "moving",
+    AxisStatus.JOYSTICK: "ready, joystick enabled",
+    AxisStatus.LIMIT_SWITCH: "limit switch actuated",
+    AxisStatus.CALIBRATED: "calibration done",
+    AxisStatus.RANGE_MEASURED: "range measure done",
+    AxisStatus.ERROR: "error, move aborted or not executed",
+    AxisStatus.TIMEOUT: "timeout",
+    AxisStatus.CLOSED_LOOP: "closed loop",
+    AxisStatus.MANUAL_ADJUSTMENT: "manual adjustment",
+}
+
+
+def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:
+    """``{"x": "@", "y": "M"}`` → ``{"x": AxisStatus.READY, "y": AxisStatus.MOVING}``."""
+    return {axis: AxisStatus.of(letter) for axis, letter in letters.items()}

@@ -1,0 +1,505 @@
+"""The blocking API, for scripts and notebooks: ``tango_aio.sync.connect(url)``.
+
+::
+
+    import tango_aio.sync
+
+    with tango_aio.sync.connect("sim://?axes=3") as tango:
+        tango.move_to(x=10, y=5)          # returns when both axes are there
+        print(tango.position(unit="mm"))
+        future = tango.start_move_to(x=0)  # returns at once: a concurrent.futures.Future
+        tango.wait_idle()
+        print(future.result())
+
+How it works: the driver's event loop runs in a thread of its own (an anyio blocking
+portal), so this works in plain scripts and equally inside a running event loop (Jupyter,
+an IPython kernel), where ``asyncio.run()`` cannot be used. Every blocking method is made
+from the async method of the same name (same parameters, same docstring, same types);
+:attr:`Controller.aio` is the async object underneath.
+
+Ctrl+C (:class:`KeyboardInterrupt`) during a blocking call cancels it in the driver's
+thread, exactly like cancelling the awaited call: a move stops its axes (unless
+``stop_on_cancel=False``) and the interrupt is re-raised once they stand still (at most
+:data:`STOP_WAIT` seconds later). ``start_*`` methods return a
+:class:`concurrent.futures.Future`; cancelling that future cancels the move the same way.
+
+:class:`ControllerGroup` is the blocking twin of :class:`tango_aio.ControllerGroup`; its
+members (``group["stage"]``) are blocking controllers on the group's thread.
+"""
+
+from __future__ import annotations
+
+import atexit
+import concurrent.futures
+import contextlib
+import functools
+import inspect
+import os
+import queue
+import threading
+import weakref
+from collections.abc import (
+    AsyncIterator,
+    Awaitable,
+    Callable,
+    Coroutine,
+    Iterable,
+    Iterator,
+    Mapping,
+)
+from types import TracebackType
+from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
+
+import anyio
+import anyio.from_thread
+
+from . import connection as _connection
+from .controller import Controller as AsyncController
+from .controller import Identity
+from .events import PositionUpdate, Subscription, TangoEvent
+from .group import ControllerGroup as AsyncGroup
+from .group import ControllerSpec, GroupEvent, GroupSubscription
+
+__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect"]
+
+P = ParamSpec("P")
+R = TypeVar("R")
+T = TypeVar("T")
+A = TypeVar("A")
+
+#: Longest wait, after Ctrl+C, for the cancelled call to finish (axes stopped), seconds.
+STOP_WAIT = 15.0
+
+
+class Portal:
+    """The driver's event loop in a thread of its own (an anyio blocking portal).
+
+    The loop is asyncio; it is uvloop's when the environment variable
+    ``TANGO_AIO_LOOP=uvloop`` is set and uvloop is installed (``tango-aio[uvloop]``).
+    The thread is a daemon thread, so a script that forgets ``close()`` still exits: what
+    is still open is closed at interpreter exit (:mod:`atexit`), while the loop runs.
+    """
+
+    def __init__(self) -> None:
+        options = {"use_uvloop": True} if os.environ.get("TANGO_AIO_LOOP") == "uvloop" else {}
+        handed: queue.Queue[anyio.from_thread.BlockingPortal | BaseException] = queue.Queue()
+
+        async def serve() -> None:
+            async with anyio.from_thread.BlockingPortal() as portal:
+                handed.put(portal)
+                await portal.sleep_until_stopped()
+
+        def run() -> None:
+            try:
+                anyio.run(serve, backend="asyncio", backend_options=options)
+            except BaseException as exc:  # e.g. uvloop missing: tell the caller
+                handed.put(exc)
+
+        self._thread = threading.Thread(target=run, name="tango_aio driver loop",
+                                        daemon=True)
+        self._thread.start()
+        got = handed.get()
+        if isinstance(got, BaseException):
+            raise got
+        self.portal = got
+
+    def call(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs) -> R:
+        """Run ``func(*args, **kwargs)`` in the driver's thread and wait for its result.
+
+        On :class:`KeyboardInterrupt` the call is cancelled there, and the interrupt is
+        re-raised once its clean-up (e.g. stopping the axes) is done.
+        """
+        finished = threading.Event()
+        state = threading.Lock()
+        started = interrupted = False
+
+        async def run() -> R:
+            nonlocal started
+            with state:
+                if interrupted:  # Ctrl+C came before the call began: do not begin it
+                    raise anyio.get_cancelled_exc_class()
+                started = True
+            try:
+                return await func(*args, **kwargs)
+            finally:
+                finished.set()
+
+        future = self.portal.start_task_soon(run)
+        try:
+            return future.result()
+        except KeyboardInterrupt:
+            with state:
+                interrupted = True
+                began = started
+            future.cancel()
+            if began:  # wait for its clean-up, e.g. the axes stopped
+                finished.wait(STOP_WAIT)
+            raise
+
+    def start(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
+              ) -> concurrent.futures.Future[R]:
+        """Start ``func(*args, **kwargs)`` in the driver's thread; return its future."""
+        return self.portal.start_task_soon(functools.partial(func, *args, **kwargs))
+
+    def iterate(self, source: AsyncIterator[T]) -> Iterator[T]:
+        """Iterate an async iterator of the driver's thread from this thread; leaving the
+        loop early (``break``, an exception) closes it there."""
+        try:
+            while True:
+                try:
+                    yield self.call(_anext, source)
+                except StopAsyncIteration:
+                    return
+        finally:
+            close = getattr(source, "aclose", None)
+            if close is not None:
+                with contextlib.suppress(Exception):
+                    self.call(close)
+
+    def stop(self) -> None:
+        """Stop the loop and join its thread."""
+        if self._thread.is_alive():
+            with contextlib.suppress(RuntimeError):  # already stopping
+                self.portal.call(self.portal.stop)
+            self._thread.join()
+
+
+async def _anext(source: AsyncIterator[T]) -> T:
+    return await source.__anext__()
+
+
+class _Blocking(Generic[A, P, R]):
+    """A blocking method made from the async method ``method`` of the wrapped object:
+    same parameters, same docstring, same return type."""
+
+    def __init__(self, method: Callable[Concatenate[A, P], Coroutine[Any, Any, R]]) -> None:
+        self._method = method
+        self.__doc__ = method.__doc__
+        self.__wrapped__ = method
+
+    @overload
+    def __get__(self, obj: None, owner: type[Any]) -> _Blocking[A, P, R]: ...
+    @overload
+    def __get__(self, obj: _Wrapper[A], owner: type[Any]) -> Callable[P, R]: ...
+    def __get__(self, obj: _Wrapper[A] | None, owner: type[Any]
+                ) -> _Blocking[A, P, R] | Callable[P, R]:
+        if obj is None:
+            return self
+        bound: Callable[P, Coroutine[Any, Any, R]] = getattr(obj.aio, self._method.__name__)
+
+        @functools.wraps(bound)
+        def call(*args: P.args, **kwargs: P.kwargs) -> R:
+            return obj._portal.call(bound, *args, **kwargs)
+
+        return call
+
+
+class _Starter(Generic[A, P, R]):
+    """``start_<name>``: start the async method ``method`` and return a future at once."""
+
+    def __init__(self, method: Callable[Concatenate[A, P], Coroutine[Any, Any, R]]) -> None:
+        self._method = method
+        self.__doc__ = (f"Start :meth:`{method.__name__}` and return at once a "
+                        ":class:`concurrent.futures.Future` of its result (cancelling the "
+                        f"future cancels it).\n\n{method.__doc__ or ''}")
+
+    @overload
+    def __get__(self, obj: None, owner: type[Any]) -> _Starter[A, P, R]: ...
+    @overload
+    def __get__(self, obj: _Wrapper[A], owner: type[Any]
+                ) -> Callable[P, concurrent.futures.Future[R]]: ...
+    def __get__(self, obj: _Wrapper[A] | None, owner: type[Any]
+                ) -> _Starter[A, P, R] | Callable[P, concurrent.futures.Future[R]]:
+        if obj is None:
+            return self
+        bound: Callable[P, Coroutine[Any, Any, R]] = getattr(obj.aio, self._method.__name__)
+
+        @functools.wraps(bound)
+        def start(*args: P.args, **kwargs: P.kwargs) -> concurrent.futures.Future[R]:
+            future = obj._portal.start(bound, *args, **kwargs)
+            obj._started.append(future)
+            return future
+
+        start.__doc__ = self.__doc__
+        return start
+
+
+#: Blocking objects not closed yet; closed at interpreter exit.
+_OPEN: weakref.WeakSet[Controller | ControllerGroup] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open() -> None:
+    for wrapper in list(_OPEN):
+        with contextlib.suppress(Exception):
+            wrapper.close()
+
+
+class _Wrapper(Generic[A]):
+    """Base of the blocking classes: the async object and the portal it runs on."""
+
+    def __init__(self, aio: A, portal: Portal, *, owns_portal: bool) -> None:
+        self.aio = aio
+        """The async object underneath (use it from the driver's thread only)."""
+        self._portal = portal
+        self._owns_portal = owns_portal
+        #: Futures of ``start_*`` calls not yet waited for by ``wait_idle()``.
+        self._started: list[concurrent.futures.Future[Any]] = []
+
+    def _join_started(self) -> None:
+        """Wait for every ``start_*`` call so far; raise the first one's error, if any
+        (a started move that failed must not pass for an idle stage)."""
+        started, self._started = self._started, []
+        concurrent.futures.wait(started)
+        for future in started:
+            if not future.cancelled() and future.exception() is not None:
+                raise future.exception()  # type: ignore[misc]
+
+    @property
+    def portal(self) -> Portal:
+        """The thread running the driver's event loop."""
+        return self._portal
+
+
+class Controller(_Wrapper[AsyncController]):
+    """A connected TANGO controller, blocking. Get one with :func:`connect`.
+
+    Every method is the blocking form of the :class:`tango_aio.Controller` method of the
+    same name (see there); ``close()`` is ``aclose()``. ``start_move_to(...)`` and the
+    other ``start_*`` methods return a :class:`concurrent.futures.Future` at once.
+    """
+
+    # -- the blocking methods, one per async method (tests/test_sync.py checks that none
+    # -- is missing)
+    setup = _Blocking(AsyncController.setup)
+    wait_connected = _Blocking(AsyncController.wait_connected)
+    identify = _Blocking(AsyncController.identify)
+    refresh_settings = _Blocking(AsyncController.refresh_settings)
+    query = _Blocking(AsyncController.query)
+    command = _Blocking(AsyncController.command)
+    get = _Blocking(AsyncController.get)
+    set = _Blocking(AsyncController.set)
+    position = _Blocking(AsyncController.position)
+    status = _Blocking(AsyncController.status)
+    axis_status = _Blocking(AsyncController.axis_status)
+    move_to = _Blocking(AsyncController.move_to)
+    move_by = _Blocking(AsyncController.move_by)
+    calibrate = _Blocking(AsyncController.calibrate)
+    measure_range = _Blocking(AsyncController.measure_range)
+    move_to_center = _Blocking(AsyncController.move_to_center)
+    go = _Blocking(AsyncController.go)
+    speed = _Blocking(AsyncController.speed)
+    abort = _Blocking(AsyncController.abort)
+    upload_trigger_positions = _Blocking(AsyncController.upload_trigger_positions)
+    read_trigger_positions = _Blocking(AsyncController.read_trigger_positions)
+    set_trigger_range = _Blocking(AsyncController.set_trigger_range)
+    upload_snapshot_positions = _Blocking(AsyncController.upload_snapshot_positions)
+    read_snapshot_positions = _Blocking(AsyncController.read_snapshot_positions)
+    unit_scales = _Blocking(AsyncController.unit_scales)
+    velocity = _Blocking(AsyncController.velocity)
+    set_velocity = _Blocking(AsyncController.set_velocity)
+    acceleration = _Blocking(AsyncController.acceleration)
+    set_acceleration = _Blocking(AsyncController.set_acceleration)
+    limits = _Blocking(AsyncController.limits)
+    set_limits = _Blocking(AsyncController.set_limits)
+    trigger_count = _Blocking(AsyncController.trigger_count)
+    set_trigger_count = _Blocking(AsyncController.set_trigger_count)
+    trigger_enabled = _Blocking(AsyncController.trigger_enabled)
+    set_trigger_enabled = _Blocking(AsyncController.set_trigger_enabled)
+
+    # -- non-blocking starts (Zaber's wait_until_idle=False)
+    start_move_to = _Starter(AsyncController.move_to)
+    start_move_by = _Starter(AsyncController.move_by)
+    start_calibrate = _Starter(AsyncController.calibrate)
+    start_measure_range = _Starter(AsyncController.measure_range)
+    start_move_to_center = _Starter(AsyncController.move_to_center)
+
+    def wait_idle(self, *, poll_interval: float = 0.05,
+                  timeout: float | None = None) -> dict[str, str]:
+        """Wait until every ``start_*`` move of this object has finished (raising the
+        first one's error, e.g. :class:`~tango_aio.MoveError`), then until no axis moves
+        (:meth:`tango_aio.Controller.wait_idle`); return the status letters."""
+        self._join_started()
+        return self._portal.call(self.aio.wait_idle, poll_interval=poll_interval,
+                                 timeout=timeout)
+
+    def watch_position(self, interval: float = 0.1, *, follow: bool = False,
+                       unit: str | None = None) -> Iterator[PositionUpdate]:
+        """Blocking iterator over :meth:`tango_aio.Controller.watch_position`."""
+        return self._portal.iterate(self.aio.watch_position(interval, follow=follow,
+                                                            unit=unit))
+
+    def events(self, maxsize: int = 256) -> Iterator[TangoEvent]:
+        """Blocking iterator over :meth:`tango_aio.Controller.events` (subscribed now)."""
+        subscription: Subscription = self._portal.call(_subscribe, self.aio, maxsize)
+        return self._portal.iterate(subscription)
+
+    @property
+    def identity(self) -> Identity:
+        """The identity read when connecting (see :attr:`tango_aio.Controller.identity`)."""
+        return self.aio.identity
+
+    @property
+    def url(self) -> str:
+        """The URL this controller was opened with."""
+        return self.aio.url
+
+    @property
+    def units(self) -> str | None:
+        """The connection's physical position unit (``None``: the dim unit)."""
+        return self.aio.units
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode the driver believes is in force."""
+        return self.aio.autostatus
+
+    @property
+    def connected(self) -> bool:
+        """Whether the link is up."""
+        return self.aio.connected
+
+    def close(self) -> None:
+        """Close the connection (``aclose()``) and stop the driver's thread."""
+        _OPEN.discard(self)
+        try:
+            self._portal.call(self.aio.aclose)
+        finally:
+            if self._owns_portal:
+                self._portal.stop()
+
+    def __enter__(self) -> Controller:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<tango_aio.sync.Controller {self.url!r}>"
+
+
+async def _subscribe(controller: AsyncController | AsyncGroup, maxsize: int) -> Any:
+    return controller.events(maxsize)
+
+
+def _parameters_of(source: Callable[P, object]
+                   ) -> Callable[[Callable[..., T]], Callable[P, T]]:
+    """Give the decorated function ``source``'s parameters (for type checkers, editors
+    and ``inspect.signature``), keeping its own return type and docstring."""
+    def decorate(func: Callable[..., T]) -> Callable[P, T]:
+        own = inspect.signature(func).return_annotation
+        func.__signature__ = inspect.signature(source).replace(  # type: ignore[attr-defined]
+            return_annotation=own)
+        return func
+    return decorate
+
+
+@_parameters_of(_connection.connect)
+def connect(url: str = "sim://", **options: Any) -> Controller:
+    """Connect to a TANGO controller and return a blocking :class:`Controller`.
+
+    Takes exactly the options of :func:`tango_aio.connect` (a misspelt one raises
+    :class:`TypeError` before anything is opened). Close it with ``close()``, or use it
+    as a context manager (``with tango_aio.sync.connect(url) as tango:``).
+    """
+    connecting = _connection.connect(url, **options)  # checks the options first
+    portal = Portal()
+    try:
+        controller = portal.call(_await, connecting)
+    except BaseException:
+        portal.stop()
+        raise
+    wrapper = Controller(controller, portal, owns_portal=True)
+    _OPEN.add(wrapper)
+    return wrapper
+
+
+async def _await(awaitable: Awaitable[T]) -> T:
+    return await awaitable
+
+
+class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
+    """Several controllers driven concurrently, blocking: the twin of
+    :class:`tango_aio.ControllerGroup` (same arguments and methods). Opened by the
+    constructor; close it with ``close()`` or use it as a context manager. Members are
+    blocking :class:`Controller` objects on the group's thread."""
+
+    def __init__(self, controllers: Mapping[str, ControllerSpec], **options: Any) -> None:
+        portal = Portal()
+        try:
+            group = AsyncGroup(controllers, **options)
+            portal.call(group.open)
+        except BaseException:
+            portal.stop()
+            raise
+        super().__init__(group, portal, owns_portal=True)
+        self._members = {name: Controller(member, portal, owns_portal=False)
+                         for name, member in group.items()}
+        _OPEN.add(self)
+
+    each = _Blocking(AsyncGroup.each)
+    move_to = _Blocking(AsyncGroup.move_to)
+    move_by = _Blocking(AsyncGroup.move_by)
+    calibrate = _Blocking(AsyncGroup.calibrate)
+    measure_range = _Blocking(AsyncGroup.measure_range)
+    abort = _Blocking(AsyncGroup.abort)
+    position = _Blocking(AsyncGroup.position)
+    status = _Blocking(AsyncGroup.status)
+
+    start_move_to = _Starter(AsyncGroup.move_to)
+    start_move_by = _Starter(AsyncGroup.move_by)
+    start_calibrate = _Starter(AsyncGroup.calibrate)
+    start_measure_range = _Starter(AsyncGroup.measure_range)
+
+    def wait_idle(self, names: Iterable[str] | None = None, **options: Any
+                  ) -> dict[str, dict[str, str]]:
+        """Wait for every ``start_*`` call of the group (raising the first one's error),
+        then :meth:`Controller.wait_idle` of every member (or those in ``names``),
+        concurrently; returns name → letters."""
+        self._join_started()
+        selected = list(self) if names is None else list(names)
+
+        async def wait_all() -> dict[str, dict[str, str]]:
+            return await self.aio.each(lambda c: c.wait_idle(**options), selected)
+
+        return self._portal.call(wait_all)
+
+    def events(self, maxsize: int = 256) -> Iterator[GroupEvent]:
+        """Blocking iterator over :meth:`tango_aio.ControllerGroup.events`."""
+        subscription: GroupSubscription = self._portal.call(_subscribe, self.aio, maxsize)
+        return self._portal.iterate(subscription)
+
+    def __getitem__(self, name: str) -> Controller:
+        return self._members[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._members)
+
+    def __len__(self) -> int:
+        return len(self._members)
+
+    def __eq__(self, other: object) -> bool:
+        return self is other
+
+    def __hash__(self) -> int:
+        return id(self)
+
+    def url(self, name: str) -> str:
+        """The URL of member ``name``."""
+        return self.aio.url(name)
+
+    def close(self) -> None:
+        """Close every member (``aclose()``) and stop the driver's thread."""
+        _OPEN.discard(self)
+        try:
+            self._portal.call(self.aio.aclose)
+        finally:
+            self._portal.stop()
+
+    def __enter__(self) -> ControllerGroup:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
