@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import os
 import urllib.parse
 from collections.abc import Callable, Generator
 from types import TracebackType
@@ -50,6 +51,7 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
         port = serial.serial_for_url(url, baudrate=baudrate, bytesize=8, parity="N",
                                      stopbits=2, rtscts=rtscts, timeout=0, exclusive=True)
         try:
+            _check_pollable(port)
             port.reset_input_buffer()
         except BaseException:
             port.close()
@@ -67,6 +69,18 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int,
         port.close()
         raise
     return transport, protocol
+
+
+def _check_pollable(port: Any) -> None:
+    """pyserial-asyncio watches the port's file descriptor on POSIX; URL handlers without
+    one (``loop://``, ``spy://`` of such) would fail later inside the event loop."""
+    if os.name != "posix":
+        return
+    try:
+        port.fileno()
+    except (OSError, AttributeError):
+        raise OSError("this kind of port has no file descriptor, which asyncio needs "
+                      "to read it") from None
 
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:
