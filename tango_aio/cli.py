@@ -924,6 +924,10 @@ def check_sim_url(url: str) -> None:
     twice = sorted({key for key in keys if keys.count(key) > 1})
     if twice:
         raise ValueError(f"sim:// option(s) given more than once: {', '.join(twice)}")
+    for key, value in pairs:
+        with contextlib.suppress(ValueError):
+            if not math.isfinite(float(value)):
+                raise ValueError(f"sim:// option {key}={value!r} is not a finite number")
     try:
         configs_from_url(url)
     except ValueError:
@@ -1016,15 +1020,23 @@ def _add_new_commands(commands: Any) -> None:
     upload.set_defaults(run=_upload_trigp)
 
 
-def _configure_logging(args: argparse.Namespace) -> None:
+@contextlib.contextmanager
+def _logging(args: argparse.Namespace) -> Iterator[None]:
     """``-v``: the wire trace on stderr; ``--debug``: every tango_aio debug log."""
     if not (args.verbose or args.debug):
+        yield
         return
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(message)s"))
     logger = logging.getLogger("tango_aio" if args.debug else "tango_aio.wire")
+    level = logger.level
     logger.setLevel(logging.DEBUG)
     logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 def _is_emulator(url: str) -> bool:
@@ -1067,12 +1079,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
         debug = args.debug
-        _configure_logging(args)
         if args.command == "demo" and not args.yes and not _is_emulator(args.url) \
                 and not _confirm_demo(args.url):
             _say("demo cancelled: nothing was moved")
             return 1
-        return asyncio.run(_run(args.run, args))
+        with _logging(args):
+            return asyncio.run(_run(args.run, args))
     except KeyboardInterrupt:
         _say("interrupted", "yellow")
         return 130
