@@ -451,7 +451,8 @@ class TangoProtocol(asyncio.Protocol):
                 await asyncio.shield(marker)
         except TimeoutError:
             raise ControllerTimeoutError(
-                f"controller did not answer the resync marker within {timeout} s"
+                f"controller did not answer within {timeout} s the query sent to realign "
+                f"its replies (resync marker)"
             ) from None
         finally:
             self._markers.pop(tag, None)
