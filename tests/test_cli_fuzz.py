@@ -166,6 +166,10 @@ def _interrupt_at_random(rng: random.Random, positions: Path) -> None:
             proc.stdin.flush()
         time.sleep(rng.uniform(0.0, 1.5))
         proc.send_signal(signal.SIGINT)
+        if rng.random() < 0.3:  # an impatient user presses Ctrl+C again
+            time.sleep(rng.uniform(0.0, 0.3))
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
         try:
             out, err = proc.communicate(timeout=60)
         finally:
@@ -174,7 +178,9 @@ def _interrupt_at_random(rng: random.Random, positions: Path) -> None:
     text = out.decode(errors="replace") + err.decode(errors="replace")
     assert "Traceback" not in text and "never retrieved" not in text, (argv, text)
     assert "warning:" not in text, (argv, text)
-    assert proc.returncode in (0, 1, 130), (argv, proc.returncode, text)
+    # -SIGINT: a Ctrl+C that came after main() returned ended the interpreter's exit
+    # quietly (a shell shows it as 130, too).
+    assert proc.returncode in (0, 1, 130, -signal.SIGINT), (argv, proc.returncode, text)
 
 
 def _positions(tmp_path: Path) -> Path:
