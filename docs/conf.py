@@ -72,6 +72,10 @@ def _write_module_index() -> None:
     target = HERE / "reference" / "modules.rst"
     if not target.exists() or target.read_text() != text:
         target.write_text(text)
+    names = set(_public_modules())
+    for stale in (HERE / "reference" / "api").glob("*.rst"):  # of a module now gone
+        if stale.stem not in names:
+            stale.unlink()
 
 
 _write_module_index()
