@@ -1,8 +1,10 @@
 """The ``tango-aio`` command line.
 
 Every command takes ``--help``. Errors are printed as one line and give exit code 1
-(2 for usage errors). URLs are those of :func:`tango_aio.connect`; ``sim://`` runs the
-embedded emulator.
+(2 for usage errors, 130 after Ctrl+C). URLs are those of :func:`tango_aio.connect`;
+``sim://`` runs the embedded emulator. Text that comes from the user or the controller is
+printed literally (never as rich markup). Ctrl+C stops the axes that a command started
+before it exits.
 """
 
 from __future__ import annotations
@@ -10,15 +12,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import logging
 import math
 import os
+import re
 import signal
 import sys
 import threading
 import time
+import urllib.parse
 from collections.abc import Awaitable, Callable, Coroutine, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, BinaryIO, Protocol, TypeVar
 
 from rich.console import Console
 from rich.live import Live
@@ -26,13 +31,15 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedCo
 from rich.table import Table
 from rich.text import Text
 
-from .bulk import validate_trigger_positions
+from . import __version__
+from .bulk import MAX_TRIGGERS, validate_trigger_positions
 from .connection import connect
 from .controller import Controller
 from .core import is_completion_line
 from .errors import (
     ERROR_DESCRIPTIONS,
     InvalidCommandError,
+    MoveError,
     ProtocolError,
     TangoError,
     parse_error_reply,
@@ -47,84 +54,143 @@ from .events import (
     TangoEvent,
     UnsolicitedLine,
 )
-from .instructions import AXES, parse
+from .instructions import AXES, Form, Instruction, Signature, lookup, parse
 from .instructions import Command as CommandLine
 
 __all__ = ["main"]
 
 console = Console(highlight=False)
 Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
+_T = TypeVar("_T")
+
+
+def _say(text: str, style: str = "") -> None:
+    """Print ``text`` literally (no rich markup)."""
+    console.print(Text(text, style=style), soft_wrap=True)
+
+
+def _table(title: str, columns: Sequence[str] = (), *, show_header: bool = True) -> Table:
+    """A table whose title is printed literally."""
+    table = Table(title=Text(title), show_header=show_header)
+    for column in columns:
+        table.add_column(column, justify="right" if column == "position" else "left")
+    return table
+
+
+def _row(table: Table, *cells: str) -> None:
+    """Add a row whose cells are printed literally."""
+    table.add_row(*(Text(cell) for cell in cells))
+
+
+def _plural(count: int, one: str, many: str) -> str:
+    return f"{count} {one if count == 1 else many}"
+
+
+async def _follow(motion: Awaitable[_T], poll: Callable[[], Awaitable[None]],
+                  interval: float) -> _T:
+    """Await ``motion`` while calling ``poll`` every ``interval`` seconds (errors of a
+    poll are ignored). If the caller is cancelled (Ctrl+C), ``motion`` is cancelled and
+    awaited first, so that a move stops its axes before the connection closes."""
+    job = asyncio.ensure_future(motion)
+    try:
+        while not job.done():
+            with contextlib.suppress(TangoError):
+                await poll()
+            await asyncio.wait({job}, timeout=interval)
+    finally:
+        if not job.done():
+            job.cancel()
+            await asyncio.wait({job})
+    return job.result()
+
+
+def _fmt_positions(positions: Mapping[str, float]) -> str:
+    return "  ".join(f"{axis}={value:9.4f}" for axis, value in positions.items())
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}", markup=False), BarColumn(),
+                    TimeElapsedColumn(), console=console, transient=False)
 
 
 # -- demo -------------------------------------------------------------------------------
 
+#: Side of the square field of the demo's raster scan, in mm.
+_FIELD = 10.0
+
 
 async def _demo(args: argparse.Namespace) -> int:
-    """Identify, calibrate, measure the range, then run a raster scan with a trigger list."""
+    """Identify the controller, calibrate and measure the range of every axis, then run a
+    raster scan over a 10 x 10 mm field with a trigger list on X. On a real controller
+    (any URL but sim://) every axis, Z/focus included, moves to its limit switches: the
+    demo asks first unless --yes is given."""
     started = time.monotonic()
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None
-        console.print(f"[bold]Connected[/] to {ident.model} firmware {ident.firmware}, "
-                      f"{ident.axes} axes at {args.url}")
+        assert ident is not None  # connect() identifies
+        _say(f"Connected to {ident.model} firmware {ident.firmware}, "
+             f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}", "bold")
         await _demo_reference(tango)
-        triggers = await _demo_scan(tango, rows=args.rows, points=args.points)
-        summary = Table(title="Summary", show_header=False)
-        summary.add_row("controller", f"{ident.model} {ident.firmware}")
-        summary.add_row("final position", _fmt_positions(await tango.position()))
-        summary.add_row("limits", str(await tango.query("?statuslimit")))
-        summary.add_row("trigger pulses", str(triggers))
-        summary.add_row("elapsed", f"{time.monotonic() - started:.1f} s")
+        pulses = await _demo_scan(tango, rows=args.rows, points=args.points)
+        final = await tango.position()
+        summary = _table("Summary", show_header=False)
+        _row(summary, "controller", f"{ident.model} {ident.firmware}")
+        _row(summary, "final position", _fmt_positions(final))
+        _row(summary, "trigger pulses", str(pulses))
+        _row(summary, "elapsed", f"{time.monotonic() - started:.1f} s")
         console.print(summary)
     return 0
 
 
 async def _demo_reference(tango: Controller) -> None:
-    for label, action in (("calibrate (cal)", tango.calibrate),
-                          ("range measure (rm)", tango.measure_range)):
+    phases = (("Phase 1/3: calibrate (cal), every axis to its lower limit switch",
+               tango.calibrate),
+              ("Phase 2/3: range measure (rm), every axis to its upper limit switch",
+               tango.measure_range))
+    for label, action in phases:
+        _say(label, "bold")
         with _progress() as progress:
-            task = progress.add_task(label, total=None)
-            letters = await _with_positions(tango, action(), progress, task)
-        console.print(f"  {label}: {letters}")
+            task = progress.add_task("starting", total=None)
+            letters = await _follow(action(), _show_position(tango, progress, task), 0.2)
+        _say(f"  done: {describe_letters(letters)}")
+
+
+def _show_position(tango: Controller, progress: Progress,
+                   task: TaskID) -> Callable[[], Awaitable[None]]:
+    async def poll() -> None:
+        progress.update(task, description=_fmt_positions(await tango.position()))
+    return poll
 
 
 async def _demo_scan(tango: Controller, *, rows: int, points: int) -> int:
-    """A raster over a 10 x 10 mm field; X carries a trigger list of ``points`` pulses."""
-    await tango.move_to(x=0.0, y=0.0)
-    step = 10.0 / max(points - 1, 1)
+    """A raster over the field; X carries a trigger list of ``points`` positions. With one
+    axis, the rows are passes of X back and forth."""
+    two_d = tango.context.axes >= 2
+    await (tango.move_to(x=0.0, y=0.0) if two_d else tango.move_to(x=0.0))
+    step = _FIELD / max(points - 1, 1)
     await tango.command("!trigp x 0")
     for index in range(points):
         await tango.command(f"!trigp -1 {index * step + 0.5:.4f}")
     await tango.command("!trigcount 0")
     await tango.command("!trig 1")  # the list only fires once enabled (manual L12565)
+    _say(f"Phase 3/3: raster scan, {_plural(rows, 'row', 'rows')} of X from 0 to "
+         f"{_FIELD + 1:g} mm and back, a trigger list of "
+         f"{_plural(points, 'position', 'positions')} on X", "bold")
     with _progress() as progress:
         task = progress.add_task("raster scan", total=rows)
         for row in range(rows):
-            x_end = 11.0 if row % 2 == 0 else 0.0
-            await tango.move_to(y=row * 10.0 / max(rows - 1, 1))
-            await _with_positions(tango, tango.move_to(x=x_end), progress, task)
+            x_end = _FIELD + 1.0 if row % 2 == 0 else 0.0
+            if two_d:
+                await tango.move_to(y=row * _FIELD / max(rows - 1, 1))
+            await _follow(tango.move_to(x=x_end), _show_position(tango, progress, task), 0.2)
             progress.advance(task)
-    return int(await tango.get("trigcount"))
-
-
-async def _with_positions(tango: Controller, move: Awaitable[dict[str, str]],
-                          progress: Progress, task: object) -> dict[str, str]:
-    """Await ``move`` while showing live positions in the progress line."""
-    job = asyncio.ensure_future(move)
-    while not job.done():
-        with contextlib.suppress(TangoError):
-            progress.update(task, description=_fmt_positions(await tango.position()))  # type: ignore[arg-type]
-        await asyncio.wait({job}, timeout=0.2)
-    return job.result()
-
-
-def _fmt_positions(positions: dict[str, float]) -> str:
-    return "  ".join(f"{axis}={value:9.4f}" for axis, value in positions.items())
-
-
-def _progress() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                    console=console, transient=False)
+    pulses = int(await tango.get("trigcount"))
+    forward = (rows + 1) // 2
+    _say(f"  {_plural(pulses, 'trigger pulse', 'trigger pulses')}: the list's positions "
+         f"rise, so it fires while X moves in that direction, on the "
+         f"{_plural(forward, 'forward row', 'forward rows')} of {rows}; the return rows "
+         f"fire none")
+    return pulses
 
 
 # -- info -------------------------------------------------------------------------------
@@ -134,17 +200,17 @@ async def _info(args: argparse.Namespace) -> int:
     """Print the controller's identity and main settings."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None
-        table = Table(title=f"TANGO at {args.url}", show_header=False)
-        table.add_row("model", ident.model)
-        table.add_row("firmware", ident.firmware)
-        table.add_row("axes", str(ident.axes))
-        table.add_row("options", ", ".join(sorted(ident.det.options)) or "-")
-        table.add_row("serial", await tango.query("?readsn"))
-        table.add_row("position", _fmt_positions(await tango.position()))
-        table.add_row("status", " ".join(f"{a}={s}" for a, s in (await tango.status()).items()))
+        assert ident is not None  # connect() identifies
+        table = _table(f"TANGO at {args.url}", show_header=False)
+        _row(table, "model", ident.model)
+        _row(table, "firmware", ident.firmware)
+        _row(table, "axes", str(ident.axes))
+        _row(table, "options", ", ".join(sorted(ident.det.options)) or "-")
+        _row(table, "serial", await tango.query("?readsn"))
+        _row(table, "position", _fmt_positions(await tango.position()))
+        _row(table, "status", describe_letters(await tango.status()))
         for name in ("dim", "pitch", "vel", "accel", "secvel"):
-            table.add_row(name, str(await tango.query(f"?{name}")))
+            _row(table, name, str(await tango.query(f"?{name}")))
         console.print(table)
     return 0
 
@@ -316,9 +382,59 @@ def describe_event(event: TangoEvent) -> str | None:
     return None
 
 
-def _say(text: str, style: str = "") -> None:
-    """Print ``text`` literally (no rich markup)."""
-    console.print(Text(text, style=style), soft_wrap=True)
+def describe_exception(exc: BaseException) -> str:
+    """An error as one line for the user: the message, with a move's status letters in
+    words, and each member of an exception group."""
+    if isinstance(exc, BaseExceptionGroup):
+        return "; ".join(dict.fromkeys(describe_exception(e) for e in exc.exceptions))
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, MoveError) and exc.statuses:
+        text = f"{text}: {describe_letters(exc.statuses)}"
+    return text
+
+
+_FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
+
+
+def describe_instruction(entry: Instruction) -> str:
+    """Help text of one instruction from the catalog (the shell's ``help NAME``)."""
+    lines = [f"{entry.name}: {entry.summary}"]
+    if entry.aliases:
+        lines.append(f"  also written: {', '.join(entry.aliases)}")
+    for form in sorted(entry.forms, key=_FORM_ORDER.index):
+        prefix = form.value
+        what = ("reads" if entry.is_read(form) else "sets or runs")
+        for sig in entry.signatures(form) or (Signature(),):
+            usage = " ".join((f"{prefix}{entry.name}", *_usage(sig))).rstrip()
+            lines.append(f"  {usage:<40} {what}")
+    if entry.completion is not None:
+        lines.append("  sends a completion report when the axes have stopped (autostatus)")
+    if entry.section:
+        lines.append(f"  manual section {entry.section}, line {entry.line}")
+    return "\n".join(lines)
+
+
+def _usage(sig: Signature) -> list[str]:
+    words = [] if sig.axis.value == "none" else [
+        "AXIS" if sig.axis.value == "required" else "[AXIS]"]
+    for param in sig.lead:
+        words.append(_param_word(param))
+    if sig.per_axis:
+        group = " ".join(_param_word(p) for p in sig.per_axis)
+        words.append(group if sig.axis.value == "all" else f"{group}...")
+    if sig.precision is not None:
+        words.append("[digits]")
+    return words
+
+
+def _param_word(param: Any) -> str:
+    if param.choices:
+        text = f"{param.name}={'|'.join(str(c) for c in param.choices)}"
+    elif param.lo is not None and param.hi is not None:
+        text = f"{param.name}({param.lo:g}..{param.hi:g}{' ' + param.unit if param.unit else ''})"
+    else:
+        text = f"{param.name}{'(' + param.unit + ')' if param.unit else ''}"
+    return f"[{text}]" if param.optional else text
 
 
 @contextlib.contextmanager
@@ -346,6 +462,23 @@ def _sigint_calls(callback: Callable[[], None]) -> Iterator[None]:
 #: Default history file of the shell; the environment variable TANGO_AIO_HISTORY overrides.
 HISTORY_FILE = "~/.tango_aio_history"
 _PROMPT = "tango> "
+#: Longest input line the shell reads; the rest of a longer line is skipped. Instruction
+#: lines are at most 255 bytes (manual L129-131), so the validator rejects such lines.
+_MAX_INPUT = 4096
+
+SHELL_HELP = """\
+Type instruction lines: ?pos reads, !moa 10 5 sets or runs, sa (bare form) as the manual
+allows. Each line is checked against the instruction catalog before it is sent; lines
+that set or run something are confirmed, so that a rejection shows its error number.
+Shell commands:
+  help           this text
+  help NAME      an instruction from the catalog, e.g. help moa
+  help NUMBER    an error number in words, e.g. help 5
+  wait           wait until no axis moves
+  exit, quit     leave (Ctrl+D too); axes still moving are stopped
+Ctrl+C stops all axes (Ctrl+C to the controller) and the shell goes on.
+Status letters: @ ok, M moving, S limit switch, E error/aborted, T timeout,
+A calibrated, D range measured, J joystick, - absent."""
 
 
 class LineReader(Protocol):
@@ -369,19 +502,42 @@ class _TerminalReader:
         return await self._session.prompt_async(_PROMPT, handle_sigint=False)
 
 
-class _PipeReader:
-    """Lines from a non-interactive stdin, read by a daemon thread (never blocks exit)."""
+def read_bounded_line(stream: BinaryIO, limit: int) -> tuple[bytes, bool]:
+    """The next line, reading at most ``limit + 1`` bytes, and whether it is longer than
+    ``limit`` bytes (then it was cut, and the next read continues it). ``b""`` with False
+    at the end of input."""
+    line = stream.readline(limit + 1)
+    return line, len(line) > limit and not line.endswith(b"\n")
 
-    def __init__(self) -> None:
+
+class _PipeReader:
+    """Lines from a non-interactive stdin, read by a daemon thread (never blocks exit).
+    Bytes are decoded as UTF-8 with replacement characters, so no input kills the reader;
+    a read error ends the input."""
+
+    def __init__(self, stream: BinaryIO | None = None) -> None:
         self._lines: asyncio.Queue[str] = asyncio.Queue()
         loop = asyncio.get_running_loop()
+        source = stream if stream is not None else sys.stdin.buffer
 
         def pump() -> None:
-            while True:
-                line = sys.stdin.readline()
-                loop.call_soon_threadsafe(self._lines.put_nowait, line)
-                if not line:
-                    return
+            skipping = False  # inside the rest of a line that was too long
+            try:
+                while True:
+                    line, cut = read_bounded_line(source, _MAX_INPUT)
+                    if not line:
+                        break
+                    if skipping:
+                        skipping = cut
+                        continue
+                    skipping = cut
+                    text = line.decode("utf-8", errors="replace")
+                    loop.call_soon_threadsafe(self._lines.put_nowait, text)
+            except (OSError, ValueError):
+                pass
+            finally:
+                with contextlib.suppress(RuntimeError):  # the loop is already closed
+                    loop.call_soon_threadsafe(self._lines.put_nowait, "")
 
         threading.Thread(target=pump, name="tango-aio-stdin", daemon=True).start()
 
@@ -398,40 +554,80 @@ def history_path() -> Path:
 
 
 class Shell:
-    """The interactive line shell of ``tango-aio shell`` on a connected controller."""
+    """The interactive line shell of ``tango-aio shell`` on a connected controller.
 
-    def __init__(self, tango: Controller, reader: LineReader) -> None:
+    :meth:`run` returns the exit status: 1 when the connection was lost or, for a
+    ``script``, when a line failed (invalid, rejected by the controller, an error); else 0.
+    """
+
+    def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False
+                 ) -> None:
         self.tango = tango
         self.reader = reader
+        #: Whether the input is a script (piped): then a failed line makes the exit status 1.
+        self.script = script
+        self.failures = 0
         self._job: asyncio.Future[None] | None = None
         self._aborting: asyncio.Future[None] | None = None
-        self._lost = False
+        self._lost = asyncio.Event()
 
     async def run(self) -> int:
-        """Read, validate and send lines until ``exit``, ``quit`` or end of input."""
+        """Read, validate and send lines until ``exit``, ``quit``, end of input or the
+        loss of the connection; stop axes still moving when leaving."""
         async with self.tango.events() as events:
             printer = asyncio.ensure_future(self._print_events(events))
             try:
                 with _sigint_calls(self._on_sigint):
-                    return await self._loop()
+                    await self._loop()
+                    if not self._lost.is_set():
+                        await self._stop_moving()
             finally:
                 printer.cancel()
+                await asyncio.wait({printer})
+        return 1 if (self.script and self.failures) or self._lost.is_set() else 0
 
-    async def _loop(self) -> int:
-        while not self._lost:
+    async def _loop(self) -> None:
+        while True:
             try:
-                line = (await self.reader.read()).strip()
+                line = await self._next_line()
             except EOFError:
-                return 0
+                return
             except KeyboardInterrupt:  # Ctrl+C at the prompt
                 await self._abort()
                 continue
+            if line is None:  # the connection is gone
+                return
             if line.lower() in ("exit", "quit"):
-                return 0
+                return
             if line:
                 await self._settle_abort()
                 await self._run_line(line)
-        return 1
+
+    async def _next_line(self) -> str | None:
+        """The next input line, or ``None`` as soon as the connection is lost."""
+        read = asyncio.ensure_future(self._read())
+        lost = asyncio.ensure_future(self._lost.wait())
+        try:
+            await asyncio.wait({read, lost}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            lost.cancel()
+            if not read.done():
+                read.cancel()
+                await asyncio.wait({read})
+        if self._lost.is_set():
+            return None
+        line = read.result()
+        if isinstance(line, BaseException):
+            raise line
+        return line.strip()
+
+    async def _read(self) -> str | KeyboardInterrupt:
+        """A line, or the reader's KeyboardInterrupt as a value: raised inside a task it
+        would stop the event loop."""
+        try:
+            return await self.reader.read()
+        except KeyboardInterrupt as interrupt:
+            return interrupt
 
     async def _run_line(self, line: str) -> None:
         """Run one line as a job that Ctrl+C cancels (and then aborts)."""
@@ -443,23 +639,49 @@ class Shell:
             job.cancel()
         if job.cancelled():
             _say(f"interrupted: {line}", "yellow")
+            self.failures += 1
             await self._abort()
-        elif isinstance(job.exception(), InvalidCommandError):
-            _say(f"invalid: {job.exception()} (nothing sent)", "yellow")
-        elif isinstance(job.exception(), TangoError):
-            _say(f"error: {job.exception()}", "red")
+            return
+        error = job.exception()
+        if isinstance(error, InvalidCommandError):
+            _say(f"invalid: {describe_exception(error)} (nothing sent)", "yellow")
+        elif isinstance(error, TangoError):
+            _say(f"error: {describe_exception(error)}", "red")
         else:
             job.result()
+            return
+        self.failures += 1
 
     async def execute(self, line: str) -> None:
-        """Validate ``line``; send a read with ``query`` and show the decoded reply, or
-        anything else with ``command(check=False)``."""
+        """Run one line: a shell command (``help``, ``wait``), or an instruction line,
+        validated first; a read is sent with ``query`` and its decoded reply shown,
+        anything else with ``command`` and confirmed (a rejection raises)."""
+        words = line.split()
+        if words[0].lower() == "help" and len(words) <= 2:
+            _say(self.help(words[1] if len(words) == 2 else None))
+            return
+        if words == ["wait"]:
+            letters = await self.tango.wait_idle()
+            _say(f"idle: {describe_letters(letters)}")
+            return
         command = parse(line, self.tango.context)
         if command.is_read:
             _say(describe_reply(command, await self.tango.query(line)))
         else:
-            await self.tango.command(line, check=False)
-            _say("sent", "dim")
+            await self.tango.command(line)
+            _say("ok", "dim")
+
+    @staticmethod
+    def help(topic: str | None) -> str:
+        """The shell's help: its commands, an instruction, or an error number."""
+        if topic is None:
+            return SHELL_HELP
+        if topic.lstrip("-").isdigit():
+            return describe_error(int(topic))
+        try:
+            return describe_instruction(lookup(topic.lstrip("!?").lower()))
+        except InvalidCommandError:
+            return f"no instruction {topic!r} in the catalog; 'help' lists the shell's commands"
 
     def _on_sigint(self) -> None:
         if self._job is not None:
@@ -475,7 +697,19 @@ class Shell:
         try:
             await self.tango.abort()
         except (TangoError, TimeoutError) as exc:
-            _say(f"error: abort: {exc}", "red")
+            _say(f"error: abort: {describe_exception(exc)}", "red")
+
+    async def _stop_moving(self) -> None:
+        """Stop the axes that still move when the shell is left."""
+        await self._settle_abort()
+        try:
+            moving = [a for a, s in (await self.tango.status()).items() if s == "M"]
+            if moving:
+                _say(f"stopping the axes that still move: {' '.join(moving)}", "yellow")
+                await self.tango.abort()
+        except (TangoError, TimeoutError) as exc:
+            _say(f"error: stopping the axes: {describe_exception(exc)}", "red")
+            self.failures += 1
 
     async def _print_events(self, events: Subscription) -> None:
         async for event in events:
@@ -483,25 +717,30 @@ class Shell:
             if text is not None:
                 _say(text, "red" if isinstance(event, ConnectionLost) else "cyan")
             if isinstance(event, ConnectionLost):
-                self._lost = True
+                self._lost.set()
 
 
 async def _shell(args: argparse.Namespace) -> int:
     """Interactive shell: type instruction lines (``?pos``, ``!moa 10 5``), validated
-    before sending. Completion reports, error numbers and unsolicited lines are shown in
-    words. Ctrl+C aborts (all axes stop); Ctrl+D, ``exit`` or ``quit`` leave. History is
-    kept in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
+    before sending; lines that set or run something are confirmed, so that a rejection
+    shows its error. Completion reports, error numbers and unsolicited lines are shown in
+    words. ``help`` lists the shell's commands, ``help moa`` explains an instruction.
+    Ctrl+C aborts (all axes stop); Ctrl+D, ``exit`` or ``quit`` leave, stopping axes that
+    still move. Lines piped into the shell run as a script, whose exit status is 1 if any
+    line failed. History is kept
+    in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
         if ident is not None:
-            _say(f"connected to {ident.model} firmware {ident.firmware}, {ident.axes} axes "
-                 f"at {args.url}; Ctrl+C aborts, Ctrl+D or 'exit' leaves", "bold")
+            _say(f"connected to {ident.model} firmware {ident.firmware}, "
+                 f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+                 f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", "bold")
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 
             with patch_stdout(raw=True):
                 return await Shell(tango, _TerminalReader(history_path())).run()
-        return await Shell(tango, _PipeReader()).run()
+        return await Shell(tango, _PipeReader(), script=True).run()
 
 
 # -- move -------------------------------------------------------------------------------
@@ -527,8 +766,9 @@ def _distance(start: Mapping[str, float], end: Mapping[str, float]) -> float:
 
 
 async def _move(args: argparse.Namespace) -> int:
-    """Move axes to absolute positions (``x=10 y=5``), or by distances with
-    ``--relative``, showing the distance covered; prints the final status letters."""
+    """Move axes to absolute positions (x=10 y=5), or by distances with --relative,
+    showing the distance covered; prints the final status letters in words. Ctrl+C stops
+    the axes."""
     targets: dict[str, float] = {}
     for axis, value in args.targets:
         if axis in targets:
@@ -539,34 +779,21 @@ async def _move(args: argparse.Namespace) -> int:
         ends = {a: start.get(a, 0.0) + v if args.relative else v for a, v in targets.items()}
         mover: Callable[..., Awaitable[dict[str, str]]] = (
             tango.move_by if args.relative else tango.move_to)
-        motion = mover(**targets)
         with Progress(TextColumn("moving"), BarColumn(),
                       TextColumn("{task.completed:.4f} / {task.total:.4f}"),
                       TimeElapsedColumn(), console=console, transient=True,
                       disable=not console.is_terminal) as progress:
             task = progress.add_task("", total=max(_distance(start, ends), 1e-9))
-            letters = await _follow(tango, motion, progress, task, start)
-        _say(f"done: {describe_letters(letters)}")
-        _say(f"position: {_fmt_positions(await tango.position())}")
-    return 0
 
-
-async def _follow(tango: Controller, motion: Awaitable[dict[str, str]], progress: Progress,
-                  task: TaskID, start: Mapping[str, float]) -> dict[str, str]:
-    """Await ``motion`` while polling the position every 0.1 s into the progress bar."""
-    job = asyncio.ensure_future(motion)
-    try:
-        while not job.done():
-            with contextlib.suppress(TangoError):
+            async def poll() -> None:
                 position = await tango.position()
                 covered = _distance(start, {a: position[a] for a in start})
                 progress.update(task, completed=covered)
-            await asyncio.wait({job}, timeout=0.1)
-    finally:
-        if not job.done():  # cancelled (Ctrl+C): move_to stops the axes
-            job.cancel()
-            await asyncio.wait({job})
-    return job.result()
+
+            letters = await _follow(mover(**targets), poll, 0.1)
+        _say(f"done: {describe_letters(letters)}")
+        _say(f"position: {_fmt_positions(await tango.position())}")
+    return 0
 
 
 # -- monitor ----------------------------------------------------------------------------
@@ -574,18 +801,16 @@ async def _follow(tango: Controller, motion: Awaitable[dict[str, str]], progress
 
 def _monitor_table(url: str, positions: Mapping[str, float],
                    letters: Mapping[str, str]) -> Table:
-    table = Table(title=f"TANGO at {url}")
-    for column in ("axis", "position", "status", "meaning"):
-        table.add_column(column, justify="right" if column == "position" else "left")
+    table = _table(f"TANGO at {url}", ("axis", "position", "status", "meaning"))
     for axis, value in positions.items():
         letter = letters.get(axis, "?")
-        table.add_row(axis, f"{value:.4f}", letter, LETTER_MEANINGS.get(letter, "unknown"))
+        _row(table, axis, f"{value:.4f}", letter, LETTER_MEANINGS.get(letter, "unknown"))
     return table
 
 
 async def _monitor(args: argparse.Namespace) -> int:
     """Show a live table of the positions and status letters of every axis, refreshed
-    every ``--interval`` seconds, until Ctrl+C (or ``--count`` refreshes)."""
+    every --interval seconds, until Ctrl+C (or --count refreshes)."""
     stop = asyncio.Event()
     async with connect(args.url) as tango:
         with _sigint_calls(stop.set), Live(console=console, auto_refresh=False) as live:
@@ -606,46 +831,48 @@ async def _monitor(args: argparse.Namespace) -> int:
 # -- ports ------------------------------------------------------------------------------
 
 
-async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str] | None:
-    """Port → "model firmware" of the controllers :func:`tango_aio.discover` finds, or
-    ``None`` when this installation has no ``discover``."""
-    try:
-        from .group import discover
-    except ImportError:
-        return None
+async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
+    """Port → "model firmware" of the controllers :func:`tango_aio.discover` finds."""
+    from .group import discover
+
     found = await discover(timeout=timeout, ports=ports or None)
     return {item.port: f"{item.model} {item.firmware}" for item in found}
 
 
 async def _ports(args: argparse.Namespace) -> int:
-    """List the serial ports; with ``--probe``, ask each one for ``?version`` to find the
-    TANGO controllers (this writes a line to every port probed)."""
+    """List the serial ports; with --probe, ask each one for ?version to find the TANGO
+    controllers (this writes a line to every port probed)."""
     from serial.tools import list_ports
 
     infos = await asyncio.to_thread(list_ports.comports)
     rows = {info.device: (info.description or "", info.hwid or "") for info in infos}
     rows.update({port: ("", "") for port in args.port if port not in rows})
     found = await _probe(args.timeout, args.port) if args.probe else None
-    if args.probe and found is None:
-        _say("probing is not available: tango_aio.discover() is missing", "yellow")
-    table = Table(title="Serial ports")
-    for column in ("device", "description", "hwid", *(("TANGO",) if found is not None else ())):
-        table.add_column(column)
+    table = _table("Serial ports", ("device", "description", "hwid",
+                                    *(("TANGO",) if found is not None else ())))
     for device, (description, hwid) in rows.items():
         probed = not args.port or device in args.port
         extra = () if found is None else (found.get(device, "-" if probed else "not probed"),)
-        table.add_row(device, description, hwid, *extra)
-    console.print(table if rows else "no serial ports found")
+        _row(table, device, description, hwid, *extra)
+    if rows:
+        console.print(table)
+    else:
+        _say("no serial ports found")
     return 0
 
 
 # -- upload-trigp -----------------------------------------------------------------------
 
+#: Longest line of a position file, in bytes; a position needs far fewer.
+_MAX_POSITION_LINE = 200
+#: Most lines read from a position file (comments included).
+_MAX_POSITION_LINES = 10 * MAX_TRIGGERS
+
 
 async def _upload_trigp(args: argparse.Namespace) -> int:
     """Upload a trigger position list (one position per line; blank lines and lines
     starting with # are ignored) at wire speed, with a progress bar."""
-    positions = validate_trigger_positions(_read_positions(args.file))  # before connecting
+    positions = validate_trigger_positions(read_positions(args.file))  # before connecting
     async with connect(args.url) as tango:
         with _progress() as progress:
             task = progress.add_task(f"trigp {args.axis}", total=len(positions))
@@ -653,26 +880,111 @@ async def _upload_trigp(args: argparse.Namespace) -> int:
                 positions, axis=args.axis,
                 progress=lambda done, total: progress.update(task, completed=done))
         count = int(await tango.get("trigc"))
-    console.print(f"uploaded {count} trigger positions to axis {args.axis}")
+    _say(f"uploaded {count} trigger positions to axis {args.axis}")
     return 0
 
 
-def _read_positions(path: str) -> list[float]:
-    """Positions from a text file, one per line."""
+def read_positions(path: str) -> list[float]:
+    """Positions from a text file, one per line (blank lines and ``#`` comments skipped).
+
+    Reading is bounded: lines of at most 200 bytes, at most 100000 lines and one position
+    more than a trigger list holds (so ``/dev/zero`` or a huge file fails at once).
+    """
     values: list[float] = []
-    with open(path, encoding="utf-8") as handle:
-        for number, raw in enumerate(handle, start=1):
-            text = raw.strip()
+    with open(path, "rb") as handle:
+        for number in range(1, _MAX_POSITION_LINES + 2):
+            raw, longer = read_bounded_line(handle, _MAX_POSITION_LINE)
+            if not raw:
+                return values
+            if longer:
+                raise ValueError(f"{path}:{number}: line longer than "
+                                 f"{_MAX_POSITION_LINE} bytes")
+            if number > _MAX_POSITION_LINES:
+                break
+            text = raw.decode("utf-8", errors="replace").strip()
             if not text or text.startswith("#"):
                 continue
             try:
-                values.append(float(text))
+                value = float(text)
             except ValueError:
                 raise ValueError(f"{path}:{number}: not a number: {text!r}") from None
-    return values
+            values.append(value)
+            if len(values) > MAX_TRIGGERS:
+                raise ValueError(f"{path}: more than {MAX_TRIGGERS} positions "
+                                 f"(the most a trigger list holds)")
+    raise ValueError(f"{path}: more than {_MAX_POSITION_LINES} lines")
 
 
 # -- plumbing ---------------------------------------------------------------------------
+
+
+def _plain(text: str | None) -> str | None:
+    """A docstring for ``--help``: Sphinx roles and literals (````?pos````,
+    ``:func:`x```) as plain words."""
+    if text is None:
+        return None
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    return re.sub(r"``([^`]+)``", r"\1", text)
+
+
+def _number_type(kind: Callable[[str], _T], what: str, *, minimum: float = 0.0,
+                 allow_minimum: bool = False) -> Callable[[str], _T]:
+    """argparse type of a finite number above ``minimum`` (or equal, if allowed)."""
+    def convert(text: str) -> _T:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {what}: {text!r}") from None
+        number = float(value)  # type: ignore[arg-type]
+        if not math.isfinite(number) or number < minimum or (
+                number == minimum and not allow_minimum):
+            bound = f"{'at least' if allow_minimum else 'above'} {minimum:g}"
+            raise argparse.ArgumentTypeError(f"must be {bound}: {text!r}")
+        return value
+    return convert
+
+
+_count_type = _number_type(int, "a whole number", minimum=1, allow_minimum=True)
+_seconds_type = _number_type(float, "a number of seconds")
+
+
+def _url_type(text: str) -> str:
+    """argparse type of a controller URL: ``SIM://`` and ``SOCKET://`` in any case; a
+    ``sim://`` URL is checked here, so that a bad option is named and nothing opens."""
+    scheme, sep, rest = text.partition("://")
+    if sep and scheme.lower() in ("sim", "socket"):
+        text = f"{scheme.lower()}://{rest}"
+    if text.startswith("sim://"):
+        try:
+            check_sim_url(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def check_sim_url(url: str) -> None:
+    """Raise ValueError, naming the option, if the ``sim://`` URL's query is invalid:
+    an option given twice, an unknown option or a value the emulator refuses."""
+    from .sim.inprocess import configs_from_url
+
+    pairs = urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query, keep_blank_values=True)
+    keys = [key for key, _ in pairs]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    if twice:
+        raise ValueError(f"sim:// option(s) given more than once: {', '.join(twice)}")
+    for key, value in pairs:
+        with contextlib.suppress(ValueError):
+            if not math.isfinite(float(value)):
+                raise ValueError(f"sim:// option {key}={value!r} is not a finite number")
+    try:
+        configs_from_url(url)
+    except ValueError:
+        for key, value in pairs:  # find the option the emulator refuses
+            try:
+                configs_from_url("sim://?" + urllib.parse.urlencode({key: value}))
+            except ValueError as exc:
+                raise ValueError(f"sim:// option {key}={value!r} is not valid: {exc}") from None
+        raise
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -680,16 +992,27 @@ def _parser() -> argparse.ArgumentParser:
         prog="tango-aio",
         description="asyncio driver and emulator for Märzhäuser TANGO stepper-motor "
                     "controllers (not Tango Controls).")
+    parser.add_argument("--version", action="version", version=f"tango-aio {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="show every line to and from the controller (the "
+                             "tango_aio.wire log) on stderr")
+    parser.add_argument("--debug", action="store_true",
+                        help="show all debug logs of tango_aio on stderr, and the full "
+                             "traceback of an error")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = commands.add_parser("demo", help="calibrate and run a raster scan (emulator)",
-                               description=_demo.__doc__)
-    demo.add_argument("--url", default="sim://", help="controller URL (default: sim://)")
-    demo.add_argument("--rows", type=int, default=4, help="scan rows (default 4)")
-    demo.add_argument("--points", type=int, default=10, help="triggers per row (default 10)")
+                               description=_plain(_demo.__doc__))
+    demo.add_argument("--url", type=_url_type, default="sim://",
+                      help="controller URL (default: sim://)")
+    demo.add_argument("--rows", type=_count_type, default=4, help="scan rows (default 4)")
+    demo.add_argument("--points", type=_count_type, default=10,
+                      help="triggers per row (default 10)")
+    demo.add_argument("--yes", action="store_true",
+                      help="do not ask before moving a real controller's axes")
     demo.set_defaults(run=_demo)
     info = commands.add_parser("info", help="show identity and settings",
-                               description=_info.__doc__)
-    info.add_argument("url", help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+                               description=_plain(_info.__doc__))
+    info.add_argument("url", type=_url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     info.set_defaults(run=_info)
     sim = commands.add_parser("sim", help="serve the emulator on a pty or TCP",
                               description=_sim.__doc__)
@@ -722,50 +1045,112 @@ def _parser() -> argparse.ArgumentParser:
 def _add_new_commands(commands: Any) -> None:
     """The subcommands shell, move, monitor, ports and upload-trigp."""
     shell = commands.add_parser("shell", help="interactive command line shell",
-                                description=_shell.__doc__)
-    shell.add_argument("url", help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+                                description=_plain(_shell.__doc__))
+    shell.add_argument("url", type=_url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     shell.set_defaults(run=_shell)
     move = commands.add_parser("move", help="move axes with a progress bar",
-                               description=_move.__doc__)
-    move.add_argument("url", help="controller URL")
+                               description=_plain(_move.__doc__))
+    move.add_argument("url", type=_url_type, help="controller URL")
     move.add_argument("targets", nargs="+", type=_axis_target, metavar="AXIS=VALUE",
                       help="target (or distance with --relative) per axis, e.g. x=10 y=5")
     move.add_argument("--relative", action="store_true", help="move by distances (mor)")
     move.set_defaults(run=_move)
     monitor = commands.add_parser("monitor", help="live table of positions and status",
-                                  description=_monitor.__doc__)
-    monitor.add_argument("url", help="controller URL")
-    monitor.add_argument("--interval", type=float, default=0.2,
+                                  description=_plain(_monitor.__doc__))
+    monitor.add_argument("url", type=_url_type, help="controller URL")
+    monitor.add_argument("--interval", type=_seconds_type, default=0.2,
                          help="seconds between refreshes (default 0.2)")
-    monitor.add_argument("--count", type=int, help="stop after N refreshes")
+    monitor.add_argument("--count", type=_count_type, help="stop after N refreshes")
     monitor.set_defaults(run=_monitor)
     ports = commands.add_parser("ports", help="list serial ports, optionally probe them",
-                                description=_ports.__doc__)
+                                description=_plain(_ports.__doc__))
     ports.add_argument("--probe", action="store_true", help="find TANGO controllers")
     ports.add_argument("--port", action="append", default=[], metavar="DEVICE",
                        help="probe DEVICE instead of every listed port (repeatable)")
-    ports.add_argument("--timeout", type=float, default=0.5,
+    ports.add_argument("--timeout", type=_seconds_type, default=0.5,
                        help="seconds to wait for each port's reply (default 0.5)")
     ports.set_defaults(run=_ports)
     upload = commands.add_parser("upload-trigp", help="upload a trigger position list",
-                                 description=_upload_trigp.__doc__)
-    upload.add_argument("url", help="controller URL")
+                                 description=_plain(_upload_trigp.__doc__))
+    upload.add_argument("url", type=_url_type, help="controller URL")
     upload.add_argument("file", help="text file with one position per line")
     upload.add_argument("--axis", default="x", choices=["x", "y", "z", "a"],
                         help="trigger axis (default x)")
     upload.set_defaults(run=_upload_trigp)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``tango-aio`` command."""
-    args = _parser().parse_args(argv)
+@contextlib.contextmanager
+def _logging(args: argparse.Namespace) -> Iterator[None]:
+    """``-v``: the wire trace on stderr; ``--debug``: every tango_aio debug log."""
+    if not (args.verbose or args.debug):
+        yield
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(message)s"))
+    logger = logging.getLogger("tango_aio" if args.debug else "tango_aio.wire")
+    level = logger.level
+    logger.setLevel(logging.DEBUG)
+    logger.addHandler(handler)
     try:
-        run: Command = args.run
-        return asyncio.run(run(args))
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
+def _is_emulator(url: str) -> bool:
+    return url.lower().startswith("sim://")
+
+
+def _confirm_demo(url: str) -> bool:
+    """Ask before the demo moves a real controller's axes to their limit switches."""
+    if not sys.stdin.isatty():
+        raise ValueError(f"demo on {url} calibrates and range-measures every axis; "
+                         f"confirm with --yes (stdin is not a terminal to ask)")
+    _say(f"The demo calibrates and range-measures every axis of the controller at {url}, "
+         f"Z/focus included: each axis drives to both of its limit switches. Make sure "
+         f"nothing (objective, sample, cables) is in the way.", "yellow")
+    try:
+        answer = input("Continue? [y/N] ")
+    except EOFError:
+        answer = ""
+    return answer.strip().lower() in ("y", "yes")
+
+
+def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    """Report an error nobody awaited as one line (the traceback with --debug)."""
+    error = context.get("exception")
+    text = describe_exception(error) if error is not None else context.get("message", "")
+    logging.getLogger("tango_aio").debug("unhandled: %s", context.get("message"),
+                                         exc_info=error)
+    _say(f"warning: {text}", "yellow")
+
+
+async def _run(run: Command, args: argparse.Namespace) -> int:
+    asyncio.get_running_loop().set_exception_handler(_loop_exception)
+    return await run(args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``tango-aio`` command: 0 on success, 1 after an error (printed
+    as one line), 2 for usage errors, 130 after Ctrl+C."""
+    debug = False
+    try:
+        args = _parser().parse_args(argv)
+        debug = args.debug
+        if args.command == "demo" and not args.yes and not _is_emulator(args.url) \
+                and not _confirm_demo(args.url):
+            _say("demo cancelled: nothing was moved")
+            return 1
+        with _logging(args):
+            return asyncio.run(_run(args.run, args))
     except KeyboardInterrupt:
+        _say("interrupted", "yellow")
         return 130
-    except (TangoError, OSError, ValueError) as exc:
-        console.print(f"[red]error:[/] {exc}", soft_wrap=True)
+    except Exception as exc:
+        if debug:
+            raise
+        _say(f"error: {describe_exception(exc)}", "red")
         return 1
 
 

@@ -19,6 +19,7 @@ import collections.abc
 import contextlib
 import functools
 import logging
+import os
 import urllib.parse
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -61,6 +62,7 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
         port = serial.serial_for_url(url, baudrate=baudrate, bytesize=8, parity="N",
                                      stopbits=2, rtscts=rtscts, timeout=0, exclusive=True)
         try:
+            _check_pollable(port)
             port.reset_input_buffer()
         except BaseException:
             port.close()
@@ -113,6 +115,18 @@ def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future
 
     port.close = close_and_tell
     return released
+
+
+def _check_pollable(port: Any) -> None:
+    """pyserial-asyncio watches the port's file descriptor on POSIX; URL handlers without
+    one (``loop://``, ``spy://`` of such) would fail later inside the event loop."""
+    if os.name != "posix":
+        return
+    try:
+        port.fileno()
+    except (OSError, AttributeError):
+        raise OSError("this kind of port has no file descriptor, which asyncio needs "
+                      "to read it") from None
 
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:

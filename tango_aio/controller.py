@@ -407,7 +407,7 @@ class Controller:
             if letter not in present:
                 raise InvalidCommandError(
                     f"{command.line!r}: the controller has no {letter.upper()} axis "
-                    f"({self.context.axes} axes)",
+                    f"(its axes: {' '.join(present).upper()})",
                     instruction=command.name, parameter="axis", code=1)
 
     async def _request(self, command: Command, timeout: float | None = None) -> Response:

@@ -497,11 +497,15 @@ def _split_form(line: str) -> tuple[Form, Instruction, list[str]]:
     return form, entry, (rest or "").split()
 
 
+_FORM_WORDS = {Form.SET: "with '!' (set or run)", Form.READ: "with '?' (read)",
+               Form.BARE: "without a prefix"}
+
+
 def _check_form(entry: Instruction, form: Form) -> None:
     if not entry.allows(form):
         code = 7 if form is Form.BARE else 4
-        allowed = ", ".join(repr(f.value or "bare") for f in sorted(entry.forms, key=str))
-        raise _fail(f"{entry.name}: form {form.value or 'bare'!r} not allowed ({allowed})",
+        allowed = " or ".join(repr(f.value + entry.name) for f in sorted(entry.forms, key=str))
+        raise _fail(f"{entry.name}: cannot be written {_FORM_WORDS[form]}; write {allowed}",
                     entry.name, None, code)
 
 

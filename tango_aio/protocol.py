@@ -937,7 +937,8 @@ class TangoProtocol(asyncio.Protocol):
         except TimeoutError:
             self.check()
             error = ControllerTimeoutError(
-                f"controller did not answer the resync marker within {timeout} s")
+                f"controller did not answer within {timeout} s the query sent to realign "
+                f"its replies (resync marker)")
             if self._unanswered(error, serial):
                 self.check()
             raise error from None
