@@ -30,6 +30,7 @@ from .bulk import validate_trigger_positions
 from .connection import connect
 from .controller import Controller
 from .core import is_completion_line
+from .epics.command import add_ioc_command
 from .errors import (
     ERROR_DESCRIPTIONS,
     InvalidCommandError,
@@ -657,6 +658,7 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
     sim.set_defaults(run=_sim)
     _add_new_commands(commands)
+    add_ioc_command(commands)
     return parser
 
 

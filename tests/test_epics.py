@@ -379,3 +379,22 @@ async def test_a_host_that_is_not_allowed_cannot_move_the_stage(
         await asyncio.sleep(0.2)
         assert (await tango.position())["x"] == 0.0
         assert (await tango.status())["x"] == "@"
+
+
+async def test_stopping_the_ioc_stops_the_moves_it_started(ca_env: dict[str, str]) -> None:
+    async with connect(INSTANT) as tango:
+        ioc = await build_ioc({"": tango}, "T:", poll=0.05)
+        task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+        context = ClientContext()
+        try:
+            client = Client(context, "T:")
+            await client.put("X", 40.0, wait=False)
+            await client.until("X.DMOV", 0)
+            await asyncio.sleep(0.2)
+        finally:
+            await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        assert (await tango.status())["x"] != "M"
+        assert (await tango.position())["x"] < 40.0
