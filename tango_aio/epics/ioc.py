@@ -462,10 +462,10 @@ class AxisServer:
         c, axis = self.controller, self.letter
         self.units = AxisUnits(int(await c.get("dim", axis=axis)),
                                float(await c.get("pitch", axis=axis)),
-                               float(await c.get("gear", axis=axis)),
-                               int(await c.get("usteps")))
+                               float(await self._optional("gear", 1.0, axis=axis)),
+                               int(await self._optional("usteps", 40000)))
         f = self._f
-        precision = int(await c.get("resolution"))
+        precision = int(await self._optional("resolution", 4))
         await self.record.write_metadata(units=self.units.egu, precision=precision)
         await f.engineering_units.write(self.units.egu)
         for field in ("RBV", "DRBV", "DVAL", "HLM", "LLM", "DHLM", "DLLM"):
@@ -477,6 +477,16 @@ class AxisServer:
         await f.enable_control.write("Enable" if enabled else "Disable", verify_value=False)
         await self._publish_dial(await c.get("pos", axis=axis))
         await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+
+    async def _optional(self, name: str, default: float, axis: str | None = None) -> Any:
+        """Read ``name``; a controller that refuses it (older firmware may lack gear,
+        usteps or resolution) gives ``default``, with a warning."""
+        try:
+            return await self.controller.get(name, axis=axis)
+        except ControllerError as exc:
+            log.warning("%s: ?%s refused (%s); assuming %s", self.record.pvname, name, exc,
+                        default)
+            return default
 
     async def _read_speed(self) -> None:
         c, axis, f = self.controller, self.letter, self._f
@@ -599,9 +609,9 @@ class ControllerServer:
     async def _set_link(self, up: bool, *, force: bool = False) -> None:
         if up == self.link_up and not force:
             return
-        self.link_up = up
         group = self.group
         if not up:
+            self.link_up = False
             log.warning("%s: link to %s lost", self.prefix, self.controller.url)
             await self.report_error(ConnectionLostError(f"link to {self.controller.url} lost"))
         for axis in self.axes:
@@ -614,6 +624,8 @@ class ControllerServer:
         if up:
             await group.autostatus.write(self.controller.autostatus)
             log.info("%s: connected to %s", self.prefix, self.controller.url)
+        # Up only once every setting was read: a failed read is tried again next poll.
+        self.link_up = up
 
     async def run(self) -> None:
         """Poll until cancelled; follows the link down and up again."""
@@ -659,8 +671,8 @@ class ControllerServer:
 
 def _guard(pv: Any, policy: AccessPolicy,
            on_error: Callable[[BaseException], Awaitable[None]]) -> None:
-    """Make ``pv`` refuse writes to clients the policy does not allow, and answer a put
-    whose handler failed with the status ECA_PUTFAIL.
+    """Make ``pv`` refuse writes to clients the policy does not allow (status
+    ECA_NOWTACCESS), and answer a put whose handler failed with the status ECA_PUTFAIL.
 
     caproto answers a failed put with an error message, which clients waiting for the
     put's callback do not all match to their put (caproto's own client then times out);
@@ -679,7 +691,7 @@ def _guard(pv: Any, policy: AccessPolicy,
             return await own_write(hostname, username, *args, **kwargs)
         except Forbidden:
             log.warning("%s: write refused to %s@%s", pv.pvname, username, hostname)
-            raise
+            return CAStatus.ECA_NOWTACCESS
         except Exception as exc:
             log.warning("%s: put by %s@%s failed: %s", pv.pvname, username, hostname, exc)
             await on_error(exc)
