@@ -24,6 +24,7 @@ from tango_aio.connection import connect
 from tango_aio.controller import Controller
 from tango_aio.epics.access import AccessPolicy
 from tango_aio.epics.ioc import TangoIoc, build_ioc
+from tango_aio.epics.record import Msta
 from tango_aio.sim.serve import serve_tcp
 
 pytestmark = pytest.mark.timeout(60)
@@ -153,6 +154,8 @@ async def test_put_with_callback_completes_at_the_target(ca_env: dict[str, str])
         assert (await tango.position())["x"] == pytest.approx(3.0)
         assert await client.get("X.MOVN") == 0
         assert await client.get("X.RTYP") == "motor"
+        msta = await client.get("X.MSTA")
+        assert msta & Msta.DONE and msta & Msta.DIRECTION and not msta & Msta.MOVING
 
 
 async def test_dmov_is_zero_while_moving(ca_env: dict[str, str]) -> None:

@@ -31,3 +31,32 @@ def test_usage_errors_exit_nonzero(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["ioc", "sim://", "--prefix", "P:", "--allow-user", ""]) == 1
     with pytest.raises(SystemExit):
         main(["ioc", "sim://"])  # --prefix is required
+
+
+def test_record_arithmetic() -> None:
+    from tango_aio.epics.record import (
+        AxisUnits,
+        LimitSwitches,
+        Msta,
+        calibrated,
+        limit_switches,
+        msta,
+    )
+
+    mm = AxisUnits(dim=2, pitch=2.0)  # 2 mm per revolution
+    assert mm.velo_from_vel(10.0) == pytest.approx(20.0)  # rev/s -> mm/s
+    assert mm.vel_from_velo(20.0) == pytest.approx(10.0)
+    assert mm.accel_from_accl(20.0, 0.1) == pytest.approx(0.2)  # 200 mm/s² = 0.2 m/s²
+    assert mm.accl_from_accel(20.0, 0.2) == pytest.approx(0.1)
+    um = AxisUnits(dim=1, pitch=1.0)
+    assert um.egu == "um" and um.velo_from_vel(1.0) == pytest.approx(1000.0)
+    assert AxisUnits(dim=9, pitch=2.0).velo_from_vel(5.0) == pytest.approx(5.0)  # mm/s
+    with pytest.raises(ValueError):
+        mm.accel_from_accl(20.0, 0.0)
+    assert limit_switches("000000001000", "x") == LimitSwitches(low=False, high=True)
+    assert limit_switches("010000000000", "y") == LimitSwitches(low=True, high=False)
+    assert limit_switches("", "x") == LimitSwitches()
+    assert calibrated("A---D-----------", "x") and not calibrated("A---", "y")
+    word = msta(moving=False, switches=LimitSwitches(high=True), problem=True,
+                comm_error=False, homed=True, positive=True)
+    assert word == (Msta.DONE | Msta.PLUS_LS | Msta.PROBLEM | Msta.HOMED | Msta.DIRECTION)
