@@ -36,6 +36,7 @@ from .bulk import MAX_TRIGGERS, validate_trigger_positions
 from .connection import connect
 from .controller import Controller
 from .core import is_completion_line
+from .epics.command import add_ioc_command
 from .errors import (
     ERROR_DESCRIPTIONS,
     InvalidCommandError,
@@ -1039,6 +1040,7 @@ def _parser() -> argparse.ArgumentParser:
                           "one controller for the server's life)")
     sim.set_defaults(run=_sim)
     _add_new_commands(commands)
+    add_ioc_command(commands)
     return parser
 
 
