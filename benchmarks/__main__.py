@@ -46,6 +46,7 @@ import os
 import subprocess
 import sys
 import time
+import traceback
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
@@ -98,8 +99,21 @@ def case_compat(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]
                 rows.append(Row("compat", f"connect + ?pos over {kind}", "works", 1.0))
             except Exception as exc:  # the finding is the failure itself
                 rows.append(Row("compat", f"connect + ?pos over {kind}", "works", 0.0,
-                                note=f"{type(exc).__name__}: {exc}"[:120]))
+                                note=_where(exc)))
     return rows
+
+
+def _where(exc: BaseException) -> str:
+    """``Type: message`` and the innermost frame that raised it."""
+    while exc.__context__ is not None and not str(exc):
+        exc = exc.__context__
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = ""
+    if frames:
+        path = frames[-1].filename
+        where = f" at {path[path.find('tango_aio/'):] if 'tango_aio/' in path else path}" \
+                f":{frames[-1].lineno}"
+    return f"{type(exc).__name__}: {exc}"[:120] + where
 
 
 @contextlib.contextmanager
@@ -292,6 +306,9 @@ def table(results: dict[str, list[Row]]) -> str:
     base = results[loops[0]]
     head = ["what", "unit", f"driver ({loops[0]})", "raw", "ratio", "target"]
     others = {loop: {(r.case, r.what): r for r in results[loop]} for loop in loops[1:]}
+    # A case that failed or hung under a loop gives one row; it stands for all its rows.
+    failures = {loop: {r.case: r for r in results[loop] if math.isnan(r.driver)}
+                for loop in loops}
     for loop in loops[1:]:
         head += [f"driver ({loop})", f"raw ({loop})", f"ratio ({loop})",
                  f"{loop} gain on the driver"]
@@ -304,7 +321,7 @@ def table(results: dict[str, list[Row]]) -> str:
                  _number(row.raw, row.unit), _ratio(row), row.target]
         notes = [row.note] if row.note else []
         for loop in loops[1:]:
-            other = others[loop].get((row.case, row.what))
+            other = others[loop].get((row.case, row.what)) or failures[loop].get(row.case)
             cells += [_number(other.driver, row.unit) if other else "—",
                       _number(other.raw, row.unit) if other else "—", _ratio(other),
                       _gain(row, other)]
@@ -316,11 +333,10 @@ def table(results: dict[str, list[Row]]) -> str:
     seen = {(r.case, r.what) for r in base}
     for loop in loops[1:]:
         for row in results[loop]:
-            if (row.case, row.what) not in seen:
-                lines.append(f"| {row.what} ({loop} only) | {row.unit or '—'} | "
-                             f"{_number(row.driver, row.unit)} | {_number(row.raw, row.unit)}"
-                             f" | {_ratio(row)} | {row.target} |" + " |" * (4 * len(loops) - 3)
-                             + f" {row.note} |")
+            if (row.case, row.what) not in seen and row.case not in failures[loops[0]]:
+                cells = [f"{row.what} (only under {loop})", row.unit or "—",
+                         *["—"] * 3, row.target, *["—"] * (4 * len(loops) - 4), row.note]
+                lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
