@@ -31,6 +31,7 @@ Usage::
     python benchmarks/scaling.py                          # N = 1, 8, 32, 64
     python benchmarks/scaling.py --counts 64 --per-process 8 --entries 3000
     python benchmarks/scaling.py --profile driver.prof --counts 64   # cProfile the driver
+    python benchmarks/scaling.py --lean --counts 64 --per-process 64 --gc freeze
     python benchmarks/scaling.py --serve 16               # (internal) an emulator process
 """
 
@@ -337,7 +338,12 @@ def positions(count: int) -> list[float]:
 
 async def run(count: int, entries: int, per_process: int,
               profile: cProfile.Profile | None, profile_dir: str | None = None,
-              lean: bool = False, marker_chunk: int | None = None) -> Result:
+              lean: bool = False, marker_chunk: int | None = None,
+              collector: str = "on") -> Result:
+    """Upload to ``count`` links at once; ``collector`` is what the garbage collector does
+    during the upload: ``on`` (as always), ``off`` (``gc.disable()``) or ``freeze``
+    (``gc.freeze()`` first: what exists before the upload is never scanned again), so
+    that what a change of the driver's allocations would buy can be measured."""
     emulators = Emulators(count, per_process, profile_dir, lean)
     options = {} if marker_chunk is None else {"marker_chunk": marker_chunk}
     try:
@@ -361,8 +367,16 @@ async def run(count: int, entries: int, per_process: int,
             cpu0, t0 = time.process_time(), time.perf_counter()
             if profile is not None:
                 profile.enable()
-            with GcPauses() as pauses:
-                await asyncio.gather(*(upload(tango) for tango in controllers))
+            if collector == "freeze":
+                gc.freeze()
+            elif collector == "off":
+                gc.disable()
+            try:
+                with GcPauses() as pauses:
+                    await asyncio.gather(*(upload(tango) for tango in controllers))
+            finally:
+                gc.enable()
+                gc.unfreeze()
             if profile is not None:
                 profile.disable()
             seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
@@ -426,7 +440,8 @@ async def main(args: argparse.Namespace) -> list[Result]:
     results = []
     for count in args.counts:
         results.append(await run(count, args.entries, args.per_process, profile,
-                                 args.emulator_profile, args.lean, args.marker_chunk))
+                                 args.emulator_profile, args.lean, args.marker_chunk,
+                                 args.gc))
         print(f"N={count}: {results[-1].ratio:.3f} of the bound", file=sys.stderr)
     if profile is not None:
         profile.dump_stats(args.profile)
@@ -446,6 +461,8 @@ if __name__ == "__main__":
                         help="cProfile each emulator process into DIR/emulator-PID.prof")
     parser.add_argument("--lean", action="store_true",
                         help="serve lean stand-ins (LeanLink) instead of full emulators")
+    parser.add_argument("--gc", choices=("on", "off", "freeze"), default="on",
+                        help="garbage collector during the upload (default on)")
     parser.add_argument("--marker-chunk", type=int, metavar="BYTES",
                         help="reply-less bytes between credit markers (default: the driver's)")
     parser.add_argument("--serve", type=int, metavar="N", help=argparse.SUPPRESS)

@@ -7,7 +7,10 @@ CPU is not the client's. On the same pty, one after the other:
   iterated for ``--seconds``;
 * the raw client: a minimal asyncio reader on the pty's file descriptor (``add_reader``,
   ``os.write``) that starts the same kind of move (``!moa``) and every 0.1 s writes
-  ``?statusaxis``, waits for its line, writes ``?pos`` and waits for its line.
+  ``?statusaxis``, waits for its line, writes ``?pos`` and waits for its line;
+* the same raw client pipelined: ``?statusaxis\r?pos\r`` in one write, then both lines
+  (the two replies have different shapes, so they cannot be mixed up): what pipelining
+  the two reads would buy.
 
 Reported: CPU milliseconds (``time.process_time()``) per second of watching, and updates
 per second. Usage::
@@ -96,10 +99,10 @@ class RawPty:
             if self.waiting:
                 self.waiting.popleft().set_result(line)
 
-    async def ask(self, data: bytes) -> bytes:
-        """Write a read and return its reply line."""
+    async def ask(self, data: bytes, *more: asyncio.Future[bytes]) -> bytes:
+        """Write a read and return its reply line; ``more`` get the lines after it."""
         future = self.loop.create_future()
-        self.waiting.append(future)
+        self.waiting.extend((future, *more))
         os.write(self.fd, data)
         return await future
 
@@ -108,8 +111,9 @@ class RawPty:
         os.close(self.fd)
 
 
-async def raw_watch(path: str, seconds: float) -> Watch:
-    """Poll ``?statusaxis`` and ``?pos`` every INTERVAL during a raw move."""
+async def raw_watch(path: str, seconds: float, pipelined: bool = False) -> Watch:
+    """Poll ``?statusaxis`` and ``?pos`` every INTERVAL during a raw move (one after the
+    other, or both in one write)."""
     raw = RawPty(path)
     try:
         x = float((await raw.ask(b"?pos\r")).split()[0])
@@ -117,13 +121,19 @@ async def raw_watch(path: str, seconds: float) -> Watch:
         updates = 0
         cpu, t0 = time.process_time(), time.perf_counter()
         while True:
-            letters = await raw.ask(b"?statusaxis\r")
-            await raw.ask(b"?pos\r")
+            if pipelined:
+                position = raw.loop.create_future()
+                letters = await raw.ask(b"?statusaxis\r?pos\r", position)
+                await position
+            else:
+                letters = await raw.ask(b"?statusaxis\r")
+                await raw.ask(b"?pos\r")
             updates += 1
             if b"M" not in letters or time.perf_counter() - t0 >= seconds:
                 break
             await asyncio.sleep(INTERVAL)
-        result = Watch("raw ?statusaxis + ?pos", time.process_time() - cpu,
+        result = Watch(f"raw ?statusaxis + ?pos{', pipelined' if pipelined else ''}",
+                       time.process_time() - cpu,
                        time.perf_counter() - t0, updates)
         os.write(raw.fd, b"a\r")  # stop; the report "E..." goes unread
         await asyncio.sleep(0.2)
@@ -132,12 +142,14 @@ async def raw_watch(path: str, seconds: float) -> Watch:
     return result
 
 
-def run(seconds: float, loop_factory: LoopFactory | None = None) -> tuple[Watch, Watch]:
-    """(driver, raw), one after the other on one emulator process."""
+def run(seconds: float, loop_factory: LoopFactory | None = None
+        ) -> tuple[Watch, Watch, Watch]:
+    """(driver, raw, raw pipelined), one after the other on one emulator process."""
     with emulator_pty() as path, asyncio.Runner(loop_factory=loop_factory) as runner:
         driver = runner.run(driver_watch(path, seconds))
         raw = runner.run(raw_watch(path, seconds))
-    return driver, raw
+        pipelined = runner.run(raw_watch(path, seconds, pipelined=True))
+    return driver, raw, pipelined
 
 
 def main() -> None:
