@@ -48,11 +48,21 @@ class Rate:
         return self.moves / self.seconds
 
 
+def event_loop(name: str) -> Callable[[], asyncio.AbstractEventLoop] | None:
+    """The loop factory of ``--loop NAME`` (``asyncio``: ``None``, the default loop;
+    ``uvloop``: uvloop's, which must be installed)."""
+    if name == "uvloop":
+        import uvloop
+
+        return uvloop.new_event_loop  # type: ignore[no-any-return]
+    return None
+
+
 @contextlib.contextmanager
-def emulator_pty() -> Iterator[str]:
-    """Start ``tango-aio sim --pty`` in its own process; yield the device path."""
+def emulator_pty(*options: str) -> Iterator[str]:
+    """Start ``tango-aio sim --pty [options]`` in its own process; yield the device path."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "tango_aio", "sim", "--pty"],
+        [sys.executable, "-m", "tango_aio", "sim", "--pty", *options],
         stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
     try:
         assert process.stdout is not None
@@ -73,20 +83,21 @@ def raw_moves(path: str, moves: int, line: Callable[[int], str], check: bool) ->
         start = time.perf_counter()
         for index in range(moves):
             port.write(line(index).encode() + (b"\r?err\r" if check else b"\r"))
-            if check:
-                _read_until(port, lambda text: text.isdigit())
-            _read_until(port, lambda text: text.endswith("."))
+            # A move to where the axis already is may report before ?err is answered.
+            seen = {"check": not check, "report": False}
+            while not all(seen.values()):
+                text = _read_line(port)
+                seen["check"] |= text.isdigit()
+                seen["report"] |= text.endswith(".")
         seconds = time.perf_counter() - start
     return Rate(f"raw {'check ' if check else ''}{line(0).split()[0]}", moves, seconds)
 
 
-def _read_until(port: serial.Serial, done: Callable[[str], bool]) -> None:
-    while True:
-        raw = port.read_until(b"\r")
-        if not raw.endswith(b"\r"):
-            raise TimeoutError("no reply from the emulator")
-        if done(raw[:-1].decode("latin-1")):
-            return
+def _read_line(port: serial.Serial) -> str:
+    raw = port.read_until(b"\r")
+    if not raw.endswith(b"\r"):
+        raise TimeoutError("no reply from the emulator")
+    return raw[:-1].decode("latin-1")
 
 
 async def driver_moves(path: str, moves: int, relative: bool) -> Rate:
@@ -112,15 +123,17 @@ def relative(index: int) -> str:
     return f"!mor x {STEP if index % 2 == 0 else -STEP}"
 
 
-def run(moves: int) -> list[tuple[Rate, Rate]]:
-    """Every pair (driver, raw baseline), measured one after the other on one emulator."""
-    with emulator_pty() as path:
+def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None
+        ) -> list[tuple[Rate, Rate]]:
+    """Every pair (driver, raw baseline), measured one after the other on one emulator;
+    the driver runs in a loop made by ``loop_factory`` (default asyncio's)."""
+    with emulator_pty() as path, asyncio.Runner(loop_factory=loop_factory) as runner:
         return [
-            (asyncio.run(driver_moves(path, moves, relative=False)),
+            (runner.run(driver_moves(path, moves, relative=False)),
              raw_moves(path, moves, absolute, check=False)),
-            (asyncio.run(driver_moves(path, moves, relative=False)),
+            (runner.run(driver_moves(path, moves, relative=False)),
              raw_moves(path, moves, absolute, check=True)),
-            (asyncio.run(driver_moves(path, moves, relative=True)),
+            (runner.run(driver_moves(path, moves, relative=True)),
              raw_moves(path, moves, relative, check=False)),
         ]
 

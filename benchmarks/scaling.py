@@ -21,13 +21,17 @@ Reported per N:
 * how many cores of the whole machine were busy, idle and stolen by the hypervisor
   meanwhile (Linux ``/proc/stat``): busy includes the kernel's pty work and other users;
 * bytes the emulators lost to input-buffer overflow (must be 0), and the slowest link's
-  own ratio; every link's list is checked with ``?trigc`` afterwards.
+  own ratio; every link's list is checked with ``?trigc`` afterwards;
+* the driver's longest full garbage collection (generation 2, timed with ``gc.callbacks``)
+  and longest collection of any generation during the upload: a pause longer than the
+  credit slack after a marker (about 17 ms at 57600 Bd) lets a link run dry.
 
 Usage::
 
     python benchmarks/scaling.py                          # N = 1, 8, 32, 64
     python benchmarks/scaling.py --counts 64 --per-process 8 --entries 3000
     python benchmarks/scaling.py --profile driver.prof --counts 64   # cProfile the driver
+    python benchmarks/scaling.py --lean --counts 64 --per-process 64 --gc freeze
     python benchmarks/scaling.py --serve 16               # (internal) an emulator process
 """
 
@@ -37,6 +41,7 @@ import argparse
 import asyncio
 import cProfile
 import fcntl
+import gc
 import json
 import math
 import os
@@ -245,6 +250,12 @@ class Result:
     machine_busy: float
     machine_idle: float
     machine_steal: float
+    #: Longest generation-2 collection and longest collection of any generation (s).
+    gc_pause_gen2: float = 0.0
+    gc_pause_any: float = 0.0
+    gc_gen2_count: int = 0
+    #: Event-loop lag, 95th percentile (s).
+    loop_lag_p95: float = 0.0
 
     @property
     def throughput(self) -> float:
@@ -295,6 +306,31 @@ def machine_times() -> list[float]:
             steal / tick]
 
 
+class GcPauses:
+    """Times every garbage collection while installed (``gc.callbacks``)."""
+
+    def __init__(self) -> None:
+        self.started = 0.0
+        self.longest = [0.0, 0.0, 0.0]
+        self.counts = [0, 0, 0]
+
+    def __enter__(self) -> GcPauses:
+        gc.callbacks.append(self._callback)
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        gc.callbacks.remove(self._callback)
+
+    def _callback(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self.started = time.perf_counter()
+            return
+        generation = info["generation"]
+        self.longest[generation] = max(self.longest[generation],
+                                       time.perf_counter() - self.started)
+        self.counts[generation] += 1
+
+
 def positions(count: int) -> list[float]:
     """A monotonic trigger list with 4-decimal positions (as in benchmarks/upload.py)."""
     return [round(0.0123 + index * 0.0137, 4) for index in range(count)]
@@ -302,7 +338,12 @@ def positions(count: int) -> list[float]:
 
 async def run(count: int, entries: int, per_process: int,
               profile: cProfile.Profile | None, profile_dir: str | None = None,
-              lean: bool = False, marker_chunk: int | None = None) -> Result:
+              lean: bool = False, marker_chunk: int | None = None,
+              collector: str = "on") -> Result:
+    """Upload to ``count`` links at once; ``collector`` is what the garbage collector does
+    during the upload: ``on`` (as always), ``off`` (``gc.disable()``) or ``freeze``
+    (``gc.freeze()`` first: what exists before the upload is never scanned again), so
+    that what a change of the driver's allocations would buy can be measured."""
     emulators = Emulators(count, per_process, profile_dir, lean)
     options = {} if marker_chunk is None else {"marker_chunk": marker_chunk}
     try:
@@ -326,7 +367,16 @@ async def run(count: int, entries: int, per_process: int,
             cpu0, t0 = time.process_time(), time.perf_counter()
             if profile is not None:
                 profile.enable()
-            await asyncio.gather(*(upload(tango) for tango in controllers))
+            if collector == "freeze":
+                gc.freeze()
+            elif collector == "off":
+                gc.disable()
+            try:
+                with GcPauses() as pauses:
+                    await asyncio.gather(*(upload(tango) for tango in controllers))
+            finally:
+                gc.enable()
+                gc.unfreeze()
             if profile is not None:
                 profile.disable()
             seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
@@ -344,7 +394,9 @@ async def run(count: int, entries: int, per_process: int,
         return Result(count, len(emulators.procs), seconds, payload * count,
                       int(after["lost"]), cpu, after["cpu"] - before["cpu"],
                       wire_seconds / max(link_seconds),
-                      *(value / seconds for value in machine or [math.nan] * 3))
+                      *(value / seconds for value in machine or [math.nan] * 3),
+                      pauses.longest[2], max(pauses.longest), pauses.counts[2],
+                      lags[int(len(lags) * 0.95)])
     finally:
         emulators.close()
 
@@ -363,18 +415,20 @@ def report(results: list[Result], entries: int) -> None:
     print(f"{'N':>3} {'emu':>4} {'seconds':>8} {'aggr B/s':>9} {'N x bound':>9} "
           f"{'of bound':>8} {'slowest':>7} {'drv cores':>9} {'drv/ctl-s':>9} "
           f"{'drv/wire-s':>10} {'emu cores':>9} {'busy':>5} {'idle':>5} {'steal':>5} "
-          f"{'lost':>4}")
+          f"{'lost':>4} {'gc2 ms':>6} {'gc ms':>6}")
     for r in results:
         print(f"{r.controllers:3d} {r.emulator_processes:4d} {r.seconds:8.2f} "
               f"{r.throughput:9.0f} {r.bound:9.0f} {r.ratio:8.3f} "
               f"{r.slowest_link_ratio:7.3f} {r.driver_cores:9.3f} "
               f"{r.driver_cpu_per_link_second:9.5f} {r.driver_cpu_per_wire_second:10.5f} "
               f"{r.emulator_cores:9.3f} {r.machine_busy:5.2f} {r.machine_idle:5.2f} "
-              f"{r.machine_steal:5.2f} {r.lost_bytes:4d}")
+              f"{r.machine_steal:5.2f} {r.lost_bytes:4d} {r.gc_pause_gen2 * 1e3:6.1f} "
+              f"{r.gc_pause_any * 1e3:6.1f}")
     print("columns: emu = emulator processes; slowest = the slowest link's own ratio; "
           "drv/ctl-s = driver CPU s per controller-second; drv/wire-s = driver CPU s per "
           "second of one link's payload at wire speed; busy/idle/steal = cores of the "
-          "whole machine")
+          "whole machine; gc2 ms / gc ms = the driver's longest generation-2 / any "
+          "garbage collection")
     print(json.dumps([asdict(r) | {"ratio": r.ratio, "driver_cores": r.driver_cores,
                                    "emulator_cores": r.emulator_cores,
                                    "driver_cpu_per_wire_second": r.driver_cpu_per_wire_second}
@@ -386,7 +440,8 @@ async def main(args: argparse.Namespace) -> list[Result]:
     results = []
     for count in args.counts:
         results.append(await run(count, args.entries, args.per_process, profile,
-                                 args.emulator_profile, args.lean, args.marker_chunk))
+                                 args.emulator_profile, args.lean, args.marker_chunk,
+                                 args.gc))
         print(f"N={count}: {results[-1].ratio:.3f} of the bound", file=sys.stderr)
     if profile is not None:
         profile.dump_stats(args.profile)
@@ -406,6 +461,8 @@ if __name__ == "__main__":
                         help="cProfile each emulator process into DIR/emulator-PID.prof")
     parser.add_argument("--lean", action="store_true",
                         help="serve lean stand-ins (LeanLink) instead of full emulators")
+    parser.add_argument("--gc", choices=("on", "off", "freeze"), default="on",
+                        help="garbage collector during the upload (default on)")
     parser.add_argument("--marker-chunk", type=int, metavar="BYTES",
                         help="reply-less bytes between credit markers (default: the driver's)")
     parser.add_argument("--serve", type=int, metavar="N", help=argparse.SUPPRESS)

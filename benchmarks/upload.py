@@ -15,6 +15,11 @@ controller for uploads, controller to host for downloads). The emulator's lost-b
 is reported too. Usage::
 
     python benchmarks/upload.py [--entries 10000] [--rows 1024] [--chunk N]
+    python benchmarks/upload.py --pty --entries 1000   # plain pty vs 2 ms adapter latency
+
+With ``--pty`` it measures instead the pipelined upload against stop-and-wait on a pty
+served by an emulator process (``tango-aio sim --pty``, 57600 Bd), once with no reply
+latency (a plain pty) and once with 2 ms (a typical USB serial adapter).
 """
 
 from __future__ import annotations
@@ -30,6 +35,11 @@ from typing import Any
 import tango_aio
 from tango_aio.instructions import build
 
+try:  # python -m benchmarks / python benchmarks/upload.py
+    from benchmarks.moves import emulator_pty
+except ImportError:  # pragma: no cover
+    from moves import emulator_pty  # type: ignore[no-redef]
+
 URL = "sim://?baud=57600&latency=0.002&processing=0.0005&stall_every=1000&stall=0.05"
 BAUD = 57600
 BITS_PER_BYTE = 11
@@ -42,7 +52,8 @@ class Result:
     name: str
     seconds: float
     bound_seconds: float
-    lost_bytes: int
+    #: The emulator's lost-byte counter (None: an emulator process, not counted here).
+    lost_bytes: int | None
 
     @property
     def efficiency(self) -> float:
@@ -77,6 +88,43 @@ async def measure(name: str, bound: float, body: Callable[[tango_aio.Controller]
         wire = tango.protocol.transport.get_extra_info("wire")  # type: ignore[union-attr]
         seconds = await timed(lambda: body(tango))
         return Result(name, seconds, bound, wire.lost_bytes)
+
+
+def payload_bound(values: list[float]) -> float:
+    """Wire seconds of the ``!trigp -1 pos`` lines of ``values``."""
+    return wire_seconds(sum(len(build("trigp", -1, v).to_bytes()) for v in values))
+
+
+async def single_link(entries: int) -> Result:
+    """The pipelined upload of ``entries`` positions under the benchmark's stalls."""
+    values = positions(entries)
+    return await measure("upload trigp, credit-limited pipeline", payload_bound(values),
+                         lambda t: upload_pipelined(values, t), None)
+
+
+async def pty_pair(path: str, entries: int, latency: float) -> list[Result]:
+    """Pipelined and stop-and-wait uploads to the emulator process on ``path``."""
+    values = positions(entries)
+    bound = payload_bound(values)
+    results = []
+    for name, body in (("pipelined", upload_pipelined), ("stop-and-wait", upload_stop_and_wait)):
+        async with tango_aio.connect(path, reply_timeout=30.0) as tango:
+            seconds = await timed(lambda: body(values, tango))  # noqa: B023
+        results.append(Result(f"pty, latency {latency * 1e3:g} ms, {name}", seconds, bound,
+                              None))
+    return results
+
+
+def pty_comparison(entries: int, latencies: tuple[float, ...] = (0.0, 0.002),
+                   loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None
+                   ) -> list[Result]:
+    """[pipelined, stop-and-wait] per reply latency, each on a fresh emulator process."""
+    results = []
+    with asyncio.Runner(loop_factory=loop_factory) as runner:
+        for latency in latencies:
+            with emulator_pty("--latency", str(latency)) as path:
+                results += runner.run(pty_pair(path, entries, latency))
+    return results
 
 
 async def upload_pipelined(values: list[float], tango: tango_aio.Controller) -> None:
@@ -136,12 +184,18 @@ async def main(entries: int, rows: int, chunk: int | None) -> list[Result]:
     return results
 
 
+def table(results: list[Result]) -> None:
+    """Print one row per result."""
+    for r in results:
+        lost = "-" if r.lost_bytes is None else str(r.lost_bytes)
+        print(f"{r.name:50} {r.seconds:9.2f} {r.bound_seconds:9.2f} {r.efficiency:9.3f} "
+              f"{lost:>6}")
+
+
 def report(results: list[Result], entries: int, rows: int) -> None:
     print(f"emulator: {URL}")
     print(f"{'case':50} {'seconds':>9} {'bound s':>9} {'of bound':>9} {'lost':>6}")
-    for r in results:
-        print(f"{r.name:50} {r.seconds:9.2f} {r.bound_seconds:9.2f} {r.efficiency:9.3f} "
-              f"{r.lost_bytes:6d}")
+    table(results)
     speedup = results[1].seconds / results[0].seconds
     dl_speedup = results[3].seconds / results[2].seconds
     print(f"upload speed-up over stop-and-wait: {speedup:.2f}x ({entries} entries)")
@@ -155,5 +209,14 @@ if __name__ == "__main__":
     parser.add_argument("--rows", type=int, default=1024)
     parser.add_argument("--chunk", type=int, default=None,
                         help="marker chunk in bytes (default: the driver's)")
+    parser.add_argument("--pty", action="store_true",
+                        help="plain pty vs 2 ms latency, pipelined vs stop-and-wait")
     args = parser.parse_args()
+    if args.pty:
+        pairs = pty_comparison(args.entries)
+        table(pairs)
+        for index in range(0, len(pairs), 2):
+            print(f"{pairs[index].name.split(',')[1]}: upload is "
+                  f"{pairs[index + 1].seconds / pairs[index].seconds:.2f}x stop-and-wait")
+        raise SystemExit
     report(asyncio.run(main(args.entries, args.rows, args.chunk)), args.entries, args.rows)
