@@ -226,7 +226,8 @@ def test_shell_on_a_pty(history: Path) -> None:
         term.type("!moa 1 2", "ok", r"move finished: x=@ \(ok\) y=@ \(ok\) z=@ \(ok\)")
         term.type("!moa 1000000", r"error: controller error 5: number is not inside allowed")
         term.type("?err", r"→ (no error|error 5: number is not inside allowed range)")
-        term.type("sa", r"@@@-\.-  → x=@ \(ok\) y=@ \(ok\) z=@ \(ok\)")
+        # A refused move marks its axis E, "move aborted or not executed" (manual L2705).
+        term.type("sa", r"E@@-\.-  → x=E \(.*\) y=@ \(ok\) z=@ \(ok\)")
         term.send("exit\r")
         assert term.wait() == 0
     lines = history.read_text().splitlines()
