@@ -13,6 +13,7 @@ from .bulk import (
     ListTransfer,
     Progress,
     check_axis,
+    check_resolution,
     snapshot_spec,
     trigger_spec,
     validate_rows,
@@ -58,7 +59,16 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import FAILED_LETTERS, STOP_WAIT, Motion, MovePlan, MoveTiming, Sent, moved_axes
+from .motion import (
+    FAILED_LETTERS,
+    STOP_WAIT,
+    Motion,
+    MovePlan,
+    MoveTiming,
+    Sent,
+    moved_axes,
+    position_tolerance,
+)
 from .protocol import Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
 
@@ -138,6 +148,8 @@ class Controller:
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
         self._fault = 0
+        #: One list upload or download at a time (tango_aio.bulk).
+        self._list_lock = asyncio.Lock()
         self._closing = False
         self._reconnect: Reconnect | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
@@ -765,22 +777,36 @@ class Controller:
     # -- trigger and snapshot lists ---------------------------------------------------------
 
     def _transfer(self) -> ListTransfer:
-        return ListTransfer(self._protocol, self.reply_timeout)
+        return ListTransfer(self._protocol, self.reply_timeout, self._list_lock)
+
+    async def _resolution(self) -> list[float]:
+        """Per present axis, one unit of the last digit ``?pos`` prints (the position
+        resolution, L4080-4100)."""
+        texts = await self._position_texts()
+        return [position_tolerance(text) / 1.5 for text in texts.values()]
 
     async def upload_trigger_positions(self, positions: Sequence[float], axis: str = "x",
                                        progress: Progress | None = None) -> None:
         """Replace the trigger position list of ``axis`` with ``positions`` at wire speed.
 
-        The list is validated first (at most 10000 finite, strictly monotonic values),
-        cleared with ``!trigp axis 0``, then every entry is appended through the write-credit
-        limiter and the count is checked along the way. ``progress(done, total)`` is called
-        at each checkpoint. A rejected entry raises :class:`~tango_aio.bulk.UploadError`
-        with its index and error code. Cancelling stops sending and leaves the driver in
-        sync (the list then holds what was sent so far).
+        Every entry is validated first (at most 10000 finite, strictly monotonic values the
+        catalog accepts, none non-zero below the position resolution, which would read
+        back as 0.0); only then is the list cleared with ``!trigp axis 0`` and every entry
+        appended through the write-credit limiter, the count checked along the way. A bad
+        entry raises :class:`~tango_aio.errors.InvalidCommandError` and leaves the list
+        untouched. Uploads (and list reads) of one controller run one at a time.
+        ``progress(done, total)`` is called at each checkpoint. An entry the controller
+        rejects raises :class:`~tango_aio.bulk.UploadError` with its index and error code.
+        Cancelling stops sending and leaves the driver in sync (the list then holds what
+        was sent so far).
         """
+        letter = check_axis(axis)
         values = validate_trigger_positions(positions)
-        await self.command(f"!trigp {check_axis(axis)} 0")
-        await self._transfer().upload(trigger_spec(), [[v] for v in values], progress)
+        resolution = await self._resolution()
+        check_resolution([[v] for v in values], [resolution[AXES.index(letter)]], "trigp")
+        await self._transfer().replace(
+            trigger_spec(), lambda: self.command(f"!trigp {letter} 0"),
+            [[v] for v in values], progress)
 
     async def read_trigger_positions(self) -> list[float]:
         """Read the whole trigger position list with pipelined ``?trigp n`` reads."""
@@ -796,12 +822,13 @@ class Controller:
 
     async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
                                         progress: Progress | None = None) -> None:
-        """Replace the snapshot array with ``rows`` (at most 1024 rows of per-axis
-        positions, X first), like :meth:`upload_trigger_positions`."""
-        axes = self._identity.axes if self._identity else len(AXES)
+        """Replace the snapshot array with ``rows`` (at most 1024 rows, each with one
+        position per axis, X first), like :meth:`upload_trigger_positions`."""
+        axes = self._identity.axes if self._identity else self.context.axes
         values = validate_rows(rows, axes)
-        await self.command("!snsa 0")
-        await self._transfer().upload(snapshot_spec(), values, progress)
+        check_resolution(values, await self._resolution(), "snsa")
+        await self._transfer().replace(snapshot_spec(), lambda: self.command("!snsa 0"),
+                                       values, progress)
 
     async def read_snapshot_positions(self) -> list[list[float]]:
         """Read every snapshot entry (``?snsc`` of them) with pipelined ``?snsa n`` reads;
