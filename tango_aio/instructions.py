@@ -43,6 +43,7 @@ __all__ = [
     "Kind",
     "LineFn",
     "LineRule",
+    "ModeEffect",
     "Param",
     "Precision",
     "Shape",
@@ -121,6 +122,19 @@ class Shape(enum.Enum):
     VERSION = "version"  #: ``TANGO-DT, Version 1.71, ...``
     DET = "det"  #: the ``?det`` bit field
     LINES = "lines"  #: several lines of text
+
+
+class ModeEffect(enum.Enum):
+    """How executing an instruction changes the autostatus mode (a catalog fact)."""
+
+    NONE = "none"  #: the mode stays
+    #: ``!autostatus n``: the mode becomes n (L2060-2168).
+    VALUE = "value"
+    #: ``reset``: a restart, in the power-on mode 1 (L1837-1857, L2062; never saved, L2071).
+    RESTART = "restart"
+    #: ``restore -1``: a factory reset and restart, in mode 1 (L1805-1813); plain
+    #: ``restore`` reloads the saved set and keeps the mode (L1791-1800).
+    RESTART_IF_MINUS_ONE = "restart_if_minus_one"
 
 
 class Completion(enum.Enum):
@@ -225,6 +239,13 @@ class Instruction:
     completion: Completion | None = None
     #: Stored by ``save`` (the manual's "Save" column).
     saved: bool = False
+    #: How executing it changes the autostatus mode.
+    mode_effect: ModeEffect = ModeEffect.NONE
+    #: Documented by the older edition of the manual (``old L<n>``).
+    in_older_manual: bool = True
+    #: The older edition documents it without values (``help``, ``version``: old L414,
+    #: old L805-819), so a firmware of that edition refuses values.
+    older_without_values: bool = False
     section: str = ""
     line: int = 0
     #: Reply-line rule for reads; see :func:`reply_rule`.

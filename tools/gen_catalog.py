@@ -232,6 +232,17 @@ COMPLETION: dict[str, str] = {
     "cal": "CAL", "rm": "RM",
 }
 
+#: How executing an instruction changes the autostatus mode.
+MODE_EFFECT: dict[str, str] = {
+    "autostatus": "VALUE",  # '!autostatus n' (L2060-2168)
+    "reset": "RESTART",  # restart like power on, mode 1 (L1837-1857, L2062)
+    "restore": "RESTART_IF_MINUS_ONE",  # 'restore -1' resets and restarts (L1805-1813)
+}
+
+#: Instructions that the older edition documents without parameters although 1.71 has
+#: some: 'help' (old L805-819: "Parameter: none"), 'version' (old L414).
+OLDER_WITHOUT_VALUES = {"help", "version"}
+
 #: Bare forms that execute (``restore``) where the JSON offers all three forms.
 BARE_EXECUTES = {"restore"}
 
@@ -399,6 +410,12 @@ def entry_source(entry: dict[str, Any]) -> str:
         parts.append(f"lines={LINES[name]}")
     if entry["saved"] in ("Y", "(Y)"):
         parts.append("saved=True")
+    if name in MODE_EFFECT:
+        parts.append(f"mode_effect=ModeEffect.{MODE_EFFECT[name]}")
+    if not entry["in_older_manual"]:
+        parts.append("in_older_manual=False")
+    if name in OLDER_WITHOUT_VALUES:
+        parts.append("older_without_values=True")
     parts.append(f"section={entry['manual_section']!r}")
     parts.append(f"line={entry['manual_lines'][0]}")
     return "    E(" + ", ".join(parts) + "),"
@@ -429,6 +446,7 @@ from .instructions import (
     Kind,
     LineFn,
     LineRule,
+    ModeEffect,
     Param,
     Precision,
     Shape,
@@ -486,14 +504,16 @@ def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
       read: tuple[Signature, ...] = (), reply: Shape = Shape.NONE, reply_group: int = 1,
       option_groups: tuple[tuple[int | str, int], ...] = (), digit_values: bool = False,
       exec_reply: Shape = Shape.NONE, completion: Completion | None = None,
-      lines: LineFn | None = None, saved: bool = False, section: str = "",
-      line: int = 0) -> Instruction:
+      lines: LineFn | None = None, saved: bool = False,
+      mode_effect: ModeEffect = ModeEffect.NONE, in_older_manual: bool = True,
+      older_without_values: bool = False, section: str = "", line: int = 0) -> Instruction:
     """One catalog entry."""
     return Instruction(
         name=name, summary=summary, forms=frozenset(_FORMS[f] for f in forms), bare=bare,
         aliases=aliases, write=write, read=read, reply=reply, reply_group=reply_group,
         option_groups=option_groups, digit_values=digit_values, exec_reply=exec_reply,
-        completion=completion, lines=lines, saved=saved,
+        completion=completion, lines=lines, saved=saved, mode_effect=mode_effect,
+        in_older_manual=in_older_manual, older_without_values=older_without_values,
         section=section, line=line,
     )
 

@@ -34,10 +34,16 @@ class Handlers(Peripherals):
     # -- identity --------------------------------------------------------------------------
 
     def i_version(self, c: Command) -> Reply:
+        """``?version``: ``TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00`` with the space
+        before the last comma of the 1.71 examples (L1067, L1105); the older edition's
+        example has none (old L426, switch ``version_format=old``)."""
         cfg = self.m.config
         if c.values:
-            return [cfg.firmware]
-        return [f"{cfg.model}, Version {cfg.firmware}, {cfg.build}"]
+            return [cfg.version]
+        build = cfg.build
+        if self.m.firmware.version_format == "old":
+            build = build.replace(" , ", ", ")
+        return [f"{cfg.model}, Version {cfg.version}, {build}"]
 
     def i_det(self, c: Command) -> Reply:
         return [str(self.m.config.det)]
@@ -102,21 +108,30 @@ class Handlers(Peripherals):
     def i_err(self, c: Command) -> Reply:
         if c.is_read:
             return [str(self.m.error)]
-        self.m.session.err = 0
+        self.m.clear_error()
         return None
 
     def i_status(self, c: Command) -> Reply:
         return ["OK..." if self.m.error == 0 else f"ERR {self.m.error}"]
 
     def i_help(self, c: Command) -> Reply:
+        """``help``: ``ERROR 5,number outside range`` (L2915-2919); ``?help N`` repeats N,
+        or gives the text only with switch ``help_number=no``."""
         code = int(c.values[0]) if c.values else self.m.error
         text = HELP.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
+        if c.values and self.m.firmware.help_number == "no":
+            return [text]
         return [f"ERROR {code},{text}"]
 
     def i_service(self, c: Command) -> Reply:
+        """``service``: several lines; ``END_SERVICE_PRINT.`` last from firmware
+        1.60C/1.61 (L2937-2943), none before (switch ``service_end=no``)."""
         cfg = self.m.config
-        return [f"{cfg.model} service print", f"Firmware {cfg.firmware}",
-                f"Serial {cfg.serial}", f"Axes {self.m.axes}", "", "END_SERVICE_PRINT."]
+        lines = [f"{cfg.model} service print", f"Firmware {cfg.version}",
+                 f"Serial {cfg.serial}", f"Axes {self.m.axes}", ""]
+        if self.m.firmware.service_end == "yes":
+            lines.append("END_SERVICE_PRINT.")
+        return lines
 
     def i_save(self, c: Command) -> Reply:
         self.m.save()
@@ -163,9 +178,18 @@ class Handlers(Peripherals):
     # -- status of axes ---------------------------------------------------------------------
 
     def i_statusaxis(self, c: Command) -> Reply:
+        """``sa``: one letter per axis and ``.-`` (L2662-2725).
+
+        An absent or disabled axis: "Axis is not enabled, not available in hardware"
+        (L2711) with no character printed, but the examples show ``-`` (``JM--.-`` on a
+        2-axis unit, L2721). ``sa z`` on a 2-axis unit therefore answers ``-`` (not error
+        1); the all-axes form shows ``-`` or leaves them out (switch ``absent_axes``).
+        """
         letters = self.m.motion.status_letters()
         if c.axis is not None:
-            return [letters[self.m.present(c)[0]]]
+            return [letters["xyza".index(c.axis)]]
+        if self.m.firmware.absent_axes == "omit":
+            letters = letters.replace("-", "")
         return [letters + ".-"]
 
     def i_calst(self, c: Command) -> Reply:
@@ -251,39 +275,47 @@ class Handlers(Peripherals):
             return f"{self.m.position_text(axis, low)} {self.m.position_text(axis, high)}"
 
         indices = self.m.present(c)
-        if c.axis is None and len(indices) > 1 and int(self.m.params.first("extmode")) == 0:
+        if c.axis is None and len(indices) > 1 and self._lim_cr_bug():
             # Firmware quirk (manual L4559-4619): an extra CR after the X pair.
             return [pair(indices[0]) + ",", ", ".join(pair(i) for i in indices[1:])]
         return [" ".join(pair(i) for i in indices)]
 
+    def _lim_cr_bug(self) -> bool:
+        """Whether ``?lim`` prints the extra CR: in extmode 0 only (L2196-2232,
+        L4559-4621), or per switch ``lim_cr_bug`` never or in both extmodes."""
+        bug = self.m.firmware.lim_cr_bug
+        return bug == "both" or (bug == "extmode0" and int(self.m.params.first("extmode")) == 0)
+
     # -- motion ---------------------------------------------------------------------------
+    # Each move handler records the job it started: its completion may owe an OK...
+    # (switch move_ok=completion).
 
     def i_moa(self, c: Command) -> Reply:
-        self.m.motion.move_absolute(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_absolute(self.m.to_revs(self.m.axis_map(c)))
         return None
 
     def i_mor(self, c: Command) -> Reply:
-        self.m.motion.move_relative(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_relative(self.m.to_revs(self.m.axis_map(c)))
         return None
 
     def i_m(self, c: Command) -> Reply:
-        self.m.motion.move_repeat()
+        self.m.last_job = self.m.motion.move_repeat()
         return None
 
     def i_moc(self, c: Command) -> Reply:
-        self.m.motion.move_center(self.m.present(c) if c.axis else None)
+        self.m.last_job = self.m.motion.move_center(self.m.present(c) if c.axis else None)
         return None
 
     def i_mol(self, c: Command) -> Reply:
-        self.m.motion.move_lock(self.m.present(c) if c.axis else None)
+        self.m.last_job = self.m.motion.move_lock(self.m.present(c) if c.axis else None)
         return None
 
     def i_cal(self, c: Command) -> Reply:
-        self.m.motion.calibrate(self.m.present(c) if c.axis else None)
+        self.m.last_job = self.m.motion.calibrate(self.m.present(c) if c.axis else None)
         return None
 
     def i_rm(self, c: Command) -> Reply:
-        self.m.motion.range_measure(self.m.present(c) if c.axis else None)
+        self.m.last_job = self.m.motion.range_measure(self.m.present(c) if c.axis else None)
         return None
 
     def i_vrm(self, c: Command) -> Reply:
@@ -308,8 +340,13 @@ class Handlers(Peripherals):
         return None
 
     def i_a(self, c: Command) -> Reply:
+        """``a``: stop with stopaccel; aborted axes report ``E`` (L6832-6834; ``@`` in the
+        older edition, switch ``abort_letter``). ``a`` itself answers nothing, or like a
+        move once the axes stand (old L725, switch ``abort_report``)."""
         axis = self.m.present(c)[0] if c.axis else None
         self.m.motion.abort(axis, use_accel=-1 in c.values)
+        if self.m.firmware.abort_report == "yes":
+            self.m.owe_stop_report()
         return None
 
     def i_joy(self, c: Command) -> Reply:

@@ -16,7 +16,11 @@ seed           random seed for fragmentation and faults                   none
 model          the ``?version`` controller type                           TANGO-DT
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
+profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
+<switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
 =============  =========================================================  ===========
+
+Example: ``sim://?profile=legacy&echo=after`` (the profile first, single switches on top).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from .model import ControllerModel, SimConfig
+from .profiles import SWITCHES, Firmware
 from .serve import SimTransport, create_sim_connection
 from .wire import Emit, WireConfig
 
@@ -43,17 +48,19 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         raise ValueError(f"not a sim:// URL: {url!r}")
     query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
     known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
-             "seed", "model", "firmware", "state"}
+             "seed", "model", "firmware", "state", "profile", *SWITCHES}
     unknown = set(query) - known
     if unknown:
         raise ValueError(f"unknown sim:// option(s) {sorted(unknown)}; known: {sorted(known)}")
     axes = int(query.get("axes", 3))
     if not 1 <= axes <= 4:
         raise ValueError(f"sim:// axes must be 1..4, got {axes}")
+    switches = {name: value for name, value in query.items() if name in SWITCHES}
     sim = SimConfig(
         axes=axes,
         model=query.get("model", "TANGO-DT"),
-        firmware=query.get("firmware", "1.71"),
+        firmware=Firmware.from_options(query.get("profile", "manual"), **switches),
+        version=query.get("firmware", "1.71"),
         state_file=Path(query["state"]) if "state" in query else None,
     )
     baud = int(query.get("baud", 57600))

@@ -5,16 +5,24 @@ the wire hands it one command line at a time, and it answers through ``emit``. I
 sans-IO and time comes from the wire, so it runs in virtual time in tests and in real
 time in the servers.
 
-How it answers (the same decisions as the driver's core, by construction: both call
-:func:`tango_aio.core.expectation`):
+How it answers. These are the emulator's own reading of the manual; it never asks the
+driver (nothing of ``tango_aio.core``, ``protocol``, ``patterns`` or ``controller`` is
+imported). Where the manual is silent, the choice is a switch of
+:class:`~tango_aio.sim.profiles.Firmware` (``SimConfig.firmware``); the ``manual`` profile's
+choice is named first below:
 
+* autostatus 4 echoes executing lines (``!`` lines and executing bare forms such as
+  ``moa 1``, L2117), before executing them (switch ``echo``), with the exact text
+  (``echo_text``); reads only with ``echo_all``;
+* autostatus 2 acknowledges ``!`` lines after running them (``OK...`` / ``ERR n``,
+  L2099-2103, L2150-2152; ``err_number``, ``move_ok``), a mode change per the new mode
+  (``ack_mode_change``), reads never (``ack_reads``);
+* ``save`` answers in every mode (L2081), completion reports follow the mode in force when
+  the move ends;
 * every line is parsed by :func:`tango_aio.instructions.parse`; a line the catalog rejects
   sets the error number the catalog names (1-7) and executes nothing;
 * each executed instruction overwrites the error state (manual L2853), except the reads
   ``?err``, ``?status`` and ``help`` themselves;
-* autostatus 4 echoes executing lines before running them, autostatus 2 acknowledges ``!``
-  lines after running them (``OK...`` / ``ERR n``, always with a number), ``save`` answers
-  in every mode, completion reports follow the mode in force when the move ends;
 * a read that fails for a semantic reason (``?trigp 99`` beyond the list) still answers
   with a zero value and sets the error, so a host waiting for a line never hangs; a line
   rejected by the parser answers nothing (a real interpreter cannot know its shape);
@@ -32,13 +40,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from decimal import Decimal
 from pathlib import Path
 
-from ..core import expectation
 from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
 from ..instructions import (
     AXES,
@@ -53,6 +62,7 @@ from ..instructions import (
 from .lists import ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
 from .params import ParamStore, format_value, position_digits
+from .profiles import Firmware
 from .wire import Emit
 
 __all__ = ["ControllerModel", "Refused", "SimConfig"]
@@ -72,11 +82,18 @@ DEFAULT_OPTIONS = 0x2800
 
 @dataclass(frozen=True)
 class SimConfig:
-    """Identity and static configuration of an emulated controller."""
+    """Identity and static configuration of an emulated controller.
+
+    ``firmware`` is the behaviour where the manual is silent (the ``manual`` profile by
+    default, see :mod:`tango_aio.sim.profiles`); ``version`` is the version number
+    ``?version`` shows. For compatibility a string given as ``firmware`` is taken as the
+    version number (``SimConfig(firmware="1.69")``).
+    """
 
     axes: int = 3
     model: str = "TANGO-DT"
-    firmware: str = "1.71"
+    firmware: Firmware = field(default_factory=Firmware)
+    version: str = "1.71"
     build: str = "Jun  4 2019 , 12:00:00"
     serial: str = "190604001"
     options: int = DEFAULT_OPTIONS
@@ -85,6 +102,11 @@ class SimConfig:
     #: Extra interpreter time of blocking instructions, in seconds.
     reset_time: float = 1.0
     motion: MotionConfig | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.firmware, str):  # the former meaning of the field
+            object.__setattr__(self, "version", self.firmware)
+            object.__setattr__(self, "firmware", Firmware())
 
     @property
     def det(self) -> int:
@@ -124,6 +146,15 @@ class _Session:
     #: ``clim``: centre X, centre Y, radius in user units, and whether it is active.
     clim: tuple[float, float, float] = (0.0, 0.0, 0.0)
     clim_active: bool = False
+    #: An internal error (>= 20) that ``?err`` shows while the last instruction was fine
+    #: (L2853-2867), and whether ``!err`` cannot clear it (like 29, L2824-2881).
+    internal_err: int = 0
+    internal_permanent: bool = False
+    #: Job ids of moves whose mode-2 ``OK...`` comes with their report (``move_ok``).
+    ok_owed: set[int] = field(default_factory=set)
+    #: ``a``/Ctrl+C owe a report of their own once the axes stand (``abort_report``,
+    #: ``ctrl_c=stop_report``).
+    stop_report_owed: bool = False
 
 
 class ControllerModel:
@@ -132,7 +163,12 @@ class ControllerModel:
     def __init__(self, emit: Emit, config: SimConfig | None = None,
                  now: float | None = None) -> None:
         self.config = config or SimConfig()
+        #: The behaviour where the manual is silent (:mod:`tango_aio.sim.profiles`).
+        self.firmware: Firmware = self.config.firmware
         self._emit = emit
+        self._line_end = b"\r\n" if self.firmware.line_end == "crlf" else b"\r"
+        #: The job id of the move the current line started (set by the move handlers).
+        self.last_job: int | None = None
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
         self.internal_errors: list[str] = []
         self._handlers = self._build_handlers()
@@ -144,6 +180,10 @@ class ControllerModel:
     def _boot(self, now: float) -> None:
         motion_config = self.config.motion or MotionConfig(n_axes=self.config.axes)
         self.motion = MotionModel(motion_config, start_time=now)
+        firmware = self.firmware
+        self.motion.abort_letter = firmware.abort_letter
+        self.motion.move_during_move = firmware.move_during_move
+        self.motion.zero_move_report = firmware.zero_move_report == "yes"
         self.params = ParamStore()
         self.session = _Session(booted=now)
         self.triggers = TriggerList()
@@ -162,8 +202,29 @@ class ControllerModel:
 
     @property
     def error(self) -> int:
-        """The current error number (what ``?err`` answers)."""
-        return self.session.err
+        """The current error number (what ``?err`` answers): the last instruction's, else
+        an internal error (L2853-2867)."""
+        return self.session.err or self.session.internal_err
+
+    def inject_internal_error(self, code: int, *, permanent: bool = False) -> None:
+        """Fault hook: raise internal error ``code`` (>= 20, e.g. 29 "servo amplifier off").
+
+        Like the manual says (L2853-2867): "If the previously executed instruction
+        returned no error, the 'err' response is either 0 or if an internal error state is
+        active, the internal error is returned". So ``?err``, ``?status`` and ``help`` show
+        it while the last instruction was fine, an instruction error hides it, ``!err``
+        clears it unless ``permanent`` (like 29, L2824-2881), a reset clears it.
+        """
+        if code < 20:
+            raise ValueError(f"internal errors are numbered 20 and above, got {code}")
+        self.session.internal_err = code
+        self.session.internal_permanent = permanent
+
+    def clear_error(self) -> None:
+        """``!err``: clear the error state, except a permanent internal error."""
+        self.session.err = 0
+        if not self.session.internal_permanent:
+            self.session.internal_err = 0
 
     @property
     def autostatus(self) -> int:
@@ -190,24 +251,48 @@ class ControllerModel:
         except InvalidCommandError as exc:
             self._rejected(text, exc.code)
             return
-        self._run(command, text, context)
+        if self._unknown_to_older(command):
+            self._rejected(text, 4)
+            return
+        self._run(command, text)
 
     def line_too_long(self, head: bytes, now: float) -> None:
         """A line over 255 characters: error 3, nothing executed."""
         self.poll(now)
         self._rejected(head.decode("latin-1"), 3)
 
+    @property
+    def ctrl_c_stops(self) -> bool:
+        """Whether Ctrl+C bypasses the parser (the wire asks; switch ``ctrl_c``).
+
+        "Most TANGO controllers also provide the Ctrl+C (hex 0x03) special character stop"
+        (L6808-6814): with ``ctrl_c=ignore`` this one does not, and 0x03 is an ordinary
+        byte of the line.
+        """
+        return self.firmware.ctrl_c != "ignore"
+
     def ctrl_c(self, now: float) -> None:
         """Ctrl+C stops every axis (the wire already cleared the input buffer)."""
         self.poll(now)
         self.motion.emergency_stop()
+        self.session.ok_owed.clear()
+        if self.firmware.ctrl_c == "stop_report":
+            self.session.stop_report_owed = True
+            self._send_stop_report()
 
     def processing_time(self, line: bytes) -> float:
         """Extra interpreter time: ``reset`` and ``restore -1`` take a second (L1837)."""
+        return self.config.reset_time if self.reboots(line) else 0.0
+
+    def reboots(self, line: bytes) -> bool:
+        """Whether ``line`` restarts the controller (``reset``, ``restore -1``).
+
+        The wire loses the input that arrives while it reboots: "Rebooting from reset will
+        take more than 1 second, where the controller is not responding", and the manual's
+        resend-``?err`` loop (L1837-1857) only makes sense if input is lost meanwhile.
+        """
         words = line.decode("latin-1").lower().lstrip("!?").split()
-        if words[:1] == ["reset"] or words[:2] == ["restore", "-1"]:
-            return self.config.reset_time
-        return 0.0
+        return words[:1] == ["reset"] or words[:2] == ["restore", "-1"]
 
     def poll(self, now: float) -> None:
         """Advance the motion model and report finished moves."""
@@ -215,7 +300,8 @@ class ControllerModel:
             if isinstance(event, MoveFinished):
                 if event.kind == "cal":
                     self._record_cal_zero(event.letters)
-                self._report_completion(event.letters)
+                self._report_completion(event.letters, event.job_id)
+        self._send_stop_report()
 
     def next_deadline(self) -> float | None:
         """When the motion model next changes state."""
@@ -223,20 +309,39 @@ class ControllerModel:
 
     # -- execution -------------------------------------------------------------------------
 
-    def _rejected(self, text: str, code: int) -> None:
-        self.session.err = code
-        mode = self.session.autostatus
-        if mode == 4 and text.startswith("!"):
-            self._send(text)
-        if mode == 2 and text.startswith("!"):
-            self._send(f"ERR {code}")
+    def _unknown_to_older(self, command: Command) -> bool:
+        """Switch ``instruction_set=older``: instructions the older edition lacks, and
+        values for those that took none there (``help N``, ``version 1``; old L414,
+        old L805-819), are unknown to it: error 4 ("invalid instruction")."""
+        if self.firmware.instruction_set != "older":
+            return False
+        entry = command.instruction
+        return not entry.in_older_manual or (entry.older_without_values
+                                             and bool(command.values))
 
-    def _run(self, command: Command, text: str, context: Context | None = None) -> None:
-        # ``context``: what self.context() is now (handle_line computed it for parsing).
-        expect = expectation(command, self.session.autostatus, context or self.context())
-        if expect.echo:
-            self._send(text)
+    def _rejected(self, text: str, code: int) -> None:
+        """A line the parser refused: nothing runs, the error is set.
+
+        Mode 4 echoes it when it looks like a set line (``!``), or always with
+        ``echo_all``; mode 2 answers ``ERR`` for a ``!`` line (and a ``?`` line when reads
+        are acknowledged).
+        """
+        self.session.err = code
+        mode, firmware = self.session.autostatus, self.firmware
+        if mode == 4 and (text.startswith("!") or firmware.echo_all == "yes"):
+            self._send(self._echo_text(text))
+        if mode == 2 and (text.startswith("!") or
+                          (text.startswith("?") and firmware.ack_reads != "no")):
+            self._send(self._err_text(code))
+
+    def _run(self, command: Command, text: str) -> None:
+        firmware = self.firmware
+        before = self.session.autostatus
+        echo = self._echo_text(text)
+        if firmware.echo == "before" and self._echoes(command, before):
+            self._send(echo)
         self._prepare_triggers(command)
+        self.last_job = None
         try:
             lines = self._execute(command)
             code = 0
@@ -249,10 +354,95 @@ class ControllerModel:
             code, lines = 2, self._fallback_reply(command, 2)
         if command.name not in _ERROR_NEUTRAL:
             self.session.err = code
+        after = self.session.autostatus
+        ack = self._ack(command, code, before, after)
+        if ack is not None and command.is_read and firmware.ack_reads == "before":
+            self._send(ack)
+            ack = None
+        numeric = command.instruction.reply in _NUMERIC
         for reply in lines or ():
-            self._send(reply)
-        if expect.ack:
-            self._send("OK..." if code == 0 else f"ERR {code}")
+            self._send(self._restyle(reply, numeric))
+        if ack is not None:
+            if (code == 0 and firmware.move_ok == "completion" and self.last_job is not None
+                    and self.motion.has_job(self.last_job)):
+                # Switch move_ok=completion: the OK... comes with the report (a move that
+                # reports nothing, zero_move_report=no, is acknowledged at once).
+                self.session.ok_owed.add(self.last_job)
+            else:
+                self._send(ack)
+        if code and command.instruction.completion is not None and command.executes:
+            self._refused_move(command)
+        if firmware.echo == "after" and self._echoes(command, after):
+            self._send(echo)
+        self._send_stop_report()
+
+    def _echoes(self, command: Command, mode: int) -> bool:
+        """Mode 4 echoes "the instruction that was sent, in case of set or move
+        instruction" (L2117): executing lines, ``!`` or bare (``moa 1``); with
+        ``echo_all`` every line, reads included (old L723: "echoes all input")."""
+        return mode == 4 and (command.executes or self.firmware.echo_all == "yes")
+
+    def _echo_text(self, text: str) -> str:
+        """The echo: the exact text, or (``echo_text=normalized``) re-printed."""
+        if self.firmware.echo_text == "exact":
+            return text
+        return " ".join(_reprint(token) for token in text.lower().split())
+
+    def _ack(self, command: Command, code: int, before: int, after: int) -> str | None:
+        """The mode-2 acknowledgement a line owes, if any.
+
+        Only ``!`` lines are acknowledged (L2099-2103; ``vel 10`` without ``!`` gets
+        nothing, L2154), reads with ``ack_reads``. A line that answers ``OK...`` itself
+        (``save``) is not acknowledged twice. A line that changes the mode is judged by
+        the mode after it (``ack_mode_change=new``) or before it (``old``).
+        """
+        mode = after if self.firmware.ack_mode_change == "new" else before
+        if mode != 2:
+            return None
+        if command.form is Form.SET and not command.is_read:
+            if command.instruction.exec_reply is Shape.ACK:
+                return None
+        elif not (command.form is Form.READ and self.firmware.ack_reads != "no"):
+            return None
+        return "OK..." if code == 0 else self._err_text(code)
+
+    def _err_text(self, code: int) -> str:
+        """``ERR 5`` (L2152), or bare ``ERR`` with ``err_number=no`` (L2099)."""
+        return f"ERR {code}" if self.firmware.err_number == "yes" else "ERR"
+
+    def _restyle(self, reply: str, numeric: bool) -> str:
+        """Numbers of a data reply per switch ``numbers``: a value that rounds to zero from
+        below prints ``0.0000`` (``plain``) or ``-0.0000`` (``negzero``); ``plus`` puts
+        ``+`` before positive values of ``numeric`` replies (not in ``?version`` text)."""
+        style = self.firmware.numbers
+        if style == "negzero":
+            return reply
+        if "-0" in reply:
+            reply = _NEG_ZERO.sub(r"\1", reply)
+        if style == "plus" and numeric:
+            reply = _POSITIVE.sub(_plus, reply)
+        return reply
+
+    def _refused_move(self, command: Command) -> None:
+        """A move, cal or rm that was refused (error set, nothing moved).
+
+        Choice from L2705 ("E => error response, move aborted or not executed"): the
+        status letter of the axes it named becomes ``E``, so a client polling ``sa``
+        sees that the move was not executed; in mode 1 nothing is sent (no line of the
+        manual shows a report for a move that never started). Switch
+        ``refused_move_report=yes``: it also reports, ``E`` for those axes.
+        """
+        named = set(range(self.axes))
+        if command.axis is not None:
+            named = {AXES.index(command.axis)} if AXES.index(command.axis) < self.axes \
+                else set()
+        elif command.values and command.name in ("moa", "mor"):
+            named = set(range(min(len(command.values), self.axes)))
+        self.motion.mark_not_executed(named)
+        if self.firmware.refused_move_report == "yes":
+            letters = "".join("-" if i >= self.axes else "E" if i in named else "@"
+                              for i in range(len(AXES)))
+            self._report_completion(letters)
 
     def _execute(self, command: Command) -> list[str] | None:
         handler = self._handlers.get(command.name)
@@ -267,18 +457,58 @@ class ControllerModel:
 
     def _fallback_reply(self, command: Command, code: int) -> list[str] | None:
         if not command.is_read:
-            return [f"ERR {code}"] if command.instruction.exec_reply is Shape.ACK else None
+            if command.instruction.exec_reply is Shape.ACK:
+                return [self._err_text(code)]
+            return None
         return ["0"]
 
     def _send(self, text: str) -> None:
-        self._emit(text.encode("latin-1") + b"\r")
+        self._emit(text.encode("latin-1") + self._line_end)
 
-    def _report_completion(self, letters: str) -> None:
+    def _report_completion(self, letters: str, job: int | None = None,
+                           *, move: bool = True) -> None:
+        """Send a completion report in the mode in force now.
+
+        Modes 1, 2 and 4 send the letters and ``.`` (L2087-2117), mode 3 a bare CR
+        (L2107-2113), mode 0 nothing. Mode 4 sends it after the echo (switch
+        ``echo_report``); mode 2 sends an ``OK...`` owed by ``move_ok=completion`` first.
+        ``report_width=axes`` keeps only the letters of the unit's axes.
+        """
         mode = self.session.autostatus
+        owed = job is not None and job in self.session.ok_owed
+        if owed:
+            self.session.ok_owed.discard(job)
+            if mode == 2:
+                self._send("OK...")
+        if self.firmware.report_width == "axes":
+            letters = letters[: self.axes]
+        if mode == 4 and move and self.firmware.echo_report == "no":
+            return
         if mode in (1, 2, 4):
             self._send(letters + ".")
         elif mode == 3:
             self._send("")
+
+    def _send_stop_report(self) -> None:
+        """Send the report ``a``/Ctrl+C owe once no axis moves (``abort_report``)."""
+        if not self.session.stop_report_owed:
+            return
+        if any(self.motion.is_moving(i) for i in range(self.axes)):
+            return
+        self.session.stop_report_owed = False
+        self._report_completion(self.stopped_letters())
+
+    def stopped_letters(self) -> str:
+        """Report letters of the axes as they stand: their last letter (``E``/``@`` after
+        an abort), ``@`` for a disabled axis, ``-`` for an absent one."""
+        letters = []
+        for index in range(len(AXES)):
+            if index >= self.axes:
+                letters.append("-")
+            else:
+                letter = self.motion.status_letter(index)
+                letters.append("@" if letter in "-S" else letter)
+        return "".join(letters)
 
     # -- generic settings ------------------------------------------------------------------
 
@@ -340,7 +570,8 @@ class ControllerModel:
 
     def _sync(self, name: str) -> None:
         if name in _AXIS_SETTINGS or name in ("vel", "calvel", "rmvel", "swact",
-                                               "caliboffset", "rmoffset", "lim"):
+                                               "caliboffset", "rmoffset", "lim",
+                                               "ctr", "ctrd", "encmask"):
             self._sync_axes()
         if name in _GLOBAL_SETTINGS:
             self._sync_globals()
@@ -369,9 +600,21 @@ class ControllerModel:
                                     for v in self.params.axis("calvel", index))
             settings.rmvel = tuple(units.vel_from_user(float(v))  # type: ignore[assignment]
                                    for v in self.params.axis("rmvel", index))
+            settings.settle = self._settle_time(index)
             vel = units.vel_from_user(self.params.number("vel", index))
             if vel != settings.vel:
                 self.motion.set_vel(index, vel)
+
+    def _settle_time(self, index: int) -> float:
+        """Closed-loop settling of one axis in seconds: ``ctrd`` ms when closed loop is on
+        (``ctr`` 1-4 and the encoder enabled by ``encmask``, "Preconditions for
+        successfully entering closed loop are having ctr and encmask set", L11761-11800),
+        else 0. Choice: ``encmask`` counts at once (the manual activates encoders at
+        power on), and the ±twi window is met at once (no deviation is modelled)."""
+        if int(self.params.first("encmask", index)) != 1 or \
+                int(self.params.first("ctr", index)) == 0:
+            return 0.0
+        return float(self.params.first("ctrd", index)) / 1000.0
 
     # -- persistence -----------------------------------------------------------------------
 
@@ -479,8 +722,12 @@ class ControllerModel:
         return "".join("@" if i < self.axes else "-" for i in range(len(AXES)))
 
     def report(self, letters: str) -> None:
-        """Send a completion report in the current autostatus mode."""
-        self._report_completion(letters)
+        """Send a report that is not a move's (``!joy 0``) in the current autostatus mode."""
+        self._report_completion(letters, move=False)
+
+    def owe_stop_report(self) -> None:
+        """``a`` with ``abort_report=yes``: report once the axes stand (old L725)."""
+        self.session.stop_report_owed = True
 
     def set_autostatus(self, mode: int) -> None:
         """Switch the autostatus mode."""
@@ -550,6 +797,29 @@ class ControllerModel:
     def form_is_set(self, command: Command) -> bool:
         """Whether the command was sent with ``!`` (or an executing bare form)."""
         return command.form is Form.SET or command.executes
+
+
+#: Reply shapes whose values are numbers (switch ``numbers`` applies to them).
+_NUMERIC = frozenset({Shape.FLOAT, Shape.AXES_FLOAT, Shape.NUMBERS})
+#: A number that printed as minus zero (``-0.0000``), as its own token.
+_NEG_ZERO = re.compile(r"(?<![\w.])-(0(?:\.0+)?)(?![\w.])")
+#: A positive decimal number with a fraction, as its own token.
+_POSITIVE = re.compile(r"(?<![\w.+-])(\d+\.\d+)(?![\w.])")
+_NUMBER_TOKEN = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)")
+
+
+def _plus(match: re.Match[str]) -> str:
+    text = match.group(1)
+    return "+" + text if float(text) != 0.0 else text
+
+
+def _reprint(token: str) -> str:
+    """A token as a re-formatting firmware prints it: numbers shortest (``1.50`` -> ``1.5``,
+    ``+2.0`` -> ``2``), other words as they are."""
+    if not _NUMBER_TOKEN.fullmatch(token):
+        return token
+    text = format(Decimal(token).normalize(), "f")
+    return "0" if text in ("-0", "+0") else text
 
 
 def _bits_read(command: Command) -> bool:

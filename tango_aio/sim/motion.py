@@ -32,6 +32,17 @@ Decisions where the manual is silent (each is repeated next to its code):
 * A move/cal/rm command for an axis that is still moving (or reserved by a pending
   ``delay``/``pause``) is refused with error 2 (the manual only allows ``go`` to be
   overwritten while travelling, L6606).  ``go`` and ``speed`` may replace each other.
+  Firmware switch ``move_during_move`` (:attr:`MotionModel.move_during_move`): a move
+  for busy axes may instead wait for them (``queue``) or take over the target of the axes
+  that travel in a move (``retarget``); see :meth:`MotionModel._submit_move`.
+* Firmware switches that the command layer sets: :attr:`MotionModel.abort_letter`
+  (``E``, L6832-6834, or ``@`` of the older edition, old L1917) and
+  :attr:`MotionModel.zero_move_report` (a move where no axis travels reports or not).
+* Closed-loop settling: an axis with ``settle`` > 0 (closed loop on, the command layer
+  sets it from ``ctrd``) delays its move's report by that time: "In closed loop mode the
+  position reached reply is delayed until the specified criteria are fulfilled"
+  (L11616-11631); the emulated axis has no deviation, so the ±twi window holds at once
+  and the delay is exactly ``ctrd``.
 * A target outside the soft limits is refused with error 5 ("number is not inside allowed
   range"; the manual names no number).  When the axis already is outside, targets between
   the axis and the allowed range are accepted (L4585-4589).
@@ -240,6 +251,8 @@ class AxisSettings:
     limctr: int = 1
     distance: float = 0.0
     """Distance for ``m`` (also written by ``mor``)."""
+    settle: float = 0.0
+    """Closed-loop settling time in seconds added before a move's report (0: open loop)."""
     modulomode: int = 0
     """Stored for read-back only; modulo positioning is not modelled."""
 
@@ -490,6 +503,13 @@ class _Job:
     start_time: float | None = None
     report_time: float | None = None
     aborted: bool = False
+    #: Longest closed-loop settling time of its axes (seconds).
+    settle: float = 0.0
+    #: ``move_during_move=queue``: waiting for its axes to stop; ``relative`` distances
+    #: are turned into targets when it starts.
+    waiting: bool = False
+    relative: dict[int, float] | None = None
+    delay: float = 0.0
 
 
 @dataclass(eq=False)
@@ -558,6 +578,12 @@ class MotionModel:
         self._trigger: _TriggerList | None = None
         self._trigger_count = 0
         self._out: list[MotionEvent] = []
+        self.abort_letter = "E"
+        """Letter of axes stopped by ``a`` or Ctrl+C (firmware switch ``abort_letter``)."""
+        self.move_during_move = "refuse"
+        """``refuse``, ``queue`` or ``retarget`` a move for busy axes (firmware switch)."""
+        self.zero_move_report = True
+        """Whether a move where no axis travels reports (firmware switch)."""
 
     # ---------------------------------------------------------------- time ----------
 
@@ -759,8 +785,8 @@ class MotionModel:
     def move_relative(self, distances: Mapping[AxisRef, float]) -> int:
         """``mor``: vector move by distances; stores them as ``m`` distances."""
         resolved = {self._axis(ref).index: d for ref, d in distances.items()}
-        phys = {i: self._phys(self._axes[i]) + d for i, d in resolved.items()}
-        job_id = self._submit_move(phys, timed=True)
+        phys = {i: self._axes[i].traj.end_pos + d for i, d in resolved.items()}
+        job_id = self._submit_move(phys, timed=True, relative=resolved)
         # Choice: only the named axes get a new distance; the others keep theirs.
         for i, d in resolved.items():
             self._axes[i].settings.distance = d
@@ -768,12 +794,10 @@ class MotionModel:
 
     def move_repeat(self) -> int:
         """``m``: relative vector move by the stored distances of all enabled axes."""
-        phys = {
-            ax.index: self._phys(ax) + ax.settings.distance
-            for ax in self._axes
-            if ax.settings.enable == 1 and ax.settings.distance != 0.0
-        }
-        return self._submit_move(phys, timed=True)
+        distances = {ax.index: ax.settings.distance for ax in self._axes
+                     if ax.settings.enable == 1 and ax.settings.distance != 0.0}
+        phys = {i: self._axes[i].traj.end_pos + d for i, d in distances.items()}
+        return self._submit_move(phys, timed=True, relative=distances)
 
     def move_center(self, axes: Iterable[AxisRef] | None = None) -> int:
         """``moc``: move to the centre between the soft limits (cal+rm recommended)."""
@@ -844,9 +868,30 @@ class MotionModel:
                 self._plan_speed(ax, vel)
 
     def abort(self, axis: AxisRef | None = None, *, use_accel: bool = False) -> None:
-        """``a`` / ``a x`` / ``a -1``: stop with stopaccel (or accel); letters become ``E``."""
-        for ax in self._select(None if axis is None else [axis], enabled_only=False):
+        """``a`` / ``a x`` / ``a -1``: stop with stopaccel (or accel); letters become ``E``
+        (:attr:`abort_letter`). Queued moves of the stopped axes are cancelled: they
+        report :attr:`abort_letter` for their axes at once."""
+        chosen = self._select(None if axis is None else [axis], enabled_only=False)
+        for ax in chosen:
             self._abort_axis(ax, use_accel)
+        stopped = {ax.index for ax in chosen}
+        for job in [j for j in self._jobs if j.waiting and stopped & set(j.targets)]:
+            job.waiting = False
+            job.aborted = True
+            job.letters = {i: self.abort_letter for i in job.targets}
+            job.targets = {}
+            job.report_time = self._time
+
+    def mark_not_executed(self, axes: Iterable[AxisRef]) -> None:
+        """A move for ``axes`` was refused: idle axes show ``E`` ("not executed", L2705)."""
+        for ref in axes:
+            ax = self._axis(ref)
+            if not self._busy(ax) and ax.settings.enable == 1:
+                ax.letter = "E"
+
+    def has_job(self, job_id: int) -> bool:
+        """Whether job ``job_id`` still owes its report."""
+        return any(job.id == job_id for job in self._jobs)
 
     def emergency_stop(self) -> None:
         """Ctrl+C (0x03): abort all axes with stopaccel."""
@@ -1048,30 +1093,91 @@ class MotionModel:
         return job
 
     def _submit_move(
-        self, targets: dict[int, float], *, timed: bool, failed: Iterable[int] = ()
+        self, targets: dict[int, float], *, timed: bool, failed: Iterable[int] = (),
+        relative: dict[int, float] | None = None,
     ) -> int:
-        """Validate, then create a move job (delayed by ``delay`` when ``timed``)."""
+        """Validate, then create a move job (delayed by ``delay`` when ``timed``).
+
+        Axes still busy: refused with error 2 (``move_during_move=refuse``); with
+        ``queue`` the job waits until none of its axes is busy, then starts (relative
+        moves from where the axes stopped) and reports on its own; with ``retarget`` axes
+        travelling in a move leave that move (which reports without them, or not at all
+        when none is left) and head for the new target from where they are, each with its
+        own vel/accel (no vector move). Targets are checked against the limits at once,
+        for a queued relative move from where the axes will stop.
+        """
         active = {i: t for i, t in targets.items() if self._axes[i].settings.enable == 1}
+        policy = self.move_during_move
+        busy = [i for i in active if self._busy(self._axes[i])]
+        retarget = policy == "retarget" and bool(busy) and all(
+            self._axes[i].mode == "move" for i in busy)
+        queue = policy == "queue" and bool(busy)
         for i, target in active.items():
             ax = self._axes[i]
-            self._check_idle(ax)
+            if not ((queue or retarget) and i in busy):
+                self._check_idle(ax)
+            elif ax.settings.calrequired and not ax.cal_done:
+                raise MotionRefused(ERR_MOVE_NOT_ALLOWED, f"axis {ax.index} requires cal")
             self._check_target(ax, target)
-            self._check_switch(ax, target - self._phys(ax))
+            origin = ax.traj.end_pos if queue else self._phys(ax)
+            self._check_switch(ax, target - origin)
         job = self._new_job("move")
         job.targets = active
         job.letters = {i: "E" for i in failed}
         job.pause = self.global_settings.pause_ms / 1000.0 if timed else 0.0
-        delay = self.global_settings.delay_ms / 1000.0 if timed else 0.0
-        for i in active:
-            self._axes[i].job = job
-            self._axes[i].letter = "@"
+        job.delay = self.global_settings.delay_ms / 1000.0 if timed else 0.0
         for i in failed:
             self._axes[i].letter = "E"
-        if delay > 0.0:
-            job.start_time = self._time + delay
+        if queue:
+            job.waiting = True
+            job.relative = None if relative is None else \
+                {i: d for i, d in relative.items() if i in active}
+            return job.id
+        if retarget:
+            self._take_over(job, busy)
+        self._reserve(job)
+        return job.id
+
+    def _reserve(self, job: _Job) -> None:
+        """Give the job its axes and start it, or schedule its start after ``delay``."""
+        for i in job.targets:
+            self._axes[i].job = job
+            self._axes[i].letter = "@"
+        if job.delay > 0.0:
+            job.start_time = self._time + job.delay
         else:
             self._start_job(job, self._time)
-        return job.id
+
+    def _take_over(self, job: _Job, axes: Iterable[int]) -> None:
+        """``retarget``: the axes leave their moves; a move left without axes is dropped
+        without a report (the new move reports for them)."""
+        for i in axes:
+            ax = self._axes[i]
+            old = ax.job
+            if old is None:
+                continue
+            old.running.discard(i)
+            old.targets.pop(i, None)
+            old.letters.pop(i, None)
+            ax.job = None
+            if not old.running and not old.targets and old in self._jobs:
+                self._jobs.remove(old)
+            elif not old.running and old.start_time is None:
+                old.report_time = self._time + old.pause
+        job.delay = 0.0  # the axes are travelling: no delayed start
+
+    def _start_waiting(self) -> None:
+        """``queue``: start the waiting moves whose axes are all free, oldest first."""
+        for job in [j for j in self._jobs if j.waiting]:
+            if not job.waiting or any(self._busy(self._axes[i]) for i in job.targets):
+                continue  # started meanwhile (a nested call), or still waiting
+            job.waiting = False
+            if job.relative is not None:
+                job.targets = {i: self._phys(self._axes[i]) + d
+                               for i, d in job.relative.items()}
+                for i, d in job.relative.items():
+                    self._axes[i].settings.distance = d
+            self._reserve(job)
 
     def _start_job(self, job: _Job, t: float) -> None:
         """Start the motion of a move job (at command time or after ``delay``)."""
@@ -1081,20 +1187,25 @@ class MotionModel:
             delta = target - self._axes[i].traj.position(t)
             if delta != 0.0:
                 moving[i] = delta
-        if moving and self.global_settings.scanmode == 3:
+        in_motion = any(self._axes[i].mode == "move" for i in moving)
+        if moving and (self.global_settings.scanmode == 3 or in_motion):
             self._start_independent(job, moving, t)
         elif moving:
             self._start_vector(job, moving, t)
-        if not job.running:
+        if not job.running and not job.letters and not self.zero_move_report:
+            # Switch zero_move_report=no: nothing travelled, nothing is reported.
+            self._drop(job)
+        elif not job.running:
             job.report_time = t + job.pause
 
     def _start_independent(self, job: _Job, moving: dict[int, float], t: float) -> None:
-        """scanmode 3: every axis with its own vel/accel; they finish individually."""
+        """scanmode 3 (and retargeted axes): every axis with its own vel/accel from where
+        it is at its current velocity; they finish individually."""
         for i in moving:
             ax = self._axes[i]
-            x = ax.traj.position(t)
+            x, v = ax.traj.position(t), ax.traj.velocity(t)
             target = job.targets[i]
-            phases = plan_to_target(x, 0.0, target, self._cap(ax, ax.settings.vel),
+            phases = plan_to_target(x, v, target, max(self._cap(ax, ax.settings.vel), abs(v)),
                                     self._accel(ax))
             self._launch(ax, job, Trajectory.from_phases(t, x, phases, end_pos=target))
 
@@ -1136,10 +1247,15 @@ class MotionModel:
             job.letters.get(i, "@") if i < self.n_axes else "-" for i in range(4)
         )
         self._out.append(MoveFinished(t, job.kind, letters, job.id))
+        self._drop(job)
+
+    def _drop(self, job: _Job) -> None:
+        """Forget a finished job and start the moves waiting for its axes."""
         self._jobs.remove(job)
         for ax in self._axes:
             if ax.job is job:
                 ax.job = None
+        self._start_waiting()
 
     def _axis_finished(self, ax: _AxisState, t: float, letter: str) -> None:
         """The axis stands still: record its letter and complete its job if it was last."""
@@ -1150,11 +1266,14 @@ class MotionModel:
         ax.letter = letter
         job = ax.job
         if job is None or ax.index not in job.running:
+            self._start_waiting()  # a go/speed ended
             return
         job.running.discard(ax.index)
         job.letters[ax.index] = letter
+        if job.kind == "move":
+            job.settle = max(job.settle, ax.settings.settle)
         if not job.running and job.start_time is None:
-            job.report_time = t + (0.0 if job.aborted else job.pause)
+            job.report_time = t + (0.0 if job.aborted else job.pause + job.settle)
 
     # ------------------------------------------------------------- go / speed ------
 
@@ -1207,14 +1326,14 @@ class MotionModel:
         if job is not None and ax.index in job.running:
             job.aborted = True
         decel = self._accel(ax) if use_accel else self._stop_accel(ax)
-        self._halt(ax, "E", decel)
+        self._halt(ax, self.abort_letter, decel)
 
     def _abort_pending(self, ax: _AxisState, job: _Job) -> None:
         """Abort during ``delay``: the axis never starts and reports ``E``."""
         del job.targets[ax.index]
-        job.letters[ax.index] = "E"
+        job.letters[ax.index] = self.abort_letter
         job.aborted = True
-        ax.letter = "E"
+        ax.letter = self.abort_letter
         ax.job = None
         if not job.targets:
             job.start_time = None

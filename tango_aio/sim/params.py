@@ -71,13 +71,16 @@ POSITION_VALUED: Final = frozenset({
 
 
 def format_value(value: Value, digits: int) -> str:
-    """Format one reply value: ints as ints, floats with ``digits`` fractional digits."""
+    """Format one reply value: ints as ints, floats with ``digits`` fractional digits.
+
+    A float that rounds to zero from below prints ``-0.0000`` here; the model prints it
+    as ``0.0000`` unless the firmware switch ``numbers`` is ``negzero``.
+    """
     if isinstance(value, str):
         return value
     if isinstance(value, int):
         return str(value)
-    text = f"{value:.{digits}f}"
-    return "0" + text[2:] if text.startswith("-0") and float(text) == 0.0 else text
+    return f"{value:.{digits}f}"
 
 
 def position_digits(resolution: int, dim: int) -> int:

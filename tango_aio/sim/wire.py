@@ -13,7 +13,11 @@ models what the manual says, or implies, about the byte level of the link:
 * The interpreter takes one CR-terminated line at a time, stays busy for the processing
   time of that line, and only then takes the next one.
 * Ctrl+C (0x03) bypasses the parser (manual L6808-6814): it clears the input buffer and
-  stops all axes.
+  stops all axes. "Most TANGO controllers" do (L6808): a handler whose
+  ``ctrl_c_stops`` attribute is False gets 0x03 as an ordinary byte of the line.
+* A line that restarts the controller (the handler's optional ``reboots(line)``, e.g.
+  ``reset``) makes it deaf while it processes: the rest of the input buffer and every
+  byte that arrives meanwhile are lost (L1837-1857), counted in :attr:`Wire.lost_bytes`.
 
 Nothing here does I/O or reads a clock. Every entry point takes ``now`` (seconds, any
 monotonic time base), and :meth:`Wire.next_deadline` says when the wire next wants
@@ -278,8 +282,11 @@ class Wire:
         self._held: list[bytes] = []
         self._discard_head: bytes | None = None
         self._handler_polled_at = float("-inf")
+        self._deaf = False  # rebooting: input is lost
         self.handler: LineHandler = make_handler(self.emit)
         """The controller logic built by the factory."""
+        self._ctrl_c_stops: bool = getattr(self.handler, "ctrl_c_stops", True)
+        self._reboots: Callable[[bytes], bool] | None = getattr(self.handler, "reboots", None)
         self._handler_deadline = self.handler.next_deadline()
 
     # ------------------------------------------------------------------ public API
@@ -387,7 +394,7 @@ class Wire:
             if idle and self._discard_head is None else None
         for seg in self._rx:
             data, pos = seg.data, seg.pos
-            first = data.find(_CTRL_C_BYTE, pos)
+            first = data.find(_CTRL_C_BYTE, pos) if self._ctrl_c_stops else -1
             if idle:
                 cr = data.find(_CR_BYTE, pos)
                 if cr >= 0 and (first < 0 or cr < first):
@@ -557,7 +564,7 @@ class Wire:
         cheap to emulate; the result is the same as byte by byte."""
         data, pos = seg.data, seg.pos
         end = self._due_end(seg, until, before)
-        stop = data.find(_CTRL_C_BYTE, pos, end)
+        stop = data.find(_CTRL_C_BYTE, pos, end) if self._ctrl_c_stops else -1
         end = end if stop < 0 else stop
         if self._busy_until is not None:
             return end - pos
@@ -574,7 +581,8 @@ class Wire:
         pos = seg.pos
         new = pos + count
         if self._busy_until is not None:
-            kept = max(0, min(count, self.config.input_buffer_size - self.buffered))
+            kept = 0 if self._deaf else \
+                max(0, min(count, self.config.input_buffer_size - self.buffered))
             self.lost_bytes += count - kept
         else:
             kept = count
@@ -590,7 +598,10 @@ class Wire:
         Ctrl+C is taken by the receive interrupt before anything is buffered, so it is
         never lost, even with a full buffer (the manual says it bypasses the parser).
         """
-        if byte == CTRL_C:
+        if self._deaf:
+            self.lost_bytes += 1
+            return False
+        if byte == CTRL_C and self._ctrl_c_stops:
             self._ctrl_c()
             return True
         if self.buffered >= self.config.input_buffer_size:
@@ -671,6 +682,13 @@ class Wire:
         duration = self._duration(line, too_long)
         self._busy_len = size
         self._busy_until = self._now + duration
+        if not too_long and self._reboots is not None and self._reboots(line):
+            # Rebooting: what is buffered behind the line is lost, and so is what arrives
+            # until the restart ends (L1837-1857).
+            self._deaf = True
+            self.lost_bytes += len(self._buffer)
+            self._buffer.clear()
+            self._discard_head = None
         if too_long:
             self.handler.line_too_long(line, self._now)
         else:
@@ -693,6 +711,7 @@ class Wire:
         """Processing ended: free the line's bytes and send what was emitted meanwhile."""
         self._busy_until = None
         self._busy_len = 0
+        self._deaf = False
         held, self._held = self._held, []
         for reply in held:
             self._schedule_reply(reply, self._now)

@@ -905,7 +905,7 @@ def test_soft_limits_refuse_moves_with_error_5() -> None:
     sim.send("!lim x -5 5")
     assert sim.ask("?lim x") == "-5.0000 5.0000"
     sim.send("!moa 6")
-    assert sim.send("?err", "sa x") == ["5", "@"]
+    assert sim.send("?err", "sa x") == ["5", "E"]  # not executed (L2705)
     assert sim.settle() == []
     sim.send("!moa 5")
     assert sim.settle() == ["@@@-."]
@@ -1263,11 +1263,14 @@ def test_reset_restarts_in_mode_1_and_takes_a_second(tmp_path: Path) -> None:
     sim.take()
     sim.write(b"reset\r?err\r")
     assert sim.take() == []
-    sim.now += 0.999
+    sim.now += 0.5
+    sim.write(b"?err\r")  # the manual's poll loop (L1837-1857): lost while rebooting
+    sim.now += 0.499
     assert sim.take() == []  # not responding while rebooting
     sim.now += 0.002
-    assert sim.take() == ["0"]
-    assert sim.send("?autostatus", "?vel x", "?pos x") == ["1", "3.000", "0.0000"]
+    assert sim.take() == []  # both '?err' lines were lost
+    assert sim.wire.lost_bytes == 10
+    assert sim.send("?err", "?autostatus", "?vel x", "?pos x") == ["0", "1", "3.000", "0.0000"]
 
 
 def test_saved_settings_sweep(tmp_path: Path) -> None:

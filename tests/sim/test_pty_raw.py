@@ -16,15 +16,16 @@ import pytest
 import serial
 
 from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.profiles import PROFILES
 from tango_aio.sim.serve import serve_pty, serve_tcp
 from tango_aio.sim.wire import Emit, Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)
 
 
-def controller(axes: int = 3) -> Callable[[Emit], ControllerModel]:
+def controller(axes: int = 3, profile: str = "manual") -> Callable[[Emit], ControllerModel]:
     """A handler factory: a fresh emulated controller per wire."""
-    sim = SimConfig(axes=axes)
+    sim = SimConfig(axes=axes, firmware=PROFILES[profile])
 
     def make(emit: Emit) -> ControllerModel:
         return ControllerModel(emit, sim)
@@ -70,18 +71,20 @@ class Host:
         finally:
             self.port.timeout = timeout
 
-    def wait_idle(self, limit: float = 10.0) -> list[str]:
-        """Poll ``?statusaxis`` until no axis shows ``M``; returns the polled replies."""
+    def wait_idle(self, limit: float = 10.0, poll: str = "?statusaxis") -> list[str]:
+        """Poll ``?statusaxis`` (or ``poll``: ``sa``) until no axis shows ``M``; returns
+        the polled replies."""
         seen: list[str] = []
         deadline = time.monotonic() + limit
         while time.monotonic() < deadline:
-            status = self.ask("?statusaxis")
+            status = self.ask(poll)
             assert re.fullmatch(r"[@MJSADET-]{4}\.-", status), status
             seen.append(status)
             if "M" not in status:
                 return seen
             time.sleep(0.02)
         raise AssertionError(f"axes still moving after {limit} s: {seen[-3:]}")
+
 
 
 def open_port(path: str) -> serial.Serial:
@@ -235,3 +238,71 @@ async def test_tcp_socket_url_round_trip() -> None:
 
         replies = await asyncio.to_thread(host)
     assert replies == ["1.71", "1.0000 1.0000 1.0000", "@@@-.", "1.0000"]
+
+
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+async def test_micro_manager_adapter_shaped_session(profile: str) -> None:
+    """What Micro-Manager's TANGO adapter does: a bare CR to flush the controller's line
+    at start, ``?err`` after every set, moves polled with ``?statusaxis``, ``?pos``
+    reads; autostatus stays at its power-on 1 except where the adapter turns it off."""
+    async with await serve_pty(controller(profile=profile)) as server:
+
+        def host() -> dict[str, object]:
+            with open_port(server.path) as port:
+                tango = Host(port)
+                port.write(b"\r")  # flush whatever a previous session left half-typed
+                out: dict[str, object] = {"flush": tango.quiet(0.2)}
+                out["version"] = tango.ask("?version")
+                sets = ["!autostatus 0", "!dim 2 2 2", "!vel 20 20 20", "!accel 1 1 1"]
+                out["set_errors"] = [tango.ask(f"{line}\r?err") for line in sets]
+                moves = []
+                for target in ("5 2.5", "-1.25 0", "0.5 0.5"):
+                    err = tango.ask(f"!moa {target}\r?err")
+                    polls = tango.wait_idle()
+                    moves.append((err, polls[-1], tango.ask("?pos x"), tango.ask("?pos y")))
+                out["moves"] = moves
+                out["relative"] = tango.ask("!mor y 1\r?err")
+                out["rel_poll"] = tango.wait_idle()[-1]
+                out["pos"] = tango.ask("?pos")
+                out["stray"] = tango.quiet()
+                return out
+
+        out = await asyncio.to_thread(host)
+        model = model_of(server.wire)
+    assert out["flush"] == b""
+    assert str(out["version"]).startswith("TANGO-DT, Version 1.71, Jun  4 2019")
+    assert out["set_errors"] == ["0"] * 4
+    assert out["moves"] == [("0", "@@@-.-", "5.0000", "2.5000"),
+                            ("0", "@@@-.-", "-1.2500", "0.0000"),
+                            ("0", "@@@-.-", "0.5000", "0.5000")]
+    assert out["relative"] == "0"
+    assert out["rel_poll"] == "@@@-.-"
+    assert out["pos"] == "0.5000 1.5000 0.0000"
+    assert out["stray"] == b""
+    assert model.internal_errors == []
+    assert server.wire.lost_bytes == 0
+
+
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+async def test_lab_script_shaped_session(profile: str) -> None:
+    """A typical lab script: ``!autostatus 0`` before each move (in case anything turned
+    it on), the move, ``sa`` polled until no ``M``, ``?pos`` read back."""
+    async with await serve_pty(controller(axes=2, profile=profile)) as server:
+
+        def host() -> list[tuple[str, str]]:
+            with open_port(server.path) as port:
+                tango = Host(port)
+                results = []
+                for x, y in ((1.0, 2.0), (3.5, -1.0), (0.0, 0.0)):
+                    tango.tell("!autostatus 0")
+                    tango.tell(f"!moa {x} {y}")
+                    polls = tango.wait_idle(poll="sa")
+                    results.append((polls[-1], tango.ask("?pos")))
+                results.append(("stray", tango.quiet().decode()))
+                return results
+
+        results = await asyncio.to_thread(host)
+        model = model_of(server.wire)
+    assert results == [("@@--.-", "1.0000 2.0000"), ("@@--.-", "3.5000 -1.0000"),
+                       ("@@--.-", "0.0000 0.0000"), ("stray", "")]
+    assert model.internal_errors == []

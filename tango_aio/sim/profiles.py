@@ -1,0 +1,269 @@
+"""Firmware profiles: every plausible behaviour where the manual is silent, as switches.
+
+The manual (firmware 1.71, ``L<n>``) and its older edition (``old L<n>``) leave many
+details of the protocol open or contradict each other. The emulator gives each open point
+one *switch* with every plausible value; a :class:`Firmware` is one choice for every
+switch, and a *profile* is a named :class:`Firmware`:
+
+* ``manual`` - firmware 1.71 as documented, the emulator's default;
+* ``legacy`` - where the older edition differs: ``help`` takes no parameter and
+  instructions it does not know answer error 4, ``a`` is answered like a move and aborted
+  axes report ``@``, mode 4 echoes all input, no ``END_SERVICE_PRINT.``, the old
+  ``?version`` format.
+
+Select one in a URL (``sim://?profile=legacy&echo=after``), on the command line
+(``tango-aio sim --profile legacy --switch echo=after``) or in Python::
+
+    SimConfig(firmware=Firmware.from_options("legacy", echo="after"))
+
+:data:`SWITCHES` documents every switch (values, the ``manual`` default, the manual lines
+it comes from, what it changes); the README's switch table is generated from it.
+:func:`variants` lists the firmwares a client's test matrix should run against.
+
+This module imports nothing of the driver: it is part of the emulator's own reading of
+the manual.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+__all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "switch_table", "variants"]
+
+
+@dataclass(frozen=True)
+class SwitchDoc:
+    """What one switch does, for documentation and for validating options."""
+
+    #: The switch's name (a :class:`Firmware` field, a URL option).
+    name: str
+    #: Every allowed value; the first is the ``manual`` profile's choice.
+    values: tuple[str, ...]
+    #: Where the manual says something about it (``L<n>`` of the 1.71 manual, ``old L<n>``
+    #: of the older edition).
+    lines: str
+    #: What each value changes.
+    effect: str
+
+    @property
+    def default(self) -> str:
+        """The value under the ``manual`` profile."""
+        return self.values[0]
+
+
+_DOCS: tuple[SwitchDoc, ...] = (
+    # -- mode 4 (echo) -----------------------------------------------------------------------
+    SwitchDoc("echo", ("before", "after"), "L2117, L2168",
+              "Mode 4 echoes a line before executing it, or after. So `before`: "
+              "`!autostatus 1` sent in mode 4 is echoed and `!autostatus 4` sent in mode 1 "
+              "is not; `after`: the reverse."),
+    SwitchDoc("echo_report", ("yes", "no"), "L2117, L2168",
+              "A move in mode 4 also sends its completion report after the echo (`yes`), "
+              "or the echo is all it gets (`no`)."),
+    SwitchDoc("echo_all", ("no", "yes"), "L2117, old L723",
+              "Mode 4 echoes only set and move lines (`no`), or all input: reads and "
+              "lines without `!` too (`yes`, old L723: \"echoes all input\")."),
+    SwitchDoc("echo_text", ("exact", "normalized"), "L2168",
+              "The echo is the exact text received, or the line re-printed: lower case, "
+              "single spaces, numbers re-formatted (`!MOA  1.50` -> `!moa 1.5`)."),
+    # -- mode 2 (acknowledge) ------------------------------------------------------------------
+    SwitchDoc("ack_reads", ("no", "before", "after"), "L2099-2103",
+              "Mode 2 acknowledges `!` lines only (`no`), or `?` reads too, with `OK...` "
+              "before or after their data."),
+    SwitchDoc("err_number", ("yes", "no"), "L2099, L2150-2152",
+              "A refused line in mode 2 is acknowledged `ERR 5` (`yes`) or a bare `ERR`."),
+    SwitchDoc("ack_mode_change", ("new", "old"), "L2060-2103",
+              "`!autostatus n` is acknowledged by the mode in force after it (`new`: "
+              "`!autostatus 2` gets `OK...`) or before it (`old`: `!autostatus 1` sent in "
+              "mode 2 gets `OK...`)."),
+    SwitchDoc("move_ok", ("immediate", "completion"), "L2099-2103",
+              "A move's `OK...` in mode 2 comes at once (`immediate`), or only when it "
+              "completes, just before its report (`completion`)."),
+    # -- moves -----------------------------------------------------------------------------------
+    SwitchDoc("refused_move_report", ("no", "yes"), "L2705, L6337-6343",
+              "A refused move (e.g. outside the limits) only sets the error (`no`), or "
+              "also sends a completion report with `E` for its axes (`yes`, L2705: "
+              "\"E ... not executed\")."),
+    SwitchDoc("move_during_move", ("refuse", "queue", "retarget"), "L6606, L6254-6260",
+              "A move line for axes that are still moving is refused with error 2, waits "
+              "until they stop (`queue`, then reports on its own), or takes over their "
+              "target (`retarget`: the first move sends no report of its own)."),
+    SwitchDoc("zero_move_report", ("yes", "no"), "L2087-2089",
+              "A move to where the axes already are sends a report (`yes`) or nothing."),
+    # -- reports and status ------------------------------------------------------------------
+    SwitchDoc("report_width", ("four", "axes"), "L2089, L2141, L5404",
+              "Completion reports carry letters for X Y Z A always, absent axes `-` "
+              "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
+    SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
+              "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
+              "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
+    SwitchDoc("abort_letter", ("E", "@"), "L6832-6834, old L1917",
+              "Letter of the axes stopped by `a` or Ctrl+C: `E` (1.71) or `@` (older "
+              "edition: \"each configured axis responds an @\")."),
+    SwitchDoc("abort_report", ("no", "yes"), "L6832-6834, old L725, old L1917",
+              "`a` sends nothing itself (`no`), or a report of its own once the axes "
+              "stand, like a move (`yes`), in addition to the report of the move it stopped."),
+    SwitchDoc("ctrl_c", ("stop", "ignore", "stop_report"), "L6808-6814, old L1915",
+              "Ctrl+C (0x03) stops all axes and clears the input buffer silently (`stop`); "
+              "is not supported and reaches the parser as a byte (`ignore`); or stops and "
+              "sends a report of its own once the axes stand (`stop_report`)."),
+    # -- firmware replies ----------------------------------------------------------------------
+    SwitchDoc("help_number", ("yes", "no"), "L2915-2919, old L805-819",
+              "`?help N` answers `ERROR N,text` (`yes`) or the text only (`no`)."),
+    SwitchDoc("service_end", ("yes", "no"), "L2937-2943",
+              "`service` ends with `END_SERVICE_PRINT.` (firmware 1.60C/1.61 on) or "
+              "without an end marker (`no`)."),
+    SwitchDoc("lim_cr_bug", ("extmode0", "none", "both"), "L2196-2232, L4559-4621",
+              "`?lim` for all axes prints an extra CR after the X pair in extmode 0 only "
+              "(`extmode0`), never (`none`), or in both extmodes (`both`)."),
+    SwitchDoc("version_format", ("new", "old"), "L1063-1107, old L414-426",
+              "`?version` as `TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00` (`new`) or "
+              "`TANGO-DT, Version 1.71, Jun  4 2019, 12:00:00` (`old`, no space before "
+              "the last comma)."),
+    SwitchDoc("line_end", ("cr", "crlf"), "L82",
+              "Replies end with CR (`cr`) or CR LF (`crlf`)."),
+    SwitchDoc("numbers", ("plain", "plus", "negzero"), "L66-70, L94-96",
+              "Numbers in read replies as `1.0000` (`plain`), `+1.0000` for positive "
+              "values (`plus`), or `-0.0000` for values that round to zero from below "
+              "(`negzero`)."),
+    SwitchDoc("instruction_set", ("full", "older"), "old L414, old L805-819",
+              "Every instruction of the 1.71 manual (`full`), or only those of the older "
+              "edition: the others, and values for `help`/`version` (which took none "
+              "there), answer error 4."),
+)
+
+#: Every switch by name, in documentation order.
+SWITCHES: Mapping[str, SwitchDoc] = MappingProxyType({doc.name: doc for doc in _DOCS})
+
+
+@dataclass(frozen=True)
+class Firmware:
+    """One choice for every switch (see :data:`SWITCHES` for what each one does).
+
+    The defaults are the ``manual`` profile. Build one with :meth:`from_options` or
+    :meth:`with_`, which check names and values; the constructor checks values too.
+    """
+
+    #: Mode 4: echo ``before`` or ``after`` executing the line.
+    echo: str = "before"
+    #: Mode 4: a move also sends its completion report (``yes``/``no``).
+    echo_report: str = "yes"
+    #: Mode 4: reads and lines without ``!`` are echoed too (``no``/``yes``).
+    echo_all: str = "no"
+    #: Mode 4: the echo is the ``exact`` text or ``normalized``.
+    echo_text: str = "exact"
+    #: Mode 2: reads acknowledged (``no``/``before``/``after`` their data).
+    ack_reads: str = "no"
+    #: Mode 2: ``ERR 5`` (``yes``) or bare ``ERR`` (``no``).
+    err_number: str = "yes"
+    #: Mode 2: ``!autostatus n`` acknowledged per the ``new`` or the ``old`` mode.
+    ack_mode_change: str = "new"
+    #: Mode 2: a move's ``OK...`` ``immediate`` or at ``completion``.
+    move_ok: str = "immediate"
+    #: A refused move also sends a report with ``E`` (``no``/``yes``).
+    refused_move_report: str = "no"
+    #: A move for moving axes: ``refuse``, ``queue`` or ``retarget``.
+    move_during_move: str = "refuse"
+    #: A move to where the axes are sends a report (``yes``/``no``).
+    zero_move_report: str = "yes"
+    #: Report letters for ``four`` axes always or as many as the unit has (``axes``).
+    report_width: str = "four"
+    #: ``sa`` shows absent/disabled axes as ``dash`` or leaves them out (``omit``).
+    absent_axes: str = "dash"
+    #: Letter of aborted axes: ``E`` or ``@``.
+    abort_letter: str = "E"
+    #: ``a`` sends a report of its own (``no``/``yes``).
+    abort_report: str = "no"
+    #: Ctrl+C: ``stop``, ``ignore`` or ``stop_report``.
+    ctrl_c: str = "stop"
+    #: ``?help N`` repeats N (``yes``/``no``).
+    help_number: str = "yes"
+    #: ``service`` ends with ``END_SERVICE_PRINT.`` (``yes``/``no``).
+    service_end: str = "yes"
+    #: Extra CR in ``?lim``: ``extmode0``, ``none`` or ``both``.
+    lim_cr_bug: str = "extmode0"
+    #: ``?version`` format: ``new`` or ``old``.
+    version_format: str = "new"
+    #: Reply line end: ``cr`` or ``crlf``.
+    line_end: str = "cr"
+    #: Number format: ``plain``, ``plus`` or ``negzero``.
+    numbers: str = "plain"
+    #: Instructions known: ``full`` (1.71) or ``older`` (the older edition's).
+    instruction_set: str = "full"
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            _check(field.name, getattr(self, field.name))
+
+    @classmethod
+    def from_options(cls, profile: str = "manual", **switches: str) -> Firmware:
+        """The named profile with single switches on top.
+
+        Raises ValueError naming the option and its allowed values for an unknown
+        profile, switch or value.
+        """
+        base = PROFILES.get(profile)
+        if base is None:
+            raise ValueError(f"unknown firmware profile {profile!r}; "
+                             f"allowed: {', '.join(PROFILES)}")
+        return base.with_(**switches)
+
+    def with_(self, **switches: str) -> Firmware:
+        """A copy with ``switches`` overridden (names and values checked)."""
+        for name, value in switches.items():
+            if name not in SWITCHES:
+                raise ValueError(f"unknown firmware switch {name!r}; "
+                                 f"allowed: {', '.join(SWITCHES)}")
+            _check(name, value)
+        return dataclasses.replace(self, **switches)
+
+    def changed(self) -> dict[str, str]:
+        """The switches whose value differs from the ``manual`` profile."""
+        return {name: getattr(self, name) for name, doc in SWITCHES.items()
+                if getattr(self, name) != doc.default}
+
+
+def _check(name: str, value: object) -> None:
+    doc = SWITCHES[name]
+    if value not in doc.values:
+        raise ValueError(f"firmware switch {name}={value!r} is not allowed; "
+                         f"allowed: {', '.join(doc.values)}")
+
+
+#: The named profiles.
+PROFILES: Mapping[str, Firmware] = MappingProxyType({
+    "manual": Firmware(),
+    # The older edition where it differs from 1.71 (issue #12): help takes no parameter
+    # (old L805-819), 'a' is answered like a move (old L725) and its axes report '@'
+    # (old L1917), mode 4 echoes all input (old L723), no END_SERVICE_PRINT. (added with
+    # 1.60C/1.61, L2941-2943), the old ?version format (old L426), only its instructions.
+    "legacy": Firmware(help_number="no", abort_letter="@", abort_report="yes",
+                       echo_all="yes", service_end="no", version_format="old",
+                       instruction_set="older"),
+})
+
+
+def variants() -> list[tuple[str, Firmware]]:
+    """``manual``, ``legacy``, then ``manual`` with each single non-default switch value
+    (named ``switch=value``): the firmwares a client's test matrix runs against."""
+    out: list[tuple[str, Firmware]] = list(PROFILES.items())
+    manual = PROFILES["manual"]
+    for name, doc in SWITCHES.items():
+        for value in doc.values[1:]:
+            out.append((f"{name}={value}", manual.with_(**{name: value})))
+    return out
+
+
+def switch_table() -> str:
+    """The Markdown table of every switch (the README's, checked by a test)."""
+    rows = ["| switch | values | `manual` | `legacy` | manual lines |",
+            "|---|---|---|---|---|"]
+    legacy = PROFILES["legacy"]
+    for name, doc in SWITCHES.items():
+        values = " \\| ".join(f"`{v}`" for v in doc.values)
+        rows.append(f"| `{name}` | {values} | `{doc.default}` | `{getattr(legacy, name)}` "
+                    f"| {doc.lines} |")
+    return "\n".join(rows)
