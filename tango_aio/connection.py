@@ -158,8 +158,12 @@ def _reconnect_policy(options: dict[str, Any]) -> ReconnectPolicy | None:
 async def _connect(url: str, *, autostatus: int | None = 1, identify: bool = True,
                    reply_timeout: float = 5.0, credit_limit: int = DEFAULT_LIMIT,
                    marker_chunk: int = DEFAULT_CHUNK, **options: Any) -> Controller:
+    liveness = {name: options.pop(name) for name in ("dead_after", "keepalive")
+                if name in options}
+
     def factory() -> TangoProtocol:
-        return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk)
+        return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk,
+                             reply_timeout=reply_timeout, **liveness)
 
     policy = _reconnect_policy(options)
     opener = functools.partial(_open_link, url, factory, options)
@@ -207,7 +211,12 @@ def connect(url: str = "sim://", **options: Any) -> Connecting:
     the controller's mode), ``identify`` (True), ``reply_timeout`` (5.0 s: a request
     unanswered for that long raises ControllerTimeoutError after the stream was
     resynchronised); ``credit_limit`` (255 bytes written but not yet processed, at most)
-    and ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control.
+    and ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control;
+    ``dead_after`` (2) consecutive requests without a reply (a request's own timeout, then
+    its resync marker's) declare a link that stays open lost (ConnectionLostError, and a
+    reconnect when enabled), and ``keepalive`` (None; seconds) probes an idle link with
+    ``?autostatus`` so that a dead link, or a controller that restarted behind an adapter
+    that stayed up (its mode is restored), is noticed without traffic of the caller's.
 
     Automatic reconnect (off by default): ``reconnect=True`` keeps the Controller usable
     across link losses. After a loss it waits ``reconnect_initial`` (0.1 s), opens the same

@@ -30,8 +30,6 @@ from .errors import (
     InvalidCommandError,
     ProtocolError,
     TangoError,
-    UnknownControllerError,
-    controller_error,
     parse_error_reply,
 )
 from .events import (
@@ -65,11 +63,10 @@ from .motion import (
     Motion,
     MovePlan,
     MoveTiming,
-    Sent,
     moved_axes,
     position_tolerance,
 )
-from .protocol import Response, Submission, TangoProtocol
+from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
 
 __all__ = ["Controller", "Identity"]
@@ -173,12 +170,12 @@ class Controller:
     @property
     def autostatus(self) -> int:
         """The autostatus mode the driver believes is in force."""
-        return self._protocol.core.autostatus
+        return self._protocol.autostatus
 
     @property
     def context(self) -> Context:
         """Controller state used to validate lines (dims, axis count, extmode)."""
-        return self._protocol.core.context
+        return self._protocol.context
 
     async def aclose(self) -> None:
         """Close the connection and stop reconnecting. Pending requests fail with
@@ -217,8 +214,7 @@ class Controller:
         how ``!autostatus`` itself is answered depends on it.
         """
         await self._protocol.resync(timeout=self.reply_timeout)
-        current = int(await self.get("autostatus"))
-        self._protocol.core.autostatus = current
+        current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
         if autostatus is not None and autostatus != current:
             await self.command(f"!autostatus {autostatus}")
         if identify:
@@ -271,7 +267,7 @@ class Controller:
         self._motion.hint()  # moves being followed fail at once, not at their next poll
         if self._reconnect is not None and not self._closing and not self.reconnecting:
             self._reconnect_attempt = 0
-            mode = self._protocol.core.autostatus
+            mode = self._protocol.autostatus
             self._reconnect_task = asyncio.get_running_loop().create_task(
                 self._reconnect_loop(self._reconnect, mode), name=f"tango_aio reconnect {self.url}")
         else:
@@ -358,8 +354,8 @@ class Controller:
         det = await self.get("det")
         assert isinstance(version, VersionInfo) and isinstance(det, DetInfo)
         axes = det.axes or 4
-        core = self._protocol.core
-        core.context = Context(core.context.dims, axes, core.context.extmode)
+        context = self._protocol.context
+        self._protocol.context = Context(context.dims, axes, context.extmode)
         detected = dict(getattr(self._protocol, "detected", None) or {})
         # Whether per-axis reads answer one value per axis found by ?det (the 1.71
         # manual, L2711-2721) or leave absent/disabled axes out: then every per-axis read
@@ -393,9 +389,13 @@ class Controller:
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 value = 0.0  # unknown to this firmware: nothing to wait for
             setattr(settings, _TRACKED_GLOBAL[name], value)
-        core = self._protocol.core
-        core.context = Context(tuple(settings.dims), core.context.axes,  # type: ignore[arg-type]
-                               settings.extmode)
+        self._update_context()
+
+    def _update_context(self) -> None:
+        settings = self._settings
+        self._protocol.context = Context(
+            tuple(settings.dims), self._protocol.context.axes,  # type: ignore[arg-type]
+            settings.extmode)
 
     async def query(self, line: str, timeout: float | None = None) -> str:
         """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
@@ -433,59 +433,42 @@ class Controller:
 
     async def _request(self, command: Command, timeout: float | None = None) -> Response:
         self._check_axes(command)
-        return await self._protocol.request(command, self._timeout(timeout))
+        return await self._protocol.query(command, timeout=self._timeout(timeout))
 
     def _timeout(self, timeout: float | None) -> float:
         return self.reply_timeout if timeout is None else timeout
 
     async def _execute(self, command: Command, *, check: bool,
-                       timeout: float | None = None) -> Submission:
-        """Write ``command`` (and, to check it, ``?err`` right behind it) and wait."""
-        sent = self._send(command, check=check)
-        await self._confirm(sent, timeout)
-        return sent.submission
-
-    def _send(self, command: Command, *, check: bool) -> Sent:
-        """Write ``command``, followed by the ``?err`` probe when it must be checked and
-        autostatus 2 does not acknowledge it."""
+                       timeout: float | None = None) -> Response:
+        """Write ``command`` (checked, see :meth:`TangoProtocol.execute`) and wait."""
         self._check_axes(command)
-        submission = self._protocol.submit(command)
-        probe = None
-        if check and not submission.expectation.ack:
-            # Written back to back with the command, so no other line can change the
-            # error state in between (each instruction overwrites it, manual L2853).
-            probe = self._protocol.submit(parse("?err"))
-        return Sent(submission, probe, check)
+        try:
+            response = await self._protocol.execute(command, timeout=self._timeout(timeout),
+                                                    check=check)
+        except ControllerError as error:
+            if error.error_code < INTERNAL_ERRORS or \
+                    await self._blame(error.error_code, self._timeout(timeout)):
+                raise
+            response = Response()
+        self._track(command)
+        return response
 
-    async def _confirm(self, sent: Sent, timeout: float | None = None) -> None:
-        """Wait for the replies of a :meth:`_send`; raise the controller's error, if any."""
-        error = await self._error_of(sent, self._timeout(timeout))
-        if error is not None:
-            self._protocol.forget_completion(sent.submission)
-            raise error
-        self._track(sent.submission.command)
+    def _send(self, command: Command, *, check: bool) -> MoveHandle:
+        """Write a motion line and its check (see :meth:`TangoProtocol.start_move`)."""
+        self._check_axes(command)
+        return self._protocol.start_move(command, check=check)
 
-    async def _error_of(self, sent: Sent, timeout: float) -> ControllerError | None:
+    async def _error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
         """The error the controller reported for ``sent`` (``None``: accepted).
 
         A number of 20 and above may be a persistent internal error rather than the
         line's own (L2853-2867: "if the previously executed instruction returned no error,
-        the 'err' response is either 0 or ... the internal error"): see
-        :meth:`_blame`."""
-        submission, line = sent.submission, sent.submission.command.line
-        code: int | None = 0
-        if submission.reply is not None:
-            response = await self._protocol.wait_reply(submission, timeout)
-            if sent.check and submission.expectation.ack and response.ack != 0:
-                code = response.ack
-        if sent.probe is not None:
-            reply = await self._protocol.wait_reply(sent.probe, timeout)
-            code, _ = parse_error_reply(reply.lines[0])
-        if code is None:  # a bare "ERR" (err_number=no)
-            return UnknownControllerError(None, line)
-        if code and code >= INTERNAL_ERRORS and not await self._blame(code, timeout):
+        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`."""
+        error = await sent.error(timeout)
+        if error is not None and error.error_code >= INTERNAL_ERRORS \
+                and not await self._blame(error.error_code, timeout):
             return None
-        return controller_error(code, line) if code else None
+        return error
 
     async def _blame(self, code: int, timeout: float) -> bool:
         """Whether error ``code`` (>= 20) belongs to the line just checked.
@@ -507,8 +490,9 @@ class Controller:
 
     async def _internal_error(self, timeout: float | None = None) -> int:
         """``?err`` right after a read that is always fine: 0 or the internal error."""
+        # Written back to back: no other line can come between the read and the probe.
         self._protocol.submit(parse("?autostatus"))
-        reply = await self._protocol.request(parse("?err"), self._timeout(timeout))
+        reply = await self._protocol.query(parse("?err"), timeout=self._timeout(timeout))
         code, _ = parse_error_reply(reply.lines[0])
         return code or 0
 
@@ -553,9 +537,7 @@ class Controller:
                 target[index + offset] = type(target[index + offset])(value)
         else:
             return
-        core = self._protocol.core
-        core.context = Context(tuple(self._settings.dims),  # type: ignore[arg-type]
-                               core.context.axes, self._settings.extmode)
+        self._update_context()
 
     # -- typed access ---------------------------------------------------------------------
 
@@ -759,13 +741,13 @@ class Controller:
         self._motion.stopped()
         if not soft:
             try:
-                await self._protocol.resync(ctrl_c=True, timeout=self.reply_timeout)
+                await self._protocol.stop_axes(False, timeout=self.reply_timeout)
             except ControllerTimeoutError:
-                # Ctrl+C may have been taken as part of the marker line: resync again.
+                # Ctrl+C may have been taken as part of the marker line (a controller that
+                # ignores it): resync again without it.
                 await self._protocol.resync(timeout=self.reply_timeout)
-            # A discarded line may have been an !autostatus the core already counted.
-            self._protocol.core.autostatus = int(await self.get("autostatus"))
-        self._protocol.submit(build("a", form=Form.SET))
+                await self._protocol.read_autostatus(timeout=self.reply_timeout)
+        await self._protocol.stop_axes(True)
         self._motion.stopped()
         if wait:
             try:
@@ -890,20 +872,17 @@ class _Port:
     def reply_timeout(self) -> float:
         return self._c.reply_timeout
 
-    def send_checked(self, command: Command) -> Sent:
+    def send_checked(self, command: Command) -> MoveHandle:
         return self._c._send(command, check=True)
 
-    async def error_of(self, sent: Sent, timeout: float) -> ControllerError | None:
+    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
         error = await self._c._error_of(sent, timeout)
         if error is None:
-            self._c._track(sent.submission.command)
+            self._c._track(sent.command)
         return error
 
-    def forget(self, submission: Submission) -> None:
-        self._c.protocol.forget_completion(submission)
-
-    def write_stop(self) -> None:
-        self._c.protocol.submit(build("a", form=Form.SET))
+    async def write_stop(self) -> None:
+        await self._c.protocol.stop_axes(True)
 
     def check_link(self) -> None:
         self._c.protocol.check()

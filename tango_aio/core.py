@@ -74,6 +74,11 @@ __all__ = [
 #: Longest line the assembler buffers before it gives up on it. The controller's lines are
 #: far shorter; ``service`` output is the longest.
 DEFAULT_MAX_LINE: Final = 1024
+#: Most lines and bytes one multi-line reply (``service``, ``detext``) may hold before the
+#: request fails (#14 item 9: a reply whose end never comes must not grow for ever). The
+#: manual's ``service`` print is a few dozen lines (L2929-2943).
+MAX_REPLY_LINES: Final = 1024
+MAX_REPLY_BYTES: Final = 65536
 
 _CR: Final = 0x0D
 _LF: Final = 0x0A
@@ -223,6 +228,8 @@ class Mismatched:
     tag: Hashable | None
     line: str
     expected: ReplyPattern
+    #: Why, when the line itself would fit (a reply grown past its cap).
+    reason: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -254,6 +261,7 @@ class _Pending:
     rule: LineRule = field(default_factory=LineRule)
     pattern: ReplyPattern = ACK_PATTERN  # of the data lines
     lines: list[str] = field(default_factory=list)
+    size: int = 0  # bytes in lines
     internal: bool = False
     marker: str | None = None  # expected reply prefix of a resync marker
 
@@ -375,7 +383,9 @@ class ProtocolCore:
     """
 
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
-                 max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True) -> None:
+                 max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True,
+                 max_reply_lines: int = MAX_REPLY_LINES,
+                 max_reply_bytes: int = MAX_REPLY_BYTES) -> None:
         self._assembler = LineAssembler(max_line)
         self._pending: deque[_Pending] = deque()
         self._moves: deque[Hashable] = deque()
@@ -388,6 +398,7 @@ class ProtocolCore:
         #: Whether each data reply is checked against its instruction's pattern
         #: (:mod:`tango_aio.patterns`); off, any line is taken in order.
         self.check_replies = check_replies
+        self._max_reply = (max_reply_lines, max_reply_bytes)
 
     # -- state ------------------------------------------------------------------------
 
@@ -625,6 +636,16 @@ class ProtocolCore:
             self._route(line)
             return
         head.lines.append(line)
+        head.size += len(line)
+        if len(head.lines) > self._max_reply[0] or head.size > self._max_reply[1]:
+            reason = (f"the reply exceeds {self._max_reply[0]} lines or "
+                      f"{self._max_reply[1]} bytes")
+            head.lines.clear()
+            head.size = 0
+            self._desynced = True
+            tag = None if head.internal else head.tag
+            self._events.append(Mismatched(tag, line, head.pattern, reason))
+            return
         if rule.terminator is not None:
             if text == rule.terminator:
                 self._finish_data(head)
@@ -635,6 +656,7 @@ class ProtocolCore:
         done = head.done_after(_Item.DATA)
         lines = tuple(head.lines)
         head.lines.clear()
+        head.size = 0
         self._advance(head)
         self._emit(head, Replied(head.tag, lines, done))
 

@@ -14,7 +14,9 @@ stream goes on, and :class:`Reconnected` follows once the link is back.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import time
+import weakref
 from collections import deque
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, field
@@ -130,18 +132,20 @@ class Subscription:
     """An async iterator over events, with a bounded buffer (drops the oldest on overflow).
 
     Use it as ``async with controller.events() as events: async for event in events: ...``
-    or iterate directly and call :meth:`aclose` when done. Forgetting to close it leaks
-    nothing but the buffered events.
+    or iterate directly and call :meth:`aclose` when done. A subscription nobody refers to
+    any more (``async for event in tango.events(): return``) is unregistered by itself:
+    the hub only holds weak references, so forgetting to close one leaks nothing.
     """
 
     def __init__(self, hub: EventHub, maxsize: int) -> None:
-        if maxsize < 1:
-            raise ValueError(f"maxsize must be at least 1, got {maxsize}")
+        if isinstance(maxsize, bool) or not isinstance(maxsize, int) or maxsize < 1:
+            raise ValueError(f"maxsize must be an integer of at least 1, got {maxsize!r}")
         self._buffer: deque[TangoEvent] = deque()
         self._maxsize = maxsize
         self._ready = asyncio.Event()
         self._ended = False
         self._hub = hub
+        self._key = -1
         #: Number of events this subscriber lost because its buffer was full.
         self.dropped = 0
 
@@ -202,11 +206,23 @@ class Subscription:
 
 
 class EventHub:
-    """Fans events out to every current :class:`Subscription`."""
+    """Fans events out to every current :class:`Subscription`.
+
+    Subscriptions are held weakly (in subscription order): one that its owner dropped
+    without closing it is unregistered when it is collected (#14 item 9: 2000 abandoned
+    ones held 7.9 MB and slowed every event down).
+    """
 
     def __init__(self) -> None:
-        self._subscribers: dict[Subscription, None] = {}
+        self._subscribers: weakref.WeakValueDictionary[int, Subscription] = \
+            weakref.WeakValueDictionary()
+        self._keys = itertools.count()
         self._closed = False
+
+    @property
+    def subscribers(self) -> int:
+        """Number of live subscriptions."""
+        return len(self._subscribers)
 
     def subscribe(self, maxsize: int = 256) -> Subscription:
         """A new subscription buffering up to ``maxsize`` events."""
@@ -214,18 +230,19 @@ class EventHub:
         if self._closed:
             subscription._end()
         else:
-            self._subscribers[subscription] = None
+            subscription._key = next(self._keys)
+            self._subscribers[subscription._key] = subscription
         return subscription
 
     def publish(self, event: TangoEvent) -> None:
         """Deliver ``event`` to every subscriber (never blocks)."""
-        for subscription in list(self._subscribers):
+        for subscription in list(self._subscribers.values()):
             subscription._offer(event)
 
     def close(self) -> None:
         """End every subscription (after the events already buffered)."""
         self._closed = True
-        for subscription in list(self._subscribers):
+        for subscription in list(self._subscribers.values()):
             subscription._end()
         self._subscribers.clear()
 
@@ -234,5 +251,4 @@ class EventHub:
         self._closed = False
 
     def _discard(self, subscription: Subscription) -> None:
-        self._subscribers.pop(subscription, None)
-
+        self._subscribers.pop(subscription._key, None)

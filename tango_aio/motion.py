@@ -73,7 +73,7 @@ from .errors import (
 )
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
-from .protocol import Submission
+from .protocol import MoveHandle, Submission
 from .units import UnitScale
 
 __all__ = [
@@ -85,7 +85,6 @@ __all__ = [
     "MotionPort",
     "MovePlan",
     "MoveTiming",
-    "Sent",
     "moved_axes",
     "position_tolerance",
     "travel_time",
@@ -111,15 +110,6 @@ POLL_MAX = 0.5
 POLL_GRACE = 0.05
 
 _KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
-
-
-@dataclass(frozen=True, slots=True)
-class Sent:
-    """A command written by the controller facade, with its ``?err`` probe."""
-
-    submission: Submission
-    probe: Submission | None
-    check: bool
 
 
 @dataclass(slots=True)
@@ -210,19 +200,15 @@ class MotionPort(Protocol):
         """Seconds to wait for a reply."""
         ...
 
-    def send_checked(self, command: Command) -> Sent:
+    def send_checked(self, command: Command) -> MoveHandle:
         """Write a motion line and its check; return at once."""
         ...
 
-    async def error_of(self, sent: Sent, timeout: float) -> ControllerError | None:
+    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
         """Wait for the check of ``sent``; the controller's error, if it refused it."""
         ...
 
-    def forget(self, submission: Submission) -> None:
-        """Stop waiting for ``submission``'s completion report."""
-        ...
-
-    def write_stop(self) -> None:
+    async def write_stop(self) -> None:
         """Write ``a`` (stop every axis, keep queued lines)."""
         ...
 
@@ -248,7 +234,7 @@ class _Job:
     """One motion line being followed."""
 
     plan: MovePlan
-    sent: Sent
+    sent: MoveHandle
     started: float
     epoch: int
     #: The hint count when the state was last read.
@@ -352,14 +338,14 @@ class Motion:
                 await self._aborted(job, {})
             raise
         if error is not None:
-            self._port.forget(job.sent.submission)
+            job.sent.forget()
             raise error
         try:
             letters = await self._follow(job)
         except BaseException:
-            self._port.forget(job.sent.submission)
+            job.sent.forget()
             raise
-        self._port.forget(job.sent.submission)
+        job.sent.forget()
         return letters
 
     async def _follow(self, job: _Job) -> dict[str, str]:
@@ -469,11 +455,11 @@ class Motion:
     async def _stop_and_wait(self, job: _Job) -> None:
         """Write ``a`` and wait (bounded) until the moved axes stand still."""
         with contextlib.suppress(TangoError):
-            self._port.write_stop()
+            await self._port.write_stop()
             self.stopped()
         with contextlib.suppress(TangoError, TimeoutError):
             await self._idle(job, STOP_WAIT)
-        self._port.forget(job.sent.submission)
+        job.sent.forget()
 
     async def _stop_after_cancel(self, job: _Job) -> None:
         """The awaiting task was cancelled: stop the axes and wait for them to stop.
@@ -482,7 +468,7 @@ class Motion:
         comes from a level-triggered anyio scope that would otherwise cancel every await of
         this clean-up at once."""
         with contextlib.suppress(TangoError):
-            self._port.write_stop()
+            await self._port.write_stop()
             self.stopped()
         try:
             with contextlib.suppress(Exception, asyncio.CancelledError), \
@@ -490,7 +476,7 @@ class Motion:
                 if await self._port.error_of(job.sent, self._port.reply_timeout) is None:
                     await self._idle(job, STOP_WAIT)
         finally:
-            self._port.forget(job.sent.submission)
+            job.sent.forget()
 
     async def _finish_detached(self, job: _Job) -> None:
         """Follow a move whose caller was cancelled (``stop_on_cancel=False``) to its end,
@@ -499,7 +485,7 @@ class Motion:
             with contextlib.suppress(Exception):
                 await self._run(job)
         finally:
-            self._port.forget(job.sent.submission)
+            job.sent.forget()
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))

@@ -24,15 +24,18 @@ reporting an error marks the lines it covers (:attr:`Submission.chunk_error`). A
 registered with the core when it is written, so a queued line can still be withdrawn.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
-every line received (``<-``), CR removed, with a monotonic timestamp.
+every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
+most the first :data:`TRACE_LINE` (256) bytes of its line and the line's length.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import itertools
 import logging
+import math
 import time
 from collections import deque
 from collections.abc import Callable, Collection, Hashable, Iterable
@@ -56,21 +59,34 @@ from .core import (
 )
 from .errors import (
     ConnectionLostError,
+    ControllerError,
     ControllerTimeoutError,
     InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
+    TangoError,
     UnknownControllerError,
     controller_error,
+    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, parse
+from .instructions import Command, Context, Form, build, parse
 from .patterns import ReplyPattern
 
-__all__ = ["Response", "Submission", "TangoProtocol"]
+__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
+           "WrongEventLoopError"]
 
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")
+
+
+#: Consecutive unanswered requests after which a link that stays open is declared lost.
+#: Two: a request's own timeout, then the resync marker written after it.
+DEAD_AFTER = 2
+
+
+class WrongEventLoopError(TangoError, RuntimeError):
+    """A connection was used from another event loop than the one it was opened on."""
 
 
 @dataclass(slots=True)
@@ -114,6 +130,8 @@ class Submission:
     size: int = field(init=False)
     #: The autostatus mode ``expectation`` was computed for.
     mode: int = 1
+    #: The mode the core believed in force when the line was written.
+    written_mode: int = field(default=-1, init=False)
 
     def __post_init__(self) -> None:
         # Both are asked for on every flush while the line waits for credit: computed once.
@@ -123,6 +141,63 @@ class Submission:
             or rule.continuation is not None
         follow_up = 5 if rule.continuation is not None else 0
         self.size = len(self.command.to_bytes()) + follow_up
+
+
+@dataclass(eq=False, slots=True)
+class MoveHandle:
+    """A motion line (move, ``cal``, ``rm``...) written by :meth:`TangoProtocol.start_move`,
+    with the ``?err`` probe that checks it (``None`` when autostatus 2 acknowledges it, or
+    unchecked)."""
+
+    protocol: TangoProtocol
+    submission: Submission
+    probe: Submission | None
+    check: bool
+
+    @property
+    def command(self) -> Command:
+        """The motion line."""
+        return self.submission.command
+
+    @property
+    def expects_report(self) -> bool:
+        """Whether a completion report is awaited (not in autostatus 0)."""
+        return self.submission.completion is not None
+
+    async def error(self, timeout: float | None) -> ControllerError | None:
+        """Wait for the line's check; the controller's error, ``None`` if it was accepted
+        (or unchecked). Raises ControllerTimeoutError/RequestAbortedError/
+        ConnectionLostError when the check itself is lost."""
+        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+
+    async def confirm(self, timeout: float | None) -> None:
+        """Like :meth:`error`, but raise the controller's error (and forget the report)."""
+        error = await self.error(timeout)
+        if error is not None:
+            self.forget()
+            raise error
+
+    async def report(self) -> Completed:
+        """Wait for the completion report (only when :attr:`expects_report`); cancelling
+        the wait leaves the report awaited."""
+        completion = self.submission.completion
+        if completion is None:
+            raise RuntimeError(f"{self.command.line!r} expects no completion report")
+        return await asyncio.shield(completion)
+
+    @property
+    def reported_letters(self) -> dict[str, str] | None:
+        """The letters of the completion report if it has arrived (``None`` otherwise,
+        and for the bare CR of autostatus 3)."""
+        report = self.submission.completion
+        if report is None or not report.done() or report.cancelled() or report.exception():
+            return None
+        letters = report.result().letters
+        return None if letters is None else dict(letters)
+
+    def forget(self) -> None:
+        """Stop waiting for the completion report (refused, settled by polling...)."""
+        self.protocol.forget_completion(self.submission)
 
 
 #: Called with each unsolicited event, completion report and dropped line; the second
@@ -142,8 +217,28 @@ class TangoProtocol(asyncio.Protocol):
         on_lost: Callable[[BaseException | None], None] | None = None,
         credit_limit: int = DEFAULT_LIMIT,
         marker_chunk: int = DEFAULT_CHUNK,
+        reply_timeout: float = 5.0,
+        dead_after: int = DEAD_AFTER,
+        keepalive: float | None = None,
     ) -> None:
+        if not (math.isfinite(reply_timeout) and reply_timeout > 0):
+            raise ValueError(f"reply_timeout must be a positive number, got {reply_timeout}")
+        if dead_after < 2:
+            raise ValueError(f"dead_after must be at least 2, got {dead_after}")
+        if keepalive is not None and not (math.isfinite(keepalive) and keepalive > 0):
+            raise ValueError(f"keepalive must be None or a positive number, got {keepalive}")
         self.core = ProtocolCore(autostatus=autostatus, context=context)
+        #: Time a resync marker or keepalive read the protocol writes itself may take.
+        self.reply_timeout = reply_timeout
+        #: Consecutive unanswered requests (resync markers included) after which a link
+        #: that stays open is declared lost (see :meth:`_unanswered`).
+        self.dead_after = dead_after
+        #: Seconds of silence after which an idle link is probed (``None``: never).
+        self.keepalive = keepalive
+        self._silent = 0  # consecutive unanswered requests
+        self._last_reply = 0.0  # loop time of the last reply line routed
+        self._keepalive_task: asyncio.Task[None] | None = None
+        self._loop = asyncio.get_running_loop()
         #: The write-credit account (see :mod:`tango_aio.flow`).
         self.credit = CreditWindow(credit_limit, marker_chunk)
         self._queue: deque[Submission] = deque()
@@ -161,7 +256,10 @@ class TangoProtocol(asyncio.Protocol):
         self._closing = False
         self._peer_eof = False
         self._trace_buffer = b""
-        self._connected = asyncio.get_running_loop().create_future()
+        self._connected = self._loop.create_future()
+        #: What the driver found out about this controller's behaviour (see
+        #: :meth:`detect`); e.g. ``{"help_number": "yes"}``.
+        self.detected: dict[str, str] = {}
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -174,8 +272,12 @@ class TangoProtocol(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         """Called by asyncio when the link is up."""
         self._transport = transport
+        self._last_reply = self._loop.time()
         if not self._connected.done():
             self._connected.set_result(None)
+        if self.keepalive is not None and self._keepalive_task is None:
+            self._keepalive_task = self._loop.create_task(
+                self._keep_alive(self.keepalive), name="tango_aio keepalive")
         if self._closing:
             # close() ran first (e.g. a cancelled connect(): a serial transport reports
             # connection_made one loop iteration after it was created): do not leak it.
@@ -196,9 +298,18 @@ class TangoProtocol(asyncio.Protocol):
         The error's ``__cause__`` is ``exc``; when the other end closed the link without
         an error, a :class:`ConnectionResetError` saying so stands in for it.
         """
+        if self._keepalive_task is not None:
+            self._keepalive_task.cancel()
+        if self._lost is not None:
+            return  # declared lost already (a dead link, see _unanswered)
         if exc is None and not self._closing:
             how = "the other end closed the connection" if self._peer_eof else "link closed"
             exc = ConnectionResetError(how)
+        self._fail_all(exc)
+
+    def _fail_all(self, exc: BaseException | None) -> None:
+        """Fail everything that waits with ConnectionLostError (cause ``exc``) and tell
+        the owner (once)."""
         error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
         error.__cause__ = exc
         self._lost = error
@@ -236,11 +347,167 @@ class TangoProtocol(asyncio.Protocol):
             self._lost = error
 
     def check(self) -> None:
-        """Raise the connection error if the link is gone."""
+        """Raise the connection error if the link is gone; raise
+        :class:`WrongEventLoopError` when called from another event loop than the one the
+        link was opened on (its callbacks run there; a future made here would never be
+        resolved)."""
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is not self._loop:
+            raise WrongEventLoopError(
+                "this connection belongs to another event loop: a Controller can only be "
+                "used from the event loop it was connected on (open one per loop or thread)")
         if self._lost is not None:
             raise ConnectionLostError(str(self._lost)) from self._lost.__cause__
         if self._transport is None:
             raise ConnectionLostError("not connected")
+
+    # -- intents: what the Controller asks for ----------------------------------------
+
+    @property
+    def autostatus(self) -> int:
+        """The autostatus mode in force after the last line written (known for certain
+        after :meth:`read_autostatus` and after every mode change through
+        :meth:`execute`)."""
+        return self.core.autostatus
+
+    @property
+    def context(self) -> Context:
+        """Controller state that shapes replies and validates lines (dims, axes, extmode)."""
+        return self.core.context
+
+    @context.setter
+    def context(self, context: Context) -> None:
+        self.core.context = context
+
+    @property
+    def moves_awaiting(self) -> tuple[Hashable, ...]:
+        """Tags of the moves still waiting for their completion report, oldest first (pass
+        them to :meth:`fail_completions`)."""
+        return tuple(self.core.awaiting_completion)
+
+    async def query(self, command: Command, *, timeout: float | None) -> Response:
+        """Write the read ``command`` and return its reply lines."""
+        return await self.request(command, timeout)
+
+    async def execute(self, command: Command, *, timeout: float | None,
+                      check: bool = True) -> Response:
+        """Write a set/execute line and wait until it is confirmed.
+
+        With ``check`` the controller's verdict is read right behind it (the autostatus-2
+        acknowledgement, else an ``?err`` probe written back to back with the line) and an
+        error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
+        a completion report go through :meth:`start_move` instead.
+        """
+        handle = self._send_checked(command, check)
+        await handle.confirm(timeout)
+        return handle.submission.response
+
+    def start_move(self, command: Command, *, check: bool = True) -> MoveHandle:
+        """Write a motion line (and its check) and return its :class:`MoveHandle`: await
+        :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`."""
+        return self._send_checked(command, check)
+
+    def _send_checked(self, command: Command, check: bool) -> MoveHandle:
+        submission = self.submit(command)
+        probe = None
+        if check and not submission.expectation.ack:
+            # Written back to back with the command, so no other line can change the
+            # error state in between (each instruction overwrites it, manual L2853).
+            probe = self.submit(_PROBE)
+        return MoveHandle(self, submission, probe, check)
+
+    async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
+                        timeout: float | None) -> ControllerError | None:
+        line = submission.command.line
+        if submission.reply is not None:
+            response = await self.wait_reply(submission, timeout)
+            if check and submission.expectation.ack and response.ack != 0:
+                return _ack_error(response.ack, submission)
+        if probe is not None:
+            reply = await self.wait_reply(probe, timeout)
+            code, _ = parse_error_reply(reply.lines[0])
+            if code:
+                return controller_error(code, line)
+        return None
+
+    async def stop_axes(self, soft: bool, *, timeout: float = 5.0) -> None:
+        """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
+        makes the controller discard its input buffer: requests in flight fail with
+        :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
+        the mode in force is read again (a discarded line may have changed it). Returns
+        once ``a`` is queued, or once the stream is in step after Ctrl+C."""
+        if soft:
+            self.submit(_SOFT_STOP)
+            return
+        await self.resync(ctrl_c=True, timeout=timeout)
+        await self.read_autostatus(timeout=timeout)
+
+    async def read_autostatus(self, *, timeout: float | None) -> int:
+        """Read the mode in force (``?autostatus``; reads are neither echoed nor
+        acknowledged in any mode, L2079-2161) and adopt it; return it."""
+        response = await self.request(_READ_MODE, timeout)
+        mode = int(response.lines[0].strip())
+        self.core.autostatus = mode
+        self._reproject()
+        return mode
+
+    # -- liveness and the mode -----------------------------------------------------------
+
+    async def _keep_alive(self, interval: float) -> None:
+        """While the link is idle, read ``?autostatus`` every ``interval`` seconds without
+        a reply: an unanswered probe counts towards declaring the link dead
+        (:meth:`_unanswered`), and a mode other than the one in force means the controller
+        restarted behind an adapter that stayed up (it restores the mode)."""
+        while self._lost is None:
+            wait = self._last_reply + interval - self._loop.time()
+            if wait > 0:
+                await asyncio.sleep(wait)
+                continue
+            if self._submissions or self._queue or self._markers or self.core.pending_tags:
+                await asyncio.sleep(interval)  # requests in flight have their own deadlines
+                continue
+            with contextlib.suppress(TangoError):
+                await self.verify_autostatus(timeout=self.reply_timeout)
+            self._last_reply = max(self._last_reply, self._loop.time() - interval / 2)
+
+    async def verify_autostatus(self, *, timeout: float | None) -> bool:
+        """Read ``?autostatus`` and compare it with the mode the driver has in force; if
+        they differ (the controller restarted: power-on mode 1, L2062), restore the
+        driver's mode before any later line. Returns whether the mode had to be restored."""
+        submission = self.submit(_READ_MODE)
+        response = await self.wait_reply(submission, timeout)
+        try:
+            actual = int(response.lines[0].strip())
+        except (IndexError, ValueError):
+            raise ProtocolError(f"?autostatus answered {response.lines!r}") from None
+        expected = submission.written_mode
+        if actual == expected:
+            return False
+        log.warning("the controller is in autostatus %d, the driver had %d in force: it "
+                    "restarted; restoring autostatus %d", actual, expected, expected)
+        self._restore_mode(actual, expected)
+        return True
+
+    def _restore_mode(self, actual: int, expected: int) -> None:
+        """The controller is in mode ``actual``: write ``!autostatus expected`` ahead of
+        every queued line (they were projected for ``expected``)."""
+        self.core.autostatus = actual
+        command = build("autostatus", expected, form=Form.SET)
+        expect = expectation(command, actual, self.core.context)
+        loop = self._loop
+        submission = Submission(command, next(self._tags), expect,
+                                loop.create_future() if expect.expects_reply else None,
+                                None, owes=owed_pattern(command, expect, self.core.context),
+                                mode=actual)
+        if submission.reply is not None:
+            self._submissions[submission.tag] = submission
+            submission.reply.add_done_callback(_consume)
+        self._queue.appendleft(submission)
+        self._reproject()
+        self._flush()
 
     # -- writing ------------------------------------------------------------------------
 
@@ -249,7 +516,7 @@ class TangoProtocol(asyncio.Protocol):
         assert isinstance(transport, asyncio.WriteTransport)
         if wire_log.isEnabledFor(logging.DEBUG):
             for line in data.split(b"\r")[:-1]:
-                wire_log.debug("%.6f -> %r", time.monotonic(), line)
+                wire_log.debug("%.6f -> %s", time.monotonic(), _traced(line))
         transport.write(data)
 
     def _trace_received(self, data: bytes) -> None:
@@ -259,9 +526,10 @@ class TangoProtocol(asyncio.Protocol):
             return
         *lines, self._trace_buffer = (self._trace_buffer + data).split(b"\r")
         for line in lines:
-            wire_log.debug("%.6f <- %r", time.monotonic(), line)
-        if len(self._trace_buffer) > 4096:
-            wire_log.debug("%.6f <- %r (no CR yet)", time.monotonic(), self._trace_buffer)
+            wire_log.debug("%.6f <- %s", time.monotonic(), _traced(line))
+        if len(self._trace_buffer) > TRACE_LINE:
+            wire_log.debug("%.6f <- %s (no CR yet)", time.monotonic(),
+                           _traced(self._trace_buffer))
             self._trace_buffer = b""
 
     def submit(self, command: Command, *, batch: object | None = None) -> Submission:
@@ -331,7 +599,9 @@ class TangoProtocol(asyncio.Protocol):
 
     def _flush(self) -> None:
         """Write queued lines while the credit allows, inserting markers where due."""
-        if self._transport is None or self._lost is not None:
+        if self._transport is None or self._lost is not None or self.core.resyncing:
+            # During a resync nothing is written until its marker is answered: the lines
+            # queued behind it go out once the stream is in step.
             return
         out = bytearray()
         while self._queue:
@@ -373,6 +643,7 @@ class TangoProtocol(asyncio.Protocol):
         return last if last is not None else _MARKERS
 
     def _register(self, submission: Submission) -> bytes:
+        submission.written_mode = self.core.autostatus
         data, _ = self.core.send(submission.command, submission.tag,
                                  (submission.mode, submission.expectation))
         submission.written = True
@@ -425,18 +696,74 @@ class TangoProtocol(asyncio.Protocol):
         return await self.wait_reply(submission, timeout)
 
     async def wait_reply(self, submission: Submission, timeout: float | None) -> Response:
-        """Wait for ``submission``'s reply; on timeout resync (the marker gets the same
-        time) and raise :class:`ControllerTimeoutError`."""
+        """Wait for ``submission``'s reply.
+
+        After ``timeout`` seconds raise :class:`ControllerTimeoutError` naming the line,
+        at once: the reply may be lost for good, so a resync starts in the background
+        (its marker gets ``timeout`` too) and holds the lines queued behind it until the
+        stream is in step. The timeout counts towards declaring a dead link lost
+        (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
+        the timeout as its cause.
+        """
         assert submission.reply is not None
         try:
             async with asyncio.timeout(timeout):
                 return await asyncio.shield(submission.reply)
         except TimeoutError:
             self.check()
-            await self.resync(timeout=timeout if timeout is not None else 2.0)
-            raise ControllerTimeoutError(
-                f"no reply to {submission.command.line!r} within {timeout} s"
-            ) from None
+            if submission.reply.done() and not submission.reply.cancelled() \
+                    and submission.reply.exception() is None:
+                return submission.reply.result()  # answered at the very deadline
+            error = ControllerTimeoutError(
+                f"no reply to {submission.command.line!r} within {timeout} s")
+            if not submission.written:
+                # Held behind a resync that has not ended: never sent, nothing to count
+                # (the resync marker has its own deadline).
+                self.withdraw([submission])
+                raise error from None
+            if self._unanswered(error):
+                self.check()
+            self._background_resync(timeout if timeout is not None else self.reply_timeout)
+            raise error from None
+
+    def _unanswered(self, error: TangoError) -> bool:
+        """Count a request (or marker) that got no reply in time; declare the link lost
+        after :attr:`dead_after` in a row with no reply line in between (a link that stays
+        open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
+        power-cycled behind one). Returns whether the link was declared lost."""
+        self._silent += 1
+        if self._silent < self.dead_after or self._lost is not None:
+            return False
+        cause = ConnectionAbortedError(
+            f"{self._silent} requests in a row got no reply: the link is dead ({error})")
+        log.warning("%s", cause)
+        self._fail_all(cause)
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.close()
+        return True
+
+    def _background_resync(self, timeout: float) -> None:
+        """Resync without anybody awaiting it: lines still queued wait for its end; if its
+        marker is not answered within ``timeout`` it counts as unanswered and the next
+        resync starts."""
+        if self._lost is not None or self._transport is None:
+            return
+        tag, marker = self._begin_resync(keep_queue=True)
+        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout)
+        marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
+
+    def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
+                         timeout: float) -> None:
+        if marker.done() or self._lost is not None:
+            return
+        error = ControllerTimeoutError(
+            f"controller did not answer the resync marker within {timeout} s")
+        if not self._unanswered(error) and self.core.resyncing \
+                and self._newest_marker() == tag:
+            self._background_resync(timeout)
+
+    def _newest_marker(self) -> Hashable | None:
+        return next(reversed(self._markers), None)
 
     async def resync(self, *, ctrl_c: bool = False, timeout: float = 2.0) -> None:
         """Resynchronise the reply stream (optionally sending Ctrl+C first).
@@ -450,9 +777,12 @@ class TangoProtocol(asyncio.Protocol):
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
         except TimeoutError:
-            raise ControllerTimeoutError(
-                f"controller did not answer the resync marker within {timeout} s"
-            ) from None
+            self.check()
+            error = ControllerTimeoutError(
+                f"controller did not answer the resync marker within {timeout} s")
+            if self._unanswered(error):
+                self.check()
+            raise error from None
         finally:
             self._markers.pop(tag, None)
 
@@ -524,6 +854,7 @@ class TangoProtocol(asyncio.Protocol):
             self._on_event(event, None)
 
     def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
+        self._heard()
         if not isinstance(event, Echoed):
             # A reply is sent after its line was executed: everything up to it is processed.
             self.credit.confirm(event.tag)
@@ -553,7 +884,13 @@ class TangoProtocol(asyncio.Protocol):
                 submission.reply.set_result(response)
             self._release(event.tag, submission)
 
+    def _heard(self) -> None:
+        """A reply line arrived: the link is alive."""
+        self._silent = 0
+        self._last_reply = self._loop.time()
+
     def _on_completed(self, event: Completed) -> None:
+        self._heard()
         if event.tag is None:
             return
         submission = self._submissions.get(event.tag)
@@ -584,18 +921,18 @@ class TangoProtocol(asyncio.Protocol):
         log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
                     line, command, event.expected.kind.value)
         if submission is not None:
+            why = event.reason or (f"{line} cannot be the reply to {command!r} "
+                                   f"({event.expected.kind.value} expected): a line was "
+                                   "lost or added")
             _fail(submission.reply, ProtocolError(
-                f"{line} cannot be the reply to {command!r} "
-                f"({event.expected.kind.value} expected): a line was lost or added; "
-                "the reply stream was resynchronised"))
+                f"{why} ({command!r}); the reply stream was resynchronised"))
         # The controller answers fine (a line was lost or added on the way), so lines not
         # yet written go out after the marker.
-        tag, marker = self._begin_resync(keep_queue=True)
-        # Nobody awaits this marker: its reply ends the resync in the core; if it never
-        # comes, the next request's timeout resyncs again.
-        marker.add_done_callback(functools.partial(self._forget_marker, tag))
+        self._background_resync(self.reply_timeout)
 
-    def _forget_marker(self, tag: Hashable, _future: asyncio.Future[Response]) -> None:
+    def _forget_marker(self, tag: Hashable, deadline: asyncio.TimerHandle,
+                       _future: asyncio.Future[Response]) -> None:
+        deadline.cancel()
         self._markers.pop(tag, None)
 
     def _release(self, tag: Hashable, submission: Submission) -> None:
@@ -622,6 +959,12 @@ class TangoProtocol(asyncio.Protocol):
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
 _MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+#: The check written behind a set/execute line.
+_PROBE = parse("?err")
+#: The soft stop (manual L6797).
+_SOFT_STOP = build("a", form=Form.SET)
+#: The read of the mode in force.
+_READ_MODE = parse("?autostatus")
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS = object()
 
@@ -648,9 +991,27 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.exception()
 
 
-def _ack_error(code: int | None, submission: Submission) -> Exception:
+def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+#: Bytes of one line a wire-log record shows at most (#14 item 9: one 1 MB line was one
+#: 1 MB record); the rest is counted, not shown.
+TRACE_LINE = 256
+
+
+def _traced(line: bytes) -> str:
+    """``repr`` of a traced line, cut at :data:`TRACE_LINE` bytes."""
+    if len(line) <= TRACE_LINE:
+        return repr(line)
+    return f"{line[:TRACE_LINE]!r}... ({len(line)} bytes)"
+
+
+def _consume(future: asyncio.Future[Any]) -> None:
+    """Mark a future's outcome retrieved (nobody awaits it)."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _cancel(future: asyncio.Future[Any] | None) -> None:

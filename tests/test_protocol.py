@@ -327,31 +327,41 @@ async def test_timeout_resyncs_and_drops_the_late_reply(fake_link: LinkFactory) 
     assert reply_of(pos) == ("1.0000",)
 
 
-async def test_timeout_fails_requests_queued_behind(fake_link: LinkFactory) -> None:
+async def test_timeout_holds_requests_queued_behind_until_resynced(
+        fake_link: LinkFactory) -> None:
+    """#14 item 6: the caller gets its error at its own timeout, naming its own line; the
+    resync goes on in the background, and the line queued behind it is written after the
+    marker's reply and gets its own reply."""
     link = fake_link()
     first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.05))
     await asyncio.sleep(0)
     behind = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
-    await link.wait_written(b"?help ")
-    link.answer_marker()
-    with pytest.raises(ControllerTimeoutError):
+    with pytest.raises(ControllerTimeoutError, match=r"no reply to '\?vel x' within 0.05"):
         await first
-    with pytest.raises(RequestAbortedError):
-        await behind
+    # Raised before the marker is answered: the resync runs in the background.
+    assert link.protocol.core.resyncing
+    assert b"?vel y" not in link.transport.sent  # held behind the marker
+    link.answer_marker()
+    await link.wait_written(b"?vel y\r")
+    link.feed(b"12.250\r")
+    assert (await behind).lines == ("12.250",)
 
 
 async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFactory) -> None:
     link = fake_link()
     tasks = [asyncio.create_task(link.protocol.request(parse(line), timeout=0.05))
              for line in ("?vel x", "?vel y")]
-    await link.wait_written(b"?help ", count=2)
-    link.answer_marker(0)  # the first marker's reply: dropped, a newer marker is pending
-    link.answer_marker(1)
     async with asyncio.timeout(0.5):
         for task in tasks:
             with pytest.raises(ControllerTimeoutError, match="no reply"):
                 await task
+    # '?vel y' waited behind '?vel x' (look-alike replies) and was never written: only
+    # the written one counts as unanswered, and one resync runs.
+    assert b"?vel y" not in link.transport.sent
+    assert len(link.marker_codes()) == 1
+    link.answer_marker()
     assert not link.protocol.core.resyncing
+    assert link.protocol.is_connected
 
 
 async def test_resync_with_ctrl_c(fake_link: LinkFactory) -> None:
@@ -529,14 +539,18 @@ async def test_controller_query_timeout(fake_link: LinkFactory) -> None:
 
 async def test_stream_recovers_after_a_resync_that_timed_out(fake_link: LinkFactory) -> None:
     """The controller stalls past the marker's timeout, then catches up: its late lines
-    are dropped up to the marker's reply, and the next request gets its own reply."""
-    link = fake_link()
+    are dropped up to the newest marker's reply, and the next request gets its own reply."""
+    link = fake_link(dead_after=10)
     first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.02))
     with pytest.raises(ControllerTimeoutError):
-        await first  # no reply, and no marker reply within the resync timeout either
+        await first
+    link.protocol.reply_timeout = 0.02
+    await link.wait_written(b"?help ", count=2)  # the first marker timed out: a second
     assert link.protocol.core.resyncing
     task = asyncio.create_task(link.protocol.request(parse("?vel y")))
+    old, code = link.marker_codes()[-2:]
+    link.feed(f"11.500\rERROR {old},x\rERROR {code},x\r".encode())
     await link.wait_written(b"?vel y\r")
-    code = link.marker_codes()[-1]
-    link.feed(f"11.500\rERROR {code},x\r12.250\r".encode())
+    link.feed(b"12.250\r")
     assert (await task).lines == ("12.250",)
+

@@ -548,21 +548,70 @@ async def test_default_reply_timeout_is_five_seconds(emulator: EmulatorFactory) 
     assert (await emulator()).tango.reply_timeout == 5.0
 
 
-async def test_a_controller_that_stops_answering_times_out_each_request(
+async def test_a_controller_that_stops_answering_times_out_then_the_link_is_lost(
         emulator: EmulatorFactory) -> None:
+    """#14 item 5: a link that stays open but forwards nothing (an adapter that stopped,
+    a controller power-cycled behind one). The first request fails with its own timeout,
+    its resync marker goes unanswered too, and the link is declared lost: every later
+    call fails at once with ConnectionLostError whose cause says why."""
     emu = await emulator(reply_timeout=0.2)
-    emu.wire.stall(60.0)
-    loop = asyncio.get_running_loop()
-    for call in (lambda: emu.tango.query("?vel"), emu.tango.position,
-                 lambda: emu.tango.set("vel", x=5)):
-        start = loop.time()
-        with pytest.raises(ControllerTimeoutError):
+    tango = emu.tango
+    async with tango.events() as events:
+        emu.wire.stall(60.0)
+        with pytest.raises(ControllerTimeoutError, match=r"no reply to '\?vel'"):
+            await tango.query("?vel")
+        lost = await next_event(events)
+        assert isinstance(lost, ConnectionLost)
+        assert isinstance(lost.cause, ConnectionAbortedError)
+    assert not tango.connected
+    for call in (lambda: tango.query("?vel"), tango.position,
+                 lambda: tango.set("vel", x=5)):
+        with pytest.raises(ConnectionLostError) as caught:
             await call()
-        assert loop.time() - start < 0.2 + 0.2 + 0.15  # the timeout plus the resync's
+        assert isinstance(caught.value.__cause__, ConnectionAbortedError)
+
+
+async def test_a_dead_link_reconnects_when_enabled(emulator: EmulatorFactory) -> None:
+    emu = await emulator(reply_timeout=0.2, autostatus=2, **FAST)
+    tango = emu.tango
+    async with tango.events() as events:
+        emu.wire.faults.drop_replies = 1_000_000  # forwards nothing back, stays open
+        with pytest.raises(ControllerTimeoutError):
+            await tango.query("?vel")
+        assert isinstance(await next_event(events), ConnectionLost)
+        assert isinstance(await next_event(events), Reconnected)
+    assert tango.connected and tango.autostatus == 2
+    await tango.set("vel", **VELS)
+    assert await tango.query("?vel") == VEL_TEXT
+
+
+async def test_keepalive_notices_a_dead_idle_link(emulator: EmulatorFactory) -> None:
+    emu = await emulator(reply_timeout=0.1, keepalive=0.05)
+    tango = emu.tango
+    async with tango.events() as events:
+        emu.wire.stall(60.0)  # no call of ours: only the keepalive can notice
+        lost = await next_event(events)
+        assert isinstance(lost, ConnectionLost)
+    assert not tango.connected
+
+
+async def test_keepalive_restores_the_mode_after_a_restart_behind_the_adapter(
+        emulator: EmulatorFactory) -> None:
+    """The controller restarts (power-on mode 1) while the link stays open: the keepalive
+    reads a mode other than the one in force and restores it."""
+    emu = await emulator(autostatus=2, keepalive=0.02)
+    emu.model.reboot()
+    for _ in range(200):
+        if emu.model.autostatus == 2:
+            break
+        await asyncio.sleep(0.01)
+    assert emu.model.autostatus == 2 == emu.tango.autostatus
+    await emu.tango.set("vel", **VELS)
+    assert await emu.tango.query("?vel") == VEL_TEXT
 
 
 async def test_a_stalled_controller_answers_again_in_sync(emulator: EmulatorFactory) -> None:
-    emu = await emulator(reply_timeout=0.2)
+    emu = await emulator(reply_timeout=0.2, dead_after=10)  # a stall, not a dead link
     tango = emu.tango
     await tango.set("vel", **VELS)
     loop = asyncio.get_running_loop()
@@ -594,7 +643,7 @@ async def test_a_dropped_reply_times_out_and_the_stream_stays_in_sync(
 
 
 async def test_a_late_reply_is_dropped(emulator: EmulatorFactory) -> None:
-    emu = await emulator()
+    emu = await emulator(dead_after=10)
     tango = emu.tango
     await tango.set("vel", **VELS)
     emu.wire.faults.delay_replies = 1
