@@ -350,7 +350,9 @@ class Controller:
     async def identify(self) -> Identity:
         """Read ``?version`` and ``?det`` (model, firmware, number of axes) and record
         which firmware family and behaviours were detected (:class:`Identity`)."""
-        version = await self.get("version")
+        command = build("version", form=Form.READ)
+        raw = await self._request(command)
+        version = parse_reply(command, raw.lines)
         det = await self.get("det")
         assert isinstance(version, VersionInfo) and isinstance(det, DetInfo)
         axes = det.axes or 4
@@ -362,6 +364,9 @@ class Controller:
         # whose count differs is read again axis by axis (see get()).
         positions = await self._request(build("pos", form=Form.READ, context=self.context))
         count = len(" ".join(positions.lines).split())
+        # The 1.71 manual prints a blank before the comma of the build time (L1067,
+        # L1105), the older edition none (old L426).
+        detected["version_format"] = "new" if " , " in " ".join(raw.lines) else "old"
         detected["per_axis_replies"] = "exact" if count == axes else f"{count} of {axes}"
         older = detected.get("help_number") == "no" or detected.get("version_format") == "old" \
             or (version.firmware_tuple and version.firmware_tuple < (1, 60))
