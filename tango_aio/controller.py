@@ -733,17 +733,20 @@ class Controller:
         By default this sends Ctrl+C (0x03): it stops every axis and makes the controller
         discard its input buffer (L6808-6814), so requests still queued fail with
         :class:`~tango_aio.errors.RequestAbortedError` and the reply stream is
-        resynchronised. ``a`` follows it, because a controller may ignore Ctrl+C (the
-        manual does not say every interface passes it); ``a`` alone stops the axes and
-        leaves queued lines alone (``soft=True``). Moves being awaited raise
-        :class:`MoveError` (status ``E``) once their axes stand still, whatever letters
-        the controller reports (older firmware reports ``@``, old L1917). With ``wait``,
+        resynchronised. ``a`` is written before and after it, because a controller may
+        ignore Ctrl+C (the manual does not say every interface passes it); ``a`` alone
+        stops the axes and leaves queued lines alone (``soft=True``). Moves being awaited
+        raise :class:`MoveError` (status ``E``) once their axes stand still, whatever
+        letters the controller reports (older firmware reports ``@``, old L1917). With ``wait``,
         returns once the axes have stopped; raises
         :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
         :data:`~tango_aio.motion.STOP_WAIT` seconds.
         """
         self._hub.publish(MoveAborted(ctrl_c=not soft))
         self._motion.stopped()
+        # ``a`` first: it stops the axes at once even on a controller that ignores Ctrl+C,
+        # and Ctrl+C behind it still discards whatever is queued in the input buffer.
+        await self._protocol.stop_axes(True)
         if not soft:
             try:
                 await self._protocol.stop_axes(False, timeout=self.reply_timeout)
@@ -752,8 +755,8 @@ class Controller:
                 # ignores it): resync again without it.
                 await self._protocol.resync(timeout=self.reply_timeout)
                 await self._protocol.read_autostatus(timeout=self.reply_timeout)
-        await self._protocol.stop_axes(True)
-        self._motion.stopped()
+            await self._protocol.stop_axes(True)  # in case Ctrl+C discarded the first ``a``
+            self._motion.stopped()
         if wait:
             try:
                 await self.wait_idle(timeout=STOP_WAIT)

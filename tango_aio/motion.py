@@ -68,6 +68,7 @@ from .errors import (
     ControllerError,
     ControllerTimeoutError,
     MoveError,
+    ProtocolError,
     RequestAbortedError,
     TangoError,
 )
@@ -108,6 +109,9 @@ POLL_MAX = 0.5
 
 #: Extra time after the expected end before the first poll (report latency on the wire).
 POLL_GRACE = 0.05
+
+#: A state read that failed but left the link usable (ConnectionLostError is not one).
+_LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
 
 _KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
 
@@ -364,7 +368,12 @@ class Motion:
                         await self._wake.wait()
             job.hints = self._hints  # hints from now on come after this state read
             self._port.check_link()
-            letters = await self._state()
+            try:
+                letters = await self._state()
+            except _LOST_READ:
+                if job.epoch == self._stops:
+                    raise
+                letters = {}  # the driver's stop (e.g. an ignored Ctrl+C) disturbed the read
             now = loop.time()
             if job.epoch != self._stops:
                 return await self._aborted(job, letters)
@@ -397,11 +406,13 @@ class Motion:
             raise MoveError(f"{plan.command.line!r} {verdict}", letters)
 
     async def _state(self) -> dict[str, str]:
-        """The status letters, read again when a Ctrl+C resync discarded the read."""
-        for _ in range(3):
+        """The status letters, read again (up to 3 times) when the read was lost: discarded
+        by a Ctrl+C resync, unanswered, or met by a line that is not its reply (the stream
+        is resynchronised each time, so the next read is in step)."""
+        for _ in range(2):
             try:
                 return await self._port.status()
-            except RequestAbortedError:
+            except _LOST_READ:
                 self._port.check_link()
         return await self._port.status()
 
@@ -431,7 +442,7 @@ class Motion:
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
         then fail (never a success, whatever the letters say)."""
-        with contextlib.suppress(TimeoutError):
+        with contextlib.suppress(TimeoutError, *_LOST_READ):
             letters = await self._idle(job, STOP_WAIT)
         self._finished(job, letters, ok=False)
         raise MoveError(f"{job.plan.command.line!r} was aborted",

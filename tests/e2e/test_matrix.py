@@ -97,12 +97,18 @@ async def bounded(call: Awaitable[T]) -> T:
 
 
 def sim_axes(emu: Emulated) -> dict[str, tuple[float, float]]:
-    """The emulator's own state: (position in mm, velocity) of each axis, now."""
-    model = emu.model
-    model.poll(asyncio.get_running_loop().time())
-    motion = model.motion
-    return {axis: (motion.to_user(i, motion.position(i)), motion.velocity(i))
-            for i, axis in enumerate("xyz"[: model.axes])}
+    """The emulator's own state: (position in mm, velocity in rev/s) of each axis, now.
+
+    Read from the axes' trajectories at the loop's time, without advancing the model
+    (the emulated link does that at its own times)."""
+    motion = emu.model.motion
+    now = max(asyncio.get_running_loop().time(), motion.now)
+    out = {}
+    for index, axis in enumerate("xyz"[: emu.model.axes]):
+        state = motion._axis(index)
+        revs = state.traj.position(now) - state.origin + state.offset
+        out[axis] = (motion.to_user(index, revs), state.traj.velocity(now))
+    return out
 
 
 def assert_arrived(emu: Emulated, targets: Mapping[str, float]) -> None:
