@@ -118,7 +118,8 @@ class Handlers(Peripherals):
         """``help``: ``ERROR 5,number outside range`` (L2915-2919); ``?help N`` repeats N,
         or gives the text only with switch ``help_number=no``."""
         code = int(c.values[0]) if c.values else self.m.error
-        text = HELP.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
+        texts = OLDER_HELP if self.m.firmware.instruction_set == "older" else HELP
+        text = texts.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
         if c.values and self.m.firmware.help_number == "no":
             return [text]
         return [f"ERROR {code},{text}"]
@@ -185,7 +186,7 @@ class Handlers(Peripherals):
         2-axis unit, L2721). ``sa z`` on a 2-axis unit therefore answers ``-`` (not error
         1); the all-axes form shows ``-`` or leaves them out (switch ``absent_axes``).
         """
-        letters = self.m.motion.status_letters()
+        letters = self.m.joystick_letters(self.m.motion.status_letters())
         if c.axis is not None:
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":
@@ -500,6 +501,8 @@ class Handlers(Peripherals):
 
 #: ``help`` texts documented by the manual (L2915-2919).
 HELP: dict[int, str] = {0: "no error", 5: "number outside range", 29: "servo amplifier off"}
+#: ... and by the older edition: ``help => ERROR 4,unknown keyword`` (old L819).
+OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
 def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:

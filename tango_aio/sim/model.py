@@ -33,7 +33,15 @@ choice is named first below:
 * the trigger list is handed to the motion model lazily, before the next instruction that
   is not a trigger-list instruction (see :meth:`ControllerModel.arm_triggers`);
 * an unexpected exception in a handler (an emulator bug) does not stop the controller:
-  the line sets error 2 and the exception is kept in ``internal_errors`` for tests.
+  the line sets error 2 and the exception is kept in ``internal_errors`` for tests;
+* a refused move, cal or rm sends nothing in mode 1 and its axes show ``E`` in ``sa``
+  (L2705; switch ``refused_move_report`` adds a report);
+* :meth:`ControllerModel.inject_internal_error` raises an internal error (>= 20) that
+  ``?err`` shows while the last instruction was fine (L2853-2867);
+* ``reset`` and ``restore -1`` reboot for ``reset_time`` seconds, during which the wire
+  loses all input (:meth:`ControllerModel.reboots`, L1837-1857);
+* the joystick is on at power-on and ``!joy 0`` then reports, also during a move
+  (L2093, L7142-7154); closed loop delays a move's report by ``ctrd`` (L11616-11631).
 """
 
 from __future__ import annotations
@@ -275,7 +283,6 @@ class ControllerModel:
         """Ctrl+C stops every axis (the wire already cleared the input buffer)."""
         self.poll(now)
         self.motion.emergency_stop()
-        self.session.ok_owed.clear()
         if self.firmware.ctrl_c == "stop_report":
             self.session.stop_report_owed = True
             self._send_stop_report()
@@ -480,6 +487,7 @@ class ControllerModel:
             self.session.ok_owed.discard(job)
             if mode == 2:
                 self._send("OK...")
+        letters = self.joystick_letters(letters)
         if self.firmware.report_width == "axes":
             letters = letters[: self.axes]
         if mode == 4 and move and self.firmware.echo_report == "no":
@@ -497,6 +505,13 @@ class ControllerModel:
             return
         self.session.stop_report_owed = False
         self._report_completion(self.stopped_letters())
+
+    def joystick_letters(self, letters: str) -> str:
+        """Switch ``joystick_letter=J``: ``@`` shows as ``J`` while the joystick is
+        enabled (``joy`` not 0; L2697, L2721, L6341)."""
+        if self.firmware.joystick_letter == "J" and int(self.params.first("joy")) != 0:
+            return letters.replace("@", "J")
+        return letters
 
     def stopped_letters(self) -> str:
         """Report letters of the axes as they stand: their last letter (``E``/``@`` after

@@ -785,7 +785,7 @@ class MotionModel:
     def move_relative(self, distances: Mapping[AxisRef, float]) -> int:
         """``mor``: vector move by distances; stores them as ``m`` distances."""
         resolved = {self._axis(ref).index: d for ref, d in distances.items()}
-        phys = {i: self._axes[i].traj.end_pos + d for i, d in resolved.items()}
+        phys = {i: self._end_pos(self._axes[i]) + d for i, d in resolved.items()}
         job_id = self._submit_move(phys, timed=True, relative=resolved)
         # Choice: only the named axes get a new distance; the others keep theirs.
         for i, d in resolved.items():
@@ -796,7 +796,7 @@ class MotionModel:
         """``m``: relative vector move by the stored distances of all enabled axes."""
         distances = {ax.index: ax.settings.distance for ax in self._axes
                      if ax.settings.enable == 1 and ax.settings.distance != 0.0}
-        phys = {i: self._axes[i].traj.end_pos + d for i, d in distances.items()}
+        phys = {i: self._end_pos(self._axes[i]) + d for i, d in distances.items()}
         return self._submit_move(phys, timed=True, relative=distances)
 
     def move_center(self, axes: Iterable[AxisRef] | None = None) -> int:
@@ -1002,6 +1002,12 @@ class MotionModel:
     def _phys(self, ax: _AxisState) -> float:
         return ax.traj.position(self._time)
 
+    def _end_pos(self, ax: _AxisState) -> float:
+        """Where the axis will stop (where it is, for an endless ``speed``): the base of a
+        relative move (a queued or retargeted one starts from there)."""
+        end = ax.traj.end_pos
+        return end if math.isfinite(end) else self._phys(ax)
+
     def _mm_per_rev(self, ax: _AxisState) -> float:
         return ax.settings.pitch / ax.settings.gear
 
@@ -1119,7 +1125,7 @@ class MotionModel:
             elif ax.settings.calrequired and not ax.cal_done:
                 raise MotionRefused(ERR_MOVE_NOT_ALLOWED, f"axis {ax.index} requires cal")
             self._check_target(ax, target)
-            origin = ax.traj.end_pos if queue else self._phys(ax)
+            origin = self._end_pos(ax) if queue else self._phys(ax)
             self._check_switch(ax, target - origin)
         job = self._new_job("move")
         job.targets = active

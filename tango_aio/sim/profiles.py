@@ -100,6 +100,11 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
+    SwitchDoc("joystick_letter", ("@", "J"), "L2697, L2715-2721, L6341",
+              "An idle axis, and an axis that completed a move, shows `@` (`@@@-.-`, "
+              "L2715), or `J` while the joystick is enabled (`J`: `JM--.-`, L2721; \"a '@' "
+              "or 'J' after successfully completing the move\", L6341), in `sa` and in "
+              "completion reports."),
     SwitchDoc("abort_letter", ("E", "@"), "L6832-6834, old L1917",
               "Letter of the axes stopped by `a` or Ctrl+C: `E` (1.71) or `@` (older "
               "edition: \"each configured axis responds an @\")."),
@@ -173,6 +178,8 @@ class Firmware:
     report_width: str = "four"
     #: ``sa`` shows absent/disabled axes as ``dash`` or leaves them out (``omit``).
     absent_axes: str = "dash"
+    #: Idle/completed axes while the joystick is enabled: ``@`` or ``J``.
+    joystick_letter: str = "@"
     #: Letter of aborted axes: ``E`` or ``@``.
     abort_letter: str = "E"
     #: ``a`` sends a report of its own (``no``/``yes``).

@@ -148,3 +148,10 @@ def test_a_refused_move_in_mode_1_sends_nothing_and_shows_e(profile: str) -> Non
     assert s.ask("sa") == "@@@-.-"
     assert s.send("!moa y 0.5 5") + s.settle() == []  # wrong count of values: parser error
     assert s.send("!cal", "?err") == ["0"]
+
+
+def test_the_older_edition_names_error_4_unknown_keyword() -> None:
+    """old L819: ``help => ERROR 4,unknown keyword``; 1.71 calls it "invalid instruction"."""
+    older, newer = sim("legacy"), sim("manual")
+    assert older.send("!nosuchthing", "?help") == ["ERROR 4,unknown keyword"]
+    assert newer.send("!nosuchthing", "?help") == ["ERROR 4,invalid instruction"]

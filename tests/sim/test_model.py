@@ -175,7 +175,7 @@ CASES: dict[tuple[str, int], Case] = {
     ("modulomode", 2594): Case(axes=4, setup=("!modulomode 0 0 1 4",)),
     ("modulomode", 2596): Case(setup=("!modulomode z 1",)),
     ("statusaxis", 2721): Case(axes=2, setup=("!moa y 5",), expect="@M--.-",
-                               why="J (joystick ready) is not modelled: idle axes show @"),
+                               why="manual profile: idle axes show @ (J: switch joystick_letter)"),
     ("statusaxis", 2723): Case(setup=("cal x", "@@")),
     ("statusaxis", 2725): Case(setup=("!moa x 5",)),
     ("calst", 2767): Case(setup=("cal", "@@", "rm x", "@@", "rm y", "@@")),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import random
 from pathlib import Path
 
 import pytest
@@ -45,32 +46,52 @@ def values_of(name: str) -> list[str]:
 DRIVER_MODULES = {"core", "protocol", "patterns", "controller"}
 
 
-def _driver_imports(path: Path) -> list[str]:
-    """Imports of driver modules in one file (absolute or relative)."""
-    found = []
+def _imports(path: Path, package: str) -> list[str]:
+    """Dotted names of the tango_aio modules one file imports (absolute or relative);
+    ``package`` is the file's package (``tango_aio.sim``)."""
+    names: list[str] = []
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        names: list[str] = []
         if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
+            names += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            module = node.module or ""
-            if node.level == 1:  # from .x import y: inside tango_aio.sim
-                names = [f"tango_aio.sim.{module}"]
-            elif node.level == 2:  # from ..x import y / from .. import x
-                names = [f"tango_aio.{module}"] if module else \
-                    [f"tango_aio.{alias.name}" for alias in node.names]
-            else:
-                names = [module] + [f"{module}.{alias.name}" for alias in node.names]
-        for name in names:
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parent, *([base] if base else [])])
+            names += [base] + [f"{base}.{alias.name}" for alias in node.names]
+    return [name for name in names if name.split(".")[0] == "tango_aio"]
+
+
+def _module_file(name: str) -> Path | None:
+    """The source file of a tango_aio module (``None`` for a name that is no module)."""
+    path = ROOT.joinpath(*name.split("."))
+    if path.with_suffix(".py").is_file():
+        return path.with_suffix(".py")
+    return None
+
+
+def _driver_imports(path: Path, package: str = "tango_aio.sim") -> list[str]:
+    """Driver modules that ``path`` imports, directly or through other tango_aio modules
+    (the package ``__init__`` files aside: importing any submodule runs those)."""
+    found, seen = [], set()
+    todo = [(path, package, path.name)]
+    while todo:
+        file, pkg, chain = todo.pop()
+        for name in _imports(file, pkg):
             parts = name.split(".")
-            if parts[0] == "tango_aio" and len(parts) > 1 and parts[1] in DRIVER_MODULES:
-                found.append(f"{path.name}: {name}")
-    return found
+            if len(parts) > 1 and parts[1] in DRIVER_MODULES:
+                found.append(f"{chain}: tango_aio.{parts[1]}")
+                continue
+            target = _module_file(name)
+            if target is not None and target not in seen:
+                seen.add(target)
+                todo.append((target, ".".join(parts[:-1]), f"{chain} -> {name}"))
+    return sorted(set(found))
 
 
 def test_the_emulator_imports_nothing_of_the_driver() -> None:
     files = sorted((ROOT / "tango_aio" / "sim").glob("*.py"))
-    assert files
+    assert len(files) >= 10
     assert [hit for path in files for hit in _driver_imports(path)] == []
 
 
@@ -80,8 +101,15 @@ def test_the_import_scan_finds_driver_imports(tmp_path: Path) -> None:
                       "from tango_aio import controller\nfrom .. import patterns\n"
                       "from ..instructions import parse\n", encoding="utf-8")
     assert _driver_imports(sample) == [
-        "sample.py: tango_aio.core", "sample.py: tango_aio.protocol",
-        "sample.py: tango_aio.controller", "sample.py: tango_aio.patterns"]
+        "sample.py: tango_aio.controller", "sample.py: tango_aio.core",
+        "sample.py: tango_aio.patterns", "sample.py: tango_aio.protocol"]
+
+
+def test_the_import_scan_follows_imports_through_other_modules(tmp_path: Path) -> None:
+    sample = tmp_path / "sample.py"
+    sample.write_text("from ..connection import open_connection\n", encoding="utf-8")
+    hits = _driver_imports(sample)
+    assert hits and all(hit.startswith("sample.py -> tango_aio.connection") for hit in hits)
 
 
 # ---------------------------------------------------------------------------------------
@@ -514,6 +542,7 @@ def test_instruction_set(instruction_set: str) -> None:
 
 
 def _report(firmware: Firmware, letters: str, axes: int) -> str:
+    letters = letters.replace("@", firmware.joystick_letter)  # the joystick is on
     if firmware.report_width == "axes":
         letters = letters[:axes]
     return letters + "."
@@ -524,6 +553,7 @@ def _number(firmware: Firmware, text: str) -> str:
 
 
 def _status(firmware: Firmware, letters: str) -> str:
+    letters = letters.replace("@", firmware.joystick_letter)
     if firmware.absent_axes == "omit":
         letters = letters.replace("-", "")
     return letters + ".-"
@@ -560,3 +590,39 @@ def test_a_common_session_under_every_variant(firmware: Firmware) -> None:
     left = lines(s.send("!autostatus 1"))
     assert left == ([] if firmware.ack_mode_change == "new" else ["OK..."])
     assert s.model.internal_errors == []
+
+
+RANDOM_LINES = (
+    "!moa 1 2", "!mor 0.5", "m", "!moa 0", "a", "a x", "!autostatus 0", "!autostatus 1",
+    "!autostatus 2", "!autostatus 3", "!autostatus 4", "?pos", "sa", "?err", "!joy 0",
+    "!joy 2", "!delay 100", "!pause 50", "!delay 0", "!pause 0", "!cal", "!rm y",
+    "!moa 99999", "!go 3", "!speed 1", "!speed 0", "!lim x -3 3", "?lim", "?help 5",
+    "service", "!vel -1", "!moa y 1", "!encmask 1", "!ctrd x 100", "\x03", "?version",
+    "!mor 0", "!moc", "!axis y 0", "!axis y 1")
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("firmware", [f for _, f in VARIANTS], ids=VARIANT_IDS)
+def test_random_sessions_never_break_the_emulator(firmware: Firmware, seed: int) -> None:
+    rng = random.Random(seed)
+    s = Sim(axes=rng.choice([1, 2, 3, 4]), firmware=firmware)
+    replies: list[str] = []
+    for _ in range(60):
+        s.write((rng.choice(RANDOM_LINES) + "\r").encode())
+        s.now += rng.choice([0.0, 0.0, 0.01, 0.1, 0.5, 2.0])
+        replies += s.take()
+    replies += s.settle(120.0)
+    assert s.model.internal_errors == []
+    assert all(line.lstrip("\n").isprintable() for line in replies)
+
+
+@pytest.mark.parametrize("joystick_letter", values_of("joystick_letter"))
+def test_joystick_letter(joystick_letter: str) -> None:
+    s = sim(axes=2, joystick_letter=joystick_letter)
+    j = joystick_letter
+    assert s.ask("sa") == f"{j}{j}--.-"
+    s.send("!moa y 1")
+    assert s.ask("sa") == f"{j}M--.-"  # the manual's example JM--.- (L2721)
+    assert s.settle() == [f"{j}{j}--."]
+    assert s.send("!joy 0") == ["@@--."]  # the joystick is off from then on
+    assert s.send("sa", "!moa 0 0") + s.settle() == ["@@--.-", "@@--."]
