@@ -163,7 +163,7 @@ async def _connect(url: str, *, autostatus: int | None = 1, identify: bool = Tru
 
     def factory() -> TangoProtocol:
         return TangoProtocol(credit_limit=credit_limit, marker_chunk=marker_chunk,
-                             reply_timeout=reply_timeout, **liveness)
+                             reply_timeout=reply_timeout, detect=True, **liveness)
 
     policy = _reconnect_policy(options)
     opener = functools.partial(_open_link, url, factory, options)

@@ -35,6 +35,8 @@ ever raised for bad input; the core stays usable afterwards.
 from __future__ import annotations
 
 import enum
+import itertools
+import random
 import re
 from collections import deque
 from collections.abc import Hashable
@@ -51,9 +53,19 @@ from .instructions import (
     LineRule,
     Shape,
     encode,
+    parse,
     reply_rule,
 )
-from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, echo_pattern, reply_pattern
+from .patterns import (
+    ACK_PATTERN,
+    ONE_NUMBER,
+    ReplyKind,
+    ReplyPattern,
+    echo_pattern,
+    marker_pattern,
+    normal_line,
+    reply_pattern,
+)
 
 __all__ = [
     "Acknowledged",
@@ -61,6 +73,7 @@ __all__ = [
     "Dropped",
     "Echoed",
     "Event",
+    "HelpStyle",
     "LineAssembler",
     "Mismatched",
     "ProtocolCore",
@@ -251,6 +264,13 @@ class _Item(enum.Enum):
     ECHO = "echo"
     DATA = "data"
     ACK = "ack"
+    #: A line that some firmware sends and some does not (see :meth:`ProtocolCore.send`):
+    #: consumed when the next line fits it, skipped otherwise.
+    ECHO_OPT = "echo?"
+    ACK_OPT = "ack?"
+
+
+_OPTIONAL: Final = frozenset({_Item.ECHO_OPT, _Item.ACK_OPT})
 
 
 @dataclass(slots=True)
@@ -266,7 +286,13 @@ class _Pending:
     marker: str | None = None  # expected reply prefix of a resync marker
 
     def done_after(self, item: _Item) -> bool:
-        return not self.items or (len(self.items) == 1 and self.items[0] is item)
+        """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
+        return all(later in _OPTIONAL for later in itertools.islice(self.items, 1, None))
+
+    @property
+    def settled(self) -> bool:
+        """Whether only optional lines are still owed."""
+        return all(item in _OPTIONAL for item in self.items)
 
     def last_pattern(self) -> ReplyPattern:
         """The pattern of the last line this request still owes."""
@@ -274,7 +300,7 @@ class _Pending:
 
 
 def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
-    if item is _Item.ECHO and pending.echo is not None:
+    if item in (_Item.ECHO, _Item.ECHO_OPT) and pending.echo is not None:
         return pending.echo
     return pending.pattern if item is _Item.DATA else ACK_PATTERN
 
@@ -325,12 +351,11 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     Decisions where the manual is silent (protocol_notes §5, open points), shared with the
     emulator so that both sides agree by construction:
 
-    * Mode 4 echoes a line before executing it, for every executing line (``!`` or an
-      executing bare form such as ``moa``); reads are not echoed. So ``!autostatus 4``
-      sent in mode 1 is not echoed, and ``!autostatus 1`` sent in mode 4 is.
-    * Mode 2 acknowledges after executing, so the new mode decides: ``!autostatus 2`` is
-      acknowledged, ``!autostatus 1`` sent in mode 2 is not. ``?`` reads are never
-      acknowledged; an invalid ``!autostatus 7`` in mode 2 gets ``ERR 5``.
+    * Mode 4 echoes every executing line (``!`` or an executing bare form such as
+      ``moa``). Reads may be echoed too: optional (see :func:`_owed_items`).
+    * Mode 2 acknowledges every ``!`` line. Reads may be acknowledged too: optional.
+    * ``!autostatus n`` owes nothing for certain: its echo and acknowledgement depend on
+      the firmware (optional, see :func:`_owed_items`).
     * A line that already answers with ``OK...``/``ERR`` (``save``) is not acknowledged a
       second time in mode 2.
     * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
@@ -351,10 +376,13 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     after = _mode_after(command, mode)
     rule = reply_rule(command, context)
     owns_ack = entry.exec_reply is Shape.ACK and executes
+    # A mode change owes no mandatory line: whether it is echoed and acknowledged depends
+    # on the firmware (see _owed_items); the protocol reads ?autostatus behind it.
+    changes_mode = entry.name == "autostatus" and command.form is Form.SET
     result = Expectation(
-        echo=mode == 4 and executes,
+        echo=mode == 4 and executes and not changes_mode,
         rule=rule,
-        ack=after == 2 and command.form is Form.SET and not owns_ack,
+        ack=after == 2 and command.form is Form.SET and not owns_ack and not changes_mode,
         completion=entry.completion if executes and after != 0 else None,
         mode_after=after,
     )
@@ -370,9 +398,98 @@ _MODE_SETTERS: Final = frozenset({"autostatus", "reset", "restore"})
 _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 
 
-#: Error numbers used for resync markers: ``?help N`` answers ``ERROR N,...``.
-_MARKER_CODES: Final = tuple(sorted(ERROR_DESCRIPTIONS))
+#: Separators that need no marker number: ``err`` answers one number, ``help`` its text
+#: ``ERROR n,...`` (see :meth:`ProtocolCore.separate`).
+_SEPARATORS: Final = ((b"?err\r", ONE_NUMBER), (b"?help\r", ReplyPattern(ReplyKind.HELP)))
+
+def _echo_of(line: str) -> ReplyPattern:
+    """The mode-4 echo of a line the core writes itself."""
+    return ReplyPattern(ReplyKind.ECHO, text=normal_line(line))
+
+
+def _read_acks(ack_reads: str | None) -> tuple[list[_Item], list[_Item]]:
+    """The acknowledgements a read owes in mode 2, before and after its data."""
+    if ack_reads is None:
+        return [_Item.ACK_OPT], [_Item.ACK_OPT]
+    return ([_Item.ACK] if ack_reads == "before" else []), \
+        ([_Item.ACK] if ack_reads == "after" else [])
+
+
+def _read_items(mode: int, ack_reads: str | None) -> deque[_Item]:
+    """What a one-line read of the core's own (marker, separator) owes in ``mode``."""
+    if mode == 2:
+        before, after = _read_acks(ack_reads)
+        return deque([*before, _Item.DATA, *after])
+    return deque([_Item.DATA] if mode != 4 else [_Item.ECHO_OPT, _Item.DATA, _Item.ECHO_OPT])
+
+
+def _owed_items(command: Command, expect: Expectation, mode: int,
+                ack_reads: str | None = None) -> deque[_Item]:
+    """The lines ``command`` owes when written in autostatus ``mode``, in order, with the
+    ones the manual leaves open as optional items (#13 section 3, the emulator's switches):
+
+    * Mode 4 echoes "the instruction that was sent, in case of set or move instruction"
+      (L2089-2095); the older edition "echoes all input instructions including
+      parameters" (old L723): a read written in mode 4 may be echoed too (``echo_all``).
+    * Whether the echo is written before or after executing is not said, so a line that
+      enters or leaves mode 4 may or may not be echoed, and a read's echo may come after
+      its data (``echo=before|after``).
+    * Mode 2 acknowledges lines "with a leading !" (L2097-2101); whether reads are
+      acknowledged too, before or after their data, is not said (``ack_reads``): the
+      protocol finds out when it enters mode 2 (``ack_reads`` is then ``"no"``,
+      ``"before"`` or ``"after"``); until then both are optional. (Optional acks after a
+      read cannot be told from the next ``!`` line's: hence the detection.)
+    * Whether ``!autostatus n`` is acknowledged per the old or the new mode is not said
+      (``ack_mode_change``): a line entering or leaving mode 2 may or may not be.
+
+    A mode change is then a barrier: :meth:`TangoProtocol.execute
+    <tango_aio.protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it.
+    """
+    items: deque[_Item] = deque()
+    setter = command.name == "autostatus" and command.form is Form.SET
+    after = expect.mode_after
+    if expect.echo and not setter:
+        items.append(_Item.ECHO)
+    elif mode == 4 or (setter and after == 4):
+        items.append(_Item.ECHO_OPT)
+    # A read's echo, if any, comes before its data or (echo written after executing)
+    # after it: optional on both sides; its text tells it from anything else.
+    echo_after = [_Item.ECHO_OPT] if mode == 4 and not expect.echo and _has_data(expect.rule) \
+        else []
+    # Acknowledged reads: ``?`` reads as found (the form the protocol writes). A bare read
+    # (``sa``, ``err``) has neither ``?`` nor the leading ``!`` that L2097-2101 names: never.
+    acked = mode == 2 and command.is_read and command.to_bytes().startswith(b"?")
+    before, trailing = _read_acks(ack_reads) if acked else ([], [])
+    items.extend(before)
+    if _has_data(expect.rule):
+        items.append(_Item.DATA)
+    if setter:
+        if 2 in (mode, after):
+            items.append(_Item.ACK_OPT)
+    elif expect.ack:
+        items.append(_Item.ACK)
+    items.extend(trailing)
+    items.extend(echo_after)
+    return items
+
+
+#: Error numbers used for markers: ``?help N`` answers ``ERROR N,...`` (L2899-2919). Only
+#: the encoder and ETS numbers 70-86 (L1001-1034): the ``help`` separator's reply holds the
+#: current error state, so a marker number the state is likely to hold (0, the instruction
+#: errors 1-13, a persistent internal error such as 29) could end a resync early.
+_MARKER_CODES: Final = tuple(code for code in sorted(ERROR_DESCRIPTIONS) if code >= 70)
+#: Stands for "no marker: a quiet resync" (a line never holds a CR).
+_QUIET: Final = "\r"
+
+
+class HelpStyle(enum.Enum):
+    """How this controller answers ``?help N`` (detected at connect, #13 section 3)."""
+
+    NUMBER = "yes"  #: ``ERROR N,text`` (L2919): markers hold a number of the session's
+    TEXT = "no"  #: the text alone: markers use one number whose text was learned
+    NONE = "none"  #: not at all (older firmware, old L805-819): resyncs wait for quiet
 _FOLLOW_UP: Final = encode("?err")
+_FOLLOW_UP_COMMAND: Final = parse("?err")
 
 
 class ProtocolCore:
@@ -385,7 +502,8 @@ class ProtocolCore:
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
                  max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True,
                  max_reply_lines: int = MAX_REPLY_LINES,
-                 max_reply_bytes: int = MAX_REPLY_BYTES) -> None:
+                 max_reply_bytes: int = MAX_REPLY_BYTES,
+                 marker_seed: int | None = None) -> None:
         self._assembler = LineAssembler(max_line)
         self._pending: deque[_Pending] = deque()
         self._moves: deque[Hashable] = deque()
@@ -393,12 +511,26 @@ class ProtocolCore:
         self._autostatus = autostatus
         self.context = context or Context()
         self._resync_marker: str | None = None
-        self._marker_index = 0
+        #: How markers are made (see :class:`HelpStyle`); ``help_text`` is the reply of
+        #: ``?help <code>`` learned at connect for :attr:`HelpStyle.TEXT`.
+        self.help_style = HelpStyle.NUMBER
+        self.help_text: tuple[int, str] | None = None
+        #: Whether reads are acknowledged in mode 2: ``"no"``, ``"before"`` or ``"after"``
+        #: their data (``None``: not known yet; both optional).
+        self.ack_reads: str | None = None
+        # Each session starts at a random marker number, so that the reply to a marker an
+        # earlier program (or session) left on the line is unlikely to be taken for ours
+        # (``marker_seed`` fixes it, for reproducible tests).
+        self._marker_index = random.randrange(len(_MARKER_CODES)) if marker_seed is None \
+            else marker_seed
         self._desynced = False
         #: Whether each data reply is checked against its instruction's pattern
         #: (:mod:`tango_aio.patterns`); off, any line is taken in order.
         self.check_replies = check_replies
         self._max_reply = (max_reply_lines, max_reply_bytes)
+        #: How many optional lines (``"echo?"``, ``"ack?"``) arrived and were consumed:
+        #: what this firmware does where the manual is silent.
+        self.tolerated: dict[str, int] = {}
 
     # -- state ------------------------------------------------------------------------
 
@@ -413,8 +545,9 @@ class ProtocolCore:
 
     @property
     def pending_tags(self) -> list[Hashable]:
-        """Tags of requests still owed a reply, oldest first."""
-        return [p.tag for p in self._pending if not p.internal]
+        """Tags of requests still owed a reply, oldest first (a request that only
+        optional lines may still follow is answered)."""
+        return [p.tag for p in self._pending if not p.internal and not p.settled]
 
     @property
     def awaiting_completion(self) -> list[Hashable]:
@@ -453,29 +586,27 @@ class ProtocolCore:
             expect = known[1]
         else:
             expect = expectation(command, self._autostatus, self.context)
+        mode = self._autostatus
         self._autostatus = expect.mode_after
         data = command.to_bytes()
-        if expect.expects_reply:
-            items: deque[_Item] = deque()
-            if expect.echo:
-                items.append(_Item.ECHO)
-            if _has_data(expect.rule):
-                items.append(_Item.DATA)
-            if expect.ack:
-                items.append(_Item.ACK)
-            echo = echo_pattern(command) if expect.echo else None
+        items = _owed_items(command, expect, mode, self.ack_reads)
+        if items:
+            echo = echo_pattern(command) if _Item.ECHO in items or _Item.ECHO_OPT in items \
+                else None
             pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
                 else ACK_PATTERN
             self._pending.append(_Pending(tag, items, echo, expect.rule, pattern))
         if expect.completion is not None:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
-            data += self._register_follow_up()
+            data += self._register_follow_up(mode)
         return data, expect
 
-    def _register_follow_up(self) -> bytes:
-        items = deque([_Item.DATA])
-        self._pending.append(_Pending(object(), items, internal=True, pattern=ONE_NUMBER))
+    def _register_follow_up(self, mode: int) -> bytes:
+        items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
+                            self.ack_reads)
+        self._pending.append(_Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
+                                      internal=True, pattern=ONE_NUMBER))
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -498,19 +629,93 @@ class ProtocolCore:
         Every pending request is reported lost (:class:`RequestLost` events). With
         ``ctrl_c`` the bytes start with 0x03, which stops all axes and makes the
         controller discard its input buffer (manual L6808-6814). The marker ``?help N`` is
-        registered under ``tag``; its :class:`Replied` event ends the resync.
+        registered under ``tag``; its :class:`Replied` event ends the resync. Without
+        markers (:attr:`HelpStyle.NONE`) ``help`` is written and every line dropped until
+        :meth:`end_resync` (:attr:`quiet`).
         """
         for pending in self._pending:
-            if not pending.internal:
+            if not pending.internal and not pending.settled:
                 self._events.append(RequestLost(pending.tag))
         self._pending.clear()
         self._desynced = False
+        stop = b"\x03" if ctrl_c else b""
+        chosen = self._marker()
+        if chosen is None:
+            # No unique reply to wait for: drop every line; the protocol ends the resync
+            # when the reply of ``help`` (ERROR n,text) was the last line and the link
+            # has been quiet since (see TangoProtocol).
+            self._resync_marker = _QUIET
+            return stop + b"help\r"
+        code, text = chosen
+        self._resync_marker = text
+        line = f"?help {code}"
+        self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
+                                      _echo_of(line), marker=text))
+        return stop + encode(line)
+
+    def drop_all(self) -> None:
+        """Drop every line (completion reports excepted) until :meth:`end_resync`; what is
+        still owed is forgotten (only call it when no request waits)."""
+        self._pending.clear()
+        self._resync_marker = _QUIET
+
+    def pick_marker_code(self) -> int:
+        """A marker number for this session (see :data:`_MARKER_CODES`)."""
+        return self._next_marker_code()
+
+    @property
+    def quiet(self) -> bool:
+        """Whether a resync without a marker is under way (end it with
+        :meth:`end_resync`)."""
+        return self._resync_marker == _QUIET
+
+    def end_resync(self) -> None:
+        """End a quiet resync: the stream is in step."""
+        self._resync_marker = None
+        self._desynced = False
+
+    def _marker(self) -> tuple[int, str] | None:
+        """A marker number and the text its reply holds (``None``: no marker exists)."""
+        if self.help_style is HelpStyle.NUMBER:
+            code = self._next_marker_code()
+            return code, f"ERROR {code},"
+        return self.help_text if self.help_style is HelpStyle.TEXT else None
+
+    def _next_marker_code(self) -> int:
         code = _MARKER_CODES[self._marker_index % len(_MARKER_CODES)]
         self._marker_index += 1
-        marker = f"ERROR {code},"
-        self._resync_marker = marker
-        self._pending.append(_Pending(tag, deque([_Item.DATA]), marker=marker))
-        return (b"\x03" if ctrl_c else b"") + encode(f"?help {code}")
+        return code
+
+    def separator(self, *neighbours: ReplyPattern) -> tuple[bytes, ReplyPattern] | None:
+        """A *separator* for two requests in a row whose replies look alike: a short read
+        whose reply cannot be taken for the replies of its ``neighbours`` (the last line
+        owed before it and the first owed after it), with its reply's pattern; register it
+        with :meth:`separate`. Written between the two, it turns a line too many (or too
+        few) between them into a :class:`Mismatched` instead of a reply shifted onto the
+        next request (#14 item 1, :mod:`tango_aio.patterns`).
+
+        Only reads that leave the error state alone qualify: "each instruction
+        overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
+        unchecked line. The cheapest that fits: ``?err`` (the error number, L2824-2850),
+        else ``?help`` (``ERROR n,text`` of the current state, which "is not cleared",
+        L2882-2919), else ``?help N``, whose reply holds a number of this session's (or
+        the text learned for it) and looks like nothing else. ``None`` when none fits and
+        this controller has no ``?help N``: the next line then waits for the reply.
+        """
+        for line, fits in _SEPARATORS:
+            if not any(fits.overlaps(other) for other in neighbours):
+                return line, fits
+        marker = self._marker()
+        if marker is None:
+            return None
+        return encode(f"?help {marker[0]}"), marker_pattern(marker[1])
+
+    def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
+        """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes."""
+        data, pattern = separator
+        self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
+                                      _echo_of(data.decode()), pattern=pattern))
+        return data
 
     # -- receiving ------------------------------------------------------------------------
 
@@ -558,13 +763,28 @@ class ProtocolCore:
             self._events.append(Unsolicited(line))
             return
         head = self._pending[0]
+        if self._resync_marker is not None:
+            # The marker's reply: an acknowledgement or echo it owed before it was lost.
+            while head.items[0] is not _Item.DATA:
+                head.items.popleft()
         item = head.items[0]
-        if item is _Item.ECHO:
+        if item in _OPTIONAL:
+            self._route_optional(head, item, line, text)
+        elif item is _Item.ECHO:
             self._route_echo(head, line, text)
         elif item is _Item.DATA:
             self._route_data(head, line, text)
         else:
             self._route_ack(head, line, text)
+
+    def _route_optional(self, head: _Pending, item: _Item, line: str, text: str) -> None:
+        """A line some firmware sends and some does not: consume it when it fits, else
+        skip the item and route the line on."""
+        self._advance(head)
+        if _item_pattern(head, item).accepts(text):
+            self.tolerated[item.value] = self.tolerated.get(item.value, 0) + 1
+            return
+        self._route(line)
 
     def _route_completion(self, line: str, text: str) -> bool:
         # Only a truly empty line is the bare CR of autostatus 3. A line of blanks is not:
@@ -616,8 +836,9 @@ class ProtocolCore:
         code = 0 if text.startswith("OK") else (int(number.group()) if number else None)
         if code != 0:
             self.forget_completion(head.tag)  # a refused move never completes
+        done = head.done_after(_Item.ACK)
         self._advance(head)
-        self._emit(head, Acknowledged(head.tag, code, line, True))
+        self._emit(head, Acknowledged(head.tag, code, line, done))
 
     def _route_data(self, head: _Pending, line: str, text: str) -> None:
         if head.marker is not None:

@@ -10,20 +10,28 @@ would be taken by the request before its own. Two rules stop that:
    one number, ``?statusaxis`` status letters, a mode-2 acknowledgement ``OK``/``ERR n``.
    A line that does not fit is not this request's reply: the core reports a mismatch and
    the protocol resynchronises instead of handing it over.
-2. **Separate.** Two requests whose replies could be taken for each other are never in
-   flight at the same time (:meth:`ReplyPattern.overlaps`): the second waits in the write
-   queue until the first has its reply. ``?vel x`` then ``?accel y`` (one number each) go
-   one after the other; ``?vel x`` then ``?statusaxis`` are pipelined. So when a reply is
-   lost, the next line that arrives is always one the waiting request rejects.
+2. **Separate.** Two requests in a row whose replies could be taken for each other
+   (:meth:`ReplyPattern.overlaps`: ``?vel x`` then ``?accel y``, one number each) get a
+   *separator* written between them (#14 item 1): a read whose reply looks like neither
+   (``err``, ``help`` or ``?help N``, see :meth:`ProtocolCore.separate
+   <tango_aio.core.ProtocolCore.separate>`). "In a row" means in write order, whether or
+   not the first is answered yet: its real reply may still be on its way.
 
-Together they guarantee that a single lost, extra or garbled line between two replies is
-never delivered to the wrong caller: it ends in a timeout, a :class:`ProtocolError` or a
-resync. (A garbled line that still fits its own pattern reaches its own caller, garbled:
-no protocol without checksums can tell.) Two faults in a row can still fool the check;
-the separation rule only looks at the newest request in flight.
+Together they guarantee that a single lost, extra or garbled line is never delivered to a
+later request: a line too many shifts the replies after it by one, and the shift is
+caught at the next boundary between requests of different patterns (a separator, at the
+latest). The request the stray line reached may take it (when it fits: no protocol
+without ids can tell) or fail; every later one gets its own reply or a typed error. A lost
+reply times out, or its neighbour's reply lands where it does not fit (a ProtocolError,
+and the resync aborts what was in flight). (A garbled line that still fits its own
+pattern reaches its own caller, garbled: no protocol without checksums can tell.) Two
+faults close together can still fool the check.
 
 Lines of one all-or-nothing batch (a list upload or download, which fails as a whole when
-any of its lines fails) may be pipelined even when their replies look alike.
+any of its lines fails) need no separators between them. With
+``TangoProtocol(separators=False)`` the older rule applies instead: the second request
+waits until the first is answered (no extra line, but a stray line that fits the waiting
+request shifts every later reply: benchmarks/separators.py compares the two).
 """
 
 from __future__ import annotations
@@ -36,7 +44,7 @@ from typing import Final
 from .instructions import Command, Context, Shape, reply_group, reply_rule
 
 __all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "ReplyKind", "ReplyPattern",
-           "echo_pattern", "reply_pattern"]
+           "echo_pattern", "marker_pattern", "reply_pattern"]
 
 #: Most values a list reply (``NUMBERS``, ``INTS``) is expected to hold.
 _MANY: Final = 1 << 16
@@ -55,6 +63,7 @@ class ReplyKind(enum.Enum):
     HELP = "help"  #: ``ERROR n,text``
     ACK = "ack"  #: ``OK...`` or ``ERR n``
     ECHO = "echo"  #: the autostatus-4 echo of one particular line
+    MARKER = "marker"  #: a line holding one particular text (a marker's reply)
     ANY = "any"  #: free text: accepts every line
 
 
@@ -84,6 +93,8 @@ class ReplyPattern:
             return _ACK_RE.match(line.strip()) is not None
         if kind is ReplyKind.ECHO:
             return normal_line(line) == self.text
+        if kind is ReplyKind.MARKER:
+            return self.text in line
         return True
 
     def overlaps(self, other: ReplyPattern) -> bool:
@@ -91,6 +102,10 @@ class ReplyPattern:
         a, b = sorted((self, other), key=lambda p: _ORDER[p.kind])
         if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
             return True
+        if ReplyKind.MARKER in (a.kind, b.kind):
+            # A marker's text is chosen to be unlike any reply (the HELP kind is the
+            # conservative exception: ERROR n,text replies of ?help).
+            return (a.kind is b.kind and a.text == b.text) or ReplyKind.HELP in (a.kind, b.kind)
         if a.kind is b.kind:
             if a.kind is ReplyKind.ECHO:
                 return a.text == b.text
@@ -130,8 +145,25 @@ _PER_AXIS: Final = {
 
 
 def normal_line(text: str) -> str:
-    """Case- and space-insensitive form of a command line, to compare echoes."""
-    return " ".join(text.lower().split())
+    """The form in which a command line and its mode-4 echo are compared: the echo is
+    matched by instruction, not by exact text (#13: some firmware re-formats it, e.g.
+    ``!MOA 1.50`` echoed as ``!moa 1.5``). Case, blanks and the way numbers are written
+    do not count; the instruction, axis and values do."""
+    return " ".join(_normal_token(token) for token in text.lower().split())
+
+
+def _normal_token(token: str) -> str:
+    if _NUMBER_RE.match(token):
+        try:
+            return repr(float(token))
+        except ValueError:  # pragma: no cover - the pattern only lets numbers through
+            return token
+    return token
+
+
+def marker_pattern(text: str) -> ReplyPattern:
+    """The reply of a marker: any line that holds ``text``."""
+    return ReplyPattern(ReplyKind.MARKER, text=text)
 
 
 def echo_pattern(command: Command) -> ReplyPattern:

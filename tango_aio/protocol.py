@@ -36,6 +36,7 @@ import functools
 import itertools
 import logging
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Callable, Collection, Hashable, Iterable
@@ -49,6 +50,7 @@ from .core import (
     Echoed,
     Event,
     Expectation,
+    HelpStyle,
     Mismatched,
     ProtocolCore,
     Replied,
@@ -70,8 +72,8 @@ from .errors import (
     parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, Form, build, parse
-from .patterns import ReplyPattern
+from .instructions import Command, Context, Form, build, encode, parse
+from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, normal_line
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -124,6 +126,10 @@ class Submission:
     batch: object | None = None
     #: Pattern of the first line owed, ``None`` if none.
     owes: ReplyPattern | None = None
+    #: The pattern compared with the last line owed before this one to decide whether a
+    #: separator goes first (``owes``, or for a line owing nothing that is checked by the
+    #: probe behind it, the probe's: the separator must not go between the two).
+    guard: ReplyPattern | None = None
     #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
     confirming: bool = field(init=False)
     #: Bytes this line takes on the wire (with a read's internal follow-up).
@@ -132,6 +138,8 @@ class Submission:
     mode: int = 1
     #: The mode the core believed in force when the line was written.
     written_mode: int = field(default=-1, init=False)
+    #: Number of the line among those written on the link (0: not written yet).
+    serial: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         # Both are asked for on every flush while the line waits for credit: computed once.
@@ -220,6 +228,8 @@ class TangoProtocol(asyncio.Protocol):
         reply_timeout: float = 5.0,
         dead_after: int = DEAD_AFTER,
         keepalive: float | None = None,
+        separators: bool = True,
+        detect: bool = False,
     ) -> None:
         if not (math.isfinite(reply_timeout) and reply_timeout > 0):
             raise ValueError(f"reply_timeout must be a positive number, got {reply_timeout}")
@@ -235,7 +245,14 @@ class TangoProtocol(asyncio.Protocol):
         self.dead_after = dead_after
         #: Seconds of silence after which an idle link is probed (``None``: never).
         self.keepalive = keepalive
+        #: Look-alike requests: ``True`` writes a separator between two in a row (a stray
+        #: line is detected, see :meth:`_needs_separator`); ``False`` only keeps them from
+        #: being in flight together (no extra line, but a stray line that fits the
+        #: waiting request shifts the replies after it: for benchmarks and hand-fed tests).
+        self.separators = separators
         self._silent = 0  # consecutive unanswered requests
+        self._written_lines = 0  # lines written so far (requests, markers, separators)
+        self._counted_upto = 0  # lines written when the last unanswered one was counted
         self._last_reply = 0.0  # loop time of the last reply line routed
         self._keepalive_task: asyncio.Task[None] | None = None
         self._loop = asyncio.get_running_loop()
@@ -245,8 +262,12 @@ class TangoProtocol(asyncio.Protocol):
         self._queued_mode = autostatus
         self._unmarked: list[Submission] = []
         self._credit_markers: dict[Hashable, list[Submission]] = {}
-        self._marker_batches: dict[Hashable, object] = {}
+        #: What the last line written owes last, and its batch (see _needs_separator).
+        self._last_owed: ReplyPattern | None = None
+        self._last_batch: object | None = None
+        self._separators: set[Hashable] = set()
         self._transport: asyncio.BaseTransport | None = None
+        self._writer: Callable[[bytes], object] | None = None
         self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
         self._markers: dict[Hashable, asyncio.Future[Response]] = {}
@@ -257,9 +278,22 @@ class TangoProtocol(asyncio.Protocol):
         self._peer_eof = False
         self._trace_buffer = b""
         self._connected = self._loop.create_future()
-        #: What the driver found out about this controller's behaviour (see
-        #: :meth:`detect`); e.g. ``{"help_number": "yes"}``.
-        self.detected: dict[str, str] = {}
+        #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
+        self.detect_at_connect = detect
+        self._detected: dict[str, str] = {}
+        #: Seconds of silence after the reply of ``help`` that end a resync without a
+        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`).
+        self.quiet_interval = 0.05
+        self._quiet_help = False
+        self._quiet_timer: asyncio.TimerHandle | None = None
+        self._collect: list[str] | None = None
+        self._collect_help = False
+        self._collected: asyncio.Future[None] | None = None
+        self._barrier_lock = asyncio.Lock()
+        #: Lines submitted after this tag wait (a mode change is under way).
+        self._hold_after: int | None = None
+        self._last_tag = 0
+        self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -271,6 +305,10 @@ class TangoProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         """Called by asyncio when the link is up."""
+        write = getattr(transport, "write", None)
+        if not callable(write):
+            raise TypeError(f"{type(transport).__name__} cannot write")
+        self._writer = write
         self._transport = transport
         self._last_reply = self._loop.time()
         if not self._connected.done():
@@ -401,9 +439,78 @@ class TangoProtocol(asyncio.Protocol):
         error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
         a completion report go through :meth:`start_move` instead.
         """
+        if command.name == "autostatus" and command.form is Form.SET and command.values:
+            return await self._change_mode(command, int(command.values[0]), timeout)
         handle = self._send_checked(command, check)
         await handle.confirm(timeout)
         return handle.submission.response
+
+    async def _change_mode(self, command: Command, mode: int, timeout: float | None
+                           ) -> Response:
+        """A mode change is a barrier (#13 section 3). Whether ``!autostatus n`` is echoed
+        (mode 4 echoes before or after executing?) or acknowledged (per the old or the new
+        mode?), and whether mode 2 acknowledges reads, the manual leaves open
+        (L2079-2161): see :meth:`_mode_exchange`. A controller that kept another mode
+        raises :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
+        if await self._mode_exchange([command.line], timeout) != mode:
+            raise UnknownControllerError(None, command.line)
+        return Response()
+
+    async def _mode_exchange(self, lines: list[str], timeout: float | None,
+                             expected: list[int] | None = None) -> int:
+        """Once every line before is answered (later lines wait), write ``lines``,
+        ``?autostatus`` and ``?help`` with the core dropping every line; collect what
+        comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
+        :attr:`quiet_interval`. From those lines: the mode in force (adopted), and in
+        mode 2 whether reads are acknowledged, before or after their data (an ``OK...``
+        between the two replies, or after the last). Echoes (of any of the lines, mode 4)
+        and acknowledgements of ``lines`` are whatever they are: they are dropped."""
+        sent = [*lines, "?autostatus", "?help"]
+        async with self._barrier_lock:
+            try:
+                async with asyncio.timeout(timeout):
+                    await self._idle()
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
+            if expected is not None:
+                expected.append(self.core.autostatus)  # the driver's, once all is answered
+            received = await self._exchange(sent, timeout, until_help=True)
+        self._heard()
+        normals = {normal_line(line) for line in sent}
+        kept = [line.strip() for line in received if normal_line(line) not in normals]
+        numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
+        helps = [index for index, line in enumerate(kept) if line.startswith("ERROR")]
+        if not numbers or not helps:
+            raise ProtocolError(f"{sent!r}: no ?autostatus reply among {kept!r}")
+        actual = int(kept[numbers[0]])
+        self.core.autostatus = actual
+        if actual == 2:
+            between = kept[numbers[0] + 1:helps[-1]]
+            after = kept[helps[-1] + 1:]
+            self.core.ack_reads = "after" if any(ACK_PATTERN.accepts(x) for x in after) \
+                else "before" if any(ACK_PATTERN.accepts(x) for x in between) else "no"
+            self._detected["ack_reads"] = self.core.ack_reads
+        self._reproject()
+        return actual
+
+    async def _idle(self) -> None:
+        """Hold lines submitted from now on and wait until every line before is written
+        and answered (polled: mode changes are rare)."""
+        hold = self._hold_after = self._last_tag
+        dropped = self._queue_drops
+        try:
+            while self.core.pending_tags or self.core.resyncing or any(
+                    isinstance(s.tag, int) and s.tag <= hold for s in self._queue):
+                self.check()
+                if self._queue_drops != dropped:  # Ctrl+C discarded what was queued
+                    raise RequestAbortedError(
+                        "the mode change was not sent: the stream was resynchronised")
+                await asyncio.sleep(0.002)
+        except BaseException:
+            self._hold_after = None
+            self._flush()
+            raise
 
     def start_move(self, command: Command, *, check: bool = True) -> MoveHandle:
         """Write a motion line (and its check) and return its :class:`MoveHandle`: await
@@ -411,12 +518,16 @@ class TangoProtocol(asyncio.Protocol):
         return self._send_checked(command, check)
 
     def _send_checked(self, command: Command, check: bool) -> MoveHandle:
-        submission = self.submit(command)
+        submission = self.submit(command, hold=True)
         probe = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
-            # error state in between (each instruction overwrites it, manual L2853).
-            probe = self.submit(_PROBE)
+            # error state in between (each instruction overwrites it, manual L2853): a
+            # separator the probe needs goes before the command.
+            probe = self.submit(_PROBE, hold=True)
+            if submission.owes is None:
+                submission.guard, probe.guard = probe.owes, None
+        self._flush()
         return MoveHandle(self, submission, probe, check)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
@@ -446,13 +557,10 @@ class TangoProtocol(asyncio.Protocol):
         await self.read_autostatus(timeout=timeout)
 
     async def read_autostatus(self, *, timeout: float | None) -> int:
-        """Read the mode in force (``?autostatus``; reads are neither echoed nor
-        acknowledged in any mode, L2079-2161) and adopt it; return it."""
-        response = await self.request(_READ_MODE, timeout)
-        mode = int(response.lines[0].strip())
-        self.core.autostatus = mode
-        self._reproject()
-        return mode
+        """Read the mode in force and adopt it; return it. Any mode may be in force (an
+        earlier session's), and how reads are answered in it is not known yet: read the
+        way a mode change is confirmed (:meth:`_mode_exchange`)."""
+        return await self._mode_exchange([], timeout)
 
     # -- liveness and the mode -----------------------------------------------------------
 
@@ -466,7 +574,8 @@ class TangoProtocol(asyncio.Protocol):
             if wait > 0:
                 await asyncio.sleep(wait)
                 continue
-            if self._submissions or self._queue or self._markers or self.core.pending_tags:
+            if self._submissions or self._queue or self._markers or self.core.pending_tags \
+                    or self._barrier_lock.locked():
                 await asyncio.sleep(interval)  # requests in flight have their own deadlines
                 continue
             with contextlib.suppress(TangoError):
@@ -474,50 +583,34 @@ class TangoProtocol(asyncio.Protocol):
             self._last_reply = max(self._last_reply, self._loop.time() - interval / 2)
 
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
-        """Read ``?autostatus`` and compare it with the mode the driver has in force; if
-        they differ (the controller restarted: power-on mode 1, L2062), restore the
-        driver's mode before any later line. Returns whether the mode had to be restored."""
-        submission = self.submit(_READ_MODE)
-        response = await self.wait_reply(submission, timeout)
-        try:
-            actual = int(response.lines[0].strip())
-        except (IndexError, ValueError):
-            raise ProtocolError(f"?autostatus answered {response.lines!r}") from None
-        expected = submission.written_mode
+        """Read the mode in force (the way a mode change is confirmed, so that whatever
+        the controller's mode, its reply is understood) and compare it with the mode the
+        driver has in force; if they differ (the controller restarted: power-on mode 1,
+        L2062), restore the driver's mode before any later line. Returns whether the mode
+        had to be restored."""
+        before: list[int] = []
+        actual = await self._mode_exchange([], timeout, before)
+        expected = before[0]
         if actual == expected:
             return False
         log.warning("the controller is in autostatus %d, the driver had %d in force: it "
                     "restarted; restoring autostatus %d", actual, expected, expected)
-        self._restore_mode(actual, expected)
+        await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
+                                timeout)
         return True
-
-    def _restore_mode(self, actual: int, expected: int) -> None:
-        """The controller is in mode ``actual``: write ``!autostatus expected`` ahead of
-        every queued line (they were projected for ``expected``)."""
-        self.core.autostatus = actual
-        command = build("autostatus", expected, form=Form.SET)
-        expect = expectation(command, actual, self.core.context)
-        loop = self._loop
-        submission = Submission(command, next(self._tags), expect,
-                                loop.create_future() if expect.expects_reply else None,
-                                None, owes=owed_pattern(command, expect, self.core.context),
-                                mode=actual)
-        if submission.reply is not None:
-            self._submissions[submission.tag] = submission
-            submission.reply.add_done_callback(_consume)
-        self._queue.appendleft(submission)
-        self._reproject()
-        self._flush()
 
     # -- writing ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
-        transport = self._transport
-        assert isinstance(transport, asyncio.WriteTransport)
+        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass (#19);
+        # every transport asyncio hands to a stream protocol has write().
+        write = self._writer
+        if write is None:
+            raise ConnectionLostError("not connected")
         if wire_log.isEnabledFor(logging.DEBUG):
             for line in data.split(b"\r")[:-1]:
                 wire_log.debug("%.6f -> %s", time.monotonic(), _traced(line))
-        transport.write(data)
+        write(data)
 
     def _trace_received(self, data: bytes) -> None:
         """Log each complete received line (CR removed) on the ``tango_aio.wire`` logger."""
@@ -532,18 +625,19 @@ class TangoProtocol(asyncio.Protocol):
                            _traced(self._trace_buffer))
             self._trace_buffer = b""
 
-    def submit(self, command: Command, *, batch: object | None = None) -> Submission:
+    def submit(self, command: Command, *, batch: object | None = None,
+               hold: bool = False) -> Submission:
         """Queue ``command`` for writing and return its :class:`Submission` (futures for
         the reply and the completion report, where the line owes them).
 
         The line is written at once when the credit allows, else as soon as replies free
         enough credit; lines are always written in submission order. A line whose reply
-        could be taken for the reply of the newest line in flight waits until that one is
-        answered, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
+        could be taken for the reply of the line written before it gets a separator
+        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
         """
         self.check()
         _check_framing(command)
-        tag = next(self._tags)
+        tag = self._last_tag = next(self._tags)
         was_queued = bool(self._queue)
         mode = self._queued_mode if was_queued else self.core.autostatus
         expect = expectation(command, mode, self.core.context)
@@ -559,12 +653,14 @@ class TangoProtocol(asyncio.Protocol):
             owes=owed_pattern(command, expect, self.core.context),
             mode=mode,
         )
+        submission.guard = submission.owes
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
         self._queue.append(submission)
-        if not was_queued:
+        if not was_queued and not hold:
             # Otherwise the head of the queue is still waiting for credit or a reply, and
-            # this line can only follow it: nothing could be written now.
+            # this line can only follow it: nothing could be written now. (``hold``: the
+            # caller flushes once the lines that belong together are queued.)
             self._flush()
         return submission
 
@@ -606,23 +702,35 @@ class TangoProtocol(asyncio.Protocol):
         out = bytearray()
         while self._queue:
             head = self._queue[0]
+            if self._hold_after is not None and isinstance(head.tag, int) \
+                    and head.tag > self._hold_after:
+                break  # behind a mode change
             if self.credit.marker_due(head.size, head.confirming):
-                if not self.credit.marker_fits() or self._must_wait(_MARKER_OWES,
-                                                                    self._marker_batch()):
+                batch = self._marker_batch()
+                separator = self._separator_for(_MARKER_OWES, batch)
+                if not self.credit.marker_fits() or (
+                        separator is _WAIT and self._must_wait(_MARKER_OWES, batch)) or (
+                        separator and not self.credit.fits(_SEPARATOR_SIZE + 4, True)):
                     break
-                out += self._marker()
+                if isinstance(separator, tuple):
+                    out += self._separator(separator)
+                out += self._marker(batch)
                 continue
-            if not self.credit.fits(head.size, head.confirming) or \
-                    self._must_wait(head.owes, head.batch):
+            separator = self._separator_for(head.guard, head.batch)
+            size = head.size + (_SEPARATOR_SIZE if separator else 0)
+            if not self.credit.fits(size, head.confirming) or (
+                    separator is _WAIT and self._must_wait(head.owes, head.batch)):
                 break
             self._queue.popleft()
+            if isinstance(separator, tuple):
+                out += self._separator(separator)
             out += self._register(head)
         if out:
             self._write(bytes(out))
 
     def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
-        """Whether a line owing ``owes`` must wait for the newest line in flight to be
-        answered: their replies could be taken for each other (tango_aio.patterns)."""
+        """Without a separator: whether a line owing ``owes`` must wait for the newest
+        line in flight to be answered (their replies could be taken for each other)."""
         if owes is None:
             return False
         tail = self.core.tail
@@ -634,7 +742,38 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(tag)
         if submission is not None:
             return submission.batch
-        return self._marker_batches.get(tag)
+        return _MARKERS if tag in self._credit_markers else None
+
+    def _separator_for(self, owes: ReplyPattern | None, batch: object | None
+                       ) -> tuple[bytes, ReplyPattern] | object | None:
+        """The separator to write before a line owing ``owes`` (``None``: none needed;
+        :data:`_WAIT`: none exists, wait for the reply instead). One is needed when the
+        last line owed by the line written before looks alike: a line too many (or too
+        few) between them would shift a reply onto the wrong request (#14 item 1,
+        :mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
+        last = self._last_owed
+        if owes is None or last is None or not last.overlaps(owes):
+            return None
+        if batch is not None and batch is self._last_batch:
+            return None
+        if not self.separators:
+            return _WAIT
+        return self.core.separator(last, owes) or _WAIT
+
+    def _separator(self, separator: tuple[bytes, ReplyPattern]) -> bytes:
+        tag = next(self._tags)
+        data = self.core.separate(tag, separator)
+        self._separators.add(tag)
+        self.credit.wrote(len(data), tag)
+        tail = self.core.tail
+        self._last_owed, self._last_batch = (tail[1] if tail else None), None
+        return data
+
+    def _owed(self, tag: Hashable, batch: object | None) -> None:
+        """Remember what the line just registered under ``tag`` owes last."""
+        tail = self.core.tail
+        if tail is not None and tail[0] == tag:
+            self._last_owed, self._last_batch = tail[1], batch
 
     def _marker_batch(self) -> object:
         """A credit marker joins the batch of the lines it confirms; markers after lines
@@ -644,27 +783,30 @@ class TangoProtocol(asyncio.Protocol):
 
     def _register(self, submission: Submission) -> bytes:
         submission.written_mode = self.core.autostatus
+        self._written_lines += 1
+        submission.serial = self._written_lines
         data, _ = self.core.send(submission.command, submission.tag,
                                  (submission.mode, submission.expectation))
         submission.written = True
+        if submission.owes is not None:
+            self._owed(submission.tag, submission.batch)
         confirming = submission.confirming
         self.credit.wrote(len(data), submission.tag if confirming else None)
         if not confirming:
             self._unmarked.append(submission)
         return data
 
-    def _marker(self) -> bytes:
+    def _marker(self, batch: object) -> bytes:
         tag = next(self._tags)
         data, _ = self.core.send(_MARKER, tag)
+        self._owed(tag, batch)
         self.credit.wrote(len(data), tag)
         self._credit_markers[tag] = self._unmarked
-        self._marker_batches[tag] = self._marker_batch()
         self._unmarked = []
         return data
 
     def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
         covered = self._credit_markers.pop(tag)
-        self._marker_batches.pop(tag, None)
         try:
             code = int(lines[0])
         except (IndexError, ValueError):
@@ -678,6 +820,7 @@ class TangoProtocol(asyncio.Protocol):
     def _drop_queue(self) -> None:
         """Forget every line not yet written (their futures fail: they were never sent)."""
         error = RequestAbortedError("the line was not sent: the stream was resynchronised")
+        self._queue_drops += 1
         for submission in self._queue:
             self._submissions.pop(submission.tag, None)
             _fail(submission.reply, error)
@@ -721,16 +864,22 @@ class TangoProtocol(asyncio.Protocol):
                 # (the resync marker has its own deadline).
                 self.withdraw([submission])
                 raise error from None
-            if self._unanswered(error):
+            if self._unanswered(error, submission.serial):
                 self.check()
             self._background_resync(timeout if timeout is not None else self.reply_timeout)
             raise error from None
 
-    def _unanswered(self, error: TangoError) -> bool:
+    def _unanswered(self, error: TangoError, serial: int) -> bool:
         """Count a request (or marker) that got no reply in time; declare the link lost
         after :attr:`dead_after` in a row with no reply line in between (a link that stays
         open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
-        power-cycled behind one). Returns whether the link was declared lost."""
+        power-cycled behind one). ``serial`` numbers the line among those written: lines
+        that were in flight together count once (they time out together when one reply is
+        lost), so each count is a line written after the previous count. Returns whether
+        the link was declared lost."""
+        if serial <= self._counted_upto:
+            return False
+        self._counted_upto = self._written_lines
         self._silent += 1
         if self._silent < self.dead_after or self._lost is not None:
             return False
@@ -749,16 +898,17 @@ class TangoProtocol(asyncio.Protocol):
         if self._lost is not None or self._transport is None:
             return
         tag, marker = self._begin_resync(keep_queue=True)
-        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout)
+        handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout,
+                                       self._written_lines)
         marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
 
     def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
-                         timeout: float) -> None:
+                         timeout: float, serial: int) -> None:
         if marker.done() or self._lost is not None:
             return
         error = ControllerTimeoutError(
             f"controller did not answer the resync marker within {timeout} s")
-        if not self._unanswered(error) and self.core.resyncing \
+        if not self._unanswered(error, serial) and self.core.resyncing \
                 and self._newest_marker() == tag:
             self._background_resync(timeout)
 
@@ -769,10 +919,15 @@ class TangoProtocol(asyncio.Protocol):
         """Resynchronise the reply stream (optionally sending Ctrl+C first).
 
         Every pending request fails with :class:`RequestAbortedError`; the call returns
-        when the marker's reply has arrived.
+        when the marker's reply has arrived. The first resync of a link opened by
+        ``connect`` runs :meth:`detect` instead.
         """
         self.check()
+        if self.detect_at_connect and not self._detected and not ctrl_c:
+            await self.detect(timeout=timeout)
+            return
         tag, marker = self._begin_resync(ctrl_c)
+        serial = self._written_lines
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
@@ -780,11 +935,145 @@ class TangoProtocol(asyncio.Protocol):
             self.check()
             error = ControllerTimeoutError(
                 f"controller did not answer the resync marker within {timeout} s")
-            if self._unanswered(error):
+            if self._unanswered(error, serial):
                 self.check()
             raise error from None
         finally:
             self._markers.pop(tag, None)
+
+    # -- what this controller does where the manual is silent ---------------------------
+
+    @property
+    def detected(self) -> dict[str, str]:
+        """What the driver found out about this controller (#13): ``help_number``
+        (``"yes"``: ``?help N`` answers ``ERROR N,text``; ``"no"``: the text only;
+        ``"none"``: not at all), found by :meth:`detect` at connect; and, once seen,
+        ``optional_echo`` / ``optional_ack``: how many echoes and acknowledgements arrived
+        that the manual does not promise (a read echoed in mode 4 or acknowledged in mode
+        2, a mode change echoed or acknowledged) and were tolerated."""
+        found = dict(self._detected)
+        for item, count in self.core.tolerated.items():
+            found["optional_" + item.rstrip("?")] = str(count)
+        return found
+
+    async def detect(self, *, timeout: float) -> dict[str, str]:
+        """Bring the stream in step without relying on a unique reply, then find out how
+        ``?help N`` answers, and make the markers accordingly (#13 section 3).
+
+        1. A resync that needs no unique reply: ``help`` is written and every line is
+           dropped until the last one looks like its reply (``ERROR n,text``, the form
+           both editions document: L2915-2919, old L805-819) and the link has been quiet
+           for :attr:`quiet_interval`.
+        2. ``?help N`` then ``?err`` (N a marker number picked at random, so that this
+           session's markers differ from an earlier program's). The lines before the
+           ``?err`` number tell: ``ERROR N,...`` (firmware 1.71, L2919), the text alone
+           (some firmware: then the markers use N and wait for that text), or nothing
+           (older firmware, whose ``help`` takes no parameter: resyncs wait for quiet).
+        """
+        self.core.help_style = HelpStyle.NONE
+        self._detected = {"help_number": "none"}
+        await self.resync(timeout=timeout)
+        code = self.core.pick_marker_code()
+        sent = [f"?help {code}", "?err"]
+        lines = await self._exchange(sent, timeout)
+        normals = {normal_line(line) for line in sent}
+        answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
+                   if not ACK_PATTERN.accepts(line.strip()) and normal_line(line) not in normals]
+        if any(f"ERROR {code}," in line for line in answers):
+            self.core.help_style = HelpStyle.NUMBER
+        elif answers and answers[-1]:
+            self.core.help_style = HelpStyle.TEXT
+            self.core.help_text = (code, answers[-1])
+        self._detected = {"help_number": self.core.help_style.value}
+        return self.detected
+
+    async def _exchange(self, lines: list[str], timeout: float | None, *,
+                        until_help: bool = False) -> list[str]:
+        """Write ``lines`` with the core dropping every line; return the lines received
+        up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
+        then :attr:`quiet_interval` of silence). Only call it when nothing is owed."""
+        self.core.drop_all()
+        self._quiet_help = False
+        collected: list[str] = []
+        self._collect = collected
+        self._collect_help = until_help
+        self._collected = self._loop.create_future()
+        in_step = False
+        try:
+            self._write(b"".join(encode(line) for line in lines))
+            self._written_lines += len(lines)
+            serial = self._written_lines
+            try:
+                async with asyncio.timeout(timeout):
+                    await self._collected
+            except TimeoutError:
+                error = ControllerTimeoutError(f"no reply to {lines!r} within {timeout} s")
+                self._collect = self._collected = None
+                self.core.end_resync()
+                if self._unanswered(error, serial):
+                    self.check()
+                self._background_resync(timeout if timeout is not None
+                                        else self.reply_timeout)
+                raise error from None
+            in_step = True
+        finally:
+            self._collect = self._collected = None
+            self._hold_after = None
+            if self._quiet_timer is not None:
+                self._quiet_timer.cancel()
+            if in_step:
+                self.core.end_resync()
+                self.credit.cleared()
+                self._last_owed, self._last_batch = None, None
+            elif self.core.quiet:  # cancelled: its replies may still come
+                self.core.end_resync()
+                self._background_resync(self.reply_timeout)
+            self._flush()
+        return collected
+
+    def _on_dropped(self, line: str) -> None:
+        """A line dropped while resynchronising (or collected by :meth:`_exchange`)."""
+        if self._collect is not None:
+            self._collect.append(line)
+            if self._collect_help:
+                # Sticky: an acknowledgement of ?help itself may follow its reply.
+                self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
+                if self._quiet_timer is not None:
+                    self._quiet_timer.cancel()
+                self._quiet_timer = self._loop.call_later(self.quiet_interval,
+                                                          self._quiet_check)
+            elif _INTEGER.match(line) and self._collected is not None \
+                    and not self._collected.done():
+                self._collected.set_result(None)
+            return
+        if not self.core.quiet:
+            return
+        text = line.strip()
+        if text.startswith("ERROR"):
+            self._quiet_help = True
+        elif normal_line(text) != "help" and not ACK_PATTERN.accepts(text):
+            # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
+            # its reply: that reply was not the last line yet.
+            self._quiet_help = False
+        if self._quiet_timer is not None:
+            self._quiet_timer.cancel()
+        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+
+    def _quiet_check(self) -> None:
+        """End a quiet resync once ``help``'s reply was the last line and all is quiet."""
+        self._quiet_timer = None
+        if not self.core.quiet or not self._quiet_help or self._lost is not None:
+            return
+        if self._collect is not None:
+            if self._collected is not None and not self._collected.done():
+                self._collected.set_result(None)
+            return
+        self.core.end_resync()
+        self.credit.cleared()
+        for marker in self._markers.values():
+            if not marker.done():
+                marker.set_result(Response())
+        self._flush()
 
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
@@ -799,11 +1088,14 @@ class TangoProtocol(asyncio.Protocol):
         # assumed to have caught up (a lost reply would otherwise never return its credit).
         self.credit.cleared()
         self._credit_markers.clear()
-        self._marker_batches.clear()
+        self._separators.clear()
+        self._last_owed, self._last_batch = None, None  # the marker's reply is unique
         self._unmarked = []
         self._markers[tag] = marker
         self._dispatch_pending()
+        self._quiet_help = False
         self._write(data)
+        self._written_lines += 1
         self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
         return tag, marker
 
@@ -850,6 +1142,7 @@ class TangoProtocol(asyncio.Protocol):
             self._on_mismatch(event)
         elif isinstance(event, Dropped):
             log.debug("dropped while resynchronising: %r", event.line)
+            self._on_dropped(event.line)
         if isinstance(event, Unsolicited | Dropped) and self._on_event:
             self._on_event(event, None)
 
@@ -858,6 +1151,9 @@ class TangoProtocol(asyncio.Protocol):
         if not isinstance(event, Echoed):
             # A reply is sent after its line was executed: everything up to it is processed.
             self.credit.confirm(event.tag)
+        if event.tag in self._separators:
+            self._separators.discard(event.tag)
+            return
         if event.tag in self._credit_markers and isinstance(event, Replied):
             self._on_credit_marker(event.tag, event.lines)
             return
@@ -958,13 +1254,17 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
 _MARKER = parse("err")
-_MARKER_OWES = owed_pattern(_MARKER, expectation(_MARKER, 1))
+_MARKER_OWES: ReplyPattern = ONE_NUMBER
 #: The check written behind a set/execute line.
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
 #: The read of the mode in force.
 _READ_MODE = parse("?autostatus")
+#: "No separator fits: wait for the reply" (see TangoProtocol._separator_for).
+_WAIT = object()
+#: Longest separator line (``?help NN`` and CR; ``sa x`` and ``err`` are shorter).
+_SEPARATOR_SIZE = 9
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS = object()
 
@@ -1006,6 +1306,9 @@ def _traced(line: bytes) -> str:
     if len(line) <= TRACE_LINE:
         return repr(line)
     return f"{line[:TRACE_LINE]!r}... ({len(line)} bytes)"
+
+
+_INTEGER = re.compile(r"\s*-?\d+\s*$")
 
 
 def _consume(future: asyncio.Future[Any]) -> None:

@@ -76,6 +76,7 @@ def fitting_line(pattern: ReplyPattern, rng: random.Random) -> str:
         ReplyKind.HELP: "ERROR 5,number outside range",
         ReplyKind.ACK: "OK...",
         ReplyKind.ECHO: pattern.text,
+        ReplyKind.MARKER: pattern.text + "text",
         ReplyKind.ANY: rng.choice(["R", "= F", "-1 1,", "1 2 3", "0"]),
     }[pattern.kind]
     assert pattern.accepts(line), (pattern, line)

@@ -72,6 +72,7 @@ def setup(mode: int, *requests: tuple[str, Hashable],
     Routing tests use symbolic replies (``R_a``), so reply checking is off here; it is
     tested in tests/test_patterns.py."""
     core = ProtocolCore(autostatus=mode, context=context, check_replies=False)
+    core.ack_reads = "no"  # as the protocol finds on firmware 1.71 (L2097-2101)
     written = b""
     for line, tag in requests:
         data, _ = core.send(parse(line, context), tag)
@@ -652,15 +653,22 @@ def test_mode0_reads_and_save_still_answer() -> None:
 # Switching autostatus mid-stream
 
 
+# A mode change owes nothing for certain: its echo and acknowledgement are optional
+# (firmware switches echo=before|after, ack_mode_change=new|old), consumed without an
+# event when they come. The protocol confirms the mode with ?autostatus (a barrier).
+
+
 def test_switch_1_to_2_ack_by_new_mode() -> None:
-    core, _ = setup(1, ("!autostatus 2", "a"), ("!vel 10", "v"), ("!moa 1", "m"))
+    core, _ = setup(1, ("!autostatus 2", "a"), ("?pos", "p"))
     assert core.autostatus == 2
-    assert feed(core, [stream("OK...", "OK...", "OK...", "@@@-.")]) == [
-        Acknowledged("a", 0, "OK...", True),
-        Acknowledged("v", 0, "OK...", True),
-        Acknowledged("m", 0, "OK...", True),
-        Completed("m", XYZ, "@@@-."),
-    ]
+    assert feed(core, [stream("OK...", "R")]) == [Replied("p", ("R",))]
+    assert core.tolerated == {"ack?": 1}
+
+
+def test_switch_1_to_2_ack_by_old_mode() -> None:
+    core, _ = setup(1, ("!autostatus 2", "a"), ("?pos", "p"))
+    assert feed(core, [stream("R")]) == [Replied("p", ("R",))]
+    assert core.tolerated == {}
 
 
 def test_switch_2_to_1_not_acknowledged() -> None:
@@ -679,21 +687,20 @@ def test_switch_1_to_4_not_echoed_then_echoes() -> None:
     assert feed(core, [stream("!vel 10")]) == [Echoed("v", "!vel 10", True)]
 
 
-def test_switch_4_to_1_echoed_then_no_echo() -> None:
-    core, _ = setup(4, ("!autostatus 1", "a"), ("!vel 10", "v"), ("!moa 1", "m"))
-    assert core.pending_tags == ["a"]
-    assert feed(core, [stream("!autostatus 1", "@@@-.")]) == [
-        Echoed("a", "!autostatus 1", True),
-        Completed("m", XYZ, "@@@-."),
-    ]
+@pytest.mark.parametrize("echoed", [True, False])
+def test_switch_4_to_1_echoed_or_not(echoed: bool) -> None:
+    core, _ = setup(4, ("!autostatus 1", "a"), ("!vel 10", "v"), ("!moa 1", "m"),
+                    ("?pos", "p"))
+    assert core.pending_tags == ["p"]
+    lines = ["!autostatus 1"] if echoed else []
+    assert feed(core, [stream(*lines, "@@@-.", "R")]) == [
+        Completed("m", XYZ, "@@@-."), Replied("p", ("R",))]
 
 
 def test_switch_4_to_2_echoed_and_acknowledged() -> None:
-    core, _ = setup(4, ("!autostatus 2", "a"))
-    assert feed(core, [stream("!autostatus 2", "OK...")]) == [
-        Echoed("a", "!autostatus 2", False),
-        Acknowledged("a", 0, "OK...", True),
-    ]
+    core, _ = setup(4, ("!autostatus 2", "a"), ("?pos", "p"))
+    assert feed(core, [stream("!autostatus 2", "OK...", "R")]) == [Replied("p", ("R",))]
+    assert core.tolerated == {"echo?": 1, "ack?": 1}
 
 
 def test_switch_2_to_4_neither_acked_nor_echoed() -> None:
@@ -713,10 +720,10 @@ def test_switch_3_to_1_completion_forms() -> None:
 
 def test_switch_to_0_then_back() -> None:
     core, _ = setup(1, ("!autostatus 0", "a"), ("!moa 1", "m0"), ("!autostatus 2", "b"),
-                    ("!moa 2", "m2"))
+                    ("?pos", "p"), ("!moa 2", "m2"))
     assert core.awaiting_completion == ["m2"]
-    assert feed(core, [stream("OK...", "OK...", "@@@-.")]) == [
-        Acknowledged("b", 0, "OK...", True),
+    assert feed(core, [stream("OK...", "R", "OK...", "@@@-.")]) == [
+        Replied("p", ("R",)),
         Acknowledged("m2", 0, "OK...", True),
         Completed("m2", XYZ, "@@@-."),
     ]
@@ -886,7 +893,7 @@ def test_resync_in_mode4_and_mode2() -> None:
     core.send(parse("!vel 5"), "w")
     marker = f"ERROR {code},x"
     assert feed(core, [stream("!vel 10", "!autostatus 2", "OK...", marker, "OK...")]) == [
-        RequestLost("v"), RequestLost("a"),
+        RequestLost("v"),
         Dropped("!vel 10"), Dropped("!autostatus 2"), Dropped("OK..."),
         Replied("r", (marker,)),
         Acknowledged("w", 0, "OK...", True),
@@ -901,7 +908,10 @@ _SETS = ["!vel 10", "!pos 0 0", "!accel 1.5", "!err", "!vel y 2.5"]
 _MOVES = ["!moa 1", "moa 2 3", "!mor x 1", "mor -1", "m", "!m", "cal", "!cal y", "rm", "!rm"]
 _SAVES = ["save", "!save"]
 _MULTI = ["service", "?mrt 3", "?mrt x 2", "detext", "?lim"]
-_KINDS = ["read"] * 3 + ["set"] * 3 + ["move"] * 4 + ["save"] + ["multi"] * 3 + ["mode"]
+# No mode changes: whether they are echoed or acknowledged is firmware-dependent, so the
+# core takes those lines as optional, and only the protocol's barrier (it reads
+# ?autostatus with every line dropped, tests/test_variants.py) makes them certain.
+_KINDS = ["read"] * 3 + ["set"] * 3 + ["move"] * 4 + ["save"] + ["multi"] * 3
 _COMPLETIONS = {
     "moa": ["@@@-.", "@@@@.", "@E@-.", "J@--.", "S@@-.", "@."],
     "mor": ["@@@-.", "E@@-."],
@@ -1057,6 +1067,7 @@ def scenarios(draw: st.DrawFn) -> Scenario:
 
 def _start(scenario: Scenario) -> tuple[ProtocolCore, bytes]:
     core = ProtocolCore(autostatus=scenario.mode, context=EXT0, check_replies=False)
+    core.ack_reads = "no"
     written = b""
     for tag, line in enumerate(scenario.commands):
         data, _ = core.send(parse(line, EXT0), tag)

@@ -127,7 +127,7 @@ def _play(mode: int, actions: list[tuple[str, object]], data: bytes,
     ``answer`` bytes are computed from the core's state, or replayed from ``answers``.
     Returns the harness and answers."""
     core = ProtocolCore(autostatus=mode, context=CONTEXT, max_line=MAX_LINE,
-                        check_replies=check)
+                        check_replies=check, marker_seed=0)
     harness = Harness(core, MAX_LINE)
     given_answers = iter(answers or [])
     made: list[bytes] = []

@@ -204,9 +204,12 @@ async def test_dropped_reply_times_out_then_the_next_request_gets_its_own() -> N
                 emu.wire.faults.drop_replies = 1
                 start = time.monotonic()
                 async with asyncio.timeout(5.0):
-                    with pytest.raises(ControllerTimeoutError):
+                    # The dropped reply is the request's own (timeout), or that of the
+                    # separator written before it (#14 item 1): its own reply then
+                    # arrives where the separator's was due, and the resync aborts it.
+                    with pytest.raises((ControllerTimeoutError, RequestAbortedError)) as caught:
                         await call
-                counts["ControllerTimeoutError"] += 1
+                counts[type(caught.value).__name__] += 1
                 counts[f"mode {mode}: {kind}"] += 1
                 assert time.monotonic() - start < 2.0
                 assert emu.wire.faults.drop_replies == 0  # the reply really was dropped
@@ -288,17 +291,20 @@ async def test_garbled_reply_stays_with_its_caller() -> None:
                     line = rng.choice(READS)
                     try:
                         text = await tango.query(line, timeout=0.05)
-                    except ProtocolError:  # garbled into something that is no number
-                        result = "ProtocolError"
+                    except (ProtocolError, RequestAbortedError) as exc:
+                        # No number any more; or the separator's reply before it was
+                        # garbled, and the resync aborted it.
+                        result = type(exc).__name__
                     else:
                         result = classify(emu, line, text)
-                        assert result == "garbled own", (line, text)
+                        # own: the garbled reply was the separator's, still a status letter
+                        assert result in ("garbled own", "own"), (line, text)
                 elif kind == "get":
                     axis = rng.choice("xyz")
                     try:
                         value = await tango.get("vel", axis=axis, timeout=0.05)
-                    except ProtocolError:
-                        result = "ProtocolError"
+                    except (ProtocolError, RequestAbortedError) as exc:
+                        result = type(exc).__name__
                     else:
                         others = [v for (n, a), v in _flat().items() if (n, a) != ("vel", axis)]
                         assert value not in others, value
@@ -310,7 +316,8 @@ async def test_garbled_reply_stays_with_its_caller() -> None:
                         await tango.command(f"!vel {axis} {DISTINCT['vel'][axis]}",
                                             timeout=0.05)
                         result = "set ok"
-                    except (ProtocolError, ControllerError, ControllerTimeoutError) as exc:
+                    except (ProtocolError, ControllerError, ControllerTimeoutError,
+                            RequestAbortedError) as exc:
                         result = type(exc).__name__
                 counts[f"{kind}: {result}"] += 1
                 await settle(emu)
@@ -374,12 +381,24 @@ async def test_garbled_zero_to_blank_stays_with_its_caller() -> None:
     emu = await open_emu("sim://?baud=0", reply_timeout=0.2)
     try:
         tango = emu.tango
-        script_replies(emu, lambda i, data: b" \r" if i == 1 else data, 5)
+        blanked: list[bytes] = []
+
+        def blank_first_zero(_index: int, data: bytes) -> bytes:
+            if data == b"0\r" and not blanked:  # the ?err probe's reply
+                blanked.append(data)
+                return b" \r"
+            return data
+
+        script_replies(emu, blank_first_zero, 8)
         results = await asyncio.gather(tango.set("vel", 95.5, axis="x"),
                                        tango.query("?vel x"), tango.query("?vel y"),
                                        return_exceptions=True)
+        assert blanked
         assert isinstance(results[0], ProtocolError)  # the blank went to the probe
-        assert results[1:] == ["95.500", "96.250"]
+        # The reads were written behind separators, in flight during the resync: aborted,
+        # or (written after it) their own.
+        for result, own in zip(results[1:], ("95.500", "96.250"), strict=True):
+            assert result == own or isinstance(result, RequestAbortedError), result
         await check_in_step(emu)
     finally:
         await tango.aclose()
@@ -603,8 +622,14 @@ async def test_noise_bytes_without_cr_garble_only_the_next_reply() -> None:
                 replies = await asyncio.gather(*(tango.query(line) for line in lines),
                                                return_exceptions=True)
                 first = replies[0]
-                if isinstance(first, ProtocolError):
-                    counts["first caller: ProtocolError"] += 1
+                if isinstance(first, ProtocolError | RequestAbortedError):
+                    # RequestAbortedError: the junk joined the reply of the separator
+                    # written before it.
+                    counts[f"first caller: {type(first).__name__}"] += 1
+                elif first == truth(emu, lines[0]):
+                    # The junk joined the reply of the separator written before it, and
+                    # still looked like status letters (e.g. 'DdCx@').
+                    counts["first caller: own (junk absorbed by a separator)"] += 1
                 else:
                     assert first == junk.decode("latin-1") + truth(emu, lines[0])
                     counts["first caller: junk + own reply"] += 1
@@ -617,8 +642,8 @@ async def test_noise_bytes_without_cr_garble_only_the_next_reply() -> None:
                 emu.wire.emit(junk)
                 try:
                     await tango.get("vel", axis="x")
-                except ProtocolError:
-                    counts["typed get after junk: ProtocolError"] += 1
+                except (ProtocolError, RequestAbortedError) as exc:
+                    counts[f"typed get after junk: {type(exc).__name__}"] += 1
                 else:  # e.g. '5' + '95.500': a garbled value, still its own reply
                     counts["typed get after junk: value"] += 1
                 await check_in_step(emu)
@@ -840,7 +865,8 @@ async def _fuzz_protocol(mode: int, script: list[tuple[str, Any]],
     loop = asyncio.get_running_loop()
     loop_errors: list[dict[str, Any]] = []
     loop.set_exception_handler(lambda _loop, context: loop_errors.append(context))
-    protocol = TangoProtocol(autostatus=mode, context=CONTEXT)
+    # Not declared dead however many markers time out (tests/test_reconnect.py covers it).
+    protocol = TangoProtocol(autostatus=mode, context=CONTEXT, dead_after=1 << 30)
     link = FakeLink(protocol, FakeTransport(protocol))
     events: Counter[str] = Counter()
     protocol.set_callbacks(lambda event, _sub: events.update([type(event).__name__]),

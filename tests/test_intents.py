@@ -3,12 +3,15 @@ emulator: query, checked execute, moves with their check and report, stops, the 
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 from conftest import INSTANT
 
 from tango_aio import connect
 from tango_aio.errors import ControllerError, OutOfRangeError
 from tango_aio.instructions import parse
+from tango_aio.protocol import TangoProtocol
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -54,3 +57,32 @@ async def test_stop_axes_hard_keeps_the_mode_known() -> None:
         await link.stop_axes(True)
         letters = await tango.wait_idle(timeout=5.0)
         assert "M" not in letters.values()
+
+
+class _DuckTransport(asyncio.BaseTransport):
+    """Like uvloop's TCP transport: it writes, but is no asyncio.WriteTransport (#19)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.sent = bytearray()
+
+    def write(self, data: bytes) -> None:
+        self.sent += data
+
+    def is_closing(self) -> bool:
+        return False
+
+    def close(self) -> None:
+        pass
+
+
+async def test_a_transport_that_is_no_write_transport_subclass_works() -> None:
+    protocol = TangoProtocol(separators=False)
+    transport = _DuckTransport()
+    assert not isinstance(transport, asyncio.WriteTransport)
+    protocol.connection_made(transport)
+    task = asyncio.create_task(protocol.query(parse("?vel x"), timeout=1.0))
+    await asyncio.sleep(0)
+    assert bytes(transport.sent) == b"?vel x\r"
+    protocol.data_received(b"11.500\r")
+    assert (await task).lines == ("11.500",)

@@ -42,6 +42,7 @@ from tango_aio.errors import (
     ControllerTimeoutError,
     InvalidCommandError,
     MoveError,
+    RequestAbortedError,
 )
 from tango_aio.events import ConnectionLost, Reconnected, Subscription, TangoEvent
 from tango_aio.instructions import Command, build, build_axes, encode, parse
@@ -602,7 +603,7 @@ async def test_keepalive_restores_the_mode_after_a_restart_behind_the_adapter(
     emu = await emulator(autostatus=2, keepalive=0.02)
     emu.model.reboot()
     for _ in range(200):
-        if emu.model.autostatus == 2:
+        if emu.model.autostatus == 2 == emu.tango.autostatus:
             break
         await asyncio.sleep(0.01)
     assert emu.model.autostatus == 2 == emu.tango.autostatus
@@ -634,7 +635,9 @@ async def test_a_dropped_reply_times_out_and_the_stream_stays_in_sync(
     emu.wire.faults.drop_replies = 1
     loop = asyncio.get_running_loop()
     start = loop.time()
-    with pytest.raises(ControllerTimeoutError):
+    # The dropped reply is the separator's before '?vel' (the last request of the set-up
+    # also answered numbers): '?vel' then fails as the resync aborts it.
+    with pytest.raises((ControllerTimeoutError, RequestAbortedError)):
         await tango.query("?vel", timeout=0.2)
     assert loop.time() - start < 0.2 + 0.15  # the resync marker is answered at once
     assert emu.wire.dropped_replies == 1
