@@ -54,6 +54,7 @@ from .instructions import (
     VersionInfo,
     build,
     build_axes,
+    lookup,
     parse,
     parse_reply,
 )
@@ -368,8 +369,9 @@ class Controller:
         # L1105), the older edition none (old L426).
         detected["version_format"] = "new" if " , " in " ".join(raw.lines) else "old"
         detected["per_axis_replies"] = "exact" if count == axes else f"{count} of {axes}"
-        older = detected.get("help_number") == "no" or detected.get("version_format") == "old" \
-            or (version.firmware_tuple and version.firmware_tuple < (1, 60))
+        # help_number "none": help takes no number, as in the older edition (old L805-819).
+        older = detected.get("help_number") == "none" \
+            or detected["version_format"] == "old"
         return Identity(version.model, version.firmware, axes, version, det,
                         family="older" if older else "1.71", detected=detected)
 
@@ -380,7 +382,14 @@ class Controller:
         ``delay``, ``pause`` and ``ctrt`` count as 0 on a controller that does not know
         them (older firmware answers error 4)."""
         settings = self._settings
-        settings.extmode = int(await self.get("extmode"))
+        older = self._identity is not None and self._identity.family == "older"
+
+        def known(name: str) -> bool:
+            # A read the firmware does not know is answered by nothing (error 4): the
+            # older edition lacks e.g. extmode, which then is 0 (its behaviour).
+            return not older or lookup(name).in_older_manual
+
+        settings.extmode = int(await self.get("extmode")) if known("extmode") else 0
         for name, attribute in _TRACKED.items():
             values = await self.get(name)
             assert isinstance(values, dict)
@@ -390,7 +399,7 @@ class Controller:
                     target[index] = type(target[index])(values[axis])
         for name in ("delay", "pause", "ctrt"):
             try:
-                value = float(await self.get(name))
+                value = float(await self.get(name)) if known(name) else 0.0
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 value = 0.0  # unknown to this firmware: nothing to wait for
             setattr(settings, _TRACKED_GLOBAL[name], value)

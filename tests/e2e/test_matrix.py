@@ -57,6 +57,9 @@ FAST = 100
 
 BAUDS = (0, 57600)
 
+#: Variants whose instructions are those of the older edition only.
+OLDER_INSTRUCTION_SET = ("legacy", "instruction_set=older")
+
 
 def _variant_query(name: str) -> str:
     return f"profile={name}" if name in PROFILES else f"profile=manual&{name}"
@@ -168,7 +171,7 @@ async def test_connect_and_identify(emulator: EmulatorFactory, variant: str,
     identity = emu.tango.identity
     assert identity is not None and identity.axes == 3
     assert identity.family == ("older" if variant in ("legacy", "version_format=old",
-                                                     "help_number=no") else "1.71")
+                                                     "instruction_set=older") else "1.71")
     assert identity.detected.get("per_axis_replies") == "exact"
     assert await bounded(emu.tango.get("pos")) == {"x": 0.0, "y": 0.0, "z": 0.0}
 
@@ -376,8 +379,13 @@ async def test_absent_axis_letters_are_not_credited_to_another(
 async def test_list_upload(emulator: EmulatorFactory, variant: str, baud: int) -> None:
     emu = await open_variant(emulator, variant, baud)
     values = [round(0.5 + 0.0137 * i, 4) for i in range(300)]
-    await bounded(emu.tango.upload_trigger_positions(values))
-    assert await bounded(emu.tango.read_trigger_positions()) == values
+    if variant in OLDER_INSTRUCTION_SET:
+        # The older edition has no trigger position list (trigp, trigc): error 4.
+        with pytest.raises(ControllerError):
+            await bounded(emu.tango.upload_trigger_positions(values))
+    else:
+        await bounded(emu.tango.upload_trigger_positions(values))
+        assert await bounded(emu.tango.read_trigger_positions()) == values
     rows = [[float(i), -float(i), 0.5] for i in range(1, 30)]
     await bounded(emu.tango.upload_snapshot_positions(rows))
     assert await bounded(emu.tango.read_snapshot_positions()) == rows
