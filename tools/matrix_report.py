@@ -4,7 +4,7 @@ Usage::
 
     python -m pytest -q -m "slow or not slow" tests/e2e/test_matrix.py \\
         --junitxml=/tmp/matrix.xml
-    python tools/matrix_report.py /tmp/matrix.xml
+    python tools/matrix_report.py /tmp/matrix.xml [more.xml ...]
 
 One row per firmware variant, one column per invariant: each cell counts the scenario runs
 (both baud rates) that check the invariant and how many passed; ``xfail`` runs are
@@ -36,16 +36,19 @@ INVARIANTS: dict[str, tuple[str, ...]] = {
     "test_absent_axis_letters_are_not_credited_to_another": ("no false success",),
     "test_list_upload": ("own replies", "typed and bounded"),
 }
+#: A case id: scenario[extra parameter-]variant-baud.
+_CASE = re.compile(r"(test_\w+)\[(?:a-|ctrl_c-|[01]-)?(.+)-(0|57600)\]$")
 COLUMNS = ("arrived", "no false success", "own replies", "typed and bounded")
 
 
-def main(path: str) -> None:
-    """Print the Markdown table for the report at ``path``."""
+def main(*paths: str) -> None:
+    """Print the Markdown table for the reports at ``paths``."""
     cells: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0, 0]))
     failed: dict[str, set[str]] = defaultdict(set)
     order: list[str] = []
-    for case in ET.parse(path).getroot().iter("testcase"):
-        match = re.match(r"(test_\w+)\[(?:[a-z0-9]+-)?(.+)-(0|57600)\]$", case.get("name", ""))
+    cases = [case for path in paths for case in ET.parse(path).getroot().iter("testcase")]
+    for case in cases:
+        match = _CASE.match(case.get("name", ""))
         if match is None:
             continue
         scenario, variant = match.group(1), match.group(2)
@@ -77,4 +80,4 @@ def main(path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:])
