@@ -10,6 +10,11 @@ reading the list back, and raises :class:`UploadError` with its index and error 
 
 Downloads pipeline one read per entry; each reply confirms its own bytes, so no markers
 are needed.
+
+Order of an upload: every entry is validated and its line built first (:func:`prepare`);
+only then is the list cleared and sent, so a bad value anywhere leaves the controller's
+list untouched. Uploads of one controller are serialised (:attr:`ListTransfer.lock`): two
+concurrent uploads would interleave their clears and appends.
 """
 
 from __future__ import annotations
@@ -17,10 +22,10 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from .errors import InvalidCommandError, TangoError, controller_error
+from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
 from .instructions import AXES, Command, Form, build, build_rows
 from .protocol import Submission, TangoProtocol
 
@@ -32,6 +37,8 @@ __all__ = [
     "Progress",
     "UploadError",
     "check_axis",
+    "check_resolution",
+    "prepare",
     "snapshot_spec",
     "trigger_spec",
     "validate_rows",
@@ -94,12 +101,47 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
     return values
 
 
+def prepare(spec: _ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
+    """Build (and so validate against the catalog) every append line before anything is
+    sent; raises :class:`InvalidCommandError` naming the first bad entry."""
+    commands: list[Command] = []
+    lines = spec.append(rows)
+    while True:
+        try:
+            command = next(lines, None)
+        except InvalidCommandError as exc:
+            raise InvalidCommandError(f"entry {len(commands)}: {exc}",
+                                      instruction=exc.instruction, parameter=exc.parameter,
+                                      code=exc.code) from exc
+        if command is None:
+            return commands
+        commands.append(command)
+
+
+def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float],
+                     name: str) -> None:
+    """Refuse a non-zero position smaller than half the controller's position resolution
+    ``quantum`` (one unit of the last digit it prints, L4080-4100): it would be stored and
+    read back as 0.0."""
+    for index, row in enumerate(values):
+        for column, value in enumerate(row):
+            step = quantum[column] if column < len(quantum) else quantum[-1]
+            if value != 0.0 and abs(value) < step / 2:
+                raise InvalidCommandError(
+                    f"{name}: entry {index} value {value} is below the position resolution "
+                    f"{step} and would read back as 0.0", instruction=name,
+                    parameter="position", code=5)
+
+
 class ListTransfer:
     """Pipelined list uploads and downloads on one protocol."""
 
-    def __init__(self, protocol: TangoProtocol, reply_timeout: float = 5.0) -> None:
+    def __init__(self, protocol: TangoProtocol, reply_timeout: float = 5.0,
+                 lock: asyncio.Lock | None = None) -> None:
         self._protocol = protocol
         self._timeout = reply_timeout
+        #: Held for a whole upload or download (one list transfer at a time).
+        self.lock = lock if lock is not None else asyncio.Lock()
 
     # -- generic machinery ------------------------------------------------------------------
 
@@ -111,19 +153,28 @@ class ListTransfer:
     async def _count(self, spec: _ListSpec) -> int:
         return int(await self._query(spec.count))
 
-    async def upload(self, spec: _ListSpec, rows: Sequence[Sequence[float]],
-                     progress: Progress | None) -> None:
-        """Append ``rows`` (already validated and cleared) with checkpoints."""
-        self._total = len(rows)  # for progress reports
+    async def replace(self, spec: _ListSpec, clear: Callable[[], Awaitable[None]],
+                      rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
+        """Validate and build every line of ``rows``, then (holding :attr:`lock`) await
+        ``clear`` (the checked clearing line) and append the rows."""
+        built = prepare(spec, rows)
+        async with self.lock:
+            await clear()
+            await self._upload(spec, built, progress)
+
+    async def _upload(self, spec: _ListSpec, built: Sequence[Command],
+                      progress: Progress | None) -> None:
+        """Append the lines ``built`` (validated, the list cleared) with checkpoints."""
+        self._total = len(built)  # for progress reports
         commands: list[Command] = []
-        lines = spec.append(rows)
+        lines = iter(built)
         pending: list[tuple[int, Submission, list[Submission]]] = []
         # All or nothing: a lost or added reply anywhere fails the whole upload, so its
         # lines may be pipelined even where their replies look alike (tango_aio.patterns).
         whole = object()
         loose: list[Submission] = []  # submitted, not yet under a checkpoint
         try:
-            for start in range(0, len(rows), CHECKPOINT):
+            for start in range(0, len(built), CHECKPOINT):
                 # Built batch by batch, so the first lines go out while later ones are built.
                 chunk = list(itertools.islice(lines, CHECKPOINT))
                 commands.extend(chunk)
@@ -167,8 +218,16 @@ class ListTransfer:
         The reads below are answered only after every line already written was processed,
         so the list no longer changes when it is truncated to the accepted entries.
         """
-        rows = await self.download(spec, count)
+        if count > len(commands):
+            # More entries than this upload sent: something else wrote to the list (uploads
+            # of this driver are serialised, so another program, or a lost clear).
+            raise UploadError(len(commands), 0, f"?{spec.count} = {count}") from ProtocolError(
+                f"the list holds {count} entries, this upload sent {len(commands)}")
+        rows = await self._download(spec, count)
         first = next((i for i, row in enumerate(rows) if not _same(row, commands[i])), count)
+        if first >= len(commands):
+            raise UploadError(first, 0, f"?{spec.count} = {count}") from ProtocolError(
+                f"the list holds {count} entries where {len(commands)} were expected")
         await self._command(spec.count, first)
         code = await self._probe(commands[first])
         await self._command(spec.count, first)
@@ -186,7 +245,13 @@ class ListTransfer:
         if code:
             raise controller_error(code, command.line)
 
-    async def download(self, spec: _ListSpec, count: int | None = None) -> list[list[float]]:
+    async def download(self, spec: _ListSpec) -> list[list[float]]:
+        """Read the whole list with pipelined reads (not while an upload runs)."""
+        async with self.lock:
+            return await self._download(spec)
+
+    async def _download(self, spec: _ListSpec, count: int | None = None
+                        ) -> list[list[float]]:
         """Read entries 1..count (default: the whole list) with pipelined reads."""
         total = await self._count(spec) if count is None else count
         whole = object()  # all or nothing, like an upload
@@ -233,15 +298,18 @@ def check_axis(axis: str) -> str:
 
 
 def validate_rows(rows: Sequence[Sequence[float]], axes: int) -> list[list[float]]:
-    """Check snapshot rows: at most 1024, each 1..axes finite values."""
+    """Check snapshot rows: at most 1024, each exactly ``axes`` finite values (a shorter
+    row would leave the controller to fill in the missing axes, which the manual does not
+    specify)."""
     if len(rows) > MAX_SNAPSHOTS:
         raise InvalidCommandError(f"snsa: {len(rows)} rows, at most {MAX_SNAPSHOTS}",
                                   instruction="snsa", code=5)
     out: list[list[float]] = []
     for index, row in enumerate(rows):
         values = [float(v) for v in row]
-        if not 1 <= len(values) <= axes or not all(math.isfinite(v) for v in values):
-            raise InvalidCommandError(f"snsa: row {index} must hold 1..{axes} finite values",
+        if len(values) != axes or not all(math.isfinite(v) for v in values):
+            raise InvalidCommandError(f"snsa: row {index} must hold {axes} finite values "
+                                      f"(one per axis), got {row!r}",
                                       instruction="snsa", parameter="position", code=5)
         out.append(values)
     return out

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
@@ -13,13 +11,12 @@ from fractions import Fraction
 from types import TracebackType
 from typing import Any
 
-import anyio
-
 from ._checks import check_count, check_timeout
 from .bulk import (
     ListTransfer,
     Progress,
     check_axis,
+    check_resolution,
     snapshot_spec,
     trigger_spec,
     validate_rows,
@@ -27,16 +24,20 @@ from .bulk import (
 )
 from .core import Completed, Dropped, Event, Unsolicited
 from .errors import (
+    ERROR_DESCRIPTIONS,
+    INTERNAL_ERRORS,
     ConnectionLostError,
+    ControllerError,
     ControllerTimeoutError,
+    InternalControllerError,
     InvalidCommandError,
-    MoveError,
     ProtocolError,
-    RequestAbortedError,
     TangoError,
+    parse_error_reply,
 )
 from .events import (
     ConnectionLost,
+    ControllerFault,
     EventHub,
     MoveAborted,
     MoveFinished,
@@ -57,8 +58,18 @@ from .instructions import (
     VersionInfo,
     build,
     build_axes,
+    lookup,
     parse,
     parse_reply,
+)
+from .motion import (
+    FAILED_LETTERS,
+    STOP_WAIT,
+    Motion,
+    MovePlan,
+    MoveTiming,
+    moved_axes,
+    position_tolerance,
 )
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, IdentityMismatchError, Reconnect
@@ -69,36 +80,36 @@ __all__ = ["Controller", "Identity"]
 
 log = logging.getLogger("tango_aio")
 
-#: Longest wait for the axes to stop after a cancelled move (seconds).
-STOP_WAIT = 10.0
+#: Reads whose all-axes form is unreliable: read axis by axis. ``?lim`` sends an extra CR
+#: after the X pair in extmode 0 (L4559-4621), ``?swtyp`` prints its groups without
+#: separating blanks there (L4814-4824).
+AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
 
-#: Status letters that mean a move did not end where it should (manual L2689-2711).
-FAILED_LETTERS = frozenset("EST")
-
-_KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
+#: Settings whose change the driver tracks (move timing and validation context).
+_TRACKED = {"dim": "dims", "pitch": "pitch", "vel": "vel", "accel": "accel",
+            "secvel": "secvel"}
+_TRACKED_GLOBAL = {"extmode": "extmode", "delay": "delay_ms", "pause": "pause_ms",
+                   "ctrt": "settle_ms"}
 
 
 @dataclass(frozen=True, slots=True)
 class Identity:
-    """What ``?version`` and ``?det`` say about the controller."""
+    """What ``?version`` and ``?det`` say about the controller, and which behaviours the
+    driver detected at connect.
+
+    ``family`` is ``"1.71"`` for firmware that answers like the 1.71 manual, ``"older"``
+    for the older edition (its ``?version`` format or ``help`` without a number, old
+    L805-819). ``detected`` maps each behaviour found at connect to what was found, e.g.
+    ``{"help_number": "no", "per_axis_replies": "exact"}`` (see README "Motion semantics").
+    """
 
     model: str
     firmware: str
     axes: int
     version: VersionInfo
     det: DetInfo
-
-
-@dataclass(slots=True)
-class _Settings:
-    """Per-axis settings the driver caches to compute move timeouts and contexts."""
-
-    dims: list[int] = field(default_factory=lambda: [2, 2, 2, 2])
-    pitch: list[float] = field(default_factory=lambda: [1.0] * 4)
-    vel: list[float] = field(default_factory=lambda: [10.0] * 4)
-    accel: list[float] = field(default_factory=lambda: [1.0] * 4)
-    secvel: list[float] = field(default_factory=lambda: [10.0] * 4)
-    extmode: int = 0
+    family: str = "1.71"
+    detected: Mapping[str, str] = field(default_factory=dict)
 
 
 class Controller:
@@ -135,11 +146,14 @@ class Controller:
         self.reply_timeout = reply_timeout
         self._protocol = protocol
         self._hub = EventHub()
-        self._motion_lock = asyncio.Lock()
-        self._settings = _Settings()
+        self._settings = MoveTiming()
+        self._motion = Motion(_Port(self))
         self._identity: Identity | None = None
         self._on_close = on_close
-        self._detached: asyncio.Future[None] | None = None
+        #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
+        self._fault = 0
+        #: One list upload or download at a time (tango_aio.bulk).
+        self._list_lock = asyncio.Lock()
         self._closing = False
         self._reconnect: Reconnect | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
@@ -181,8 +195,7 @@ class Controller:
         """Close the connection and stop reconnecting. Pending requests fail with
         ConnectionLostError."""
         self._closing = True
-        if self._detached is not None:
-            self._detached.cancel()
+        self._motion.cancel_detached()
         task, self._reconnect_task = self._reconnect_task, None
         if task is not None:
             task.cancel()  # it closes a link it was setting up
@@ -265,6 +278,7 @@ class Controller:
 
     def _on_connection_lost(self, exc: BaseException | None) -> None:
         self._hub.publish(ConnectionLost(exc))
+        self._motion.hint()  # moves being followed fail at once, not at their next poll
         if self._reconnect is not None and not self._closing and not self.reconnecting:
             self._reconnect_attempt = 0
             mode = self._protocol.autostatus
@@ -348,26 +362,60 @@ class Controller:
     # -- identity and raw access -------------------------------------------------------------
 
     async def identify(self) -> Identity:
-        """Read ``?version`` and ``?det``: model, firmware and number of axes."""
-        version = await self.get("version")
+        """Read ``?version`` and ``?det`` (model, firmware, number of axes) and record
+        which firmware family and behaviours were detected (:class:`Identity`)."""
+        command = build("version", form=Form.READ)
+        raw = await self._request(command)
+        version = parse_reply(command, raw.lines)
         det = await self.get("det")
         assert isinstance(version, VersionInfo) and isinstance(det, DetInfo)
         axes = det.axes or 4
         context = self._protocol.context
         self._protocol.context = Context(context.dims, axes, context.extmode)
-        return Identity(version.model, version.firmware, axes, version, det)
+        detected = dict(getattr(self._protocol, "detected", None) or {})
+        # Whether per-axis reads answer one value per axis found by ?det (the 1.71
+        # manual, L2711-2721) or leave absent/disabled axes out: then every per-axis read
+        # whose count differs is read again axis by axis (see get()).
+        positions = await self._request(build("pos", form=Form.READ, context=self.context))
+        count = len(" ".join(positions.lines).split())
+        # The 1.71 manual prints a blank before the comma of the build time (L1067,
+        # L1105), the older edition none (old L426).
+        detected["version_format"] = "new" if " , " in " ".join(raw.lines) else "old"
+        detected["per_axis_replies"] = "exact" if count == axes else f"{count} of {axes}"
+        # help_number "none": help takes no number, as in the older edition (old L805-819).
+        older = detected.get("help_number") == "none" \
+            or detected["version_format"] == "old"
+        return Identity(version.model, version.firmware, axes, version, det,
+                        family="older" if older else "1.71", detected=detected)
 
     async def refresh_settings(self) -> None:
-        """Re-read dim, pitch, vel, accel, secvel and extmode (used for move timeouts)."""
+        """Re-read what move timeouts depend on: dim, pitch, vel, accel, secvel, extmode,
+        delay and pause (L6845-6899) and the closed-loop timeout ctrt (L11616-11631).
+
+        ``delay``, ``pause`` and ``ctrt`` count as 0 on a controller that does not know
+        them (older firmware answers error 4)."""
         settings = self._settings
-        settings.extmode = int(await self.get("extmode"))
-        for name in ("dim", "pitch", "vel", "accel", "secvel"):
+        older = self._identity is not None and self._identity.family == "older"
+
+        def known(name: str) -> bool:
+            # A read the firmware does not know is answered by nothing (error 4): the
+            # older edition lacks e.g. extmode, which then is 0 (its behaviour).
+            return not older or lookup(name).in_older_manual
+
+        settings.extmode = int(await self.get("extmode")) if known("extmode") else 0
+        for name, attribute in _TRACKED.items():
             values = await self.get(name)
             assert isinstance(values, dict)
-            target = getattr(settings, "dims" if name == "dim" else name)
+            target = getattr(settings, attribute)
             for index, axis in enumerate(AXES):
                 if axis in values:
                     target[index] = type(target[index])(values[axis])
+        for name in ("delay", "pause", "ctrt"):
+            try:
+                value = float(await self.get(name)) if known(name) else 0.0
+            except (ControllerError, ProtocolError, ValueError, TypeError):
+                value = 0.0  # unknown to this firmware: nothing to wait for
+            setattr(settings, _TRACKED_GLOBAL[name], value)
         self._update_context()
 
     def _update_context(self) -> None:
@@ -421,8 +469,14 @@ class Controller:
                        timeout: float | None = None) -> Response:
         """Write ``command`` (checked, see :meth:`TangoProtocol.execute`) and wait."""
         self._check_axes(command)
-        response = await self._protocol.execute(command, timeout=self._timeout(timeout),
-                                                check=check)
+        try:
+            response = await self._protocol.execute(command, timeout=self._timeout(timeout),
+                                                    check=check)
+        except ControllerError as error:
+            if error.error_code < INTERNAL_ERRORS or \
+                    await self._blame(error.error_code, self._timeout(timeout)):
+                raise
+            response = Response()
         self._track(command)
         return response
 
@@ -431,23 +485,86 @@ class Controller:
         self._check_axes(command)
         return self._protocol.start_move(command, check=check)
 
-    async def _confirm(self, sent: MoveHandle, timeout: float | None = None) -> None:
-        """Wait for the check of a :meth:`_send`; raise the controller's error, if any."""
-        await sent.confirm(self._timeout(timeout))
-        self._track(sent.command)
+    async def _error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
+        """The error the controller reported for ``sent`` (``None``: accepted).
+
+        A number of 20 and above may be a persistent internal error rather than the
+        line's own (L2853-2867: "if the previously executed instruction returned no error,
+        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`."""
+        error = await sent.error(timeout)
+        if error is not None and error.error_code >= INTERNAL_ERRORS \
+                and not await self._blame(error.error_code, timeout):
+            return None
+        return error
+
+    async def _blame(self, code: int, timeout: float) -> bool:
+        """Whether error ``code`` (>= 20) belongs to the line just checked.
+
+        Every instruction overwrites the error state, and after one that was fine ``?err``
+        answers 0 or the internal error (L2853-2867). So ``?err`` is asked again after a
+        read that cannot fail (``?autostatus``; ``?err`` itself is not used for this, as
+        the manual does not say whether reading it overwrites the state): 0 means ``code``
+        was the line's own, the same number a persistent internal condition. That one is
+        not the line's fault: it is published as a :class:`ControllerFault` event (once
+        per change) and the line counts as accepted.
+        """
+        again = await self._internal_error(timeout)
+        if again != code:
+            self._fault_seen(again)
+            return True
+        self._fault_seen(code)
+        return False
+
+    async def _internal_error(self, timeout: float | None = None) -> int:
+        """``?err`` right after a read that is always fine: 0 or the internal error."""
+        # Written back to back: no other line can come between the read and the probe.
+        self._protocol.submit(parse("?autostatus"))
+        reply = await self._protocol.query(parse("?err"), timeout=self._timeout(timeout))
+        code, _ = parse_error_reply(reply.lines[0])
+        return code or 0
+
+    def _fault_seen(self, code: int) -> None:
+        if code < INTERNAL_ERRORS:
+            code = 0
+        if code != self._fault:
+            self._fault = code
+            if code:
+                log.warning("controller reports internal error %d: %s", code,
+                            ERROR_DESCRIPTIONS.get(code, "undocumented"))
+                self._hub.publish(ControllerFault(code, ERROR_DESCRIPTIONS.get(
+                    code, "undocumented internal error")))
+
+    @property
+    def fault(self) -> int:
+        """The persistent internal error (>= 20) the controller last reported in ``?err``
+        although the instruction before was fine, 0 if none (see :meth:`check_fault`)."""
+        return self._fault
+
+    async def check_fault(self) -> None:
+        """Raise :class:`~tango_aio.errors.InternalControllerError` if the controller is
+        in a persistent internal error state (an error number >= 20 that ``?err`` reports
+        after an instruction that itself was fine, L2853-2867); else return."""
+        code = await self._internal_error()
+        self._fault_seen(code)
+        if code >= INTERNAL_ERRORS:
+            raise InternalControllerError(code)
 
     def _track(self, command: Command) -> None:
+        """Keep the cached settings in step with a set the controller accepted."""
         name = command.name
-        if name in ("dim", "pitch", "vel", "accel", "secvel", "extmode") and command.values:
+        if not command.values:
+            return
+        if name in _TRACKED_GLOBAL:
+            setattr(self._settings, _TRACKED_GLOBAL[name], type(
+                getattr(self._settings, _TRACKED_GLOBAL[name]))(command.values[0]))
+        elif name in _TRACKED:
             index = AXES.index(command.axis) if command.axis else 0
-            target = {"dim": self._settings.dims}.get(name, getattr(self._settings, name, None))
-            if name == "extmode":
-                self._settings.extmode = int(command.values[0])
-                return
-            assert isinstance(target, list)
+            target = getattr(self._settings, _TRACKED[name])
             for offset, value in enumerate(command.values[: len(AXES) - index]):
                 target[index + offset] = type(target[index + offset])(value)
-            self._update_context()
+        else:
+            return
+        self._update_context()
 
     # -- typed access ---------------------------------------------------------------------
 
@@ -455,12 +572,26 @@ class Controller:
                   timeout: float | None = None) -> Any:
         """Read instruction ``name`` and return its parsed reply.
 
-        Per-axis values come as ``{"x": 1.0, "y": 2.0}`` (only present axes), or a scalar
-        when ``axis`` is given. ``args`` are extra read arguments (``get("trigp", 3)``).
+        Per-axis values come as ``{"x": 1.0, "y": 2.0}`` (exactly the axes found at
+        identification), or a scalar when ``axis`` is given. ``args`` are extra read
+        arguments (``get("trigp", 3)``). ``lim`` and ``swtyp`` are read axis by axis, as
+        the manual recommends (L4559, L4814); any other per-axis reply with fewer or more
+        values than axes is read again axis by axis, so that no value is credited to the
+        wrong axis (a unit that leaves disabled axes out).
         """
         command = build(name, *args, form=Form.READ, axis=axis, context=self.context)
+        if axis is None and not args and name in AXIS_BY_AXIS:
+            return await self._axis_by_axis(name, timeout)
         response = await self._request(command, timeout)
-        return parse_reply(command, response.lines)
+        value = parse_reply(command, response.lines)
+        if axis is None and not args and isinstance(value, dict) and value \
+                and set(value) <= set(AXES) and len(value) != self.context.axes:
+            return await self._axis_by_axis(name, timeout)
+        return value
+
+    async def _axis_by_axis(self, name: str, timeout: float | None) -> dict[str, Any]:
+        return {axis: await self.get(name, axis=axis, timeout=timeout)
+                for axis in AXES[: self.context.axes]}
 
     async def set(self, name: str, /, *args: Value, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
@@ -484,25 +615,56 @@ class Controller:
         assert isinstance(letters, dict)
         return dict(letters)
 
-    # -- motion ---------------------------------------------------------------------------
+    async def _position_texts(self) -> dict[str, str]:
+        """``?pos`` as printed (the number of digits gives the resolution), one text per
+        present axis; read axis by axis when the reply has another number of values."""
+        present = AXES[: self.context.axes]
+        response = await self._request(build("pos", form=Form.READ, context=self.context))
+        texts = " ".join(response.lines).split()
+        if len(texts) == len(present):
+            return dict(zip(present, texts, strict=True))
+        out = {}
+        for axis in present:
+            reply = await self._request(build("pos", form=Form.READ, axis=axis,
+                                              context=self.context))
+            out[axis] = " ".join(reply.lines).strip()
+        return out
+
+    # -- motion (followed by tango_aio.motion) --------------------------------------------
 
     async def move_to(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, **axes: float) -> dict[str, str]:
-        """Move to absolute positions (``move_to(x=10, y=5)``) and wait until they are
-        reached. Returns the per-axis status letters; raises :class:`MoveError` if an axis
-        reports E (error/aborted), S (limit switch) or T (timeout). Positions are in
-        ``unit`` (``move_to(x=1.5, unit="mm")``; default: the connection's ``units``,
-        else the dim unit) or pint Quantities."""
+        """Move to absolute positions (``move_to(x=10, y=5)``, any set of axes) and wait
+        until every named axis stands still at its target.
+
+        Returns the per-axis status letters; raises :class:`MoveError` if a moved axis
+        reports E (error/aborted), S (limit switch) or T (timeout), stopped short of its
+        target, or was stopped by :meth:`abort`; :class:`ControllerTimeoutError` (axes
+        stopped) if it still moves after ``timeout`` seconds (default: computed from the
+        distance, speed, ``delay``, ``pause`` and ``ctrt``), counted from when its line is
+        written. Axes not named are never moved: a set that does not start at X without
+        gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
+        semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
+        the connection's ``units``, else the dim unit) or pint Quantities."""
         axes = await self._to_controller(axes, unit, 0)
-        return await self._motion(build_axes("moa", axes, context=self.context),
-                                  timeout, stop_on_cancel, axes)
+        return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
         axes = await self._to_controller(axes, unit, 0)
-        return await self._motion(build_axes("mor", axes, context=self.context),
-                                  timeout, stop_on_cancel, axes, relative=True)
+        return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+
+    async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
+                    stop_on_cancel: bool, relative: bool) -> dict[str, str]:
+        lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
+        for line, part in zip(lines, _line_groups(axes), strict=True):
+            self._check_axes(line, part)
+        letters: dict[str, str] = {}
+        for line, part in zip(lines, _line_groups(axes), strict=True):
+            letters.update(await self._run_motion(line, timeout, stop_on_cancel, part,
+                                                  relative))
+        return letters
 
     async def calibrate(self, *axes: str, timeout: float | None = None,
                         stop_on_cancel: bool = True) -> dict[str, str]:
@@ -524,12 +686,49 @@ class Controller:
     async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
                                stop_on_cancel: bool) -> dict[str, str]:
         if not axes:
-            return await self._motion(build(name, form=Form.SET), timeout, stop_on_cancel, {})
+            return await self._run_motion(build(name, form=Form.SET), timeout,
+                                          stop_on_cancel, None, False)
         letters: dict[str, str] = {}
         for axis in axes:
             command = build(name, form=Form.SET, axis=axis)
-            letters.update(await self._motion(command, timeout, stop_on_cancel, {}))
+            letters.update(await self._run_motion(command, timeout, stop_on_cancel, None,
+                                                  False))
         return letters
+
+    async def _run_motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
+                          targets: Mapping[str, float] | None, relative: bool
+                          ) -> dict[str, str]:
+        self._check_axes(command, targets or ())
+
+        async def plan(line: Command) -> MovePlan:
+            return await self._plan(line, targets, relative, timeout)
+
+        return await self._motion.run(command, plan, stop_on_cancel)
+
+    async def _plan(self, command: Command, targets: Mapping[str, float] | None,
+                    relative: bool, timeout: float | None) -> MovePlan:
+        """Targets and timing of a motion line, from where its axes are now (called once
+        the previous move has ended)."""
+        s = self._settings
+        present = AXES[: self.context.axes]
+        moved = moved_axes(command, present)
+        # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
+        timed = command.name in ("moa", "mor", "m", "moc")
+        delay = s.delay_ms / 1000.0 if timed else 0.0
+        after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
+        absolute: dict[str, float] | None = None
+        if command.instruction.completion in (Completion.CAL, Completion.RM):
+            travel, limit = 0.0, 150.0  # caltimeout is at most 120 s per axis (L5251)
+        elif targets is None:  # moc: the distance is not known here
+            travel, limit = 0.0, 120.0
+        else:
+            start = {a: float(t) for a, t in (await self._position_texts()).items()}
+            absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
+            travel = max((s.travel(a, abs(absolute[a] - start[a])) for a in absolute),
+                         default=0.0)
+            limit = 2.0 * travel + 2.0
+        return MovePlan(command, moved, absolute, expected=delay + travel + after,
+                        limit=check_timeout(timeout) or delay + limit + after)
 
     async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
@@ -563,198 +762,72 @@ class Controller:
         """Stop all axes.
 
         By default this sends Ctrl+C (0x03): it stops every axis and makes the controller
-        discard its input buffer, so requests still queued fail with
+        discard its input buffer (L6808-6814), so requests still queued fail with
         :class:`~tango_aio.errors.RequestAbortedError` and the reply stream is
-        resynchronised. ``soft=True`` sends ``a`` instead, which stops the axes but leaves
-        queued lines alone. Moves being awaited raise :class:`MoveError` (status ``E``).
-        With ``wait``, returns once the axes have stopped.
+        resynchronised. ``a`` is written before and after it, because a controller may
+        ignore Ctrl+C (the manual does not say every interface passes it); ``a`` alone
+        stops the axes and leaves queued lines alone (``soft=True``). Moves being awaited
+        raise :class:`MoveError` (status ``E``) once their axes stand still, whatever
+        letters the controller reports (older firmware reports ``@``, old L1917). With ``wait``,
+        returns once the axes have stopped; raises
+        :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
+        :data:`~tango_aio.motion.STOP_WAIT` seconds.
         """
         self._hub.publish(MoveAborted(ctrl_c=not soft))
-        moving = self._protocol.moves_awaiting
-        await self._protocol.stop_axes(soft, timeout=self.reply_timeout)
-        if wait:
-            letters = await self.wait_idle(timeout=60.0)
-            # Moves whose line Ctrl+C discarded never report: stop waiting for them.
-            error = MoveError("move aborted", {a: "E" if s == "@" else s
-                                               for a, s in letters.items()})
-            self._protocol.fail_completions(error, only=moving)
-
-    async def _motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
-                      targets: Mapping[str, float], relative: bool = False) -> dict[str, str]:
-        self._check_axes(command, targets)
-        limit = check_timeout(timeout) or await self._motion_timeout(
-            command, targets, relative)
-        async with self._motion_lock:
-            await self._join_detached()
-            sent = self._send(command, check=True)
-            try:
-                return await self._run_motion(sent, limit)
-            except asyncio.CancelledError:
-                if stop_on_cancel:
-                    await self._stop_after_cancel(sent)
-                else:
-                    self._detached = asyncio.ensure_future(self._finish_detached(sent, limit))
-                raise
-
-    async def _run_motion(self, sent: MoveHandle, limit: float) -> dict[str, str]:
-        try:
-            await self._confirm(sent)
-        except (RequestAbortedError, ControllerTimeoutError):
-            # The check was lost (Ctrl+C or a resync): the move may or may not run.
-            await self._settle(sent)
-            letters = sent.reported_letters
-            if letters:  # it ran, and reported before the axes stood still
-                return _check_letters(sent.command, letters)
-            raise
-        return await self._await_completion(sent, limit)
-
-    async def _settle(self, submission: MoveHandle) -> None:
-        """Stop the axes, wait until they stand still and forget ``submission``'s report."""
-        with contextlib.suppress(TangoError, TimeoutError):
-            await self._protocol.stop_axes(True)
-            await self.wait_idle(timeout=60.0)
-        submission.forget()
-
-    async def _await_completion(self, submission: MoveHandle, limit: float) -> dict[str, str]:
-        try:
-            async with asyncio.timeout(limit) as scope:
-                letters = await self._completion_letters(submission)
-        except TimeoutError:
-            if not scope.expired():
-                raise
-            letters = await self._completion_timeout(submission, limit)
-        return _check_letters(submission.command, letters)
-
-    async def _completion_letters(self, submission: MoveHandle) -> dict[str, str]:
-        """The status letters of a finished move: from its report, or by polling
-        ``statusaxis`` (autostatus 0, and the bare CR of autostatus 3)."""
-        if submission.expects_report:
-            report = await submission.report()
-            if report.letters is not None:
-                return dict(report.letters)
-        return await self._poll_idle()
-
-    async def _poll_idle(self, poll_interval: float = 0.05) -> dict[str, str]:
-        """Like :meth:`wait_idle`, but a poll lost to a resync (Ctrl+C) is repeated.
-
-        Polls only the link the caller's move was sent on: should that link be lost
-        between two polls and a reconnect be quick, the new link's idle axes must not
-        pass for the end of the move (it fails with ConnectionLostError instead).
-        """
-        link = self._protocol
-        while True:
-            link.check()
-            try:
-                letters = await self.status()
-            except RequestAbortedError:
-                continue
-            if "M" not in letters.values():
-                return letters
-            await asyncio.sleep(poll_interval)
-
-    async def _completion_timeout(self, submission: MoveHandle, limit: float
-                                  ) -> dict[str, str]:
-        # The report may never come (autostatus changed to 0 mid-move, or a firmware whose
-        # mode 4 echo replaces the report). If the axes are idle, take their status.
-        letters = await self.status()
-        submission.forget()
-        if "M" not in letters.values():
-            log.warning("no completion report for %r; axes idle, using statusaxis",
-                        submission.command.line)
-            return letters
+        self._motion.stopped()
+        # ``a`` first: it stops the axes at once even on a controller that ignores Ctrl+C,
+        # and Ctrl+C behind it still discards whatever is queued in the input buffer.
         await self._protocol.stop_axes(True)
-        raise ControllerTimeoutError(
-            f"{submission.command.line!r} did not complete within {limit:.1f} s; axes stopped"
-        )
-
-    async def _stop_after_cancel(self, sent: MoveHandle) -> None:
-        """The awaiting task was cancelled: stop the axes and wait for them to stop."""
-        with contextlib.suppress(TangoError):
-            await self._protocol.stop_axes(True)
-        try:
-            # Shielded (with a time limit) so that the stop is awaited even when the
-            # cancellation comes from a level-triggered anyio scope that would otherwise
-            # cancel every await of this clean-up at once.
-            with contextlib.suppress(Exception, asyncio.CancelledError), \
-                    anyio.move_on_after(STOP_WAIT, shield=True):
-                if not await self._refused(sent):
-                    await self._stopped(sent)
-        finally:
-            sent.forget()
-
-    async def _refused(self, sent: MoveHandle) -> bool:
-        """Wait for the check of a sent motion line; True if the controller refused it."""
-        error = await sent.error(self.reply_timeout)
-        return error is not None
-
-    async def _stopped(self, submission: MoveHandle) -> None:
-        if not submission.expects_report:
-            await self._poll_idle()
-        else:
-            await submission.report()
-
-    async def _finish_detached(self, sent: MoveHandle, limit: float) -> None:
-        """Let a move whose caller was cancelled (``stop_on_cancel=False``) run to its end,
-        consuming its report, so that the next move starts after it."""
-        try:
-            with contextlib.suppress(Exception):
-                if not await self._refused(sent):
-                    await self._await_completion(sent, limit)
-        finally:
-            sent.forget()
-
-    async def _join_detached(self) -> None:
-        detached, self._detached = self._detached, None
-        if detached is not None:
-            await asyncio.shield(detached)
-
-    async def _motion_timeout(self, command: Command, targets: Mapping[str, float],
-                              relative: bool) -> float:
-        """A generous upper bound of the move duration: trapezoid time at the slowest
-        plausible speed (vel capped by secvel), doubled, plus two seconds."""
-        if command.instruction.completion in (Completion.CAL, Completion.RM):
-            return 150.0  # caltimeout is at most 120 s per axis (manual L5251)
-        if command.name == "moc" or not targets:
-            return 120.0
-        start = {} if relative else await self.position()
-        worst = 0.0
-        for axis, target in targets.items():
-            distance = abs(target - start.get(axis, 0.0)) if not relative else abs(target)
-            worst = max(worst, self._travel_time(AXES.index(axis), distance))
-        return 2.0 * worst + 2.0
-
-    def _travel_time(self, index: int, distance: float) -> float:
-        s = self._settings
-        scale = UnitScale(dim=s.dims[index], pitch=s.pitch[index])
-        revs = abs(scale.pos_from_user(distance))
-        speed = min(scale.vel_from_user(s.vel[index]), scale.mm_to_rev(s.secvel[index]))
-        accel = scale.accel_to_rev(s.accel[index])
-        if speed <= 0 or accel <= 0:
-            return 60.0
-        ramp = speed / accel
-        if revs < speed * ramp:
-            return 2.0 * math.sqrt(revs / accel)
-        return revs / speed + ramp
+        if not soft:
+            try:
+                await self._protocol.stop_axes(False, timeout=self.reply_timeout)
+            except ControllerTimeoutError:
+                # Ctrl+C may have been taken as part of the marker line (a controller that
+                # ignores it): resync again without it.
+                await self._protocol.resync(timeout=self.reply_timeout)
+                await self._protocol.read_autostatus(timeout=self.reply_timeout)
+            await self._protocol.stop_axes(True)  # in case Ctrl+C discarded the first ``a``
+            self._motion.stopped()
+        if wait:
+            try:
+                await self.wait_idle(timeout=STOP_WAIT)
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"axes still moving {STOP_WAIT:.0f} s after the abort") from None
 
     # -- trigger and snapshot lists ---------------------------------------------------------
 
     def _transfer(self) -> ListTransfer:
-        return ListTransfer(self._protocol, self.reply_timeout)
+        return ListTransfer(self._protocol, self.reply_timeout, self._list_lock)
+
+    async def _resolution(self) -> list[float]:
+        """Per present axis, one unit of the last digit ``?pos`` prints (the position
+        resolution, L4080-4100)."""
+        texts = await self._position_texts()
+        return [position_tolerance(text) / 1.5 for text in texts.values()]
 
     async def upload_trigger_positions(self, positions: Sequence[float], axis: str = "x",
                                        progress: Progress | None = None) -> None:
         """Replace the trigger position list of ``axis`` with ``positions`` at wire speed.
 
-        The list is validated first (at most 10000 finite, strictly monotonic values),
-        cleared with ``!trigp axis 0``, then every entry is appended through the write-credit
-        limiter and the count is checked along the way. ``progress(done, total)`` is called
-        at each checkpoint. A rejected entry raises :class:`~tango_aio.bulk.UploadError`
-        with its index and error code. Cancelling stops sending and leaves the driver in
-        sync (the list then holds what was sent so far).
+        Every entry is validated first (at most 10000 finite, strictly monotonic values the
+        catalog accepts, none non-zero below the position resolution, which would read
+        back as 0.0); only then is the list cleared with ``!trigp axis 0`` and every entry
+        appended through the write-credit limiter, the count checked along the way. A bad
+        entry raises :class:`~tango_aio.errors.InvalidCommandError` and leaves the list
+        untouched. Uploads (and list reads) of one controller run one at a time.
+        ``progress(done, total)`` is called at each checkpoint. An entry the controller
+        rejects raises :class:`~tango_aio.bulk.UploadError` with its index and error code.
+        Cancelling stops sending and leaves the driver in sync (the list then holds what
+        was sent so far).
         """
+        letter = check_axis(axis)
         values = validate_trigger_positions(positions)
-        await self.command(f"!trigp {check_axis(axis)} 0")
-        await self._transfer().upload(trigger_spec(), [[v] for v in values], progress)
+        resolution = await self._resolution()
+        check_resolution([[v] for v in values], [resolution[AXES.index(letter)]], "trigp")
+        await self._transfer().replace(
+            trigger_spec(), lambda: self.command(f"!trigp {letter} 0"),
+            [[v] for v in values], progress)
 
     async def read_trigger_positions(self) -> list[float]:
         """Read the whole trigger position list with pipelined ``?trigp n`` reads."""
@@ -770,12 +843,13 @@ class Controller:
 
     async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
                                         progress: Progress | None = None) -> None:
-        """Replace the snapshot array with ``rows`` (at most 1024 rows of per-axis
-        positions, X first), like :meth:`upload_trigger_positions`."""
-        axes = self._identity.axes if self._identity else len(AXES)
+        """Replace the snapshot array with ``rows`` (at most 1024 rows, each with one
+        position per axis, X first), like :meth:`upload_trigger_positions`."""
+        axes = self._identity.axes if self._identity else self.context.axes
         values = validate_rows(rows, axes)
-        await self.command("!snsa 0")
-        await self._transfer().upload(snapshot_spec(), values, progress)
+        check_resolution(values, await self._resolution(), "snsa")
+        await self._transfer().replace(snapshot_spec(), lambda: self.command("!snsa 0"),
+                                       values, progress)
 
     async def read_snapshot_positions(self) -> list[list[float]]:
         """Read every snapshot entry (``?snsc`` of them) with pipelined ``?snsa n`` reads;
@@ -922,7 +996,7 @@ class Controller:
         while True:
             letters = await self.status()
             update = PositionUpdate(await self.position(unit=unit))
-            idle = "M" not in letters.values() and not self._motion_lock.locked()
+            idle = "M" not in letters.values() and not self._motion.busy
             if not (follow and idle and update.positions == last):
                 self._hub.publish(update)
                 yield update
@@ -934,44 +1008,82 @@ class Controller:
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
         if isinstance(event, Completed):
             self._publish_completion(event, submission)
+            self._motion.hint()
         elif isinstance(event, Unsolicited):
             self._hub.publish(UnsolicitedLine(event.line))
         elif isinstance(event, Dropped):
             log.debug("dropped %r", event.line)
 
     def _publish_completion(self, event: Completed, submission: Submission | None) -> None:
+        """A report is a hint for the moves tango_aio.motion follows (they publish
+        MoveFinished once confirmed). A report no move waited for is a StatusReport; one
+        that ends a raw ``command()`` move is published as it came."""
         letters = event.letters or {}
         if submission is None:
             self._hub.publish(StatusReport(letters, event.line))
-            return
-        completion = submission.command.instruction.completion
-        kind = _KINDS.get(completion, "move") if completion else "move"
-        ok = not (set(letters.values()) & FAILED_LETTERS)
-        self._hub.publish(MoveFinished(kind, letters, ok))
+        elif not self._motion.follows(submission):
+            completion = submission.command.instruction.completion
+            kind = {Completion.CAL: "cal", Completion.RM: "rm"}.get(completion, "move") \
+                if completion else "move"
+            ok = not (set(letters.values()) & FAILED_LETTERS)
+            self._hub.publish(MoveFinished(kind, letters, ok))
 
 
+class _Port:
+    """The controller as :class:`~tango_aio.motion.Motion` sees it
+    (:class:`~tango_aio.motion.MotionPort`)."""
 
-def _moved_axes(command: Command) -> set[str] | None:
-    """The axes a motion command moves (``None``: every enabled axis, e.g. ``cal``)."""
-    if command.axis is not None:
-        return {command.axis}
-    if command.values:
-        return set(AXES[: len(command.values)])
-    return None
+    def __init__(self, controller: Controller) -> None:
+        self._c = controller
+
+    @property
+    def reply_timeout(self) -> float:
+        return self._c.reply_timeout
+
+    def send_checked(self, command: Command) -> MoveHandle:
+        return self._c._send(command, check=True)
+
+    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
+        error = await self._c._error_of(sent, timeout)
+        if error is None:
+            self._c._track(sent.command)
+        return error
+
+    async def write_stop(self) -> None:
+        await self._c.protocol.stop_axes(True)
+
+    def check_link(self) -> None:
+        self._c.protocol.check()
+
+    async def status(self) -> dict[str, str]:
+        return await self._c.status()
+
+    async def position_texts(self) -> dict[str, str]:
+        return await self._c._position_texts()
+
+    def publish(self, event: object) -> None:
+        self._c._hub.publish(event)  # type: ignore[arg-type]
 
 
-def _check_letters(command: Command, letters: Mapping[str, str]) -> dict[str, str]:
-    """Raise :class:`MoveError` if an axis the command moved reports E, S or T.
+def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
+    """The lines that move exactly the named axes.
 
-    Only the moved axes count: letters polled from ``statusaxis`` (autostatus 0 and 3)
-    keep the sticky ``E`` of an axis aborted earlier, which says nothing about this move.
+    The manual addresses either one axis (``moa y 34.5``) or the leading axes from X
+    (``moa 10 0.5`` moves X and Y, L6353-6361); it has no form for another subset. Naming
+    an axis that should not move, with its current position, would move it by the
+    rounding of that position, and the ``distance``+``m`` form (L6420-6455) is relative
+    and changes a setting. So a set that starts at X without gaps is one vector line; any
+    other set is moved axis by axis, one line after the other, each followed to its end
+    (the controller's behaviour for a second move line while axes run is not documented,
+    so moves never overlap).
     """
-    moved = _moved_axes(command)
-    failed = {axis for axis, letter in letters.items()
-              if letter in FAILED_LETTERS and (moved is None or axis in moved)}
-    if failed:
-        raise MoveError(f"{command.line!r} ended with status {dict(letters)}", letters)
-    return dict(letters)
+    order = [axis for axis in AXES if axis in axes]
+    unknown = set(axes) - set(AXES)
+    if unknown or not order:
+        return [dict(axes)]  # build_axes reports the error
+    if order == list(AXES[: len(order)]):
+        return [{axis: axes[axis] for axis in order}]
+    return [{axis: axes[axis]} for axis in order]
 
 
-__all__ += ["FAILED_LETTERS", "ProtocolError"]
+__all__ += ["FAILED_LETTERS", "STOP_WAIT", "ProtocolError"]

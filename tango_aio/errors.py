@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 
 __all__ = [
     "ERROR_DESCRIPTIONS",
+    "INTERNAL_ERRORS",
     "AmplifiersDisabledError",
     "Aux24VOverloadError",
     "AuxSupplyOverloadError",
@@ -38,6 +39,7 @@ __all__ = [
     "EtsError",
     "HdiDeviceError",
     "HdiIsrError",
+    "InternalControllerError",
     "InternalDataError",
     "InvalidAxisNameError",
     "InvalidCommandError",
@@ -166,6 +168,29 @@ class ControllerError(TangoError):
 
 class UnknownControllerError(ControllerError):
     """An error number that the manual does not document."""
+
+
+#: Error numbers from here on may be persistent internal conditions rather than the
+#: result of the last instruction (manual L2853-2867: "typically no. 20 and above").
+INTERNAL_ERRORS = 20
+
+
+class InternalControllerError(ControllerError):
+    """The controller is in a persistent internal error state (``error_code`` >= 20, e.g.
+    29 amplifiers off) that ``?err`` reports although the last instruction was fine
+    (manual L2853-2867). It is not the fault of any command (``command`` is ``None``);
+    raised by :meth:`Controller.check_fault <tango_aio.controller.Controller.check_fault>`
+    and announced by the :class:`~tango_aio.events.ControllerFault` event."""
+
+    @property
+    def text(self) -> str:
+        """The manual's description of the error number."""
+        return error_class(self.error_code).description
+
+    def __init__(self, code: int | None = None, command: str | None = None) -> None:
+        super().__init__(code, command)
+        self.args = (f"controller reports internal error {self.error_code}: "
+                     f"{error_class(self.error_code).description} (not caused by a command)",)
 
 
 # One class per error number of the manual (firmware 1.71, chapter 5, L961-1034).

@@ -102,8 +102,23 @@ class Reconnected:
     time: float = field(default_factory=_now)
 
 
+@dataclass(frozen=True, slots=True)
+class ControllerFault:
+    """The controller reports a persistent internal error (``code`` >= 20, manual
+    L2853-2867) that no command caused; ``code`` 0 is never published. See
+    :class:`~tango_aio.errors.InternalControllerError`."""
+
+    code: int
+    text: str
+    time: float = field(default_factory=_now)
+
+
+
+__all__ += ["ControllerFault"]
+
 TangoEvent = (
     MoveFinished
+    | ControllerFault
     | MoveAborted
     | StatusReport
     | UnsolicitedLine

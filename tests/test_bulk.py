@@ -133,8 +133,62 @@ async def test_trigger_range_and_snapshot_round_trip(emulator: EmulatorFactory) 
     rows = [[round(i * 0.5, 4), round(-i * 0.25, 4), 1.0] for i in range(300)]
     await emu.tango.upload_snapshot_positions(rows)
     assert await emu.tango.read_snapshot_positions() == rows
-    await emu.tango.upload_snapshot_positions([[1.0], [2.0]])
-    assert await emu.tango.read_snapshot_positions() == [[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+
+
+
+async def test_a_short_snapshot_row_is_an_error_and_the_list_stays(
+        emulator: EmulatorFactory) -> None:
+    # #14 item 4: a row with fewer values than axes was padded with 0.0 silently.
+    emu = await emulator()
+    rows = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
+    await emu.tango.upload_snapshot_positions(rows)
+    before = emu.wire.lines_processed
+    with pytest.raises(InvalidCommandError, match="row 1 must hold 3"):
+        await emu.tango.upload_snapshot_positions([[1.0, 2.0, 3.0], [2.0]])
+    assert emu.wire.lines_processed == before
+    assert await emu.tango.read_snapshot_positions() == rows
+
+
+async def test_a_position_below_the_resolution_is_an_error(emulator: EmulatorFactory) -> None:
+    # #14 item 4: 0.00001 (resolution 0.0001 mm) read back as 0.0.
+    emu = await emulator()
+    await emu.tango.upload_trigger_positions([1.0, 2.0])
+    with pytest.raises(InvalidCommandError, match="below the position resolution"):
+        await emu.tango.upload_trigger_positions([0.00001, 1.0])
+    with pytest.raises(InvalidCommandError, match="below the position resolution"):
+        await emu.tango.upload_snapshot_positions([[1.0, -0.00002, 0.0]])
+    assert await emu.tango.read_trigger_positions() == [1.0, 2.0]
+
+
+async def test_a_bad_entry_late_in_the_list_leaves_the_list_untouched(
+        emulator: EmulatorFactory) -> None:
+    # #14 item 4: a value the catalog refuses at index 1000 left a cleared, half-written
+    # list; every line is now built before the list is cleared.
+    emu = await emulator()
+    await emu.tango.upload_trigger_positions([1.0, 2.0])
+    values = ramp(1200)
+    values[1000:] = [1e250 * (i + 1) for i in range(200)]
+    with pytest.raises(InvalidCommandError, match="entry 1000"):
+        await emu.tango.upload_trigger_positions(values)
+    assert await emu.tango.read_trigger_positions() == [1.0, 2.0]
+
+
+@pytest.mark.parametrize("url", ["sim://?baud=0", REALTIME])
+async def test_concurrent_uploads_are_serialised(emulator: EmulatorFactory, url: str) -> None:
+    # #14 item 4: one call reported success while the controller held the other list (or
+    # an empty one); _locate_rejection raised IndexError.
+    emu = await emulator(url)
+    first, second = ramp(450), ramp(300, start=100.0)
+    results = await asyncio.gather(emu.tango.upload_trigger_positions(first),
+                                   emu.tango.upload_trigger_positions(second),
+                                   return_exceptions=True)
+    assert results == [None, None]
+    assert await emu.tango.read_trigger_positions() == second  # the later caller's list
+    rows = [[float(i), 0.0, 1.0] for i in range(1, 40)]
+    await asyncio.gather(emu.tango.upload_snapshot_positions(rows),
+                         emu.tango.upload_trigger_positions(first))
+    assert await emu.tango.read_snapshot_positions() == rows
+    assert await emu.tango.read_trigger_positions() == first
 
 
 async def test_marker_errors_are_attributed_to_the_lines_they_cover(

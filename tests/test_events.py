@@ -133,12 +133,16 @@ async def test_subscribers_get_move_finished_with_letters(emulator: EmulatorFact
         await subscription.aclose()
 
 
-async def test_mode3_move_finished_has_no_letters(emulator: EmulatorFactory) -> None:
+async def test_mode3_move_finished_has_the_confirmed_letters(emulator: EmulatorFactory
+                                                             ) -> None:
+    # The bare CR of autostatus 3 carries no letters; the move is confirmed with
+    # ?statusaxis (tango_aio.motion), whose letters MoveFinished carries.
     emu = await emulator(autostatus=3)
     async with emu.tango.events() as events:
         await emu.tango.move_to(x=0.01)
         finished = [e for e in buffered(events) if isinstance(e, MoveFinished)]
-    assert [(e.kind, dict(e.statuses), e.ok) for e in finished] == [("move", {}, True)]
+    assert [(e.kind, dict(e.statuses), e.ok) for e in finished] == [
+        ("move", {"x": "@", "y": "@", "z": "@"}, True)]
 
 
 async def test_unsolicited_lines_and_status_reports(emulator: EmulatorFactory) -> None:

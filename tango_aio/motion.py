@@ -1,0 +1,520 @@
+"""Awaitable motion: completion, confirmation, timeouts, cancel and detached moves.
+
+:class:`Controller <tango_aio.controller.Controller>` is the facade; this module decides
+when a move has ended and whether it ended well. The rule is **no false success**: a
+move returns normally only when every axis it moved stands still at its target.
+
+How a move is followed
+======================
+1. The move line is written, with its check (the autostatus-2 acknowledgement or an
+   ``?err`` probe right behind it). A refused line raises its ``ControllerError``.
+2. The driver then waits for a *hint*: any completion report (``@@@-.``, or the bare CR
+   of autostatus 3), an abort by the driver, or the time at which the move should have
+   ended (its :attr:`MovePlan.expected` duration). A report is only a hint, because the
+   manual lets reports come that do not mean "this move has ended":
+
+   * ``!joy 0`` sends ``@@@-.`` while the axes may still run (L2093, L7154);
+   * ``!pause`` delays the report after the axes stopped (L6873-6899), so a report may
+     arrive after the move was already settled by polling and be taken for the next one;
+   * the ``a`` instruction may send a report of its own (older firmware, old L725);
+   * an older unit may leave absent axes out of the report, so the letters cannot be
+     assigned to axes (the report ``@S.`` says nothing certain about Y).
+
+3. Each hint is *confirmed* by reading the state: ``?statusaxis`` (the manual's way to
+   poll a move, L2662-2721: every letter except ``M`` means the axis stopped) and, for
+   ``move_to``/``move_by``, ``?pos`` against the target. A move succeeds only when every
+   moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
+   and stands within :func:`position_tolerance` of its target. An axis that stopped
+   elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`,
+   but only once the expected end has passed: before it, a move that has not started yet
+   (``!delay``, L6845-6868) can read like the previous state.
+4. A move during which the driver itself wrote ``a`` or Ctrl+C never succeeds, whatever
+   letters are reported: the "stop epoch" counts the driver's stops, and a move that saw
+   it change raises :class:`MoveError` once its axes stand still. (Older firmware reports
+   axes stopped by ``a`` as ``@``, old L1917, so the letter alone cannot tell.)
+
+Timeouts
+========
+A move's time budget counts from the moment its line is written (a move waiting behind
+another one does not spend it), and covers ``delay`` before the start (L6845-6868), the
+travel (trapezoid at the slowest plausible speed), ``pause`` after it (L6873-6899) and
+the closed-loop settling time ``ctrt`` (L11616-11631). When no report comes, the state is
+polled from shortly after the expected end, with an interval that grows to
+:data:`POLL_MAX`; the move fails with :class:`ControllerTimeoutError` (axes stopped) when
+the budget is spent and an axis still moves.
+
+Cancellation
+============
+Cancelling an awaited move stops the axes (``a``) and waits, shielded, up to
+:data:`STOP_WAIT` for them to stand still. With ``stop_on_cancel=False`` the move goes on
+*detached*: it is followed to its end in the background and the next move waits for it.
+A move cancelled while it waits behind a detached move leaves the detached move recorded
+(it is forgotten only once it has ended).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import anyio
+
+from .errors import (
+    ControllerError,
+    ControllerTimeoutError,
+    MoveError,
+    ProtocolError,
+    RequestAbortedError,
+    TangoError,
+)
+from .events import MoveFinished
+from .instructions import AXES, Command, Completion
+from .protocol import MoveHandle, Submission
+from .units import UnitScale
+
+__all__ = [
+    "FAILED_LETTERS",
+    "POLL_MAX",
+    "POLL_MIN",
+    "STOP_WAIT",
+    "Motion",
+    "MotionPort",
+    "MovePlan",
+    "MoveTiming",
+    "moved_axes",
+    "position_tolerance",
+    "travel_time",
+]
+
+log = logging.getLogger("tango_aio")
+
+#: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
+STOP_WAIT = 10.0
+
+#: Status letters that mean a move did not end where it should (manual L2689-2711).
+FAILED_LETTERS = frozenset("EST")
+
+#: The only letter that means "still moving" (manual L2676-2681: "every response except
+#: of 'M' means the axis has stopped").
+MOVING = "M"
+
+#: First and longest interval between two state polls once the expected end has passed.
+POLL_MIN = 0.05
+POLL_MAX = 0.5
+
+#: Extra time after the expected end before the first poll (report latency on the wire).
+POLL_GRACE = 0.05
+
+#: A state read that failed but left the link usable (ConnectionLostError is not one).
+_LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
+
+_KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
+
+
+@dataclass(slots=True)
+class MoveTiming:
+    """Per-axis and global settings the driver caches to time moves."""
+
+    dims: list[int] = field(default_factory=lambda: [2, 2, 2, 2])
+    pitch: list[float] = field(default_factory=lambda: [1.0] * 4)
+    vel: list[float] = field(default_factory=lambda: [10.0] * 4)
+    accel: list[float] = field(default_factory=lambda: [1.0] * 4)
+    secvel: list[float] = field(default_factory=lambda: [10.0] * 4)
+    extmode: int = 0
+    #: ``!delay`` (ms) before a moa/mor/m/moc starts (L6845-6868).
+    delay_ms: float = 0.0
+    #: ``!pause`` (ms) after the axes reached their target, before the report (L6873-6899).
+    pause_ms: float = 0.0
+    #: ``!ctrt`` (ms): longest closed-loop settling before the report (L11616-11631).
+    settle_ms: float = 0.0
+
+    def travel(self, axis: str, distance: float) -> float:
+        """Seconds a single-axis trapezoid move of ``distance`` takes at the slowest
+        plausible speed (vel capped by secvel)."""
+        index = AXES.index(axis)
+        scale = UnitScale(dim=self.dims[index], pitch=self.pitch[index])
+        return travel_time(abs(scale.pos_from_user(distance)),
+                           min(scale.vel_from_user(self.vel[index]),
+                               scale.mm_to_rev(self.secvel[index])),
+                           scale.accel_to_rev(self.accel[index]))
+
+
+def travel_time(revs: float, speed: float, accel: float) -> float:
+    """Seconds to travel ``revs`` revolutions with a trapezoid profile (60 s when the
+    speed or acceleration is unknown)."""
+    if speed <= 0 or accel <= 0 or not math.isfinite(speed + accel):
+        return 60.0
+    ramp = speed / accel
+    if revs < speed * ramp:
+        return 2.0 * math.sqrt(revs / accel)
+    return revs / speed + ramp
+
+
+@dataclass(frozen=True, slots=True)
+class MovePlan:
+    """What one motion line does and how long it may take."""
+
+    command: Command
+    #: The axes the line moves (every present axis for ``cal``/``rm`` without one).
+    moved: tuple[str, ...]
+    #: Absolute targets to confirm with ``?pos`` (``None``: cal, rm, moc have none).
+    targets: Mapping[str, float] | None
+    #: Seconds from writing the line to its expected end (delay + travel + pause).
+    expected: float
+    #: Seconds from writing the line before the move is given up (timeout).
+    limit: float
+    #: Position tolerance per moved axis (``targets`` only).
+    tolerance: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        """``"move"``, ``"cal"`` or ``"rm"`` (for :class:`MoveFinished`)."""
+        completion = self.command.instruction.completion
+        return _KINDS.get(completion, "move") if completion else "move"
+
+
+def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
+    """The axes a motion line moves: its axis, the leading axes it has values for, or every
+    present axis (``cal``, ``rm``, ``moc`` without an axis)."""
+    if command.axis is not None:
+        return (command.axis,)
+    if command.values:
+        return tuple(AXES[: len(command.values)])
+    return tuple(present)
+
+
+def position_tolerance(text: str) -> float:
+    """How far a position read as ``text`` may be from its target: one and a half units of
+    its last printed digit (the controller prints positions rounded to its ``resolution``,
+    L4080-4100; a ``move_by`` target carries the rounding of the start position too)."""
+    digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
+    return 1.5 * 10.0 ** -digits
+
+
+class MotionPort(Protocol):
+    """What :class:`Motion` needs from the controller facade."""
+
+    @property
+    def reply_timeout(self) -> float:
+        """Seconds to wait for a reply."""
+        ...
+
+    def send_checked(self, command: Command) -> MoveHandle:
+        """Write a motion line and its check; return at once."""
+        ...
+
+    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
+        """Wait for the check of ``sent``; the controller's error, if it refused it."""
+        ...
+
+    async def write_stop(self) -> None:
+        """Write ``a`` (stop every axis, keep queued lines)."""
+        ...
+
+    def check_link(self) -> None:
+        """Raise ConnectionLostError if the link is gone."""
+        ...
+
+    async def status(self) -> dict[str, str]:
+        """``?statusaxis`` of every present axis (letters assigned with certainty)."""
+        ...
+
+    async def position_texts(self) -> dict[str, str]:
+        """``?pos`` of every present axis, as printed by the controller."""
+        ...
+
+    def publish(self, event: object) -> None:
+        """Hand an event to the subscribers."""
+        ...
+
+
+@dataclass(slots=True)
+class _Job:
+    """One motion line being followed."""
+
+    plan: MovePlan
+    sent: MoveHandle
+    started: float
+    epoch: int
+    #: The hint count when the state was last read.
+    hints: int = -1
+
+
+class Motion:
+    """Runs and follows the moves of one controller (serialised: one at a time)."""
+
+    def __init__(self, port: MotionPort) -> None:
+        self._port = port
+        self._lock = asyncio.Lock()
+        self._detached: asyncio.Task[None] | None = None
+        #: How often the driver wrote ``a`` or Ctrl+C (the stop epoch).
+        self._stops = 0
+        #: How many hints (reports, stops, link changes) came so far.
+        self._hints = 0
+        self._wake = asyncio.Event()
+        #: The submissions of the moves being followed.
+        self._followed: set[Submission] = set()
+
+    # -- state seen by the facade ---------------------------------------------------------
+
+    @property
+    def busy(self) -> bool:
+        """Whether a move of this driver is in flight (awaited or detached)."""
+        return self._lock.locked() or (self._detached is not None
+                                       and not self._detached.done())
+
+    def follows(self, submission: Submission) -> bool:
+        """Whether ``submission`` is a move this module follows (and confirms): its
+        completion report is then only a hint, and :class:`MoveFinished` is published
+        once the move is confirmed."""
+        return submission in self._followed
+
+    def stopped(self) -> None:
+        """The driver wrote ``a`` or Ctrl+C: no move in flight may succeed; wake them."""
+        self._stops += 1
+        self.hint()
+
+    def hint(self) -> None:
+        """Something happened that may have ended a move (a completion report, matched or
+        not, a stop, a lost link): every move being followed re-reads the state."""
+        self._hints += 1
+        wake, self._wake = self._wake, asyncio.Event()
+        wake.set()
+
+    def cancel_detached(self) -> None:
+        """Stop following a detached move (the connection is being closed)."""
+        if self._detached is not None:
+            self._detached.cancel()
+
+    # -- running a move ------------------------------------------------------------------
+
+    async def run(self, command: Command, plan_for: Callable[[Command], Awaitable[MovePlan]],
+                  stop_on_cancel: bool) -> dict[str, str]:
+        """Write ``command`` once no other move is in flight, follow it to its end and
+        return the status letters of every present axis.
+
+        ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
+        queued move's timeout and targets are computed from where its axes really start.
+        """
+        async with self._lock:
+            await self._join_detached()
+            plan = await plan_for(command)
+            job = _Job(plan, self._port.send_checked(command),
+                       asyncio.get_running_loop().time(), self._stops)
+            try:
+                return await self._run(job)
+            except asyncio.CancelledError:
+                if stop_on_cancel:
+                    await self._stop_after_cancel(job)
+                else:
+                    self._detached = asyncio.ensure_future(self._finish_detached(job))
+                raise
+
+    async def _join_detached(self) -> None:
+        """Wait until a detached move has ended. If this wait is cancelled, the detached
+        move stays recorded, so the next move still waits for it (#14 item 3)."""
+        while (detached := self._detached) is not None:
+            await asyncio.shield(detached)
+            if self._detached is detached:
+                self._detached = None
+
+    async def _run(self, job: _Job) -> dict[str, str]:
+        self._followed.add(job.sent.submission)
+        try:
+            return await self._checked(job)
+        finally:
+            self._followed.discard(job.sent.submission)
+
+    async def _checked(self, job: _Job) -> dict[str, str]:
+        try:
+            error = await self._port.error_of(job.sent, self._port.reply_timeout)
+        except (RequestAbortedError, ControllerTimeoutError):
+            # The check was lost (Ctrl+C or a resync): the move may or may not run. Stop
+            # it and fail: success is never assumed.
+            aborted = job.epoch != self._stops
+            await self._stop_and_wait(job)
+            if aborted:
+                await self._aborted(job, {})
+            raise
+        if error is not None:
+            job.sent.forget()
+            raise error
+        try:
+            letters = await self._follow(job)
+        except BaseException:
+            job.sent.forget()
+            raise
+        job.sent.forget()
+        return letters
+
+    async def _follow(self, job: _Job) -> dict[str, str]:
+        """Wait for hints and confirm them until the move has ended (see module doc)."""
+        loop = asyncio.get_running_loop()
+        plan = job.plan
+        expected_end = job.started + plan.expected
+        deadline = job.started + plan.limit
+        next_poll = expected_end + POLL_GRACE
+        interval = POLL_MIN
+        while True:
+            delay = min(next_poll, deadline) - loop.time()
+            if delay > 0 and job.epoch == self._stops and job.hints == self._hints:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(delay):
+                        await self._wake.wait()
+            job.hints = self._hints  # hints from now on come after this state read
+            self._port.check_link()
+            try:
+                letters = await self._state()
+            except _LOST_READ:
+                if job.epoch == self._stops:
+                    raise
+                letters = {}  # the driver's stop (e.g. an ignored Ctrl+C) disturbed the read
+            now = loop.time()
+            if job.epoch != self._stops:
+                return await self._aborted(job, letters)
+            if any(letters.get(axis) == MOVING for axis in plan.moved):
+                if now >= deadline:
+                    await self._timed_out(job)
+                if now < expected_end:
+                    # A false hint (e.g. !joy 0): the real report or the expected end
+                    # comes next.
+                    next_poll = expected_end + POLL_GRACE
+                else:
+                    next_poll = now + interval
+                    interval = min(interval * 1.5, POLL_MAX)
+                continue
+            letters = _with_report(job, letters)
+            verdict = await self._verdict(job, letters)
+            if verdict is None:
+                report = job.sent.submission.completion
+                if report is not None and not report.done():
+                    log.warning("no completion report for %r; axes at the target, settled "
+                                "by polling ?statusaxis", plan.command.line)
+                self._finished(job, letters, ok=True)
+                return letters
+            if now < expected_end:
+                # Before the expected end a stopped axis may be one whose move has not
+                # started yet (!delay, L6845-6868): look again at the expected end.
+                next_poll = expected_end + POLL_GRACE
+                continue
+            self._finished(job, letters, ok=False)
+            raise MoveError(f"{plan.command.line!r} {verdict}", letters)
+
+    async def _state(self) -> dict[str, str]:
+        """The status letters, read again (up to 3 times) when the read was lost: discarded
+        by a Ctrl+C resync, unanswered, or met by a line that is not its reply (the stream
+        is resynchronised each time, so the next read is in step)."""
+        for _ in range(2):
+            try:
+                return await self._port.status()
+            except _LOST_READ:
+                self._port.check_link()
+        return await self._port.status()
+
+    async def _verdict(self, job: _Job, letters: Mapping[str, str]) -> str | None:
+        """``None`` if every moved axis ended well; else what went wrong."""
+        plan = job.plan
+        failed = {a: letters.get(a, "-") for a in plan.moved
+                  if letters.get(a, "-") in FAILED_LETTERS}
+        if failed:
+            return f"ended with status {dict(letters)}"
+        if plan.targets is None:
+            return None
+        texts = await self._port.position_texts()
+        off = {}
+        for axis, target in plan.targets.items():
+            text = texts.get(axis)
+            if text is None:
+                off[axis] = "not read"
+                continue
+            if abs(float(text) - target) > max(position_tolerance(text),
+                                               plan.tolerance.get(axis, 0.0)):
+                off[axis] = text
+        if off:
+            return f"stopped short of its target: at {off}, target {dict(plan.targets)}"
+        return None
+
+    async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
+        """The driver stopped the axes during this move: wait until they stand still,
+        then fail (never a success, whatever the letters say)."""
+        with contextlib.suppress(TimeoutError, *_LOST_READ):
+            letters = await self._idle(job, STOP_WAIT)
+        self._finished(job, letters, ok=False)
+        raise MoveError(f"{job.plan.command.line!r} was aborted",
+                        {a: ("E" if a in job.plan.moved and s not in FAILED_LETTERS else s)
+                         for a, s in letters.items()})
+
+    async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
+        async with asyncio.timeout(timeout):
+            while True:
+                letters = await self._state()
+                if all(letters.get(a) != MOVING for a in job.plan.moved):
+                    return letters
+                await asyncio.sleep(POLL_MIN)
+
+    async def _timed_out(self, job: _Job) -> None:
+        await self._stop_and_wait(job)
+        raise ControllerTimeoutError(
+            f"{job.plan.command.line!r} did not complete within {job.plan.limit:.1f} s; "
+            "axes stopped")
+
+    async def _stop_and_wait(self, job: _Job) -> None:
+        """Write ``a`` and wait (bounded) until the moved axes stand still."""
+        with contextlib.suppress(TangoError):
+            await self._port.write_stop()
+            self.stopped()
+        with contextlib.suppress(TangoError, TimeoutError):
+            await self._idle(job, STOP_WAIT)
+        job.sent.forget()
+
+    async def _stop_after_cancel(self, job: _Job) -> None:
+        """The awaiting task was cancelled: stop the axes and wait for them to stop.
+
+        Shielded (with a time limit) so that the stop is awaited even when the cancellation
+        comes from a level-triggered anyio scope that would otherwise cancel every await of
+        this clean-up at once."""
+        with contextlib.suppress(TangoError):
+            await self._port.write_stop()
+            self.stopped()
+        try:
+            with contextlib.suppress(Exception, asyncio.CancelledError), \
+                    anyio.move_on_after(STOP_WAIT, shield=True):
+                if await self._port.error_of(job.sent, self._port.reply_timeout) is None:
+                    await self._idle(job, STOP_WAIT)
+        finally:
+            job.sent.forget()
+
+    async def _finish_detached(self, job: _Job) -> None:
+        """Follow a move whose caller was cancelled (``stop_on_cancel=False``) to its end,
+        so that the next move starts after it."""
+        try:
+            with contextlib.suppress(Exception):
+                await self._run(job)
+        finally:
+            job.sent.forget()
+
+    def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
+        self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
+
+
+def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:
+    """The letters to return: the confirmed ``?statusaxis`` letters of the moved axes, and
+    for the other axes those of the completion report the move got, when it has one
+    letter per present axis (``statusaxis`` keeps e.g. the ``D`` of an earlier ``rm``,
+    which says nothing about this move, L2676-2711). A report with fewer letters cannot
+    be assigned to axes and is not used."""
+    report = job.sent.submission.completion
+    if report is None or not report.done() or report.cancelled() \
+            or report.exception() is not None:
+        return letters
+    reported = report.result().letters
+    if not reported or set(reported) != set(letters):
+        return letters
+    merged = dict(reported)
+    merged.update({axis: letters[axis] for axis in job.plan.moved if axis in letters})
+    return merged
