@@ -67,6 +67,9 @@ class CannedTransport(asyncio.Transport):
         self.memory: dict[bytes, bytes] = {}
         self.reports: tuple[bytes, ...] = ()
         self.delivered_at = 0.0
+        #: Where canned moves put the axes: ``?pos`` answers these (a move's confirmation
+        #: reads it), since the emulator never runs the canned move lines.
+        self.positions = [0.0, 0.0, 0.0]
         self._partial = b""
         self._emitted: list[bytes] = []
         self._closed = False
@@ -80,7 +83,11 @@ class CannedTransport(asyncio.Transport):
         replies = []
         for line in lines:
             if self.reports and line.startswith(self.reports):
+                self._move(line)
                 self._loop.call_later(REPORT_DELAY, self._report)
+                continue
+            if line.startswith(b"?pos"):
+                replies.append(self._positions(line[4:].strip()))
                 continue
             reply = None if self.recording else self.memory.get(line)
             if reply is None:
@@ -92,6 +99,23 @@ class CannedTransport(asyncio.Transport):
             replies.append(reply)
         if any(replies):
             self._loop.call_soon(self.protocol.data_received, b"".join(replies))
+
+    def _positions(self, axis: bytes) -> bytes:
+        """The ``?pos`` (or ``?pos x``) reply for where the canned moves left the axes."""
+        chosen = [self.positions["xyz".index(axis.decode())]] if axis else self.positions
+        return " ".join(f"{p:.4f}" for p in chosen).encode() + b"\r"
+
+    def _move(self, line: bytes) -> None:
+        """Follow an absolute move line (``!moa x 0.01``, ``!moa 1 2``)."""
+        words = line.decode("ascii").split()
+        if not words or words[0].lstrip("!") != "moa":
+            return
+        values = words[1:]
+        if values and values[0] in ("x", "y", "z"):
+            self.positions["xyz".index(values[0])] = float(values[1])
+        else:
+            for index, value in enumerate(values[:3]):
+                self.positions[index] = float(value)
 
     def _report(self) -> None:
         if not self._closed:

@@ -646,12 +646,14 @@ class Controller:
         gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
         semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
         the connection's ``units``, else the dim unit) or pint Quantities."""
+        check_timeout(timeout)  # refused before anything is read or written
         axes = await self._to_controller(axes, unit, 0)
         return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, **axes: float) -> dict[str, str]:
         """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
+        check_timeout(timeout)  # refused before anything is read or written
         axes = await self._to_controller(axes, unit, 0)
         return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
 
@@ -685,6 +687,7 @@ class Controller:
 
     async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
                                stop_on_cancel: bool) -> dict[str, str]:
+        check_timeout(timeout)  # refused before anything is written
         if not axes:
             return await self._run_motion(build(name, form=Form.SET), timeout,
                                           stop_on_cancel, None, False)

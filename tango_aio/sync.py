@@ -290,6 +290,7 @@ class Controller(_Wrapper[AsyncController]):
     go = _Blocking(AsyncController.go)
     speed = _Blocking(AsyncController.speed)
     abort = _Blocking(AsyncController.abort)
+    check_fault = _Blocking(AsyncController.check_fault)
     upload_trigger_positions = _Blocking(AsyncController.upload_trigger_positions)
     read_trigger_positions = _Blocking(AsyncController.read_trigger_positions)
     set_trigger_range = _Blocking(AsyncController.set_trigger_range)
