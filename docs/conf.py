@@ -44,8 +44,13 @@ autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "
 autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
-autodoc_preserve_defaults = True
-suppress_warnings = ["myst.xref_missing"]
+# False: tango_aio.sync.connect takes its signature from tango_aio.connect (__signature__),
+# which the source-based default preservation cannot follow.
+autodoc_preserve_defaults = False
+# "ref.python": a short name such as ``Controller`` or ``Wire`` names two documented
+# objects (tango_aio.Controller and tango_aio.sync.Controller; tango_aio.sim.Wire, which
+# re-exports tango_aio.sim.wire.Wire); Sphinx links the first, which is right for both.
+suppress_warnings = ["myst.xref_missing", "ref.python"]
 
 
 

@@ -193,6 +193,11 @@ class _Blocking(Generic[A, P, R]):
 
         return call
 
+    def __call__(self, obj: _Wrapper[A], /, *args: P.args, **kwargs: P.kwargs) -> R:
+        """Call through the class (``Controller.move_to(tango, x=1)``); this also makes
+        the method callable for introspection (documentation tools)."""
+        return self.__get__(obj, type(obj))(*args, **kwargs)
+
 
 class _Starter(Generic[A, P, R]):
     """``start_<name>``: start the async method ``method`` and return a future at once."""
