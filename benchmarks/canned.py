@@ -12,8 +12,9 @@ real link. Side by side, in one run:
 * a checked set: ``await tango.set("vel", x=...)`` (the line and its ``?err`` probe)
   against the raw client writing ``!vel x v\\r?err\\r`` and waiting for the ``0``;
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
-  2 ms after the move line, against the raw client writing ``!moa x v\\r?err\\r`` and
-  waiting for the ``?err`` reply and the report. Reported are CPU per move and the
+  2 ms after the move line (and puts the axes at the target, where the driver's
+  ``?pos`` confirming the move finds them), against the raw client writing
+  ``!moa x v\\r?err\\r`` and waiting for the ``?err`` reply and the report. Reported are CPU per move and the
   completion latency: from the moment the report is handed to the client
   (``data_received``) until the awaiting coroutine runs again.
 
@@ -81,6 +82,7 @@ class CannedTransport(asyncio.Transport):
         for line in lines:
             if self.reports and line.startswith(self.reports):
                 self._loop.call_later(REPORT_DELAY, self._report)
+                self._arrive(line)
                 continue
             reply = None if self.recording else self.memory.get(line)
             if reply is None:
@@ -92,6 +94,18 @@ class CannedTransport(asyncio.Transport):
             replies.append(reply)
         if any(replies):
             self._loop.call_soon(self.protocol.data_received, b"".join(replies))
+
+    def _arrive(self, line: bytes) -> None:
+        """Put the emulator's axes at the move's target at once (``!moa`` becomes ``!pos``),
+        so that the driver's confirmation of the move (``?pos``, see ``tango_aio.motion``)
+        finds them there (outside the timed part of a replayed move: the reply is read
+        here, before the report is due)."""
+        self.model.handle_line(line.replace(b"moa", b"pos", 1), time.monotonic())
+        self._emitted.clear()
+        if b"?pos" in self.memory:  # replayed from now on: remember the new position
+            self.model.handle_line(b"?pos", time.monotonic())
+            self.memory[b"?pos"] = b"".join(self._emitted)
+            self._emitted.clear()
 
     def _report(self) -> None:
         if not self._closed:
