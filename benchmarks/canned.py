@@ -14,9 +14,9 @@ real link. Side by side, in one run:
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
   2 ms after the move line (and puts the axes at the target, where the driver's
   ``?pos`` confirming the move finds them), against the raw client writing
-  ``!moa x v\\r?err\\r`` and waiting for the ``?err`` reply and the report. Reported are CPU per move and the
-  completion latency: from the moment the report is handed to the client
-  (``data_received``) until the awaiting coroutine runs again.
+  ``!moa x v\\r?err\\r`` and waiting for the ``?err`` reply and the report. Reported are
+  CPU per move and the completion latency: from the moment the report is handed to the
+  client (``data_received``) until the awaiting coroutine runs again.
 
 CPU is ``time.process_time()`` over the loop divided by the number of calls (best of
 ``--rounds`` rounds); latency is the median. Usage::
