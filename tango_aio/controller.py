@@ -657,6 +657,7 @@ class Controller:
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
                     stop_on_cancel: bool, relative: bool) -> dict[str, str]:
+        check_timeout(timeout)  # before a byte: the move reads ?pos before its line
         lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
         for line, part in zip(lines, _line_groups(axes), strict=True):
             self._check_axes(line, part)
