@@ -280,6 +280,7 @@ class Controller(_Wrapper[AsyncController]):
     get = _Blocking(AsyncController.get)
     set = _Blocking(AsyncController.set)
     position = _Blocking(AsyncController.position)
+    check_fault = _Blocking(AsyncController.check_fault)
     status = _Blocking(AsyncController.status)
     axis_status = _Blocking(AsyncController.axis_status)
     move_to = _Blocking(AsyncController.move_to)
