@@ -12,10 +12,11 @@ real link. Side by side, in one run:
 * a checked set: ``await tango.set("vel", x=...)`` (the line and its ``?err`` probe)
   against the raw client writing ``!vel x v\\r?err\\r`` and waiting for the ``0``;
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
-  2 ms after the move line, against the raw client writing ``!moa x v\\r?err\\r`` and
-  waiting for the ``?err`` reply and the report. Reported are CPU per move and the
-  completion latency: from the moment the report is handed to the client
-  (``data_received``) until the awaiting coroutine runs again.
+  2 ms after the move line (and puts the axes at the target, where the driver's
+  ``?pos`` confirming the move finds them), against the raw client writing
+  ``!moa x v\\r?err\\r`` and waiting for the ``?err`` reply and the report. Reported are
+  CPU per move and the completion latency: from the moment the report is handed to the
+  client (``data_received``) until the awaiting coroutine runs again.
 
 CPU is ``time.process_time()`` over the loop divided by the number of calls (best of
 ``--rounds`` rounds); latency is the median. Usage::
@@ -67,9 +68,6 @@ class CannedTransport(asyncio.Transport):
         self.memory: dict[bytes, bytes] = {}
         self.reports: tuple[bytes, ...] = ()
         self.delivered_at = 0.0
-        #: Where canned moves put the axes: ``?pos`` answers these (a move's confirmation
-        #: reads it), since the emulator never runs the canned move lines.
-        self.positions = [0.0, 0.0, 0.0]
         self._partial = b""
         self._emitted: list[bytes] = []
         self._closed = False
@@ -83,11 +81,8 @@ class CannedTransport(asyncio.Transport):
         replies = []
         for line in lines:
             if self.reports and line.startswith(self.reports):
-                self._move(line)
                 self._loop.call_later(REPORT_DELAY, self._report)
-                continue
-            if line.startswith(b"?pos"):
-                replies.append(self._positions(line[4:].strip()))
+                self._arrive(line)
                 continue
             reply = None if self.recording else self.memory.get(line)
             if reply is None:
@@ -100,22 +95,17 @@ class CannedTransport(asyncio.Transport):
         if any(replies):
             self._loop.call_soon(self.protocol.data_received, b"".join(replies))
 
-    def _positions(self, axis: bytes) -> bytes:
-        """The ``?pos`` (or ``?pos x``) reply for where the canned moves left the axes."""
-        chosen = [self.positions["xyz".index(axis.decode())]] if axis else self.positions
-        return " ".join(f"{p:.4f}" for p in chosen).encode() + b"\r"
-
-    def _move(self, line: bytes) -> None:
-        """Follow an absolute move line (``!moa x 0.01``, ``!moa 1 2``)."""
-        words = line.decode("ascii").split()
-        if not words or words[0].lstrip("!") != "moa":
-            return
-        values = words[1:]
-        if values and values[0] in ("x", "y", "z"):
-            self.positions["xyz".index(values[0])] = float(values[1])
-        else:
-            for index, value in enumerate(values[:3]):
-                self.positions[index] = float(value)
+    def _arrive(self, line: bytes) -> None:
+        """Put the emulator's axes at the move's target at once (``!moa`` becomes ``!pos``),
+        so that the driver's confirmation of the move (``?pos``, see ``tango_aio.motion``)
+        finds them there (outside the timed part of a replayed move: the reply is read
+        here, before the report is due)."""
+        self.model.handle_line(line.replace(b"moa", b"pos", 1), time.monotonic())
+        self._emitted.clear()
+        if b"?pos" in self.memory:  # replayed from now on: remember the new position
+            self.model.handle_line(b"?pos", time.monotonic())
+            self.memory[b"?pos"] = b"".join(self._emitted)
+            self._emitted.clear()
 
     def _report(self) -> None:
         if not self._closed:

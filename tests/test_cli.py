@@ -443,11 +443,17 @@ def test_sim_urls(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_help_texts_are_plain_words() -> None:
     parser = _parser()
-    choices = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    action = parser._subparsers._group_actions[0]  # type: ignore[union-attr]
+    choices = action.choices
+    assert {"demo", "info", "move", "ioc"} <= set(choices)  # whatever else is added
+    summaries = {choice.dest: choice.help for choice in action._choices_actions}
+    assert set(summaries) == set(choices) and all(summaries.values())  # each one listed
     texts = [parser.format_help(), *(sub.format_help() for sub in choices.values())]
-    assert len(texts) == 9
+    assert len(texts) == len(choices) + 1
     for text in texts:
         assert "``" not in text and ":func:" not in text and ":meth:" not in text, text
+        assert ":class:" not in text and ":mod:" not in text and ":attr:" not in text, text
+    assert "EPICS" in choices["ioc"].format_help()
 
 
 def test_version_and_wire_trace(capsys: pytest.CaptureFixture[str]) -> None:

@@ -4,6 +4,7 @@ controller's ``unit=``/``units=`` parameters on the emulator, whatever ``dim`` a
 from __future__ import annotations
 
 import asyncio
+import logging
 
 import pytest
 
@@ -117,16 +118,31 @@ async def test_pint_quantities() -> None:
             await tango.move_to(x=ureg.Quantity(1, "s"))
 
 
-async def test_no_unit_reads_nothing_extra() -> None:
-    async with tango_aio.connect(INSTANT) as tango:
-        from conftest import wire_of
+def _written(caplog: pytest.LogCaptureFixture) -> list[str]:
+    """The instructions written so far (the ``tango_aio.wire`` trace), then forget them."""
+    names = [record.getMessage().split("-> b'", 1)[1].split()[0].rstrip("'")
+             for record in caplog.records
+             if record.name == "tango_aio.wire" and "-> b'" in record.getMessage()]
+    caplog.clear()
+    return names
 
-        before = wire_of(tango).lines_processed
+
+async def test_no_unit_reads_nothing_extra(caplog: pytest.LogCaptureFixture) -> None:
+    """A move with a unit reads the four conversion settings once each; one without reads
+    none of them. Instruction names, not line counts: separators and the status polls of
+    the move's confirmation vary in number."""
+    settings = ["?dim", "?pitch", "?gear", "?usteps"]
+    async with tango_aio.connect(INSTANT) as tango:
+        caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
+        caplog.clear()
         await tango.move_to(x=1)
-        moved = wire_of(tango).lines_processed - before
-        before = wire_of(tango).lines_processed
+        plain = _written(caplog)
         await tango.move_to(x=2, unit="mm")
-        assert wire_of(tango).lines_processed - before == moved + 4  # dim pitch gear usteps
+        with_unit = _written(caplog)
+    assert "!moa" in plain and "!moa" in with_unit
+    assert not set(settings) & set(plain)
+    assert sorted(name for name in with_unit if name in settings) == sorted(settings)
+    assert set(with_unit) - set(plain) == set(settings)
 
 
 async def test_watch_position_follows_a_whole_scan() -> None:
