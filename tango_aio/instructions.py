@@ -1,6 +1,7 @@
 """The TANGO instruction catalog: every instruction of the manual as data.
 
-One table (:data:`INSTRUCTIONS`, built in :mod:`tango_aio._catalog`) drives the whole
+One table (:data:`INSTRUCTIONS`, the data of the generated :mod:`tango_aio._catalog`, made
+of the types of :mod:`tango_aio.schema`, which this module re-exports) drives the whole
 package: validation and encoding of command lines (:func:`encode`, :func:`build`), the
 parsing of replies (:func:`parse_reply`), what the protocol core expects back
 (:attr:`Instruction.completion`, :func:`reply_rule`), the typed API and the emulator's
@@ -19,21 +20,42 @@ single value goes to X (``moa 10.2`` == ``moa x 10.2``), except for the "all axe
 
 from __future__ import annotations
 
-import enum
 import math
 import numbers
 import re
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from decimal import Decimal
 from fractions import Fraction
 from typing import Final
 
+from ._catalog import CATALOG
 from .errors import InvalidCommandError, ProtocolError, parse_error_reply
+from .schema import (
+    AXES,
+    DEFAULT_CONTEXT,
+    AxisRule,
+    Bare,
+    Command,
+    Completion,
+    Context,
+    Form,
+    Instruction,
+    Kind,
+    LineFn,
+    LineRule,
+    ModeEffect,
+    Param,
+    Precision,
+    Shape,
+    Signature,
+)
 
 __all__ = [
     "AXES",
     "INSTRUCTIONS",
+    "MAX_SNAPSHOTS",
+    "MAX_TRIGGERS",
     "AxisRule",
     "Bare",
     "Command",
@@ -64,275 +86,8 @@ __all__ = [
     "reply_rule",
 ]
 
-#: Axis letters in wire order.
-AXES: Final = ("x", "y", "z", "a")
-
 #: Longest command line the controller accepts, CR included (manual L129-131).
 MAX_LINE_BYTES: Final = 255
-
-
-class Form(enum.Enum):
-    """How an instruction is prefixed on the wire."""
-
-    SET = "!"
-    READ = "?"
-    BARE = ""
-
-
-class Bare(enum.Enum):
-    """What the prefix-less form of an instruction does."""
-
-    NONE = "none"  #: not allowed
-    READ = "read"  #: reads, like ``?`` (``version``, ``sa``, ``err``)
-    EXECUTE = "execute"  #: executes, like ``!`` (``moa``, ``cal``, ``save``)
-
-
-class AxisRule(enum.Enum):
-    """How an axis letter and per-axis values are handled."""
-
-    NONE = "none"  #: no axis letter accepted
-    OPTIONAL = "optional"  #: optional letter; without it values go to X Y Z A in order
-    ALL = "all"  #: optional letter; without it one value group applies to all axes
-    REQUIRED = "required"  #: an axis letter is mandatory
-
-
-class Kind(enum.Enum):
-    """Type of a parameter value."""
-
-    FLOAT = "float"
-    INT = "int"
-    CHOICE = "choice"  #: one of :attr:`Param.choices` (numbers or words)
-    BITS = "bits"  #: a string of ``0``/``1`` characters, LSB first
-
-
-class Shape(enum.Enum):
-    """Shape of a reply, which selects the reply parser."""
-
-    NONE = "none"  #: no reply
-    INT = "int"  #: one integer
-    FLOAT = "float"  #: one number
-    TEXT = "text"  #: one line of text, returned as is
-    FLAGS = "flags"  #: a string of flag characters (``000100``), returned as str
-    AXES_FLOAT = "axes_float"  #: numbers per axis, X Y Z A order
-    AXES_INT = "axes_int"  #: integers per axis
-    AXES_TEXT = "axes_text"  #: words per axis (``0 0 e``)
-    NUMBERS = "numbers"  #: a list of numbers that is not per axis
-    INTS = "ints"  #: a list of integers that is not per axis (``key`` → ``0 1 0 0``)
-    STATUS = "status"  #: statusaxis letters (``@@@-.-`` or one letter)
-    ACK = "ack"  #: ``OK...`` or ``ERR n``
-    ERROR_NUMBER = "error_number"  #: ``?err``
-    HELP = "help"  #: ``ERROR n,text``
-    VERSION = "version"  #: ``TANGO-DT, Version 1.71, ...``
-    DET = "det"  #: the ``?det`` bit field
-    LINES = "lines"  #: several lines of text
-
-
-class ModeEffect(enum.Enum):
-    """How executing an instruction changes the autostatus mode (a catalog fact)."""
-
-    NONE = "none"  #: the mode stays
-    #: ``!autostatus n``: the mode becomes n (L2060-2168).
-    VALUE = "value"
-    #: ``reset``: a restart, in the power-on mode 1 (L1837-1857, L2062; never saved, L2071).
-    RESTART = "restart"
-    #: ``restore -1``: a factory reset and restart, in mode 1 (L1805-1813); plain
-    #: ``restore`` reloads the saved set and keeps the mode (L1791-1800).
-    RESTART_IF_MINUS_ONE = "restart_if_minus_one"
-
-
-class Completion(enum.Enum):
-    """The autostatus completion an executing instruction produces."""
-
-    MOVE = "@"  #: moa, mor, m, moc, mol
-    CAL = "A"  #: cal
-    RM = "D"  #: rm
-
-
-@dataclass(frozen=True, slots=True)
-class Param:
-    """One parameter value with its documented range."""
-
-    name: str
-    kind: Kind
-    lo: float | None = None
-    hi: float | None = None
-    choices: tuple[int | str, ...] = ()
-    optional: bool = False
-    unit: str = ""
-    #: The upper bound when the axis is in dim 9 (velocities in mm/s), if it differs.
-    hi_dim9: float | None = None
-    #: For :attr:`Kind.BITS`: the maximum number of characters.
-    width: int = 0
-    #: The smallest magnitude allowed, for ranges such as ``±0.00001 .. ±32500`` that
-    #: exclude values around zero (``!flash``).
-    min_abs: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Precision:
-    """The optional trailing digit-count argument of some reads (``?vel y 4``)."""
-
-    lo: int = 0
-    hi: int = 16
-    default: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Signature:
-    """The argument grammar of one form of an instruction.
-
-    ``lead`` parameters come first and are global; then ``per_axis`` groups follow, one
-    group per axis, as many as the axis rule allows. ``arities`` restricts the total number
-    of values where the manual does (``!clim r`` or ``!clim x y r``).
-    """
-
-    axis: AxisRule = AxisRule.NONE
-    lead: tuple[Param, ...] = ()
-    per_axis: tuple[Param, ...] = ()
-    min_groups: int = 1
-    precision: Precision | None = None
-
-    @property
-    def max_values(self) -> int:
-        """The largest number of values the signature accepts (without an axis letter)."""
-        groups = 1 if self.axis is AxisRule.ALL else len(AXES)
-        return len(self.lead) + groups * len(self.per_axis) + (1 if self.precision else 0)
-
-
-@dataclass(frozen=True, slots=True)
-class LineRule:
-    """How many reply lines a read produces.
-
-    ``count`` lines always; then, if ``terminator`` is set, lines up to and including the
-    terminator line; or, if ``continuation`` is set, every following line that matches it
-    (the protocol follows such a request with a marker query so the end is seen).
-    """
-
-    count: int = 1
-    terminator: str | None = None
-    continuation: re.Pattern[str] | None = None
-
-
-@dataclass(frozen=True)
-class Instruction:
-    """One instruction of the manual, as data."""
-
-    name: str
-    summary: str
-    forms: frozenset[Form]
-    bare: Bare = Bare.NONE
-    aliases: tuple[str, ...] = ()
-    #: Grammar of the executing forms (``!`` and an executing bare form); alternatives in
-    #: order. Empty when the instruction has no executing form.
-    write: tuple[Signature, ...] = ()
-    #: Grammar of the reading forms (``?`` and a reading bare form).
-    read: tuple[Signature, ...] = ()
-    #: Shape of the reply to a read.
-    reply: Shape = Shape.NONE
-    #: Values per axis in a per-axis reply (``?lim`` has 2, ``?swtyp`` 3).
-    reply_group: int = 1
-    #: ``(value, group)`` pairs: a read whose first value is ``value`` replies with
-    #: ``group`` values per axis instead (``?ctrstatus 0`` → ``2 7 2 7 0 0``).
-    option_groups: tuple[tuple[int | str, int], ...] = ()
-    #: Every per-axis reply value is a single digit; the controller may leave out the
-    #: space between axis groups (``?swtyp`` in extmode 0 → ``1 1 11 1 11 1 1``).
-    digit_values: bool = False
-    #: Shape of the reply to an executing form (``save`` always answers ``OK...``).
-    exec_reply: Shape = Shape.NONE
-    completion: Completion | None = None
-    #: Stored by ``save`` (the manual's "Save" column).
-    saved: bool = False
-    #: How executing it changes the autostatus mode.
-    mode_effect: ModeEffect = ModeEffect.NONE
-    #: Documented by the older edition of the manual (``old L<n>``).
-    in_older_manual: bool = True
-    #: The older edition documents it without values (``help``, ``version``: old L414,
-    #: old L805-819), so a firmware of that edition refuses values.
-    older_without_values: bool = False
-    section: str = ""
-    line: int = 0
-    #: Reply-line rule for reads; see :func:`reply_rule`.
-    lines: LineFn | None = field(default=None, repr=False)
-
-    def allows(self, form: Form) -> bool:
-        """Whether the instruction accepts ``form``."""
-        return form in self.forms
-
-    def signatures(self, form: Form) -> tuple[Signature, ...]:
-        """The grammar alternatives of ``form``; the bare form uses the read or write one."""
-        return self.read if self.is_read(form) else self.write
-
-    def is_read(self, form: Form) -> bool:
-        """Whether ``form`` reads (``?`` or a reading bare form)."""
-        return form is Form.READ or (form is Form.BARE and self.bare is Bare.READ)
-
-
-LineFn = Callable[["Command", "Context"], LineRule]
-
-
-@dataclass(frozen=True, slots=True)
-class Context:
-    """Controller state that changes how lines validate and replies look.
-
-    ``dims`` holds the ``dim`` of X Y Z A (velocity limits depend on dim 9), ``axes`` the
-    number of configured axes, ``extmode`` the extended mode (``?lim`` formatting).
-    """
-
-    dims: tuple[int, int, int, int] = (2, 2, 2, 2)
-    axes: int = 4
-    extmode: int = 0
-
-
-DEFAULT_CONTEXT: Final = Context()
-
-
-@dataclass(frozen=True, slots=True)
-class Command:
-    """A validated command line."""
-
-    instruction: Instruction
-    form: Form
-    axis: str | None
-    values: tuple[float | int | str, ...]
-    tokens: tuple[str, ...]
-    # The line text and its bytes, computed once on first use: the protocol asks for them
-    # several times per line (size, credit, framing check, write), which showed in the
-    # scaling benchmark (benchmarks/scaling.py).
-    _line: str | None = field(default=None, init=False, repr=False, compare=False)
-    _bytes: bytes | None = field(default=None, init=False, repr=False, compare=False)
-
-    @property
-    def name(self) -> str:
-        """The instruction's canonical name."""
-        return self.instruction.name
-
-    @property
-    def is_read(self) -> bool:
-        """Whether this command reads (and so expects a data reply)."""
-        return self.instruction.is_read(self.form)
-
-    @property
-    def executes(self) -> bool:
-        """Whether this command sets or executes something."""
-        return not self.is_read
-
-    @property
-    def line(self) -> str:
-        """The canonical text of the line, without CR."""
-        line = self._line
-        if line is None:
-            head = self.form._value_ + self.instruction.name  # _value_: .value, cheaper
-            line = " ".join([head, *([self.axis] if self.axis else []), *self.tokens])
-            object.__setattr__(self, "_line", line)
-        return line
-
-    def to_bytes(self) -> bytes:
-        """The exact bytes to write, CR included."""
-        data = self._bytes
-        if data is None:
-            data = self.line.encode("ascii") + b"\r"  # a non-ASCII token raises here
-            object.__setattr__(self, "_bytes", data)
-        return data
 
 
 # --------------------------------------------------------------------------------------
@@ -400,7 +155,7 @@ def wire_number(value: object) -> int | float | Decimal:
 def _fail(
     message: str, instruction: str | None, parameter: str | None = None, code: int = 4
 ) -> InvalidCommandError:
-    return InvalidCommandError(message, instruction=instruction, parameter=parameter, code=code)
+    return InvalidCommandError(message, instruction=instruction, parameter=parameter, number=code)
 
 
 def _check_range(param: Param, value: float, name: str, hi: float | None) -> None:
@@ -445,18 +200,26 @@ def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int |
 # Catalog access
 
 
-def _catalog() -> dict[str, Instruction]:
-    from ._catalog import CATALOG
-
-    return {entry.name: entry for entry in CATALOG}
-
-
 #: Every instruction of the manual, by canonical name.
-INSTRUCTIONS: Final[Mapping[str, Instruction]] = _catalog()
+INSTRUCTIONS: Final[Mapping[str, Instruction]] = {entry.name: entry for entry in CATALOG}
 
 _BY_ALIAS: Final[dict[str, Instruction]] = {
     alias: entry for entry in INSTRUCTIONS.values() for alias in (entry.name, *entry.aliases)
 }
+
+
+def list_capacity(name: str) -> int:
+    """How many entries the controller list indexed by instruction ``name`` holds: the
+    upper bound of the index (first lead parameter) of its write form."""
+    index = INSTRUCTIONS[name].write[0].lead[0]
+    assert index.name == "index" and index.hi is not None, index
+    return int(index.hi)
+
+
+#: Entries of the trigger position list: '!trigp index' goes up to 10000 (L13767-13802).
+MAX_TRIGGERS: Final = list_capacity("trigp")
+#: Rows of the snapshot position array: '!snsa index' goes up to 1024 (L15324-15389).
+MAX_SNAPSHOTS: Final = list_capacity("snsa")
 
 
 def lookup(name: str) -> Instruction:
@@ -604,7 +367,7 @@ def _parse_tokens(entry: Instruction, form: Form, tokens: list[str], ctx: Contex
         return _checked_length(Command(entry, form, axis, values, canonical))
     # Prefer an error about a value over one about the number of values: it is more
     # specific when one alternative matched the count.
-    raise min(errors, key=lambda exc: exc.code == 6)
+    raise min(errors, key=lambda exc: exc.number == 6)
 
 
 def _checked_length(command: Command) -> Command:

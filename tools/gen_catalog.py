@@ -4,21 +4,40 @@ The JSON holds what the manual says about each instruction; this script turns it
 package's compact, typed table. Where the JSON is ambiguous or the manual (firmware 1.71)
 says more, the ``OVERRIDES`` below decide, each with the manual line it comes from.
 
+The tables are written in a short notation (``F("velocity", 0, 200)`` for a float
+parameter, ``S(OPT, per_axis=...)`` for a signature); :func:`instruction` evaluates an
+entry's notation into :mod:`tango_aio.schema` objects and :func:`literal` writes those as
+plain keyword constructor calls, so the generated module holds only data.
+
 Run from the repository root::
 
     python tools/gen_catalog.py [path/to/instructions.json]
 
-``tests/test_catalog_sync.py`` checks that the committed table matches this script's output.
+``tests/unit/test_catalog_sync.py`` checks that the committed table matches this script's output.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import json
+import re
 import sys
+import types
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+if "tango_aio" not in sys.modules:
+    # Load the schema and the reply rules without the package's __init__, which imports
+    # the catalog that this script writes (it may be stale or missing).
+    _package = types.ModuleType("tango_aio")
+    _package.__path__ = [str(ROOT / "tango_aio")]
+    sys.modules["tango_aio"] = _package
+
+from tango_aio import replyrules, schema  # noqa: E402
+from tango_aio.schema import Form, Instruction, Param, Precision, Signature  # noqa: E402
+
 DEFAULT_JSON = ROOT / "reference" / "instructions.json"
 OUTPUT = ROOT / "tango_aio" / "_catalog.py"
 
@@ -215,15 +234,15 @@ DIGIT_VALUES = {"swtyp", "swpol", "swact"}
 #: Replies that come from the executing form (``save`` always answers, L1723-1760).
 EXEC_REPLY: dict[str, str] = {"save": "ACK"}
 
-#: Multi-line reply rules (Python source of a callable name in the catalog module).
+#: Multi-line reply rules: the name of a function of ``tango_aio/replyrules.py``.
 LINES: dict[str, str] = {
-    "service": "_service_lines",
-    "detext": "_detext_lines",
-    "mrt": "_mrt_lines",
-    "lim": "_grouped_lines",
-    "swtyp": "_grouped_lines",
-    "swpol": "_grouped_lines",
-    "swact": "_grouped_lines",
+    "service": "service_lines",
+    "detext": "detext_lines",
+    "mrt": "mrt_lines",
+    "lim": "grouped_lines",
+    "swtyp": "grouped_lines",
+    "swpol": "grouped_lines",
+    "swact": "grouped_lines",
 }
 
 #: Completion kinds of executing forms.
@@ -245,6 +264,78 @@ OLDER_WITHOUT_VALUES = {"help", "version"}
 
 #: Bare forms that execute (``restore``) where the JSON offers all three forms.
 BARE_EXECUTES = {"restore"}
+
+#: Settings the driver caches (move timing and the validation context), with the
+#: attribute of ``tango_aio.state.DriverState`` that mirrors them: dim (L3061), pitch
+#: (L3145), accel (L3298), vel (L3452) and secvel (L3568) time a move, extmode (L2236)
+#: changes the '?lim' layout (L4559-4621), delay and
+#: pause wait before and after moa/mor/m/moc (L6845-6899), ctrt is the longest
+#: closed-loop settling (L11616-11631).
+CACHED: dict[str, str] = {
+    "dim": "dims", "pitch": "pitch", "vel": "vel", "accel": "accel", "secvel": "secvel",
+    "extmode": "extmode", "delay": "delay_ms", "pause": "pause_ms", "ctrt": "settle_ms",
+}
+
+#: Power-on / factory defaults where the manual states them; the emulator starts
+#: everything else at the first allowed value or 0.
+DEFAULTS: dict[str, tuple[int | float | str, ...]] = {
+    "baud": (57600,), "cts": (0,), "ipreter": (1,), "autostatus": (1,), "extmode": (0,),
+    "scanmode": (0,), "scanvel": (10.0,), "dim": (2,), "pitch": (1.0,), "gear": (1.0,),
+    "motorsteps": (200,), "accel": (1.0,), "stopaccel": (1.0,), "vel": (10.0,),
+    "velfac": (1.0,), "secvel": (10.0,), "cur": (1.0,), "reduction": (1.0,),
+    "curdelay": (1000,), "axis": (1,), "usteps": (40000,), "resolution": (4,),
+    "swtyp": (1, 1, 1), "swpol": (0, 0, 0), "swact": (1, 0, 1), "limctr": (1,),
+    "caltimeout": (40,), "calbspeed": (32.0,), "calrefspeed": (32.0,),
+    "calvel": (10.0, 0.5), "rmvel": (10.0, 0.5), "joy": (2,), "joydir": (1,),
+    "joywindow": (14,), "joyvel": (10.0,), "joyspeed": (1.0,), "keyspeed": (1.0, 10.0),
+    "hwfilter": (1,), "tbfactor": (1.0,), "zwaxis": ("z",), "zwfactor": (1,),
+    "zwtravel": (1.0,), "tvrjoyf": (1.0,), "hwfactor": (1.0,), "hwfactorb": (1.0,),
+    "pa": (1,), "encvel": (0.5,), "encperiod": (0.02,), "encrefvel": (1.0,), "ctr": (2,),
+    "ctrf": (2.0,), "ctrff": (2.0, 2.0), "ctrd": (10,), "ctrt": (1000,), "ctrc": (1,),
+    "twi": (0.001,), "ctrs": (0.5,), "mra": (1.0,), "trigf": (1000.0,), "trigbf": (1000.0,),
+    "trigbwidth": (40.0,), "trigs": (40,), "trigo": (1,), "triga": ("x",), "trigl": (1,),
+    "sns": (1,), "snsf": (10,), "anaout": (0.0,), "trigd": (1.0,), "noled": (0,),
+}
+
+#: Settings written as ``index value`` (``!joyspeed 2 25``, ``!anaout c 1 25.3``): the
+#: power-on value of each index. adiginfunc: "SnapShot is assigned to the SnapShot input
+#: (3) and stop ... to the not available input 2" (L9195); zwtravel presets 0.1 / 0.01 /
+#: 1.0 mm/rev (L7863); anaout channels 0-2 at 0 %. The joyspeed presets are not
+#: documented: chosen.
+INDEXED: dict[str, tuple[int | float | str, ...]] = {
+    "adiginfunc": (0, 0, 1, 2),
+    "zwtravel": (0.1, 0.01, 1.0),
+    "joyspeed": (1.0, 10.0, 30.0),
+    "anaout": (0.0, 0.0, 0.0),
+}
+
+#: Fractional digits of float replies, from the manual's examples (protocol_notes §3).
+DIGITS: dict[str, int] = {
+    "vel": 3, "secvel": 2, "accel": 2, "stopaccel": 2, "cur": 2, "iscur": 2, "pitch": 4,
+    "gear": 3, "keyspeed": 2, "calvel": 3, "rmvel": 3, "ctrff": 1, "anaout": 2,
+    "scanvel": 6, "trigbf": 3, "trigbdelay": 2, "trigbwidth": 2, "isvel": 3,
+    "encperiod": 4, "velfac": 2, "reduction": 2, "joyvel": 3, "encrefvel": 3, "encvel": 3,
+    "speed": 3, "calbspeed": 1, "calrefspeed": 1, "mra": 4, "trigf": 2, "joyspeed": 3,
+    "zwtravel": 3, "tvrjoyf": 3, "hwfactor": 3, "hwfactorb": 3, "tbfactor": 3,
+    "backlash": 1, "temp": 1, "flash": 3, "encamp": 0, "ctrf": 0,
+}
+
+#: Replies in position units, printed with ``resolution`` digits (L4144).
+POSITION_VALUED = {
+    "pos", "lim", "maxpos", "posclr", "distance", "twi", "ctrs", "ctrdiff", "caliboffset",
+    "rmoffset", "calpos", "calzeropos", "trigd", "snsa", "snsp", "snsj", "prehome", "home",
+    "lockpos", "trigp", "trigr", "clim", "vrm",
+}
+
+#: Instruction fields whose value a table gives as it is.
+VALUE_FIELDS: dict[str, dict[str, Any]] = {
+    "cached": CACHED, "default": DEFAULTS, "indexed": INDEXED, "digits": DIGITS,
+}
+
+#: Instruction flags that are true for the names of a set.
+FLAG_FIELDS: dict[str, set[str]] = {
+    "digit_values": DIGIT_VALUES, "position_valued": POSITION_VALUED,
+}
 
 # --------------------------------------------------------------------------------------
 
@@ -400,59 +491,32 @@ def entry_source(entry: dict[str, Any]) -> str:
         parts.append(f"reply_group={group}")
     if name in OPTION_GROUPS:
         parts.append(f"option_groups={OPTION_GROUPS[name]}")
-    if name in DIGIT_VALUES:
-        parts.append("digit_values=True")
     if name in EXEC_REPLY:
         parts.append(f"exec_reply=Shape.{EXEC_REPLY[name]}")
     if name in COMPLETION:
         parts.append(f"completion=Completion.{COMPLETION[name]}")
     if name in LINES:
-        parts.append(f"lines={LINES[name]}")
+        parts.append(f"lines=replyrules.{LINES[name]}")
     if entry["saved"] in ("Y", "(Y)"):
         parts.append("saved=True")
     if name in MODE_EFFECT:
         parts.append(f"mode_effect=ModeEffect.{MODE_EFFECT[name]}")
+    parts.extend(f"{field}={table[name]!r}" for field, table in VALUE_FIELDS.items()
+                 if name in table)
+    parts.extend(f"{field}=True" for field, names in FLAG_FIELDS.items() if name in names)
     if not entry["in_older_manual"]:
         parts.append("in_older_manual=False")
     if name in OLDER_WITHOUT_VALUES:
         parts.append("older_without_values=True")
     parts.append(f"section={entry['manual_section']!r}")
     parts.append(f"line={entry['manual_lines'][0]}")
-    return "    E(" + ", ".join(parts) + "),"
+    return "E(" + ", ".join(parts) + ")"
 
 
-HEADER = '''"""The instruction table. GENERATED by tools/gen_catalog.py from the shared reference
-(instructions.json, manual firmware 1.71): edit the generator's OVERRIDES, not this file.
+# --------------------------------------------------------------------------------------
+# The short notation of the tables above: each helper makes one catalog object.
 
-Each ``E(...)`` is one instruction: name, summary, forms (``!``, ``?``, ``b`` = bare), the
-write and read signatures (alternatives in order), the reply shape of the read form, the
-completion kind and whether ``save`` stores it.
-"""
-
-# ruff: noqa: E501
-
-from __future__ import annotations
-
-import re
-
-from .instructions import (
-    AxisRule,
-    Bare,
-    Command,
-    Completion,
-    Context,
-    Form,
-    Instruction,
-    Kind,
-    LineFn,
-    LineRule,
-    ModeEffect,
-    Param,
-    Precision,
-    Shape,
-    Signature,
-)
-
+AxisRule, Kind = schema.AxisRule, schema.Kind
 NONE, OPT, ALL, REQ = AxisRule.NONE, AxisRule.OPTIONAL, AxisRule.ALL, AxisRule.REQUIRED
 
 
@@ -499,54 +563,92 @@ def S(axis: AxisRule, *, lead: tuple[Param, ...] = (), per_axis: tuple[Param, ..
 _FORMS = {"!": Form.SET, "?": Form.READ, "b": Form.BARE}
 
 
-def E(name: str, summary: str, forms: str, *, bare: Bare = Bare.NONE,
-      aliases: tuple[str, ...] = (), write: tuple[Signature, ...] = (),
-      read: tuple[Signature, ...] = (), reply: Shape = Shape.NONE, reply_group: int = 1,
-      option_groups: tuple[tuple[int | str, int], ...] = (), digit_values: bool = False,
-      exec_reply: Shape = Shape.NONE, completion: Completion | None = None,
-      lines: LineFn | None = None, saved: bool = False,
-      mode_effect: ModeEffect = ModeEffect.NONE, in_older_manual: bool = True,
-      older_without_values: bool = False, section: str = "", line: int = 0) -> Instruction:
-    """One catalog entry."""
-    return Instruction(
-        name=name, summary=summary, forms=frozenset(_FORMS[f] for f in forms), bare=bare,
-        aliases=aliases, write=write, read=read, reply=reply, reply_group=reply_group,
-        option_groups=option_groups, digit_values=digit_values, exec_reply=exec_reply,
-        completion=completion, lines=lines, saved=saved, mode_effect=mode_effect,
-        in_older_manual=in_older_manual, older_without_values=older_without_values,
-        section=section, line=line,
-    )
+def E(name: str, summary: str, forms: str, **fields: Any) -> Instruction:
+    """One catalog entry; ``forms`` is a string of ``!``, ``?`` and ``b`` (bare)."""
+    return Instruction(name=name, summary=summary,
+                       forms=frozenset(_FORMS[f] for f in forms), **fields)
 
 
-def _service_lines(command: Command, context: Context) -> LineRule:
-    # From firmware 1.60C/1.61 the last line is END_SERVICE_PRINT. (L2937-2943).
-    return LineRule(count=0, terminator="END_SERVICE_PRINT.")
+_NOTATION: dict[str, Any] = {
+    "NONE": NONE, "OPT": OPT, "ALL": ALL, "REQ": REQ, "F": F, "N": N, "I": I, "C": C,
+    "B": B, "P": P, "S": S, "E": E, "Bare": schema.Bare, "Shape": schema.Shape,
+    "Completion": schema.Completion, "ModeEffect": schema.ModeEffect,
+    "replyrules": replyrules,
+}
 
 
-_DETEXT_MORE = re.compile(r"^=")
+def instruction(entry: dict[str, Any]) -> Instruction:
+    """The catalog object of one JSON ``entry`` (its notation evaluated)."""
+    made: Instruction = eval(entry_source(entry), dict(_NOTATION))
+    return made
 
 
-def _detext_lines(command: Command, context: Context) -> LineRule:
-    # The hex configuration, then one '= feature' line each; no end marker (L1189-1220).
-    return LineRule(count=1, continuation=_DETEXT_MORE)
+# --------------------------------------------------------------------------------------
+# Writing the objects as plain constructor calls
 
 
-def _mrt_lines(command: Command, context: Context) -> LineRule:
-    # One line per sample, 10 by default; a negative count means the same number (L11474).
-    samples = abs(int(command.values[0])) if command.values else 10
-    return LineRule(count=samples)
+def literal(value: object) -> str:
+    """Python source that constructs ``value``: schema types by keyword (fields at their
+    default left out), enums by member, reply rules by their replyrules name."""
+    if isinstance(value, enum.Enum):
+        return f"{type(value).__name__}.{value.name}"
+    if isinstance(value, types.FunctionType):
+        assert getattr(replyrules, value.__name__) is value, value
+        return f"replyrules.{value.__name__}"
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _constructor(value)
+    if isinstance(value, frozenset):
+        members = sorted(value, key=_FORM_ORDER.index)
+        return "frozenset({" + ", ".join(literal(m) for m in members) + "})"
+    if isinstance(value, tuple):
+        inner = ", ".join(literal(item) for item in value)
+        return f"({inner},)" if len(value) == 1 else f"({inner})"
+    assert value is None or isinstance(value, str | int | float), value
+    return repr(value)
 
 
-_GROUP_MORE = re.compile(r"^[-+\\d.,]+[ ,][-+\\d., ]*$")
+_FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
 
 
-def _grouped_lines(command: Command, context: Context) -> LineRule:
-    # '?lim' and '?swtyp' without an axis print an extra CR between axes in extmode 0
-    # (L4559-4619, L4818-4822); read until the next request's reply.
-    if command.axis is not None or context.extmode != 0 or context.axes < 2:
-        return LineRule()
-    return LineRule(count=1, continuation=_GROUP_MORE)
+def _constructor(value: Any) -> str:
+    args = []
+    for spec in dataclasses.fields(value):
+        if not spec.init:
+            continue
+        item = getattr(value, spec.name)
+        if spec.default is not dataclasses.MISSING and item == spec.default:
+            continue
+        args.append(f"{spec.name}={literal(item)}")
+    return f"{type(value).__name__}({', '.join(args)})"
 
+
+def _entry_text(made: Instruction) -> str:
+    pad = " " * 8
+    lines = [f"{pad}{name}={literal(getattr(made, name))}," for name in
+             (spec.name for spec in dataclasses.fields(made))
+             if name in ("name", "summary", "forms")
+             or getattr(made, name) != _DEFAULTS[name]]
+    return "    Instruction(\n" + "\n".join(lines) + "\n    ),"
+
+
+_DEFAULTS = {spec.name: spec.default for spec in dataclasses.fields(Instruction)}
+
+
+HEADER = '''"""The instruction table. GENERATED by tools/gen_catalog.py from the shared reference
+(instructions.json, manual firmware 1.71): edit the generator's tables, not this file.
+
+Pure data: one :class:`~tango_aio.schema.Instruction` per instruction of the manual, with
+its forms (``!``, ``?``, bare), the write and read signatures (alternatives in order), the
+reply shape of the read form, the completion kind, whether ``save`` stores it, and the
+facts the driver and the emulator share (cached settings, defaults, reply digits).
+"""
+
+# ruff: noqa: E501
+
+from __future__ import annotations
+
+from . import replyrules
+{imports}
 
 CATALOG: tuple[Instruction, ...] = (
 '''
@@ -554,8 +656,10 @@ CATALOG: tuple[Instruction, ...] = (
 
 def render(entries: list[dict[str, Any]]) -> str:
     """The full text of ``tango_aio/_catalog.py`` for the JSON ``entries``."""
-    body = "\n".join(entry_source(e) for e in entries)
-    return HEADER + body + "\n)\n"
+    body = "\n".join(_entry_text(instruction(e)) for e in entries)
+    used = [name for name in schema.__all__ if re.search(rf"\b{name}[(.]", body)]
+    imports = "from .schema import (\n" + "".join(f"    {name},\n" for name in used) + ")"
+    return HEADER.replace("{imports}", imports) + body + "\n)\n"
 
 
 def load(source: Path = DEFAULT_JSON) -> list[dict[str, Any]]:

@@ -22,10 +22,10 @@ import itertools
 from dataclasses import dataclass, field
 from typing import TypeVar
 
+from ..instructions import MAX_SNAPSHOTS, MAX_TRIGGERS
+
 __all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "TriggerList"]
 
-MAX_TRIGGERS = 10000
-MAX_SNAPSHOTS = 1024
 
 
 class ListError(Exception):

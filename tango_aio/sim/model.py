@@ -241,8 +241,8 @@ class ControllerModel:
     def context(self) -> Context:
         """The parser context: dims, axes, extmode."""
         groups = self.params.axis_values["dim"]  # what params.first("dim", i) reads
-        dims = tuple(int(groups[i][0]) for i in range(len(AXES)))
-        return Context(dims, self.axes, int(self.params.first("extmode")))  # type: ignore[arg-type]
+        dims = [int(groups[i][0]) for i in range(len(AXES))]
+        return Context.of(dims, self.axes, int(self.params.first("extmode")))
 
     # -- LineHandler protocol ----------------------------------------------------------------
 
@@ -256,7 +256,7 @@ class ControllerModel:
         try:
             command = parse(text, context)
         except InvalidCommandError as exc:
-            self._rejected(text, exc.code)
+            self._rejected(text, exc.number)
             return
         if self._unknown_to_older(command):
             self._rejected(text, 4)

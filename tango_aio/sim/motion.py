@@ -81,6 +81,8 @@ from typing import Literal
 
 from tango_aio.units import DEFAULT_USTEPS, UnitScale
 
+from .lists import MAX_TRIGGERS
+
 __all__ = [
     "AXIS_NAMES",
     "ERR_INVALID_AXIS",
@@ -970,8 +972,8 @@ class MotionModel:
 
     def set_trigger_range(self, axis: AxisRef, start: float, end: float, count: int) -> None:
         """``trigr``: ``count`` equidistant triggers from ``start`` to ``end`` inclusive."""
-        if not 1 <= count <= 10000:
-            raise MotionRefused(ERR_OUT_OF_RANGE, f"trigger count {count} not in 1..10000")
+        if not 1 <= count <= MAX_TRIGGERS:
+            raise MotionRefused(ERR_OUT_OF_RANGE, f"trigger count {count} not in 1..{MAX_TRIGGERS}")
         if count == 1 or start == end:
             self.set_trigger_positions(axis, [start])
             return

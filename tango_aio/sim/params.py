@@ -5,6 +5,10 @@ its own: per-axis instructions keep one value group per axis, global ones one tu
 are formatted the way the manual prints them (digit counts from its examples, positions
 with ``resolution`` digits). Instructions with behaviour (moves, lists, identity) are
 handled by :mod:`tango_aio.sim.model` and only use this store for their plain settings.
+
+The facts come from the manual's catalog (power-on values, reply digits, position-valued
+replies: :class:`~tango_aio.schema.Instruction`); the emulator reads the catalog, never
+the driver's rules.
 """
 
 from __future__ import annotations
@@ -14,60 +18,15 @@ from typing import Final
 
 from ..instructions import AXES, INSTRUCTIONS, AxisRule, Command, Kind, Param, Signature
 
-__all__ = ["DEFAULTS", "DIGITS", "INDEXED", "POSITION_VALUED", "ParamStore", "format_value"]
+__all__ = ["INDEXED", "ParamStore", "format_value"]
 
 Value = float | int | str
 
-#: Power-on / factory defaults where the manual states them; everything else starts at the
-#: first allowed value or 0.
-DEFAULTS: Final[dict[str, tuple[Value, ...]]] = {
-    "baud": (57600,), "cts": (0,), "ipreter": (1,), "autostatus": (1,), "extmode": (0,),
-    "scanmode": (0,), "scanvel": (10.0,), "dim": (2,), "pitch": (1.0,), "gear": (1.0,),
-    "motorsteps": (200,), "accel": (1.0,), "stopaccel": (1.0,), "vel": (10.0,),
-    "velfac": (1.0,), "secvel": (10.0,), "cur": (1.0,), "reduction": (1.0,),
-    "curdelay": (1000,), "axis": (1,), "usteps": (40000,), "resolution": (4,),
-    "swtyp": (1, 1, 1), "swpol": (0, 0, 0), "swact": (1, 0, 1), "limctr": (1,),
-    "caltimeout": (40,), "calbspeed": (32.0,), "calrefspeed": (32.0,),
-    "calvel": (10.0, 0.5), "rmvel": (10.0, 0.5), "joy": (2,), "joydir": (1,),
-    "joywindow": (14,), "joyvel": (10.0,), "joyspeed": (1.0,), "keyspeed": (1.0, 10.0),
-    "hwfilter": (1,), "tbfactor": (1.0,), "zwaxis": ("z",), "zwfactor": (1,),
-    "zwtravel": (1.0,), "tvrjoyf": (1.0,), "hwfactor": (1.0,), "hwfactorb": (1.0,),
-    "pa": (1,), "encvel": (0.5,), "encperiod": (0.02,), "encrefvel": (1.0,), "ctr": (2,),
-    "ctrf": (2.0,), "ctrff": (2.0, 2.0), "ctrd": (10,), "ctrt": (1000,), "ctrc": (1,),
-    "twi": (0.001,), "ctrs": (0.5,), "mra": (1.0,), "trigf": (1000.0,), "trigbf": (1000.0,),
-    "trigbwidth": (40.0,), "trigs": (40,), "trigo": (1,), "triga": ("x",), "trigl": (1,),
-    "sns": (1,), "snsf": (10,), "anaout": (0.0,), "trigd": (1.0,), "noled": (0,),
-}
-
-#: Settings written as ``index value`` (``!joyspeed 2 25``, ``!anaout c 1 25.3``): the store
-#: keeps one value per index, not the written pair. Defaults where the manual gives them:
-#: adiginfunc "SnapShot is assigned to the SnapShot input (3) and stop ... to the not
-#: available input 2" (L9195); zwtravel presets 0.1 / 0.01 / 1.0 mm/rev (L7863); anaout
-#: channels 0-2 at 0 %. The joyspeed presets are not documented: chosen.
+#: Settings written as ``index value`` (``!joyspeed 2 25``): their power-on value per
+#: index, from the catalog (:attr:`~tango_aio.schema.Instruction.indexed`).
 INDEXED: Final[dict[str, tuple[Value, ...]]] = {
-    "adiginfunc": (0, 0, 1, 2),
-    "zwtravel": (0.1, 0.01, 1.0),
-    "joyspeed": (1.0, 10.0, 30.0),
-    "anaout": (0.0, 0.0, 0.0),
+    name: entry.indexed for name, entry in INSTRUCTIONS.items() if entry.indexed
 }
-
-#: Fractional digits of float replies, from the manual's examples (protocol_notes §3).
-DIGITS: Final[dict[str, int]] = {
-    "vel": 3, "secvel": 2, "accel": 2, "stopaccel": 2, "cur": 2, "iscur": 2, "pitch": 4,
-    "gear": 3, "keyspeed": 2, "calvel": 3, "rmvel": 3, "ctrff": 1, "anaout": 2,
-    "scanvel": 6, "trigbf": 3, "trigbdelay": 2, "trigbwidth": 2, "isvel": 3,
-    "encperiod": 4, "velfac": 2, "reduction": 2, "joyvel": 3, "encrefvel": 3, "encvel": 3,
-    "speed": 3, "calbspeed": 1, "calrefspeed": 1, "mra": 4, "trigf": 2, "joyspeed": 3,
-    "zwtravel": 3, "tvrjoyf": 3, "hwfactor": 3, "hwfactorb": 3, "tbfactor": 3,
-    "backlash": 1, "temp": 1, "flash": 3, "encamp": 0, "ctrf": 0,
-}
-
-#: Replies in position units, printed with ``resolution`` digits (manual L4144).
-POSITION_VALUED: Final = frozenset({
-    "pos", "lim", "maxpos", "posclr", "distance", "twi", "ctrs", "ctrdiff", "caliboffset",
-    "rmoffset", "calpos", "calzeropos", "trigd", "snsa", "snsp", "snsj", "prehome", "home",
-    "lockpos", "trigp", "trigr", "clim", "vrm",
-})
 
 
 def format_value(value: Value, digits: int) -> str:
@@ -95,10 +54,10 @@ def position_digits(resolution: int, dim: int) -> int:
 
 def _initial(sig: Signature, name: str) -> tuple[Value, ...]:
     params = sig.per_axis or sig.lead
-    default = DEFAULTS.get(name)
+    default = INSTRUCTIONS[name].default
     values: list[Value] = []
     for index, param in enumerate(params):
-        if default is not None and index < len(default):
+        if index < len(default):
             values.append(default[index])
         else:
             values.append(_zero(param))
@@ -128,7 +87,7 @@ class ParamStore:
             if sig.per_axis:
                 self.axis_values[name] = [_initial(sig, name)] * len(AXES)
             else:
-                self.global_values[name] = INDEXED.get(name) or _initial(sig, name)
+                self.global_values[name] = entry.indexed or _initial(sig, name)
 
     # -- access ---------------------------------------------------------------------------
 
@@ -194,9 +153,10 @@ class ParamStore:
 
     def _format(self, name: str, value: Value, axis: int, digits: int | None) -> str:
         if digits is None:
-            if name in POSITION_VALUED:
+            entry = INSTRUCTIONS[name]
+            if entry.position_valued:
                 digits = position_digits(int(self.first("resolution")),
                                          int(self.first("dim", axis)))
             else:
-                digits = DIGITS.get(name, 3)
+                digits = 3 if entry.digits is None else entry.digits  # 3: not stated
         return format_value(value, digits)
