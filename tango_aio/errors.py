@@ -5,9 +5,13 @@ who failed:
 
 * :class:`InvalidCommandError` (also a :class:`ValueError`): the caller's input was wrong.
   It is raised before a single byte is written.
-* :class:`ControllerError`: the controller reported an error number. There is one subclass
-  per number documented in the manual (chapter 5), registered automatically, so callers can
-  ``except LimitSwitchActiveError``. Unknown numbers map to :class:`UnknownControllerError`.
+* :class:`ControllerError`: the controller reported an error number (``.number``, with the
+  manual's ``.text`` and the ``.command`` line). There is one subclass per number
+  documented in the manual (chapter 5), registered automatically, so callers can
+  ``except LimitSwitchActiveError``, and each is in one category:
+  :class:`CommandRejectedError` (1-7), :class:`StateError` (8-30) or
+  :class:`HardwareFaultError` (70-86). Unknown numbers map to
+  :class:`UnknownControllerError`.
 * :class:`MoveError`: a move ended, but not at its target (per-axis status letters).
 * :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
 * :class:`ConnectionLostError`: the link went away; the cause is chained.
@@ -17,9 +21,10 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 __all__ = [
+    "CATEGORIES",
     "ERROR_DESCRIPTIONS",
     "INTERNAL_ERRORS",
     "AmplifiersDisabledError",
@@ -28,6 +33,7 @@ __all__ = [
     "AxisCorrectionError",
     "BrakeVoltageError",
     "ClosedLoopOffError",
+    "CommandRejectedError",
     "ConnectionLostError",
     "ControllerError",
     "ControllerTimeoutError",
@@ -37,6 +43,7 @@ __all__ = [
     "EncoderIsrError",
     "EncoderSupplyOverloadError",
     "EtsError",
+    "HardwareFaultError",
     "HdiDeviceError",
     "HdiIsrError",
     "InternalControllerError",
@@ -61,6 +68,7 @@ __all__ = [
     "ProtocolError",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "StateError",
     "TangoError",
     "TvrActiveError",
     "TvrAxisActiveError",
@@ -82,8 +90,8 @@ class InvalidCommandError(TangoError, ValueError):
     """The caller's command is invalid; nothing was sent to the controller.
 
     ``instruction`` and ``parameter`` name what was wrong (either may be ``None`` when the
-    line could not be attributed). ``code`` is the error number a real controller would set
-    for the same line (1-7), which the emulator uses.
+    line could not be attributed). ``number`` is the error number a real controller would
+    set for the same line (1-7), which the emulator uses.
     """
 
     def __init__(
@@ -92,12 +100,12 @@ class InvalidCommandError(TangoError, ValueError):
         *,
         instruction: str | None = None,
         parameter: str | None = None,
-        code: int = 4,
+        number: int = 4,
     ) -> None:
         super().__init__(message)
         self.instruction = instruction
         self.parameter = parameter
-        self.code = code
+        self.number = number
 
 
 class ProtocolError(TangoError):
@@ -135,35 +143,68 @@ class MoveError(TangoError):
 
 
 class ControllerError(TangoError):
-    """The controller reported error number ``code``.
+    """The controller reported error number :attr:`number`.
 
-    ``text`` is the manual's description of the number and ``command`` the command line
-    that caused it (``None`` when unknown, e.g. for an internal error).
+    Three attributes, on every controller error:
+
+    * ``number``: the controller's error number (the class attribute of the same name is
+      the class's own number, -1 for a class that stands for several);
+    * ``text``: the manual's text for the number (chapter 5, L961-1034);
+    * ``command``: the command line that caused it (``None`` when unknown, e.g. for an
+      internal error).
+
+    The documented numbers fall into categories, each a class to catch (in the spirit of
+    SQLSTATE classes): :class:`CommandRejectedError` (1-7, the line itself was refused),
+    :class:`StateError` (8-30, an interlock or the controller's state forbids it) and
+    :class:`HardwareFaultError` (70-86, hardware, configuration or firmware faults). Number
+    0 (:class:`NoError`) and undocumented numbers (:class:`UnknownControllerError`) belong
+    to none of them.
     """
 
-    code: ClassVar[int] = -1
-    description: ClassVar[str] = "unknown error"
+    number: int = -1
+    text: str = "unknown error"
     _registry: ClassVar[dict[int, type[ControllerError]]] = {}
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
-        if cls.code >= 0:
-            ControllerError._registry[cls.code] = cls
+        # Only a class that names its own number stands for it (not a category, and not
+        # an internal variant that inherits the number, see InternalControllerError).
+        if "number" in cls.__dict__ and cls.number >= 0:
+            ControllerError._registry[cls.number] = cls
 
-    def __init__(self, code: int | None = None, command: str | None = None) -> None:
-        self.error_code: int = self.code if code is None else code
+    def __init__(self, number: int | None = None, command: str | None = None) -> None:
+        self.number: int = type(self).number if number is None else number
+        self.text: str = _text_of(self.number, type(self).text)
         self.command = command
-        text = self.description
         where = f" (command {command!r})" if command else ""
-        super().__init__(f"controller error {self.error_code}: {text}{where}")
-
-    @property
-    def text(self) -> str:
-        """The manual's description of the error number."""
-        return self.description
+        super().__init__(f"controller error {self.number}: {self.text}{where}")
 
     def __reduce__(self) -> tuple[object, ...]:
-        return (type(self), (self.error_code, self.command))
+        return (type(self), (self.number, self.command))
+
+
+class CommandRejectedError(ControllerError):
+    """Category of controller errors 1-7: the command line itself was refused (no such
+    axis or instruction, too long, a number out of range, wrong parameter count, no
+    ``!``/``?``). Sending the same line again fails the same way."""
+
+
+class StateError(ControllerError):
+    """Category of controller errors 8-30: an interlock or the controller's state forbids
+    the command (TVR active, joystick enabled, limit switch, emergency stop, amplifiers
+    off, ...). The same line may work once the state has changed.
+
+    Numbers 20 and above can also be persistent internal conditions that no command caused:
+    those are raised as :class:`InternalControllerError`, which is then an instance of the
+    number's class as well (``except AmplifiersDisabledError`` and ``except StateError``
+    catch both).
+    """
+
+
+class HardwareFaultError(ControllerError):
+    """Category of controller errors 70-86: hardware, configuration or firmware faults
+    (CPLD data, ETS, write-protected parameter, eeprom, supply overloads, brake voltage).
+    Usually these need a person, not a retry."""
 
 
 class UnknownControllerError(ControllerError):
@@ -176,21 +217,33 @@ INTERNAL_ERRORS = 20
 
 
 class InternalControllerError(ControllerError):
-    """The controller is in a persistent internal error state (``error_code`` >= 20, e.g.
+    """The controller is in a persistent internal error state (``number`` >= 20, e.g.
     29 amplifiers off) that ``?err`` reports although the last instruction was fine
     (manual L2853-2867). It is not the fault of any command (``command`` is ``None``);
     raised by :meth:`Controller.check_fault <tango_aio.controller.Controller.check_fault>`
-    and announced by the :class:`~tango_aio.events.ControllerFault` event."""
+    and announced by the :class:`~tango_aio.events.ControllerFault` event.
 
-    @property
-    def text(self) -> str:
-        """The manual's description of the error number."""
-        return error_class(self.error_code).description
+    ``InternalControllerError(29)`` builds an instance that is also of the number's own
+    class, and so of its category (here :class:`AmplifiersDisabledError`, a
+    :class:`StateError`); an undocumented number gives a plain
+    :class:`InternalControllerError`. Whether an error is persistent or the line's own is
+    a question of who caused it, not of the number, hence this class stands beside the
+    categories rather than inside one.
+    """
 
-    def __init__(self, code: int | None = None, command: str | None = None) -> None:
-        super().__init__(code, command)
-        self.args = (f"controller reports internal error {self.error_code}: "
-                     f"{error_class(self.error_code).description} (not caused by a command)",)
+    def __new__(cls, number: int | None = None, command: str | None = None
+                ) -> InternalControllerError:
+        if cls is InternalControllerError and number is not None:
+            cls = _internal_class(number)
+        return super().__new__(cls, number, command)
+
+    def __init__(self, number: int | None = None, command: str | None = None) -> None:
+        super().__init__(number, command)
+        self.args = (f"controller reports internal error {self.number}: "
+                     f"{self.text} (not caused by a command)",)
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (InternalControllerError, (self.number, self.command))
 
 
 # One class per error number of the manual (firmware 1.71, chapter 5, L961-1034).
@@ -198,269 +251,263 @@ class InternalControllerError(ControllerError):
 
 class NoError(ControllerError):
     """Controller error 0: no error."""
+    number = 0
+    text = "no error"
 
-    code = 0
-    description = "no error"
 
-
-class InvalidAxisNameError(ControllerError):
+class InvalidAxisNameError(CommandRejectedError):
     """Controller error 1: no valid axis name."""
+    number = 1
+    text = "no valid axis name"
 
-    code = 1
-    description = "no valid axis name"
 
-
-class NotExecutableError(ControllerError):
+class NotExecutableError(CommandRejectedError):
     """Controller error 2: no executable instruction."""
+    number = 2
+    text = "no executable instruction"
 
-    code = 2
-    description = "no executable instruction"
 
-
-class LineTooLongError(ControllerError):
+class LineTooLongError(CommandRejectedError):
     """Controller error 3: too many characters in command line."""
+    number = 3
+    text = "too many characters in command line"
 
-    code = 3
-    description = "too many characters in command line"
 
-
-class InvalidInstructionError(ControllerError):
+class InvalidInstructionError(CommandRejectedError):
     """Controller error 4: invalid instruction."""
+    number = 4
+    text = "invalid instruction"
 
-    code = 4
-    description = "invalid instruction"
 
-
-class OutOfRangeError(ControllerError):
+class OutOfRangeError(CommandRejectedError):
     """Controller error 5: number is not inside allowed range."""
+    number = 5
+    text = "number is not inside allowed range"
 
-    code = 5
-    description = "number is not inside allowed range"
 
-
-class WrongParameterCountError(ControllerError):
+class WrongParameterCountError(CommandRejectedError):
     """Controller error 6: wrong number of parameters."""
+    number = 6
+    text = "wrong number of parameters"
 
-    code = 6
-    description = "wrong number of parameters"
 
-
-class MissingPrefixError(ControllerError):
+class MissingPrefixError(CommandRejectedError):
     """Controller error 7: either ! or ? is missing."""
+    number = 7
+    text = "either ! or ? is missing"
 
-    code = 7
-    description = "either ! or ? is missing"
 
-
-class TvrAxisActiveError(ControllerError):
+class TvrAxisActiveError(StateError):
     """Controller error 8: no TVR possible, while axis active."""
+    number = 8
+    text = "no TVR possible, while axis active"
 
-    code = 8
-    description = "no TVR possible, while axis active"
 
-
-class TvrActiveError(ControllerError):
+class TvrActiveError(StateError):
     """Controller error 9: no ON or OFF of axis possible, while TVR active."""
+    number = 9
+    text = "no ON or OFF of axis possible, while TVR active"
 
-    code = 9
-    description = "no ON or OFF of axis possible, while TVR active"
 
-
-class NotConfiguredError(ControllerError):
+class NotConfiguredError(StateError):
     """Controller error 10: function not configured."""
+    number = 10
+    text = "function not configured"
 
-    code = 10
-    description = "function not configured"
 
-
-class JoystickEnabledError(ControllerError):
+class JoystickEnabledError(StateError):
     """Controller error 11: no move instruction possible, while joystick enabled."""
+    number = 11
+    text = "no move instruction possible, while joystick enabled"
 
-    code = 11
-    description = "no move instruction possible, while joystick enabled"
 
-
-class LimitSwitchActiveError(ControllerError):
+class LimitSwitchActiveError(StateError):
     """Controller error 12: limit switch active."""
+    number = 12
+    text = "limit switch active"
 
-    code = 12
-    description = "limit switch active"
 
-
-class EncoderDetectedError(ControllerError):
+class EncoderDetectedError(StateError):
     """Controller error 13: function not executable, because encoder detected."""
+    number = 13
+    text = "function not executable, because encoder detected"
 
-    code = 13
-    description = "function not executable, because encoder detected"
 
-
-class MultiAxisMoveForbiddenError(ControllerError):
+class MultiAxisMoveForbiddenError(StateError):
     """Controller error 21: multiple axis moves are forbidden (e.g. during initialization)."""
+    number = 21
+    text = "multiple axis moves are forbidden (e.g. during initialization)"
 
-    code = 21
-    description = "multiple axis moves are forbidden (e.g. during initialization)"
 
-
-class MoveNotAllowedError(ControllerError):
+class MoveNotAllowedError(StateError):
     """Controller error 22: automatic or manual move is not allowed (door open, init)."""
+    number = 22
+    text = "automatic or manual move is not allowed (e.g. door open or initialization)"
 
-    code = 22
-    description = "automatic or manual move is not allowed (e.g. door open or initialization)"
 
-
-class EmergencyStopError(ControllerError):
+class EmergencyStopError(StateError):
     """Controller error 27: emergency STOP is active."""
+    number = 27
+    text = "emergency STOP is active"
 
-    code = 27
-    description = "emergency STOP is active"
 
-
-class AmplifiersDisabledError(ControllerError):
+class AmplifiersDisabledError(StateError):
     """Controller error 29: servo amplifiers are disabled (switched OFF)."""
+    number = 29
+    text = "servo amplifiers are disabled (switched OFF)"
 
-    code = 29
-    description = "servo amplifiers are disabled (switched OFF)"
 
-
-class SafetyCircuitError(ControllerError):
+class SafetyCircuitError(StateError):
     """Controller error 30: safety circuit out of order."""
+    number = 30
+    text = "safety circuit out of order"
 
-    code = 30
-    description = "safety circuit out of order"
 
-
-class CpldDataError(ControllerError):
+class CpldDataError(HardwareFaultError):
     """Controller error 70: wrong CPLD data."""
+    number = 70
+    text = "wrong CPLD data"
 
-    code = 70
-    description = "wrong CPLD data"
 
-
-class EtsError(ControllerError):
+class EtsError(HardwareFaultError):
     """Controller error 71: ETS error."""
+    number = 71
+    text = "ETS error"
 
-    code = 71
-    description = "ETS error"
 
-
-class WriteProtectedError(ControllerError):
+class WriteProtectedError(HardwareFaultError):
     """Controller error 72: parameter is write protected (check lock bits)."""
+    number = 72
+    text = "parameter is write protected (check lock bits)"
 
-    code = 72
-    description = "parameter is write protected (check lock bits)"
 
-
-class InternalDataError(ControllerError):
+class InternalDataError(HardwareFaultError):
     """Controller error 73: internal error, e.g. eeprom data corruption."""
+    number = 73
+    text = "internal error, e.g. eeprom data corruption"
 
-    code = 73
-    description = "internal error, e.g. eeprom data corruption"
 
-
-class ClosedLoopOffError(ControllerError):
+class ClosedLoopOffError(HardwareFaultError):
     """Controller error 74: closed loop switched off due to parameter change."""
+    number = 74
+    text = "closed loop switched off due to parameter change"
 
-    code = 74
-    description = "closed loop switched off due to parameter change"
 
-
-class AxisCorrectionError(ControllerError):
+class AxisCorrectionError(HardwareFaultError):
     """Controller error 75: could not enable axis correction, or axis correction was disabled."""
+    number = 75
+    text = "could not enable axis correction, or axis correction was disabled"
 
-    code = 75
-    description = "could not enable axis correction, or axis correction was disabled"
 
-
-class IoExtensionOverloadError(ControllerError):
+class IoExtensionOverloadError(HardwareFaultError):
     """Controller error 76: io extension error (output overload on IO1 or Multi-IO connector)."""
+    number = 76
+    text = "io extension error (output overload on IO1 or Multi-IO connector)"
 
-    code = 76
-    description = "io extension error (output overload on IO1 or Multi-IO connector)"
 
-
-class IoExtensionBusError(ControllerError):
+class IoExtensionBusError(HardwareFaultError):
     """Controller error 77: io extension internal communication error (internal bus error)."""
+    number = 77
+    text = "io extension internal communication error (internal bus error)"
 
-    code = 77
-    description = "io extension internal communication error (internal bus error)"
 
-
-class HdiDeviceError(ControllerError):
+class HdiDeviceError(HardwareFaultError):
     """Controller error 78: HDI input device error."""
+    number = 78
+    text = "HDI input device error"
 
-    code = 78
-    description = "HDI input device error"
 
-
-class XposModuleError(ControllerError):
+class XposModuleError(HardwareFaultError):
     """Controller error 79: xPos module error."""
+    number = 79
+    text = "xPos module error"
 
-    code = 79
-    description = "xPos module error"
 
-
-class HdiIsrError(ControllerError):
+class HdiIsrError(HardwareFaultError):
     """Controller error 80: internal error: HDI ISR not running."""
+    number = 80
+    text = "internal error: HDI ISR not running"
 
-    code = 80
-    description = "internal error: HDI ISR not running"
 
-
-class EncoderIsrError(ControllerError):
+class EncoderIsrError(HardwareFaultError):
     """Controller error 81: internal error: Encoder ISR not running."""
+    number = 81
+    text = "internal error: Encoder ISR not running"
 
-    code = 81
-    description = "internal error: Encoder ISR not running"
 
-
-class MotorSupplyOverloadError(ControllerError):
+class MotorSupplyOverloadError(HardwareFaultError):
     """Controller error 82: overload on motor connector +5V."""
+    number = 82
+    text = "overload on motor connector +5V"
 
-    code = 82
-    description = "overload on motor connector +5V"
 
-
-class AuxSupplyOverloadError(ControllerError):
+class AuxSupplyOverloadError(HardwareFaultError):
     """Controller error 83: overload on AUX I/O +5V supply."""
+    number = 83
+    text = "overload on AUX I/O +5V supply"
 
-    code = 83
-    description = "overload on AUX I/O +5V supply"
 
-
-class EncoderSupplyOverloadError(ControllerError):
+class EncoderSupplyOverloadError(HardwareFaultError):
     """Controller error 84: overload on encoder +5V supply."""
+    number = 84
+    text = "overload on encoder +5V supply"
 
-    code = 84
-    description = "overload on encoder +5V supply"
 
-
-class Aux24VOverloadError(ControllerError):
+class Aux24VOverloadError(HardwareFaultError):
     """Controller error 85: overload on AUX I/O +24V supply."""
+    number = 85
+    text = "overload on AUX I/O +24V supply"
 
-    code = 85
-    description = "overload on AUX I/O +24V supply"
 
-
-class BrakeVoltageError(ControllerError):
+class BrakeVoltageError(HardwareFaultError):
     """Controller error 86: low brake output voltage."""
+    number = 86
+    text = "low brake output voltage"
 
-    code = 86
-    description = "low brake output voltage"
 
-
-#: Documented error numbers and their descriptions.
+#: Documented error numbers and their manual texts.
 ERROR_DESCRIPTIONS: dict[int, str] = {
-    number: cls.description for number, cls in ControllerError._registry.items()
+    number: cls.text for number, cls in ControllerError._registry.items()
 }
 
-def error_class(code: int) -> type[ControllerError]:
-    """Return the :class:`ControllerError` subclass for error number ``code``."""
-    return ControllerError._registry.get(code, UnknownControllerError)
+#: The error categories in the order of their numbers.
+CATEGORIES: tuple[type[ControllerError], ...] = (
+    CommandRejectedError, StateError, HardwareFaultError)
 
 
-def controller_error(code: int, command: str | None = None) -> ControllerError:
-    """Build the typed exception for controller error number ``code``."""
-    return error_class(code)(code, command)
+def _text_of(number: int, default: str) -> str:
+    return ERROR_DESCRIPTIONS.get(number, default)
+
+
+def error_class(number: int) -> type[ControllerError]:
+    """Return the :class:`ControllerError` subclass for error number ``number``."""
+    return ControllerError._registry.get(number, UnknownControllerError)
+
+
+def controller_error(number: int, command: str | None = None) -> ControllerError:
+    """Build the typed exception for controller error number ``number``."""
+    return error_class(number)(number, command)
+
+
+def _make_internal(number: int) -> type[InternalControllerError]:
+    own = error_class(number)
+    if own is UnknownControllerError:
+        return InternalControllerError
+    name = f"Internal{own.__name__}"
+    namespace = {"__module__": __name__, "__qualname__": name,
+                 "__doc__": f"Controller error {number} as a persistent internal condition."}
+    return cast("type[InternalControllerError]",
+                type(name, (InternalControllerError, own), namespace))
+
+
+# The internal variant of each documented number from INTERNAL_ERRORS on, built once.
+_INTERNAL: dict[int, type[InternalControllerError]] = {
+    number: _make_internal(number) for number in ERROR_DESCRIPTIONS if number >= INTERNAL_ERRORS
+}
+
+
+def _internal_class(number: int) -> type[InternalControllerError]:
+    return _INTERNAL.get(number, InternalControllerError)
 
 
 _ERR_RE = re.compile(r"^\s*(?:ERR(?:OR)?\s*(-?\d+)?\s*(?:,\s*(.*))?|(-?\d+))\s*$")
