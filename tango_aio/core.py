@@ -57,6 +57,7 @@ from .instructions import (
     Form,
     Instruction,
     LineRule,
+    ModeEffect,
     Shape,
     encode,
     parse,
@@ -88,6 +89,7 @@ __all__ = [
     "Unsolicited",
     "is_completion_line",
     "owed_pattern",
+    "wire_size",
 ]
 
 #: Longest line the assembler buffers before it gives up on it. The controller's lines are
@@ -341,16 +343,6 @@ def _has_data(rule: LineRule) -> bool:
     return rule.count > 0 or rule.terminator is not None or rule.continuation is not None
 
 
-def _mode_after(command: Command, mode: int) -> int:
-    """Autostatus mode in force after ``command`` runs (``reset`` restarts in mode 1)."""
-    name = command.name
-    if name == "autostatus" and command.form is Form.SET and command.values:
-        return int(command.values[0])
-    if name == "reset" or (name == "restore" and command.values == (-1,)):
-        return 1  # power-on default (manual L2062); autostatus is never saved (L2071)
-    return mode
-
-
 def expectation(command: Command, mode: int, context: Context | None = None) -> Expectation:
     """What ``command`` owes when it reaches the controller in autostatus ``mode``.
 
@@ -373,18 +365,19 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     # Not cached: lines that change the mode, and reads whose reply length depends on the
     # values or the context (entry.lines).
     key = (entry.name, command.form, mode)
-    cacheable = entry.name not in _MODE_SETTERS and (entry.lines is None or command.executes)
+    effect = entry.mode_effect
+    cacheable = effect is ModeEffect.NONE and (entry.lines is None or command.executes)
     if cacheable:
         hit = _EXPECTATIONS.get(key)
         if hit is not None and hit[0] is entry:
             return hit[1]
     executes = command.executes
-    after = _mode_after(command, mode)
+    after = effect.mode_after(command, mode)
     rule = reply_rule(command, context)
     owns_ack = entry.exec_reply is Shape.ACK and executes
     # A mode change owes no mandatory line: whether it is echoed and acknowledged depends
     # on the firmware (see _owed_items); the protocol reads ?autostatus behind it.
-    changes_mode = entry.name == "autostatus" and command.form is Form.SET
+    changes_mode = effect.owes_nothing(command)
     result = Expectation(
         echo=mode == 4 and executes and not changes_mode,
         rule=rule,
@@ -397,8 +390,13 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     return result
 
 
-#: Instructions whose lines may change the autostatus mode (see :func:`_mode_after`).
-_MODE_SETTERS: Final = frozenset({"autostatus", "reset", "restore"})
+#: What a read line owes, by (line, mode, ack_reads), with the instruction and the
+#: expectation it was computed for (see :meth:`ProtocolCore._line_facts`).
+_LINE_FACTS: dict[tuple[str, int, str | None], tuple[
+    Instruction, Expectation, tuple[bytes, tuple[_Item, ...], ReplyPattern | None,
+                                    ReplyPattern]]] = {}
+#: Distinct read lines kept at most (reads with many values are forgotten, not hoarded).
+_LINE_FACTS_MAX: Final = 1024
 #: Cached expectations by (instruction name, form, mode), with the instruction they were
 #: computed for (a hand-made Instruction of the same name does not share them).
 _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
@@ -498,6 +496,13 @@ _FOLLOW_UP: Final = encode("?err")
 _FOLLOW_UP_COMMAND: Final = parse("?err")
 
 
+def wire_size(command: Command, expect: Expectation) -> int:
+    """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
+    and the internal ``?err`` follow-up of a read whose end only the next line shows."""
+    size = len(command.to_bytes())
+    return size + len(_FOLLOW_UP) if expect.rule.continuation is not None else size
+
+
 class ProtocolCore:
     """Routes the controller's lines to requests, acknowledgements and events.
 
@@ -594,19 +599,48 @@ class ProtocolCore:
             expect = expectation(command, self._autostatus, self.context)
         mode = self._autostatus
         self._autostatus = expect.mode_after
-        data = command.to_bytes()
-        items = _owed_items(command, expect, mode, self.ack_reads)
-        if items:
-            echo = echo_pattern(command) if _Item.ECHO in items or _Item.ECHO_OPT in items \
-                else None
-            pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
-                else ACK_PATTERN
-            self._pending.append(_Pending(tag, items, echo, expect.rule, pattern))
+        data, template, echo, pattern = self._line_facts(command, expect, mode)
+        if template:
+            self._pending.append(_Pending(tag, deque(template), echo, expect.rule, pattern))
         if expect.completion is not None:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
         return data, expect
+
+    def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
+        """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
+        what :meth:`send` registers)."""
+        if expect.echo:
+            return echo_pattern(command)
+        if _has_data(expect.rule):
+            return self._line_facts(command, expect, mode)[3]
+        return ACK_PATTERN if expect.ack else None
+
+    def _line_facts(self, command: Command, expect: Expectation, mode: int
+                     ) -> tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern]:
+        """What a line written in ``mode`` owes: its bytes, the items owed, its echo's
+        and its data's pattern. Pure for a given line text, instruction, expectation, mode
+        and :attr:`ack_reads` when the reply does not depend on the context: those of
+        reads (the per-request path) are cached (tests/unit/test_core_cache.py)."""
+        entry = command.instruction
+        cacheable = command.is_read and entry.lines is None
+        if cacheable:
+            key = (command.line, mode, self.ack_reads)
+            hit = _LINE_FACTS.get(key)
+            if hit is not None and hit[0] is entry and hit[1] is expect:
+                return hit[2]
+        items = _owed_items(command, expect, mode, self.ack_reads)
+        echo = echo_pattern(command) if _Item.ECHO in items or _Item.ECHO_OPT in items \
+            else None
+        pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
+            else ACK_PATTERN
+        facts = (command.to_bytes(), tuple(items), echo, pattern)
+        if cacheable:
+            if len(_LINE_FACTS) >= _LINE_FACTS_MAX:
+                _LINE_FACTS.clear()
+            _LINE_FACTS[key] = (entry, expect, facts)
+        return facts
 
     def _register_follow_up(self, mode: int) -> bytes:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,

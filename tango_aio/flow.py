@@ -20,8 +20,8 @@ credit keeps coming back while the link stays busy; and whenever the queue is bl
 credit with unconfirmed reply-less bytes at the tail. Ordinary request/reply traffic never
 needs one.
 
-This module is sans-IO: :class:`CreditWindow` only does the arithmetic; the protocol
-decides what to write.
+This module is sans-IO: :class:`CreditWindow` only does the arithmetic; the write
+scheduler (:mod:`tango_aio.scheduler`) decides what to write.
 """
 
 from __future__ import annotations
@@ -106,7 +106,13 @@ class CreditWindow:
     def wrote(self, size: int, tag: Hashable | None) -> None:
         """Record ``size`` bytes written; ``tag`` is the request whose reply confirms them
         (``None`` for a reply-less line)."""
-        self._written.append(_Written(size, tag))
+        written = self._written
+        if tag is None and written and written[-1].tag is None:
+            # Reply-less lines in a row are confirmed together: one entry (a list upload
+            # keeps one per run between markers, not one per line).
+            written[-1].size += size
+        else:
+            written.append(_Written(size, tag))
         self.outstanding += size
         self.peak = max(self.peak, self.outstanding)
         self.unmarked = 0 if tag is not None else self.unmarked + size

@@ -12,19 +12,22 @@ different: its reply may be lost for good. Its caller gets
 resynchronises in the background (see the core's theory of operation): requests still in
 flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still queued wait
 until the marker is answered. When resyncs overlap, the reply to the newest marker ends
-all of them. Lines that get no reply ``dead_after`` times in a row (a link that stays open
-but no longer forwards) declare the link lost.
+all of them. Lines that get no reply ``dead_after`` times in a row, with no line at all
+arriving in between (a link that stays open but no longer forwards), declare the link lost;
+a link that still delivers lines, even garbled ones, is slow or noisy, not dead.
 
 A lost link fails every pending future with :class:`~tango_aio.errors.ConnectionLostError`
 whose ``__cause__`` is the transport's error (a :class:`ConnectionResetError` when the other
 end closed cleanly); later calls raise the same class at once.
 
-Flow control: every line goes through a write queue and is written only while the bytes
-written but not yet confirmed by a reply stay within the credit limit (255 by default), so
-the controller's 256-byte input buffer never overflows (:mod:`tango_aio.flow`). Runs of
-reply-less lines are confirmed by ``err`` markers the protocol inserts itself; a marker
-reporting an error marks the lines it covers (:attr:`Submission.chunk_error`). A line is
-registered with the core when it is written, so a queued line can still be withdrawn.
+Flow control: every line goes through the sans-IO write scheduler
+(:mod:`tango_aio.scheduler`), which writes it only while the bytes written but not yet
+confirmed by a reply stay within the credit limit (255 by default), so the controller's
+256-byte input buffer never overflows (:mod:`tango_aio.flow`). Runs of reply-less lines
+are confirmed by ``err`` markers the scheduler inserts itself; a marker reporting an error
+marks the lines it covers (:attr:`Submission.chunk_error`). A line is registered with the
+core when it is written, so a queued line can still be withdrawn. The protocol keeps the
+futures, the transport and the tracing.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
 every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
@@ -36,13 +39,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import itertools
 import logging
 import math
 import re
 import time
-from collections import deque
-from collections.abc import Callable, Collection, Hashable, Iterable
+from collections.abc import Callable, Collection, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,15 +53,12 @@ from .core import (
     Dropped,
     Echoed,
     Event,
-    Expectation,
     HelpStyle,
     Mismatched,
     ProtocolCore,
     Replied,
     RequestLost,
     Unsolicited,
-    expectation,
-    owed_pattern,
 )
 from .errors import (
     ConnectionLostError,
@@ -76,7 +74,8 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, encode, parse
-from .patterns import ACK_PATTERN, ONE_NUMBER, ReplyPattern, normal_line
+from .patterns import ACK_PATTERN, normal_line
+from .scheduler import Line, Run, WriteScheduler
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -105,53 +104,18 @@ class Response:
 
 
 @dataclass(eq=False, slots=True)
-class Submission:
-    """A command written to the controller.
+class Submission(Line):
+    """A command written to the controller: the scheduler's :class:`~tango_aio.scheduler.Line`
+    with the futures of its caller.
 
     ``reply`` resolves with the :class:`Response` when the request owes a reply (else it
     is ``None``); ``completion`` resolves with the :class:`~tango_aio.core.Completed`
     report of a move, ``cal`` or ``rm``.
     """
 
-    command: Command
-    tag: Hashable
-    expectation: Expectation
-    reply: asyncio.Future[Response] | None
-    completion: asyncio.Future[Completed] | None
+    reply: asyncio.Future[Response] | None = None
+    completion: asyncio.Future[Completed] | None = None
     response: Response = field(default_factory=Response)
-    #: Whether the line has been written (it may wait in the queue for credit).
-    written: bool = False
-    #: Error number reported by the credit marker that followed this reply-less line
-    #: (``?err`` reports the state after the last line before it), if non-zero.
-    chunk_error: int | None = None
-    #: Lines of one all-or-nothing batch (``None``: on its own) may be pipelined even
-    #: when their replies look alike (:mod:`tango_aio.patterns`).
-    batch: object | None = None
-    #: Pattern of the first line owed, ``None`` if none.
-    owes: ReplyPattern | None = None
-    #: The pattern compared with the last line owed before this one to decide whether a
-    #: separator goes first (``owes``, or for a line owing nothing that is checked by the
-    #: probe behind it, the probe's: the separator must not go between the two).
-    guard: ReplyPattern | None = None
-    #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
-    confirming: bool = field(init=False)
-    #: Bytes this line takes on the wire (with a read's internal follow-up).
-    size: int = field(init=False)
-    #: The autostatus mode ``expectation`` was computed for.
-    mode: int = 1
-    #: The mode the core believed in force when the line was written.
-    written_mode: int = field(default=-1, init=False)
-    #: Number of the line among those written on the link (0: not written yet).
-    serial: int = field(default=0, init=False)
-
-    def __post_init__(self) -> None:
-        # Both are asked for on every flush while the line waits for credit: computed once.
-        expect = self.expectation
-        rule = expect.rule
-        self.confirming = expect.ack or rule.count > 0 or rule.terminator is not None \
-            or rule.continuation is not None
-        follow_up = 5 if rule.continuation is not None else 0
-        self.size = len(self.command.to_bytes()) + follow_up
 
 
 @dataclass(eq=False, slots=True)
@@ -248,30 +212,16 @@ class TangoProtocol(asyncio.Protocol):
         self.dead_after = dead_after
         #: Seconds of silence after which an idle link is probed (``None``: never).
         self.keepalive = keepalive
-        #: Look-alike requests: ``True`` writes a separator between two in a row (a stray
-        #: line is detected, see :meth:`_needs_separator`); ``False`` only keeps them from
-        #: being in flight together (no extra line, but a stray line that fits the
-        #: waiting request shifts the replies after it: for benchmarks and hand-fed tests).
-        self.separators = separators
         self._silent = 0  # consecutive unanswered requests
-        self._written_lines = 0  # lines written so far (requests, markers, separators)
         self._counted_upto = 0  # lines written when the last unanswered one was counted
         self._last_reply = 0.0  # loop time of the last reply line routed
         self._keepalive_task: asyncio.Task[None] | None = None
         self._loop = asyncio.get_running_loop()
-        #: The write-credit account (see :mod:`tango_aio.flow`).
-        self.credit = CreditWindow(credit_limit, marker_chunk)
-        self._queue: deque[Submission] = deque()
-        self._queued_mode = autostatus
-        self._unmarked: list[Submission] = []
-        self._credit_markers: dict[Hashable, list[Submission]] = {}
-        #: What the last line written owes last, and its batch (see _needs_separator).
-        self._last_owed: ReplyPattern | None = None
-        self._last_batch: object | None = None
-        self._separators: set[Hashable] = set()
+        #: The write queue, credit markers and separators (:mod:`tango_aio.scheduler`).
+        self.scheduler = WriteScheduler(self.core, credit_limit=credit_limit,
+                                        marker_chunk=marker_chunk, separators=separators)
         self._transport: asyncio.BaseTransport | None = None
         self._writer: Callable[[bytes], object] | None = None
-        self._tags = itertools.count(1)
         self._submissions: dict[Hashable, Submission] = {}
         self._markers: dict[Hashable, asyncio.Future[Response]] = {}
         self._on_event = on_event
@@ -293,9 +243,6 @@ class TangoProtocol(asyncio.Protocol):
         self._collect_help = False
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
-        #: Lines submitted after this tag wait (a mode change is under way).
-        self._hold_after: int | None = None
-        self._last_tag = 0
         self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
 
     def set_callbacks(self, on_event: EventCallback | None,
@@ -361,7 +308,7 @@ class TangoProtocol(asyncio.Protocol):
             _fail(marker, error)
         self._submissions.clear()
         self._markers.clear()
-        self._queue.clear()
+        self.scheduler.drop_queue()
         if self._on_lost is not None:
             self._on_lost(exc)
 
@@ -494,40 +441,45 @@ class TangoProtocol(asyncio.Protocol):
             self.core.ack_reads = "after" if any(ACK_PATTERN.accepts(x) for x in after) \
                 else "before" if any(ACK_PATTERN.accepts(x) for x in between) else "no"
             self._detected["ack_reads"] = self.core.ack_reads
-        self._reproject()
+        self.scheduler.reproject()
         return actual
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
         and answered (polled: mode changes are rare)."""
-        hold = self._hold_after = self._last_tag
+        hold = self.scheduler.hold()
         dropped = self._queue_drops
         try:
-            while self.core.pending_tags or self.core.resyncing or any(
-                    isinstance(s.tag, int) and s.tag <= hold for s in self._queue):
+            while self.core.pending_tags or self.core.resyncing or \
+                    self.scheduler.queued_up_to(hold):
                 self.check()
                 if self._queue_drops != dropped:  # Ctrl+C discarded what was queued
                     raise RequestAbortedError(
                         "the mode change was not sent: the stream was resynchronised")
                 await asyncio.sleep(0.002)
         except BaseException:
-            self._hold_after = None
+            self.scheduler.release()
             self._flush()
             raise
 
-    def start_move(self, command: Command, *, check: bool = True) -> MoveHandle:
+    def start_move(self, command: Command, *, check: bool = True,
+                   batch: object | None = None) -> MoveHandle:
         """Write a motion line (and its check) and return its :class:`MoveHandle`: await
-        :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`."""
-        return self._send_checked(command, check)
+        :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`. ``batch``: the line
+        and its check join the batch of the line submitted right before them (see
+        :meth:`submit`; the caller treats the lines as one, e.g. a ``move_by`` whose start
+        ``?pos`` fails is stopped and fails)."""
+        return self._send_checked(command, check, batch)
 
-    def _send_checked(self, command: Command, check: bool) -> MoveHandle:
-        submission = self.submit(command, hold=True)
+    def _send_checked(self, command: Command, check: bool,
+                      batch: object | None = None) -> MoveHandle:
+        submission = self.submit(command, hold=True, batch=batch)
         probe = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853): a
             # separator the probe needs goes before the command.
-            probe = self.submit(_PROBE, hold=True)
+            probe = self.submit(_PROBE, hold=True, batch=batch)
             if submission.owes is None:
                 submission.guard, probe.guard = probe.owes, None
         self._flush()
@@ -577,8 +529,8 @@ class TangoProtocol(asyncio.Protocol):
             if wait > 0:
                 await asyncio.sleep(wait)
                 continue
-            if self._submissions or self._queue or self._markers or self.core.pending_tags \
-                    or self._barrier_lock.locked():
+            if self._submissions or self.scheduler.queued or self._markers \
+                    or self.core.pending_tags or self._barrier_lock.locked():
                 await asyncio.sleep(interval)  # requests in flight have their own deadlines
                 continue
             with contextlib.suppress(TangoError):
@@ -640,196 +592,101 @@ class TangoProtocol(asyncio.Protocol):
         """
         self.check()
         _check_framing(command)
-        tag = self._last_tag = next(self._tags)
-        was_queued = bool(self._queue)
-        mode = self._queued_mode if was_queued else self.core.autostatus
-        expect = expectation(command, mode, self.core.context)
-        self._queued_mode = expect.mode_after
-        loop = asyncio.get_running_loop()
+        tag, mode, expect = self.scheduler.plan(command)
+        loop = self._loop
         submission = Submission(
-            command,
-            tag,
-            expect,
-            loop.create_future() if expect.expects_reply else None,
-            loop.create_future() if expect.completion is not None else None,
-            batch=batch,
-            owes=owed_pattern(command, expect, self.core.context),
-            mode=mode,
+            command, tag, expect, mode, batch,
+            reply=loop.create_future() if expect.expects_reply else None,
+            completion=loop.create_future() if expect.completion is not None else None,
         )
-        submission.guard = submission.owes
         if submission.reply is not None or submission.completion is not None:
             self._submissions[tag] = submission
-        self._queue.append(submission)
-        if not was_queued and not hold:
+        if self.scheduler.submit(submission) and not hold:
             # Otherwise the head of the queue is still waiting for credit or a reply, and
             # this line can only follow it: nothing could be written now. (``hold``: the
             # caller flushes once the lines that belong together are queued.)
             self._flush()
         return submission
 
+    def submit_together(self, commands: Sequence[Command]) -> list[Submission]:
+        """:meth:`submit` each of ``commands`` and write them in one write where the
+        credit allows (e.g. reads whose replies cannot be taken for each other, #19)."""
+        submissions = [self.submit(command, hold=True) for command in commands]
+        self._flush()
+        return submissions
+
     @property
     def queued(self) -> int:
         """Number of lines waiting in the write queue for credit."""
-        return len(self._queue)
+        return self.scheduler.queued
 
-    def withdraw(self, submissions: Iterable[Submission]) -> int:
+    @property
+    def credit(self) -> CreditWindow:
+        """The write-credit account (see :mod:`tango_aio.flow`)."""
+        return self.scheduler.credit
+
+    @property
+    def separators(self) -> bool:
+        """Look-alike requests: ``True`` writes a separator between two in a row (a stray
+        line is detected); ``False`` only keeps them from being in flight together (no
+        extra line, but a stray line that fits the waiting request shifts the replies
+        after it: for benchmarks and hand-fed tests)."""
+        return self.scheduler.separators
+
+    @separators.setter
+    def separators(self, value: bool) -> None:
+        self.scheduler.separators = value
+
+    def withdraw(self, submissions: Iterable[Line]) -> int:
         """Take lines that are still queued out of the queue; return how many were.
 
         Their futures are cancelled. Lines already written are not affected.
         """
-        doomed = {id(s) for s in submissions if not s.written}
-        if not doomed:
-            return 0
-        kept = deque(s for s in self._queue if id(s) not in doomed)
-        removed = [s for s in self._queue if id(s) in doomed]
-        self._queue = kept
+        removed = self.scheduler.withdraw(submissions)
         for submission in removed:
-            self._submissions.pop(submission.tag, None)
-            _cancel(submission.reply)
-            _cancel(submission.completion)
-        self._reproject()
+            if isinstance(submission, Submission):
+                self._submissions.pop(submission.tag, None)
+                _cancel(submission.reply)
+                _cancel(submission.completion)
         return len(removed)
 
-    def _reproject(self) -> None:
-        mode = self.core.autostatus
-        for submission in self._queue:
-            mode = expectation(submission.command, mode, self.core.context).mode_after
-        self._queued_mode = mode
+    def pack(self, commands: Sequence[Command], *, batch: object | None = None
+             ) -> Run | None:
+        """Reply-less lines (list entries) as one record to :meth:`submit_run`: one bytes
+        blob, not one object per line (:class:`~tango_aio.scheduler.Run`); ``None`` when
+        a line would owe something in the mode in force (then :meth:`submit` each)."""
+        for command in commands:
+            _check_framing(command)
+        return self.scheduler.pack(commands, batch)
+
+    def submit_run(self, run: Run) -> Run:
+        """Queue a run from :meth:`pack`. On the wire the same bytes, credit markers and
+        separators as one :meth:`submit` per line; :meth:`withdraw` takes back the lines
+        of the run not yet written."""
+        self.check()
+        if self.scheduler.submit(run):
+            self._flush()
+        return run
 
     def _flush(self) -> None:
-        """Write queued lines while the credit allows, inserting markers where due."""
-        if self._transport is None or self._lost is not None or self.core.resyncing:
-            # During a resync nothing is written until its marker is answered: the lines
-            # queued behind it go out once the stream is in step.
+        """Write what the scheduler lets go now (queued lines as the credit allows, with
+        the markers and separators due)."""
+        if self._transport is None or self._lost is not None:
             return
-        out = bytearray()
-        while self._queue:
-            head = self._queue[0]
-            if self._hold_after is not None and isinstance(head.tag, int) \
-                    and head.tag > self._hold_after:
-                break  # behind a mode change
-            if self.credit.marker_due(head.size, head.confirming):
-                batch = self._marker_batch()
-                separator = self._separator_for(_MARKER_OWES, batch)
-                if not self.credit.marker_fits() or (
-                        separator is _WAIT and self._must_wait(_MARKER_OWES, batch)) or (
-                        separator and not self.credit.fits(_SEPARATOR_SIZE + 4, True)):
-                    break
-                if isinstance(separator, tuple):
-                    out += self._separator(separator)
-                out += self._marker(batch)
-                continue
-            separator = self._separator_for(head.guard, head.batch)
-            size = head.size + (_SEPARATOR_SIZE if separator else 0)
-            if not self.credit.fits(size, head.confirming) or (
-                    separator is _WAIT and self._must_wait(head.owes, head.batch)):
-                break
-            self._queue.popleft()
-            if isinstance(separator, tuple):
-                out += self._separator(separator)
-            out += self._register(head)
-        if out:
-            self._write(bytes(out))
-
-    def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
-        """Without a separator: whether a line owing ``owes`` must wait for the newest
-        line in flight to be answered (their replies could be taken for each other)."""
-        if owes is None:
-            return False
-        tail = self.core.tail
-        if tail is None or not tail[1].overlaps(owes):
-            return False
-        return batch is None or self._batch_of(tail[0]) is not batch
-
-    def _batch_of(self, tag: Hashable) -> object | None:
-        submission = self._submissions.get(tag)
-        if submission is not None:
-            return submission.batch
-        return _MARKERS if tag in self._credit_markers else None
-
-    def _separator_for(self, owes: ReplyPattern | None, batch: object | None
-                       ) -> tuple[bytes, ReplyPattern] | object | None:
-        """The separator to write before a line owing ``owes`` (``None``: none needed;
-        :data:`_WAIT`: none exists, wait for the reply instead). One is needed when the
-        last line owed by the line written before looks alike: a line too many (or too
-        few) between them would shift a reply onto the wrong request (#14 item 1,
-        :mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
-        last = self._last_owed
-        if owes is None or last is None or not last.overlaps(owes):
-            return None
-        if batch is not None and batch is self._last_batch:
-            return None
-        if not self.separators:
-            return _WAIT
-        return self.core.separator(last, owes) or _WAIT
-
-    def _separator(self, separator: tuple[bytes, ReplyPattern]) -> bytes:
-        tag = next(self._tags)
-        data = self.core.separate(tag, separator)
-        self._separators.add(tag)
-        self.credit.wrote(len(data), tag)
-        tail = self.core.tail
-        self._last_owed, self._last_batch = (tail[1] if tail else None), None
-        return data
-
-    def _owed(self, tag: Hashable, batch: object | None) -> None:
-        """Remember what the line just registered under ``tag`` owes last."""
-        tail = self.core.tail
-        if tail is not None and tail[0] == tag:
-            self._last_owed, self._last_batch = tail[1], batch
-
-    def _marker_batch(self) -> object:
-        """A credit marker joins the batch of the lines it confirms; markers after lines
-        of no batch form a batch of their own (their replies only return credit)."""
-        last = self._unmarked[-1].batch if self._unmarked else None
-        return last if last is not None else _MARKERS
-
-    def _register(self, submission: Submission) -> bytes:
-        submission.written_mode = self.core.autostatus
-        self._written_lines += 1
-        submission.serial = self._written_lines
-        data, _ = self.core.send(submission.command, submission.tag,
-                                 (submission.mode, submission.expectation))
-        submission.written = True
-        if submission.owes is not None:
-            self._owed(submission.tag, submission.batch)
-        confirming = submission.confirming
-        self.credit.wrote(len(data), submission.tag if confirming else None)
-        if not confirming:
-            self._unmarked.append(submission)
-        return data
-
-    def _marker(self, batch: object) -> bytes:
-        tag = next(self._tags)
-        data, _ = self.core.send(_MARKER, tag)
-        self._owed(tag, batch)
-        self.credit.wrote(len(data), tag)
-        self._credit_markers[tag] = self._unmarked
-        self._unmarked = []
-        return data
-
-    def _on_credit_marker(self, tag: Hashable, lines: tuple[str, ...]) -> None:
-        covered = self._credit_markers.pop(tag)
-        try:
-            code = int(lines[0])
-        except (IndexError, ValueError):
-            log.warning("credit marker got a garbled reply %r", lines)
-            return
-        if code:
-            log.warning("error %d after %s", code, covered[-1].command.line if covered else "?")
-            for submission in covered:
-                submission.chunk_error = code
+        data = self.scheduler.next_write()
+        if data:
+            self._write(data)
 
     def _drop_queue(self) -> None:
         """Forget every line not yet written (their futures fail: they were never sent)."""
         error = RequestAbortedError("the line was not sent: the stream was resynchronised")
         self._queue_drops += 1
-        for submission in self._queue:
+        for submission in self.scheduler.drop_queue():
+            if not isinstance(submission, Submission):
+                continue  # a run of reply-less lines: nobody waits for it
             self._submissions.pop(submission.tag, None)
             _fail(submission.reply, error)
             _fail(submission.completion, error)
-        self._queue.clear()
-        self._queued_mode = self.core.autostatus
 
     async def request(self, command: Command, timeout: float | None = 5.0) -> Response:
         """Write ``command`` and wait for its reply (an empty Response if it owes none).
@@ -874,7 +731,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _unanswered(self, error: TangoError, serial: int) -> bool:
         """Count a request (or marker) that got no reply in time; declare the link lost
-        after :attr:`dead_after` in a row with no reply line in between (a link that stays
+        after :attr:`dead_after` in a row with no line at all in between (a link that stays
         open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
         power-cycled behind one). ``serial`` numbers the line among those written: lines
         that were in flight together count once (they time out together when one reply is
@@ -882,7 +739,7 @@ class TangoProtocol(asyncio.Protocol):
         the link was declared lost."""
         if serial <= self._counted_upto:
             return False
-        self._counted_upto = self._written_lines
+        self._counted_upto = self.scheduler.written_lines
         self._silent += 1
         if self._silent < self.dead_after or self._lost is not None:
             return False
@@ -902,7 +759,7 @@ class TangoProtocol(asyncio.Protocol):
             return
         tag, marker = self._begin_resync(keep_queue=True)
         handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout,
-                                       self._written_lines)
+                                       self.scheduler.written_lines)
         marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
 
     def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
@@ -930,7 +787,7 @@ class TangoProtocol(asyncio.Protocol):
             await self.detect(timeout=timeout)
             return
         tag, marker = self._begin_resync(ctrl_c)
-        serial = self._written_lines
+        serial = self.scheduler.written_lines
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(marker)
@@ -1005,8 +862,8 @@ class TangoProtocol(asyncio.Protocol):
         in_step = False
         try:
             self._write(b"".join(encode(line) for line in lines))
-            self._written_lines += len(lines)
-            serial = self._written_lines
+            self.scheduler.written_lines += len(lines)
+            serial = self.scheduler.written_lines
             try:
                 async with asyncio.timeout(timeout):
                     await self._collected
@@ -1022,13 +879,12 @@ class TangoProtocol(asyncio.Protocol):
             in_step = True
         finally:
             self._collect = self._collected = None
-            self._hold_after = None
+            self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
             if in_step:
                 self.core.end_resync()
-                self.credit.cleared()
-                self._last_owed, self._last_batch = None, None
+                self.scheduler.in_step()
             elif self.core.quiet:  # cancelled: its replies may still come
                 self.core.end_resync()
                 self._background_resync(self.reply_timeout)
@@ -1073,7 +929,7 @@ class TangoProtocol(asyncio.Protocol):
                 self._collected.set_result(None)
             return
         self.core.end_resync()
-        self.credit.cleared()
+        self.scheduler.in_step()
         for marker in self._markers.values():
             if not marker.done():
                 marker.set_result(Response())
@@ -1083,24 +939,17 @@ class TangoProtocol(asyncio.Protocol):
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
         """Write the resync marker (see :meth:`resync`); return its tag and future. Lines
         still queued are dropped, or with ``keep_queue`` written after the marker."""
-        tag = next(self._tags)
+        tag = self.scheduler.next_tag()
         marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
         if not keep_queue:
             self._drop_queue()
         data = self.core.resync(tag, ctrl_c=ctrl_c)
-        # Ctrl+C empties the controller's buffer; after a timeout the controller is
-        # assumed to have caught up (a lost reply would otherwise never return its credit).
-        self.credit.cleared()
-        self._credit_markers.clear()
-        self._separators.clear()
-        self._last_owed, self._last_batch = None, None  # the marker's reply is unique
-        self._unmarked = []
+        # The credit counts the marker's line, not Ctrl+C (the controller drops it).
+        self.scheduler.restarted(tag, len(data) - (1 if ctrl_c else 0))
         self._markers[tag] = marker
         self._dispatch_pending()
         self._quiet_help = False
         self._write(data)
-        self._written_lines += 1
-        self.credit.wrote(len(data) - (1 if ctrl_c else 0), tag)
         return tag, marker
 
     def forget_completion(self, submission: Submission) -> None:
@@ -1133,6 +982,11 @@ class TangoProtocol(asyncio.Protocol):
             self._dispatch(event)
 
     def _dispatch(self, event: Event) -> None:
+        if not isinstance(event, RequestLost):
+            # Any line at all, even one nobody can use (junk, a garbled reply, a line
+            # dropped while resynchronising), shows the link still forwards: only
+            # silence counts towards a dead link (:meth:`_unanswered`).
+            self._silent = 0
         if isinstance(event, Completed) and self._on_event:
             known = self._submissions.get(event.tag) if event.tag is not None else None
             self._on_event(event, known)
@@ -1152,14 +1006,11 @@ class TangoProtocol(asyncio.Protocol):
 
     def _on_reply_part(self, event: Replied | Acknowledged | Echoed) -> None:
         self._heard()
-        if not isinstance(event, Echoed):
-            # A reply is sent after its line was executed: everything up to it is processed.
-            self.credit.confirm(event.tag)
-        if event.tag in self._separators:
-            self._separators.discard(event.tag)
-            return
-        if event.tag in self._credit_markers and isinstance(event, Replied):
-            self._on_credit_marker(event.tag, event.lines)
+        # A reply is sent after its line was executed: everything up to it is processed
+        # (an echo of mode 4 comes before).
+        if self.scheduler.replied(event.tag,
+                                  event.lines if isinstance(event, Replied) else None,
+                                  confirms=not isinstance(event, Echoed)):
             return
         if event.tag in self._markers and isinstance(event, Replied):
             # The core only waits for the newest marker; its reply ends older resyncs too.
@@ -1185,8 +1036,7 @@ class TangoProtocol(asyncio.Protocol):
             self._release(event.tag, submission)
 
     def _heard(self) -> None:
-        """A reply line arrived: the link is alive."""
-        self._silent = 0
+        """A reply line arrived: the link is alive and answers (the keepalive waits)."""
         self._last_reply = self._loop.time()
 
     def _on_completed(self, event: Completed) -> None:
@@ -1256,21 +1106,12 @@ class TangoProtocol(asyncio.Protocol):
                 _fail(submission.reply, error)
 
 
-#: The credit marker: the bare read ``err`` (4 bytes), see :mod:`tango_aio.flow`.
-_MARKER = parse("err")
-_MARKER_OWES: ReplyPattern = ONE_NUMBER
 #: The check written behind a set/execute line.
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
 #: The read of the mode in force.
 _READ_MODE = parse("?autostatus")
-#: "No separator fits: wait for the reply" (see TangoProtocol._separator_for).
-_WAIT = object()
-#: Longest separator line (``?help NN`` and CR; ``sa x`` and ``err`` are shorter).
-_SEPARATOR_SIZE = 9
-#: The batch of credit markers that confirm lines of no batch.
-_MARKERS = object()
 
 
 def _check_framing(command: Command) -> None:
@@ -1285,7 +1126,7 @@ def _check_framing(command: Command) -> None:
     if not (line.isascii() and line.isprintable()):
         raise InvalidCommandError(
             f"control or non-ASCII character inside the command line {line!r}",
-            instruction=command.name, code=4)
+            instruction=command.name, number=4)
 
 
 def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
