@@ -9,81 +9,105 @@ API is :mod:`tango_aio.sync`, physical units are in :mod:`tango_aio.units`, the 
 fixture in :mod:`tango_aio.testing`.
 """
 
-from .bulk import UploadError
-from .connection import (
-    Connecting,
-    ConnectOptions,
-    connect,
-)
-from .controller import Controller, Identity
-from .errors import (
-    AmplifiersDisabledError,
-    Aux24VOverloadError,
-    AuxSupplyOverloadError,
-    AxisCorrectionError,
-    BrakeVoltageError,
-    ClosedLoopOffError,
-    ConnectionLostError,
-    ControllerError,
-    ControllerTimeoutError,
-    CpldDataError,
-    EmergencyStopError,
-    EncoderDetectedError,
-    EncoderIsrError,
-    EncoderSupplyOverloadError,
-    EtsError,
-    HdiDeviceError,
-    HdiIsrError,
-    InternalDataError,
-    InvalidAxisNameError,
-    InvalidCommandError,
-    InvalidInstructionError,
-    IoExtensionBusError,
-    IoExtensionOverloadError,
-    JoystickEnabledError,
-    LimitSwitchActiveError,
-    LineTooLongError,
-    MissingPrefixError,
-    MotorSupplyOverloadError,
-    MoveError,
-    MoveNotAllowedError,
-    MultiAxisMoveForbiddenError,
-    NoError,
-    NotConfiguredError,
-    NotExecutableError,
-    OutOfRangeError,
-    ProtocolError,
-    RequestAbortedError,
-    SafetyCircuitError,
-    TangoError,
-    TvrActiveError,
-    TvrAxisActiveError,
-    UnknownControllerError,
-    WriteProtectedError,
-    WrongParameterCountError,
-    XposModuleError,
-)
-from .events import (
-    ConnectionLost,
-    MoveAborted,
-    MoveFinished,
-    PositionUpdate,
-    Reconnected,
-    StatusReport,
-    Subscription,
-    TangoEvent,
-    UnsolicitedLine,
-)
-from .group import (
-    ControllerGroup,
-    DiscoveredController,
-    GroupError,
-    GroupEvent,
-    GroupSubscription,
-    discover,
-)
-from .reconnect import IdentityMismatchError, ReconnectPolicy
-from .status import AxisStatus
+# Theory of operation: the names below are imported on first use (PEP 562), not when the
+# package is imported. ``import tango_aio.sim`` or the ``tango-aio`` command then pays only
+# for what it uses, and the command line installs its Ctrl+C handling before the heavy
+# modules load (an interrupt during start-up ends quietly, issue #16). Type checkers and
+# IDEs read the explicit imports in the TYPE_CHECKING block; a test keeps that block,
+# ``__all__`` and ``_HOMES`` in step.
+
+from __future__ import annotations
+
+import importlib
+import sys
+from typing import TYPE_CHECKING, Any
+
+if getattr(sys, "argv", None) and \
+        sys.argv[0].replace("\\", "/").rpartition("/")[2].startswith("tango-aio"):
+    # This process is the ``tango-aio`` command (its console script, tango-aio.exe on
+    # Windows): quiet Ctrl+C from here on, before anything heavy loads (issue #16).
+    from . import _startup  # noqa: F401
+
+if TYPE_CHECKING:
+    from .bulk import UploadError
+    from .connection import (
+        Connecting,
+        ConnectOptions,
+        connect,
+    )
+    from .controller import Controller, Identity
+    from .discovery import DiscoveredController, discover
+    from .errors import (
+        AmplifiersDisabledError,
+        Aux24VOverloadError,
+        AuxSupplyOverloadError,
+        AxisCorrectionError,
+        BrakeVoltageError,
+        ClosedLoopOffError,
+        CommandRejectedError,
+        ConnectionLostError,
+        ControllerError,
+        ControllerTimeoutError,
+        CpldDataError,
+        EmergencyStopError,
+        EncoderDetectedError,
+        EncoderIsrError,
+        EncoderSupplyOverloadError,
+        EtsError,
+        HardwareFaultError,
+        HdiDeviceError,
+        HdiIsrError,
+        InternalControllerError,
+        InternalDataError,
+        InvalidAxisNameError,
+        InvalidCommandError,
+        InvalidInstructionError,
+        IoExtensionBusError,
+        IoExtensionOverloadError,
+        JoystickEnabledError,
+        LimitSwitchActiveError,
+        LineTooLongError,
+        MissingPrefixError,
+        MotorSupplyOverloadError,
+        MoveError,
+        MoveNotAllowedError,
+        MultiAxisMoveForbiddenError,
+        NoError,
+        NotConfiguredError,
+        NotExecutableError,
+        OutOfRangeError,
+        ProtocolError,
+        RequestAbortedError,
+        SafetyCircuitError,
+        StateError,
+        TangoError,
+        TvrActiveError,
+        TvrAxisActiveError,
+        UnknownControllerError,
+        WriteProtectedError,
+        WrongParameterCountError,
+        XposModuleError,
+    )
+    from .events import (
+        ConnectionLost,
+        ControllerFault,
+        MoveAborted,
+        MoveFinished,
+        PositionUpdate,
+        Reconnected,
+        StatusReport,
+        Subscription,
+        TangoEvent,
+        UnsolicitedLine,
+    )
+    from .group import (
+        ControllerGroup,
+        GroupError,
+        GroupEvent,
+        GroupSubscription,
+    )
+    from .reconnect import IdentityMismatchError, ReconnectPolicy
+    from .status import AxisStatus
 
 __all__ = [
     "AmplifiersDisabledError",
@@ -93,12 +117,14 @@ __all__ = [
     "AxisStatus",
     "BrakeVoltageError",
     "ClosedLoopOffError",
+    "CommandRejectedError",
     "ConnectOptions",
     "Connecting",
     "ConnectionLost",
     "ConnectionLostError",
     "Controller",
     "ControllerError",
+    "ControllerFault",
     "ControllerGroup",
     "ControllerTimeoutError",
     "CpldDataError",
@@ -111,10 +137,12 @@ __all__ = [
     "GroupError",
     "GroupEvent",
     "GroupSubscription",
+    "HardwareFaultError",
     "HdiDeviceError",
     "HdiIsrError",
     "Identity",
     "IdentityMismatchError",
+    "InternalControllerError",
     "InternalDataError",
     "InvalidAxisNameError",
     "InvalidCommandError",
@@ -141,6 +169,7 @@ __all__ = [
     "Reconnected",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "StateError",
     "StatusReport",
     "Subscription",
     "TangoError",
@@ -157,15 +186,25 @@ __all__ = [
     "discover",
 ]
 
-# Error and event classes added to their modules later are exported too (their modules'
-# own __all__ lists are the source); the explicit imports above are for readers and IDEs.
-from . import errors as _errors
-from . import events as _events
-from .errors import *  # noqa: F403
-from .events import *  # noqa: F403
-
-__all__ += [name for name in (*_errors.__all__, *_events.__all__)
-            if name[0].isupper() and name not in __all__ and name != "ERROR_DESCRIPTIONS"
-            and name != "EventHub"]
+#: The modules that define the names of ``__all__``, searched in this order (each module's
+#: own ``__all__`` says what it exports).
+_HOMES = ("errors", "events", "status", "reconnect", "bulk", "connection", "controller",
+          "group", "discovery")
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name's module on first use (PEP 562)."""
+    if name in __all__:
+        for home in _HOMES:
+            module = importlib.import_module(f".{home}", __name__)
+            if name in getattr(module, "__all__", ()):
+                value = getattr(module, name)
+                globals()[name] = value
+                return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

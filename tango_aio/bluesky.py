@@ -87,9 +87,10 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
 
 from .coalesce import MoveCoalescer
 from .connection import connect
-from .controller import STOP_WAIT, Controller
+from .controller import Controller
 from .errors import ControllerTimeoutError, InvalidCommandError, MoveError, TangoError
 from .instructions import AXES
+from .motion import STOP_WAIT
 from .units import DIM_MM_VEL
 
 __all__ = [
@@ -378,7 +379,7 @@ class _AxisLogic(MovableLogic[float]):
         target = float(new_position)
         if not math.isfinite(target):
             raise StageLimitsError(f"{self.axis}: target {target!r} is not a finite number",
-                                   instruction="moa", parameter="position", code=5)
+                                   instruction="moa", parameter="position", number=5)
         if self.mocked:
             return
         low, high = await _limits(self.link, self.axis)
@@ -386,7 +387,7 @@ class _AxisLogic(MovableLogic[float]):
             raise StageLimitsError(
                 f"{self.axis}: target {target} outside the limits [{low}, {high}] "
                 f"{self.link.units.get(self.axis, '')}", instruction="moa",
-                parameter="position", code=5)
+                parameter="position", number=5)
 
     async def get_units_precision(self) -> tuple[str | None, int | None]:
         return self.link.units.get(self.axis), self.link.precision.get(self.axis)

@@ -20,19 +20,29 @@ concurrent uploads would interleave their clears and appends.
 from __future__ import annotations
 
 import asyncio
-import itertools
 import math
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
-from .instructions import AXES, Command, Form, build, build_rows
+from .instructions import (
+    AXES,
+    MAX_SNAPSHOTS,
+    MAX_TRIGGERS,
+    Command,
+    Form,
+    build,
+    build_rows,
+    parse,
+)
 from .protocol import Submission, TangoProtocol
+from .scheduler import Line, Run
 
 __all__ = [
     "CHECKPOINT",
     "MAX_SNAPSHOTS",
     "MAX_TRIGGERS",
+    "ListSpec",
     "ListTransfer",
     "Progress",
     "UploadError",
@@ -45,8 +55,6 @@ __all__ = [
     "validate_trigger_positions",
 ]
 
-MAX_TRIGGERS = 10000
-MAX_SNAPSHOTS = 1024
 #: Entries between two length checks (progress reports and early error detection).
 CHECKPOINT = 200
 #: Entries built and queued between two turns of the event loop.
@@ -58,24 +66,29 @@ Progress = Callable[[int, int], None]
 class UploadError(TangoError):
     """An entry of a list upload was rejected by the controller.
 
-    ``index`` is the 0-based index of the first rejected entry, ``code`` the controller's
+    ``index`` is the 0-based index of the first rejected entry, ``number`` the controller's
     error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
     controller then holds the entries before ``index``.
     """
 
-    def __init__(self, index: int, code: int, command: str) -> None:
-        super().__init__(f"entry {index} ({command!r}) was rejected with error {code}")
+    def __init__(self, index: int, number: int, command: str) -> None:
+        super().__init__(f"entry {index} ({command!r}) was rejected with error {number}")
         self.index = index
-        self.code = code
+        self.number = number
         self.command = command
 
 
 @dataclass(frozen=True, slots=True)
-class _ListSpec:
-    """How one list is written, counted and read."""
+class ListSpec:
+    """How one controller list is written, counted and read: what
+    :meth:`ListTransfer.replace`, :meth:`ListTransfer.download` and :func:`prepare` take.
+    :func:`trigger_spec` and :func:`snapshot_spec` give the two lists of the manual."""
 
-    append: Callable[[Sequence[Sequence[float]]], Iterator[Command]]  # the append lines
-    count: str  # the instruction that counts (``?trigc``) and truncates (``!trigc n``)
+    #: Builds the append lines of the given rows (validating each against the catalog).
+    append: Callable[[Sequence[Sequence[float]]], Iterator[Command]]
+    #: The instruction that counts (``?trigc``) and truncates (``!trigc n``) the list.
+    count: str
+    #: Builds the read of entry ``n`` (``?trigp n``).
     read: Callable[[int], Command]
 
 
@@ -85,11 +98,11 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
     values = [float(p) for p in positions]
     if len(values) > MAX_TRIGGERS:
         raise InvalidCommandError(f"trigp: {len(values)} entries, at most {MAX_TRIGGERS}",
-                                  instruction="trigp", parameter="position", code=5)
+                                  instruction="trigp", parameter="position", number=5)
     for index, value in enumerate(values):
         if not math.isfinite(value):
             raise InvalidCommandError(f"trigp: entry {index} is not finite ({value})",
-                                      instruction="trigp", parameter="position", code=5)
+                                      instruction="trigp", parameter="position", number=5)
     if len(values) >= 2:
         rising = values[1] > values[0]
         for index in range(1, len(values)):
@@ -97,11 +110,11 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
             if step == 0 or (step > 0) != rising:
                 raise InvalidCommandError(
                     f"trigp: entry {index} ({values[index]}) breaks the monotonic order",
-                    instruction="trigp", parameter="position", code=5)
+                    instruction="trigp", parameter="position", number=5)
     return values
 
 
-def prepare(spec: _ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
+def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     """Build (and so validate against the catalog) every append line before anything is
     sent; raises :class:`InvalidCommandError` naming the first bad entry."""
     commands: list[Command] = []
@@ -112,7 +125,7 @@ def prepare(spec: _ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
         except InvalidCommandError as exc:
             raise InvalidCommandError(f"entry {len(commands)}: {exc}",
                                       instruction=exc.instruction, parameter=exc.parameter,
-                                      code=exc.code) from exc
+                                      number=exc.number) from exc
         if command is None:
             return commands
         commands.append(command)
@@ -130,7 +143,7 @@ def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float]
                 raise InvalidCommandError(
                     f"{name}: entry {index} value {value} is below the position resolution "
                     f"{step} and would read back as 0.0", instruction=name,
-                    parameter="position", code=5)
+                    parameter="position", number=5)
 
 
 class ListTransfer:
@@ -150,54 +163,74 @@ class ListTransfer:
         response = await self._protocol.request(command, self._timeout)
         return response.lines[0]
 
-    async def _count(self, spec: _ListSpec) -> int:
+    async def _count(self, spec: ListSpec) -> int:
         return int(await self._query(spec.count))
 
-    async def replace(self, spec: _ListSpec, clear: Callable[[], Awaitable[None]],
+    async def replace(self, spec: ListSpec, clear: Callable[[], Awaitable[None]],
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
         """Validate and build every line of ``rows``, then (holding :attr:`lock`) await
         ``clear`` (the checked clearing line) and append the rows."""
-        built = prepare(spec, rows)
+        chunks = self._chunks(prepare(spec, rows))
+        # Not kept through the upload: one list per entry (the caller's rows) made a
+        # 64-link upload's full garbage collections scan 200 000 objects (#19 target 7).
+        del rows
         async with self.lock:
             await clear()
-            await self._upload(spec, built, progress)
+            await self._upload(spec, chunks, progress)
 
-    async def _upload(self, spec: _ListSpec, built: Sequence[Command],
+    def _chunks(self, built: list[Command]) -> list[Run | list[Command]]:
+        """The lines ``built`` cut at the checkpoints, each piece kept as one row value
+        (a :class:`~tango_aio.scheduler.Run`: its bytes, not its Command objects, which
+        kept a 64-link upload's garbage collections long, #19) where its lines owe no
+        reply; else as the commands themselves."""
+        chunks: list[Run | list[Command]] = []
+        for start in range(0, len(built), CHECKPOINT):
+            piece = built[start:start + CHECKPOINT]
+            chunks.append(self._protocol.pack(piece) or piece)
+        built.clear()
+        return chunks
+
+    async def _upload(self, spec: ListSpec, chunks: list[Run | list[Command]],
                       progress: Progress | None) -> None:
-        """Append the lines ``built`` (validated, the list cleared) with checkpoints."""
-        self._total = len(built)  # for progress reports
-        commands: list[Command] = []
-        lines = iter(built)
-        pending: list[tuple[int, Submission, list[Submission]]] = []
+        """Append the lines of ``chunks`` (validated, the list cleared) with a check of
+        the list's length after each chunk."""
+        self._total = sum(map(len, chunks))  # for progress reports
+        sent: list[Run | list[Command]] = []
+        pending: list[tuple[int, Submission, list[Line]]] = []
         # All or nothing: a lost or added reply anywhere fails the whole upload, so its
         # lines may be pipelined even where their replies look alike (tango_aio.patterns).
         whole = object()
-        loose: list[Submission] = []  # submitted, not yet under a checkpoint
+        loose: list[Line] = []  # submitted, not yet under a checkpoint
+        done = 0
         try:
-            for start in range(0, len(built), CHECKPOINT):
-                # Built batch by batch, so the first lines go out while later ones are built.
-                chunk = list(itertools.islice(lines, CHECKPOINT))
-                commands.extend(chunk)
-                for offset in range(0, len(chunk), SLICE):
-                    loose += [self._protocol.submit(c, batch=whole)
-                              for c in chunk[offset:offset + SLICE]]
-                    # Let the replies of other links through: with many controllers on one
-                    # loop, building 200 lines at once delayed them (benchmarks/scaling.py).
-                    await asyncio.sleep(0)
+            for chunk in chunks:
+                sent.append(chunk)
+                if isinstance(chunk, Run):
+                    chunk.batch = whole
+                    loose.append(self._protocol.submit_run(chunk))
+                else:
+                    for offset in range(0, len(chunk), SLICE):
+                        loose += [self._protocol.submit(c, batch=whole)
+                                  for c in chunk[offset:offset + SLICE]]
+                        await asyncio.sleep(0)
+                # Let the replies of other links through between chunks (with many
+                # controllers on one loop, benchmarks/scaling.py).
+                await asyncio.sleep(0)
+                done += len(chunk)
                 check = self._protocol.submit(build(spec.count, form=Form.READ), batch=whole)
-                pending.append((start + len(chunk), check, loose))
+                pending.append((done, check, loose))
                 loose = []
                 if len(pending) > 1:
-                    await self._checkpoint(spec, commands, pending, progress)
+                    await self._checkpoint(spec, sent, pending, progress)
             while pending:
-                await self._checkpoint(spec, commands, pending, progress)
+                await self._checkpoint(spec, sent, pending, progress)
         finally:
             # Cancelled or failed: lines still queued are never sent.
             self._protocol.withdraw([*loose, *(s for _, check, batch in pending
                                                for s in (*batch, check))])
 
-    async def _checkpoint(self, spec: _ListSpec, commands: list[Command],
-                          pending: list[tuple[int, Submission, list[Submission]]],
+    async def _checkpoint(self, spec: ListSpec, sent: list[Run | list[Command]],
+                          pending: list[tuple[int, Submission, list[Line]]],
                           progress: Progress | None) -> None:
         """Await the oldest checkpoint; on a short count stop the upload and raise."""
         expected, check, _batch = pending[0]
@@ -207,14 +240,15 @@ class ListTransfer:
         if count != expected:
             self._protocol.withdraw(s for _, c, batch in pending for s in (*batch, c))
             pending.clear()
-            await self._locate_rejection(spec, commands, count)
+            await self._locate_rejection(spec, _commands(sent, count + 1), count)
         if progress is not None:
             progress(count, self._total)
 
-    async def _locate_rejection(self, spec: _ListSpec, commands: list[Command],
+    async def _locate_rejection(self, spec: ListSpec, commands: list[Command],
                                 count: int) -> None:
         """Find the first entry that did not make it, get its error and raise.
 
+        ``commands`` are the lines sent, at least ``count + 1`` of them when there are.
         The reads below are answered only after every line already written was processed,
         so the list no longer changes when it is truncated to the accepted entries.
         """
@@ -245,12 +279,12 @@ class ListTransfer:
         if code:
             raise controller_error(code, command.line)
 
-    async def download(self, spec: _ListSpec) -> list[list[float]]:
+    async def download(self, spec: ListSpec) -> list[list[float]]:
         """Read the whole list with pipelined reads (not while an upload runs)."""
         async with self.lock:
             return await self._download(spec)
 
-    async def _download(self, spec: _ListSpec, count: int | None = None
+    async def _download(self, spec: ListSpec, count: int | None = None
                         ) -> list[list[float]]:
         """Read entries 1..count (default: the whole list) with pipelined reads."""
         total = await self._count(spec) if count is None else count
@@ -264,24 +298,38 @@ class ListTransfer:
         return [[float(v) for v in r.lines[0].split()] for r in replies]
 
 
+def _commands(sent: list[Run | list[Command]], limit: int) -> list[Command]:
+    """The first ``limit`` lines of ``sent`` (or all) as commands (a run's parsed back:
+    only when an upload failed)."""
+    commands: list[Command] = []
+    for chunk in sent:
+        if len(commands) >= limit:
+            break
+        if isinstance(chunk, Run):
+            commands += [parse(chunk.line_at(i)) for i in range(len(chunk))]
+        else:
+            commands += chunk
+    return commands
+
+
 def _same(row: Sequence[float], command: Command) -> bool:
     sent = [float(v) for v in command.values[1:]]
     return len(row) >= len(sent) and all(
         math.isclose(a, b, abs_tol=1e-3) for a, b in zip(row, sent, strict=False))
 
 
-def trigger_spec() -> _ListSpec:
+def trigger_spec() -> ListSpec:
     """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``)."""
-    return _ListSpec(
+    return ListSpec(
         append=lambda rows: build_rows("trigp", [-1], rows),
         count="trigc",
         read=lambda index: build("trigp", index, form=Form.READ),
     )
 
 
-def snapshot_spec() -> _ListSpec:
+def snapshot_spec() -> ListSpec:
     """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``)."""
-    return _ListSpec(
+    return ListSpec(
         append=lambda rows: build_rows("snsa", [-1], rows),
         count="snsc",
         read=lambda index: build("snsa", index, form=Form.READ),
@@ -293,7 +341,7 @@ def check_axis(axis: str) -> str:
     letter = axis.lower()
     if letter not in AXES:
         raise InvalidCommandError(f"{axis!r} is not an axis (x, y, z, a)", parameter="axis",
-                                  code=1)
+                                  number=1)
     return letter
 
 
@@ -303,14 +351,14 @@ def validate_rows(rows: Sequence[Sequence[float]], axes: int) -> list[list[float
     specify)."""
     if len(rows) > MAX_SNAPSHOTS:
         raise InvalidCommandError(f"snsa: {len(rows)} rows, at most {MAX_SNAPSHOTS}",
-                                  instruction="snsa", code=5)
+                                  instruction="snsa", number=5)
     out: list[list[float]] = []
     for index, row in enumerate(rows):
         values = [float(v) for v in row]
         if len(values) != axes or not all(math.isfinite(v) for v in values):
             raise InvalidCommandError(f"snsa: row {index} must hold {axes} finite values "
                                       f"(one per axis), got {row!r}",
-                                      instruction="snsa", parameter="position", code=5)
+                                      instruction="snsa", parameter="position", number=5)
         out.append(values)
     return out
 

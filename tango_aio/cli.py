@@ -9,6 +9,10 @@ before it exits.
 
 from __future__ import annotations
 
+# First of all: Ctrl+C while the modules below load ends quietly (issue #16).
+from . import _startup
+
+# isort: split
 import argparse
 import asyncio
 import contextlib
@@ -59,6 +63,8 @@ from .instructions import AXES, Form, Instruction, Signature, lookup, parse
 from .instructions import Command as CommandLine
 
 __all__ = ["main"]
+
+_startup.finished()  # loaded: from here on main() handles Ctrl+C
 
 console = Console(highlight=False)
 Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
@@ -834,7 +840,7 @@ async def _monitor(args: argparse.Namespace) -> int:
 
 async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
     """Port → "model firmware" of the controllers :func:`tango_aio.discover` finds."""
-    from .group import discover
+    from .discovery import discover
 
     found = await discover(timeout=timeout, ports=ports or None)
     return {item.port: f"{item.model} {item.firmware}" for item in found}

@@ -45,9 +45,10 @@ from typing import Any
 
 import anyio
 
-from .controller import STOP_WAIT, Controller
+from .controller import Controller
 from .errors import InvalidCommandError, MoveError, TangoError
 from .instructions import AXES, build_axes
+from .motion import STOP_WAIT
 
 __all__ = ["MoveCoalescer"]
 
@@ -140,7 +141,7 @@ class MoveCoalescer:
         if not isinstance(axis, str) or axis not in present:
             raise InvalidCommandError(
                 f"the controller has no axis {axis!r} (axes: {', '.join(present)})",
-                instruction="moa", parameter="axis", code=1)
+                instruction="moa", parameter="axis", number=1)
         value = float(target)  # numpy scalars and ints are welcome; float() is the boundary
         build_axes("moa", {axis: value}, context=self.controller.context)  # range, finite
         return value

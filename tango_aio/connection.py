@@ -257,16 +257,16 @@ async def _connect(url: str, options: ConnectOptions) -> Controller:
     opener = functools.partial(_open_link, url, factory,
                                {"baudrate": options.baudrate, "rtscts": options.rtscts})
     protocol, closer = await opener()
+    # Reconnecting is armed once setup() succeeded: a failing first connect() just raises.
     controller = Controller(protocol, url=url, reply_timeout=options.reply_timeout,
-                            on_close=closer)
+                            on_close=closer, reconnect=None if policy is None else Reconnect(
+                                policy, opener, options.identify))
     controller.units = options.units
     try:
         await controller.setup(autostatus=options.autostatus, identify=options.identify)
     except BaseException:
         await controller.aclose()
         raise
-    if policy is not None:  # only once set up: a failing first connect() just raises
-        controller._enable_reconnect(Reconnect(policy, opener, options.identify))
     return controller
 
 

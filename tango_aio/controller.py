@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,7 +33,6 @@ from .errors import (
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
-    TangoError,
     parse_error_reply,
 )
 from .events import (
@@ -58,7 +58,6 @@ from .instructions import (
     VersionInfo,
     build,
     build_axes,
-    lookup,
     parse,
     parse_reply,
 )
@@ -67,12 +66,12 @@ from .motion import (
     STOP_WAIT,
     Motion,
     MovePlan,
-    MoveTiming,
     moved_axes,
     position_tolerance,
 )
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
-from .reconnect import Closer, IdentityMismatchError, Reconnect
+from .reconnect import Closer, Reconnect, Reconnector, Signature
+from .state import CACHED_SETTINGS, DriverState
 from .status import AxisStatus, axis_statuses
 from .units import UnitScale, from_controller, plain, to_controller
 
@@ -84,12 +83,6 @@ log = logging.getLogger("tango_aio")
 #: after the X pair in extmode 0 (L4559-4621), ``?swtyp`` prints its groups without
 #: separating blanks there (L4814-4824).
 AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
-
-#: Settings whose change the driver tracks (move timing and validation context).
-_TRACKED = {"dim": "dims", "pitch": "pitch", "vel": "vel", "accel": "accel",
-            "secvel": "secvel"}
-_TRACKED_GLOBAL = {"extmode": "extmode", "delay": "delay_ms", "pause": "pause_ms",
-                   "ctrt": "settle_ms"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,7 +124,9 @@ class Controller:
     the object stays valid, the same URL is opened again in the background (see
     :mod:`tango_aio.reconnect`) and :class:`~tango_aio.events.Reconnected` follows. Calls
     made while the link is down fail at once with ConnectionLostError, they do not wait;
-    :meth:`wait_connected` waits for the link.
+    :meth:`wait_connected` waits for the link. ``reconnect`` (what ``connect`` passes) says
+    how to open the link again; it takes effect once :meth:`setup` has succeeded, and the
+    controller's :class:`~tango_aio.reconnect.Reconnector` does the work.
     """
 
     def __init__(
@@ -141,12 +136,14 @@ class Controller:
         url: str = "",
         reply_timeout: float = 5.0,
         on_close: Callable[[], Awaitable[None]] | None = None,
+        reconnect: Reconnect | None = None,
     ) -> None:
         self.url = url
         self.reply_timeout = reply_timeout
         self._protocol = protocol
         self._hub = EventHub()
-        self._settings = MoveTiming()
+        #: The cached settings (move timing, validation context): tango_aio.state.
+        self._settings = DriverState()
         self._motion = Motion(_Port(self))
         self._identity: Identity | None = None
         self._on_close = on_close
@@ -155,9 +152,9 @@ class Controller:
         #: One list upload or download at a time (tango_aio.bulk).
         self._list_lock = asyncio.Lock()
         self._closing = False
-        self._reconnect: Reconnect | None = None
-        self._reconnect_task: asyncio.Task[None] | None = None
-        self._reconnect_attempt = 0
+        #: Reconnects after a loss (``reconnect``), armed once setup() has succeeded.
+        self._reconnector: Reconnector[Controller] | None = (
+            None if reconnect is None else Reconnector(reconnect, _Relink(self)))
         #: Set (and replaced) whenever the link goes up or down: wakes wait_connected().
         self._link_event = asyncio.Event()
         #: The physical position unit of this connection (``connect(url, units="mm")``);
@@ -196,10 +193,8 @@ class Controller:
         ConnectionLostError."""
         self._closing = True
         self._motion.cancel_detached()
-        task, self._reconnect_task = self._reconnect_task, None
-        if task is not None:
-            task.cancel()  # it closes a link it was setting up
-            await asyncio.wait([task])
+        if self._reconnector is not None:
+            await self._reconnector.stop()
         self._protocol.close()
         closer, self._on_close = self._on_close, None
         if closer is not None:
@@ -234,6 +229,8 @@ class Controller:
         if identify:
             self._identity = await self.identify()
         await self.refresh_settings()
+        if self._reconnector is not None:
+            self._reconnector.arm()
 
     # -- connection state and automatic reconnect ----------------------------------------
 
@@ -245,13 +242,13 @@ class Controller:
     @property
     def reconnecting(self) -> bool:
         """Whether an automatic reconnect is under way."""
-        return self._reconnect_task is not None and not self._reconnect_task.done()
+        return self._reconnector is not None and self._reconnector.running
 
     @property
     def reconnect_attempt(self) -> int:
         """Number of the current (or last) reconnect attempt of the latest outage (0:
         none yet)."""
-        return self._reconnect_attempt
+        return 0 if self._reconnector is None else self._reconnector.attempt
 
     async def wait_connected(self, timeout: float | None = None) -> None:
         """Return once the link is up (at once if it is).
@@ -268,10 +265,6 @@ class Controller:
                     raise ConnectionLostError("not connected")
                 await self._link_event.wait()
 
-    def _enable_reconnect(self, reconnect: Reconnect) -> None:
-        """Reconnect on its own after a loss (called by :func:`~tango_aio.connect`)."""
-        self._reconnect = reconnect
-
     def _link_changed(self) -> None:
         event, self._link_event = self._link_event, asyncio.Event()
         event.set()
@@ -279,84 +272,9 @@ class Controller:
     def _on_connection_lost(self, exc: BaseException | None) -> None:
         self._hub.publish(ConnectionLost(exc))
         self._motion.hint()  # moves being followed fail at once, not at their next poll
-        if self._reconnect is not None and not self._closing and not self.reconnecting:
-            self._reconnect_attempt = 0
-            mode = self._protocol.autostatus
-            self._reconnect_task = asyncio.get_running_loop().create_task(
-                self._reconnect_loop(self._reconnect, mode), name=f"tango_aio reconnect {self.url}")
-        else:
-            self._hub.close()
-        self._link_changed()
-
-    async def _reconnect_loop(self, reconnect: Reconnect, mode: int) -> None:
-        """Try again after each delay of the policy until a link is up or it gives up."""
-        error: BaseException | None = None
-        for attempt, delay in enumerate(reconnect.policy.delays(), start=1):
-            await asyncio.sleep(delay)
-            self._reconnect_attempt = attempt
-            try:
-                await self._reconnect_once(reconnect, mode)
-            except IdentityMismatchError as exc:
-                error = exc
-                break  # not transient: see tango_aio.reconnect
-            except (TangoError, OSError, TimeoutError) as exc:
-                error = exc
-                log.warning("reconnect attempt %d to %s failed: %s", attempt, self.url, exc)
-                continue
-            except Exception as exc:  # a bug: do not retry it forever
-                log.exception("reconnect attempt %d to %s failed", attempt, self.url)
-                error = exc
-                break
-            self._hub.publish(Reconnected(attempt))
-            self._link_changed()
-            return
-        self._give_up(error)
-
-    async def _reconnect_once(self, reconnect: Reconnect, mode: int) -> None:
-        """Open the URL again, set the new link up like the lost one and swap it in.
-
-        The set-up runs on a throw-away Controller, so calls made meanwhile still fail
-        at once on the lost link instead of reaching a half-set-up one.
-        """
-        closer, self._on_close = self._on_close, None
-        if closer is not None:
-            await closer()  # e.g. the sim:// emulator of the lost link
-        protocol, closer = await reconnect.opener()
-        fresh = Controller(protocol, url=self.url, reply_timeout=self.reply_timeout,
-                           on_close=closer)
-        try:
-            await fresh.setup(autostatus=mode, identify=reconnect.identify)
-            self._check_identity(fresh._identity)
-            protocol.check()  # the new link may have dropped at the very end
-        except BaseException:
-            await fresh.aclose()
-            raise
-        self._adopt(fresh, closer)
-
-    def _check_identity(self, found: Identity | None) -> None:
-        known = self._identity
-        if known is None or found is None:
-            return
-        if (found.model, found.firmware, found.axes) != (known.model, known.firmware,
-                                                         known.axes):
-            raise IdentityMismatchError(
-                f"{self.url}: expected {known.model} firmware {known.firmware} with "
-                f"{known.axes} axes, found {found.model} firmware {found.firmware} with "
-                f"{found.axes} axes; not reconnecting")
-
-    def _adopt(self, fresh: Controller, closer: Closer | None) -> None:
-        """Take over ``fresh``'s link, settings and identity (no await: atomic)."""
-        self._protocol = fresh._protocol
-        self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
-        self._settings = fresh._settings
-        self._identity = fresh._identity or self._identity
-        self._on_close = closer
-
-    def _give_up(self, error: BaseException | None) -> None:
-        lost = ConnectionLostError(f"reconnecting to {self.url!r} gave up: {error}")
-        lost.__cause__ = error
-        self._protocol.give_up(lost)
-        self._hub.close()
+        if self._closing or self._reconnector is None or \
+                not self._reconnector.start(self._protocol.autostatus):
+            self._hub.close()  # no reconnect: the event streams end
         self._link_changed()
 
     # -- identity and raw access -------------------------------------------------------------
@@ -392,37 +310,31 @@ class Controller:
         """Re-read what move timeouts depend on: dim, pitch, vel, accel, secvel, extmode,
         delay and pause (L6845-6899) and the closed-loop timeout ctrt (L11616-11631).
 
-        ``delay``, ``pause`` and ``ctrt`` count as 0 on a controller that does not know
-        them (older firmware answers error 4)."""
+        Which settings these are is the catalog's
+        (:attr:`~tango_aio.schema.Instruction.cached`). ``extmode``, ``delay``, ``pause``
+        and ``ctrt`` count as 0 on a controller that does not know them (older firmware
+        answers error 4)."""
         settings = self._settings
         older = self._identity is not None and self._identity.family == "older"
-
-        def known(name: str) -> bool:
-            # A read the firmware does not know is answered by nothing (error 4): the
-            # older edition lacks e.g. extmode, which then is 0 (its behaviour).
-            return not older or lookup(name).in_older_manual
-
-        settings.extmode = int(await self.get("extmode")) if known("extmode") else 0
-        for name, attribute in _TRACKED.items():
-            values = await self.get(name)
-            assert isinstance(values, dict)
-            target = getattr(settings, attribute)
-            for index, axis in enumerate(AXES):
-                if axis in values:
-                    target[index] = type(target[index])(values[axis])
-        for name in ("delay", "pause", "ctrt"):
+        for entry in CACHED_SETTINGS:  # the catalog's cached settings, in manual order
+            if entry.per_axis:
+                settings.load(entry, await self.get(entry.name))
+                continue
+            # A global setting the firmware does not know counts as 0: a read it does not
+            # know is answered by error 4 (the older edition lacks e.g. extmode, which then
+            # is 0, its behaviour; delay, pause and ctrt: nothing to wait for).
             try:
-                value = float(await self.get(name)) if known(name) else 0.0
+                known = not older or entry.in_older_manual
+                value = await self.get(entry.name) if known else 0
+                settings.load(entry, value)
             except (ControllerError, ProtocolError, ValueError, TypeError):
-                value = 0.0  # unknown to this firmware: nothing to wait for
-            setattr(settings, _TRACKED_GLOBAL[name], value)
+                settings.load(entry, 0)
         self._update_context()
 
     def _update_context(self) -> None:
         settings = self._settings
-        self._protocol.context = Context(
-            tuple(settings.dims), self._protocol.context.axes,  # type: ignore[arg-type]
-            settings.extmode)
+        settings.axes = self._protocol.context.axes  # identify() sets it from ?det
+        self._protocol.context = settings.context
 
     async def query(self, line: str, timeout: float | None = None) -> str:
         """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
@@ -448,6 +360,22 @@ class Controller:
                                       instruction=command.name)
         await self._execute(command, check=check, timeout=timeout)
 
+    def validate_move(self, /, *, relative: bool = False, **axes: float) -> None:
+        """Check the targets of a move (``relative``: distances, as for :meth:`move_by`)
+        exactly as :meth:`move_to` does before a byte is written, without moving.
+
+        Raises :class:`~tango_aio.errors.InvalidCommandError` (a :class:`ValueError`) for
+        no axis at all, an unknown axis keyword or one this controller does not have, a
+        value that is not a finite number (``nan``, a string, a bool) or is out of the
+        catalog's range. Values are in the controller's unit (no ``unit=`` conversion:
+        that needs the scales read from the controller). Reads the cached context only, so
+        it is safe to call from any task; used by
+        :class:`~tango_aio.group.ControllerGroup` to check every member first.
+        """
+        name = "mor" if relative else "moa"
+        for part in _line_groups(axes):
+            self._check_axes(build_axes(name, part, context=self.context), part)
+
     def _check_axes(self, command: Command, names: Iterable[str] = ()) -> None:
         """Refuse an axis the controller does not have, before anything is written."""
         present = AXES[: self.context.axes]
@@ -456,7 +384,7 @@ class Controller:
                 raise InvalidCommandError(
                     f"{command.line!r}: the controller has no {letter.upper()} axis "
                     f"(its axes: {' '.join(present).upper()})",
-                    instruction=command.name, parameter="axis", code=1)
+                    instruction=command.name, parameter="axis", number=1)
 
     async def _request(self, command: Command, timeout: float | None = None) -> Response:
         self._check_axes(command)
@@ -473,17 +401,18 @@ class Controller:
             response = await self._protocol.execute(command, timeout=self._timeout(timeout),
                                                     check=check)
         except ControllerError as error:
-            if error.error_code < INTERNAL_ERRORS or \
-                    await self._blame(error.error_code, self._timeout(timeout)):
+            if error.number < INTERNAL_ERRORS or \
+                    await self._blame(error.number, self._timeout(timeout)):
                 raise
             response = Response()
         self._track(command)
         return response
 
-    def _send(self, command: Command, *, check: bool) -> MoveHandle:
+    def _send(self, command: Command, *, check: bool, batch: object | None = None
+              ) -> MoveHandle:
         """Write a motion line and its check (see :meth:`TangoProtocol.start_move`)."""
         self._check_axes(command)
-        return self._protocol.start_move(command, check=check)
+        return self._protocol.start_move(command, check=check, batch=batch)
 
     async def _error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
         """The error the controller reported for ``sent`` (``None``: accepted).
@@ -492,8 +421,8 @@ class Controller:
         line's own (L2853-2867: "if the previously executed instruction returned no error,
         the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`."""
         error = await sent.error(timeout)
-        if error is not None and error.error_code >= INTERNAL_ERRORS \
-                and not await self._blame(error.error_code, timeout):
+        if error is not None and error.number >= INTERNAL_ERRORS \
+                and not await self._blame(error.number, timeout):
             return None
         return error
 
@@ -551,20 +480,8 @@ class Controller:
 
     def _track(self, command: Command) -> None:
         """Keep the cached settings in step with a set the controller accepted."""
-        name = command.name
-        if not command.values:
-            return
-        if name in _TRACKED_GLOBAL:
-            setattr(self._settings, _TRACKED_GLOBAL[name], type(
-                getattr(self._settings, _TRACKED_GLOBAL[name]))(command.values[0]))
-        elif name in _TRACKED:
-            index = AXES.index(command.axis) if command.axis else 0
-            target = getattr(self._settings, _TRACKED[name])
-            for offset, value in enumerate(command.values[: len(AXES) - index]):
-                target[index + offset] = type(target[index + offset])(value)
-        else:
-            return
-        self._update_context()
+        if self._settings.observe(command):
+            self._update_context()
 
     # -- typed access ---------------------------------------------------------------------
 
@@ -622,7 +539,8 @@ class Controller:
         response = await self._request(build("pos", form=Form.READ, context=self.context))
         texts = " ".join(response.lines).split()
         if len(texts) == len(present):
-            return dict(zip(present, texts, strict=True))
+            self._motion.positions = dict(zip(present, texts, strict=True))
+            return dict(self._motion.positions)
         out = {}
         for axis in present:
             reply = await self._request(build("pos", form=Form.READ, axis=axis,
@@ -720,18 +638,78 @@ class Controller:
         delay = s.delay_ms / 1000.0 if timed else 0.0
         after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
         absolute: dict[str, float] | None = None
+        extend: Callable[[Mapping[str, str]], float] | None = None
         if command.instruction.completion in (Completion.CAL, Completion.RM):
             travel, limit = 0.0, 150.0  # caltimeout is at most 120 s per axis (L5251)
         elif targets is None:  # moc: the distance is not known here
             travel, limit = 0.0, 120.0
         else:
-            start = {a: float(t) for a, t in (await self._position_texts()).items()}
+            # #19: a move_to does not read ?pos first (a whole round trip per move). Its
+            # distance is taken from the positions of the driver's latest state read, as
+            # a provisional budget (motion.py "Timeouts"): a stale one only shifts the
+            # first poll and is extended once from the positions read at its end. What
+            # is confirmed does not depend on it: the target is the caller's, and success
+            # needs ?statusaxis and ?pos read after the move (L2662-2721). A move_by
+            # reads the start: its target is start + distance, and a stale start would
+            # make the driver confirm the wrong target: its ?pos is written right before
+            # the line, in the same write (the targets are added once the reply is in,
+            # before the move is confirmed), so it costs bytes but no round trip. Without
+            # a known position (the first move of a connection) the start is read first.
+            known = None if relative else self._motion.positions
+            if relative and self._motion.positions is not None and self._exact_replies():
+                batch = object()
+                reader = self._start_reader(batch)
+                travel = max((s.travel(a, abs(float(v))) for a, v in targets.items()),
+                             default=0.0)
+                return MovePlan(command, moved, dict(targets), delay + travel + after,
+                                check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
+                                start=reader, batch=batch)
+            if known is None or not set(targets) <= set(known):
+                known = None
+                start = {a: float(t) for a, t in (await self._position_texts()).items()}
+            else:
+                start = {a: float(known[a]) for a in targets}
             absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
             travel = max((s.travel(a, abs(absolute[a] - start[a])) for a in absolute),
                          default=0.0)
             limit = 2.0 * travel + 2.0
+            if known is not None and timeout is None:
+                extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after)
+                        limit=check_timeout(timeout) or delay + limit + after, extend=extend)
+
+    def _exact_replies(self) -> bool:
+        """Whether per-axis replies were found to have one value per axis (identify)."""
+        found = self._identity
+        return found is not None and found.detected.get("per_axis_replies") == "exact"
+
+    def _start_reader(self, batch: object) -> Callable[[], Awaitable[dict[str, str]]]:
+        """Write ``?pos`` now (in ``batch``); return what reads its reply, one text per
+        present axis (awaitable again after a cancelled wait)."""
+        present = AXES[: self.context.axes]
+        submission = self._protocol.submit(build("pos", form=Form.READ, context=self.context),
+                                           batch=batch)
+        if submission.reply is not None:  # a refused move never reads it
+            submission.reply.add_done_callback(_ignore_outcome)
+
+        async def start() -> dict[str, str]:
+            reply = await self._protocol.wait_reply(submission, self.reply_timeout)
+            texts = " ".join(reply.lines).split()
+            return dict(zip(present, texts, strict=False)) if len(texts) == len(present) \
+                else {}
+
+        return start
+
+    def _rest_budget(self, targets: Mapping[str, float], fallback: float,
+                     now: Mapping[str, str]) -> float:
+        """Seconds a move to ``targets`` may still take from the positions printed
+        ``now`` (the budget rule of :meth:`_plan`: twice the travel, 2 s, pause and
+        settling; ``fallback`` when a position was not read)."""
+        s = self._settings
+        if not set(targets) <= set(now):
+            return fallback
+        travel = max(s.travel(a, abs(t - float(now[a]))) for a, t in targets.items())
+        return 2.0 * travel + 2.0 + (s.pause_ms + s.settle_ms) / 1000.0
 
     async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
@@ -888,7 +866,7 @@ class Controller:
         try:  # checked before anything is read or written
             given = {axis: plain(value, chosen, power) for axis, value in values.items()}
         except (TypeError, ValueError) as exc:
-            raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
+            raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         scales = await self.unit_scales()
         return {axis: to_controller(number, of, power, scales[axis]) if axis in scales
                 else number for axis, (number, of) in given.items()}
@@ -901,7 +879,7 @@ class Controller:
             try:
                 plain(0.0, chosen, power)
             except ValueError as exc:
-                raise InvalidCommandError(f"{exc}", instruction=None, code=5) from exc
+                raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         return chosen
 
     async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
@@ -995,10 +973,11 @@ class Controller:
         it yields only when a position changed, so a paused scan does not flood the
         caller."""
         check_timeout(interval, "interval")
+        chosen = self._reading_unit(unit, 0)
         last: Mapping[str, float] | None = None
         while True:
-            letters = await self.status()
-            update = PositionUpdate(await self.position(unit=unit))
+            letters, texts = await self._status_and_positions()
+            update = PositionUpdate(await self._from_controller(texts, chosen, 0))
             idle = "M" not in letters.values() and not self._motion.busy
             if not (follow and idle and update.positions == last):
                 self._hub.publish(update)
@@ -1007,6 +986,41 @@ class Controller:
             if idle and not follow:
                 return
             await asyncio.sleep(interval)
+
+    #: The ``?statusaxis`` and ``?pos`` lines of :meth:`_status_and_positions`, built once
+    #: per context (commands are immutable values).
+    _state_reads: tuple[Context, Command, Command] | None = None
+
+    async def _status_and_positions(self) -> tuple[dict[str, str], dict[str, str]]:
+        """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
+        one round trip. Their replies (letters, numbers) cannot be taken for each other,
+        so the protocol writes no separator between them and neither waits for the other.
+        A reply with another number of values than axes is read again the plain way,
+        axis by axis (:meth:`status`, :meth:`_position_texts`)."""
+        context = self.context
+        present = AXES[: context.axes]
+        reads = self._state_reads
+        if reads is None or reads[0] is not context:
+            reads = self._state_reads = (
+                context, build("statusaxis", form=Form.READ, context=context),
+                build("pos", form=Form.READ, context=context))
+        _, status, pos = reads
+        first, second = self._protocol.submit_together((status, pos))
+        try:
+            letters = parse_reply(status, (await self._protocol.wait_reply(
+                first, self.reply_timeout)).lines)
+        except BaseException:
+            if second.reply is not None:  # its outcome is nobody's now
+                second.reply.add_done_callback(_ignore_outcome)
+            raise
+        texts = " ".join((await self._protocol.wait_reply(
+            second, self.reply_timeout)).lines).split()
+        if not isinstance(letters, dict) or len(letters) != len(present):
+            letters = await self.status()
+        if len(texts) != len(present):
+            return letters, await self._position_texts()
+        positions = self._motion.positions = dict(zip(present, texts, strict=True))
+        return letters, dict(positions)
 
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
         if isinstance(event, Completed):
@@ -1043,8 +1057,8 @@ class _Port:
     def reply_timeout(self) -> float:
         return self._c.reply_timeout
 
-    def send_checked(self, command: Command) -> MoveHandle:
-        return self._c._send(command, check=True)
+    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
+        return self._c._send(command, check=True, batch=batch)
 
     async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
         error = await self._c._error_of(sent, timeout)
@@ -1061,11 +1075,60 @@ class _Port:
     async def status(self) -> dict[str, str]:
         return await self._c.status()
 
-    async def position_texts(self) -> dict[str, str]:
-        return await self._c._position_texts()
+    async def state(self) -> tuple[dict[str, str], dict[str, str]]:
+        return await self._c._status_and_positions()
 
     def publish(self, event: object) -> None:
         self._c._hub.publish(event)  # type: ignore[arg-type]
+
+
+class _Relink:
+    """The controller as its :class:`~tango_aio.reconnect.Reconnector` sees it
+    (:class:`~tango_aio.reconnect.ReconnectPort`)."""
+
+    def __init__(self, controller: Controller) -> None:
+        self._c = controller
+
+    @property
+    def url(self) -> str:
+        return self._c.url
+
+    def signature(self, controller: Controller | None = None) -> Signature | None:
+        identity = (controller or self._c)._identity
+        return None if identity is None else (identity.model, identity.firmware,
+                                              identity.axes)
+
+    async def release_link(self) -> None:
+        closer, self._c._on_close = self._c._on_close, None
+        if closer is not None:
+            await closer()  # e.g. the sim:// emulator of the lost link
+
+    def stage(self, protocol: TangoProtocol, closer: Closer | None) -> Controller:
+        return Controller(protocol, url=self._c.url, reply_timeout=self._c.reply_timeout,
+                          on_close=closer)
+
+    def adopt(self, staged: Controller, closer: Closer | None) -> None:
+        c = self._c
+        c._protocol = staged._protocol
+        c._protocol.set_callbacks(c._on_protocol_event, c._on_connection_lost)
+        c._settings = staged._settings
+        c._identity = staged._identity or c._identity
+        c._on_close = closer
+
+    def reconnected(self, attempt: int) -> None:
+        self._c._hub.publish(Reconnected(attempt))
+        self._c._link_changed()
+
+    def give_up(self, lost: ConnectionLostError) -> None:
+        self._c._protocol.give_up(lost)
+        self._c._hub.close()
+        self._c._link_changed()
+
+
+def _ignore_outcome(future: asyncio.Future[Any]) -> None:
+    """Retrieve a future's outcome that nobody awaits (no "never retrieved" log)."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
@@ -1088,5 +1151,3 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
         return [{axis: axes[axis] for axis in order}]
     return [{axis: axes[axis]} for axis in order]
 
-
-__all__ += ["FAILED_LETTERS", "STOP_WAIT", "ProtocolError"]

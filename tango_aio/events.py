@@ -4,8 +4,9 @@ Events are frozen dataclasses. :meth:`EventHub.subscribe` returns an async itera
 bounded buffer; several subscribers can exist at once and each sees every event published
 after it subscribed.
 
-Overflow policy: a subscriber that falls behind loses its *oldest* buffered events, never
-the newest, and never blocks the connection. :attr:`Subscription.dropped` counts what it
+Overflow policy (that of :class:`~tango_aio.stream.BoundedStream`, which every subscription
+is): a subscriber that falls behind loses its *oldest* buffered events, never the newest,
+and never blocks the connection. :attr:`Subscription.dropped` counts what it
 lost. When the connection is lost, subscribers receive :class:`ConnectionLost` and then
 their iteration ends, unless the controller was opened with ``reconnect=True``: then the
 stream goes on, and :class:`Reconnected` follows once the link is back.
@@ -13,17 +14,18 @@ stream goes on, and :class:`Reconnected` follows once the link is back.
 
 from __future__ import annotations
 
-import asyncio
 import itertools
 import time
 import weakref
-from collections import deque
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
 
+from .stream import BoundedStream
+
 __all__ = [
     "ConnectionLost",
+    "ControllerFault",
     "EventHub",
     "MoveAborted",
     "MoveFinished",
@@ -104,17 +106,14 @@ class Reconnected:
 
 @dataclass(frozen=True, slots=True)
 class ControllerFault:
-    """The controller reports a persistent internal error (``code`` >= 20, manual
-    L2853-2867) that no command caused; ``code`` 0 is never published. See
-    :class:`~tango_aio.errors.InternalControllerError`."""
+    """The controller reports a persistent internal error (``number`` >= 20, manual
+    L2853-2867) that no command caused; ``number`` 0 is never published. ``text`` is the
+    manual's text for the number. See :class:`~tango_aio.errors.InternalControllerError`."""
 
-    code: int
+    number: int
     text: str
     time: float = field(default_factory=_now)
 
-
-
-__all__ += ["ControllerFault"]
 
 TangoEvent = (
     MoveFinished
@@ -128,8 +127,9 @@ TangoEvent = (
 )
 
 
-class Subscription:
-    """An async iterator over events, with a bounded buffer (drops the oldest on overflow).
+class Subscription(BoundedStream[TangoEvent]):
+    """An async iterator over events, with a bounded buffer (drops the oldest on overflow,
+    :attr:`dropped` counts them; see :class:`~tango_aio.stream.BoundedStream`).
 
     Use it as ``async with controller.events() as events: async for event in events: ...``
     or iterate directly and call :meth:`aclose` when done. A subscription nobody refers to
@@ -138,56 +138,14 @@ class Subscription:
     """
 
     def __init__(self, hub: EventHub, maxsize: int) -> None:
-        if isinstance(maxsize, bool) or not isinstance(maxsize, int) or maxsize < 1:
-            raise ValueError(f"maxsize must be an integer of at least 1, got {maxsize!r}")
-        self._buffer: deque[TangoEvent] = deque()
-        self._maxsize = maxsize
-        self._ready = asyncio.Event()
-        self._ended = False
+        super().__init__(maxsize)
         self._hub = hub
         self._key = -1
-        #: Number of events this subscriber lost because its buffer was full.
-        self.dropped = 0
-
-    @property
-    def pending(self) -> int:
-        """Number of events buffered and not yet received."""
-        return len(self._buffer)
-
-    def _offer(self, event: TangoEvent) -> None:
-        if self._ended:
-            return
-        if len(self._buffer) >= self._maxsize:
-            self._buffer.popleft()  # drop the oldest
-            self.dropped += 1
-        self._buffer.append(event)
-        self._ready.set()
-
-    def _end(self) -> None:
-        """No more events: iteration ends once the buffer is drained."""
-        self._ended = True
-        self._ready.set()
-
-    def __aiter__(self) -> AsyncIterator[TangoEvent]:
-        return self
-
-    async def __anext__(self) -> TangoEvent:
-        while not self._buffer:
-            if self._ended:
-                raise StopAsyncIteration
-            self._ready.clear()
-            await self._ready.wait()
-        return self._buffer.popleft()
-
-    def get_nowait(self) -> TangoEvent | None:
-        """The next buffered event, or ``None`` if there is none."""
-        return self._buffer.popleft() if self._buffer else None
 
     def close(self) -> None:
         """Stop receiving events; buffered ones are discarded and iteration ends."""
         self._hub._discard(self)
-        self._buffer.clear()
-        self._end()
+        super().close()
 
     async def aclose(self) -> None:
         """Stop receiving events (same as :meth:`close`)."""
@@ -228,7 +186,7 @@ class EventHub:
         """A new subscription buffering up to ``maxsize`` events."""
         subscription = Subscription(self, maxsize)
         if self._closed:
-            subscription._end()
+            subscription.end()
         else:
             subscription._key = next(self._keys)
             self._subscribers[subscription._key] = subscription
@@ -237,13 +195,13 @@ class EventHub:
     def publish(self, event: TangoEvent) -> None:
         """Deliver ``event`` to every subscriber (never blocks)."""
         for subscription in list(self._subscribers.values()):
-            subscription._offer(event)
+            subscription.offer(event)
 
     def close(self) -> None:
         """End every subscription (after the events already buffered)."""
         self._closed = True
         for subscription in list(self._subscribers.values()):
-            subscription._end()
+            subscription.end()
         self._subscribers.clear()
 
     def reopen(self) -> None:

@@ -1,4 +1,4 @@
-"""Several controllers at once: :class:`ControllerGroup`, and :func:`discover`.
+"""Several controllers at once: :class:`ControllerGroup`.
 
 :class:`ControllerGroup` opens many controllers concurrently and runs operations on them
 concurrently (one task per controller in an anyio task group)::
@@ -35,18 +35,14 @@ Failure policy (the same for every group operation, opening included):
 stream of ``(name, event)`` pairs that drops its oldest events on overflow
 (:class:`GroupSubscription`).
 
-:func:`discover` probes serial ports concurrently with ``?version`` and lists the TANGO
-controllers that answer.
+Finding the controllers to put in a group is :func:`tango_aio.discovery.discover`'s job.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import time
-from collections import deque
 from collections.abc import (
-    AsyncIterator,
     Awaitable,
     Callable,
     Iterable,
@@ -54,26 +50,23 @@ from collections.abc import (
     Mapping,
     Sequence,
 )
-from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, NamedTuple, TypeVar
 
 import anyio
 
-from .connection import DEFAULT_BAUD, connect
+from .connection import connect
 from .controller import Controller
-from .errors import InvalidCommandError, TangoError
+from .errors import InvalidCommandError
 from .events import Subscription, TangoEvent
-from .instructions import AXES, VersionInfo, build_axes, parse, parse_reply
+from .stream import BoundedStream
 
 __all__ = [
     "ControllerGroup",
     "ControllerSpec",
-    "DiscoveredController",
     "GroupError",
     "GroupEvent",
     "GroupSubscription",
-    "discover",
 ]
 
 log = logging.getLogger(__name__)
@@ -139,15 +132,16 @@ class GroupEvent(NamedTuple):
     event: TangoEvent
 
 
-class GroupSubscription:
+class GroupSubscription(BoundedStream[GroupEvent]):
     """The merged event stream of a group's controllers, tagged with their names.
 
     Iterate it (``async for name, event in subscription``) inside ``async with`` or call
-    :meth:`aclose` when done. Overflow policy, as :class:`~tango_aio.events.Subscription`:
-    the buffer is bounded and a subscriber that falls behind loses its *oldest* events,
-    never blocking a controller; :attr:`dropped` counts them. Events of one controller
-    keep their order; across controllers they come in the order they were published.
-    Iteration ends once every member's stream has ended (connection lost, whose
+    :meth:`aclose` when done. Overflow policy, as :class:`~tango_aio.events.Subscription`
+    (both are a :class:`~tango_aio.stream.BoundedStream`): the buffer is bounded and a
+    subscriber that falls behind loses its *oldest* events, never blocking a controller;
+    :attr:`dropped` counts them (this stream's losses and its members'). Events of one
+    controller keep their order; across controllers they come in the order they were
+    published. Iteration ends once every member's stream has ended (connection lost, whose
     :class:`~tango_aio.events.ConnectionLost` comes through first, or the group closed).
 
     Each member's events are moved over by a small asyncio task owned by the
@@ -155,74 +149,37 @@ class GroupSubscription:
     """
 
     def __init__(self, members: Mapping[str, Subscription], maxsize: int) -> None:
-        if maxsize < 1:
-            raise ValueError(f"maxsize must be at least 1, got {maxsize}")
+        super().__init__(maxsize)
         self._members = dict(members)
-        self._buffer: deque[GroupEvent] = deque()
-        self._maxsize = maxsize
-        self._ready = asyncio.Event()
-        self._dropped = 0
         self._running = len(self._members)
-        self._closed = False
         loop = asyncio.get_running_loop()
         self._tasks = [loop.create_task(self._forward(name, subscription),
                                         name=f"tango_aio group events {name!r}")
                        for name, subscription in self._members.items()]
         if not self._tasks:
-            self._ready.set()
+            self.end()
 
     @property
     def dropped(self) -> int:
         """Events lost because a buffer was full (this one's or a member's)."""
-        return self._dropped + sum(sub.dropped for sub in self._members.values())
-
-    @property
-    def pending(self) -> int:
-        """Number of events buffered and not yet received."""
-        return len(self._buffer)
+        return super().dropped + sum(sub.dropped for sub in self._members.values())
 
     async def _forward(self, name: str, subscription: Subscription) -> None:
         try:
             async for event in subscription:
-                self._offer(GroupEvent(name, event))
+                self.offer(GroupEvent(name, event))
         finally:
             self._running -= 1
             if self._running == 0:
-                self._ready.set()
-
-    def _offer(self, item: GroupEvent) -> None:
-        if self._closed:
-            return
-        if len(self._buffer) >= self._maxsize:
-            self._buffer.popleft()
-            self._dropped += 1
-        self._buffer.append(item)
-        self._ready.set()
-
-    def __aiter__(self) -> AsyncIterator[GroupEvent]:
-        return self
-
-    async def __anext__(self) -> GroupEvent:
-        while not self._buffer:
-            if self._closed or self._running == 0:
-                raise StopAsyncIteration
-            self._ready.clear()
-            await self._ready.wait()
-        return self._buffer.popleft()
-
-    def get_nowait(self) -> GroupEvent | None:
-        """The next buffered event, or ``None`` if there is none."""
-        return self._buffer.popleft() if self._buffer else None
+                self.end()
 
     def close(self) -> None:
         """Stop receiving events; buffered ones are discarded and iteration ends."""
-        self._closed = True
         for subscription in self._members.values():
             subscription.close()
         for task in self._tasks:
             task.cancel()
-        self._buffer.clear()
-        self._ready.set()
+        super().close()
 
     async def aclose(self) -> None:
         """Stop receiving events and wait until the forwarding tasks have ended."""
@@ -476,7 +433,7 @@ class ControllerGroup(Mapping[str, Controller]):
         invalid: dict[str, Exception] = {}
         for name, axes in targets.items():
             try:
-                self._validate(name, instruction, axes)
+                self[name].validate_move(relative=instruction == "mor", **axes)
             except InvalidCommandError as exc:
                 invalid[name] = self._tag(exc, name)
         if invalid:
@@ -492,18 +449,6 @@ class ControllerGroup(Mapping[str, Controller]):
 
         return await self._run(op, {name: call(axes) for name, axes in targets.items()},
                                fail_fast)
-
-    def _validate(self, name: str, instruction: str, axes: Mapping[str, float]) -> None:
-        """Check a member's targets as its Controller would, before anything is sent."""
-        controller = self[name]
-        command = build_axes(instruction, axes, context=controller.context)
-        present = AXES[: controller.context.axes]
-        for letter in axes:
-            if letter not in present:
-                raise InvalidCommandError(
-                    f"{command.line!r}: the controller has no {letter.upper()} axis "
-                    f"({controller.context.axes} axes)",
-                    instruction=command.name, parameter="axis", code=1)
 
     async def _run(self, op: str, calls: Mapping[str, Callable[[Controller], Awaitable[T]]],
                    fail_fast: bool) -> dict[str, T]:
@@ -594,126 +539,3 @@ async def _close_all(controllers: Mapping[str, Controller]) -> dict[str, Excepti
             for name, controller in controllers.items():
                 tg.start_soon(close_one, name, controller)
     return failures
-
-
-# --------------------------------------------------------------------------- discovery
-
-
-@dataclass(frozen=True, slots=True)
-class DiscoveredController:
-    """A TANGO controller found by :func:`discover`.
-
-    ``port`` is the device path (pass it to :func:`~tango_aio.connect`); ``model`` and
-    ``firmware`` come from its ``?version`` reply (``version``). ``description`` and
-    ``hwid`` are what the operating system says about the port (empty for ports given
-    explicitly).
-    """
-
-    port: str
-    model: str
-    firmware: str
-    version: VersionInfo
-    description: str = ""
-    hwid: str = ""
-
-
-_VERSION = parse("?version")
-_PROBE_LINE = b"?version\r"
-#: Seconds beyond ``timeout`` after which a probe thread that is stuck (e.g. in ``open``)
-#: is abandoned.
-_PROBE_GRACE = 0.5
-#: Probes that run at once, in their own worker threads.
-_PROBE_THREADS = 32
-
-
-def _version_of(raw: bytes) -> VersionInfo | None:
-    """The :class:`VersionInfo` of a full ``?version`` reply line, else ``None``."""
-    text = raw.decode("ascii", "replace").strip()
-    if "Version" not in text:
-        return None
-    try:
-        info = parse_reply(_VERSION, [text])
-    except (TangoError, ValueError):
-        return None
-    return info if isinstance(info, VersionInfo) and info.model else None
-
-
-def _probe(port: str, baudrate: int, timeout: float) -> VersionInfo | None:
-    """Open ``port``, ask ``?version`` and wait up to ``timeout`` s for a version reply.
-
-    Runs in a worker thread. ``?version`` is sent again halfway through, in case a stale
-    partial line in the controller's input buffer swallowed the first one. Lines that are
-    not a version reply (autostatus reports, noise) are skipped.
-    """
-    import serial
-
-    start = time.monotonic()
-    with serial.serial_for_url(port, baudrate=baudrate, bytesize=8, parity="N",
-                               stopbits=2, timeout=timeout, write_timeout=timeout,
-                               exclusive=True) as link:
-        link.reset_input_buffer()
-        for deadline in (start + timeout / 2, start + timeout):
-            link.write(_PROBE_LINE)
-            while (remaining := deadline - time.monotonic()) > 0:
-                link.timeout = remaining
-                line = link.read_until(b"\r", 256)
-                if not line.endswith(b"\r"):
-                    if len(line) < 256:
-                        break  # timed out
-                    continue  # noise without line ends
-                version = _version_of(line)
-                if version is not None:
-                    return version
-    return None
-
-
-async def discover(*, timeout: float = 0.5, ports: Iterable[str] | None = None,
-                   baudrate: int = DEFAULT_BAUD) -> list[DiscoveredController]:
-    """Find the TANGO controllers on this machine's serial ports.
-
-    Lists the serial ports (``serial.tools.list_ports.comports()``), or takes ``ports``,
-    and probes them all concurrently, each in a worker thread: open at ``baudrate`` 8N2
-    (exclusively, so ports locked by another program are skipped), write ``?version``,
-    read the reply, close. A port counts as a TANGO controller when it answers
-    ``<model>, Version <firmware>, ...`` within ``timeout`` seconds. Ports that cannot be
-    opened, stay silent or answer anything else are skipped (logged at DEBUG level).
-    Returns the controllers found, in port order; returns in about ``timeout`` seconds
-    even if a port's driver hangs (the stuck thread is abandoned).
-
-    The probe writes a line to every port listed: on a port where another device is
-    connected that line reaches it. Do not probe a port that a driver has open; its
-    reply stream would be disturbed.
-    """
-    if ports is None:
-        from serial.tools import list_ports
-
-        infos = await anyio.to_thread.run_sync(list_ports.comports)
-        candidates = [(info.device, info.description or "", info.hwid or "")
-                      for info in infos]
-    else:
-        candidates = [(port, "", "") for port in dict.fromkeys(ports)]
-    found: dict[int, DiscoveredController] = {}
-    limiter = anyio.CapacityLimiter(_PROBE_THREADS)
-
-    async def probe(index: int, port: str, description: str, hwid: str) -> None:
-        version = None
-        with anyio.move_on_after(timeout + _PROBE_GRACE) as scope:
-            try:
-                version = await anyio.to_thread.run_sync(
-                    _probe, port, baudrate, timeout, abandon_on_cancel=True, limiter=limiter)
-            except Exception as exc:
-                log.debug("discover: %s: %r", port, exc)
-                return
-        if scope.cancelled_caught:
-            log.debug("discover: %s: probe stuck, abandoned", port)
-        elif version is None:
-            log.debug("discover: %s: no TANGO reply within %.2f s", port, timeout)
-        else:
-            found[index] = DiscoveredController(port, version.model, version.firmware,
-                                                version, description, hwid)
-
-    async with anyio.create_task_group() as tg:
-        for index, (port, description, hwid) in enumerate(candidates):
-            tg.start_soon(probe, index, port, description, hwid)
-    return [found[index] for index in sorted(found)]
-

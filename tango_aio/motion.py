@@ -21,8 +21,10 @@ How a move is followed
      assigned to axes (the report ``@S.`` says nothing certain about Y).
 
 3. Each hint is *confirmed* by reading the state: ``?statusaxis`` (the manual's way to
-   poll a move, L2662-2721: every letter except ``M`` means the axis stopped) and, for
-   ``move_to``/``move_by``, ``?pos`` against the target. A move succeeds only when every
+   poll a move, L2662-2721: every letter except ``M`` means the axis stopped) and
+   ``?pos``, written back to back (one round trip: their replies, letters and numbers,
+   cannot be taken for each other, so neither waits for the other), the position checked
+   against the target for ``move_to``/``move_by``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
    and stands within :func:`position_tolerance` of its target. An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`,
@@ -43,6 +45,15 @@ polled from shortly after the expected end, with an interval that grows to
 :data:`POLL_MAX`; the move fails with :class:`ControllerTimeoutError` (axes stopped) when
 the budget is spent and an axis still moves.
 
+A ``move_to`` does not read the position before it is written (#19: that cost a whole
+round trip per move): its distance, and so its budget, is sized from the positions of
+the driver's latest state read (:attr:`Motion.positions`). Those may be stale (the
+joystick or another program may have moved the stage since), so such a budget is
+provisional: if an axis still moves when it is spent, the rest is sized once more from
+the positions read at that moment (:attr:`MovePlan.extend`), and only that second budget
+is final. A stale position changes nothing else: the target is the caller's, and every
+success is confirmed by the state read after the move.
+
 Cancellation
 ============
 Cancelling an awaited move stops the axes (``a``) and waits, shielded, up to
@@ -59,8 +70,8 @@ import contextlib
 import logging
 import math
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass, field, replace
+from typing import NoReturn, Protocol
 
 import anyio
 
@@ -170,6 +181,29 @@ class MovePlan:
     limit: float
     #: Position tolerance per moved axis (``targets`` only).
     tolerance: Mapping[str, float] = field(default_factory=dict)
+    #: When ``limit`` was sized from a position read before this move (the last one the
+    #: driver knows, see :attr:`Motion.positions`): seconds from now that the move may
+    #: still take, given the positions printed now. Called once, when the axes still move
+    #: at ``limit`` (``None``: ``limit`` is final).
+    extend: Callable[[Mapping[str, str]], float] | None = None
+    #: For a relative move whose start is read in the same write, right before its line
+    #: (``move_by``): reads that start (as printed); ``targets`` then holds the distances
+    #: until :meth:`resolved` adds them.
+    start: Callable[[], Awaitable[Mapping[str, str]]] | None = None
+    #: The protocol batch of that start read, which the line and its check join: no
+    #: separator goes between them. A shifted reply among them cannot make a false
+    #: success: a wrong start gives a wrong target, which the confirmation then misses.
+    batch: object | None = None
+
+    async def resolved(self) -> MovePlan:
+        """The plan with absolute targets (itself when it has them already)."""
+        if self.start is None or self.targets is None:
+            return self
+        start = await self.start()
+        if not set(self.targets) <= set(start):
+            raise ProtocolError(f"?pos before {self.command.line!r} printed {dict(start)}")
+        targets = {a: float(start[a]) + d for a, d in self.targets.items()}
+        return replace(self, targets=targets, start=None, batch=None)
 
     @property
     def kind(self) -> str:
@@ -204,8 +238,9 @@ class MotionPort(Protocol):
         """Seconds to wait for a reply."""
         ...
 
-    def send_checked(self, command: Command) -> MoveHandle:
-        """Write a motion line and its check; return at once."""
+    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
+        """Write a motion line and its check (in ``batch``, see :attr:`MovePlan.batch`);
+        return at once."""
         ...
 
     async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
@@ -224,8 +259,9 @@ class MotionPort(Protocol):
         """``?statusaxis`` of every present axis (letters assigned with certainty)."""
         ...
 
-    async def position_texts(self) -> dict[str, str]:
-        """``?pos`` of every present axis, as printed by the controller."""
+    async def state(self) -> tuple[dict[str, str], dict[str, str]]:
+        """``?statusaxis`` and ``?pos`` of every present axis, written back to back: the
+        letters and the positions as printed by the controller."""
         ...
 
     def publish(self, event: object) -> None:
@@ -241,8 +277,11 @@ class _Job:
     sent: MoveHandle
     started: float
     epoch: int
-    #: The hint count when the state was last read.
-    hints: int = -1
+    #: The hint count when the state was last read (at first: when the line was written;
+    #: a hint from before it says nothing about this move).
+    hints: int
+    #: Whether :attr:`MovePlan.extend` has been used.
+    extended: bool = False
 
 
 class Motion:
@@ -259,6 +298,10 @@ class Motion:
         self._wake = asyncio.Event()
         #: The submissions of the moves being followed.
         self._followed: set[Submission] = set()
+        #: The positions (as printed) of the latest state read, ``None`` before the first.
+        #: Only move timeouts are sized from them (see :meth:`Controller._plan
+        #: <tango_aio.controller.Controller._plan>`), never a target or a verdict.
+        self.positions: dict[str, str] | None = None
 
     # -- state seen by the facade ---------------------------------------------------------
 
@@ -304,8 +347,9 @@ class Motion:
         async with self._lock:
             await self._join_detached()
             plan = await plan_for(command)
-            job = _Job(plan, self._port.send_checked(command),
-                       asyncio.get_running_loop().time(), self._stops)
+            hints = self._hints
+            job = _Job(plan, self._port.send_checked(command, plan.batch),
+                       asyncio.get_running_loop().time(), self._stops, hints)
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -333,9 +377,11 @@ class Motion:
     async def _checked(self, job: _Job) -> dict[str, str]:
         try:
             error = await self._port.error_of(job.sent, self._port.reply_timeout)
-        except (RequestAbortedError, ControllerTimeoutError):
-            # The check was lost (Ctrl+C or a resync): the move may or may not run. Stop
-            # it and fail: success is never assumed.
+            if error is None:
+                job.plan = await job.plan.resolved()
+        except _LOST_READ:
+            # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
+            # move may or may not run. Stop it and fail: success is never assumed.
             aborted = job.epoch != self._stops
             await self._stop_and_wait(job)
             if aborted:
@@ -369,17 +415,24 @@ class Motion:
             job.hints = self._hints  # hints from now on come after this state read
             self._port.check_link()
             try:
-                letters = await self._state()
+                letters, texts = await self._state()
             except _LOST_READ:
                 if job.epoch == self._stops:
                     raise
-                letters = {}  # the driver's stop (e.g. an ignored Ctrl+C) disturbed the read
+                # The driver's stop (e.g. an ignored Ctrl+C) disturbed the read.
+                letters, texts = {}, {}
             now = loop.time()
             if job.epoch != self._stops:
                 return await self._aborted(job, letters)
             if any(letters.get(axis) == MOVING for axis in plan.moved):
                 if now >= deadline:
-                    await self._timed_out(job)
+                    if plan.extend is None or job.extended:
+                        await self._timed_out(job)
+                    # The limit was sized from a position known before the move, which
+                    # may be stale (joystick, another program): once, size the rest from
+                    # where the axes are now (bounded: at most limit + this budget).
+                    job.extended = True
+                    deadline = now + plan.extend(texts)
                 if now < expected_end:
                     # A false hint (e.g. !joy 0): the real report or the expected end
                     # comes next.
@@ -389,7 +442,7 @@ class Motion:
                     interval = min(interval * 1.5, POLL_MAX)
                 continue
             letters = _with_report(job, letters)
-            verdict = await self._verdict(job, letters)
+            verdict = _verdict(plan, letters, texts)
             if verdict is None:
                 report = job.sent.submission.completion
                 if report is not None and not report.done():
@@ -405,39 +458,22 @@ class Motion:
             self._finished(job, letters, ok=False)
             raise MoveError(f"{plan.command.line!r} {verdict}", letters)
 
-    async def _state(self) -> dict[str, str]:
-        """The status letters, read again (up to 3 times) when the read was lost: discarded
-        by a Ctrl+C resync, unanswered, or met by a line that is not its reply (the stream
-        is resynchronised each time, so the next read is in step)."""
+    async def _state(self) -> tuple[dict[str, str], dict[str, str]]:
+        """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
+        to back: one round trip), read again (up to 3 times) when the read was lost:
+        discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
+        (the stream is resynchronised each time, so the next read is in step)."""
         for _ in range(2):
             try:
-                return await self._port.status()
+                return self._remember(await self._port.state())
             except _LOST_READ:
                 self._port.check_link()
-        return await self._port.status()
+        return self._remember(await self._port.state())
 
-    async def _verdict(self, job: _Job, letters: Mapping[str, str]) -> str | None:
-        """``None`` if every moved axis ended well; else what went wrong."""
-        plan = job.plan
-        failed = {a: letters.get(a, "-") for a in plan.moved
-                  if letters.get(a, "-") in FAILED_LETTERS}
-        if failed:
-            return f"ended with status {dict(letters)}"
-        if plan.targets is None:
-            return None
-        texts = await self._port.position_texts()
-        off = {}
-        for axis, target in plan.targets.items():
-            text = texts.get(axis)
-            if text is None:
-                off[axis] = "not read"
-                continue
-            if abs(float(text) - target) > max(position_tolerance(text),
-                                               plan.tolerance.get(axis, 0.0)):
-                off[axis] = text
-        if off:
-            return f"stopped short of its target: at {off}, target {dict(plan.targets)}"
-        return None
+    def _remember(self, state: tuple[dict[str, str], dict[str, str]]
+                  ) -> tuple[dict[str, str], dict[str, str]]:
+        self.positions = state[1]
+        return state
 
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
@@ -452,12 +488,12 @@ class Motion:
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
         async with asyncio.timeout(timeout):
             while True:
-                letters = await self._state()
+                letters, _ = await self._state()
                 if all(letters.get(a) != MOVING for a in job.plan.moved):
                     return letters
                 await asyncio.sleep(POLL_MIN)
 
-    async def _timed_out(self, job: _Job) -> None:
+    async def _timed_out(self, job: _Job) -> NoReturn:
         await self._stop_and_wait(job)
         raise ControllerTimeoutError(
             f"{job.plan.command.line!r} did not complete within {job.plan.limit:.1f} s; "
@@ -500,6 +536,30 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
+
+
+def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]
+             ) -> str | None:
+    """``None`` if every moved axis ended well, judged from one state read (the letters
+    and the positions read right behind them); else what went wrong."""
+    failed = {a: letters.get(a, "-") for a in plan.moved
+              if letters.get(a, "-") in FAILED_LETTERS}
+    if failed:
+        return f"ended with status {dict(letters)}"
+    if plan.targets is None:
+        return None
+    off = {}
+    for axis, target in plan.targets.items():
+        text = texts.get(axis)
+        if text is None:
+            off[axis] = "not read"
+            continue
+        if abs(float(text) - target) > max(position_tolerance(text),
+                                           plan.tolerance.get(axis, 0.0)):
+            off[axis] = text
+    if off:
+        return f"stopped short of its target: at {off}, target {dict(plan.targets)}"
+    return None
 
 
 def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:

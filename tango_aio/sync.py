@@ -340,6 +340,13 @@ class Controller(_Wrapper[AsyncController]):
         subscription: Subscription = self._portal.call(_subscribe, self.aio, maxsize)
         return self._portal.iterate(subscription)
 
+    def validate_move(self, /, *, relative: bool = False, **axes: float) -> None:
+        """Check move targets without moving (see
+        :meth:`tango_aio.Controller.validate_move`); raises
+        :class:`~tango_aio.errors.InvalidCommandError`. Runs in the caller's thread: it
+        reads the cached context only."""
+        self.aio.validate_move(relative=relative, **axes)
+
     @property
     def identity(self) -> Identity:
         """The identity read when connecting (see :attr:`tango_aio.Controller.identity`)."""

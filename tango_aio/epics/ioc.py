@@ -56,9 +56,10 @@ from caproto.server.server import (
 )
 
 from ..coalesce import MoveCoalescer
-from ..controller import FAILED_LETTERS, Controller
+from ..controller import Controller
 from ..errors import ConnectionLostError, ControllerError, MoveError, TangoError
 from ..instructions import AXES, lookup
+from ..motion import FAILED_LETTERS
 from .access import AccessPolicy
 from .record import AxisUnits, LimitSwitches, calibrated, limit_switches, msta
 
@@ -599,7 +600,7 @@ class ControllerServer:
 
     async def report_error(self, exc: BaseException) -> None:
         """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``)."""
-        number = exc.error_code if isinstance(exc, ControllerError) else -1
+        number = exc.number if isinstance(exc, ControllerError) else -1
         await self.group.error.write(number)
         await self.group.error_text.write(str(exc)[:255])
         if not self.link_up:  # the failed put's WRITE alarm must not hide the link state

@@ -1,0 +1,43 @@
+"""Ctrl+C while the command line starts ends quietly.
+
+The ``tango-aio`` command imports this module before anything else, so that an interrupt
+while the rest of the command line loads (asyncio, rich, the driver: about 0.2 s) prints
+one line and exits with 130 instead of a ``KeyboardInterrupt`` traceback (issue #16).
+:func:`finished`, called at the end of :mod:`tango_aio.cli`'s imports, gives Ctrl+C back
+to its previous handler; from there on :func:`tango_aio.cli.main` handles it. Nothing is
+installed outside the main thread, or where someone else already handles SIGINT.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from types import FrameType
+
+__all__ = ["finished"]
+
+
+def _interrupted(signum: int, frame: FrameType | None) -> None:
+    sys.stderr.write("interrupted\n")
+    raise SystemExit(130)
+
+
+def _install() -> bool:
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return False
+    signal.signal(signal.SIGINT, _interrupted)
+    return True
+
+
+_installed = _install()
+
+
+def finished() -> None:
+    """Start-up is over: Ctrl+C raises ``KeyboardInterrupt`` again."""
+    global _installed
+    if _installed and signal.getsignal(signal.SIGINT) is _interrupted:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    _installed = False
