@@ -43,7 +43,7 @@ async def main(url: str) -> None:
         try:
             await tango.move_to(x=1e6)
         except tango_aio.ControllerError as exc:
-            print(f"refused as expected: {exc} (code {exc.error_code})")
+            print(f"refused as expected: {exc} (number {exc.number})")
 
         listener.cancel()
         print(f"final position {await tango.position()}")

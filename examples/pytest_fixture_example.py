@@ -36,7 +36,7 @@ async def test_moves_and_settings(tango_emulator: Emulated) -> None:
     assert await tango.get("vel", axis="y") == 12.5
     with pytest.raises(tango_aio.ControllerError) as caught:  # refused by the controller
         await tango.command("!moa x 1000000")
-    assert caught.value.error_code == 5
+    assert caught.value.number == 5
     with pytest.raises(tango_aio.InvalidCommandError):  # refused before sending
         await tango.set("vel", -1, axis="x")
 

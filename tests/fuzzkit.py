@@ -1,4 +1,4 @@
-"""Shared pieces of the fuzz tests (tests/test_core_fuzz.py, tests/test_faults.py):
+"""Shared pieces of the fuzz tests (tests/unit/test_core_fuzz.py, tests/e2e/test_faults.py):
 requests that reach every routing path, fragments of controller output, and plausible
 answers computed from the core's state."""
 

@@ -24,10 +24,10 @@ import asyncio
 import contextlib
 import math
 from collections.abc import Awaitable, Mapping
-from typing import Any, TypeVar
+from typing import Any, TypeVar, Unpack
 
 import pytest
-from conftest import VELS, Emulated, EmulatorFactory
+from helpers import VELS, Axes, Emulated, EmulatorFactory
 
 from tango_aio.errors import (
     ControllerError,
@@ -140,7 +140,7 @@ async def assert_next_call_works(emu: Emulated) -> None:
     assert_arrived(emu, {"x": 0.25})
 
 
-async def start_move(emu: Emulated, **targets: float) -> asyncio.Task[dict[str, str]]:
+async def start_move(emu: Emulated, **targets: Unpack[Axes]) -> asyncio.Task[dict[str, str]]:
     """Start a move and return once the emulator's axes are under way."""
     task = asyncio.create_task(emu.tango.move_to(**targets))
     await moving(emu, *targets, task=task)
@@ -325,16 +325,16 @@ async def test_internal_error_is_not_blamed_on_the_command(emulator: EmulatorFac
         assert await emu.tango.get("vel", axis="y") == 9.5
         with pytest.raises(InternalControllerError) as info:
             await bounded(emu.tango.check_fault())
-        assert info.value.error_code == 29 and info.value.command is None
+        assert info.value.number == 29 and info.value.command is None
         await bounded(emu.tango.set("lim", -5.0, 5.0, axis="x"))
         with pytest.raises(ControllerError) as own:  # a real error is still the line's
             await bounded(emu.tango.move_to(x=200.0))
-        assert own.value.error_code < 20 and own.value.command is not None
+        assert own.value.number < 20 and own.value.command is not None
         await bounded(emu.tango.command("!err"))
         await bounded(emu.tango.check_fault())
         assert emu.tango.fault == 0
         faults = [e for e in _buffered(events) if isinstance(e, ControllerFault)]
-    assert [f.code for f in faults] == [29]
+    assert [f.number for f in faults] == [29]
 
 
 @MATRIX

@@ -71,7 +71,8 @@ class RandomHandler:
 def script(seed: int) -> list[tuple[float, str, Any]]:
     """Random host activity: (time, "feed" | "stall" | "poll", argument)."""
     rng = random.Random(seed)
-    t, steps = 0.0, []
+    t = 0.0
+    steps: list[tuple[float, str, Any]] = []
     for _ in range(80):
         t += rng.choice([0.0, 1e-5, 1e-4, 0.0003, 0.001, 0.003, 0.02])
         r = rng.random()

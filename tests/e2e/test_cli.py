@@ -1,0 +1,674 @@
+"""The tango-aio command line, run as a user would."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import fcntl
+import io
+import os
+import re
+import select
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import termios
+import time
+from pathlib import Path
+
+import pytest
+import serial
+
+import tango_aio
+from tango_aio.cli import (
+    Shell,
+    _parser,
+    describe_event,
+    describe_exception,
+    describe_line,
+    describe_reply,
+    letters_of_line,
+    main,
+    read_bounded_line,
+)
+from tango_aio.errors import MoveError
+from tango_aio.events import ConnectionLost, MoveAborted, MoveFinished, UnsolicitedLine
+from tango_aio.instructions import parse
+
+CLI = [sys.executable, "-m", "tango_aio"]
+
+
+def run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout,
+                          check=False)
+
+
+def test_help_of_every_command() -> None:
+    for command in ([], ["demo"], ["info"], ["sim"], ["shell"], ["move"], ["monitor"],
+                    ["ports"]):
+        result = run(*command, "--help")
+        assert result.returncode == 0, result.stderr
+        assert "usage: tango-aio" in result.stdout
+
+
+def _demo(axes: int) -> str:
+    # The controller's time runs 20 times as fast (cal, rm and the scan): not a timing test.
+    result = run("demo", "--url", f"sim://?baud=0&axes={axes}&speed=20", "--rows", "3",
+                 "--points", "3")
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    out = result.stdout
+    plural = "axis" if axes == 1 else "axes"
+    assert f"Connected to TANGO-DT firmware 1.71, {axes} {plural}" in out
+    present = "xyza"[:axes]
+    assert "Phase 1/3: calibrate" in out and "Phase 2/3: range measure" in out
+    assert "Phase 3/3: raster scan, 3 rows" in out
+    assert "done: " + " ".join(f"{a}=A (ok, calibrated)" for a in present) in out
+    assert "done: " + " ".join(f"{a}=D (ok, range measured)" for a in present) in out
+    # Rows 1 and 3 go forward over three rising trigger positions; row 2 comes back.
+    assert "6 trigger pulses: the list's positions rise" in out
+    assert "on the 2 forward rows of 3; the return rows fire none" in out
+    assert re.search(r"final position │ x=\s+11\.0000", out), out
+    assert "trigger pulses │ 6" in out
+    return out
+
+
+def test_demo_runs_on_a_one_axis_emulator() -> None:
+    _demo(1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("axes", [2, 3, 4])
+def test_demo_runs_on_emulators_with_more_axes(axes: int) -> None:
+    out = _demo(axes)
+    assert re.search(r"final position │ x=\s+11\.0000  y=\s+10\.0000", out), out
+
+
+def test_info_prints_identity() -> None:
+    result = run("info", "sim://?baud=0&axes=2")
+    assert result.returncode == 0, result.stderr
+    assert "TANGO-DT" in result.stdout and "1.71" in result.stdout
+    assert "axes" in result.stdout and "2" in result.stdout
+
+
+def test_errors_are_one_line_with_nonzero_exit() -> None:
+    result = run("info", "/dev/does-not-exist")
+    assert result.returncode == 1
+    assert result.stdout.strip().startswith("error:")
+    assert len(result.stdout.strip().splitlines()) == 1
+    bad = run("info", "sim://?axes=9")
+    assert bad.returncode == 2 and "axes must be 1..4" in bad.stderr
+
+
+def test_sim_pty_prints_the_device_path_first() -> None:
+    with subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"], stdout=subprocess.PIPE,
+                          text=True) as proc:
+        _check_pty(proc)
+
+
+def _check_pty(proc: subprocess.Popen[str]) -> None:
+    try:
+        assert proc.stdout is not None
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/")
+        with serial.Serial(path, 57600, stopbits=2, timeout=2) as port:
+            port.write(b"?version\r")
+            assert port.read_until(b"\r").startswith(b"TANGO-DT, Version 1.71")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_sim_tcp_serves_socket_urls() -> None:
+    with subprocess.Popen([*CLI, "sim", "--tcp", "127.0.0.1:0", "--baud", "0"],
+                          stdout=subprocess.PIPE, text=True) as proc:
+        _check_tcp(proc)
+
+
+def _check_tcp(proc: subprocess.Popen[str]) -> None:
+    try:
+        assert proc.stdout is not None
+        url = proc.stdout.readline().strip()
+        assert url.startswith("socket://127.0.0.1:")
+        port = serial.serial_for_url(url, timeout=2)
+        try:
+            port.write(b"?det\r")
+            assert port.read_until(b"\r") == b"10288\r"
+        finally:
+            port.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+# -- shell ------------------------------------------------------------------------------
+
+SIM = "sim://?baud=0"
+_ANSI = re.compile(r"\x1b\[[0-9;?<>=]*[ -/]*[@-~]|\x1b[()][0-9A-Za-z]|\x1b[=>78]|[\r\x07]")
+
+
+class Terminal:
+    """The CLI on a real pty (its controlling terminal), read with a timeout."""
+
+    def __init__(self, *args: str, env: dict[str, str]) -> None:
+        self.master, slave = os.openpty()
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 200, 0, 0))
+        # A session leader that makes the pty its controlling terminal, so that Ctrl+C
+        # typed in cooked mode raises SIGINT as in a real terminal.
+        code = ("import fcntl, sys, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); "
+                "from tango_aio.cli import main; sys.exit(main(sys.argv[1:]))")
+        self.proc = subprocess.Popen([sys.executable, "-c", code, *args], stdin=slave,
+                                     stdout=slave, stderr=slave, start_new_session=True,
+                                     env={**os.environ, **env})
+        os.close(slave)
+        self.raw = ""
+        self.text = ""  # everything read, without escape sequences
+        self.seen = 0   # how far expect() has matched
+
+    def __enter__(self) -> Terminal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(timeout=15)
+        os.close(self.master)
+
+    def send(self, data: str) -> None:
+        os.write(self.master, data.encode())
+
+    def expect(self, pattern: str, timeout: float = 10.0) -> str:
+        """Wait for ``pattern`` (a regex) after the previous match; return the match."""
+        deadline = time.monotonic() + timeout
+        while True:
+            match = re.compile(pattern).search(self.text, self.seen)
+            if match:
+                self.seen = match.end()
+                return match.group()
+            left = deadline - time.monotonic()
+            assert left > 0, f"{pattern!r} not seen in:\n{self.text[self.seen:]}"
+            if select.select([self.master], [], [], min(left, 0.2))[0]:
+                try:
+                    chunk = os.read(self.master, 65536)
+                except OSError:  # EIO: the child closed the pty
+                    chunk = b""
+                self.raw += chunk.decode(errors="replace")
+                self.text = _ANSI.sub("", self.raw)
+
+    def type(self, line: str, *patterns: str) -> list[str]:
+        """Type ``line`` and Enter, wait for ``patterns`` in turn, then for the prompt (so
+        that the next keys reach the prompt, not the terminal in cooked mode)."""
+        self.send(line + "\r")
+        found = [self.expect(pattern) for pattern in patterns]
+        self.expect("tango>")
+        return found
+
+    def wait(self) -> int:
+        """The exit code of the CLI."""
+        return self.proc.wait(timeout=15)
+
+
+@pytest.fixture
+def history(tmp_path: Path) -> Path:
+    return tmp_path / "history"
+
+
+def _shell(url: str, history: Path) -> Terminal:
+    term = Terminal("shell", url, env={"TANGO_AIO_HISTORY": str(history), "TERM": "xterm",
+                                       "PROMPT_TOOLKIT_NO_CPR": "1"})
+    term.expect(r"connected to TANGO-DT firmware 1\.71, 3 axes")
+    term.expect("tango>")
+    return term
+
+
+def test_shell_on_a_pty(history: Path) -> None:
+    with _shell(SIM, history) as term:
+        term.type("?pos", r"0\.0000 0\.0000 0\.0000")
+        term.type("!vel 1000", r"invalid: vel: velocity=1000\.0 is above 200 \(nothing sent\)")
+        term.type("!moa 1 2", "ok", r"move finished: x=@ \(ok\) y=@ \(ok\) z=@ \(ok\)")
+        term.type("!moa 1000000", r"error: controller error 5: number is not inside allowed")
+        term.type("?err", r"→ (no error|error 5: number is not inside allowed range)")
+        # A refused move marks its axis E, "move aborted or not executed" (manual L2705).
+        term.type("sa", r"E@@-\.-  → x=E \(.*\) y=@ \(ok\) z=@ \(ok\)")
+        term.send("exit\r")
+        assert term.wait() == 0
+    lines = history.read_text().splitlines()
+    assert [line for line in lines if line.startswith("+")] == [
+        "+?pos", "+!vel 1000", "+!moa 1 2", "+!moa 1000000", "+?err", "+sa", "+exit"]
+
+
+def test_shell_ctrl_c_at_the_prompt_aborts_a_move(history: Path) -> None:
+    with _shell(SIM, history) as term:
+        term.type("!moa 50 50", "ok")
+        time.sleep(0.3)
+        term.send("\x03")  # Ctrl+C (the prompt has the terminal in raw mode)
+        term.expect(r"abort sent \(Ctrl\+C\): all axes stop")
+        term.expect(r"move finished: x=E \(error/aborted\) y=E \(error/aborted\) z=@ \(ok\)")
+        term.expect("tango>")
+        x, y = map(float, term.type("?pos", r"\d+\.\d+ \d+\.\d+")[0].split())
+        assert 0 < x < 50 and 0 < y < 50  # stopped on the way
+        term.send("\x04")  # Ctrl+D leaves
+        assert term.wait() == 0
+
+
+def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
+    with _shell(SIM + "&latency=0.25", history) as term:
+        term.send("?version\r")
+        time.sleep(0.1)     # the read waits for its reply; the terminal is in cooked mode,
+        term.send("\x03")   # so Ctrl+C raises SIGINT
+        term.expect(r"interrupted: \?version")
+        term.expect(r"abort sent \(Ctrl\+C\)")
+        term.expect("tango>")
+        term.type("?pos", r"0\.0000 0\.0000 0\.0000")
+        term.send("quit\r")
+        assert term.wait() == 0
+
+
+def test_shell_reads_a_script_from_a_pipe(tmp_path: Path) -> None:
+    script = "?pos\n!vel 1000\n?help 5\nnot-an-instruction\n!moa 1000000\n?err\n"
+    result = subprocess.run([*CLI, "shell", SIM], input=script, capture_output=True,
+                            text=True, timeout=60, check=False,
+                            env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
+    assert result.returncode == 1, result.stderr  # lines failed
+    out = result.stdout
+    assert "0.0000 0.0000 0.0000" in out
+    assert "invalid: vel: velocity=1000.0 is above 200 (nothing sent)" in out
+    assert "error: controller error 5: number is not inside allowed range" in out
+    assert re.search(r"→ (no error|error 5: number is not inside allowed range)", out)
+    assert "ERROR 5,number outside range  → error 5: number is not inside allowed range" in out
+    assert out.count("invalid:") == 2
+    assert not (tmp_path / "h").exists()  # no history for non-interactive input
+
+
+def test_decoding_of_replies_and_events() -> None:
+    assert letters_of_line("@E--.") == {"x": "@", "y": "E"}
+    assert describe_reply(parse("?err"), "12") == "12  → error 12: limit switch active"
+    assert describe_reply(parse("?err"), "0") == "0  → no error"
+    assert describe_reply(parse("?statusaxis z"), "M") == "M  → z=M (moving)"
+    assert describe_reply(parse("?vel"), "10.0 10.0") == "10.0 10.0"
+    assert describe_line("AAD-.") == ("status report: x=A (ok, calibrated) "
+                                      "y=A (ok, calibrated) z=D (ok, range measured)")
+    assert describe_line("ERR 27") == "controller reports error 27: emergency STOP is active"
+    assert describe_line("hello") == "unsolicited line: 'hello'"
+    finished = MoveFinished("cal", {"x": "A", "y": "T"}, ok=False)
+    assert describe_event(finished) == "calibration finished: x=A (ok, calibrated) y=T (timeout)"
+    assert describe_event(MoveAborted(ctrl_c=False)) == "abort sent (a): all axes stop"
+    assert describe_event(UnsolicitedLine("@@@-.")) == (
+        "status report: x=@ (ok) y=@ (ok) z=@ (ok)")
+    assert describe_event(ConnectionLost(None)) == "connection lost: closed"
+
+
+# -- move, monitor, ports ----------------------------------------------------------------
+
+
+def test_move_prints_the_status_letters() -> None:
+    result = run("move", SIM, "x=1", "y=2")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "done: x=@ (ok) y=@ (ok) z=@ (ok)" in result.stdout
+    assert "x=   1.0000  y=   2.0000  z=   0.0000" in result.stdout
+    relative = run("move", SIM, "--relative", "y=-0.5")
+    assert relative.returncode == 0, relative.stdout + relative.stderr
+    assert "y=  -0.5000" in relative.stdout
+
+
+def test_move_beyond_the_limits_is_a_one_line_error() -> None:
+    result = run("move", SIM, "x=1000000")
+    assert result.returncode == 1
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: controller error 5"), lines
+    usage = run("move", SIM, "q=1")
+    assert usage.returncode == 2 and "expected AXIS=VALUE" in usage.stderr
+
+
+def test_monitor_shows_a_table_of_the_axes() -> None:
+    result = run("monitor", SIM, "--count", "2", "--interval", "0.05")
+    assert result.returncode == 0, result.stdout + result.stderr
+    for axis in "xyz":
+        assert re.search(rf"│ {axis}\s+│\s+0\.0000 │ @\s+│ ok", result.stdout), result.stdout
+
+
+def test_monitor_exits_cleanly_on_ctrl_c() -> None:
+    with Terminal("monitor", SIM, "--interval", "0.05", env={"TERM": "xterm"}) as term:
+        term.expect(r"│ z\s+│\s+0\.0000 │ @")  # the live table is up
+        term.send("\x03")  # Ctrl+C in a terminal: SIGINT
+        assert term.wait() == 0
+
+
+def test_ports_lists_and_probes() -> None:
+    assert run("ports").returncode == 0
+    with subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"], stdout=subprocess.PIPE,
+                          text=True) as proc:
+        try:
+            assert proc.stdout is not None
+            path = proc.stdout.readline().strip()
+            result = run("ports", "--probe", "--port", path, "--timeout", "2")
+            assert result.returncode == 0, result.stdout + result.stderr
+            assert re.search(rf"{re.escape(path)}.*TANGO-DT 1\.71", result.stdout)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+def test_upload_trigp_uploads_a_file(tmp_path: Path) -> None:
+    path = tmp_path / "positions.txt"
+    values = [round(1.0 + i * 0.25, 4) for i in range(300)]
+    path.write_text("# scan line\n" + "\n".join(str(v) for v in values) + "\n\n")
+    result = run("upload-trigp", "sim://?baud=0", str(path), "--axis", "y")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "uploaded 300 trigger positions to axis y" in result.stdout
+
+
+def test_upload_trigp_reports_bad_input_in_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "positions.txt"
+    path.write_text("1.0\n2.0\n1.5\n")
+    result = run("upload-trigp", "sim://?baud=0", str(path))
+    assert result.returncode == 1
+    assert "breaks the monotonic order" in result.stdout
+    assert len(result.stdout.strip().splitlines()) == 1
+    path.write_text("1.0\nabc\n")
+    result = run("upload-trigp", "sim://?baud=0", str(path))
+    assert result.returncode == 1 and ":2: not a number" in result.stdout
+
+
+# -- issue 16: one-line errors, safety, the shell, words ---------------------------------
+
+
+def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """Run the CLI in this process: exit code, stdout, stderr."""
+    try:
+        code = main(list(args))
+    except SystemExit as exit_:  # argparse: usage errors, --help, --version
+        code = int(exit_.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_user_text_is_printed_literally(capsys: pytest.CaptureFixture[str],
+                                        tmp_path: Path) -> None:
+    code, out, _ = cli(capsys, "info", "[/]")
+    assert code == 1 and out.startswith("error: cannot open '[/]'"), out
+    path = tmp_path / "positions.txt"
+    path.write_text("1.0\n[mm]\n")
+    code, out, _ = cli(capsys, "upload-trigp", SIM, str(path))
+    assert code == 1 and f"{path}:2: not a number: '[mm]'" in out, out
+
+
+def test_position_files_are_read_with_bounds(capsys: pytest.CaptureFixture[str],
+                                             tmp_path: Path) -> None:
+    code, out, _ = cli(capsys, "upload-trigp", SIM, "/dev/zero")
+    assert code == 1 and "/dev/zero:1: line longer than 200 bytes" in out
+    many = tmp_path / "many.txt"
+    many.write_text("\n".join(str(i * 0.001) for i in range(10002)))
+    code, out, _ = cli(capsys, "upload-trigp", SIM, str(many))
+    assert code == 1 and "more than 10000 positions" in out
+    binary = tmp_path / "binary.txt"
+    binary.write_bytes(b"1.0\n\xff\xfe\n")
+    code, out, _ = cli(capsys, "upload-trigp", SIM, str(binary))
+    assert code == 1 and ":2: not a number" in out
+    code, out, _ = cli(capsys, "upload-trigp", SIM, str(tmp_path))
+    assert code == 1 and "Is a directory" in out
+
+
+def test_a_url_without_file_descriptor_is_a_one_line_error(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = cli(capsys, "info", "loop://")
+    assert code == 1 and len(out.splitlines()) == 1
+    assert "has no file descriptor" in out
+
+
+def test_bad_numbers_are_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    for args, message in [
+        (("ports", "--probe", "--timeout", "nan"), "--timeout: must be above 0: 'nan'"),
+        (("ports", "--timeout", "-1"), "must be above 0"),
+        (("demo", "--rows", "-1"), "--rows: must be at least 1: '-1'"),
+        (("demo", "--points", "0"), "--points: must be at least 1"),
+        (("demo", "--rows", "two"), "--rows: not a whole number: 'two'"),
+        (("monitor", SIM, "--interval", "-0.1"), "--interval: must be above 0"),
+        (("monitor", SIM, "--interval", "inf"), "--interval: must be above 0"),
+        (("monitor", SIM, "--count", "-2"), "--count: must be at least 1"),
+    ]:
+        code, _, err = cli(capsys, *args)
+        assert code == 2 and message in err, (args, err)
+        assert "Traceback" not in err
+
+
+def test_sim_urls(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = cli(capsys, "info", "SIM://?baud=0&axes=2")
+    assert code == 0 and "TANGO-DT" in out
+    code, _, err = cli(capsys, "info", "sim://?baud=abc")
+    assert code == 2 and "sim:// option baud='abc' is not valid" in err
+    code, _, err = cli(capsys, "info", "sim://?baud=0&axes=2&baud=0")
+    assert code == 2 and "given more than once: baud" in err
+    code, _, err = cli(capsys, "info", "sim://?bogus=1")
+    assert code == 2 and "unknown sim:// option" in err
+
+
+def test_help_texts_are_plain_words() -> None:
+    parser = _parser()
+    assert parser._subparsers is not None
+    action = parser._subparsers._group_actions[0]
+    assert isinstance(action, argparse._SubParsersAction)
+    choices: dict[str, argparse.ArgumentParser] = action.choices
+    assert {"demo", "info", "move", "ioc"} <= set(choices)  # whatever else is added
+    summaries = {choice.dest: choice.help for choice in action._choices_actions}
+    assert set(summaries) == set(choices) and all(summaries.values())  # each one listed
+    texts = [parser.format_help(), *(sub.format_help() for sub in choices.values())]
+    assert len(texts) == len(choices) + 1
+    for text in texts:
+        assert "``" not in text and ":func:" not in text and ":meth:" not in text, text
+        assert ":class:" not in text and ":mod:" not in text and ":attr:" not in text, text
+    assert "EPICS" in choices["ioc"].format_help()
+
+
+def test_version_and_wire_trace(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = cli(capsys, "--version")
+    assert code == 0 and out.strip() == f"tango-aio {tango_aio.__version__}"
+    traced = run("-v", "info", SIM)
+    assert traced.returncode == 0, traced.stderr
+    assert "tango_aio.wire" in traced.stderr and "-> b'?version'" in traced.stderr
+    assert "<- b'TANGO-DT, Version 1.71" in traced.stderr
+    assert "tango_aio.wire" not in run("info", SIM).stderr
+
+
+def test_debug_shows_the_traceback_of_an_error() -> None:
+    quiet = run("info", "sim://?baud=0&axes=9")
+    assert "Traceback" not in quiet.stderr
+    loud = run("--debug", "upload-trigp", SIM, "/dev/zero")
+    assert loud.returncode == 1 and "Traceback" in loud.stderr
+    assert "ValueError: /dev/zero:1: line longer than 200 bytes" in loud.stderr
+
+
+def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = cli(capsys, "info", SIM)
+    assert code == 0 and re.search(r"status\s+│ x=@ \(ok\) y=@ \(ok\) z=@ \(ok\)", out), out
+    code, out, _ = cli(capsys, "move", SIM, "x=60")
+    assert code == 1 and len(out.splitlines()) == 1, out
+    assert out.startswith("error: '!moa 60.0' ended with status")
+    assert "x=S (limit switch) y=@ (ok) z=@ (ok)" in out
+    assert describe_exception(MoveError("m", {"x": "T"})) == "m: x=T (timeout)"
+
+
+# -- Ctrl+C -------------------------------------------------------------------------------
+
+
+class PtySim:
+    """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the CLI under
+    test, so that we can see whether its axes still move after the CLI exited."""
+
+    def __init__(self) -> None:
+        self.proc = subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"],
+                                     stdout=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None
+        self.path = self.proc.stdout.readline().strip()
+
+    def __enter__(self) -> PtySim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=10)
+        assert self.proc.stdout is not None
+        self.proc.stdout.close()
+
+    def moving_axes(self) -> list[str]:
+        """The axes that move now; asks twice for the position, 0.2 s apart."""
+        async def ask() -> list[str]:
+            async with tango_aio.connect(self.path) as tango:
+                before = await tango.position()
+                await asyncio.sleep(0.2)
+                after = await tango.position()
+                status = await tango.status()
+            return [a for a in status if status[a] == "M" or before[a] != after[a]]
+        return asyncio.run(ask())
+
+
+def _interrupt_when(proc: subprocess.Popen[str], marker: str, timeout: float = 30) -> str:
+    """Send SIGINT once ``marker`` appears on the CLI's stdout; return all its output."""
+    assert proc.stdout is not None
+    seen = ""
+    deadline = time.monotonic() + timeout
+    while marker not in seen:
+        assert time.monotonic() < deadline, seen
+        line = proc.stdout.readline()
+        assert line, f"{marker!r} never appeared in {seen!r}"
+        seen += line
+    time.sleep(0.3)  # the axes are under way
+    proc.send_signal(signal.SIGINT)
+    rest, _ = proc.communicate(timeout=30)
+    return seen + rest
+
+
+def test_ctrl_c_during_demo_stops_the_axes() -> None:
+    with PtySim() as sim:
+        proc = subprocess.Popen([*CLI, "demo", "--url", sim.path, "--yes"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        out = _interrupt_when(proc, "Phase 1/3")
+        assert proc.returncode == 130, out
+        assert "Traceback" not in out and "never retrieved" not in out, out
+        assert out.rstrip().endswith("interrupted"), out
+        assert sim.moving_axes() == []
+
+
+def test_ctrl_c_during_move_stops_the_axes() -> None:
+    with PtySim() as sim:
+        proc = subprocess.Popen([*CLI, "move", sim.path, "x=40", "y=40"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(1.5)  # connected and moving (the move takes about 10 s)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 130 and "Traceback" not in out, out
+        assert sim.moving_axes() == []
+
+
+def test_ctrl_c_during_start_up_is_one_line() -> None:
+    # A TCP server that accepts and never answers: connect() waits for ?version.
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        proc = subprocess.Popen([*CLI, "info", f"socket://127.0.0.1:{port}"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        peer, _ = server.accept()  # the CLI is connecting
+        with peer:
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and out.strip() == "interrupted", out
+
+
+def test_demo_asks_before_moving_a_real_controller() -> None:
+    with PtySim() as sim:
+        piped = subprocess.run([*CLI, "demo", "--url", sim.path], capture_output=True,
+                               text=True, timeout=60, check=False, stdin=subprocess.DEVNULL)
+        assert piped.returncode == 1 and "confirm with --yes" in piped.stdout
+        with Terminal("demo", "--url", sim.path, env={"TERM": "dumb"}) as term:
+            term.expect(r"Z/focus included")
+            term.expect(r"Continue\? \[y/N\]")
+            term.send("n\r")
+            term.expect("demo cancelled: nothing was moved")
+            assert term.wait() == 1
+        assert _axes_state(sim.path) == {"x": "@", "y": "@", "z": "@"}  # never calibrated
+
+
+def _axes_state(path: str) -> dict[str, str]:
+    async def ask() -> dict[str, str]:
+        async with tango_aio.connect(path) as tango:
+            return await tango.status()
+    return asyncio.run(ask())
+
+
+# -- shell --------------------------------------------------------------------------------
+
+
+def _decoded(script: bytes, url: str) -> subprocess.CompletedProcess[str]:
+    raw = subprocess.run([*CLI, "shell", url], input=script, capture_output=True,
+                         timeout=60, check=False)
+    return subprocess.CompletedProcess(raw.args, raw.returncode, raw.stdout.decode(),
+                                       raw.stderr.decode())
+
+
+def test_shell_help_comes_from_the_shell_and_the_catalog() -> None:
+    result = _decoded(b"help\nhelp moa\nhelp 12\nhelp nosuch\n", SIM)
+    assert result.returncode == 0, result.stdout + result.stderr
+    out = result.stdout
+    assert "help NAME      an instruction from the catalog" in out
+    assert "moa: Move X Y Z absolute" in out
+    assert re.search(r"!moa \[AXIS\] position\(dim units\)\.\.\.\s+sets or runs", out)
+    assert "manual section 14.1, line 6323" in out
+    assert "error 12: limit switch active" in out
+    assert "no instruction 'nosuch' in the catalog" in out
+    assert Shell.help("?vel").startswith("vel: ")
+
+
+def test_shell_survives_undecodable_and_long_input() -> None:
+    script = b"\xff\xfe\xfa\n" + b"9" * 100000 + b"\n?pos\n"
+    result = _decoded(script, SIM)
+    assert result.returncode == 1  # two invalid lines
+    assert "0.0000 0.0000 0.0000" in result.stdout
+    assert result.stdout.count("invalid:") == 2, result.stdout
+
+
+def test_shell_script_exit_status_and_wait() -> None:
+    good = _decoded(b"!moa 1 2\nwait\n?pos\n", SIM)
+    assert good.returncode == 0, good.stdout
+    assert "idle: x=@ (ok) y=@ (ok) z=@ (ok)" in good.stdout
+    assert "1.0000 2.0000 0.0000" in good.stdout
+    bad = _decoded(b"!moa 1000000\n?pos\n", SIM)
+    assert bad.returncode == 1
+    assert "error: controller error 5" in bad.stdout and "ok" not in bad.stdout.split()
+
+
+def test_leaving_the_shell_stops_the_axes() -> None:
+    with PtySim() as sim:
+        result = _decoded(b"!moa 40 40\n", sim.path)
+        assert "stopping the axes that still move: x y" in result.stdout, result.stdout
+        assert result.returncode == 0
+        assert sim.moving_axes() == []
+
+
+class _SilentReader:
+    """A reader whose user never types anything."""
+
+    async def read(self) -> str:
+        await asyncio.Event().wait()
+        raise AssertionError("unreachable")
+
+
+async def test_shell_leaves_when_the_connection_is_lost() -> None:
+    tango = await tango_aio.connect(SIM)
+    try:
+        shell = Shell(tango, _SilentReader())
+        running = asyncio.ensure_future(shell.run())
+        await asyncio.sleep(0.05)
+        assert not running.done()
+        tango.protocol.transport.close()  # type: ignore[union-attr]
+        assert await asyncio.wait_for(running, 10) == 1
+    finally:
+        await tango.aclose()
+
+
+def test_pipe_reader_bounds_lines() -> None:
+    stream = io.BytesIO(b"abc\n" + b"x" * 10 + b"\nz")
+    assert read_bounded_line(stream, 5) == (b"abc\n", False)
+    assert read_bounded_line(stream, 5) == (b"xxxxxx", True)
+    assert read_bounded_line(stream, 5) == (b"xxxx\n", False)
+    assert read_bounded_line(stream, 5) == (b"z", False)
+    assert read_bounded_line(stream, 5) == (b"", False)

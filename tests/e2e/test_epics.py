@@ -1,0 +1,404 @@
+"""The EPICS IOC (tango_aio.epics): motor records over Channel Access, on loopback.
+
+The IOC runs in the test's event loop against the emulator; a caproto asyncio client in
+the same loop talks to it over real CA (TCP and UDP on 127.0.0.1, free ports).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+from collections.abc import AsyncIterator, Iterator, Mapping
+from typing import Any
+
+import pytest
+
+pytest.importorskip("caproto")
+
+from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, ChannelType
+from caproto.asyncio.client import Context as ClientContext
+from helpers import INSTANT, make_model
+
+from tango_aio.connection import connect
+from tango_aio.controller import Controller
+from tango_aio.epics.access import AccessPolicy
+from tango_aio.epics.ioc import TangoIoc, build_ioc
+from tango_aio.epics.record import Msta
+from tango_aio.sim.serve import serve_tcp
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def free_port() -> int:
+    """A port free for both TCP and UDP on loopback."""
+    for _ in range(50):
+        with socket.socket() as tcp, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            tcp.bind(("127.0.0.1", 0))
+            port = tcp.getsockname()[1]
+            try:
+                udp.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(port)
+    raise RuntimeError("no free port")
+
+
+def loopback_environment(port: int) -> dict[str, str]:
+    """The Channel Access environment of a loopback-only IOC and client."""
+    return {
+        "EPICS_CA_AUTO_ADDR_LIST": "NO",
+        "EPICS_CA_ADDR_LIST": "127.0.0.1",
+        "EPICS_CAS_INTF_ADDR_LIST": "127.0.0.1",
+        "EPICS_CAS_AUTO_BEACON_ADDR_LIST": "NO",
+        "EPICS_CAS_BEACON_ADDR_LIST": "127.0.0.1",
+        "EPICS_CA_SERVER_PORT": str(port),
+        "EPICS_CAS_SERVER_PORT": str(port),
+    }
+
+
+@pytest.fixture
+def ca_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
+    """Loopback CA environment; beacons go to a UDP socket that swallows them."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sink:
+        sink.bind(("127.0.0.1", 0))
+        env = loopback_environment(free_port())
+        env["EPICS_CAS_BEACON_PORT"] = env["EPICS_CA_REPEATER_PORT"] = \
+            str(sink.getsockname()[1])
+        for key, value in env.items():
+            monkeypatch.setenv(key, value)
+        yield env
+
+
+class PutFailed(Exception):
+    """The IOC answered a put with callback with a status other than ECA_NORMAL."""
+
+
+class Client:
+    """A caproto asyncio client with a few helpers."""
+
+    def __init__(self, context: ClientContext, prefix: str) -> None:
+        self.context = context
+        self.prefix = prefix
+        self._pvs: dict[str, Any] = {}
+
+    async def pv(self, name: str) -> Any:
+        if name not in self._pvs:
+            (self._pvs[name],) = await self.context.get_pvs(self.prefix + name, timeout=5)
+            await self._pvs[name].wait_for_connection(timeout=5)
+        return self._pvs[name]
+
+    async def get(self, name: str) -> Any:
+        reply = await (await self.pv(name)).read(timeout=5)
+        value = reply.data[0]
+        return value.decode() if isinstance(value, bytes) else value
+
+    async def alarm(self, name: str) -> tuple[AlarmStatus, AlarmSeverity]:
+        pv = await self.pv(name)
+        reply = await pv.read(data_type=ChannelType.TIME_DOUBLE
+                              if pv.channel.native_data_type == ChannelType.DOUBLE
+                              else ChannelType.TIME_LONG, timeout=5)
+        return AlarmStatus(reply.metadata.status), AlarmSeverity(reply.metadata.severity)
+
+    async def put(self, name: str, value: Any, *, wait: bool = True,
+                  timeout: float = 30) -> Any:
+        pv = await self.pv(name)
+        if isinstance(value, str):  # an enum by its name
+            response = await pv.write([value.encode()], data_type=ChannelType.STRING,
+                                      wait=wait, timeout=timeout)
+        else:
+            response = await pv.write([value], wait=wait, timeout=timeout)
+        if wait and response.status.name != CAStatus.ECA_NORMAL.name:
+            raise PutFailed(f"put {self.prefix}{name} = {value!r}: {response.status.name}")
+        return response
+
+    async def until(self, name: str, wanted: Any, timeout: float = 10.0) -> None:
+        async with asyncio.timeout(timeout):
+            while await self.get(name) != wanted:  # noqa: ASYNC110 - polls over CA
+                await asyncio.sleep(0.02)
+
+
+@contextlib.asynccontextmanager
+async def serving(controllers: Mapping[str, Controller], *, prefix: str = "T:",
+                  policy: AccessPolicy | None = None, host_name: str | None = None,
+                  window: float = 0.02) -> AsyncIterator[tuple[TangoIoc, Client]]:
+    ioc = await build_ioc(controllers, prefix, policy=policy, poll=0.05, window=window)
+    task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+    context = ClientContext(host_name=host_name)
+    try:
+        yield ioc, Client(context, prefix)
+    finally:
+        await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+@contextlib.asynccontextmanager
+async def one_stage(**kwargs: Any) -> AsyncIterator[tuple[Controller, TangoIoc, Client]]:
+    async with connect(INSTANT) as tango, serving({"": tango}, **kwargs) as (ioc, client):
+        yield tango, ioc, client
+
+
+# ----------------------------------------------------------------------------- motion
+
+
+async def test_put_with_callback_completes_at_the_target(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        assert await client.get("X.EGU") == "mm"
+        assert await client.get("X.DMOV") == 1
+        await client.put("X", 3.0)
+        # When the callback arrives the move is over and RBV was published first.
+        assert await client.get("X.DMOV") == 1
+        assert await client.get("X.RBV") == pytest.approx(3.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+        assert await client.get("X.MOVN") == 0
+        assert await client.get("X.RTYP") == "motor"
+        msta = await client.get("X.MSTA")
+        assert msta & Msta.DONE and msta & Msta.DIRECTION and not msta & Msta.MOVING
+
+
+async def test_dmov_is_zero_while_moving(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (_, _, client):
+        move = asyncio.create_task(client.put("X", 8.0))
+        await client.until("X.DMOV", 0)
+        assert await client.get("X.MOVN") == 1
+        await move
+        assert await client.get("X.DMOV") == 1
+
+
+async def test_stop_during_a_move_fails_the_put_short_of_the_target(
+        ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        move = asyncio.create_task(client.put("X", 40.0))
+        await client.until("X.DMOV", 0)
+        await asyncio.sleep(0.2)
+        await client.put("X.STOP", 1)
+        with pytest.raises(PutFailed, match="ECA_PUTFAIL"):
+            await move
+        position = (await tango.position())["x"]
+        assert 0.0 < position < 40.0
+        assert await client.get("X.RBV") == pytest.approx(position, abs=1e-3)
+        assert await client.get("X.DMOV") == 1
+        assert (await client.alarm("X"))[1] == AlarmSeverity.MAJOR_ALARM
+
+
+async def test_spmg_stop_stops_and_refuses_moves_until_go(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        move = asyncio.create_task(client.put("X", 40.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X.SPMG", "Stop")
+        with pytest.raises(PutFailed):
+            await move
+        stopped = (await tango.position())["x"]
+        assert stopped < 40.0
+        with pytest.raises(PutFailed):
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(stopped)
+        await client.put("X.SPMG", "Go")
+        await client.put("X", 1.0)
+        assert await client.get("X.RBV") == pytest.approx(1.0)
+        assert (await client.alarm("X"))[1] == AlarmSeverity.NO_ALARM
+
+
+async def test_tweak_moves_by_twv(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (_, _, client):
+        await client.put("Y", 2.0)
+        await client.put("Y.TWV", 0.5)
+        await client.put("Y.TWF", 1)
+        assert await client.get("Y.RBV") == pytest.approx(2.5)
+        assert await client.get("Y") == pytest.approx(2.5)
+        await client.put("Y.TWR", 1)
+        await client.put("Y.TWR", 1)
+        assert await client.get("Y.RBV") == pytest.approx(1.5)
+
+
+async def test_limits_are_the_controllers_and_are_enforced(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        assert await client.get("X.DHLM") == pytest.approx(2600.0)
+        await client.put("X.HLM", 5.0)
+        await client.put("X.LLM", -1.0)
+        assert (await tango.get("lim", axis="x")) == pytest.approx((-1.0, 5.0))
+        assert await client.get("X.DHLM") == pytest.approx(5.0)
+        with pytest.raises(PutFailed):
+            await client.put("X", 6.0)
+        assert await client.get("X.LVIO") == 1
+        assert (await tango.position())["x"] == 0.0
+        await client.put("X", 4.0)
+        assert await client.get("X.LVIO") == 0
+        assert await client.get("X.RBV") == pytest.approx(4.0)
+
+
+async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("Z.VELO", 20.0)  # mm/s with pitch 1 mm: 20 rev/s
+        assert await tango.get("vel", axis="z") == pytest.approx(20.0)
+        await client.put("Z.ACCL", 0.1)  # 20 mm/s in 0.1 s: 200 mm/s² = 0.2 m/s²
+        assert await tango.get("accel", axis="z") == pytest.approx(0.2)
+        assert await client.get("Z.ACCL") == pytest.approx(0.1)
+
+
+async def test_homing_forward_runs_a_range_measure(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("X.VELO", 100.0)
+        await client.put("X.HOMF", 1)
+        assert "D" in await tango.query("?statuslimit")
+        _, high = await tango.get("lim", axis="x")
+        assert await client.get("X.DHLM") == pytest.approx(high)
+        assert await client.get("X.RBV") == pytest.approx((await tango.position())["x"])
+        assert await client.get("X.DMOV") == 1
+
+
+async def test_set_mode_redefines_the_position(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("X.SET", "Set")
+        await client.put("X", 10.0)  # FOFF Variable: the offset changes
+        assert await client.get("X.OFF") == pytest.approx(10.0)
+        assert await client.get("X.RBV") == pytest.approx(10.0)
+        assert (await tango.position())["x"] == 0.0
+        await client.put("X.FOFF", "Frozen")
+        await client.put("X", 12.0)  # now the controller's position is set
+        assert (await tango.position())["x"] == pytest.approx(2.0)
+        await client.put("X.SET", "Use")
+        await client.put("X", 13.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+
+
+async def test_two_axes_put_together_become_one_line(ca_env: dict[str, str]) -> None:
+    async with one_stage(window=0.2) as (tango, _, client):  # wide: a busy CI machine
+        await client.pv("X")
+        await client.pv("Y")
+        lines: list[str] = []
+        submit = tango.protocol.submit
+
+        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+            lines.append(command.line)
+            return submit(command, *args, **kwargs)
+
+        tango.protocol.submit = spy  # type: ignore[method-assign]
+        try:
+            await asyncio.gather(client.put("X", 1.0), client.put("Y", 2.0))
+        finally:
+            del tango.protocol.submit
+        moves = [line for line in lines if line.startswith("!moa")]
+        assert moves == ["!moa 1.0 2.0"]
+        assert await client.get("Y.RBV") == pytest.approx(2.0)
+
+
+async def test_controller_pvs(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (_, _, client):
+        assert await client.get("CONNECTED") == 1
+        assert await client.get("AUTOSTATUS") == 1
+        assert await client.get("TRIGCOUNT") == 0
+        assert await client.get("ERROR") == 0
+        await client.put("X.HLM", 5.0)
+        with pytest.raises(PutFailed):
+            await client.put("X.LLM", 9.0)  # lower above upper: the controller refuses
+        assert await client.get("ERROR") != 0
+        assert "error 5" in await client.get("ERROR:TEXT")
+
+
+async def test_several_controllers_in_one_ioc(ca_env: dict[str, str]) -> None:
+    async with connect(INSTANT) as stage, connect("sim://?baud=0&axes=1") as focus, \
+            serving({"stage": stage, "focus": focus}) as (ioc, client):
+        assert "T:focus:X" in ioc.pvdb and "T:focus:Y" not in ioc.pvdb
+        assert "T:stage:Z" in ioc.pvdb
+        await client.put("focus:X", 1.5)
+        assert (await focus.position())["x"] == pytest.approx(1.5)
+        assert (await stage.position())["x"] == 0.0
+
+
+# ------------------------------------------------------------------ link loss, reconnect
+
+
+async def test_disconnect_and_reconnect_are_seen_as_alarms(ca_env: dict[str, str]) -> None:
+    port = free_port()
+    server = await serve_tcp(make_model, port=port)
+    url = f"socket://127.0.0.1:{port}"
+    async with connect(url, reconnect=True, reconnect_initial=0.05, reconnect_max=0.2) \
+            as tango, serving({"": tango}) as (_, client):
+        await client.put("X", 1.0)
+        assert await client.alarm("X.RBV") == (AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+        server.close()
+        await server.wait_closed()
+        await client.until("CONNECTED", 0)
+        assert await client.alarm("X.RBV") == (AlarmStatus.COMM, AlarmSeverity.INVALID_ALARM)
+        assert await client.alarm("X") == (AlarmStatus.COMM, AlarmSeverity.INVALID_ALARM)
+        with pytest.raises(PutFailed):
+            await client.put("X", 2.0)
+        assert (await client.alarm("X"))[1] == AlarmSeverity.INVALID_ALARM
+        server = await serve_tcp(make_model, port=port)  # a fresh controller
+        await client.until("CONNECTED", 1)
+        assert await client.alarm("X") == (AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+        assert await client.get("X.RBV") == 0.0  # the new controller's position
+        await client.put("X", 2.0)
+        assert await client.get("X.RBV") == pytest.approx(2.0)
+    server.close()
+    await server.wait_closed()
+
+
+# ------------------------------------------------------------------------- access control
+
+
+def test_policy_decides_per_host_and_user() -> None:
+    everyone = AccessPolicy()
+    assert everyone.may_write("any", "one") and not everyone.restricted
+    assert not AccessPolicy(read_only=True).may_write("any", "one")
+    hosts = AccessPolicy.build(hosts=["pc3.lab.example"])
+    assert hosts.may_write("PC3", "x") and hosts.may_write("pc3.lab.example", "x")
+    assert not hosts.may_write("pc4", "x") and not hosts.may_write(None, "x")
+    ips = AccessPolicy.build(hosts=["10.0.0.5"])
+    assert ips.may_write("10.0.0.5", "x") and not ips.may_write("10", "x")
+    both = AccessPolicy.build(hosts=["pc3"], users=["alice"])
+    assert both.may_write("pc3", "alice")
+    assert not both.may_write("pc3", "bob") and not both.may_write("pc4", "alice")
+    with pytest.raises(ValueError):
+        AccessPolicy.build(users=[""])
+
+
+async def test_check_access_of_every_pv_follows_the_policy(ca_env: dict[str, str]) -> None:
+    policy = AccessPolicy.build(hosts=["allowed-host"])
+    async with connect(INSTANT) as tango:
+        ioc = await build_ioc({"": tango}, "T:", policy=policy)
+        rw = AccessRights.READ | AccessRights.WRITE
+        record = ioc.pvdb["T:X"]
+        for pv in (record, *(record.fields[f] for f in ("STOP", "HOMF", "VELO", "SPMG"))):
+            assert pv.check_access("allowed-host", "u") == rw
+            assert pv.check_access("intruder", "u") == AccessRights.READ
+        assert record.fields["RBV"].check_access("allowed-host", "u") == AccessRights.READ
+        assert ioc.pvdb["T:CONNECTED"].check_access("allowed-host", "u") == AccessRights.READ
+        await ioc.servers[0].aclose()
+
+
+async def test_a_host_that_is_not_allowed_cannot_move_the_stage(
+        ca_env: dict[str, str]) -> None:
+    policy = AccessPolicy.build(hosts=["allowed-host"])
+    async with one_stage(policy=policy, host_name="intruder") as (tango, _, client):
+        assert await client.get("X.RBV") == 0.0  # reading is fine
+        # caproto's client sends the put anyway (libca clients refuse it themselves).
+        with pytest.raises(PutFailed, match="ECA_NOWTACCESS"):
+            await client.put("X", 5.0)
+        with pytest.raises(PutFailed, match="ECA_NOWTACCESS"):
+            await client.put("X.HOMR", 1)
+        await asyncio.sleep(0.2)
+        assert (await tango.position())["x"] == 0.0
+        assert (await tango.status())["x"] == "@"
+
+
+async def test_stopping_the_ioc_stops_the_moves_it_started(ca_env: dict[str, str]) -> None:
+    async with connect(INSTANT) as tango:
+        ioc = await build_ioc({"": tango}, "T:", poll=0.05)
+        task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+        context = ClientContext()
+        try:
+            client = Client(context, "T:")
+            await client.put("X", 40.0, wait=False)
+            await client.until("X.DMOV", 0)
+            await asyncio.sleep(0.2)
+        finally:
+            await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        assert (await tango.status())["x"] != "M"
+        assert (await tango.position())["x"] < 40.0

@@ -1,0 +1,155 @@
+"""The fast move path of #19 against the plain one, and no false success with it.
+
+Since #19 a ``move_to`` sizes its timeout from the positions of the driver's latest state
+read instead of reading ``?pos`` first, and a ``move_by`` writes its start ``?pos`` in the
+same write as its line; the confirmation reads ``?statusaxis`` and ``?pos`` back to back.
+The *plain* path (forced here by forgetting the known positions before every move) is the
+one before #19: ``?pos`` read first, then the line.
+
+* the two paths give the same outcomes (letters, errors, where the axes end) on random
+  move sequences under the firmware profiles;
+* a move whose stage is stopped behind the driver's back still raises, with the fast
+  sizing and on the very first move after connect (no known position);
+* a known position that is stale (the stage moved by other means) does not fail a good
+  move: the provisional budget is extended once from where the axes are.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+from typing import Any
+
+import pytest
+from helpers import EmulatorFactory, as_axes
+from test_matrix import (
+    BOUND,
+    TRAVEL,
+    assert_arrived,
+    assert_stopped_short,
+    bounded,
+    moving,
+    open_variant,
+    sim_axes,
+)
+
+from tango_aio.errors import MoveError, TangoError
+
+pytestmark = pytest.mark.timeout(180)
+
+PROFILE_RUNS = [
+    pytest.param(profile, baud, seed, id=f"{profile}-{baud}-{seed}",
+                 marks=[pytest.mark.slow] if baud or seed > 1 else [])
+    for profile in ("manual", "legacy") for baud in (0, 57600) for seed in (1, 2)
+]
+
+
+def random_moves(seed: int, count: int = 10) -> list[tuple[str, dict[str, float]]]:
+    """A random sequence of ``move_to``/``move_by`` calls on X, Y or both, with moves of
+    zero length among them and one move beyond a limit switch (at ±TRAVEL/2)."""
+    rng = random.Random(seed)
+    out: list[tuple[str, dict[str, float]]] = []
+    where = {"x": 0.0, "y": 0.0}
+    beyond = rng.randrange(1, count)
+    for index in range(count):
+        axes = rng.choice((("x",), ("y",), ("x", "y")))
+        kind = rng.choice(("to", "to", "by"))
+        values = {}
+        for axis in axes:
+            roll = rng.random()
+            if index == beyond and axis == axes[0]:
+                target = TRAVEL  # beyond the switch: ends on it
+            elif roll < 0.25:
+                target = where[axis]  # no distance
+            else:
+                target = round(rng.uniform(-3.0, 3.0), 2)
+            values[axis] = round(target - where[axis], 4) if kind == "by" else target
+            if abs(target) < TRAVEL / 2:
+                where[axis] = target
+        out.append((kind, values))
+    return out
+
+
+async def run_sequence(emulator: EmulatorFactory, profile: str, baud: int,
+                       moves: list[tuple[str, dict[str, float]]], plain: bool) -> list[Any]:
+    """Each move's outcome and where the axes stand after it."""
+    emu = await open_variant(emulator, profile, baud)
+    tango = emu.tango
+    outcomes: list[Any] = []
+    for kind, values in moves:
+        if plain:
+            tango._motion.positions = None  # the pre-#19 sizing: ?pos read first
+        call = tango.move_to if kind == "to" else tango.move_by
+        try:
+            result: Any = ("ok", await bounded(call(**as_axes(values))))
+        except MoveError as error:
+            result = ("MoveError", {a: s for a, s in error.statuses.items() if a in values})
+        except TangoError as error:
+            result = (type(error).__name__,)
+        state = sim_axes(emu)
+        outcomes.append((kind, values, result,
+                         {a: round(p, 3) for a, (p, _) in state.items()}))
+        if result[0] != "ok":
+            # Leave the limit switch the way any caller would: back inside the travel.
+            await bounded(tango.move_to(**as_axes({a: 0.0 for a in values})))
+    return outcomes
+
+
+@pytest.mark.parametrize(("profile", "baud", "seed"), PROFILE_RUNS)
+async def test_fast_path_gives_the_outcomes_of_the_plain_path(
+        emulator: EmulatorFactory, profile: str, baud: int, seed: int) -> None:
+    moves = random_moves(seed)
+    fast = await run_sequence(emulator, profile, baud, moves, plain=False)
+    plain = await run_sequence(emulator, profile, baud, moves, plain=True)
+    assert fast == plain
+    assert any(outcome[2][0] == "ok" for outcome in fast)
+    assert any(outcome[2][0] != "ok" for outcome in fast)  # the sequence has failures too
+
+
+@pytest.mark.parametrize("first", [True, False], ids=["first-move", "known-position"])
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+async def test_a_move_stopped_behind_the_drivers_back_raises(
+        emulator: EmulatorFactory, profile: str, first: bool) -> None:
+    emu = await open_variant(emulator, profile, 0)
+    tango = emu.tango
+    if first:
+        tango._motion.positions = None  # nothing known: as right after connect
+    else:
+        await bounded(tango.move_to(x=-1.0))
+        assert tango._motion.positions is not None  # the fast sizing is used
+    await tango.set("vel", 5.0, axis="x")
+    task = asyncio.create_task(tango.move_to(x=4.0))
+    await moving(emu, "x", task=task)
+    emu.model.motion.abort("x")  # e.g. a stop button: no line of the driver's
+    with pytest.raises(MoveError):
+        await bounded(task)
+    assert_stopped_short(emu, {"x": 4.0})
+    await bounded(tango.move_to(x=0.5))
+    assert_arrived(emu, {"x": 0.5})
+
+
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+async def test_a_move_cut_short_by_a_limit_switch_raises_on_the_first_move(
+        emulator: EmulatorFactory, profile: str) -> None:
+    emu = await open_variant(emulator, profile, 0)
+    emu.tango._motion.positions = None  # as right after connect
+    with pytest.raises(MoveError):
+        await bounded(emu.tango.move_by(x=TRAVEL))
+    with pytest.raises(MoveError):
+        await bounded(emu.tango.move_to(y=TRAVEL))  # now with a known position
+
+
+async def test_a_stale_known_position_does_not_fail_a_good_move(
+        emulator: EmulatorFactory) -> None:
+    emu = await open_variant(emulator, "manual", 0)
+    tango = emu.tango
+    await bounded(tango.move_to(x=0.0))
+    assert tango._motion.positions is not None
+    await tango.go(x=4.5)  # moved by other means: the driver's known X stays 0
+    await bounded(tango.wait_idle(timeout=BOUND))
+    assert float(tango._motion.positions["x"]) == 0.0
+    # 4.5 mm at 1.25 mm/s: about 3.6 s, more than the budget of a move of no distance
+    # (2 s and the emulator's 1 s of closed-loop settling, ctrt).
+    await tango.set("vel", 1.25, axis="x")
+    assert await bounded(tango.move_to(x=0.0)) is not None
+    assert_arrived(emu, {"x": 0.0})
