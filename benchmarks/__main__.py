@@ -150,10 +150,15 @@ def case_latency(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row
     count, rounds = (30, 1) if args.quick else (300, 3)
     with asyncio.Runner(loop_factory=loop) as runner:
         driver, raw = runner.run(canned.moves(count, rounds))
+        again, confirmed = runner.run(canned.moves(count, rounds, confirm=True))
     return [Row("latency", "driver CPU per move_to (canned transport)", "µs",
                 driver.cpu_per_call * 1e6, raw.cpu_per_call * 1e6, False),
             Row("latency", "completion report delivered → await returns (median)", "µs",
-                driver.latency * 1e6, raw.latency * 1e6, False, "≤ 2× raw")]
+                driver.latency * 1e6, raw.latency * 1e6, False, "≤ 2× raw"),
+            Row("latency", "… raw confirms like the driver (?statusaxis + ?pos)", "µs",
+                again.latency * 1e6, confirmed.latency * 1e6, False, "≤ 2× raw"),
+            Row("latency", "… driver CPU per move_to, raw confirming", "µs",
+                again.cpu_per_call * 1e6, confirmed.cpu_per_call * 1e6, False)]
 
 
 def case_moves(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]:
@@ -163,7 +168,9 @@ def case_moves(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]:
     pairs = moves.run(20 if args.quick else 200, loop)
     kinds = ("tiny absolute moves (move_to vs raw !moa)",
              "tiny absolute moves (move_to vs raw !moa + ?err)",
-             "tiny relative moves (move_by vs raw !mor)")
+             "tiny relative moves (move_by vs raw !mor)",
+             "tiny absolute moves (move_to vs raw !moa + ?err, confirmed like the driver)",
+             "tiny relative moves (move_by vs raw !mor + ?err, confirmed like the driver)")
     return [Row("moves", kind, "moves/s", driver.per_second, raw.per_second, True, "≥ 0.95")
             for kind, (driver, raw) in zip(kinds, pairs, strict=True)]
 

@@ -121,10 +121,11 @@ class CannedTransport(asyncio.Transport):
         return self._closed
 
 
-async def canned_driver() -> tuple[Controller, CannedTransport]:
+async def canned_driver(separators: bool = True) -> tuple[Controller, CannedTransport]:
     """A :class:`Controller` set up (autostatus 1) over a fresh :class:`CannedTransport`,
-    built the way ``tango_aio.connect`` builds it."""
-    protocol = TangoProtocol()
+    built the way ``tango_aio.connect`` builds it (``separators``: see
+    :mod:`tango_aio.patterns`)."""
+    protocol = TangoProtocol(separators=separators)
     transport = CannedTransport(protocol)
     protocol.connection_made(transport)
     controller = Controller(protocol, url="canned://")
@@ -223,8 +224,19 @@ def _velocity(index: int) -> float:
 
 
 async def requests(calls: int, rounds: int) -> list[tuple[Cost, Cost]]:
-    """(driver, raw) CPU per ``?pos`` and per checked set."""
-    tango, driver_link = await canned_driver()
+    """(driver, raw) CPU per ``?pos`` and per checked set; then the same with the
+    driver's separators off (``TangoProtocol(separators=False)``: by default every request
+    whose reply looks like the previous one's gets a separator line first, a second line
+    on the wire and a second reply to route, which the raw client never writes)."""
+    pairs = await _requests(calls, rounds, separators=True)
+    plain = await _requests(calls, rounds, separators=False)
+    for driver, _ in plain:
+        driver.name += ", no separators"
+    return pairs + plain
+
+
+async def _requests(calls: int, rounds: int, separators: bool) -> list[tuple[Cost, Cost]]:
+    tango, driver_link = await canned_driver(separators)
     raw, raw_link = await canned_raw()
     pairs = []
     try:
@@ -259,11 +271,14 @@ def _target(index: int) -> float:
     return 0.01 if index % 2 == 0 else 0.0
 
 
-async def moves(count: int, rounds: int) -> tuple[Cost, Cost]:
-    """(driver, raw) CPU per tiny absolute move and completion latency."""
+async def moves(count: int, rounds: int, confirm: bool = False) -> tuple[Cost, Cost]:
+    """(driver, raw) CPU per tiny absolute move and completion latency. With
+    ``confirm`` the raw client confirms each move as the driver does (#13): after the
+    report, ``?statusaxis`` and ``?pos`` in one write, both replies checked."""
     tango, driver_link = await canned_driver()
     raw, raw_link = await canned_raw()
-    driver, baseline = Cost("driver move_to"), Cost("raw !moa + ?err")
+    driver = Cost("driver move_to")
+    baseline = Cost("raw !moa + ?err" + (", confirmed" if confirm else ""))
     try:
         async def move(index: int) -> None:
             await tango.move_to(x=_target(index))
@@ -275,6 +290,11 @@ async def moves(count: int, rounds: int) -> tuple[Cost, Cost]:
                 raise RuntimeError("move refused")
             if await report != REPORT[:-1]:
                 raise RuntimeError("move failed")
+            if confirm:
+                letters, where = raw.request(b"?statusaxis\r?pos\r", 2)
+                if (await letters)[:1] != b"@" or \
+                        float((await where).split()[0]) != _target(index):
+                    raise RuntimeError("move not confirmed")
             baseline.latencies.append(time.perf_counter() - raw_link.delivered_at)
 
         for link in (driver_link, raw_link):

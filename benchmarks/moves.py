@@ -8,7 +8,15 @@ so that its CPU is not the driver's. On the same pty, in one run, side by side:
 * ``move_by``: ``await tango.move_by(x=±0.01)``;
 * the raw client: pyserial, blocking, the smallest correct loop a lab script would write:
   write ``!moa x`` (or ``!mor``), read until the completion report ``...\\r``;
-* the raw client with the move's check: ``!moa x`` then ``?err`` read back, then the report.
+* the raw client with the move's check: ``!moa x`` then ``?err`` read back, then the report;
+* the raw client with the driver's guarantee (``--confirmed`` rows): the move and its
+  check, the report, then ``?statusaxis`` and ``?pos`` in one write, both read back and
+  compared (stopped, at the target). This is what ``move_to``/``move_by`` do since #19
+  (the report is only a hint, #13), so it is the like-for-like baseline; the rows above
+  compare with clients that trust the report. For ``!mor`` the raw client takes its start
+  from its own previous confirmation (a script that assumes nobody moves the stage in
+  between); the driver reads ``?pos`` before a ``move_by`` (the target of a relative move
+  is start + distance, and a hand on the joystick would make a remembered start wrong).
 
 Each is reported in moves per second and as the driver's ratio to the raw client of the same
 kind. Usage::
@@ -75,22 +83,35 @@ def emulator_pty(*options: str) -> Iterator[str]:
         process.wait(timeout=10)
 
 
-def raw_moves(path: str, moves: int, line: Callable[[int], str], check: bool) -> Rate:
-    """A pyserial loop: write the move (and ``?err``), read until the completion report."""
+def raw_moves(path: str, moves: int, line: Callable[[int], str], check: bool,
+              confirm: bool = False) -> Rate:
+    """A pyserial loop: write the move (and ``?err``), read until the completion report
+    (with ``confirm``: then ``?statusaxis`` and ``?pos`` in one write, checked)."""
     with serial.Serial(path, 57600, stopbits=2, timeout=5) as port:
         port.write(b"\r")
         port.reset_input_buffer()
+        port.write(b"?pos\r")
+        position = float(_read_line(port).split()[0])
         start = time.perf_counter()
         for index in range(moves):
-            port.write(line(index).encode() + (b"\r?err\r" if check else b"\r"))
+            text = line(index)
+            port.write(text.encode() + (b"\r?err\r" if check else b"\r"))
             # A move to where the axis already is may report before ?err is answered.
             seen = {"check": not check, "report": False}
             while not all(seen.values()):
-                text = _read_line(port)
-                seen["check"] |= text.isdigit()
-                seen["report"] |= text.endswith(".")
+                reply = _read_line(port)
+                seen["check"] |= reply.isdigit()
+                seen["report"] |= reply.endswith(".")
+            if confirm:
+                value = float(text.split()[-1])
+                position = position + value if text.startswith("!mor") else value
+                port.write(b"?statusaxis\r?pos\r")
+                letters, where = _read_line(port), _read_line(port)
+                if letters[0] != "@" or abs(float(where.split()[0]) - position) > 1.5e-4:
+                    raise RuntimeError(f"{text!r} ended at {where!r} with {letters!r}")
         seconds = time.perf_counter() - start
-    return Rate(f"raw {'check ' if check else ''}{line(0).split()[0]}", moves, seconds)
+    kind = "confirmed " if confirm else "check " if check else ""
+    return Rate(f"raw {kind}{line(0).split()[0]}", moves, seconds)
 
 
 def _read_line(port: serial.Serial) -> str:
@@ -123,12 +144,13 @@ def relative(index: int) -> str:
     return f"!mor x {STEP if index % 2 == 0 else -STEP}"
 
 
-def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None
-        ) -> list[tuple[Rate, Rate]]:
+def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None,
+        confirmed: bool = True) -> list[tuple[Rate, Rate]]:
     """Every pair (driver, raw baseline), measured one after the other on one emulator;
-    the driver runs in a loop made by ``loop_factory`` (default asyncio's)."""
+    the driver runs in a loop made by ``loop_factory`` (default asyncio's). With
+    ``confirmed``, also the pairs against the raw client with the driver's guarantee."""
     with emulator_pty() as path, asyncio.Runner(loop_factory=loop_factory) as runner:
-        return [
+        pairs = [
             (runner.run(driver_moves(path, moves, relative=False)),
              raw_moves(path, moves, absolute, check=False)),
             (runner.run(driver_moves(path, moves, relative=False)),
@@ -136,6 +158,14 @@ def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None
             (runner.run(driver_moves(path, moves, relative=True)),
              raw_moves(path, moves, relative, check=False)),
         ]
+        if confirmed:
+            pairs += [
+                (runner.run(driver_moves(path, moves, relative=False)),
+                 raw_moves(path, moves, absolute, check=True, confirm=True)),
+                (runner.run(driver_moves(path, moves, relative=True)),
+                 raw_moves(path, moves, relative, check=True, confirm=True)),
+            ]
+        return pairs
 
 
 def table(pairs: list[tuple[Rate, Rate]]) -> str:
