@@ -1,7 +1,7 @@
 """Documentation generated from the code, so that it cannot drift from it.
 
-* ``{tango-error-table}``: the controller's error numbers, their exception classes and
-  meanings, from :mod:`tango_aio.errors`.
+* ``{tango-error-table}``: the controller's error numbers, their exception classes, their
+  categories and the manual's texts, from :mod:`tango_aio.errors`.
 * ``{tango-cli-help}``: the ``--help`` text of every ``tango-aio`` command, from the
   argument parser of :mod:`tango_aio.cli`.
 """
@@ -47,14 +47,16 @@ class ErrorTable(Directive):
     """Error number, exception class and meaning of every documented controller error."""
 
     def run(self) -> list[nodes.Node]:
-        from tango_aio.errors import ERROR_DESCRIPTIONS, error_class
+        from tango_aio.errors import CATEGORIES, ERROR_DESCRIPTIONS, error_class
 
         rows: list[list[nodes.Node | str]] = []
-        for code in sorted(ERROR_DESCRIPTIONS):
-            cls = error_class(code)
-            rows.append([str(code), nodes.literal("", f"tango_aio.errors.{cls.__name__}"),
-                         ERROR_DESCRIPTIONS[code]])
-        return [_table(["number", "exception class", "meaning"], rows, [8, 40, 60])]
+        for number in sorted(ERROR_DESCRIPTIONS):
+            cls = error_class(number)
+            category = next((c.__name__ for c in CATEGORIES if issubclass(cls, c)), "")
+            rows.append([str(number), nodes.literal("", f"tango_aio.errors.{cls.__name__}"),
+                         category, cls.text])
+        return [_table(["number", "exception class", "category", "text"], rows,
+                       [8, 40, 24, 60])]
 
 
 class CliHelp(Directive):
