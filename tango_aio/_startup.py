@@ -2,7 +2,8 @@
 
 The ``tango-aio`` command imports this module before anything else, so that an interrupt
 while the rest of the command line loads (asyncio, rich, the driver: about 0.2 s) prints
-one line and exits with 130 instead of a ``KeyboardInterrupt`` traceback (issue #16).
+one line and exits with 130 at once (``os._exit``) instead of a ``KeyboardInterrupt``
+traceback (issue #16).
 :func:`finished`, called at the end of :mod:`tango_aio.cli`'s imports, gives Ctrl+C back
 to its previous handler; from there on :func:`tango_aio.cli.main` handles it. Nothing is
 installed outside the main thread, or where someone else already handles SIGINT.
@@ -10,6 +11,8 @@ installed outside the main thread, or where someone else already handles SIGINT.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import sys
 import threading
@@ -19,8 +22,15 @@ __all__ = ["finished"]
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
-    sys.stderr.write("interrupted\n")
-    raise SystemExit(130)
+    # Not ``raise SystemExit``: a signal handler runs between any two bytecodes, also
+    # inside the import machinery's weakref callbacks, where Python prints the exception
+    # as "Exception ignored in ..." with its traceback and carries on loading. Nothing is
+    # open yet while modules load (no port, no task), so leaving at once loses nothing.
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.write("interrupted\n")
+        sys.stderr.flush()
+    os._exit(130)
 
 
 def _install() -> bool:
