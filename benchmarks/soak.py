@@ -40,8 +40,8 @@ import tango_aio
 from tango_aio.controller import Controller
 from tango_aio.errors import TangoError
 from tango_aio.instructions import parse
-from tango_aio.sim.model import ControllerModel
-from tango_aio.sim.wire import Wire, flip_one_bit
+from tango_aio.sim.wire import flip_one_bit
+from tango_aio.testing import faults
 
 URL = "sim://?baud=0&processing=0.0005&fragment=0.2"
 READS = ["?vel x", "?vel y", "?vel z", "?accel x", "?accel y", "?accel z", "?vel", "?accel",
@@ -59,24 +59,8 @@ def rss_kib() -> int:
     return 0
 
 
-def model_of(tango: Controller) -> ControllerModel:
-    transport = tango.protocol.transport
-    assert transport is not None
-    wire = transport.get_extra_info("wire")
-    assert isinstance(wire, Wire) and isinstance(wire.handler, ControllerModel)
-    return wire.handler
-
-
-def wire_of(tango: Controller) -> Wire:
-    transport = tango.protocol.transport
-    assert transport is not None
-    wire = transport.get_extra_info("wire")
-    assert isinstance(wire, Wire)
-    return wire
-
-
 def truth(tango: Controller, line: str) -> str:
-    model = model_of(tango)
+    model = faults(tango).model
     return model.params.read(parse(line, model.context()), model.axes)
 
 
@@ -157,7 +141,7 @@ class Soak:
 
     async def round(self, tango: Controller) -> None:
         rng = self.rng
-        wire = wire_of(tango)
+        wire = faults(tango).wire
         fault = rng.choices(
             ["none", "drop", "garble", "noise", "noise bytes", "stray", "stall", "dead",
              "disconnect", "cancel read", "cancel set", "cancel move", "move"],

@@ -21,6 +21,7 @@ from tango_aio.protocol import Submission, TangoProtocol
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire
+from tango_aio.testing import faults
 
 # --------------------------------------------------------------------------------------
 # Emulator URLs, models and values
@@ -88,11 +89,7 @@ def make_model(emit: Emit) -> ControllerModel:
 
 def wire_of(tango: Controller) -> Wire:
     """The emulated link behind a ``sim://`` controller's current transport."""
-    transport = tango.protocol.transport
-    assert transport is not None
-    wire = transport.get_extra_info("wire")
-    assert isinstance(wire, Wire)
-    return wire
+    return faults(tango).wire
 
 
 class FakeTransport(asyncio.Transport):

@@ -153,17 +153,23 @@ async def test_not_open_and_unknown_names() -> None:
             ControllerGroup({"": INSTANT})
 
 
-async def test_failed_open_closes_the_others_and_names_the_failures(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    opened: list[Controller] = []
+@pytest.fixture
+def opened(monkeypatch: pytest.MonkeyPatch) -> list[Controller]:
+    """Every controller the group's ``connect`` returns, in order (a spy on it)."""
+    controllers: list[Controller] = []
     real_connect = tango_aio.connection.connect
 
     async def spy(url: str, **options: Any) -> Controller:
         controller = await real_connect(url, **options)
-        opened.append(controller)
+        controllers.append(controller)
         return controller
 
     monkeypatch.setattr(group_module, "connect", spy)
+    return controllers
+
+
+async def test_failed_open_closes_the_others_and_names_the_failures(
+        opened: list[Controller]) -> None:
     group = ControllerGroup({"good1": INSTANT, "bad_sim": "sim://?axes=9",
                              "good2": INSTANT, "refused": "socket://127.0.0.1:1"})
     async with asyncio.timeout(10):
@@ -199,16 +205,7 @@ async def test_cancelled_open_closes_what_opened(monkeypatch: pytest.MonkeyPatch
 
 
 async def test_open_cancelled_mid_setup_leaves_nothing_behind(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    opened: list[Controller] = []
-    real_connect = tango_aio.connection.connect
-
-    async def spy(url: str, **options: Any) -> Controller:
-        controller = await real_connect(url, **options)
-        opened.append(controller)
-        return controller
-
-    monkeypatch.setattr(group_module, "connect", spy)
+        opened: list[Controller]) -> None:
     slow = "sim://?baud=0&latency=0.02"
     with anyio.move_on_after(0.15) as scope:  # setup takes several round trips
         await ControllerGroup({"fast": INSTANT, "a": slow, "b": slow}).open()
