@@ -11,6 +11,9 @@ seconds (default one hour) and checks, all the time:
   bound); one that outlives it is a hang.
 * **Every failure typed.** Any exception other than a ``TangoError`` (or the cancellation
   the soak itself caused) is counted as untyped.
+* **0 false successes.** A move that returns normally (also a cancelled one that finished
+  first) must leave the emulator's axis standing still at its target
+  (``tango_aio.testing.faults(tango).axes()``), or it counts as FALSE SUCCESS.
 * **Memory flat.** The process RSS is sampled after the warm-up (``--warmup`` s) and at
   the end; the growth must stay under 5 MB.
 
@@ -64,6 +67,10 @@ def truth(tango: Controller, line: str) -> str:
     return model.params.read(parse(line, model.context()), model.axes)
 
 
+#: The outcomes that fail the soak.
+FAILURES = ("MISDELIVERED", "HANG", "UNTYPED", "FALSE SUCCESS")
+
+
 def classify(expected: str, reply: str) -> str:
     if reply == expected:
         return "own"
@@ -87,7 +94,7 @@ class Soak:
 
     def note(self, what: str, example: str = "") -> None:
         self.counts[what] += 1
-        if what in ("MISDELIVERED", "HANG", "UNTYPED") and len(self.examples) < 20:
+        if what in FAILURES and len(self.examples) < 20:
             self.examples.append(f"{what}: {example}")
 
     async def call(self, what: str, coro: Any) -> Any:
@@ -109,6 +116,18 @@ class Soak:
         except Exception as exc:  # counted, the soak goes on
             self.note("UNTYPED", f"{what}: {exc!r}")
             return exc
+        return result
+
+    async def move(self, tango: Controller, what: str, target: float) -> Any:
+        """``move_to(z=target)`` under the hang deadline; a normal return is checked
+        against where the emulator's z axis really is."""
+        result = await self.call(what, tango.move_to(z=target, timeout=5.0))
+        if isinstance(result, dict):
+            position, velocity = faults(tango).axes()["z"]
+            if velocity != 0.0 or abs(position - target) > 5e-4:
+                self.note("FALSE SUCCESS", f"z={target}: at {position}, {velocity} rev/s")
+            else:
+                self.note(f"{what}: arrived")
         return result
 
     async def setup(self, tango: Controller) -> None:
@@ -166,8 +185,7 @@ class Soak:
         if fault.startswith("cancel"):
             await self.cancelled(tango, fault)
         elif fault == "move":
-            target = round(rng.uniform(-1, 1), 3)
-            await self.call("move", tango.move_to(z=target, timeout=5.0))
+            await self.move(tango, "move", round(rng.uniform(-1, 1), 3))
         else:
             await self.reads(tango, stray=fault == "stray")
         wire.faults.drop_replies = wire.faults.garble_replies = 0
@@ -184,8 +202,9 @@ class Soak:
         elif kind == "cancel set":
             coro = tango.set("vel", VELS["x"], axis="x")
         else:
-            coro = tango.move_to(z=round(rng.uniform(-1, 1), 3), timeout=5.0)
-        task = asyncio.ensure_future(self.call(kind.split()[1], coro))
+            coro = self.move(tango, "move", round(rng.uniform(-1, 1), 3))
+        task = asyncio.ensure_future(coro if kind == "cancel move"
+                                     else self.call(kind.split()[1], coro))
         for _ in range(rng.randint(0, 6)):
             await asyncio.sleep(0)
         await asyncio.sleep(rng.choice([0, 0.0005, 0.002, 0.01]))
@@ -221,7 +240,8 @@ async def run(duration: float, warmup: float, seed: int, hang: float) -> dict[st
             if rounds % 2000 == 0:
                 print(f"{elapsed:7.0f} s  {rounds} rounds  rss {rss_kib()} KiB  "
                       f"misdelivered {soak.counts['MISDELIVERED']}  "
-                      f"hangs {soak.counts['HANG']}  untyped {soak.counts['UNTYPED']}",
+                      f"hangs {soak.counts['HANG']}  untyped {soak.counts['UNTYPED']}  "
+                      f"false successes {soak.counts['FALSE SUCCESS']}",
                       flush=True)
     finally:
         await tango.aclose()
@@ -235,10 +255,11 @@ async def run(duration: float, warmup: float, seed: int, hang: float) -> dict[st
         "misdelivered": misdelivered,
         "hangs": soak.counts["HANG"],
         "untyped": soak.counts["UNTYPED"],
+        "false_successes": soak.counts["FALSE SUCCESS"],
+        "moves_arrived": soak.counts["move: arrived"],
         "rss_kib": {"start": rss_start, "after_warmup": warm, "end": rss_end,
                     "growth_after_warmup": rss_end - warm},
-        "ok": misdelivered == 0 and soak.counts["HANG"] == 0 and soak.counts["UNTYPED"] == 0
-        and rss_end - warm < 5 * 1024,
+        "ok": all(soak.counts[what] == 0 for what in FAILURES) and rss_end - warm < 5 * 1024,
         "faults": dict(sorted(soak.faults.items())),
         "outcomes": dict(sorted(soak.counts.items())),
         "examples": soak.examples,

@@ -115,6 +115,17 @@ class Faults:
         assert isinstance(handler, ControllerModel)
         return handler
 
+    def axes(self) -> dict[str, tuple[float, float]]:
+        """Where the emulated axes really are now: axis letter → ``(position in its dim
+        unit, velocity in rev/s)``, read from the motion model without advancing it. An
+        axis that a move claimed to reach stands still there: velocity ``0.0`` and the
+        position within the display's precision of the target."""
+        wire = self.wire
+        now = wire.clock() if wire.clock is not None else wire.now
+        model = self.model
+        return {axis: model.motion.observe(index, now)
+                for index, axis in enumerate("xyza"[: model.axes])}
+
     def _do(self, action: Callable[[Wire], None]) -> None:
         wire = self.wire
         if self._run is None:

@@ -174,9 +174,7 @@ class Emulated:
     @property
     def model(self) -> ControllerModel:
         """The emulated controller's interpreter."""
-        handler = self.wire.handler
-        assert isinstance(handler, ControllerModel)
-        return handler
+        return faults(self.tango).model
 
     async def shorten(self, travel: float, autostatus: int | None) -> None:
         """Power the emulator up again with limit switches at ±``travel``/2 mm (quick

@@ -659,6 +659,15 @@ class MotionModel:
         ax = self._axis(axis)
         return ax.traj.velocity(self._time) if ax.mode != "idle" else 0.0
 
+    def observe(self, axis: AxisRef, t: float) -> tuple[float, float]:
+        """Where the axis is at time ``t`` (not before the model's own time), without
+        advancing the model: ``(position in its dim unit, velocity in rev/s)``. For an
+        observer (a test's assertion) that must not change when the model steps."""
+        ax = self._axis(axis)
+        t = max(t, self._time)
+        revs = ax.traj.position(t) - ax.origin + ax.offset
+        return self.to_user(axis, revs), ax.traj.velocity(t)
+
     def is_moving(self, axis: AxisRef) -> bool:
         """True while the axis status letter is ``M`` (moving, delayed start or pause)."""
         return self._busy(self._axis(axis))

@@ -38,6 +38,7 @@ from tango_aio.errors import (
 from tango_aio.events import ControllerFault, MoveFinished, Subscription, TangoEvent
 from tango_aio.motion import STOP_WAIT
 from tango_aio.sim.profiles import PROFILES, variants
+from tango_aio.testing import faults
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -100,18 +101,8 @@ async def bounded(call: Awaitable[T]) -> T:
 
 
 def sim_axes(emu: Emulated) -> dict[str, tuple[float, float]]:
-    """The emulator's own state: (position in mm, velocity in rev/s) of each axis, now.
-
-    Read from the axes' trajectories at the loop's time, without advancing the model
-    (the emulated link does that at its own times)."""
-    motion = emu.model.motion
-    now = max(asyncio.get_running_loop().time(), motion.now)
-    out = {}
-    for index, axis in enumerate("xyz"[: emu.model.axes]):
-        state = motion._axis(index)
-        revs = state.traj.position(now) - state.origin + state.offset
-        out[axis] = (motion.to_user(index, revs), state.traj.velocity(now))
-    return out
+    """The emulator's own state: (position in mm, velocity in rev/s) of each axis, now."""
+    return faults(emu.tango).axes()
 
 
 def assert_arrived(emu: Emulated, targets: Mapping[str, float]) -> None:

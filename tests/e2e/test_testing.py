@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import subprocess
 import sys
@@ -10,7 +11,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
-from helpers import make_model
+from helpers import make_model, wait_until
 
 import tango_aio
 from tango_aio.sim.serve import serve_pty
@@ -121,3 +122,15 @@ def test_command_line_options(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=120, check=False, cwd=tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "1 passed" in result.stdout
+
+
+@pytest.mark.tango_emulator(speed="instant-line")
+async def test_axes_tell_where_the_emulated_axes_really_are(tango_emulator: Emulated) -> None:
+    tango, handle = tango_emulator.tango, tango_emulator.faults
+    move = asyncio.create_task(tango.move_to(z=5.0))  # about 0.5 s at 10 rev/s
+    await wait_until(lambda: handle.axes()["z"][1] != 0.0 or move.done())  # it started
+    position, velocity = handle.axes()["z"]
+    assert velocity > 0.0 and 0.0 <= position < 5.0
+    await move
+    assert handle.axes()["z"] == (5.0, 0.0)
+    assert handle.axes()["x"] == (0.0, 0.0)
