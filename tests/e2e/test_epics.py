@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import socket
 from collections.abc import AsyncIterator, Iterator, Mapping
 from typing import Any
@@ -27,7 +28,15 @@ from tango_aio.epics.ioc import TangoIoc, build_ioc
 from tango_aio.epics.record import Msta
 from tango_aio.sim.serve import serve_tcp
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [
+    pytest.mark.timeout(60),
+    # Under uvloop the test's event loop hangs in uvloop's loop.close() (inside libuv)
+    # after some of these tests, where pytest-timeout cannot interrupt it; not reproduced
+    # with the same IOC and caproto client outside pytest. The IOC itself runs on the
+    # stock asyncio loop (`tango-aio ioc`), so these tests run there only.
+    pytest.mark.skipif(os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop",
+                       reason="caproto IOC and client in one uvloop loop: loop.close() hangs"),
+]
 
 
 def free_port() -> int:
