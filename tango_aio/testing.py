@@ -31,6 +31,7 @@ motion settings; ``real`` - 57600 Bd pacing and the controller's own settings.
     faults.noise(b"x?\\r")   # bytes arrive that no request asked for
     faults.stall(0.5)       # the controller stops reading for 0.5 s
     faults.disconnect()     # the link is cut
+    faults.axes()["x"]      # (position, velocity): where the emulated X axis really is
 """
 
 from __future__ import annotations
