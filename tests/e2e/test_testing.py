@@ -134,3 +134,17 @@ async def test_axes_tell_where_the_emulated_axes_really_are(tango_emulator: Emul
     await move
     assert handle.axes()["z"] == (5.0, 0.0)
     assert handle.axes()["x"] == (0.0, 0.0)
+
+
+def test_the_readme_example_passes(tmp_path: Path) -> None:
+    """The README's "The emulator in your own tests" block, run as a user's test module."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    section = readme.split("### The emulator in your own tests", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    test_file = tmp_path / "test_readme_example.py"
+    test_file.write_text(code)
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(test_file)],
+        capture_output=True, text=True, timeout=120, check=False, cwd=tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 passed" in result.stdout
