@@ -652,7 +652,7 @@ class MotionModel:
     def position(self, axis: AxisRef) -> float:
         """User-frame position in revolutions (what ``?pos`` shows, before unit scaling)."""
         ax = self._axis(axis)
-        return self._phys(ax) - ax.origin + ax.offset
+        return self._user_frame(ax, self._phys(ax))
 
     def velocity(self, axis: AxisRef) -> float:
         """Momentary signed velocity in rev/s (``?isvel``, ``?speed``)."""
@@ -665,7 +665,7 @@ class MotionModel:
         observer (a test's assertion) that must not change when the model steps."""
         ax = self._axis(axis)
         t = max(t, self._time)
-        revs = ax.traj.position(t) - ax.origin + ax.offset
+        revs = self._user_frame(ax, ax.traj.position(t))
         return self.to_user(axis, revs), ax.traj.velocity(t)
 
     def is_moving(self, axis: AxisRef) -> bool:
@@ -727,7 +727,7 @@ class MotionModel:
         """Soft limits (lower, upper) in the user frame; unset limits read ±maxpos."""
         ax = self._axis(axis)
         lo, hi = self._stored_limits(ax)
-        return lo - ax.origin + ax.offset, hi - ax.origin + ax.offset
+        return self._user_frame(ax, lo), self._user_frame(ax, hi)
 
     def position_offset(self, axis: AxisRef) -> float:
         """Offset added by ``!pos`` (``?posclr``): user position minus counter."""
@@ -1009,6 +1009,11 @@ class MotionModel:
     ) -> list[_AxisState]:
         chosen = list(self._axes) if axes is None else [self._axis(ref) for ref in axes]
         return [ax for ax in chosen if ax.settings.enable == 1 or not enabled_only]
+
+    @staticmethod
+    def _user_frame(ax: _AxisState, phys: float) -> float:
+        """A physical position (revolutions) in the user frame: what ``?pos`` shows."""
+        return phys - ax.origin + ax.offset
 
     def _phys(self, ax: _AxisState) -> float:
         return ax.traj.position(self._time)
@@ -1561,7 +1566,7 @@ class MotionModel:
         level = tl.levels[tl.index]
         tl.index += 1
         self._trigger_count += 1
-        self._out.append(TriggerFired(t, tl.axis, tl.index, level - ax.origin + ax.offset))
+        self._out.append(TriggerFired(t, tl.axis, tl.index, self._user_frame(ax, level)))
 
     def _on_trigger_rearm(self, t: float) -> None:
         assert self._trigger is not None
