@@ -180,6 +180,25 @@ class MoveHandle:
 EventCallback = Callable[[Event, "Submission | None"], None]
 
 
+def _nothing_trails_help(lines: list[str]) -> bool:
+    """In a mode exchange (``...``, ``?autostatus``, ``?help``) whose lines so far hold
+    the reply of ``?help``: whether no line of ``?help``'s own can follow its reply, so
+    that the exchange may end without waiting for a quiet link.
+
+    The first number is the mode ``?help`` runs in (``?autostatus``'s reply; later lines
+    wait). Only two modes add lines to a read: mode 2 acknowledges (L2099-2103; reads
+    too, on some firmware: the ``ack_reads`` switch of the emulator) and mode 4 echoes
+    (L2117; "all input instructions", old L717-725), either before or after the reply.
+    Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
+    lines are move reports), and ``help``'s reply is one line in both editions (L2915-
+    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet as before.
+    """
+    for line in lines:
+        if _INTEGER.match(line):
+            return int(line) in (0, 1, 3)
+    return False
+
+
 class TangoProtocol(asyncio.Protocol):
     """Routes the controller's lines to awaiting requests, moves and the event callback."""
 
@@ -411,9 +430,10 @@ class TangoProtocol(asyncio.Protocol):
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
-        :attr:`quiet_interval`. From those lines: the mode in force (adopted), and in
-        mode 2 whether reads are acknowledged, before or after their data (an ``OK...``
-        between the two replies, or after the last). Echoes (of any of the lines, mode 4)
+        :attr:`quiet_interval` (in modes 2 and 4 only: :func:`_nothing_trails_help`).
+        From those lines: the mode in force (adopted), and in mode 2 whether reads are
+        acknowledged, before or after their data (an ``OK...`` between the two replies,
+        or after the last). Echoes (of any of the lines, mode 4)
         and acknowledgements of ``lines`` are whatever they are: they are dropped."""
         sent = [*lines, "?autostatus", "?help"]
         async with self._barrier_lock:
@@ -852,7 +872,8 @@ class TangoProtocol(asyncio.Protocol):
                         until_help: bool = False) -> list[str]:
         """Write ``lines`` with the core dropping every line; return the lines received
         up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
-        then :attr:`quiet_interval` of silence). Only call it when nothing is owed."""
+        then :attr:`quiet_interval` of silence, unless the mode in force cannot add a line
+        after it: :func:`_nothing_trails_help`). Only call it when nothing is owed."""
         self.core.drop_all()
         self._quiet_help = False
         collected: list[str] = []
@@ -900,6 +921,10 @@ class TangoProtocol(asyncio.Protocol):
                 self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
                 if self._quiet_timer is not None:
                     self._quiet_timer.cancel()
+                if self._quiet_help and _nothing_trails_help(self._collect):
+                    if self._collected is not None and not self._collected.done():
+                        self._collected.set_result(None)
+                    return
                 self._quiet_timer = self._loop.call_later(self.quiet_interval,
                                                           self._quiet_check)
             elif _INTEGER.match(line) and self._collected is not None \

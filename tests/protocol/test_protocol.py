@@ -587,3 +587,39 @@ async def test_silence_after_a_timeout_declares_the_link_dead(fake_link: LinkFac
     with pytest.raises(ConnectionLostError):
         await link.protocol.request(parse("?vel y"), timeout=5.0)
     assert not link.protocol.is_connected
+
+
+# -- Mode exchanges: when they may end without waiting for a quiet link -----------------
+
+
+@pytest.mark.parametrize("mode", [0, 1, 3])
+async def test_a_mode_read_ends_at_helps_reply_where_nothing_can_trail_it(
+        fake_link: LinkFactory, mode: int) -> None:
+    """Modes 0, 1 and 3 add no line to a read (L2079-2113): the exchange ends at the reply
+    of ``?help``, without the quiet interval (set here to an hour)."""
+    link = fake_link()
+    link.protocol.quiet_interval = 3600.0
+    read = asyncio.create_task(link.protocol.read_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    link.feed(f"{mode}\rERROR 0,no error\r".encode())
+    assert await asyncio.wait_for(read, 5.0) == mode
+
+
+@pytest.mark.parametrize("mode", [2, 4])
+async def test_a_mode_read_waits_for_quiet_where_a_line_can_trail_helps_reply(
+        fake_link: LinkFactory, mode: int) -> None:
+    """Modes 2 and 4 may acknowledge or echo ``?help`` after its reply (L2099-2117): the
+    exchange waits until the link is quiet, and sees the line that came after."""
+    link = fake_link()
+    link.protocol.quiet_interval = 3600.0
+    read = asyncio.create_task(link.protocol.read_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    link.feed(f"{mode}\rERROR 0,no error\r".encode())
+    for _ in range(20):
+        await asyncio.sleep(0)
+    assert not read.done()
+    link.protocol.quiet_interval = 0.01  # the trailing line re-arms the quiet timer
+    link.feed(b"OK...\r" if mode == 2 else b"?help\r")
+    assert await asyncio.wait_for(read, 5.0) == mode
+    if mode == 2:
+        assert link.protocol.core.ack_reads == "after"
