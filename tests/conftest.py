@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import compileall
 import os
+import sys
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any, Unpack
@@ -12,9 +14,49 @@ import pytest
 from helpers import INSTANT, ConnectOptions, Emulated, EmulatorFactory, FakeLink, FakeTransport
 from hypothesis import settings
 
+import tango_aio
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
 from tango_aio.protocol import TangoProtocol
+
+# Bytecode caches on, whatever PYTHONDONTWRITEBYTECODE says: without them every xdist
+# worker and each of the ~100 subprocesses (CLI, examples, docs) compiles the package and
+# rewrites the test modules again, about 25 s of CPU on a 2-core machine (tests/README.md).
+# The caches go where Python puts them (__pycache__/, ignored by git).
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the package and the test modules once, before the xdist workers start."""
+    if hasattr(session.config, "workerinput"):  # a worker: the controller did it
+        return
+    package = Path(tango_aio.__file__).parent
+    compileall.compile_dir(package, quiet=1)  # for subprocesses: plain bytecode
+    # In pytest the package (a pytest11 plugin's distribution) and the test modules load
+    # with their asserts rewritten, from pytest's own bytecode files: write those too.
+    _write_rewritten(session.config, [*package.rglob("*.py"), *_HERE.rglob("test_*.py"),
+                                      *_HERE.rglob("conftest.py")])
+
+
+def _write_rewritten(config: pytest.Config, files: list[Path]) -> None:
+    """What pytest writes when it imports ``files`` (best effort: this uses pytest's
+    private rewrite functions; if they change, each worker rewrites as it did before)."""
+    try:
+        from _pytest.assertion import rewrite
+
+        state = config.stash[rewrite.assertstate_key]
+        for path in files:
+            pyc = rewrite.get_cache_dir(path) / (path.stem + rewrite.PYC_TAIL)
+            if rewrite._read_pyc(path, pyc) is not None:
+                continue
+            pyc.parent.mkdir(exist_ok=True)
+            key, code = rewrite._rewrite_test(path, config)
+            rewrite._write_pyc(state, code, key, pyc)
+    except (ImportError, AttributeError, TypeError, KeyError, OSError):
+        return
+
 
 # TANGO_AIO_TEST_LOOP=uvloop runs every async test on uvloop's event loop (tango-aio[uvloop]),
 # the way CI runs the end-to-end tier under it.

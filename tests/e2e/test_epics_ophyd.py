@@ -13,15 +13,18 @@ import socket
 import subprocess
 import sys
 from collections.abc import Iterator
+from importlib.util import find_spec
 from pathlib import Path
 
 import pytest
 
-pytest.importorskip("caproto")
-pytest.importorskip("ophyd_async.epics.motor")
-pytest.importorskip("aioca")
+# Both sides run in subprocesses: look the packages up without importing them here (aioca
+# and ophyd-async's EPICS side take about a second to import, in every xdist worker).
+_MISSING = [name for name in ("caproto", "ophyd_async", "aioca") if find_spec(name) is None]
+if _MISSING:
+    pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
-from test_epics import free_port, loopback_environment
+from test_epics import free_port, loopback_environment  # noqa: E402
 
 pytestmark = pytest.mark.timeout(90)
 
