@@ -1,15 +1,16 @@
 """The examples run against the embedded emulator, as the README promises.
 
-Every ``examples/*.py`` is run once as a subprocess (cached, so the specific checks below
-reuse that run); each must exit with 0 and print something.
+Every ``examples/*.py`` runs once, as a subprocess; each must exit with 0 and print
+something, and what it prints is checked by the example's function in ``CHECKS`` (one run
+per example, whichever xdist worker it lands on).
 """
 
 from __future__ import annotations
 
-import functools
 import subprocess
 import sys
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -18,37 +19,20 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 
 
-@functools.cache
 def run_example(name: str) -> subprocess.CompletedProcess[str]:
     """Run ``examples/<name>`` with no arguments (the emulator) and return the result."""
     return subprocess.run([sys.executable, str(ROOT / "examples" / name)],
                           capture_output=True, text=True, timeout=90, check=False, cwd=ROOT)
 
 
-def output_of(name: str) -> str:
-    """Stdout of a successful run of ``examples/<name>``."""
-    result = run_example(name)
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
-    return result.stdout
-
-
-@pytest.mark.parametrize("path", EXAMPLES, ids=[p.name for p in EXAMPLES])
-def test_example_runs(path: Path) -> None:
-    result = run_example(path.name)
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
-    assert result.stdout.strip(), "the example printed nothing"
-
-
-def test_move_and_watch_shows_events_and_positions() -> None:
-    out = output_of("move_and_watch.py")
+def move_and_watch_shows_events_and_positions(out: str) -> None:
     assert "move finished" in out
     assert "position:" in out
     assert "refused as expected" in out and "number 5" in out
     assert "final position {'x': 3.0, 'y': 2.5" in out
 
 
-def test_concurrent_scan_moves_three_controllers_in_lockstep() -> None:
-    out = output_of("concurrent_scan.py")
+def concurrent_scan_moves_three_controllers_in_lockstep(out: str) -> None:
     assert "opened 3 controllers concurrently: stage1, stage2, stage3" in out
     for number in range(1, 10):
         assert f"point {number}/9:" in out
@@ -59,8 +43,7 @@ def test_concurrent_scan_moves_three_controllers_in_lockstep() -> None:
     assert "final status: {'stage1': '@@', 'stage2': '@@', 'stage3': '@@'}" in out
 
 
-def test_events_reach_both_subscribers() -> None:
-    out = output_of("events.py")
+def events_reach_both_subscribers(out: str) -> None:
     logged = [line for line in out.splitlines() if line.startswith("[logger]")]
     moves = [line for line in out.splitlines() if line.startswith("[moves]")]
     assert sum("MoveFinished move" in line for line in logged) == 4
@@ -72,17 +55,39 @@ def test_events_reach_both_subscribers() -> None:
     assert "logger dropped 0 events, move watcher 0" in out
 
 
-def test_trigger_scan_fires_once_per_position() -> None:
-    out = output_of("trigger_scan.py")
+def trigger_scan_fires_once_per_position(out: str) -> None:
     assert "uploaded 40/40 positions" in out
     assert "read back 40 positions: 0.5 ... 4.4 mm" in out
     assert "trigcount = 40 (positions passed: 40)" in out
     assert "trigger scan ok" in out
 
 
-def test_pytest_fixture_example_runs_its_tests() -> None:
-    out = output_of("pytest_fixture_example.py")
+def pytest_fixture_example_runs_its_tests(out: str) -> None:
     assert "3 passed" in out
+
+
+#: What each example must print, beyond something.
+CHECKS: dict[str, Callable[[str], None]] = {
+    "move_and_watch.py": move_and_watch_shows_events_and_positions,
+    "concurrent_scan.py": concurrent_scan_moves_three_controllers_in_lockstep,
+    "events.py": events_reach_both_subscribers,
+    "trigger_scan.py": trigger_scan_fires_once_per_position,
+    "pytest_fixture_example.py": pytest_fixture_example_runs_its_tests,
+}
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=[p.name for p in EXAMPLES])
+def test_example_runs(path: Path) -> None:
+    result = run_example(path.name)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    assert result.stdout.strip(), "the example printed nothing"
+    check = CHECKS.get(path.name)
+    if check is not None:
+        check(result.stdout)
+
+
+def test_every_check_names_an_example() -> None:
+    assert set(CHECKS) <= {path.name for path in EXAMPLES}
 
 
 def test_examples_are_not_collected_by_the_test_suite() -> None:
