@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import fcntl
 import io
+import json
 import os
 import re
 import select
@@ -479,10 +480,16 @@ def test_debug_shows_the_traceback_of_an_error() -> None:
     assert "ValueError: /dev/zero:1: line longer than 200 bytes" in loud.stderr
 
 
-def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str]) -> None:
+def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
+                                          tmp_path: Path) -> None:
     code, out, _ = cli(capsys, "info", SIM)
     assert code == 0 and re.search(r"status\s+│ x=@ \(ok\) y=@ \(ok\) z=@ \(ok\)", out), out
-    code, out, _ = cli(capsys, "move", SIM, "x=60")
+    # Saved velocities of 100 mm/s (vel, and secvel that caps it): the switch at +50 mm is
+    # reached in half a second.
+    state = tmp_path / "state.json"
+    state.write_text(json.dumps({"format": "tango_aio.sim state", "version": 1,
+                                 "axes": {"vel": [[100.0]] * 4, "secvel": [[100.0]] * 4}}))
+    code, out, _ = cli(capsys, "move", f"{SIM}&state={state}", "x=60")
     assert code == 1 and len(out.splitlines()) == 1, out
     assert out.startswith("error: '!moa 60.0' ended with status")
     assert "x=S (limit switch) y=@ (ok) z=@ (ok)" in out
