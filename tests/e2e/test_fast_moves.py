@@ -37,9 +37,11 @@ from tango_aio.errors import MoveError, TangoError
 
 pytestmark = pytest.mark.timeout(180)
 
+# The default run takes one instant run (6 s); the other profile, seed and baud rate are
+# slow.
 PROFILE_RUNS = [
     pytest.param(profile, baud, seed, id=f"{profile}-{baud}-{seed}",
-                 marks=[pytest.mark.slow] if baud or seed > 1 else [])
+                 marks=[pytest.mark.slow] if baud or seed > 1 or profile != "manual" else [])
     for profile in ("manual", "legacy") for baud in (0, 57600) for seed in (1, 2)
 ]
 
@@ -128,7 +130,7 @@ async def test_a_move_stopped_behind_the_drivers_back_raises(
     assert_arrived(emu, {"x": 0.5})
 
 
-@pytest.mark.parametrize("profile", ["manual", "legacy"])
+@pytest.mark.parametrize("profile", ["manual", pytest.param("legacy", marks=pytest.mark.slow)])
 async def test_a_move_cut_short_by_a_limit_switch_raises_on_the_first_move(
         emulator: EmulatorFactory, profile: str) -> None:
     emu = await open_variant(emulator, profile, 0)

@@ -66,11 +66,13 @@ def _variant_query(name: str) -> str:
     return f"profile={name}" if name in PROFILES else f"profile=manual&{name}"
 
 
-def _params() -> list[Any]:
+def _params(default: tuple[str, ...] = PROFILES) -> list[Any]:
+    """Every variant at every baud rate; the ``default`` ones in instant mode are in the
+    default run, the others are ``slow``."""
     out = []
     for baud in BAUDS:
         for name, _firmware in variants():
-            marks = [] if baud == 0 and name in PROFILES else [pytest.mark.slow]
+            marks = [] if baud == 0 and name in default else [pytest.mark.slow]
             out.append(pytest.param(name, baud, id=f"{name}-{baud}", marks=marks))
     return out
 
@@ -291,8 +293,14 @@ async def test_joystick_off_during_a_move_does_not_end_it(emulator: EmulatorFact
     await assert_next_call_works(emu)
 
 
-@MATRIX
-@pytest.mark.parametrize("mode", [1, 0])
+def _with_mode(mode: int, default: tuple[str, ...]) -> list[Any]:
+    return [pytest.param(mode, *param.values, id=f"{mode}-{param.id}", marks=param.marks)
+            for param in _params(default)]
+
+
+# Mode 0 polls at the expected ends (7-8 s here): the default run takes it on one profile.
+@pytest.mark.parametrize(("mode", "variant", "baud"),
+                         [*_with_mode(1, PROFILES), *_with_mode(0, ("manual",))])
 async def test_pause_and_delay_count_in_the_move(emulator: EmulatorFactory, variant: str,
                                                  baud: int, mode: int) -> None:
     emu = await open_variant(emulator, variant, baud, autostatus=mode)
