@@ -260,6 +260,9 @@ class TangoProtocol(asyncio.Protocol):
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collect: list[str] | None = None
         self._collect_help = False
+        self._collect_marker: str | None = None
+        self._collect_echoes: set[str] = set()
+        self._marker_run = 0
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
         self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
@@ -841,44 +844,74 @@ class TangoProtocol(asyncio.Protocol):
         """Bring the stream in step without relying on a unique reply, then find out how
         ``?help N`` answers, and make the markers accordingly (#13 section 3).
 
+        0. The quick way, for firmware that answers ``?help N`` with ``ERROR N,...``
+           (1.71, L2919): ``help``, ``?help N`` twice and ``?err`` in one write (N a
+           marker number; see :meth:`_numbered_marker_answers`), every line dropped.
+           Their replies in a row put the stream in step, and the markers use N. Any
+           other answer (the link then quiet for :attr:`quiet_interval`) proves
+           nothing: steps 1 and 2 follow.
         1. A resync that needs no unique reply: ``help`` is written and every line is
            dropped until the last one looks like its reply (``ERROR n,text``, the form
            both editions document: L2915-2919, old L805-819) and the link has been quiet
            for :attr:`quiet_interval`.
-        2. ``?help N`` then ``?err`` (N a marker number picked at random, so that this
-           session's markers differ from an earlier program's). The lines before the
-           ``?err`` number tell: ``ERROR N,...`` (firmware 1.71, L2919), the text alone
-           (some firmware: then the markers use N and wait for that text), or nothing
-           (older firmware, whose ``help`` takes no parameter: resyncs wait for quiet).
+        2. ``?help N`` then ``?err``. The lines before the ``?err`` number tell:
+           ``ERROR N,...`` (firmware 1.71, L2919), the text alone (some firmware: then
+           the markers use N and wait for that text), or nothing (older firmware, whose
+           ``help`` takes no parameter: resyncs wait for quiet).
         """
         self.core.help_style = HelpStyle.NONE
         self._detected = {"help_number": "none"}
-        await self.resync(timeout=timeout)
         code = self.core.pick_marker_code()
-        sent = [f"?help {code}", "?err"]
-        lines = await self._exchange(sent, timeout)
-        normals = {normal_line(line) for line in sent}
-        answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
-                   if not ACK_PATTERN.accepts(line.strip()) and normal_line(line) not in normals]
-        if any(f"ERROR {code}," in line for line in answers):
+        if await self._numbered_marker_answers(code, timeout):
             self.core.help_style = HelpStyle.NUMBER
-        elif answers and answers[-1]:
-            self.core.help_style = HelpStyle.TEXT
-            self.core.help_text = (code, answers[-1])
+        else:
+            await self.resync(timeout=timeout)
+            code = self.core.pick_marker_code()
+            sent = [f"?help {code}", "?err"]
+            lines = await self._exchange(sent, timeout)
+            normals = {normal_line(line) for line in sent}
+            answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
+                       if not ACK_PATTERN.accepts(line.strip())
+                       and normal_line(line) not in normals]
+            if any(f"ERROR {code}," in line for line in answers):
+                self.core.help_style = HelpStyle.NUMBER
+            elif answers and answers[-1]:
+                self.core.help_style = HelpStyle.TEXT
+                self.core.help_text = (code, answers[-1])
         self._detected = {"help_number": self.core.help_style.value}
         return self.detected
 
+    async def _numbered_marker_answers(self, code: int, timeout: float) -> bool:
+        """Step 0 of :meth:`detect`: whether ``ERROR code,`` twice and then a number (the
+        replies of ``?help code``, ``?help code`` and ``?err``) came back in a row,
+        echoes and acknowledgements aside. The stream is then in step.
+
+        An earlier session of this driver may still be sending: its markers and
+        separators are ``?help`` with the codes in turn, one code never twice in a row
+        (:meth:`~tango_aio.core.ProtocolCore.pick_marker_code`), so its replies cannot
+        look like this pair. Only its own step 0 with the same code could, had it been
+        cut off within those few lines."""
+        marker = f"ERROR {code},"
+        self._marker_run = 0
+        await self._exchange(["help", f"?help {code}", f"?help {code}", "?err"], timeout,
+                             marker=marker)
+        return self._marker_run == 3
+
     async def _exchange(self, lines: list[str], timeout: float | None, *,
-                        until_help: bool = False) -> list[str]:
+                        until_help: bool = False, marker: str | None = None) -> list[str]:
         """Write ``lines`` with the core dropping every line; return the lines received
         up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
         then :attr:`quiet_interval` of silence, unless the mode in force cannot add a line
-        after it: :func:`_nothing_trails_help`). Only call it when nothing is owed."""
+        after it: :func:`_nothing_trails_help`; with ``marker``, a line starting with it
+        and then a number, or else :attr:`quiet_interval` of silence after any line).
+        Only call it when nothing is owed."""
         self.core.drop_all()
-        self._quiet_help = False
+        self._quiet_help = marker is not None  # a marker exchange also ends on quiet
         collected: list[str] = []
         self._collect = collected
         self._collect_help = until_help
+        self._collect_marker = marker
+        self._collect_echoes = {normal_line(line) for line in lines}
         self._collected = self._loop.create_future()
         in_step = False
         try:
@@ -916,7 +949,9 @@ class TangoProtocol(asyncio.Protocol):
         """A line dropped while resynchronising (or collected by :meth:`_exchange`)."""
         if self._collect is not None:
             self._collect.append(line)
-            if self._collect_help:
+            if self._collect_marker is not None:
+                self._marker_line(line)
+            elif self._collect_help:
                 # Sticky: an acknowledgement of ?help itself may follow its reply.
                 self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
                 if self._quiet_timer is not None:
@@ -942,6 +977,26 @@ class TangoProtocol(asyncio.Protocol):
             self._quiet_help = False
         if self._quiet_timer is not None:
             self._quiet_timer.cancel()
+        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+
+    def _marker_line(self, line: str) -> None:
+        """A line collected by a marker exchange (:meth:`_numbered_marker_answers`):
+        count the marker replies in a row, then the number that ends them."""
+        assert self._collect_marker is not None
+        if self._quiet_timer is not None:
+            self._quiet_timer.cancel()
+        text = line.strip()
+        if normal_line(text) in self._collect_echoes or ACK_PATTERN.accepts(text):
+            pass  # an echo (mode 4) or an acknowledgement (mode 2): not a reply
+        elif text.startswith(self._collect_marker):
+            self._marker_run = min(self._marker_run + 1, 2)
+        elif self._marker_run == 2 and _INTEGER.match(text):
+            self._marker_run = 3
+            if self._collected is not None and not self._collected.done():
+                self._collected.set_result(None)
+            return
+        else:
+            self._marker_run = 0
         self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
 
     def _quiet_check(self) -> None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Awaitable, Mapping
+from collections.abc import Awaitable, Collection, Mapping
 from typing import Any, TypeVar, Unpack
 
 import pytest
@@ -66,7 +66,7 @@ def _variant_query(name: str) -> str:
     return f"profile={name}" if name in PROFILES else f"profile=manual&{name}"
 
 
-def _params(default: tuple[str, ...] = PROFILES) -> list[Any]:
+def _params(default: Collection[str] = tuple(PROFILES)) -> list[Any]:
     """Every variant at every baud rate; the ``default`` ones in instant mode are in the
     default run, the others are ``slow``."""
     out = []
@@ -293,7 +293,7 @@ async def test_joystick_off_during_a_move_does_not_end_it(emulator: EmulatorFact
     await assert_next_call_works(emu)
 
 
-def _with_mode(mode: int, default: tuple[str, ...]) -> list[Any]:
+def _with_mode(mode: int, default: Collection[str]) -> list[Any]:
     return [pytest.param(mode, *param.values, id=f"{mode}-{param.id}", marks=param.marks)
             for param in _params(default)]
 

@@ -623,3 +623,63 @@ async def test_a_mode_read_waits_for_quiet_where_a_line_can_trail_helps_reply(
     assert await asyncio.wait_for(read, 5.0) == mode
     if mode == 2:
         assert link.protocol.core.ack_reads == "after"
+
+
+# -- Detecting how ?help N answers (TangoProtocol.detect) --------------------------------
+
+
+async def _written_help_code(link: FakeLink, count: int = 1) -> int:
+    await link.wait_written(b"?help ", count)
+    return link.marker_codes()[count - 1]
+
+
+async def test_detect_is_quick_when_help_n_answers_with_its_number(
+        fake_link: LinkFactory) -> None:
+    """``ERROR N,`` twice then ``?err``'s number end the detection at once (the quiet
+    interval is an hour here), whatever an earlier session left in the stream before them:
+    its markers and separators take the codes in turn, so this session's code may be
+    among them, but never twice in a row."""
+    link = fake_link()
+    link.protocol.quiet_interval = 3600.0
+    detect = asyncio.create_task(link.protocol.detect(timeout=5.0))
+    code = await _written_help_code(link)
+    assert link.transport.sent == f"help\r?help {code}\r?help {code}\r?err\r".encode()
+    stale = f"7\r12.5000 3.0000\rERROR {code},stale\r0\rERROR {code + 1},\r@@@-.\r".encode()
+    link.feed(stale + f"ERROR 0,no error\rERROR {code},text\rERROR {code},text\r0\r".encode())
+    assert await asyncio.wait_for(detect, 5.0) == {"help_number": "yes"}
+    request = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=2.0))
+    await link.wait_written(b"?vel x\r")
+    link.feed(b"10.000\r")
+    assert (await request).lines == ("10.000",)
+
+
+@pytest.mark.parametrize(("answer", "style"), [("servo amplifier off\r", "no"), ("", "none")])
+async def test_detect_falls_back_to_a_quiet_resync_when_help_n_has_no_number(
+        fake_link: LinkFactory, answer: str, style: str) -> None:
+    """Firmware that answers ``?help N`` with the text alone, or not at all: after a
+    quiet link, a quiet resync (``help``) and the exchange of ``?help N`` and ``?err``."""
+    link = fake_link()
+    link.protocol.quiet_interval = 0.01
+    detect = asyncio.create_task(link.protocol.detect(timeout=5.0))
+    await _written_help_code(link)
+    link.feed(f"ERROR 0,no error\r{answer}0\r".encode())
+    await link.wait_written(b"help\r", 2)  # the quiet resync
+    link.feed(b"ERROR 0,no error\r")
+    await _written_help_code(link, 3)
+    link.feed(f"{answer}0\r".encode())
+    assert await asyncio.wait_for(detect, 5.0) == {"help_number": style}
+
+
+async def test_detect_without_the_number_after_the_marker_falls_back(
+        fake_link: LinkFactory) -> None:
+    """Marker replies whose ``?err`` reply never comes prove nothing: the quiet path."""
+    link = fake_link()
+    link.protocol.quiet_interval = 0.01
+    detect = asyncio.create_task(link.protocol.detect(timeout=5.0))
+    code = await _written_help_code(link)
+    link.feed(f"ERROR 0,no error\rERROR {code},text\rERROR {code},text\r".encode())
+    await link.wait_written(b"help\r", 2)
+    link.feed(b"ERROR 0,no error\r")
+    code = await _written_help_code(link, 3)
+    link.feed(f"ERROR {code},text\r0\r".encode())
+    assert await asyncio.wait_for(detect, 5.0) == {"help_number": "yes"}
