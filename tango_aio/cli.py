@@ -1139,6 +1139,34 @@ async def _run(run: Command, args: argparse.Namespace) -> int:
     return await run(args)
 
 
+def _run_loop(args: argparse.Namespace) -> int:
+    """``asyncio.run(_run(...))``, but a Ctrl+C cannot land while the event loop is being
+    built: one that came meanwhile is delivered once it stands, and the loop is closed as
+    usual (``asyncio.run`` would leave a half-built loop behind, whose ``__del__`` prints a
+    traceback, and the command's coroutine never awaited)."""
+    runner = asyncio.Runner()  # builds nothing yet (entering it as a context would)
+    try:
+        with _sigint_deferred():
+            runner.get_loop()
+        return runner.run(_run(args.run, args))
+    finally:
+        runner.close()
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold SIGINT back (where the platform can: POSIX, the main thread) for the block."""
+    if not hasattr(signal, "pthread_sigmask") \
+            or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tango-aio`` command: 0 on success, 1 after an error (printed
     as one line), 2 for usage errors, 130 after Ctrl+C."""
@@ -1151,7 +1179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             _say("demo cancelled: nothing was moved")
             return 1
         with _logging(args):
-            return asyncio.run(_run(args.run, args))
+            return _run_loop(args)
     except KeyboardInterrupt:
         _say("interrupted", "yellow")
         return 130

@@ -207,6 +207,22 @@ def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
     assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
 
 
+def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
+    # Deterministically in the middle of building the event loop (seen under load at a
+    # random moment: a half-built loop printed a traceback from its __del__).
+    probe = ("import os, signal, sys; import asyncio.selector_events as se; "
+             "from tango_aio.cli import main; "
+             "original = se.BaseSelectorEventLoop._make_self_pipe\n"
+             "def interrupted(self):\n"
+             "    os.kill(os.getpid(), signal.SIGINT)\n"
+             "    original(self)\n"
+             "se.BaseSelectorEventLoop._make_self_pipe = interrupted\n"
+             "sys.exit(main(['info', 'sim://?baud=0']))")
+    done = subprocess.run([sys.executable, "-W", "error", "-c", probe], capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert (done.returncode, done.stdout, done.stderr) == (130, "interrupted\n", "")
+
+
 @pytest.mark.parametrize("delay", [0.0, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.25])
 def test_ctrl_c_at_any_moment_of_start_up_shows_no_traceback(delay: float) -> None:
     with subprocess.Popen([sys.executable, "-c", _EARLY, "info", "sim://?baud=0"],
