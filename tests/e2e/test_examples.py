@@ -7,6 +7,7 @@ per example, whichever xdist worker it lands on).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tomllib
@@ -21,8 +22,12 @@ EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 
 def run_example(name: str) -> subprocess.CompletedProcess[str]:
     """Run ``examples/<name>`` with no arguments (the emulator) and return the result."""
+    # One pytest process for the example that runs its own tests: this repository's
+    # addopts would start 8 xdist workers for its three tests.
+    environment = {**os.environ, "PYTEST_ADDOPTS": "-n 0"}
     return subprocess.run([sys.executable, str(ROOT / "examples" / name)],
-                          capture_output=True, text=True, timeout=90, check=False, cwd=ROOT)
+                          capture_output=True, text=True, timeout=90, check=False, cwd=ROOT,
+                          env=environment)
 
 
 def move_and_watch_shows_events_and_positions(out: str) -> None:
