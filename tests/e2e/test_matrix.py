@@ -3,7 +3,8 @@
 Every scenario runs against each entry of :func:`tango_aio.sim.profiles.variants` (the
 ``manual`` and ``legacy`` profiles and ``manual`` with each single non-default switch
 value), in instant mode (``baud=0``) and at 57600 Bd. The default run keeps the two
-profiles in instant mode; every other combination is marked ``slow`` (CI runs them all:
+profiles in instant mode (the longest scenarios take them in turn: :func:`matrix_on`);
+every other combination is marked ``slow`` (CI runs them all:
 ``python -m pytest -m slow tests/e2e``).
 
 What is asserted are the invariants a caller relies on, checked against the emulator's
@@ -78,6 +79,12 @@ def _params(default: Collection[str] = tuple(PROFILES)) -> list[Any]:
 
 
 MATRIX = pytest.mark.parametrize(("variant", "baud"), _params())
+
+
+def matrix_on(profile: str) -> pytest.MarkDecorator:
+    """Like MATRIX, with only ``profile`` in the default run: the longer scenarios take
+    the two profiles in turn there (and both, with every variant, under ``slow``)."""
+    return pytest.mark.parametrize(("variant", "baud"), _params((profile,)))
 
 
 async def open_variant(emulator: EmulatorFactory, variant: str, baud: int,
@@ -169,7 +176,7 @@ async def test_connect_and_identify(emulator: EmulatorFactory, variant: str,
     assert await bounded(emu.tango.get("pos")) == {"x": 0.0, "y": 0.0, "z": 0.0}
 
 
-@MATRIX
+@matrix_on("manual")
 async def test_each_autostatus_mode_and_changes(emulator: EmulatorFactory, variant: str,
                                                 baud: int) -> None:
     emu = await open_variant(emulator, variant, baud)
@@ -215,7 +222,7 @@ async def test_queued_moves_keep_their_own_timeout(emulator: EmulatorFactory, va
     assert_arrived(emu, {"x": 0.5})
 
 
-@MATRIX
+@matrix_on("legacy")
 async def test_cal_and_rm(emulator: EmulatorFactory, variant: str, baud: int) -> None:
     emu = await open_variant(emulator, variant, baud)
     letters = await bounded(emu.tango.calibrate("x"))
@@ -298,9 +305,10 @@ def _with_mode(mode: int, default: Collection[str]) -> list[Any]:
             for param in _params(default)]
 
 
-# Mode 0 polls at the expected ends (7-8 s here): the default run takes it on one profile.
+# Mode 0 polls at the expected ends (7-8 s here): the default run takes each mode on one
+# profile.
 @pytest.mark.parametrize(("mode", "variant", "baud"),
-                         [*_with_mode(1, PROFILES), *_with_mode(0, ("manual",))])
+                         [*_with_mode(1, ("legacy",)), *_with_mode(0, ("manual",))])
 async def test_pause_and_delay_count_in_the_move(emulator: EmulatorFactory, variant: str,
                                                  baud: int, mode: int) -> None:
     emu = await open_variant(emulator, variant, baud, autostatus=mode)
@@ -336,7 +344,7 @@ async def test_internal_error_is_not_blamed_on_the_command(emulator: EmulatorFac
     assert [f.number for f in faults] == [29]
 
 
-@MATRIX
+@matrix_on("manual")
 async def test_events_follow_confirmed_moves(emulator: EmulatorFactory, variant: str,
                                              baud: int) -> None:
     emu = await open_variant(emulator, variant, baud)
@@ -361,7 +369,7 @@ async def test_a_refused_move_is_an_error(emulator: EmulatorFactory, variant: st
     await assert_next_call_works(emu)
 
 
-@MATRIX
+@matrix_on("legacy")
 async def test_absent_axis_letters_are_not_credited_to_another(
         emulator: EmulatorFactory, variant: str, baud: int) -> None:
     # Y disabled; Z driven into its limit switch must fail as Z, whatever the report.
