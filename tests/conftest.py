@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import compileall
+import gc
 import os
 import sys
 from collections.abc import AsyncIterator, Callable
@@ -80,6 +81,13 @@ settings.load_profile("tango_aio")
 
 TIERS = ("unit", "protocol", "e2e", "sim")
 _HERE = Path(__file__).parent
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Move what collection made (thousands of items, the modules) out of the garbage
+    collector's sight: every full collection during the run would walk it again."""
+    gc.collect()
+    gc.freeze()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
