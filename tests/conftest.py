@@ -27,6 +27,11 @@ from tango_aio.protocol import TangoProtocol
 sys.dont_write_bytecode = False
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
+# No garbage collection while the tests are collected (each worker builds thousands of
+# items and imports every module: the collector would walk them again and again); it is
+# back on, with all that frozen, when collection ends (pytest_collection_finish).
+gc.disable()
+
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionstart(session: pytest.Session) -> None:
@@ -39,6 +44,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     # with their asserts rewritten, from pytest's own bytecode files: write those too.
     _write_rewritten(session.config, [*package.rglob("*.py"), *_HERE.rglob("test_*.py"),
                                       *_HERE.rglob("conftest.py")])
+    if session.config.getoption("dist", "no") != "no":
+        gc.enable()  # the xdist controller collects nothing: the collector back on now
 
 
 def _write_rewritten(config: pytest.Config, files: list[Path]) -> None:
@@ -85,9 +92,11 @@ _HERE = Path(__file__).parent
 
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Move what collection made (thousands of items, the modules) out of the garbage
-    collector's sight: every full collection during the run would walk it again."""
+    collector's sight: every full collection during the run would walk it again. (The
+    collector is off while collecting: see the top of this module.)"""
     gc.collect()
     gc.freeze()
+    gc.enable()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
