@@ -100,11 +100,30 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark each test with its tier, the name of the directory below ``tests/`` it is in."""
+    """Mark each test with its tier, the name of the directory below ``tests/`` it is in;
+    in an xdist worker, spread the end-to-end tests over the workers' shares."""
     for item in items:
         parts = item.path.relative_to(_HERE).parts
         if len(parts) > 1 and parts[0] in TIERS:
             item.add_marker(parts[0])
+    workers = getattr(config, "workerinput", {}).get("workercount", 1)
+    if workers > 1:
+        items[:] = _spread(items, workers)
+
+
+def _spread(items: list[pytest.Item], workers: int) -> list[pytest.Item]:
+    """Each of ``workers`` consecutive shares of the result (xdist's worksteal hands out
+    such shares first) starts with its part of the end-to-end tests, the ones that wait,
+    and ends with its part of the quick ones, which are left for the others to steal at
+    the end. In collection order, the end-to-end tests come first and would all land in
+    the first shares. Every worker computes the same order, as xdist requires."""
+    slow = [item for item in items if item.get_closest_marker("e2e")]
+    quick = [item for item in items if not item.get_closest_marker("e2e")]
+    spread: list[pytest.Item] = []
+    for share in range(workers):
+        spread += slow[share * len(slow) // workers:(share + 1) * len(slow) // workers]
+        spread += quick[share * len(quick) // workers:(share + 1) * len(quick) // workers]
+    return spread
 
 
 # --------------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
-from helpers import Axes, Emulated, one_axis
+from helpers import Axes, Emulated, one_axis, start_slow_move
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
@@ -390,9 +390,8 @@ async def test_move_is_not_failed_by_the_stale_status_of_another_axis(mode: int)
     tango = await connect("sim://?baud=0", autostatus=mode)
     try:
         await Emulated(tango).shorten(TRAVEL, mode)
-        await tango.set("vel", y=50)
-        move = asyncio.ensure_future(tango.move_to(y=1.9))
-        await asyncio.sleep(0.005)
+        await tango.set("vel", y=2)  # about a second: the abort lands while y moves
+        move = await start_slow_move(tango, y=1.9)
         await tango.abort(soft=True)
         with pytest.raises(MoveError):
             await move
