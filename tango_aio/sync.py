@@ -112,27 +112,33 @@ class Portal:
         finished = threading.Event()
         state = threading.Lock()
         started = interrupted = False
+        scopes: list[anyio.CancelScope] = []
 
         async def run() -> R:
             nonlocal started
-            with state:
-                if interrupted:  # Ctrl+C came before the call began: do not begin it
-                    raise anyio.get_cancelled_exc_class()
-                started = True
-            try:
-                return await func(*args, **kwargs)
-            finally:
-                finished.set()
+            with anyio.CancelScope() as scope:
+                with state:
+                    if interrupted:  # Ctrl+C came before the call began: do not begin it
+                        raise anyio.get_cancelled_exc_class()
+                    started = True
+                    scopes.append(scope)
+                try:
+                    return await func(*args, **kwargs)
+                finally:
+                    finished.set()
+            raise anyio.get_cancelled_exc_class()  # cancelled after Ctrl+C (below)
 
-        future = self.portal.start_task_soon(run)
         try:
-            return future.result()
+            # Ctrl+C may land while start_task_soon still waits for the task to be spawned,
+            # when the call may have begun already (a move written): hence the scope of
+            # the call's own, which is cancelled below whether or not a future came back.
+            return self.portal.start_task_soon(run).result()
         except KeyboardInterrupt:
             with state:
                 interrupted = True
                 began = started
-            future.cancel()
-            if began:  # wait for its clean-up, e.g. the axes stopped
+            if began:  # cancel it there and wait for its clean-up, e.g. the axes stopped
+                self.portal.call(scopes[0].cancel)
                 finished.wait(STOP_WAIT)
             raise
 

@@ -117,6 +117,29 @@ def test_ctrl_c_during_a_blocking_move_stops_the_axes(tango: tango_aio.sync.Cont
     assert tango.move_to(x=0) == {"x": "@", "y": "@", "z": "@"}  # the next call works
 
 
+def test_ctrl_c_before_the_move_is_handed_back_still_stops_the_axes(
+        tango: tango_aio.sync.Controller, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl+C can land while the portal still waits for the call's task to be spawned,
+    when the move is already written (seen about once in 40 presses): it stops the axes
+    all the same."""
+    tango.set("vel", x=0.5)
+    portal = tango._portal.portal
+    spawn = portal.start_task_soon
+
+    def spawn_then_interrupt(*args: Any, **kwargs: Any) -> Any:
+        monkeypatch.setattr(portal, "start_task_soon", spawn)  # only this once
+        spawn(*args, **kwargs)
+        while portal.call(tango.aio.status)["x"] != "M":
+            pass
+        raise KeyboardInterrupt  # before start_task_soon returned the future
+
+    monkeypatch.setattr(portal, "start_task_soon", spawn_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        tango.move_to(x=100)
+    assert "M" not in tango.status().values()  # "E": aborted
+    assert tango.move_to(x=0) == {"x": "@", "y": "@", "z": "@"}
+
+
 def test_cancelling_a_started_move_stops_it(tango: tango_aio.sync.Controller) -> None:
     tango.set("vel", x=0.5)
     future = tango.start_move_to(x=100)
