@@ -954,17 +954,12 @@ class TangoProtocol(asyncio.Protocol):
             elif self._collect_help:
                 # Sticky: an acknowledgement of ?help itself may follow its reply.
                 self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
-                if self._quiet_timer is not None:
-                    self._quiet_timer.cancel()
                 if self._quiet_help and _nothing_trails_help(self._collect):
-                    if self._collected is not None and not self._collected.done():
-                        self._collected.set_result(None)
-                    return
-                self._quiet_timer = self._loop.call_later(self.quiet_interval,
-                                                          self._quiet_check)
-            elif _INTEGER.match(line) and self._collected is not None \
-                    and not self._collected.done():
-                self._collected.set_result(None)
+                    self._end_collection()
+                else:
+                    self._quiet_from_now()
+            elif _INTEGER.match(line):
+                self._end_collection()
             return
         if not self.core.quiet:
             return
@@ -975,16 +970,12 @@ class TangoProtocol(asyncio.Protocol):
             # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
             # its reply: that reply was not the last line yet.
             self._quiet_help = False
-        if self._quiet_timer is not None:
-            self._quiet_timer.cancel()
-        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+        self._quiet_from_now()
 
     def _marker_line(self, line: str) -> None:
         """A line collected by a marker exchange (:meth:`_numbered_marker_answers`):
         count the marker replies in a row, then the number that ends them."""
         assert self._collect_marker is not None
-        if self._quiet_timer is not None:
-            self._quiet_timer.cancel()
         text = line.strip()
         if normal_line(text) in self._collect_echoes or ACK_PATTERN.accepts(text):
             pass  # an echo (mode 4) or an acknowledgement (mode 2): not a reply
@@ -992,12 +983,25 @@ class TangoProtocol(asyncio.Protocol):
             self._marker_run = min(self._marker_run + 1, 2)
         elif self._marker_run == 2 and _INTEGER.match(text):
             self._marker_run = 3
-            if self._collected is not None and not self._collected.done():
-                self._collected.set_result(None)
+            self._end_collection()
             return
         else:
             self._marker_run = 0
+        self._quiet_from_now()
+
+    def _quiet_from_now(self) -> None:
+        """(Re)start the wait for :attr:`quiet_interval` of silence (:meth:`_quiet_check`)."""
+        if self._quiet_timer is not None:
+            self._quiet_timer.cancel()
         self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+
+    def _end_collection(self) -> None:
+        """What :meth:`_exchange` waits for has come (or the link is quiet)."""
+        if self._quiet_timer is not None:
+            self._quiet_timer.cancel()
+            self._quiet_timer = None
+        if self._collected is not None and not self._collected.done():
+            self._collected.set_result(None)
 
     def _quiet_check(self) -> None:
         """End a quiet resync once ``help``'s reply was the last line and all is quiet."""
@@ -1005,8 +1009,7 @@ class TangoProtocol(asyncio.Protocol):
         if not self.core.quiet or not self._quiet_help or self._lost is not None:
             return
         if self._collect is not None:
-            if self._collected is not None and not self._collected.done():
-                self._collected.set_result(None)
+            self._end_collection()
             return
         self.core.end_resync()
         self.scheduler.in_step()

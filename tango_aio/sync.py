@@ -111,16 +111,14 @@ class Portal:
         """
         finished = threading.Event()
         state = threading.Lock()
-        started = interrupted = False
-        scopes: list[anyio.CancelScope] = []
+        interrupted = False
+        scopes: list[anyio.CancelScope] = []  # the call's scope, once it has begun
 
         async def run() -> R:
-            nonlocal started
             with anyio.CancelScope() as scope:
                 with state:
                     if interrupted:  # Ctrl+C came before the call began: do not begin it
                         raise anyio.get_cancelled_exc_class()
-                    started = True
                     scopes.append(scope)
                 try:
                     return await func(*args, **kwargs)
@@ -136,9 +134,9 @@ class Portal:
         except KeyboardInterrupt:
             with state:
                 interrupted = True
-                began = started
-            if began:  # cancel it there and wait for its clean-up, e.g. the axes stopped
-                self.portal.call(scopes[0].cancel)
+                began = scopes[0] if scopes else None
+            if began is not None:  # cancel it there and wait for its clean-up (axes stopped)
+                self.portal.call(began.cancel)
                 finished.wait(STOP_WAIT)
             raise
 

@@ -78,13 +78,14 @@ def _params(default: Collection[str] = tuple(PROFILES)) -> list[Any]:
     return out
 
 
-MATRIX = pytest.mark.parametrize(("variant", "baud"), _params())
+def matrix_on(*profiles: str) -> pytest.MarkDecorator:
+    """Every variant at every baud rate, with ``profiles`` in instant mode in the default
+    run. The longer scenarios take the two profiles in turn there (``matrix_on("manual")``)
+    and both, with every variant, under ``slow``."""
+    return pytest.mark.parametrize(("variant", "baud"), _params(profiles))
 
 
-def matrix_on(profile: str) -> pytest.MarkDecorator:
-    """Like MATRIX, with only ``profile`` in the default run: the longer scenarios take
-    the two profiles in turn there (and both, with every variant, under ``slow``)."""
-    return pytest.mark.parametrize(("variant", "baud"), _params((profile,)))
+MATRIX = matrix_on(*PROFILES)
 
 
 async def open_variant(emulator: EmulatorFactory, variant: str, baud: int,
