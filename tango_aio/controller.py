@@ -83,6 +83,10 @@ log = logging.getLogger("tango_aio")
 #: after the X pair in extmode 0 (L4559-4621), ``?swtyp`` prints its groups without
 #: separating blanks there (L4814-4824).
 AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
+#: Seconds :meth:`Controller.aclose` waits at most for the replies to the driver's own
+#: lines still in flight (a separator behind a move's confirmation: a few milliseconds
+#: at 57600 Bd), so that the next program on the port does not read them.
+CLOSE_SETTLE = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,11 +194,19 @@ class Controller:
 
     async def aclose(self) -> None:
         """Close the connection and stop reconnecting. Pending requests fail with
-        ConnectionLostError."""
+        ConnectionLostError. The replies to the driver's own lines still in flight
+        (separators, credit markers) are waited for first, for at most
+        :data:`CLOSE_SETTLE` seconds."""
         self._closing = True
         self._motion.cancel_detached()
         if self._reconnector is not None:
             await self._reconnector.stop()
+        try:
+            await self._protocol.settle(CLOSE_SETTLE)
+        except BaseException:
+            self._protocol.close()
+            self._hub.close()
+            raise
         self._protocol.close()
         closer, self._on_close = self._on_close, None
         if closer is not None:
@@ -991,10 +1003,13 @@ class Controller:
     #: per context (commands are immutable values).
     _state_reads: tuple[Context, Command, Command] | None = None
 
-    async def _status_and_positions(self) -> tuple[dict[str, str], dict[str, str]]:
+    async def _status_and_positions(self, *, separate_after: bool = False
+                                    ) -> tuple[dict[str, str], dict[str, str]]:
         """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
         one round trip. Their replies (letters, numbers) cannot be taken for each other,
         so the protocol writes no separator between them and neither waits for the other.
+        ``separate_after``: a separator follows in the same write (a move's confirmation:
+        the next move's ``?err`` probe would otherwise need one in front of its line).
         A reply with another number of values than axes is read again the plain way,
         axis by axis (:meth:`status`, :meth:`_position_texts`)."""
         context = self.context
@@ -1005,7 +1020,8 @@ class Controller:
                 context, build("statusaxis", form=Form.READ, context=context),
                 build("pos", form=Form.READ, context=context))
         _, status, pos = reads
-        first, second = self._protocol.submit_together((status, pos))
+        first, second = self._protocol.submit_together((status, pos),
+                                                       separate_after=separate_after)
         try:
             letters = parse_reply(status, (await self._protocol.wait_reply(
                 first, self.reply_timeout)).lines)
@@ -1076,7 +1092,9 @@ class _Port:
         return await self._c.status()
 
     async def state(self) -> tuple[dict[str, str], dict[str, str]]:
-        return await self._c._status_and_positions()
+        # A raster's next move_to follows this read: its ?err probe looks like the
+        # positions, and a separator behind them keeps it off the move's path (#19).
+        return await self._c._status_and_positions(separate_after=True)
 
     def publish(self, event: object) -> None:
         self._c._hub.publish(event)  # type: ignore[arg-type]

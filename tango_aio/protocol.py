@@ -350,6 +350,21 @@ class TangoProtocol(asyncio.Protocol):
         if self._transport is not None and not self._transport.is_closing():
             self._transport.close()
 
+    async def settle(self, timeout: float) -> None:
+        """Wait up to ``timeout`` seconds while the only lines in flight are the driver's
+        own (separators, credit markers), so that whoever opens the port next does not
+        read their replies (:meth:`Controller.aclose`; a move's confirmation leaves a
+        separator behind it, #19). Returns at once when the link is gone, a resync runs,
+        or a caller's request is in flight (closing fails that one anyway)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        owns = self.scheduler.owns
+        while self._lost is None and self.is_connected and not self.core.resyncing:
+            pending = self.core.pending_tags
+            if not pending or not all(map(owns, pending)) or loop.time() >= deadline:
+                return
+            await asyncio.sleep(0.002)
+
     def give_up(self, error: ConnectionLostError) -> None:
         """Record why a lost link will not come back: later calls raise ``error``'s class
         with its message and cause (used when an automatic reconnect gives up)."""
@@ -631,10 +646,15 @@ class TangoProtocol(asyncio.Protocol):
             self._flush()
         return submission
 
-    def submit_together(self, commands: Sequence[Command]) -> list[Submission]:
+    def submit_together(self, commands: Sequence[Command], *,
+                        separate_after: bool = False) -> list[Submission]:
         """:meth:`submit` each of ``commands`` and write them in one write where the
-        credit allows (e.g. reads whose replies cannot be taken for each other, #19)."""
+        credit allows (e.g. reads whose replies cannot be taken for each other, #19).
+        ``separate_after``: a separator follows the last one in the same write (see
+        :attr:`~tango_aio.scheduler.Line.separate_after`)."""
         submissions = [self.submit(command, hold=True) for command in commands]
+        if submissions:
+            submissions[-1].separate_after = separate_after
         self._flush()
         return submissions
 

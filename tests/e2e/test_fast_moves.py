@@ -11,12 +11,16 @@ one before #19: ``?pos`` read first, then the line.
 * a move whose stage is stopped behind the driver's back still raises, with the fast
   sizing and on the very first move after connect (no known position);
 * a known position that is stale (the stage moved by other means) does not fail a good
-  move: the provisional budget is extended once from where the axes are.
+  move: the provisional budget is extended once from where the axes are;
+* the separator between a confirming ``?pos`` and the next move's ``?err`` probe goes out
+  with the ``?pos`` (ahead of need), not in front of the next move, and ``aclose`` waits
+  for its reply.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import random
 from typing import Any
 
@@ -155,3 +159,25 @@ async def test_a_stale_known_position_does_not_fail_a_good_move(
     await tango.set("vel", 1.25, axis="x")
     assert await bounded(tango.move_to(x=0.0)) is not None
     assert_arrived(emu, {"x": 0.0})
+
+
+async def test_the_separator_a_move_needs_goes_out_with_the_confirmation(
+        emulator: EmulatorFactory, caplog: pytest.LogCaptureFixture) -> None:
+    tango = (await emulator("sim://?baud=57600")).tango
+    await tango.move_to(x=0.5)
+    with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
+        for target in (0.25, 0.5, 0.25):
+            await tango.move_to(x=target)
+        await tango.aclose()
+    lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
+             if r.name == "tango_aio.wire"]
+    moves = [i for i, line in enumerate(lines) if line.startswith("-> b'!moa")]
+    assert len(moves) == 3
+    # Nothing written in front of a move line: before it, the confirmation's replies.
+    assert all(lines[i - 1].startswith("<- ") for i in moves), lines
+    # Every ?help is written right behind a ?pos, before any of their replies came.
+    helps = [i for i, line in enumerate(lines) if line == "-> b'?help'"]
+    assert helps and all(lines[i - 1] == "-> b'?pos'" for i in helps), lines
+    # aclose waited for the last separator's reply (the next program on the port would
+    # read it otherwise).
+    assert lines[-1].startswith("<- b'ERROR"), lines

@@ -196,6 +196,39 @@ async def test_over_long_line_is_logged_and_the_stream_recovers(
     assert any("exceeds" in record.getMessage() for record in caplog.records)
 
 
+async def test_a_separator_behind_reads_goes_in_their_write(fake_link: LinkFactory) -> None:
+    link = fake_link(separators=True)
+    status, pos = link.protocol.submit_together((parse("?statusaxis"), parse("?pos")),
+                                                separate_after=True)
+    assert link.transport.writes == [b"?statusaxis\r?pos\r?help\r"]
+    link.feed(b"@@@-.-\r1.0 2.0 3.0\rERROR 0,no error\r")
+    assert reply_of(status) == ("@@@-.-",) and reply_of(pos) == ("1.0 2.0 3.0",)
+    # The next number read needs no separator of its own.
+    err = link.protocol.submit(parse("?err"))
+    assert link.transport.writes[-1] == b"?err\r"
+    link.feed(b"0\r")
+    assert reply_of(err) == ("0",)
+
+
+async def test_settle_waits_for_the_drivers_own_lines_only(fake_link: LinkFactory) -> None:
+    link = fake_link(separators=True)
+    link.protocol.submit_together((parse("?statusaxis"), parse("?pos")), separate_after=True)
+    link.feed(b"@@@-.-\r1.0 2.0 3.0\r")
+    settle = asyncio.create_task(link.protocol.settle(5.0))
+    await asyncio.sleep(0.01)
+    assert not settle.done()  # the separator's reply is still due
+    link.feed(b"ERROR 0,no error\r")
+    await asyncio.wait_for(settle, 1.0)
+    # Unanswered: it gives up at its bound (one loop turn when the bound is spent).
+    link.protocol.submit_together((parse("?pos"),), separate_after=True)
+    link.feed(b"1.0 2.0 3.0\r")
+    await asyncio.wait_for(link.protocol.settle(0.0), 1.0)
+    # A caller's request in flight: no wait (closing fails it anyway).
+    link.feed(b"ERROR 0,no error\r")
+    link.protocol.submit(parse("?vel"))
+    await asyncio.wait_for(link.protocol.settle(5.0), 0.5)
+
+
 # --------------------------------------------------------------------------------------
 # Autostatus modes
 

@@ -49,10 +49,11 @@ class Link:
                                         marker_chunk=self.chunk)
         self.model = ControllerModel(self.outbox.extend, SimConfig(), now=0.0)
 
-    def submit(self, text: str, batch: object | None = None) -> Line:
+    def submit(self, text: str, batch: object | None = None, *,
+               separate_after: bool = False) -> Line:
         command = parse(text)
         tag, mode, expect = self.scheduler.plan(command)
-        line = Line(command, tag, expect, mode, batch)
+        line = Line(command, tag, expect, mode, batch, separate_after=separate_after)
         self.scheduler.submit(line)
         self.lines.append(line)
         return line
@@ -128,6 +129,7 @@ def _owes_reply(line: Line) -> bool:
 ops = st.lists(
     st.one_of(
         st.tuples(st.just("read"), st.sampled_from(READS), st.booleans()),
+        st.tuples(st.just("trail"), st.sampled_from(READS), st.booleans()),
         st.tuples(st.just("set"), st.sampled_from(SETS), st.booleans()),
         st.tuples(st.just("process"), st.integers(0, 6), st.booleans()),
         st.tuples(st.just("deliver"), st.integers(0, 40), st.booleans()),
@@ -146,9 +148,9 @@ def test_random_traffic_keeps_every_rule(steps: list[tuple[str, object, bool]], 
     batch = object()
     withdrawn: set[int] = set()
     for op, arg, flag in steps:
-        if op in ("read", "set"):
+        if op in ("read", "set", "trail"):
             assert isinstance(arg, str)
-            link.submit(arg, batch if flag else None)
+            link.submit(arg, batch if flag else None, separate_after=op == "trail")
         elif op == "process":
             assert isinstance(arg, int)
             link.process(arg)
@@ -241,6 +243,46 @@ def test_look_alike_reads_get_a_separator_unless_batched() -> None:
     batched.submit("?accel x", batch)
     batched.flush()
     assert batched.wire == ["?vel x", "?accel x"]
+
+
+def test_a_separator_behind_a_line_spares_the_next_look_alike_one() -> None:
+    # A move's confirming ?pos, then the next move's ?err probe (#19): the separator
+    # goes out with the ?pos, not in front of the next line.
+    link = Link()
+    link.submit("?statusaxis")
+    link.submit("?pos", separate_after=True)
+    link.flush()
+    assert link.wire == ["?statusaxis", "?pos", "?help"]  # ?err would look like ?pos
+    link.drain()
+    link.submit("?err")
+    link.flush()
+    assert link.wire[3:] == ["?err"]
+    # Still in flight: the same, the ?err needs no separator of its own either.
+    pipelined = Link()
+    pipelined.submit("?pos", separate_after=True)
+    pipelined.submit("?err")
+    pipelined.flush()
+    assert pipelined.wire == ["?pos", "?help", "?err"]
+
+
+def test_no_separator_behind_a_line_when_the_credit_is_short_or_separators_are_off(
+        ) -> None:
+    # Skipping it never weakens rule 3: the next look-alike line gets its own.
+    short = Link(limit=20, chunk=5)
+    short.submit("?statusaxis")  # 12 bytes, ?pos 5: the 6 of ?help do not fit
+    short.submit("?pos", separate_after=True)
+    short.flush()
+    assert short.wire == ["?statusaxis", "?pos"]
+    short.drain()
+    short.submit("?err")
+    short.drain()
+    assert short.wire[-2:] == ["?help", "?err"]
+    off = Link()
+    off.scheduler.separators = False
+    off.submit("?pos", separate_after=True)
+    off.submit("?err")
+    off.flush()
+    assert off.wire == ["?pos"]  # the ?err waits for the ?pos reply instead
 
 
 def test_a_marker_error_marks_the_lines_it_covers() -> None:
