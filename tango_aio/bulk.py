@@ -23,6 +23,7 @@ import asyncio
 import math
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
 from .instructions import (
@@ -33,6 +34,7 @@ from .instructions import (
     Form,
     build,
     build_rows,
+    encode_rows,
     parse,
 )
 from .protocol import Submission, TangoProtocol
@@ -49,6 +51,7 @@ __all__ = [
     "check_axis",
     "check_resolution",
     "prepare",
+    "prepare_lines",
     "snapshot_spec",
     "trigger_spec",
     "validate_rows",
@@ -86,6 +89,8 @@ class ListSpec:
 
     #: Builds the append lines of the given rows (validating each against the catalog).
     append: Callable[[Sequence[Sequence[float]]], Iterator[Command]]
+    #: The same lines as bytes, CR included (no Command per entry).
+    encode: Callable[[Sequence[Sequence[float]]], Iterator[bytes]]
     #: The instruction that counts (``?trigc``) and truncates (``!trigc n``) the list.
     count: str
     #: Builds the read of entry ``n`` (``?trigp n``).
@@ -117,18 +122,32 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
 def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     """Build (and so validate against the catalog) every append line before anything is
     sent; raises :class:`InvalidCommandError` naming the first bad entry."""
-    commands: list[Command] = []
-    lines = spec.append(rows)
+    return _prepared(spec.append(rows))
+
+
+def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes]:
+    """:func:`prepare`, the lines as bytes (CR included) without a :class:`Command` per
+    entry (:func:`~tango_aio.instructions.encode_rows`): the same checks and errors."""
+    return _prepared(spec.encode(rows))
+
+
+_Line = TypeVar("_Line", Command, bytes)
+
+
+def _prepared(lines: Iterator[_Line]) -> list[_Line]:
+    """Every line of ``lines``; an invalid entry raises :class:`InvalidCommandError`
+    naming its index."""
+    out: list[_Line] = []
     while True:
         try:
-            command = next(lines, None)
+            line = next(lines, None)
         except InvalidCommandError as exc:
-            raise InvalidCommandError(f"entry {len(commands)}: {exc}",
+            raise InvalidCommandError(f"entry {len(out)}: {exc}",
                                       instruction=exc.instruction, parameter=exc.parameter,
                                       number=exc.number) from exc
-        if command is None:
-            return commands
-        commands.append(command)
+        if line is None:
+            return out
+        out.append(line)
 
 
 def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float],
@@ -170,7 +189,7 @@ class ListTransfer:
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
         """Validate and build every line of ``rows``, then (holding :attr:`lock`) await
         ``clear`` (the checked clearing line) and append the rows."""
-        chunks = self._chunks(prepare(spec, rows))
+        chunks = self._chunks(spec, rows)
         # Not kept through the upload: one list per entry (the caller's rows) made a
         # 64-link upload's full garbage collections scan 200 000 objects (#19 target 7).
         del rows
@@ -178,11 +197,27 @@ class ListTransfer:
             await clear()
             await self._upload(spec, chunks, progress)
 
-    def _chunks(self, built: list[Command]) -> list[Run | list[Command]]:
-        """The lines ``built`` cut at the checkpoints, each piece kept as one row value
-        (a :class:`~tango_aio.scheduler.Run`: its bytes, not its Command objects, which
-        kept a 64-link upload's garbage collections long, #19) where its lines owe no
-        reply; else as the commands themselves."""
+    def _chunks(self, spec: ListSpec, rows: Sequence[Sequence[float]]
+                ) -> list[Run | list[Command]]:
+        """The append lines of ``rows`` (validated) cut at the checkpoints, each piece
+        kept as one row value (a :class:`~tango_aio.scheduler.Run`: its bytes, built
+        without a Command per entry, #19) where its lines owe no reply in the mode in
+        force; else as the commands themselves."""
+        first = prepare(spec, rows[:1])
+        if not first or self._protocol.pack(first) is None:
+            return self._pieces(prepare(spec, rows))
+        lines = prepare_lines(spec, rows)
+        chunks: list[Run | list[Command]] = []
+        for start in range(0, len(lines), CHECKPOINT):
+            piece = lines[start:start + CHECKPOINT]
+            template = parse(piece[0][:-1].decode("ascii"))
+            chunks.append(self._protocol.pack_lines(template, piece)
+                          or [parse(line[:-1].decode("ascii")) for line in piece])
+        return chunks
+
+    def _pieces(self, built: list[Command]) -> list[Run | list[Command]]:
+        """The commands ``built`` cut at the checkpoints, each piece kept as one
+        :class:`~tango_aio.scheduler.Run` where its lines owe no reply, else as they are."""
         chunks: list[Run | list[Command]] = []
         for start in range(0, len(built), CHECKPOINT):
             piece = built[start:start + CHECKPOINT]
@@ -322,6 +357,7 @@ def trigger_spec() -> ListSpec:
     """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``)."""
     return ListSpec(
         append=lambda rows: build_rows("trigp", [-1], rows),
+        encode=lambda rows: encode_rows("trigp", [-1], rows),
         count="trigc",
         read=lambda index: build("trigp", index, form=Form.READ),
     )
@@ -331,6 +367,7 @@ def snapshot_spec() -> ListSpec:
     """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``)."""
     return ListSpec(
         append=lambda rows: build_rows("snsa", [-1], rows),
+        encode=lambda rows: encode_rows("snsa", [-1], rows),
         count="snsc",
         read=lambda index: build("snsa", index, form=Form.READ),
     )

@@ -702,6 +702,21 @@ class TangoProtocol(asyncio.Protocol):
             _check_framing(command)
         return self.scheduler.pack(commands, batch)
 
+    def pack_lines(self, template: Command, lines: Sequence[bytes], *,
+                   batch: object | None = None) -> Run | None:
+        """:meth:`pack` for list entries given as bytes, each a line of ``template``'s
+        instruction and form (:func:`~tango_aio.instructions.encode_rows`), framing
+        checked on the whole blob (:meth:`~tango_aio.scheduler.WriteScheduler.pack_lines`)."""
+        _check_framing(template)
+        run = self.scheduler.pack_lines(template, lines, batch)
+        if run is not None:
+            text = run.blob.decode("ascii", "replace")
+            if text.count("\r") != len(run) or not text.replace("\r", "").isprintable() \
+                    or not text.endswith("\r"):
+                raise InvalidCommandError("control or non-ASCII character inside a list "
+                                          "line", instruction=template.name, number=4)
+        return run
+
     def submit_run(self, run: Run) -> Run:
         """Queue a run from :meth:`pack`. On the wire the same bytes, credit markers and
         separators as one :meth:`submit` per line; :meth:`withdraw` takes back the lines
@@ -751,15 +766,18 @@ class TangoProtocol(asyncio.Protocol):
         (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
         the timeout as its cause.
         """
-        assert submission.reply is not None
+        reply = submission.reply
+        assert reply is not None
         try:
-            async with asyncio.timeout(timeout):
-                return await asyncio.shield(submission.reply)
+            if not reply.done():
+                await _until_done(reply, timeout)
+            if reply.done():
+                return reply.result()
+            raise TimeoutError
         except TimeoutError:
             self.check()
-            if submission.reply.done() and not submission.reply.cancelled() \
-                    and submission.reply.exception() is None:
-                return submission.reply.result()  # answered at the very deadline
+            if reply.done() and not reply.cancelled() and reply.exception() is None:
+                return reply.result()  # answered at the very deadline
             error = ControllerTimeoutError(
                 f"no reply to {submission.command.line!r} within {timeout} s")
             if not submission.written:
@@ -1263,6 +1281,29 @@ def _consume(future: asyncio.Future[Any]) -> None:
     """Mark a future's outcome retrieved (nobody awaits it)."""
     if not future.cancelled():
         future.exception()
+
+
+async def _until_done(future: asyncio.Future[Any], timeout: float | None) -> None:
+    """Wait until ``future`` is done or ``timeout`` seconds have passed, whichever comes
+    first; cancelling the wait leaves ``future`` alone (it may have other waiters).
+
+    What ``asyncio.timeout`` around ``asyncio.shield`` did, with one helper future, one
+    callback and one timer instead of a shield's future and two callbacks and a timeout
+    context: the per-request path of every read (#19)."""
+    waiter = future.get_loop().create_future()
+
+    def wake(_: object = None) -> None:
+        if not waiter.done():
+            waiter.set_result(None)
+
+    future.add_done_callback(wake)
+    timer = None if timeout is None else waiter.get_loop().call_later(timeout, wake)
+    try:
+        await waiter
+    finally:
+        future.remove_done_callback(wake)
+        if timer is not None:
+            timer.cancel()
 
 
 def _cancel(future: asyncio.Future[Any] | None) -> None:

@@ -51,7 +51,7 @@ from __future__ import annotations
 import itertools
 import logging
 from collections import deque
-from collections.abc import Hashable, Iterable
+from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -207,24 +207,33 @@ class WriteScheduler:
         mode = self._queued_mode if self._queue else self.core.autostatus
         context = self.core.context
         first: tuple[Command, Expectation] | None = None
-        chunks: list[bytes] = []
-        ends: list[int] = []
-        end = 0
+        lines: list[bytes] = []
         for command in commands:
             expect = expectation(command, mode, context)
-            if expect.expects_reply or expect.completion is not None \
-                    or expect.mode_after != mode or expect.rule.continuation is not None:
+            if not _replyless(expect, mode):
                 return None
             if first is None:
                 first = command, expect
-            data = command.to_bytes()
-            chunks.append(data)
-            end += len(data)
-            ends.append(end)
+            lines.append(command.to_bytes())
         if first is None:
             return None
-        return Run(first[0], 0, first[1], mode, batch, blob=b"".join(chunks),
-                   ends=tuple(ends))
+        return _run(first[0], first[1], mode, lines, batch)
+
+    def pack_lines(self, template: Command, lines: Sequence[bytes],
+                   batch: object | None = None) -> Run | None:
+        """:meth:`pack` for lines given as bytes (CR included), every one a line of
+        ``template``'s instruction in its form (what
+        :func:`~tango_aio.instructions.encode_rows` gives: a list upload without a
+        Command per entry, #19). What a line owes depends only on its instruction and
+        form in a mode (:func:`~tango_aio.core.expectation`), so ``template`` speaks for
+        all; a line that does not start like it gives ``None``."""
+        mode = self._queued_mode if self._queue else self.core.autostatus
+        expect = expectation(template, mode, self.core.context)
+        head = (template.form.value + template.name + " ").encode("ascii")
+        if not lines or not _replyless(expect, mode) or not all(
+                line.startswith(head) for line in lines):
+            return None
+        return _run(template, expect, mode, lines, batch)
 
     def submit(self, line: Line) -> bool:
         """Queue ``line`` (from :meth:`plan`, or a run from :meth:`pack`); return whether
@@ -544,3 +553,17 @@ class WriteScheduler:
         ended): all credit is free."""
         self.credit.cleared()
         self._last_owed, self._last_batch, self._last_owing = None, None, None
+
+
+def _replyless(expect: Expectation, mode: int) -> bool:
+    """Whether a line owing ``expect`` in ``mode`` may go into a :class:`Run`: no reply,
+    no report, no mode change, no continuation."""
+    return not (expect.expects_reply or expect.completion is not None
+                or expect.mode_after != mode or expect.rule.continuation is not None)
+
+
+def _run(first: Command, expect: Expectation, mode: int, lines: Sequence[bytes],
+         batch: object | None) -> Run:
+    """The :class:`Run` of ``lines`` (bytes, CR included), ``first`` its first line."""
+    return Run(first, 0, expect, mode, batch, blob=b"".join(lines),
+               ends=tuple(itertools.accumulate(map(len, lines))))

@@ -33,6 +33,19 @@ async def test_upload_reads_back_identical_in_instant_mode(emulator: EmulatorFac
     assert [d for d, _ in seen] == sorted(d for d, _ in seen)
 
 
+@pytest.mark.parametrize("autostatus", [0, 1, 2, 3, 4])
+async def test_upload_in_every_mode(emulator: EmulatorFactory, autostatus: int) -> None:
+    # In modes 0, 1 and 3 the entries go as bytes (no Command each, #19); in modes 2 and
+    # 4 every entry owes an acknowledgement or an echo and goes as a command.
+    emu = await emulator(autostatus=autostatus)
+    values = ramp(450)
+    await emu.tango.upload_trigger_positions(values)
+    assert await emu.tango.read_trigger_positions() == values
+    rows = [[float(i), -float(i), 0.5] for i in range(1, 250)]
+    await emu.tango.upload_snapshot_positions(rows)
+    assert await emu.tango.read_snapshot_positions() == rows
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 async def test_random_stalls_never_lose_a_byte(emulator: EmulatorFactory, seed: int) -> None:
     """Real-time wire, slowed interpreter, random stalls during the upload: the buffer

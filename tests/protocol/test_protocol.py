@@ -210,6 +210,18 @@ async def test_a_separator_behind_reads_goes_in_their_write(fake_link: LinkFacto
     assert reply_of(err) == ("0",)
 
 
+async def test_list_lines_as_bytes_are_checked_for_framing(fake_link: LinkFactory) -> None:
+    link = fake_link()
+    template = parse("!trigp -1 1.0")
+    run = link.protocol.pack_lines(template, [b"!trigp -1 1.0\r", b"!trigp -1 2.0\r"])
+    assert run is not None and len(run) == 2
+    for smuggled in (b"!trigp -1 2.0\x03\r", b"!trigp -1 2\r!moa x 5\r",
+                     b"!trigp -1 2.0\n\r", b"!trigp -1 2.0"):
+        with pytest.raises(InvalidCommandError):
+            link.protocol.pack_lines(template, [b"!trigp -1 1.0\r", smuggled])
+    assert link.transport.writes == []
+
+
 async def test_settle_waits_for_the_drivers_own_lines_only(fake_link: LinkFactory) -> None:
     link = fake_link(separators=True)
     link.protocol.submit_together((parse("?statusaxis"), parse("?pos")), separate_after=True)

@@ -1,9 +1,10 @@
-"""build_rows (the fast path of list uploads) gives exactly what build gives."""
+"""build_rows and encode_rows (the fast paths of list uploads) give exactly what build
+gives (encode_rows: its bytes)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import pytest
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 
 from tango_aio import instructions
 from tango_aio.errors import InvalidCommandError
-from tango_aio.instructions import Command, Context, Form, build, build_rows
+from tango_aio.instructions import Command, Context, Form, build, build_rows, encode_rows
 
 NUMBERS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
@@ -35,19 +36,18 @@ def _one_by_one(name: str, lead: Sequence[object], rows: Sequence[Sequence[objec
 
 
 def _fast(name: str, lead: Sequence[object], rows: Sequence[Sequence[object]], form: Form,
-          ctx: Context) -> list[Command | tuple[str, str]]:
+          ctx: Context, rows_of: Callable[..., Iterator[Any]] = build_rows) -> list[Any]:
     # build_rows is a generator that an error ends (an upload stops at the first bad row
     # anyway), so each row goes through after the good rows before it, which made the plans.
-    out: list[Command | tuple[str, str]] = []
+    out: list[Any] = []
     good: list[Sequence[object]] = []
     for row in rows:
         try:
-            commands = list(build_rows(name, lead, [*good, row], form=form,  # type: ignore[arg-type,list-item]  # wrong types on purpose
-                                       context=ctx))
+            made = list(rows_of(name, lead, [*good, row], form=form, context=ctx))
         except (InvalidCommandError, OverflowError, TypeError) as exc:
             out.append((type(exc).__name__, str(exc)))
         else:
-            out.append(commands[-1])
+            out.append(made[-1])
             good.append(row)
     return out
 
@@ -63,12 +63,20 @@ def _same(a: list[Command | tuple[str, str]], b: list[Command | tuple[str, str]]
             assert x == y
 
 
+def _check(name: str, lead: Sequence[object], rows: Sequence[Sequence[object]], form: Form,
+           ctx: Context) -> None:
+    """build_rows gives build's commands, encode_rows their bytes (and both its errors)."""
+    plain = _one_by_one(name, lead, rows, form, ctx)
+    _same(_fast(name, lead, rows, form, ctx), plain)
+    assert _fast(name, lead, rows, form, ctx, encode_rows) == [
+        x.to_bytes() if isinstance(x, Command) else x for x in plain]
+
+
 @settings(max_examples=300)
 @given(rows=st.lists(st.lists(NUMBERS, min_size=1, max_size=1), min_size=1, max_size=6))
 def test_trigger_rows(rows: list[list[object]]) -> None:
     ctx = Context()
-    _same(_fast("trigp", [-1], rows, Form.SET, ctx), _one_by_one("trigp", [-1], rows,
-                                                                  Form.SET, ctx))
+    _check("trigp", [-1], rows, Form.SET, ctx)
 
 
 @settings(max_examples=300)
@@ -76,8 +84,7 @@ def test_trigger_rows(rows: list[list[object]]) -> None:
        dims=st.tuples(*[st.sampled_from([0, 1, 2, 9])] * 4))
 def test_snapshot_rows(rows: list[list[object]], dims: tuple[int, int, int, int]) -> None:
     ctx = Context(dims=dims)
-    _same(_fast("snsa", [-1], rows, Form.SET, ctx), _one_by_one("snsa", [-1], rows,
-                                                                 Form.SET, ctx))
+    _check("snsa", [-1], rows, Form.SET, ctx)
 
 
 @pytest.mark.parametrize(("name", "lead"), [("vel", []), ("accel", []), ("trigp", [5]),
@@ -87,7 +94,7 @@ def test_snapshot_rows(rows: list[list[object]], dims: tuple[int, int, int, int]
 def test_other_instructions(name: str, lead: list[object], rows: list[list[object]]) -> None:
     """Per-axis settings with dim-dependent limits (vel in dim 9), moves, positions."""
     ctx = Context(dims=(9, 2, 1, 0))
-    _same(_fast(name, lead, rows, Form.SET, ctx), _one_by_one(name, lead, rows, Form.SET, ctx))
+    _check(name, lead, rows, Form.SET, ctx)
 
 
 def test_rows_after_the_first_take_the_fast_path(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -106,6 +113,9 @@ def test_rows_after_the_first_take_the_fast_path(monkeypatch: pytest.MonkeyPatch
     assert len(full) == 1
     assert [c.line for c in commands] == [build("trigp", -1, r[0]).line for r in rows]
     assert commands[3].values == (-1, 0.503)
+    full.clear()
+    assert list(encode_rows("trigp", [-1], rows)) == [c.to_bytes() for c in commands]
+    assert len(full) == 1
     full.clear()
     with pytest.raises(InvalidCommandError):
         list(build_rows("snsa", [-1], [[1.0, 2.0], [1.0, 3.0], [1.0, math.inf]]))

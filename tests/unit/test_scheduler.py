@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from tango_aio.core import Acknowledged, Echoed, ProtocolCore, Replied, wire_size
 from tango_aio.flow import MARKER
-from tango_aio.instructions import Command, parse
+from tango_aio.instructions import Command, build_rows, encode_rows, parse
 from tango_aio.patterns import ONE_NUMBER, ReplyKind, ReplyPattern, marker_pattern
 from tango_aio.scheduler import Line, WriteScheduler
 from tango_aio.sim.model import ControllerModel, SimConfig
@@ -424,3 +424,29 @@ def test_only_reply_less_lines_make_a_run() -> None:
     assert scheduler.pack([]) is None
     scheduler.core.autostatus = 2  # every ! line is acknowledged
     assert scheduler.pack([parse("!trigp -1 1.0")]) is None
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-1e4, 1e4).map(lambda v: round(v, 4)), min_size=1, max_size=40),
+       st.sampled_from(["trigp", "snsa"]))
+def test_a_run_from_bytes_is_the_run_from_commands(values: list[float], name: str) -> None:
+    # The upload's row-value path (encode_rows, pack_lines) against the plain one.
+    rows = [[v] * (1 if name == "trigp" else 3) for v in values]
+    commands = list(build_rows(name, [-1], rows))
+    lines = list(encode_rows(name, [-1], rows))
+    scheduler = WriteScheduler(ProtocolCore())
+    plain = scheduler.pack(commands)
+    fast = scheduler.pack_lines(commands[0], lines)
+    assert plain is not None and fast is not None
+    assert (fast.blob, fast.ends, fast.mode, fast.expectation, fast.command) == (
+        plain.blob, plain.ends, plain.mode, plain.expectation, plain.command)
+
+
+def test_lines_owing_replies_or_of_another_instruction_make_no_run_from_bytes() -> None:
+    scheduler = WriteScheduler(ProtocolCore())
+    template = parse("!trigp -1 1.0")
+    assert scheduler.pack_lines(template, [b"!trigp -1 1.0\r", b"!trigp -1 2.0\r"])
+    assert scheduler.pack_lines(template, [b"!trigp -1 1.0\r", b"!snsa -1 1 2 3\r"]) is None
+    assert scheduler.pack_lines(template, []) is None
+    scheduler.core.autostatus = 2  # every ! line is acknowledged
+    assert scheduler.pack_lines(template, [b"!trigp -1 1.0\r"]) is None
