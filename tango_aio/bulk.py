@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Awaitable, Callable, Iterator, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import TypeVar, overload
 
 from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
 from .instructions import (
@@ -34,6 +34,7 @@ from .instructions import (
     Form,
     build,
     build_rows,
+    check_rows,
     encode_rows,
     parse,
 )
@@ -44,11 +45,13 @@ __all__ = [
     "CHECKPOINT",
     "MAX_SNAPSHOTS",
     "MAX_TRIGGERS",
+    "Column",
     "ListSpec",
     "ListTransfer",
     "Progress",
     "UploadError",
     "check_axis",
+    "check_entries",
     "check_resolution",
     "prepare",
     "prepare_lines",
@@ -91,10 +94,39 @@ class ListSpec:
     append: Callable[[Sequence[Sequence[float]]], Iterator[Command]]
     #: The same lines as bytes, CR included (no Command per entry).
     encode: Callable[[Sequence[Sequence[float]]], Iterator[bytes]]
+    #: ``True`` per good row; raises what :attr:`append` raises for the first bad one,
+    #: without making the lines.
+    check: Callable[[Sequence[Sequence[float]]], Iterator[bool]]
     #: The instruction that counts (``?trigc``) and truncates (``!trigc n``) the list.
     count: str
     #: Builds the read of entry ``n`` (``?trigp n``).
     read: Callable[[int], Command]
+
+
+class Column(Sequence[Sequence[float]]):
+    """A list of numbers seen as rows of one value each, without a list per row: an
+    upload keeps its rows until each chunk is made, and one object per entry made a
+    64-link upload's full garbage collections long (#19 target 7)."""
+
+    def __init__(self, values: list[float]) -> None:
+        self._values = values
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __iter__(self) -> Iterator[Sequence[float]]:
+        return ((value,) for value in self._values)
+
+    @overload
+    def __getitem__(self, index: int) -> Sequence[float]: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> Sequence[Sequence[float]]: ...
+
+    def __getitem__(self, index: int | slice) -> Sequence[float] | Sequence[Sequence[float]]:
+        if isinstance(index, slice):
+            return [(value,) for value in self._values[index]]
+        return (self._values[index],)
 
 
 def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
@@ -122,32 +154,39 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
 def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     """Build (and so validate against the catalog) every append line before anything is
     sent; raises :class:`InvalidCommandError` naming the first bad entry."""
-    return _prepared(spec.append(rows))
+    return list(_numbered(spec.append(rows)))
 
 
 def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes]:
     """:func:`prepare`, the lines as bytes (CR included) without a :class:`Command` per
     entry (:func:`~tango_aio.instructions.encode_rows`): the same checks and errors."""
-    return _prepared(spec.encode(rows))
+    return list(_numbered(spec.encode(rows)))
 
 
-_Line = TypeVar("_Line", Command, bytes)
+def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
+    """Raise what :func:`prepare` raises for the first bad entry, without making the
+    lines (:func:`~tango_aio.instructions.check_rows`)."""
+    for _ in _numbered(spec.check(rows)):
+        pass
 
 
-def _prepared(lines: Iterator[_Line]) -> list[_Line]:
-    """Every line of ``lines``; an invalid entry raises :class:`InvalidCommandError`
-    naming its index."""
-    out: list[_Line] = []
+_Line = TypeVar("_Line")
+
+
+def _numbered(lines: Iterator[_Line]) -> Iterator[_Line]:
+    """``lines``; an invalid entry raises :class:`InvalidCommandError` naming its index."""
+    index = 0
     while True:
         try:
-            line = next(lines, None)
+            line = next(lines)
+        except StopIteration:
+            return
         except InvalidCommandError as exc:
-            raise InvalidCommandError(f"entry {len(out)}: {exc}",
+            raise InvalidCommandError(f"entry {index}: {exc}",
                                       instruction=exc.instruction, parameter=exc.parameter,
                                       number=exc.number) from exc
-        if line is None:
-            return out
-        out.append(line)
+        yield line
+        index += 1
 
 
 def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float],
@@ -187,33 +226,40 @@ class ListTransfer:
 
     async def replace(self, spec: ListSpec, clear: Callable[[], Awaitable[None]],
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
-        """Validate and build every line of ``rows``, then (holding :attr:`lock`) await
-        ``clear`` (the checked clearing line) and append the rows."""
-        chunks = self._chunks(spec, rows)
-        # Not kept through the upload: one list per entry (the caller's rows) made a
-        # 64-link upload's full garbage collections scan 200 000 objects (#19 target 7).
-        del rows
+        """Validate every line of ``rows``, then (holding :attr:`lock`) await ``clear``
+        (the checked clearing line) and append the rows.
+
+        Where the entries owe no reply in the mode in force (modes 0, 1, 3), they are
+        only checked before the clear (:func:`~tango_aio.instructions.check_rows`, whose
+        rows :func:`~tango_aio.instructions.encode_rows` cannot fail on); each chunk's
+        lines are made as bytes when it is queued, while the chunks before it are on the
+        wire (#19: 64 uploads in one process used to start one list-build apart).
+        Otherwise every line is built before the clear, as commands."""
+        total = len(rows)
+        first = prepare(spec, rows[:1])
+        if first and self._protocol.pack(first) is not None:
+            check_entries(spec, rows)
+            chunks: Iterable[Run | list[Command]] = self._encoded(spec, rows)
+        else:
+            chunks = self._pieces(prepare(spec, rows))
+            # Not kept through the upload: one list per entry (the caller's rows) made a
+            # 64-link upload's full garbage collections scan 200 000 objects (#19 target 7).
+            del rows
         async with self.lock:
             await clear()
-            await self._upload(spec, chunks, progress)
+            await self._upload(spec, chunks, total, progress)
 
-    def _chunks(self, spec: ListSpec, rows: Sequence[Sequence[float]]
-                ) -> list[Run | list[Command]]:
-        """The append lines of ``rows`` (validated) cut at the checkpoints, each piece
-        kept as one row value (a :class:`~tango_aio.scheduler.Run`: its bytes, built
-        without a Command per entry, #19) where its lines owe no reply in the mode in
-        force; else as the commands themselves."""
-        first = prepare(spec, rows[:1])
-        if not first or self._protocol.pack(first) is None:
-            return self._pieces(prepare(spec, rows))
-        lines = prepare_lines(spec, rows)
-        chunks: list[Run | list[Command]] = []
-        for start in range(0, len(lines), CHECKPOINT):
-            piece = lines[start:start + CHECKPOINT]
+    def _encoded(self, spec: ListSpec, rows: Sequence[Sequence[float]]
+                 ) -> Iterator[Run | list[Command]]:
+        """The append lines of ``rows`` (checked) cut at the checkpoints, each piece made
+        when it is asked for, as one row value (a :class:`~tango_aio.scheduler.Run`: its
+        bytes, no Command per entry, #19), or as commands where a mode change since
+        makes its lines owe replies."""
+        for start in range(0, len(rows), CHECKPOINT):
+            piece = list(spec.encode(rows[start:start + CHECKPOINT]))
             template = parse(piece[0][:-1].decode("ascii"))
-            chunks.append(self._protocol.pack_lines(template, piece)
-                          or [parse(line[:-1].decode("ascii")) for line in piece])
-        return chunks
+            yield self._protocol.pack_lines(template, piece) or [
+                parse(line[:-1].decode("ascii")) for line in piece]
 
     def _pieces(self, built: list[Command]) -> list[Run | list[Command]]:
         """The commands ``built`` cut at the checkpoints, each piece kept as one
@@ -225,11 +271,11 @@ class ListTransfer:
         built.clear()
         return chunks
 
-    async def _upload(self, spec: ListSpec, chunks: list[Run | list[Command]],
-                      progress: Progress | None) -> None:
-        """Append the lines of ``chunks`` (validated, the list cleared) with a check of
-        the list's length after each chunk."""
-        self._total = sum(map(len, chunks))  # for progress reports
+    async def _upload(self, spec: ListSpec, chunks: Iterable[Run | list[Command]],
+                      total: int, progress: Progress | None) -> None:
+        """Append the lines of ``chunks`` (validated, the list cleared; ``total`` lines)
+        with a check of the list's length after each chunk."""
+        self._total = total  # for progress reports
         sent: list[Run | list[Command]] = []
         pending: list[tuple[int, Submission, list[Line]]] = []
         # All or nothing: a lost or added reply anywhere fails the whole upload, so its
@@ -358,6 +404,7 @@ def trigger_spec() -> ListSpec:
     return ListSpec(
         append=lambda rows: build_rows("trigp", [-1], rows),
         encode=lambda rows: encode_rows("trigp", [-1], rows),
+        check=lambda rows: check_rows("trigp", [-1], rows),
         count="trigc",
         read=lambda index: build("trigp", index, form=Form.READ),
     )
@@ -368,6 +415,7 @@ def snapshot_spec() -> ListSpec:
     return ListSpec(
         append=lambda rows: build_rows("snsa", [-1], rows),
         encode=lambda rows: encode_rows("snsa", [-1], rows),
+        check=lambda rows: check_rows("snsa", [-1], rows),
         count="snsc",
         read=lambda index: build("snsa", index, form=Form.READ),
     )

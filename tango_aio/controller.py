@@ -14,6 +14,7 @@ from typing import Any
 
 from ._checks import check_count, check_timeout
 from .bulk import (
+    Column,
     ListTransfer,
     Progress,
     check_axis,
@@ -817,10 +818,10 @@ class Controller:
         letter = check_axis(axis)
         values = validate_trigger_positions(positions)
         resolution = await self._resolution()
-        check_resolution([[v] for v in values], [resolution[AXES.index(letter)]], "trigp")
+        rows = Column(values)
+        check_resolution(rows, [resolution[AXES.index(letter)]], "trigp")
         await self._transfer().replace(
-            trigger_spec(), lambda: self.command(f"!trigp {letter} 0"),
-            [[v] for v in values], progress)
+            trigger_spec(), lambda: self.command(f"!trigp {letter} 0"), rows, progress)
 
     async def read_trigger_positions(self) -> list[float]:
         """Read the whole trigger position list with pipelined ``?trigp n`` reads."""

@@ -12,8 +12,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tango_aio import instructions
+from tango_aio.bulk import Column
 from tango_aio.errors import InvalidCommandError
-from tango_aio.instructions import Command, Context, Form, build, build_rows, encode_rows
+from tango_aio.instructions import (
+    Command,
+    Context,
+    Form,
+    build,
+    build_rows,
+    check_rows,
+    encode_rows,
+)
 
 NUMBERS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
@@ -63,11 +72,24 @@ def _same(a: list[Command | tuple[str, str]], b: list[Command | tuple[str, str]]
             assert x == y
 
 
+def _first_error(call: Callable[[], object]) -> tuple[str, str] | None:
+    try:
+        call()
+    except (InvalidCommandError, OverflowError, TypeError) as exc:
+        return type(exc).__name__, str(exc)
+    return None
+
+
 def _check(name: str, lead: Sequence[object], rows: Sequence[Sequence[object]], form: Form,
            ctx: Context) -> None:
     """build_rows gives build's commands, encode_rows their bytes (and both its errors)."""
     plain = _one_by_one(name, lead, rows, form, ctx)
     _same(_fast(name, lead, rows, form, ctx), plain)
+    # check_rows raises build_rows' first error, and after it encode_rows cannot fail.
+    whole = _first_error(lambda: list(build_rows(name, lead, rows, form=form, context=ctx)))  # type: ignore[arg-type]
+    assert _first_error(lambda: list(check_rows(name, lead, rows, form=form, context=ctx))) == whole  # type: ignore[arg-type]
+    if whole is None:
+        list(encode_rows(name, lead, rows, form=form, context=ctx))  # type: ignore[arg-type]
     assert _fast(name, lead, rows, form, ctx, encode_rows) == [
         x.to_bytes() if isinstance(x, Command) else x for x in plain]
 
@@ -120,3 +142,12 @@ def test_rows_after_the_first_take_the_fast_path(monkeypatch: pytest.MonkeyPatch
     with pytest.raises(InvalidCommandError):
         list(build_rows("snsa", [-1], [[1.0, 2.0], [1.0, 3.0], [1.0, math.inf]]))
     assert len(full) == 2  # the first row, and the row that failed the direct check
+
+
+def test_a_column_is_rows_of_one_value() -> None:
+    values = [0.5, 1.0, 1.5, 2.0]
+    rows = Column(values)
+    assert len(rows) == 4 and rows[1] == (1.0,) and rows[-1] == (2.0,)
+    assert rows[1:3] == [(1.0,), (1.5,)] and list(rows) == [(v,) for v in values]
+    assert list(encode_rows("trigp", [-1], rows)) == list(
+        encode_rows("trigp", [-1], [[v] for v in values]))
