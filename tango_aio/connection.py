@@ -29,6 +29,7 @@ from typing import Any
 from ._checks import check_count, check_timeout
 from .controller import Controller
 from .errors import ConnectionLostError
+from .fdlink import FdTransport
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .protocol import DEAD_AFTER, TangoProtocol
 from .reconnect import Closer, Reconnect, ReconnectPolicy
@@ -76,16 +77,22 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
     loop = asyncio.get_running_loop()
     released = _watch_release(port, loop)
     try:
-        transport, protocol = await serial_asyncio_fast.connection_for_serial(
-            loop, factory, port)
+        if os.name == "posix" and type(port) is serial.Serial:
+            # A plain POSIX port: its descriptor read and written directly (#19).
+            protocol = factory()
+            transport: asyncio.BaseTransport = FdTransport(loop, protocol, port)
+        else:
+            transport, made = await serial_asyncio_fast.connection_for_serial(
+                loop, factory, port)
+            assert isinstance(made, TangoProtocol)
+            protocol = made
     except BaseException:
         port.close()
         raise
-    assert isinstance(protocol, TangoProtocol)
 
     async def release() -> None:
         """Close the transport and return once the port itself is closed (and its lock
-        released): pyserial-asyncio-fast closes it in a worker thread after
+        released): both transports close it in a worker thread after
         ``transport.close()`` returned, and a ``connect()`` to the same port right after
         ``aclose()`` must not find it still locked."""
         transport.close()

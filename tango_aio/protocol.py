@@ -116,6 +116,9 @@ class Submission(Line):
     reply: asyncio.Future[Response] | None = None
     completion: asyncio.Future[Completed] | None = None
     response: Response = field(default_factory=Response)
+    #: The future a :meth:`TangoProtocol.wait_reply` sleeps on, woken in the same loop
+    #: turn as ``reply`` is resolved (a done-callback would take one more, #19).
+    waiter: asyncio.Future[None] | None = None
 
 
 @dataclass(eq=False, slots=True)
@@ -770,7 +773,7 @@ class TangoProtocol(asyncio.Protocol):
         assert reply is not None
         try:
             if not reply.done():
-                await _until_done(reply, timeout)
+                await _until_done(reply, timeout, submission)
             if reply.done():
                 return reply.result()
             raise TimeoutError
@@ -1154,6 +1157,7 @@ class TangoProtocol(asyncio.Protocol):
         if event.done:
             if submission.reply is not None and not submission.reply.done():
                 submission.reply.set_result(response)
+                _wake(submission.waiter)
             self._release(event.tag, submission)
 
     def _heard(self) -> None:
@@ -1283,27 +1287,38 @@ def _consume(future: asyncio.Future[Any]) -> None:
         future.exception()
 
 
-async def _until_done(future: asyncio.Future[Any], timeout: float | None) -> None:
-    """Wait until ``future`` is done or ``timeout`` seconds have passed, whichever comes
-    first; cancelling the wait leaves ``future`` alone (it may have other waiters).
+async def _until_done(future: asyncio.Future[Any], timeout: float | None,
+                      submission: Submission) -> None:
+    """Wait until ``future`` (``submission``'s reply) is done or ``timeout`` seconds have
+    passed, whichever comes first; cancelling the wait leaves ``future`` alone (it may
+    have other waiters).
 
     What ``asyncio.timeout`` around ``asyncio.shield`` did, with one helper future, one
     callback and one timer instead of a shield's future and two callbacks and a timeout
-    context: the per-request path of every read (#19)."""
-    waiter = future.get_loop().create_future()
+    context: the per-request path of every read (#19). The protocol wakes the helper
+    itself when it resolves the reply (:attr:`Submission.waiter`), in the same loop turn;
+    the callback covers every other way the reply ends (failed, cancelled)."""
+    loop = future.get_loop()
+    waiter = loop.create_future()
 
     def wake(_: object = None) -> None:
-        if not waiter.done():
-            waiter.set_result(None)
+        _wake(waiter)
 
     future.add_done_callback(wake)
-    timer = None if timeout is None else waiter.get_loop().call_later(timeout, wake)
+    timer = None if timeout is None else loop.call_later(timeout, wake)
+    previous, submission.waiter = submission.waiter, waiter
     try:
         await waiter
     finally:
+        submission.waiter = previous
         future.remove_done_callback(wake)
         if timer is not None:
             timer.cancel()
+
+
+def _wake(waiter: asyncio.Future[None] | None) -> None:
+    if waiter is not None and not waiter.done():
+        waiter.set_result(None)
 
 
 def _cancel(future: asyncio.Future[Any] | None) -> None:

@@ -40,6 +40,7 @@ from tango_aio.errors import (
     OutOfRangeError,
     RequestAbortedError,
 )
+from tango_aio.fdlink import FdTransport
 from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.serve import serve_pty, serve_tcp
 from tango_aio.sim.wire import Wire
@@ -416,6 +417,8 @@ async def test_pty_server_close_fails_pending_awaits() -> None:
     try:
         tango = await connect(server.path)
         try:
+            # A plain POSIX port: its descriptor is read and written directly (#19).
+            assert isinstance(tango.protocol.transport, FdTransport)
             assert tango.identity is not None and tango.identity.axes == 3
             assert await tango.get("vel") == {"x": 10.0, "y": 10.0, "z": 10.0}
             await _assert_loss_fails_pending(tango, server.wire, server.close)
