@@ -79,9 +79,10 @@ class CannedTransport(asyncio.Transport):
     def write(self, data: bytes | bytearray | memoryview) -> None:
         *lines, self._partial = (self._partial + bytes(data)).split(b"\r")
         replies = []
+        reports = 0
         for line in lines:
             if self.reports and line.startswith(self.reports):
-                self._loop.call_later(REPORT_DELAY, self._report)
+                reports += 1
                 self._arrive(line)
                 continue
             reply = None if self.recording else self.memory.get(line)
@@ -92,8 +93,17 @@ class CannedTransport(asyncio.Transport):
                 if self.recording:
                     self.memory[line] = reply
             replies.append(reply)
-        if any(replies):
-            self._loop.call_soon(self.protocol.data_received, b"".join(replies))
+        if any(replies) or reports:
+            self._loop.call_soon(self._deliver, b"".join(replies), reports)
+
+    def _deliver(self, replies: bytes, reports: int) -> None:
+        """Hand over the immediate replies, then start the reports' delay: a report can
+        never overtake the ``?err`` reply written before it (uvloop runs due timers
+        before the callbacks of the same turn)."""
+        if replies:
+            self.protocol.data_received(replies)
+        for _ in range(reports):
+            self._loop.call_later(REPORT_DELAY, self._report)
 
     def _arrive(self, line: bytes) -> None:
         """Put the emulator's axes at the move's target at once (``!moa`` becomes ``!pos``),
