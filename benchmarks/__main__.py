@@ -19,7 +19,8 @@ Cases (``--cases`` picks some, in this order):
   (``benchmarks/moves.py``);
 * ``watch``: ``watch_position(0.1)`` CPU during a long move vs raw polling
   (``benchmarks/watch.py``);
-* ``upload``: one link's trigger upload under the benchmark's stalls, of the wire bound
+* ``upload``: one link's trigger upload under the benchmark's stalls, of the wire bound, in
+  autostatus 1 (credit markers) and 2 (every line acknowledged)
   (``benchmarks/upload.py``);
 * ``stopwait``: upload vs stop-and-wait on a plain pty and with 2 ms reply latency;
 * ``scaling``: N links (default 64) uploading at once to lean stand-ins: throughput of
@@ -194,10 +195,15 @@ def case_upload(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]
 
     entries = 300 if args.quick else 3000
     with asyncio.Runner(loop_factory=loop) as runner:
-        result = runner.run(upload.single_link(entries))
+        markers = runner.run(upload.single_link(entries))
+        acknowledged = runner.run(upload.single_link(entries, autostatus=2))
     return [Row("upload", f"1 link, {entries} trigp under stalls, of the wire bound", "",
-                result.efficiency, None, True, "≥ 0.97, 0 lost",
-                f"lost bytes {result.lost_bytes}")]
+                markers.efficiency, None, True, "≥ 0.97, 0 lost",
+                f"autostatus 1 (credit markers); lost bytes {markers.lost_bytes}"),
+            Row("upload", f"1 link, {entries} trigp under stalls, autostatus 2", "",
+                acknowledged.efficiency, None, True, "≥ 0.97, 0 lost",
+                f"every line acknowledged, no markers; lost bytes "
+                f"{acknowledged.lost_bytes}")]
 
 
 def case_stopwait(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]:

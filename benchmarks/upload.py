@@ -80,9 +80,9 @@ async def timed(action: Callable[[], Awaitable[Any]]) -> float:
 
 async def measure(name: str, bound: float, body: Callable[[tango_aio.Controller],
                                                       Awaitable[Any]],
-                  chunk: int | None) -> Result:
-    """Run ``body`` on a fresh emulator and time it."""
-    async with tango_aio.connect(URL, reply_timeout=30.0) as tango:
+                  chunk: int | None, autostatus: int = 1) -> Result:
+    """Run ``body`` on a fresh emulator (in ``autostatus``) and time it."""
+    async with tango_aio.connect(URL, reply_timeout=30.0, autostatus=autostatus) as tango:
         if chunk:
             tango.protocol.credit.chunk = chunk
         wire = tango.protocol.transport.get_extra_info("wire")  # type: ignore[union-attr]
@@ -95,11 +95,14 @@ def payload_bound(values: list[float]) -> float:
     return wire_seconds(sum(len(build("trigp", -1, v).to_bytes()) for v in values))
 
 
-async def single_link(entries: int) -> Result:
-    """The pipelined upload of ``entries`` positions under the benchmark's stalls."""
+async def single_link(entries: int, autostatus: int = 1) -> Result:
+    """The pipelined upload of ``entries`` positions under the benchmark's stalls. In
+    autostatus 2 the controller acknowledges every ``!trigp`` line, which confirms its
+    bytes: no credit markers (L2099-2103)."""
     values = positions(entries)
-    return await measure("upload trigp, credit-limited pipeline", payload_bound(values),
-                         lambda t: upload_pipelined(values, t), None)
+    return await measure(f"upload trigp, credit-limited pipeline, autostatus {autostatus}",
+                         payload_bound(values), lambda t: upload_pipelined(values, t), None,
+                         autostatus)
 
 
 async def pty_pair(path: str, entries: int, latency: float) -> list[Result]:
