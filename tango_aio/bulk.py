@@ -241,8 +241,10 @@ class ListTransfer:
         only checked before the clear (:func:`~tango_aio.instructions.check_rows`, whose
         rows :func:`~tango_aio.instructions.encode_rows` cannot fail on); each chunk's
         lines are made as bytes when it is queued, while the chunks before it are on the
-        wire (#19: 64 uploads in one process used to start one list-build apart).
-        Otherwise every line is built before the clear, as commands."""
+        wire (#19: 64 uploads in one process used to start one list-build apart), so
+        ``rows`` must not change until the upload has ended (the controller's methods
+        pass copies they validated). Otherwise every line is built before the clear, as
+        commands."""
         total = len(rows)
         first = prepare(spec, rows[:1])
         if first and self._protocol.pack(first) is not None:
