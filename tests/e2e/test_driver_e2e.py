@@ -83,7 +83,8 @@ async def test_connect_as_context_manager() -> None:
 # Every autostatus mode
 
 
-@pytest.mark.parametrize("mode", [0, 1, 2, 3, 4])
+# Mode 0 polls (6-7 s here): under ``slow``.
+@pytest.mark.parametrize("mode", [pytest.param(0, marks=pytest.mark.slow), 1, 2, 3, 4])
 async def test_every_autostatus_mode_moves_cal_rm(emulator: EmulatorFactory, mode: int) -> None:
     emu = await emulator(autostatus=mode, travel=TRAVEL)
     tango = emu.tango

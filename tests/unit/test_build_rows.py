@@ -101,7 +101,7 @@ def test_trigger_rows(rows: list[list[object]]) -> None:
     _check("trigp", [-1], rows, Form.SET, ctx)
 
 
-@settings(max_examples=300)
+@settings(max_examples=150)
 @given(rows=st.lists(st.lists(NUMBERS, min_size=1, max_size=5), min_size=1, max_size=6),
        dims=st.tuples(*[st.sampled_from([0, 1, 2, 9])] * 4))
 def test_snapshot_rows(rows: list[list[object]], dims: tuple[int, int, int, int]) -> None:
