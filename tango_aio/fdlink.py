@@ -20,7 +20,8 @@ Linux and macOS); other pyserial URL handlers keep pyserial-asyncio
 
 Ending: an error on the descriptor (``EIO`` when a USB adapter is unplugged or a pty's
 other side closes) or end of file ends the link with ``connection_lost(exc)``; ``close()``
-writes what is buffered first; ``abort()`` drops it. Closing the port itself can block
+writes what is buffered first (for at most :data:`CLOSE_DRAIN` seconds); ``abort()``
+drops it. Closing the port itself can block
 (a driver draining its output), so ``port.close()`` runs in a worker thread, and the
 protocol hears ``connection_lost`` after it returned.
 """
@@ -39,6 +40,9 @@ log = logging.getLogger("tango_aio.fdlink")
 
 #: Bytes taken per read (a 256-byte input buffer on the controller; replies are short).
 READ_SIZE = 4096
+#: Seconds :meth:`FdTransport.close` lets buffered bytes drain before it drops them (a
+#: port whose output is held back, e.g. by hardware flow control, is still released).
+CLOSE_DRAIN = 2.0
 
 
 class FdTransport(asyncio.Transport):
@@ -56,6 +60,7 @@ class FdTransport(asyncio.Transport):
         self._closing = False
         self._lost = False
         self._reading = True
+        self._drain: asyncio.TimerHandle | None = None
         loop.call_soon(protocol.connection_made, self)
         loop.call_soon(self._start_reading)
 
@@ -114,6 +119,8 @@ class FdTransport(asyncio.Transport):
         self._stop_reading()
         if not self._buffer:
             self._finish(None)
+        else:
+            self._drain = self._loop.call_later(CLOSE_DRAIN, self._fail, None)
 
     def abort(self) -> None:
         self._fail(None)
@@ -172,6 +179,8 @@ class FdTransport(asyncio.Transport):
             return
         self._lost = True
         self._reading = False
+        if self._drain is not None:
+            self._drain.cancel()
         task = self._loop.create_task(self._close_port(exc))
         _background.add(task)
         task.add_done_callback(_background.discard)
