@@ -650,9 +650,7 @@ class _RowPlan:
         if not self.short:
             return None
         for (param, hi), value in zip(self.params, row, strict=True):
-            if type(value) is not float or not math.isfinite(value) \
-                    or not _within(param, value, hi) \
-                    or not (value == 0.0 or _PLAIN_FLOATS[0] <= abs(value) < _PLAIN_FLOATS[1]):
+            if not _plain_float(param, hi, value):
                 return None
         return True
 
@@ -663,14 +661,17 @@ class _RowPlan:
         anything else, which takes the general path."""
         texts = [self.head]
         for (param, hi), value in zip(self.params, row, strict=True):
-            if type(value) is not float or not math.isfinite(value) \
-                    or not _within(param, value, hi):
+            if not _plain_float(param, hi, value):
                 return None
-            text = repr(value)
-            if "e" in text:
-                return None
-            texts.append(text)
+            texts.append(repr(value))
         return texts
+
+
+def _plain_float(param: Param, hi: float | None, value: float | int) -> bool:
+    """Whether ``value`` is a finite in-range ``float`` whose ``repr()`` has no exponent
+    (so :func:`format_number` writes exactly that ``repr()``)."""
+    return type(value) is float and math.isfinite(value) and _within(param, value, hi) \
+        and (value == 0.0 or _PLAIN_FLOATS[0] <= abs(value) < _PLAIN_FLOATS[1])
 
 
 def _param_at(sig: Signature, index: int, ctx: Context) -> tuple[Param, float | None]:

@@ -713,9 +713,9 @@ class TangoProtocol(asyncio.Protocol):
         _check_framing(template)
         run = self.scheduler.pack_lines(template, lines, batch)
         if run is not None:
-            text = run.blob.decode("ascii", "replace")
-            if text.count("\r") != len(run) or not text.replace("\r", "").isprintable() \
-                    or not text.endswith("\r"):
+            text = run.blob.decode("latin-1")
+            if text.count("\r") != len(run) or not text.endswith("\r") \
+                    or not _well_framed(text.replace("\r", "")):
                 raise InvalidCommandError("control or non-ASCII character inside a list "
                                           "line", instruction=template.name, number=4)
         return run
@@ -1247,11 +1247,16 @@ def _check_framing(command: Command) -> None:
     and smuggle in a second command, 0x03 would abort every axis).
     """
     line = command.line
-    # CR, LF and 0x03 are not printable: one test covers all three.
-    if not (line.isascii() and line.isprintable()):
+    if not _well_framed(line):
         raise InvalidCommandError(
             f"control or non-ASCII character inside the command line {line!r}",
             instruction=command.name, number=4)
+
+
+def _well_framed(text: str) -> bool:
+    """Whether ``text`` is printable ASCII: CR, LF and 0x03 are not printable, so one
+    test covers all three."""
+    return text.isascii() and text.isprintable()
 
 
 def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:

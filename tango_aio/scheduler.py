@@ -366,7 +366,7 @@ class WriteScheduler:
         last = self._last_owed
         if not self.separators or last is None:
             return b""
-        separator = self.core.separator(last, _MARKER_OWES)
+        separator = self.core.separator(last, ONE_NUMBER)
         if separator is None or not self.credit.fits(len(separator[0]), True):
             return b""
         return self._separator(separator)

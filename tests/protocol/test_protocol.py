@@ -216,7 +216,7 @@ async def test_list_lines_as_bytes_are_checked_for_framing(fake_link: LinkFactor
     run = link.protocol.pack_lines(template, [b"!trigp -1 1.0\r", b"!trigp -1 2.0\r"])
     assert run is not None and len(run) == 2
     for smuggled in (b"!trigp -1 2.0\x03\r", b"!trigp -1 2\r!moa x 5\r",
-                     b"!trigp -1 2.0\n\r", b"!trigp -1 2.0"):
+                     b"!trigp -1 2.0\n\r", b"!trigp -1 2.0", b"!trigp -1 2.0\xe9\r"):
         with pytest.raises(InvalidCommandError):
             link.protocol.pack_lines(template, [b"!trigp -1 1.0\r", smuggled])
     assert link.transport.writes == []
