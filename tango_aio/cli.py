@@ -527,6 +527,15 @@ class _PipeReader:
         loop = asyncio.get_running_loop()
         source = stream if stream is not None else sys.stdin.buffer
 
+        def deliver(text: str) -> bool:
+            """Hand ``text`` to the loop; False once the loop is closed (the shell has
+            ended while this thread still read: nobody is left to take the line)."""
+            try:
+                loop.call_soon_threadsafe(self._lines.put_nowait, text)
+            except RuntimeError:
+                return False
+            return True
+
         def pump() -> None:
             skipping = False  # inside the rest of a line that was too long
             try:
@@ -538,15 +547,15 @@ class _PipeReader:
                         skipping = cut
                         continue
                     skipping = cut
-                    text = line.decode("utf-8", errors="replace")
-                    loop.call_soon_threadsafe(self._lines.put_nowait, text)
+                    if not deliver(line.decode("utf-8", errors="replace")):
+                        return
             except (OSError, ValueError):
                 pass
             finally:
-                with contextlib.suppress(RuntimeError):  # the loop is already closed
-                    loop.call_soon_threadsafe(self._lines.put_nowait, "")
+                deliver("")  # the end of the input
 
-        threading.Thread(target=pump, name="tango-aio-stdin", daemon=True).start()
+        self._thread = threading.Thread(target=pump, name="tango-aio-stdin", daemon=True)
+        self._thread.start()
 
     async def read(self) -> str:
         line = await self._lines.get()

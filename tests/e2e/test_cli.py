@@ -26,6 +26,7 @@ import tango_aio
 from tango_aio.cli import (
     Shell,
     _parser,
+    _PipeReader,
     describe_event,
     describe_exception,
     describe_line,
@@ -679,3 +680,21 @@ def test_pipe_reader_bounds_lines() -> None:
     assert read_bounded_line(stream, 5) == (b"xxxx\n", False)
     assert read_bounded_line(stream, 5) == (b"z", False)
     assert read_bounded_line(stream, 5) == (b"", False)
+
+
+def test_pipe_reader_outliving_its_loop_ends_quietly() -> None:
+    """A line that arrives after the shell's loop has closed is dropped, and the reader
+    thread ends without an exception (it once raised 'Event loop is closed')."""
+    read_end, write_end = os.pipe()
+    loop = asyncio.new_event_loop()
+    with os.fdopen(read_end, "rb") as stream:
+
+        async def start() -> _PipeReader:
+            return _PipeReader(stream)
+
+        reader = loop.run_until_complete(start())
+        loop.close()
+        os.write(write_end, b"?pos\n")
+        os.close(write_end)
+        reader._thread.join(10)
+        assert not reader._thread.is_alive()
