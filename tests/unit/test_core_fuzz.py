@@ -11,6 +11,7 @@ from __future__ import annotations
 import random
 from collections.abc import Callable, Hashable, Iterable
 
+import pytest
 from fuzzkit import CONTEXT, REQUESTS, TOKENS, noise, plausible_answer
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -154,17 +155,34 @@ def _play(mode: int, actions: list[tuple[str, object]], data: bytes,
     return harness, made
 
 
-@settings(max_examples=600, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-@given(
+_ARBITRARY_RUNS = given(
     mode=st.integers(0, 4),
     actions=st.lists(_ACTIONS, max_size=60),
     data=_BYTES,
     sizes=st.lists(st.integers(1, 700), max_size=40),
     check=st.booleans(),
 )
+_TOLERATE = [HealthCheck.too_slow, HealthCheck.data_too_large]
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=_TOLERATE)
+@_ARBITRARY_RUNS
 def test_fuzz_arbitrary_bytes(mode: int, actions: list[tuple[str, object]], data: bytes,
                               sizes: list[int], check: bool) -> None:
+    _check_arbitrary_run(mode, actions, data, sizes, check)
+
+
+@pytest.mark.slow
+@settings(max_examples=2000, deadline=None, suppress_health_check=_TOLERATE)
+@_ARBITRARY_RUNS
+def test_fuzz_arbitrary_bytes_long(mode: int, actions: list[tuple[str, object]],
+                                   data: bytes, sizes: list[int], check: bool) -> None:
+    _check_arbitrary_run(mode, actions, data, sizes, check)
+
+
+def _check_arbitrary_run(mode: int, actions: list[tuple[str, object]], data: bytes,
+                         sizes: list[int], check: bool) -> None:
+    """Whatever the bytes, the core's events do not depend on how they were cut."""
     harness, answers = _play(mode, actions, data, lambda piece: chunked(piece, sizes),
                              check=check)
     # Replayed in tiny pieces on a fresh core, the same bytes give the same events.
