@@ -381,17 +381,9 @@ class WriteScheduler:
             # read adopted another): its lines go out one by one, as planned now.
             self._unroll(run)
             return b""
-        credit, ends = self.credit, run.ends
-        first = run.next
+        ends, first = run.ends, run.next
         start = ends[first - 1] if first else 0
-        credit.wrote(ends[first] - start, None)
-        index, count = first + 1, len(ends)
-        while index < count:
-            size = ends[index] - ends[index - 1]
-            if credit.marker_due(size, False) or not credit.fits(size, False):
-                break
-            credit.wrote(size, None)
-            index += 1
+        index, count = self.credit.wrote_run(ends, first), len(ends)
         if not first:
             run.written_mode = self.core.autostatus
             run.serial = self.written_lines + 1

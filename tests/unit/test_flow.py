@@ -117,3 +117,40 @@ def test_simulated_stream_never_exceeds_the_limit(lines: list[tuple[int, bool]],
             assert not queue
         oversized = any(size + len(MARKER) > limit for size, _ in lines)
         assert window.peak <= limit or (oversized and window.peak <= limit + len(MARKER))
+
+
+def _line_by_line(window: CreditWindow, ends: list[int], first: int) -> int:
+    """What the scheduler did before wrote_run: one wrote() per line, checked."""
+    start = ends[first - 1] if first else 0
+    window.wrote(ends[first] - start, None)
+    index = first + 1
+    while index < len(ends):
+        size = ends[index] - ends[index - 1]
+        if window.marker_due(size, False) or not window.fits(size, False):
+            break
+        window.wrote(size, None)
+        index += 1
+    return index
+
+
+def _state(window: CreditWindow) -> tuple[object, ...]:
+    return (window.outstanding, window.unmarked, window.peak,
+            [(item.size, item.tag) for item in window._written])
+
+
+@settings(max_examples=400, deadline=None)
+@given(limit=st.integers(8, 300), chunk=st.integers(1, 300),
+       before=st.lists(st.tuples(st.integers(1, 80), st.sampled_from([None, "a", "b"])),
+                       max_size=6),
+       sizes=st.lists(st.integers(1, 120), min_size=1, max_size=40), data=st.data())
+def test_wrote_run_counts_what_line_by_line_writes_count(
+        limit: int, chunk: int, before: list[tuple[int, str | None]], sizes: list[int],
+        data: st.DataObject) -> None:
+    ends = [sum(sizes[: i + 1]) for i in range(len(sizes))]
+    first = data.draw(st.integers(0, len(ends) - 1))
+    windows = [CreditWindow(limit=limit, chunk=chunk) for _ in range(2)]
+    for window in windows:
+        for size, tag in before:
+            window.wrote(size, tag)
+    assert windows[0].wrote_run(ends, first) == _line_by_line(windows[1], ends, first)
+    assert _state(windows[0]) == _state(windows[1])
