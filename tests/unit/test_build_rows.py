@@ -29,7 +29,7 @@ NUMBERS = st.one_of(
     st.floats(-1e6, 1e6),
     st.integers(-20000, 20000),
     st.integers(),
-    st.sampled_from([0, 1, -1, 2.5, 1e-6, 1e-7, 32500.0, 1e300, True]),
+    st.sampled_from([0, 0.0, -0.0, 1, -1, 2.5, 1e-6, 1e-7, 32500.0, 1e300, True]),
 )
 
 
@@ -110,11 +110,12 @@ def test_snapshot_rows(rows: list[list[object]], dims: tuple[int, int, int, int]
 
 
 @pytest.mark.parametrize(("name", "lead"), [("vel", []), ("accel", []), ("trigp", [5]),
-                                            ("pos", []), ("moa", [])])
+                                            ("pos", []), ("moa", []), ("flash", [])])
 @settings(max_examples=60)
 @given(rows=st.lists(st.lists(NUMBERS, min_size=1, max_size=4), min_size=1, max_size=5))
 def test_other_instructions(name: str, lead: list[object], rows: list[list[object]]) -> None:
-    """Per-axis settings with dim-dependent limits (vel in dim 9), moves, positions."""
+    """Per-axis settings with dim-dependent limits (vel in dim 9), moves, positions, a
+    value that may not be closer to 0 than a bound (flash)."""
     ctx = Context(dims=(9, 2, 1, 0))
     _check(name, lead, rows, Form.SET, ctx)
 
