@@ -307,7 +307,7 @@ class Controller:
         # Whether per-axis reads answer one value per axis found by ?det (the 1.71
         # manual, L2711-2721) or leave absent/disabled axes out: then every per-axis read
         # whose count differs is read again axis by axis (see get()).
-        positions = await self._request(build("pos", form=Form.READ, context=self.context))
+        positions = await self._request(_read_command("pos", None, self.context))
         count = len(" ".join(positions.lines).split())
         # The 1.71 manual prints a blank before the comma of the build time (L1067,
         # L1105), the older edition none (old L426).
@@ -509,7 +509,8 @@ class Controller:
         values than axes is read again axis by axis, so that no value is credited to the
         wrong axis (a unit that leaves disabled axes out).
         """
-        command = build(name, *args, form=Form.READ, axis=axis, context=self.context)
+        command = build(name, *args, form=Form.READ, axis=axis, context=self.context) \
+            if args else _read_command(name, axis, self.context)
         if axis is None and not args and name in AXIS_BY_AXIS:
             return await self._axis_by_axis(name, timeout)
         response = await self._request(command, timeout)
@@ -549,15 +550,14 @@ class Controller:
         """``?pos`` as printed (the number of digits gives the resolution), one text per
         present axis; read axis by axis when the reply has another number of values."""
         present = AXES[: self.context.axes]
-        response = await self._request(build("pos", form=Form.READ, context=self.context))
+        response = await self._request(_read_command("pos", None, self.context))
         texts = " ".join(response.lines).split()
         if len(texts) == len(present):
             self._motion.positions = dict(zip(present, texts, strict=True))
             return dict(self._motion.positions)
         out = {}
         for axis in present:
-            reply = await self._request(build("pos", form=Form.READ, axis=axis,
-                                              context=self.context))
+            reply = await self._request(_read_command("pos", axis, self.context))
             out[axis] = " ".join(reply.lines).strip()
         return out
 
@@ -700,7 +700,7 @@ class Controller:
         """Write ``?pos`` now (in ``batch``); return what reads its reply, one text per
         present axis (awaitable again after a cancelled wait)."""
         present = AXES[: self.context.axes]
-        submission = self._protocol.submit(build("pos", form=Form.READ, context=self.context),
+        submission = self._protocol.submit(_read_command("pos", None, self.context),
                                            batch=batch)
         if submission.reply is not None:  # a refused move never reads it
             submission.reply.add_done_callback(_ignore_outcome)
@@ -1000,10 +1000,6 @@ class Controller:
                 return
             await asyncio.sleep(interval)
 
-    #: The ``?statusaxis`` and ``?pos`` lines of :meth:`_status_and_positions`, built once
-    #: per context (commands are immutable values).
-    _state_reads: tuple[Context, Command, Command] | None = None
-
     async def _status_and_positions(self, *, separate_after: bool = False
                                     ) -> tuple[dict[str, str], dict[str, str]]:
         """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
@@ -1015,12 +1011,8 @@ class Controller:
         axis by axis (:meth:`status`, :meth:`_position_texts`)."""
         context = self.context
         present = AXES[: context.axes]
-        reads = self._state_reads
-        if reads is None or reads[0] is not context:
-            reads = self._state_reads = (
-                context, build("statusaxis", form=Form.READ, context=context),
-                build("pos", form=Form.READ, context=context))
-        _, status, pos = reads
+        status = _read_command("statusaxis", None, context)
+        pos = _read_command("pos", None, context)
         first, second = self._protocol.submit_together((status, pos),
                                                        separate_after=separate_after)
         try:
@@ -1170,3 +1162,11 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
         return [{axis: axes[axis] for axis in order}]
     return [{axis: axes[axis]} for axis in order]
 
+
+
+@functools.lru_cache(maxsize=256)
+def _read_command(name: str, axis: str | None, context: Context) -> Command:
+    """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
+    built once per name, axis and context: commands are immutable values, and the
+    per-request path need not validate the same line again (#19)."""
+    return build(name, form=Form.READ, axis=axis, context=context)
