@@ -776,6 +776,7 @@ def _marker_reply(marker: bytes) -> bytes:
     return b"ERROR " + match.group(1) + b",marker\r"
 
 
+@pytest.mark.slow
 def test_core_memory_stays_bounded_under_megabytes_of_noise() -> None:
     """6 MiB of noise into the sans-IO core with requests pending: the memory allocated
     while feeding peaks under 1 MiB above where it started, whatever the amount fed (the
@@ -980,6 +981,7 @@ def test_fuzz_protocol_with_requests_pending(mode: int, script: list[tuple[str, 
     counts["bytes fed"] += sum(len(arg) for kind, arg in script if kind == "bytes")
 
 
+@pytest.mark.slow
 def test_fuzz_protocol_soak_memory_bounded() -> None:
     """A seeded soak of the whole protocol: 3 MB of noise while requests keep coming;
     the memory allocated meanwhile stays bounded (resolved requests are forgotten)."""

@@ -723,6 +723,7 @@ async def churn(server: TcpServer, count: int, line: bytes, reply: bytes) -> Non
         assert await ask(server.port, line) == [reply]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("factory", "shared"), [(model_factory(), True),
                                                  (PingHandler, False)])
 async def test_tcp_memory_stays_flat_over_1000_connections(

@@ -138,7 +138,7 @@ def _state(window: CreditWindow) -> tuple[object, ...]:
             [(item.size, item.tag) for item in window._written])
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(limit=st.integers(8, 300), chunk=st.integers(1, 300),
        before=st.lists(st.tuples(st.integers(1, 80), st.sampled_from([None, "a", "b"])),
                        max_size=6),
