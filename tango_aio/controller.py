@@ -1163,7 +1163,6 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
     return [{axis: axes[axis]} for axis in order]
 
 
-
 @functools.lru_cache(maxsize=256)
 def _read_command(name: str, axis: str | None, context: Context) -> Command:
     """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
