@@ -166,12 +166,8 @@ def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes
 def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
     """Raise what :func:`prepare` raises for the first bad entry, without making the
     lines (:func:`~tango_aio.instructions.check_rows`)."""
-    checked = 0
-    try:
-        for _ in spec.check(rows):
-            checked += 1
-    except InvalidCommandError as exc:
-        raise _at_entry(checked, exc) from exc
+    for _ in _numbered(spec.check(rows)):
+        pass
 
 
 _Line = TypeVar("_Line")
@@ -186,15 +182,10 @@ def _numbered(lines: Iterator[_Line]) -> Iterator[_Line]:
         except StopIteration:
             return
         except InvalidCommandError as exc:
-            raise _at_entry(index, exc) from exc
+            raise InvalidCommandError(f"entry {index}: {exc}", instruction=exc.instruction,
+                                      parameter=exc.parameter, number=exc.number) from exc
         yield line
         index += 1
-
-
-def _at_entry(index: int, exc: InvalidCommandError) -> InvalidCommandError:
-    """``exc`` with the index of the entry it is about."""
-    return InvalidCommandError(f"entry {index}: {exc}", instruction=exc.instruction,
-                               parameter=exc.parameter, number=exc.number)
 
 
 def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float],

@@ -160,15 +160,7 @@ def _fail(
     return InvalidCommandError(message, instruction=instruction, parameter=parameter, number=code)
 
 
-def _within(param: Param, value: float, hi: float | None) -> bool:
-    """Whether ``value`` passes :func:`_check_range` (no message built: the fast path)."""
-    return not ((param.lo is not None and value < param.lo) or (hi is not None and value > hi)
-                or (param.min_abs is not None and abs(value) < param.min_abs))
-
-
 def _check_range(param: Param, value: float, name: str, hi: float | None) -> None:
-    if _within(param, value, hi):
-        return
     if param.lo is not None and value < param.lo:
         raise _fail(f"{name}: {param.name}={value} is below {param.lo}", name, param.name, 5)
     if hi is not None and value > hi:
@@ -551,7 +543,8 @@ def _rows(name: str, lead: Sequence[Value], rows: Iterable[Sequence[float | int]
           form: Form | str, context: Context | None,
           fast: Callable[[_RowPlan, Sequence[float | int]], _Made | None],
           full: Callable[[Command], _Made]) -> Iterator[_Made]:
-    """What :func:`build_rows` and :func:`encode_rows` share: ``fast`` makes a row from
+    """What :func:`build_rows`, :func:`encode_rows` and :func:`check_rows` share:
+    ``fast`` makes a row from
     the plan of the first row of its length, ``full`` from a command built in full."""
     ctx = context or DEFAULT_CONTEXT
     plans: dict[int, _RowPlan | None] = {}
@@ -661,7 +654,7 @@ class _RowPlan:
 def _plain_row(bounds: Sequence[tuple[float, float, float]],
                row: Sequence[float | int]) -> bool:
     """Whether every value of ``row`` is a finite ``float`` within its ``bounds`` (what
-    :func:`_within` allows) whose ``repr()`` has no exponent, so that
+    :func:`_check_range` allows) whose ``repr()`` has no exponent, so that
     :func:`format_number` writes exactly that ``repr()``: what an upload passes. One call
     per row, not per value (#19: the hot path of a list upload)."""
     low_plain, high_plain = _PLAIN_FLOATS
