@@ -229,10 +229,12 @@ async def _sim(args: argparse.Namespace) -> int:
     """Serve an emulated controller on a pty or a TCP port until interrupted."""
     from .sim.inprocess import configs_from_url, speed_from_url
     from .sim.model import ControllerModel
-    from .sim.serve import serve_pty, serve_tcp
+    from .sim.serve import serve_tcp
     from .sim.wire import Emit
 
     address = _tcp_address(args.tcp) if args.tcp else None
+    if address is None:
+        _check_pty_platform()
     if args.per_connection and address is None:
         raise ValueError("--per-connection needs --tcp (a pty serves one controller)")
     url = _sim_url(args)
@@ -250,12 +252,28 @@ async def _sim(args: argparse.Namespace) -> int:
         host = f"[{server.host}]" if ":" in server.host else server.host
         print(f"socket://{host}:{server.port}", flush=True)
     else:
+        from .sim.ptyserve import serve_pty
+
         server = await serve_pty(factory, config=wire_config,  # type: ignore[assignment]
                                  speed=speed)
         print(server.path, flush=True)  # type: ignore[attr-defined]
     async with server:
         await server.wait_closed()
     return 0
+
+
+#: What ``tango-aio sim --pty`` says on Windows (one line).
+PTY_NEEDS_POSIX = ("the pty emulator needs a POSIX system (Linux, macOS); on Windows serve "
+                   "over TCP: tango-aio sim --tcp 127.0.0.1:4001, then connect to "
+                   "socket://127.0.0.1:4001 (or bridge it to a com0com port pair)")
+
+
+def _check_pty_platform() -> None:
+    """Raise a one-line error where there are no ptys (Windows; issue #27)."""
+    from ._platform import WINDOWS
+
+    if WINDOWS:
+        raise ValueError(PTY_NEEDS_POSIX)
 
 
 def _tcp_address(text: str) -> tuple[str, int]:
@@ -446,22 +464,46 @@ def _param_word(param: Any) -> str:
 
 @contextlib.contextmanager
 def _sigint_calls(callback: Callable[[], None]) -> Iterator[None]:
-    """Run ``callback`` on SIGINT (Ctrl+C) instead of interrupting the program. Does
-    nothing where the event loop cannot handle signals (Windows, other threads)."""
+    """Run ``callback`` on SIGINT (Ctrl+C) instead of interrupting the program. Where
+    the event loop cannot handle signals (Windows: ``add_signal_handler`` raises
+    NotImplementedError) a plain ``signal.signal`` handler hands it to the loop instead;
+    nothing is installed outside the main thread."""
     loop = asyncio.get_running_loop()
     previous = signal.getsignal(signal.SIGINT)
     try:
         loop.add_signal_handler(signal.SIGINT, callback)
-    except (NotImplementedError, RuntimeError, ValueError):
-        installed = False
+    except NotImplementedError:
+        installed = _sigint_by_signal(loop, callback)
+        fallback = installed
+    except (RuntimeError, ValueError):
+        installed = fallback = False
     else:
-        installed = True
+        installed, fallback = True, False
     try:
         yield
     finally:
-        if installed:
+        if installed and not fallback:
             loop.remove_signal_handler(signal.SIGINT)
+        if installed:
             signal.signal(signal.SIGINT, previous)
+
+
+def _sigint_by_signal(loop: asyncio.AbstractEventLoop, callback: Callable[[], None]
+                      ) -> bool:
+    """Install a ``signal.signal`` SIGINT handler that runs ``callback`` on ``loop``
+    (Windows' event loops have no ``add_signal_handler``). The handler runs in the main
+    thread between two bytecodes, possibly inside the loop's own code, so it only
+    schedules: ``call_soon_threadsafe`` also wakes a loop waiting for I/O. False where
+    no handler can be installed (not the main thread)."""
+
+    def handler(signum: int, frame: object) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop is already closed
+            loop.call_soon_threadsafe(callback)
+
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    signal.signal(signal.SIGINT, handler)
+    return True
 
 
 # -- shell ------------------------------------------------------------------------------
@@ -1165,7 +1207,9 @@ def _run_loop(args: argparse.Namespace) -> int:
 @contextlib.contextmanager
 def _sigint_deferred() -> Iterator[None]:
     """Hold SIGINT back (where the platform can: POSIX, the main thread) for the block."""
-    if not hasattr(signal, "pthread_sigmask") \
+    from ._platform import POSIX
+
+    if not POSIX or not hasattr(signal, "pthread_sigmask") \
             or threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -19,7 +19,6 @@ import collections.abc
 import contextlib
 import functools
 import logging
-import os
 import urllib.parse
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from types import TracebackType
 from typing import Any
 
 from ._checks import check_count, check_timeout
+from ._platform import POSIX, WINDOWS
 from .controller import Controller
 from .errors import ConnectionLostError
 from .fdlink import FdTransport
@@ -58,8 +58,8 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
         # Opened in a thread, not on the event loop (opening can block). ``exclusive``: a
         # second program (or a second connect()) writing to the same controller would
         # interleave lines and steal replies, so the port is locked (flock on POSIX;
-        # Windows ports are exclusive anyway); URL handlers such as loop:// accept and
-        # ignore it.
+        # Windows opens a COM port for one program at a time anyway, so pyserial takes no
+        # lock there); URL handlers such as loop:// accept and ignore it.
         port = serial.serial_for_url(url, baudrate=baudrate, bytesize=8, parity="N",
                                      stopbits=2, rtscts=rtscts, timeout=0, exclusive=True)
         try:
@@ -77,10 +77,15 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
     loop = asyncio.get_running_loop()
     released = _watch_release(port, loop)
     try:
-        if os.name == "posix" and type(port) is serial.Serial:
+        if POSIX and type(port) is serial.Serial:
             # A plain POSIX port: its descriptor read and written directly (#19).
             protocol = factory()
             transport: asyncio.BaseTransport = FdTransport(loop, protocol, port)
+        elif WINDOWS:
+            # Windows: a reader and a writer thread around pyserial's blocking calls, not
+            # pyserial-asyncio's 0.5 ms polling (#27, tango_aio/threadlink.py).
+            protocol = factory()
+            transport = _thread_transport(loop, protocol, port)
         else:
             transport, made = await serial_asyncio_fast.connection_for_serial(
                 loop, factory, port)
@@ -102,6 +107,14 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
             log.warning("%s: the port was not released within %.0f s", url, RELEASE_WAIT)
 
     return transport, protocol, release
+
+
+def _thread_transport(loop: asyncio.AbstractEventLoop, protocol: TangoProtocol,
+                      port: Any) -> asyncio.BaseTransport:
+    """The Windows serial transport (imported here: POSIX never needs it)."""
+    from .threadlink import ThreadTransport
+
+    return ThreadTransport(loop, protocol, port)
 
 
 def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future[None]:
@@ -127,7 +140,7 @@ def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future
 def _check_pollable(port: Any) -> None:
     """pyserial-asyncio watches the port's file descriptor on POSIX; URL handlers without
     one (``loop://``, ``spy://`` of such) would fail later inside the event loop."""
-    if os.name != "posix":
+    if not POSIX:
         return
     try:
         port.fileno()

@@ -8,10 +8,11 @@ import asyncio
 import re
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol, TypedDict, Unpack, cast
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack, cast
 
 import pytest
 
+from tango_aio._platform import WINDOWS as WINDOWS
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
 from tango_aio.core import Event
@@ -22,6 +23,33 @@ from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire
 from tango_aio.testing import faults
+
+if TYPE_CHECKING:
+    from tango_aio.sim.ptyserve import PtyServer
+    from tango_aio.sim.wire import HandlerFactory, WireConfig
+
+# --------------------------------------------------------------------------------------
+# POSIX-only tests (issue #27): on Windows, and "as if on Windows"
+# (TANGO_AIO_TEST_AS_WINDOWS=1, tests/as_windows.py), they skip, naming what they need.
+
+#: What the pty emulator needs, for skip reasons.
+PTY_EMULATOR = "the pty emulator (os.openpty, termios, tty: tango_aio.sim.ptyserve)"
+
+
+def posix_only(what: str) -> None:
+    """Skip the running test on Windows: it needs ``what``, which only POSIX has."""
+    if WINDOWS:
+        pytest.skip(f"POSIX only: needs {what}")
+
+
+async def serve_pty(factory: HandlerFactory, config: WireConfig | None = None, *,
+                    speed: float = 1.0) -> PtyServer:
+    """:func:`tango_aio.sim.ptyserve.serve_pty`, or a skip where there are no ptys."""
+    posix_only(PTY_EMULATOR)
+    from tango_aio.sim.ptyserve import serve_pty as serve
+
+    return await serve(factory, config, speed=speed)
+
 
 # --------------------------------------------------------------------------------------
 # Emulator URLs, models and values

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from .model import ControllerModel, SimConfig
-    from .serve import create_sim_connection, serve_pty, serve_tcp
+    from .ptyserve import serve_pty
+    from .serve import create_sim_connection, serve_tcp
     from .wire import Wire, WireConfig
 
 __all__ = [
@@ -29,7 +30,7 @@ __all__ = [
 _HOMES = {
     "ControllerModel": "model", "SimConfig": "model",
     "Wire": "wire", "WireConfig": "wire",
-    "create_sim_connection": "serve", "serve_pty": "serve", "serve_tcp": "serve",
+    "create_sim_connection": "serve", "serve_pty": "ptyserve", "serve_tcp": "serve",
 }
 
 

@@ -6,7 +6,9 @@ uvloop): it feeds arriving bytes in, writes the wire's output out, and sleeps un
 wire's next deadline or new input. Everything runs on the event loop thread; nothing here
 is thread-safe.
 
-* :func:`serve_pty`: a pseudo-terminal whose slave path a host opens with pyserial.
+* :func:`serve_pty`: a pseudo-terminal whose slave path a host opens with pyserial
+  POSIX only, so it lives in :mod:`tango_aio.sim.ptyserve` (also importable as
+  ``tango_aio.sim.serve_pty``); this module works on every platform.
 * :func:`serve_tcp`: a loopback TCP server, usable as ``socket://127.0.0.1:PORT``.
 * :func:`create_sim_connection`: an in-process :class:`asyncio.Transport` for ``sim://``.
 
@@ -27,12 +29,7 @@ read from either, and a closed TCP connection leaves nothing behind.
 from __future__ import annotations
 
 import asyncio
-import fcntl
-import os
 import socket
-import struct
-import termios
-import tty
 from collections import deque
 from collections.abc import Callable
 from typing import TypeVar, cast
@@ -45,13 +42,11 @@ __all__ = [
     "INPUT_QUEUE_LIMIT",
     "INPUT_QUEUE_RESUME",
     "OUTPUT_QUEUE_LIMIT",
-    "PtyServer",
     "SharedController",
     "SimTransport",
     "TcpServer",
     "WireRunner",
     "create_sim_connection",
-    "serve_pty",
     "serve_tcp",
 ]
 
@@ -167,149 +162,6 @@ class WireRunner:
             await self._wake.wait()
         finally:
             timer.cancel()
-
-
-# ---------------------------------------------------------------------------------- pty
-
-
-class PtyServer:
-    """One emulated controller behind a pseudo-terminal.
-
-    A host opens :attr:`path` (e.g. ``serial.Serial(server.path, 57600)``). The pty serves
-    one session: after a disconnect fault or :meth:`close` the master is closed and the
-    host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
-    and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`.
-    """
-
-    def __init__(self, wire: Wire) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._master, self._slave = os.openpty()
-        # Raw mode on the slave: no echo, no CR/NL translation, for hosts that do not set
-        # their own termios (pyserial does set raw mode itself on open).
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.path: str = os.ttyname(self._slave)
-        """Device path of the slave end, for the host to open."""
-        self.wire = wire
-        """The emulated link (fault injection, counters)."""
-        self._out = bytearray()
-        self._open = True
-        self._reading = True
-        self._runner = WireRunner(wire, self._write, throttle=self._throttle)
-        self._loop.add_reader(self._master, self._on_readable)
-        self._task = self._loop.create_task(self._serve())
-
-    def close(self) -> None:
-        """Stop serving and close the pty."""
-        self._task.cancel()
-
-    async def wait_closed(self) -> None:
-        """Wait until serving has ended (close() or a disconnect fault)."""
-        await _wait_task(self._task)
-
-    async def __aenter__(self) -> PtyServer:
-        return self
-
-    async def __aexit__(self, *exc_info: object) -> None:
-        self.close()
-        await self.wait_closed()
-
-    async def _serve(self) -> None:
-        try:
-            await self._runner.run()
-            await self._drain()
-        finally:
-            self._close_fds()
-
-    async def _drain(self) -> None:
-        """Before a disconnect, wait (up to :data:`DRAIN_GRACE`) until the host has read all.
-
-        Linux discards unread slave input when the master closes, so without this a host
-        would never see the partial reply of a mid-reply disconnect. The kernel moves
-        written bytes to the slave's input queue asynchronously, so the queue must stay
-        empty for :data:`_DRAIN_QUIET` polls in a row; there is no event for "read".
-        """
-        quiet = 0
-        for _ in range(int(DRAIN_GRACE / _DRAIN_POLL)):
-            quiet = quiet + 1 if not self._out and self._unread() == 0 else 0
-            if quiet >= _DRAIN_QUIET:
-                return
-            await asyncio.sleep(_DRAIN_POLL)
-
-    def _unread(self) -> int:
-        """Bytes written to the host that it has not read yet (slave input queue)."""
-        try:
-            raw = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
-        except OSError:
-            return 0
-        return int(struct.unpack("i", raw)[0])
-
-    def _on_readable(self) -> None:
-        try:
-            data = os.read(self._master, _READ_SIZE)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:  # EIO: no slave open; cannot happen while we hold one.
-            return
-        if data:
-            self._runner.feed(data)
-
-    def _write(self, chunk: bytes) -> None:
-        self._out += chunk
-        self._flush()
-
-    def _flush(self) -> None:
-        """Write pending output; if the pty buffer is full, retry when it drains."""
-        while self._out and self._open:
-            try:
-                written = os.write(self._master, self._out)
-            except BlockingIOError:
-                self._loop.add_writer(self._master, self._flush)
-                self._update_reading()
-                return
-            except OSError:
-                self._out.clear()
-                break
-            del self._out[:written]
-        if self._open:
-            self._loop.remove_writer(self._master)
-            self._update_reading()
-
-    def _throttle(self, paused: bool) -> None:
-        self._update_reading()
-
-    def _update_reading(self) -> None:
-        """Read from the host only while its input and our output are within bounds; the
-        kernel's pty buffer then fills and the host's writes block, as on a real port."""
-        reading = self._open and not self._runner.input_paused \
-            and len(self._out) <= OUTPUT_QUEUE_LIMIT
-        if reading == self._reading:
-            return
-        self._reading = reading
-        if reading:
-            self._loop.add_reader(self._master, self._on_readable)
-        else:
-            self._loop.remove_reader(self._master)
-
-    def _close_fds(self) -> None:
-        if not self._open:
-            return
-        self._flush()
-        self._open = False
-        self._loop.remove_reader(self._master)
-        self._loop.remove_writer(self._master)
-        os.close(self._master)
-        os.close(self._slave)
-
-
-async def serve_pty(factory: HandlerFactory, config: WireConfig | None = None, *,
-                    speed: float = 1.0) -> PtyServer:
-    """Start serving a fresh controller on a new pty; returns at once (see ``.path``).
-
-    ``speed``: the controller runs that many times as fast as the host's clock
-    (:mod:`tango_aio.sim.clock`); the wire keeps its timing.
-    """
-    return PtyServer(Wire(scaled_factory(factory, speed), config))
 
 
 # ---------------------------------------------------------------------------------- tcp
@@ -691,3 +543,4 @@ async def create_sim_connection(
     protocol.connection_made(transport)
     await asyncio.sleep(0)
     return transport, protocol
+

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import fcntl
 import io
 import json
 import os
@@ -15,18 +14,21 @@ import socket
 import struct
 import subprocess
 import sys
-import termios
 import time
 from pathlib import Path
 
 import pytest
 import serial
+from aswindows import environment as as_windows_environment
+from helpers import WINDOWS, posix_only
 
 import tango_aio
 from tango_aio.cli import (
+    PTY_NEEDS_POSIX,
     Shell,
     _parser,
     _PipeReader,
+    _sigint_calls,
     describe_event,
     describe_exception,
     describe_line,
@@ -104,6 +106,7 @@ def test_errors_are_one_line_with_nonzero_exit() -> None:
 
 
 def test_sim_pty_prints_the_device_path_first() -> None:
+    posix_only("the pty emulator (os.openpty, termios, tty: tango_aio.sim.ptyserve)")
     with subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"], stdout=subprocess.PIPE,
                           text=True) as proc:
         _check_pty(proc)
@@ -154,6 +157,10 @@ class Terminal:
     """The CLI on a real pty (its controlling terminal), read with a timeout."""
 
     def __init__(self, *args: str, env: dict[str, str]) -> None:
+        posix_only("a pty as the CLI's controlling terminal (os.openpty, termios, fcntl)")
+        import fcntl
+        import termios
+
         self.master, slave = os.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 200, 0, 0))
         # A session leader that makes the pty its controlling terminal, so that Ctrl+C
@@ -339,6 +346,7 @@ def test_monitor_exits_cleanly_on_ctrl_c() -> None:
 
 def test_ports_lists_and_probes() -> None:
     assert run("ports").returncode == 0
+    posix_only("the pty emulator (os.openpty, termios, tty: tango_aio.sim.ptyserve)")
     with subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"], stdout=subprocess.PIPE,
                           text=True) as proc:
         try:
@@ -416,7 +424,10 @@ def test_a_url_without_file_descriptor_is_a_one_line_error(
         capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = cli(capsys, "info", "loop://")
     assert code == 1 and len(out.splitlines()) == 1
-    assert "has no file descriptor" in out
+    if WINDOWS:  # the thread transport needs no descriptor: loop:// echoes, no controller
+        assert out.startswith("error: controller did not answer"), out
+    else:
+        assert "has no file descriptor" in out
 
 
 def test_bad_numbers_are_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
@@ -502,10 +513,12 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
 
 class PtySim:
     """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the CLI under
-    test, so that we can see whether its axes still move after the CLI exited."""
+    test, so that we can see whether its axes still move after the CLI exited. On
+    Windows (no ptys) ``sim --tcp``, and :attr:`path` is its ``socket://`` URL."""
 
     def __init__(self) -> None:
-        self.proc = subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"],
+        where = ["--tcp", "127.0.0.1:0"] if WINDOWS else ["--pty"]
+        self.proc = subprocess.Popen([*CLI, "sim", *where, "--baud", "0"],
                                      stdout=subprocess.PIPE, text=True)
         assert self.proc.stdout is not None
         self.path = self.proc.stdout.readline().strip()
@@ -698,3 +711,103 @@ def test_pipe_reader_outliving_its_loop_ends_quietly() -> None:
         os.close(write_end)
         reader._thread.join(10)
         assert not reader._thread.is_alive()
+
+
+# -- Windows (issue #27): the paths taken where the event loop has no signal handlers ------
+
+
+def _as_windows(**extra: str) -> dict[str, str]:
+    """A subprocess environment "as if on Windows" (tests/windows_site): POSIX-only modules
+    unimportable, ``add_signal_handler`` raising NotImplementedError."""
+    return as_windows_environment({**os.environ, "PYTHONUNBUFFERED": "1", **extra})
+
+
+def test_sim_pty_on_windows_is_one_line_pointing_to_tcp() -> None:
+    for where in (["--pty"], []):
+        result = subprocess.run([*CLI, "sim", *where], capture_output=True, text=True,
+                                timeout=60, check=False, env=_as_windows())
+        lines = result.stdout.strip().splitlines()
+        assert result.returncode == 1, result.stdout + result.stderr
+        assert lines == [f"error: {PTY_NEEDS_POSIX}"], lines
+        assert "--tcp" in lines[0] and "socket://" in lines[0] and "com0com" in lines[0]
+
+
+def _read_until(proc: subprocess.Popen[str], marker: str, timeout: float = 30) -> str:
+    """The CLI's stdout up to the line holding ``marker``."""
+    assert proc.stdout is not None
+    seen = ""
+    deadline = time.monotonic() + timeout
+    while marker not in seen:
+        assert time.monotonic() < deadline, seen
+        line = proc.stdout.readline()
+        assert line, f"{marker!r} never appeared in {seen!r}"
+        seen += line
+    return seen
+
+
+def test_shell_ctrl_c_stops_the_axes_through_signal_signal() -> None:
+    """Ctrl+C in the shell where ``add_signal_handler`` does not exist (Windows): the
+    ``signal.signal`` fallback aborts the move, and the shell goes on."""
+    with subprocess.Popen([*CLI, "shell", SIM], stdin=subprocess.PIPE,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          env=_as_windows(TANGO_AIO_HISTORY=os.devnull)) as proc:
+        assert proc.stdin is not None
+        _read_until(proc, "connected to")
+        proc.stdin.write("!moa 50 50\n")
+        proc.stdin.flush()
+        _read_until(proc, "ok")
+        time.sleep(0.3)  # under way
+        proc.send_signal(signal.SIGINT)
+        out = _read_until(proc, "move finished")
+        assert "abort sent (Ctrl+C): all axes stop" in out, out
+        assert "x=E (error/aborted) y=E (error/aborted)" in out, out
+        proc.stdin.write("?pos\nquit\n")
+        proc.stdin.flush()
+        rest, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out + rest
+    x, y = map(float, re.findall(r"(\d+\.\d+) (\d+\.\d+) 0\.0000", rest)[0])
+    assert 0 < x < 50 and 0 < y < 50  # stopped on the way
+
+
+def test_monitor_ends_on_ctrl_c_through_signal_signal() -> None:
+    with subprocess.Popen([*CLI, "monitor", SIM, "--interval", "0.05"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          env=_as_windows(TTY_COMPATIBLE="1", TERM="xterm")) as proc:
+        _read_until(proc, "│ z")  # the live table is up
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out and "interrupted" not in out, out
+
+
+def test_ctrl_c_during_move_stops_the_axes_as_on_windows() -> None:
+    with PtySim() as sim:
+        url = sim.path
+        proc = subprocess.Popen([*CLI, "move", url, "x=40", "y=40"], env=_as_windows(),
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(1.5)  # connected and moving (the move takes about 10 s)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 130 and "Traceback" not in out, out
+        assert sim.moving_axes() == []
+
+
+async def test_sigint_calls_falls_back_to_signal_signal(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fallback itself, in this process: ``add_signal_handler`` raising
+    NotImplementedError (Windows' loops) installs a ``signal.signal`` handler that runs
+    the callback on the loop, and puts the previous handler back afterwards."""
+    loop = asyncio.get_running_loop()
+
+    def not_here(*args: object) -> None:
+        raise NotImplementedError
+
+    monkeypatch.setattr(loop, "add_signal_handler", not_here)
+    monkeypatch.setattr(loop, "remove_signal_handler", not_here)
+    before = signal.getsignal(signal.SIGINT)
+    called = asyncio.Event()
+    with _sigint_calls(called.set):
+        assert signal.getsignal(signal.SIGINT) is not before
+        signal.raise_signal(signal.SIGINT)
+        await asyncio.wait_for(called.wait(), 10)
+    assert signal.getsignal(signal.SIGINT) is before

@@ -15,6 +15,7 @@ from helpers import (
     FakeTransport,
     make_model,
     opened,
+    serve_pty,
     wait_until,
 )
 
@@ -23,7 +24,6 @@ from tango_aio.errors import (
     ConnectionLostError,
 )
 from tango_aio.protocol import TangoProtocol
-from tango_aio.sim.serve import serve_pty
 
 pytestmark = pytest.mark.timeout(30)
 

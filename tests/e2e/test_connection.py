@@ -5,20 +5,20 @@ public names (issue 15 item 4) and AxisStatus."""
 from __future__ import annotations
 
 import asyncio
-import fcntl
 import inspect
 import os
 
 import pytest
-from helpers import INSTANT, make_model
+from helpers import INSTANT, make_model, serve_pty
 
 import tango_aio
 from tango_aio import AxisStatus
-from tango_aio.sim.serve import serve_pty
 
 
 def _lockable(path: str) -> bool:
     """Whether another program could take the exclusive lock of ``path`` right now."""
+    import fcntl  # POSIX only; the tests that call this need the pty emulator anyway
+
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -17,6 +17,7 @@ from helpers import (
     done_within_ticks,
     make_model,
     remaining,
+    serve_pty,
     start_slow_move,
     wait_lost,
     wire_of,
@@ -28,7 +29,7 @@ from tango_aio.errors import (
     ConnectionLostError,
 )
 from tango_aio.events import ConnectionLost
-from tango_aio.sim.serve import serve_pty, serve_tcp
+from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Wire
 
 pytestmark = pytest.mark.timeout(30)

@@ -26,6 +26,7 @@ from helpers import (
     assert_fails_fast,
     done_within_ticks,
     make_model,
+    serve_pty,
     start_slow_move,
     wait_lost,
 )
@@ -42,7 +43,7 @@ from tango_aio.errors import (
 )
 from tango_aio.fdlink import FdTransport
 from tango_aio.sim.model import ControllerModel
-from tango_aio.sim.serve import serve_pty, serve_tcp
+from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Wire
 
 pytestmark = pytest.mark.timeout(60)

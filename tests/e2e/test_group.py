@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import os
-import tty
 from collections import Counter
 from collections.abc import AsyncIterator, Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 import pytest
-from helpers import Emulated, wire_of
+from helpers import Emulated, posix_only, serve_pty, wire_of
 
 import tango_aio
 import tango_aio.connection
@@ -38,8 +37,10 @@ from tango_aio.group import (
     GroupEvent,
 )
 from tango_aio.sim.model import ControllerModel, SimConfig
-from tango_aio.sim.serve import PtyServer, serve_pty
 from tango_aio.sim.wire import Emit
+
+if TYPE_CHECKING:
+    from tango_aio.sim.ptyserve import PtyServer
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -467,6 +468,9 @@ class RawPty:
     """A pty pair nobody serves; ``garbage=True`` answers every input with junk lines."""
 
     def __init__(self, garbage: bool = False) -> None:
+        posix_only("a raw pty pair (os.openpty, tty)")
+        import tty
+
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)

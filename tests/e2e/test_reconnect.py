@@ -18,6 +18,7 @@ from helpers import (
     make_model,
     next_event,
     remaining,
+    serve_pty,
     start_slow_move,
     wait_until,
 )
@@ -29,7 +30,7 @@ from tango_aio.errors import (
 from tango_aio.events import ConnectionLost, Reconnected
 from tango_aio.reconnect import IdentityMismatchError, ReconnectPolicy
 from tango_aio.sim.model import ControllerModel, SimConfig
-from tango_aio.sim.serve import serve_pty, serve_tcp
+from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, WireConfig
 
 pytestmark = pytest.mark.timeout(30)

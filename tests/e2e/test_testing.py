@@ -11,10 +11,9 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
-from helpers import make_model, wait_until
+from helpers import make_model, serve_pty, wait_until
 
 import tango_aio
-from tango_aio.sim.serve import serve_pty
 from tango_aio.testing import Emulated, EmulatedSync, emulator_url, faults
 
 #: What a request whose reply ``drop()`` loses may raise: the request's own reply lost

@@ -10,16 +10,21 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-import tty
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
 import pytest
+from helpers import WINDOWS
 
 from tango_aio import fdlink
 from tango_aio.fdlink import FdTransport
 
 pytestmark = pytest.mark.timeout(30)
+
+if WINDOWS:
+    pytest.skip("POSIX only: needs a pty pair (os.openpty, tty) and a descriptor the event "
+                "loop can watch (the POSIX fd transport)", allow_module_level=True)
+import tty  # noqa: E402  (POSIX only)
 
 
 class Port:

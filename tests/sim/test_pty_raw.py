@@ -14,10 +14,11 @@ from collections.abc import Callable
 
 import pytest
 import serial
+from helpers import serve_pty
 
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES
-from tango_aio.sim.serve import serve_pty, serve_tcp
+from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, Wire, WireConfig
 
 pytestmark = pytest.mark.timeout(30)

@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 import serial
+from helpers import serve_pty
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -38,7 +39,6 @@ from tango_aio.sim.serve import (
     TcpServer,
     WireRunner,
     create_sim_connection,
-    serve_pty,
     serve_tcp,
 )
 from tango_aio.sim.state import FORMAT, MAX_SIZE, VERSION, StateFileError, save_state
@@ -528,15 +528,14 @@ def test_the_readme_imports_work() -> None:
         create_sim_connection,
         model,
         serve,
-        serve_pty,
         serve_tcp,
         wire,
     )
 
     assert (ControllerModel, SimConfig) == (model.ControllerModel, model.SimConfig)
     assert (Wire, WireConfig) == (wire.Wire, wire.WireConfig)
-    assert (create_sim_connection, serve_pty, serve_tcp) == (
-        serve.create_sim_connection, serve.serve_pty, serve.serve_tcp)
+    assert (create_sim_connection, serve_tcp) == (
+        serve.create_sim_connection, serve.serve_tcp)
     assert set(package.__all__) <= set(dir(package))
     with pytest.raises(AttributeError):
         package.no_such_name  # noqa: B018
