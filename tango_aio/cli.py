@@ -233,8 +233,6 @@ async def _sim(args: argparse.Namespace) -> int:
     from .sim.wire import Emit
 
     address = _tcp_address(args.tcp) if args.tcp else None
-    if address is None:
-        _check_pty_platform()
     if args.per_connection and address is None:
         raise ValueError("--per-connection needs --tcp (a pty serves one controller)")
     url = _sim_url(args)
@@ -252,6 +250,7 @@ async def _sim(args: argparse.Namespace) -> int:
         host = f"[{server.host}]" if ":" in server.host else server.host
         print(f"socket://{host}:{server.port}", flush=True)
     else:
+        _check_pty_platform()
         from .sim.ptyserve import serve_pty
 
         server = await serve_pty(factory, config=wire_config,  # type: ignore[assignment]
@@ -464,46 +463,13 @@ def _param_word(param: Any) -> str:
 
 @contextlib.contextmanager
 def _sigint_calls(callback: Callable[[], None]) -> Iterator[None]:
-    """Run ``callback`` on SIGINT (Ctrl+C) instead of interrupting the program. Where
-    the event loop cannot handle signals (Windows: ``add_signal_handler`` raises
-    NotImplementedError) a plain ``signal.signal`` handler hands it to the loop instead;
-    nothing is installed outside the main thread."""
-    loop = asyncio.get_running_loop()
-    previous = signal.getsignal(signal.SIGINT)
-    try:
-        loop.add_signal_handler(signal.SIGINT, callback)
-    except NotImplementedError:
-        installed = _sigint_by_signal(loop, callback)
-        fallback = installed
-    except (RuntimeError, ValueError):
-        installed = fallback = False
-    else:
-        installed, fallback = True, False
-    try:
+    """Run ``callback`` on SIGINT (Ctrl+C) instead of interrupting the program; on
+    Windows through ``signal.signal`` (:func:`tango_aio._platform.signal_calls`); nothing
+    is installed outside the main thread."""
+    from ._platform import signal_calls
+
+    with signal_calls(signal.SIGINT, callback):
         yield
-    finally:
-        if installed and not fallback:
-            loop.remove_signal_handler(signal.SIGINT)
-        if installed:
-            signal.signal(signal.SIGINT, previous)
-
-
-def _sigint_by_signal(loop: asyncio.AbstractEventLoop, callback: Callable[[], None]
-                      ) -> bool:
-    """Install a ``signal.signal`` SIGINT handler that runs ``callback`` on ``loop``
-    (Windows' event loops have no ``add_signal_handler``). The handler runs in the main
-    thread between two bytecodes, possibly inside the loop's own code, so it only
-    schedules: ``call_soon_threadsafe`` also wakes a loop waiting for I/O. False where
-    no handler can be installed (not the main thread)."""
-
-    def handler(signum: int, frame: object) -> None:
-        with contextlib.suppress(RuntimeError):  # the loop is already closed
-            loop.call_soon_threadsafe(callback)
-
-    if threading.current_thread() is not threading.main_thread():
-        return False
-    signal.signal(signal.SIGINT, handler)
-    return True
 
 
 # -- shell ------------------------------------------------------------------------------
@@ -1206,18 +1172,36 @@ def _run_loop(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def _sigint_deferred() -> Iterator[None]:
-    """Hold SIGINT back (where the platform can: POSIX, the main thread) for the block."""
+    """Hold SIGINT back (in the main thread) for the block: blocked where the platform
+    can (POSIX), else (Windows) recorded by a handler and raised again after it."""
     from ._platform import POSIX
 
-    if not POSIX or not hasattr(signal, "pthread_sigmask") \
-            or threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread():
         yield
+        return
+    if not POSIX or not hasattr(signal, "pthread_sigmask"):
+        with _sigint_recorded():
+            yield
         return
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
+def _sigint_recorded() -> Iterator[None]:
+    """Where SIGINT cannot be blocked (Windows): a handler notes it during the block,
+    and the previous handler gets it once the block is over."""
+    came: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if came:
+            signal.raise_signal(signal.SIGINT)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -21,6 +21,7 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+from .._platform import signal_calls
 from ..connection import connect
 from .access import AccessPolicy
 
@@ -146,7 +147,6 @@ def _terminated_by_sigterm() -> Iterator[list[bool]]:
     """SIGTERM (a service manager stopping the IOC) cancels the IOC like Ctrl+C does, so
     the moves it started are stopped and the ports closed; yields ``[True]`` once it
     came."""
-    loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     came: list[bool] = []
 
@@ -155,15 +155,9 @@ def _terminated_by_sigterm() -> Iterator[list[bool]]:
         if task is not None:
             task.cancel()
 
-    try:
-        loop.add_signal_handler(signal.SIGTERM, terminate)
-    except (NotImplementedError, RuntimeError):  # Windows, or not the main thread
+    # Windows: through signal.signal (only raise_signal can send SIGTERM there).
+    with signal_calls(signal.SIGTERM, terminate):
         yield came
-        return
-    try:
-        yield came
-    finally:
-        loop.remove_signal_handler(signal.SIGTERM)
 
 
 async def _serve(args: argparse.Namespace, controllers: dict[str, str],

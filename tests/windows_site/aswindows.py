@@ -25,7 +25,6 @@ the examples, the README's code blocks) runs in the same mode through
 
 from __future__ import annotations
 
-import asyncio
 import builtins
 import os
 import sys
@@ -41,8 +40,9 @@ BLOCKED = frozenset({"fcntl", "termios", "tty", "pty", "resource"})
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _ROOT = os.path.dirname(os.path.dirname(_HERE))
+# Not benchmarks/: its pty benchmarks (scaling, watch) are POSIX-only tools, measured there.
 _OURS = tuple(os.path.join(_ROOT, part) + os.sep
-              for part in ("tango_aio", "tests", "examples", "docs", "benchmarks"))
+              for part in ("tango_aio", "tests", "examples", "docs"))
 _installed = False
 
 
@@ -83,9 +83,20 @@ def install() -> None:
             _refuse_import(name)
         return original_import(name, globals, locals, fromlist, level)
 
-    builtins.__import__ = guarded_import
+    def importing(name: str, globals: Any = None, locals: Any = None,
+                  fromlist: Any = (), level: int = 0) -> Any:
+        module = guarded_import(name, globals, locals, fromlist, level)
+        if _loop_class() is not None:  # asyncio's loop is defined: patch it, once
+            builtins.__import__ = guarded_import
+            _no_signal_handlers()
+        return module
+
     _hide_openpty()
-    _no_signal_handlers()
+    if _loop_class() is not None:
+        builtins.__import__ = guarded_import
+        _no_signal_handlers()
+    else:  # asyncio not loaded yet: ``import tango_aio`` alone must not load it
+        builtins.__import__ = importing
 
 
 def _hide_openpty() -> None:
@@ -101,6 +112,11 @@ def _hide_openpty() -> None:
     os.openpty = openpty
 
 
+def _loop_class() -> Any:
+    """asyncio's POSIX event loop class, once defined (asyncio may be half imported)."""
+    return getattr(sys.modules.get("asyncio.unix_events"), "_UnixSelectorEventLoop", None)
+
+
 def _no_signal_handlers() -> None:
     def add_signal_handler(self: Any, sig: int, callback: Any, *args: Any) -> NoReturn:
         raise NotImplementedError
@@ -108,7 +124,7 @@ def _no_signal_handlers() -> None:
     def remove_signal_handler(self: Any, sig: int) -> NoReturn:
         raise NotImplementedError
 
-    loop_class: Any = asyncio.SelectorEventLoop
+    loop_class = _loop_class()
     loop_class.add_signal_handler = add_signal_handler
     loop_class.remove_signal_handler = remove_signal_handler
 
