@@ -811,3 +811,24 @@ async def test_sigint_calls_falls_back_to_signal_signal(
         signal.raise_signal(signal.SIGINT)
         await asyncio.wait_for(called.wait(), 10)
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_ports_lists_com_ports_with_their_usb_description(
+        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """``tango-aio ports`` shows what pyserial reports for each port: on Windows COM names
+    with the USB description and hardware id (Linux's ttyUSB ports come the same way)."""
+    from serial.tools import list_ports, list_ports_common
+
+    def port(device: str, description: str, hwid: str) -> list_ports_common.ListPortInfo:
+        info = list_ports_common.ListPortInfo(device, skip_link_detection=True)
+        info.description, info.hwid = description, hwid
+        return info
+
+    monkeypatch.setattr(list_ports, "comports", lambda *args: [
+        port("COM3", "USB Serial Port (COM3)", "USB VID:PID=0403:6001 SER=A50285BIA"),
+        port("COM12", "USB-SERIAL CH340 (COM12)", "USB VID:PID=1A86:7523 LOCATION=1-4")])
+    monkeypatch.setenv("COLUMNS", "160")
+    code, out, _ = cli(capsys, "ports")
+    assert code == 0, out
+    assert re.search(r"COM3\s.*USB Serial Port \(COM3\)\s.*VID:PID=0403:6001", out), out
+    assert re.search(r"COM12\s.*USB-SERIAL CH340 \(COM12\)\s.*VID:PID=1A86:7523", out), out
