@@ -14,8 +14,8 @@ from benchmarks import canned, profiles
 from benchmarks.__main__ import CASES, RUNNERS, Row, table
 
 MODULES = ["benchmarks.__main__", "benchmarks.canned", "benchmarks.moves",
-           "benchmarks.profiles", "benchmarks.scaling", "benchmarks.upload",
-           "benchmarks.watch"]
+           "benchmarks.profiles", "benchmarks.scaling", "benchmarks.transports",
+           "benchmarks.upload", "benchmarks.watch"]
 
 
 @pytest.mark.parametrize("name", MODULES)
