@@ -230,9 +230,9 @@ class ThreadTransport(asyncio.Transport):
 
     def _read_loop(self) -> None:
         port = self._port
-        while not self._stop.is_set():
+        while not self._stop.is_set() and not self._loop.is_closed():
             if not self._may_read.is_set():
-                self._may_read.wait()
+                self._may_read.wait(READ_TIMEOUT)
                 continue
             try:
                 data = port.read(port.in_waiting or 1)
