@@ -4,8 +4,9 @@ The ``tango-aio`` command imports this module before anything else, so that an i
 while the rest of the command line loads (asyncio, rich, the driver: about 0.2 s) prints
 one line and exits with 130 at once (``os._exit``) instead of a ``KeyboardInterrupt``
 traceback (issue #16).
-:func:`finished`, called at the end of :mod:`tango_aio.cli`'s imports, gives Ctrl+C back
-to its previous handler; from there on :func:`tango_aio.cli.main` handles it. Nothing is
+:func:`finished`, called as :func:`tango_aio.cli.main` starts (once the whole module has
+loaded, its definitions too), gives Ctrl+C back to its previous handler; from there on
+``main`` handles it. Nothing is
 installed outside the main thread, or where someone else already handles SIGINT.
 """
 

@@ -64,8 +64,6 @@ from .instructions import Command as CommandLine
 
 __all__ = ["main"]
 
-_startup.finished()  # loaded: from here on main() handles Ctrl+C
-
 console = Console(highlight=False)
 Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
 _T = TypeVar("_T")
@@ -1209,6 +1207,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     as one line), 2 for usage errors, 130 after Ctrl+C."""
     debug = False
     try:
+        # The module's body has run to its end (class and function definitions, not only
+        # the imports): only now does Ctrl+C belong to main().
+        _startup.finished()
         args = _parser().parse_args(argv)
         debug = args.debug
         if args.command == "demo" and not args.yes and not _is_emulator(args.url) \

@@ -207,6 +207,17 @@ def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
     assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
 
 
+def test_ctrl_c_after_the_command_line_loaded_but_before_main_ends_quietly() -> None:
+    # The module's body (its class and function definitions, after the imports) is part
+    # of start-up: seen under load, an interrupt there printed a traceback from a class
+    # statement of tango_aio.cli.
+    probe = ("import os, signal, sys; import tango_aio._startup; import tango_aio.cli; "
+             "os.kill(os.getpid(), signal.SIGINT); print('not interrupted')")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
+
+
 def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
     # Deterministically in the middle of building the event loop (seen under load at a
     # random moment: a half-built loop printed a traceback from its __del__).
