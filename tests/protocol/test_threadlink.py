@@ -392,13 +392,13 @@ async def test_the_thread_transport_over_a_pty_end_to_end() -> None:
     async with await serve_pty(make_model) as server:
         async with tango_aio.connect(server.path) as tango:
             assert isinstance(tango.protocol.transport, ThreadTransport)
-            await tango.calibrate("x")
-            await tango.move_to(x=5.25, y=1)
-            assert await tango.position() == {"x": 5.25, "y": 1.0, "z": 0.0}
+            await tango.move_to(x=0.25, y=0.5)
+            await tango.move_by(x=-0.125)
+            assert await tango.position() == {"x": 0.125, "y": 0.5, "z": 0.0}
             with pytest.raises(tango_aio.ConnectionLostError, match="cannot open"):
                 await tango_aio.connect(server.path)  # exclusive, as before
         async with tango_aio.connect(server.path) as tango:  # released at once
-            assert await tango.position() == {"x": 5.25, "y": 1.0, "z": 0.0}
+            assert await tango.position() == {"x": 0.125, "y": 0.5, "z": 0.0}
             server.close()  # the device goes away: the read raises
             await _until(lambda: not tango.connected)
             with pytest.raises(tango_aio.ConnectionLostError):
