@@ -171,6 +171,8 @@ class ThreadTransport(asyncio.Transport):
         self._protocol.data_received(data)
 
     def _written(self, count: int) -> None:
+        if self._lost:  # the buffer was dropped meanwhile
+            return
         self._pending -= count
         if self._closing and not self._pending:
             self._finish(None)
@@ -180,6 +182,7 @@ class ThreadTransport(asyncio.Transport):
         if exc is not None and not self._lost:
             log.debug("serial port %s: %r", _name(self._port), exc)
         self._closing = True
+        self._pending = 0
         with self._lock:
             self._outgoing.clear()
         self._finish(exc)

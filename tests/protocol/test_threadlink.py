@@ -274,6 +274,7 @@ async def test_abort_drops_the_buffer(link: Link) -> None:
     await asyncio.wait_for(link.protocol.gone.wait(), 10)
     assert link.protocol.lost == [None]
     assert b"?vel" not in link.port.written
+    assert link.transport.get_write_buffer_size() == 0  # dropped, not pending
 
 
 async def test_paused_reading_holds_the_bytes_until_resumed(link: Link) -> None:
