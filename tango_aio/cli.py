@@ -848,16 +848,18 @@ async def _monitor(args: argparse.Namespace) -> int:
 
 
 async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
-    """Port → "model firmware" of the controllers :func:`tango_aio.discover` finds."""
-    from .discovery import discover
+    """Port → what probing it found, in a few words: "TANGO model firmware", "no
+    answer", "permission denied (...)", "busy (...)", "not found"."""
+    from .discovery import probe_ports
 
-    found = await discover(timeout=timeout, ports=ports or None)
-    return {item.port: f"{item.model} {item.firmware}" for item in found}
+    results = await probe_ports(timeout=timeout, ports=ports or None)
+    return {item.port: item.result for item in results}
 
 
 async def _ports(args: argparse.Namespace) -> int:
     """List the serial ports; with --probe, ask each one for ?version to find the TANGO
-    controllers (this writes a line to every port probed)."""
+    controllers (this writes a line to every port probed) and say for each port what it
+    found: TANGO model firmware, no answer, permission denied, busy or not found."""
     from serial.tools import list_ports
 
     infos = await asyncio.to_thread(list_ports.comports)
@@ -865,10 +867,10 @@ async def _ports(args: argparse.Namespace) -> int:
     rows.update({port: ("", "") for port in args.port if port not in rows})
     found = await _probe(args.timeout, args.port) if args.probe else None
     table = _table("Serial ports", ("device", "description", "hwid",
-                                    *(("TANGO",) if found is not None else ())))
+                                    *(("probe",) if found is not None else ())))
     for device, (description, hwid) in rows.items():
         probed = not args.port or device in args.port
-        extra = () if found is None else (found.get(device, "-" if probed else "not probed"),)
+        extra = () if found is None else (found.get(device, "-") if probed else "not probed",)
         _row(table, device, description, hwid, *extra)
     if rows:
         console.print(table)

@@ -389,7 +389,7 @@ def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
 def test_user_text_is_printed_literally(capsys: pytest.CaptureFixture[str],
                                         tmp_path: Path) -> None:
     code, out, _ = cli(capsys, "info", "[/]")
-    assert code == 1 and out.startswith("error: cannot open '[/]'"), out
+    assert code == 1 and out.startswith("error: no serial port [/]:"), out
     path = tmp_path / "positions.txt"
     path.write_text("1.0\n[mm]\n")
     code, out, _ = cli(capsys, "upload-trigp", SIM, str(path))
