@@ -219,7 +219,7 @@ async def _open_socket(url: str, factory: ProtocolFactory
     try:
         return await loop.create_connection(factory, parts.hostname, parts.port)
     except OSError as exc:
-        reason = exc.strerror or str(exc) or type(exc).__name__
+        reason = os.strerror(exc.errno) if exc.errno else str(exc) or type(exc).__name__
         raise ConnectError(f"cannot connect to {url}: {reason} (is the server running, "
                            f"are host and port right?)", url) from exc
 

@@ -433,6 +433,8 @@ def _build(
 ) -> Command:
     entry = lookup(name)
     the_form = form if isinstance(form, Form) else Form(form)
+    if axis is not None:
+        check_axis_word(axis, entry.name)
     parts: list[str] = [the_form.value + entry.name]
     if axes:
         _check_lead_count(entry, the_form, args)
@@ -455,6 +457,14 @@ def _build(
     command = parse(" ".join(parts), context)
     _check_words(command, given)
     return command
+
+
+def check_axis_word(axis: object, name: str) -> None:
+    """Refuse an ``axis=`` argument that is not one axis letter (``x``, ``y``, ``z``,
+    ``a``, either case): ``""`` would address every axis, ``"y 5"`` smuggle in a value,
+    ``1`` is no letter at all."""
+    if not isinstance(axis, str) or axis.lower() not in AXES:
+        raise _fail(f"{name}: axis must be one of x, y, z, a, got {axis!r}", name, "axis", 1)
 
 
 def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> None:
