@@ -112,3 +112,21 @@ def test_the_blocking_twins() -> None:
         tango.wait_idle()
         future.result()
         assert not tango.is_busy() and not tango.is_calibrated()
+
+
+@pytest.mark.parametrize("seconds", [float("nan"), -1.0, float("inf"), True])
+async def test_the_fault_api_refuses_times_that_are_no_times(tango: Controller,
+                                                             seconds: float) -> None:
+    faults = tango_aio.testing.faults(tango)
+    with pytest.raises(ValueError, match="finite number >= 0"):
+        faults.delay(seconds)
+    with pytest.raises(ValueError, match="finite number >= 0"):
+        faults.stall(seconds)
+    assert await tango.get("trigc") == 0  # nothing changed: the next call works
+
+
+@pytest.mark.parametrize("url", ["sim://?latency=nan", "sim://?processing=inf",
+                                 "sim://?stall=nan"])
+async def test_a_sim_url_with_a_time_that_is_no_time_is_refused(url: str) -> None:
+    with pytest.raises(ValueError, match="finite"):
+        await tango_aio.connect(url)
