@@ -547,12 +547,41 @@ class _TerminalReader:
 
     def __init__(self, history: Path) -> None:
         from prompt_toolkit import PromptSession
-        from prompt_toolkit.history import FileHistory
+        from prompt_toolkit.history import FileHistory, History, InMemoryHistory
 
-        self._session: PromptSession[str] = PromptSession(history=FileHistory(str(history)))
+        class KeptHistory(FileHistory):
+            """A history file that, once it cannot be written, warns once and is no
+            longer written (instead of an error in the prompt after every line)."""
+
+            failed = False
+
+            def store_string(self, string: str) -> None:
+                if not self.failed:
+                    try:
+                        super().store_string(string)
+                    except OSError as exc:
+                        self.failed = True
+                        _history_warning(history, exc)
+
+        kept: History
+        try:
+            with open(history, "ab"):  # can it be written? Say so once, at the start
+                pass
+        except OSError as exc:
+            _history_warning(history, exc)
+            kept = InMemoryHistory()
+        else:
+            kept = KeptHistory(str(history))
+        self._session: PromptSession[str] = PromptSession(history=kept)
 
     async def read(self) -> str:
         return await self._session.prompt_async(_PROMPT, handle_sigint=False)
+
+
+def _history_warning(history: Path, exc: OSError) -> None:
+    _say(f"warning: the history file {history} cannot be written "
+         f"({exc.strerror or exc}): no history is kept; set TANGO_AIO_HISTORY to another "
+         f"file", "yellow")
 
 
 def read_bounded_line(stream: BinaryIO, limit: int) -> tuple[bytes, bool]:

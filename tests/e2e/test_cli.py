@@ -698,3 +698,16 @@ def test_pipe_reader_outliving_its_loop_ends_quietly() -> None:
         os.close(write_end)
         reader._thread.join(10)
         assert not reader._thread.is_alive()
+
+
+def test_shell_with_an_unwritable_history_warns_once(tmp_path: Path) -> None:
+    history = tmp_path / "no-such-dir" / "history"  # its directory does not exist
+    with _shell(SIM, history) as term:
+        term.type("?pos", r"0\.0000 0\.0000 0\.0000")
+        term.type("?pos", r"0\.0000 0\.0000 0\.0000")
+        term.send("exit\r")
+        assert term.wait() == 0
+    assert term.text.count("warning: the history file") == 1, term.text
+    for text in ("Unhandled exception", "Press ENTER", "Traceback", "exit() failed"):
+        assert text not in term.text, term.text
+    assert not history.exists()
