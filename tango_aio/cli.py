@@ -16,6 +16,7 @@ from . import _startup
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -59,7 +60,7 @@ from .events import (
     TangoEvent,
     UnsolicitedLine,
 )
-from .instructions import AXES, Form, Instruction, Signature, lookup, parse
+from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
 
 __all__ = ["main"]
@@ -451,7 +452,8 @@ _FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
 
 def describe_instruction(entry: Instruction) -> str:
     """Help text of one instruction from the catalog (the shell's ``help NAME``)."""
-    lines = [f"{entry.name}: {entry.summary}"]
+    first, *more = _summary_parts(entry.summary)
+    lines = [f"{entry.name}: {first}", *(f"  {part}" for part in more)]
     if entry.aliases:
         lines.append(f"  also written: {', '.join(entry.aliases)}")
     for form in sorted(entry.forms, key=_FORM_ORDER.index):
@@ -465,6 +467,28 @@ def describe_instruction(entry: Instruction) -> str:
     if entry.section:
         lines.append(f"  manual section {entry.section}, line {entry.line}")
     return "\n".join(lines)
+
+
+@functools.lru_cache(maxsize=1)
+def _summary_split() -> re.Pattern[str]:
+    """Where a catalog summary runs two of the manual's example lines together: before a
+    verb that starts summaries (``... 10 10 10 Move Y axis to ...``)."""
+    from .instructions import INSTRUCTIONS
+
+    verbs = {entry.summary.split()[0] for entry in INSTRUCTIONS.values() if entry.summary}
+    verbs = {verb for verb in verbs if len(verb) > 2 and verb.isalpha() and verb.istitle()
+             and verb not in _NOT_VERBS}
+    return re.compile(r"(?<=[a-z0-9)\]]) (?=(?:%s) )" % "|".join(sorted(verbs)))
+
+
+#: Words that start some summaries but do not start a sentence of their own.
+_NOT_VERBS = frozenset({"Maximum", "Closed", "Multi", "One", "Only", "Liquid", "Trigger",
+                        "Virtual", "Power", "Dummy"})
+
+
+def _summary_parts(summary: str) -> list[str]:
+    """A catalog summary as its sentences (see :func:`_summary_split`)."""
+    return [part.strip() for part in _summary_split().split(summary) if part.strip()]
 
 
 def _usage(sig: Signature) -> list[str]:
@@ -769,10 +793,14 @@ class Shell:
             return SHELL_HELP
         if topic.lstrip("-").isdigit():
             return describe_error(int(topic))
+        name = topic.lstrip("!?").lower()
         try:
-            return describe_instruction(lookup(topic.lstrip("!?").lower()))
+            return describe_instruction(lookup(name))
         except InvalidCommandError:
-            return f"no instruction {topic!r} in the catalog; 'help' lists the shell's commands"
+            close = similar_names(name)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
+            return (f"no instruction {topic!r} in the catalog; {hint}'help' lists the "
+                    f"shell's commands")
 
     def _on_sigint(self) -> None:
         if self._job is not None:

@@ -106,3 +106,33 @@ def test_an_empty_trigger_file_is_an_error(capsys: pytest.CaptureFixture[str],
     path.write_text("# nothing yet\n\n")
     code, out = cli(capsys, "upload-trigp", SIM, str(path))
     assert code == 1 and "no positions" in out, out
+
+
+def test_shell_help_gives_one_sentence_a_line_and_suggests_names() -> None:
+    from tango_aio.cli import Shell
+
+    text = Shell.help("moa")
+    assert text.splitlines()[:2] == ["moa: Move X Y Z absolute to positions 10 10 10",
+                                     "  Move Y axis to position 20 (unit depends on dim "
+                                     "setting)"], text
+    assert "did you mean moa or mro?" in Shell.help("mao")
+    assert "did you mean" not in Shell.help("xyzzy")
+
+
+def test_shell_checks_what_the_controller_would_refuse(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    script = "!mao\n!moa 1 2 3 4\n!moa 1e3\n?pos\n"
+    result = subprocess.run([sys.executable, "-m", "tango_aio", "shell", SIM], input=script,
+                            capture_output=True, text=True, timeout=60, check=False,
+                            env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
+    out = result.stdout
+    assert result.returncode == 1, out + result.stderr
+    assert "invalid: unknown instruction 'mao' (did you mean moa or mro?) (nothing sent)" in out
+    assert ("invalid: moa: 4 axis values, but the controller has 3 (axes X Y Z) "
+            "(nothing sent)") in out
+    assert "invalid: moa: position '1e3' is in exponent notation, which is refused" in out
+    assert "controller error" not in out, out  # nothing reached the controller
+    assert "0.0000 0.0000 0.0000" in out
