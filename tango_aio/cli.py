@@ -478,7 +478,8 @@ def _summary_split() -> re.Pattern[str]:
     verbs = {entry.summary.split()[0] for entry in INSTRUCTIONS.values() if entry.summary}
     verbs = {verb for verb in verbs if len(verb) > 2 and verb.isalpha() and verb.istitle()
              and verb not in _NOT_VERBS}
-    return re.compile(r"(?<=[a-z0-9)\]]) (?=(?:%s) )" % "|".join(sorted(verbs)))
+    alternatives = "|".join(sorted(verbs))
+    return re.compile(rf"(?<=[a-z0-9)\]]) (?=(?:{alternatives}) )")
 
 
 #: Words that start some summaries but do not start a sentence of their own.
