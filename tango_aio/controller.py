@@ -162,6 +162,8 @@ class Controller:
         self._motion = Motion(_Port(self))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
+        #: Held by a move with its own velocity/acceleration (set, moved, restored).
+        self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
@@ -584,7 +586,8 @@ class Controller:
     # -- motion (followed by tango_aio.motion) --------------------------------------------
 
     async def move_to(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      unit: str | None = None, **axes: float) -> dict[str, str]:
+                      unit: str | None = None, velocity: Speed | None = None,
+                      acceleration: Speed | None = None, **axes: float) -> dict[str, str]:
         """Move to absolute positions (``move_to(x=10, y=5)``, any set of axes) and wait
         until every named axis stands still at its target.
 
@@ -596,19 +599,71 @@ class Controller:
         written. Axes not named are never moved: a set that does not start at X without
         gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
         semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
-        the connection's ``units``, else the dim unit) or pint Quantities."""
+        the connection's ``units``, else the dim unit) or pint Quantities.
+
+        ``velocity`` and ``acceleration`` apply to this move only: one number for every
+        moved axis, or a mapping per axis (``velocity={"x": 5}``), in ``unit`` per second
+        (squared) when ``unit`` is given, else as :meth:`set_velocity` and
+        :meth:`set_acceleration` take them. The moved axes' ``vel``/``accel`` are read,
+        set, and written back once the move has ended (also when it failed or was
+        cancelled). Moves of this controller that pass their own ``velocity`` or
+        ``acceleration`` run one after the other; a move without them that runs at the
+        same time moves at the speed in force (so either give every concurrent move its
+        speed, or none)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
             axes = await self._to_controller(axes, unit, 0)
-            return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
+            async with self._move_settings(axes, unit, velocity, acceleration):
+                return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      unit: str | None = None, **axes: float) -> dict[str, str]:
-        """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
+                      unit: str | None = None, velocity: Speed | None = None,
+                      acceleration: Speed | None = None, **axes: float) -> dict[str, str]:
+        """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`
+        (``velocity`` and ``acceleration`` for this move only, too)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
             axes = await self._to_controller(axes, unit, 0)
-            return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+            async with self._move_settings(axes, unit, velocity, acceleration):
+                return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+
+    @contextlib.asynccontextmanager
+    async def _move_settings(self, axes: Mapping[str, Any], unit: str | None,
+                             velocity: Speed | None, acceleration: Speed | None
+                             ) -> AsyncIterator[None]:
+        """Set ``vel``/``accel`` of the moved axes for the block, then write back what
+        was read before (shielded: also after a failure or a cancellation)."""
+        wanted = [(name, value, power) for name, value, power in
+                  (("vel", velocity, 1), ("accel", acceleration, 2)) if value is not None]
+        if not wanted:
+            yield
+            return
+        async with self._move_settings_lock:
+            lines: list[Command] = []
+            for name, value, power in wanted:
+                per_axis = _per_moved_axis(name, value, axes)
+                scaled = unit if unit is None else f"{unit}/s{'2' if power == 2 else ''}"
+                converted = await self._to_controller(per_axis, scaled, power)
+                lines += [build(name, v, axis=a, context=self.context)
+                          for a, v in converted.items()]  # all checked before a byte
+            for line in lines:
+                self._check_axes(line)
+            saved: list[Command] = []
+            try:
+                for line in lines:
+                    assert line.axis is not None
+                    before = await self.get(line.name, axis=line.axis)
+                    saved.append(build(line.name, before, axis=line.axis,
+                                       context=self.context))
+                    await self._execute(line, check=True)
+                yield
+            finally:
+                if saved:
+                    await asyncio.shield(self._restore(saved))
+
+    async def _restore(self, lines: Sequence[Command]) -> None:
+        for line in reversed(lines):
+            await self._execute(line, check=True)
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
                     stop_on_cancel: bool, relative: bool) -> dict[str, str]:
@@ -1241,6 +1296,22 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
     if order == list(AXES[: len(order)]):
         return [{axis: axes[axis] for axis in order}]
     return [{axis: axes[axis]} for axis in order]
+
+
+#: A per-move velocity or acceleration: one number for every moved axis, or per axis.
+Speed = float | Mapping[str, float]
+
+
+def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[str, Any]:
+    """``value`` for each moved axis; a mapping must name moved axes only."""
+    if isinstance(value, Mapping):
+        extra = sorted(set(value) - set(axes))
+        if extra:
+            raise InvalidCommandError(f"{name}: {', '.join(extra)} is not moved by this "
+                                      f"call (moved: {', '.join(axes)})",
+                                      instruction=name, parameter="axis", number=1)
+        return dict(value)
+    return dict.fromkeys(axes, value)
 
 
 #: Instructions whose float values are list positions (checked against the resolution).

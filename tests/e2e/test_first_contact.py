@@ -130,3 +130,58 @@ async def test_the_fault_api_refuses_times_that_are_no_times(tango: Controller,
 async def test_a_sim_url_with_a_time_that_is_no_time_is_refused(url: str) -> None:
     with pytest.raises(ValueError, match="finite"):
         await tango_aio.connect(url)
+
+
+def _sent_lines(tango: Controller, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Every set/run line the controller executes from now on."""
+    lines: list[str] = []
+    real = tango._execute
+
+    async def spy(command: Any, **kwargs: Any) -> Any:
+        lines.append(command.line)
+        return await real(command, **kwargs)
+
+    monkeypatch.setattr(tango, "_execute", spy)
+    return lines
+
+
+async def test_velocity_and_acceleration_for_one_move(monkeypatch: pytest.MonkeyPatch
+                                                      ) -> None:
+    async with tango_aio.connect("sim://?baud=0&speed=50") as tango:
+        before = await tango.get("vel"), await tango.get("accel")
+        lines = _sent_lines(tango, monkeypatch)
+        letters = await tango.move_to(x=5.0, y=1.0, velocity={"x": 2.0}, acceleration=0.5)
+        assert letters["x"] == "@" and (await tango.position())["x"] == pytest.approx(5.0)
+        assert lines[:3] == ["!vel x 2.0", "!accel x 0.5", "!accel y 0.5"], lines
+        assert lines[-3:] == ["!accel y 1.0", "!accel x 1.0", "!vel x 10.0"], lines
+        assert (await tango.get("vel"), await tango.get("accel")) == before
+        # In the move's unit per second: 2 mm/s is 2 rev/s at a pitch of 1 mm.
+        lines.clear()
+        await tango.move_by(x=-1.0, unit="mm", velocity=2.0)
+        assert lines[0] == "!vel x 2.0" and lines[-1] == "!vel x 10.0", lines
+
+
+async def test_a_cancelled_move_still_restores_its_velocity() -> None:
+    async with tango_aio.connect("sim://?baud=0") as tango:
+        move = asyncio.ensure_future(tango.move_to(x=50.0, velocity=1.0))
+        while (await tango.get("vel", axis="x")) != 1.0:
+            await asyncio.sleep(0.01)
+        move.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await move
+        assert await tango.get("vel", axis="x") == 10.0
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"velocity": {"y": 2.0}}, "y is not moved by this call"),
+    ({"velocity": 1000.0}, "above"),
+    ({"velocity": True}, "boolean"),
+    ({"acceleration": float("nan")}, "finite"),
+])
+async def test_a_bad_per_move_speed_is_refused_before_any_byte(
+        tango: Controller, monkeypatch: pytest.MonkeyPatch, options: dict[str, Any],
+        message: str) -> None:
+    lines = _sent_lines(tango, monkeypatch)
+    with pytest.raises(InvalidCommandError, match=message):
+        await tango.move_to(x=1.0, **options)
+    assert lines == []
