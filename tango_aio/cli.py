@@ -171,6 +171,11 @@ async def _demo_reference(tango: Controller) -> None:
             task = progress.add_task("starting", total=None)
             letters = await _follow(action(), _show_position(tango, progress, task), 0.2)
         _say(f"  done: {describe_letters(letters)}")
+    if tango.context.axes >= 3:
+        # The range measure leaves Z, the focus on a microscope, at its upper limit
+        # switch: it goes back to the middle of its range (moc, L6509).
+        _say("  Z (focus) back to the middle of its range (moc z)")
+        await _follow(tango.move_to_center("z"), lambda: asyncio.sleep(0), 0.2)
 
 
 def _show_position(tango: Controller, progress: Progress,

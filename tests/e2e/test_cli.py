@@ -80,6 +80,17 @@ def test_demo_runs_on_a_one_axis_emulator() -> None:
     _demo(1)
 
 
+def test_demo_leaves_the_focus_in_the_middle_of_its_range(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # The emulator's axes travel 0-100 mm; the range measure ends Z at the top (issue 30
+    # item 11), the demo brings it back to the middle.
+    code, out, _ = cli(capsys, "demo", "sim://?baud=0&speed=100", "--rows", "1",
+                       "--points", "2")
+    assert code == 0, out
+    assert "Z (focus) back to the middle of its range" in out
+    assert re.search(r"final position │ x=\s+11\.0000  y=\s+0\.0000  z=\s+49\.999", out), out
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("axes", [2, 3, 4])
 def test_demo_runs_on_emulators_with_more_axes(axes: int) -> None:
