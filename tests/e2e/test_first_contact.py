@@ -161,11 +161,21 @@ async def test_velocity_and_acceleration_for_one_move(monkeypatch: pytest.Monkey
         assert lines[0] == "!vel x 2.0" and lines[-1] == "!vel x 10.0", lines
 
 
-async def test_a_cancelled_move_still_restores_its_velocity() -> None:
+async def test_a_cancelled_move_still_restores_its_velocity(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     async with tango_aio.connect("sim://?baud=0") as tango:
+        lines = _sent_lines(tango, monkeypatch)
+        moving = asyncio.Event()
+        real_move = tango._move
+
+        async def move_and_tell(*args: Any, **kwargs: Any) -> Any:
+            moving.set()  # the velocity is set, the move's line is next
+            return await real_move(*args, **kwargs)
+
+        monkeypatch.setattr(tango, "_move", move_and_tell)
         move = asyncio.ensure_future(tango.move_to(x=50.0, velocity=1.0))
-        while (await tango.get("vel", axis="x")) != 1.0:
-            await asyncio.sleep(0.01)
+        await moving.wait()
+        assert await tango.get("vel", axis="x") == 1.0 and lines == ["!vel x 1.0"]
         move.cancel()
         with pytest.raises(asyncio.CancelledError):
             await move
