@@ -46,7 +46,9 @@ from tango_aio.sim.wire import Emit, HandlerFactory, Wire, WireConfig
 
 from .test_wire import BT, PingHandler
 
-pytestmark = pytest.mark.timeout(10)
+# A hang's bound, not a speed: generous enough for a machine under load (subprocess
+# starts take seconds there).
+pytestmark = pytest.mark.timeout(60)
 
 SLOW = WireConfig(processing_time_per_line=0.005)
 """Processing slower than the line rate of ``?ping`` lines (6 bytes = 1.15 ms)."""
