@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = ROOT / "docs"
 _BLOCK = re.compile(r"^```python[ \t]*\n(.*?)^```[ \t]*$", re.MULTILINE | re.DOTALL)
 
 
@@ -55,3 +56,15 @@ def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     assert "OutOfRangeError" in errors and "LimitSwitchActiveError" in errors
     assert "tango-aio upload-trigp" in (html / "reference" / "cli.html").read_text()
     assert "move_to" in (html / "reference" / "api" / "tango_aio.controller.html").read_text()
+    # No broken internal link or anchor (viewcode's back-links, its module index).
+    check = subprocess.run([sys.executable, str(ROOT / "tools" / "check_links.py"),
+                            str(html)], capture_output=True, text=True, check=False)
+    assert check.returncode == 0, check.stdout + check.stderr
+    # A theme made for API references, with an on-page contents; the public API apart
+    # from the internals.
+    controller = (html / "reference" / "api" / "tango_aio.controller.html").read_text()
+    assert "furo" in controller and "On this page" in controller
+    modules = (html / "reference" / "modules.html").read_text()
+    public, internals = modules.split('id="internals"', 1)
+    assert "tango_aio.controller" in public and "tango_aio.core" not in public
+    assert "tango_aio.core" in internals and "tango_aio.scheduler" in internals
