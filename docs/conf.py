@@ -28,6 +28,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "tango_docs",  # docs/_ext: tables generated from the code (errors, CLI help)
+    "tango_pictures",  # docs/_ext: pictures drawn from a run of the emulator
 ]
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}

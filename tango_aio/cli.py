@@ -324,7 +324,10 @@ def _sim_url(args: argparse.Namespace) -> str:
     from .sim.profiles import Firmware
 
     switches = dict(_switch(text) for text in args.switch)
-    Firmware.from_options(args.profile, **switches)  # unknown names or values: ValueError
+    try:
+        Firmware.from_options(args.profile, **switches)  # unknown names or values
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
     query: dict[str, object] = {
         "axes": args.axes, "baud": args.baud, "latency": args.latency,
         "processing": args.processing, "speed": _speed(args.speed), "profile": args.profile,

@@ -43,6 +43,7 @@ def test_python_block_runs(name: str, code: str, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a hang's bound: the build takes minutes on a loaded machine
 def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     pytest.importorskip("sphinx")
     pytest.importorskip("myst_parser")
@@ -68,3 +69,8 @@ def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     public, internals = modules.split('id="internals"', 1)
     assert "tango_aio.controller" in public and "tango_aio.core" not in public
     assert "tango_aio.core" in internals and "tango_aio.scheduler" in internals
+    # The pictures, drawn from a run of the emulator at build time.
+    replies = (html / "concepts" / "replies.html").read_text()
+    assert "<svg" in replies and "reply to ?statusaxis" in replies
+    raster = (html / "howto" / "raster-scan.html").read_text()
+    assert raster.count("class='pulse'") == 27
