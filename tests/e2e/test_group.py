@@ -243,15 +243,23 @@ async def test_concurrent_moves_take_the_longest_not_the_sum() -> None:
     async with asyncio.timeout(20), ControllerGroup(specs) as group:
         for name, distance in distances.items():
             await group[name].move_to(x=distance, y=distance / 2)
-        move = asyncio.create_task(
-            group.move_to({name: {"x": 0.0, "y": 0.0} for name in distances}))
-        # Concurrent: at one moment every member's X axis is under way.
-        while True:
-            assert not move.done()
-            statuses = await asyncio.gather(*(c.status() for c in group.values()))
-            if all(status["x"] == "M" for status in statuses):
-                break
-        letters = await move
+        # Concurrent: every member's move is under way before any has ended (recorded
+        # as the moves run, not sampled by polling, which a loaded machine can miss).
+        timeline: list[tuple[str, str]] = []
+        for name, controller in group.items():
+            real = controller._run_motion
+
+            async def recorded(*args: Any, _name: str = name, _real: Any = real) -> Any:
+                timeline.append(("start", _name))
+                try:
+                    return await _real(*args)
+                finally:
+                    timeline.append(("end", _name))
+
+            controller._run_motion = recorded  # type: ignore[method-assign,assignment]
+        letters = await group.move_to({name: {"x": 0.0, "y": 0.0} for name in distances})
+        assert sorted(timeline[:4]) == [("start", name) for name in "abcd"], timeline
+        assert [kind for kind, _ in timeline[4:]] == ["end"] * 4, timeline
         # ... and the group returned once the longest move had ended too.
         assert letters == {name: {"x": "@", "y": "@"} for name in distances}
         positions = await group.position()
