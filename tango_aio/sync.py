@@ -300,6 +300,7 @@ class Controller(_Wrapper[AsyncController]):
     speed = _Blocking(AsyncController.speed)
     abort = _Blocking(AsyncController.abort)
     check_fault = _Blocking(AsyncController.check_fault)
+    is_calibrated = _Blocking(AsyncController.is_calibrated)
     upload_trigger_positions = _Blocking(AsyncController.upload_trigger_positions)
     read_trigger_positions = _Blocking(AsyncController.read_trigger_positions)
     set_trigger_range = _Blocking(AsyncController.set_trigger_range)
@@ -332,6 +333,13 @@ class Controller(_Wrapper[AsyncController]):
         self._join_started()
         return self._portal.call(self.aio.wait_idle, poll_interval=poll_interval,
                                  timeout=timeout)
+
+    def is_busy(self) -> bool:
+        """Whether a ``start_*`` move of this object is still running, or
+        :meth:`tango_aio.Controller.is_busy`."""
+        if any(not future.done() for future in self._started):
+            return True
+        return self._portal.call(self.aio.is_busy)
 
     def watch_position(self, interval: float = 0.1, *, follow: bool = False,
                        unit: str | None = None) -> Iterator[PositionUpdate]:

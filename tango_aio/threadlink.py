@@ -32,8 +32,9 @@ the read timeout does), closes the port in a worker thread and calls
 thread from reading, so the driver's input buffer fills as it would on POSIX.
 
 Exclusive access is the operating system's: Windows opens a COM port for one program at
-a time (a second open fails with "Access is denied"), so no lock is taken here; on POSIX
-pyserial's ``flock`` does it (:mod:`tango_aio.connection`).
+a time (a second open fails with "Access is denied", which ``connect()`` raises as
+:class:`~tango_aio.errors.PortBusyError`), so no lock is taken here; on POSIX pyserial's
+``flock`` does it (:mod:`tango_aio.connection`).
 
 :func:`tango_aio.connection._open_serial` uses this transport for every pyserial port on
 Windows; the POSIX descriptor transport (:mod:`tango_aio.fdlink`) stays the choice on
