@@ -532,6 +532,14 @@ class Controller:
         self._check_axes(command, axes)
         await self._execute(command, check=check)
 
+    @property
+    def last_positions(self) -> dict[str, str] | None:
+        """The positions (as printed, dim units) of the driver's latest state read: after
+        a move returned, those read behind its report to confirm the arrival (no read
+        here; ``None`` before the first)."""
+        known = self._motion.positions
+        return None if known is None else dict(known)
+
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
         ``units``, else the axis' dim unit)."""

@@ -165,7 +165,7 @@ def test_stage_has_one_child_per_axis_with_units_and_precision(
     assert described["stage-x"]["precision"] == 4
     assert stage.x.hints == {"fields": ["stage-x"]}
     config = run(stage.x.describe_configuration())
-    assert config["stage-x-velocity"]["units"] == "rev/s"
+    assert config["stage-x-velocity"]["units"] == "mm/s"
     assert config["stage-x-acceleration"]["units"] == "m/s^2"
 
 
@@ -179,8 +179,11 @@ def test_axes_follow_the_bluesky_protocols(
 
 def test_axes_do_not_keep_the_parent_device(stage: MarzhauserStage) -> None:
     assert [name for name, _ in stage.x.children()] == [
-        "user_readback", "user_setpoint", "velocity", "acceleration",
-        "low_limit_travel", "high_limit_travel"]
+        "user_readback", "user_setpoint", "motor_egu", "motor_resolution",
+        "steps_per_revolution", "units_per_revolution", "velocity", "offset",
+        "acceleration", "low_limit_travel", "high_limit_travel", "max_velocity",
+        "acceleration_time", "precision", "motor_done_move", "dial_low_limit_travel",
+        "dial_high_limit_travel", "low_limit_switch", "high_limit_switch", "motor_stop"]
     assert stage.x.parent is stage
 
 
