@@ -431,20 +431,27 @@ class StageLink:
         else:
             await controller.abort(soft=True, wait=False)
 
-    async def wait_still(self) -> None:
-        """Wait until no axis moves (polling ``statusaxis``); raise
-        :class:`~tango_aio.errors.ControllerTimeoutError` if one still moves after
-        ``STOP_WAIT`` seconds."""
+    async def wait_still(self, axis: str | None = None) -> None:
+        """Wait until ``axis`` (every axis if ``None``) stands still, polling
+        ``statusaxis``; raise :class:`~tango_aio.errors.ControllerTimeoutError` if it
+        still moves after ``STOP_WAIT`` seconds."""
         controller = self._controller
         if controller is None:
             return
         try:
-            await controller.wait_idle(timeout=STOP_WAIT)
+            async with asyncio.timeout(STOP_WAIT):
+                while True:
+                    letters = await controller.status()
+                    if not any(letter == "M" for moving, letter in letters.items()
+                               if axis is None or moving == axis):
+                        return
+                    await asyncio.sleep(0.05)
         except ControllerTimeoutError:
             raise  # a status query went unanswered
         except TimeoutError:
             raise ControllerTimeoutError(
-                f"{self.url!r}: axes still moving {STOP_WAIT} s after the stop") from None
+                f"{self.url!r}: {axis or 'axes'} still moving {STOP_WAIT} s after the "
+                "stop") from None
 
 
 class _LinkConnector(DeviceConnector):
@@ -578,7 +585,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         """Wait until the latest move has ended and the axes stand still (bounded)."""
         if self.ended is not None:
             await asyncio.wait([self.ended], timeout=STOP_WAIT + 5)
-        await self.link.wait_still()
+        await self.link.wait_still(self.axis)
 
     async def check_move(self, new_position: float) -> None:
         target = float(new_position)
