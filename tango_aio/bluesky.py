@@ -116,7 +116,14 @@ __all__ = [
     "StageLink",
     "TriggerScan",
     "close_stage",
+    "controller_velocity",
+    "egu_acceleration",
+    "egu_velocity",
     "fly_raster",
+    "home",
+    "max_velocity",
+    "measure_range",
+    "run_up_distance",
 ]
 
 log = logging.getLogger(__name__)
@@ -246,6 +253,11 @@ class StageLink:
             await coalescer.aclose()
         if controller is not None:
             await controller.aclose()
+
+    async def refresh(self) -> None:
+        """Read the units, unit scales, limits and precision again (after ``dim``,
+        ``pitch``, ``gear``, ``usteps`` or ``resolution`` changed)."""
+        await self._inspect(self.controller)
 
     async def _inspect(self, controller: Controller) -> None:
         present = AXES[: controller.context.axes]
@@ -526,7 +538,7 @@ def run_up_distance(speed: float, acceleration: float) -> float:
     v² / 2a, the linear ramp the controller's ``accel`` describes (L3298)."""
     if not acceleration > 0:
         raise ValueError(f"acceleration must be positive, got {acceleration!r}")
-    return speed * speed / (2.0 * acceleration)
+    return 0.0 if math.isinf(acceleration) else speed * speed / (2.0 * acceleration)
 
 
 def _switches(reply: str, axis: str) -> tuple[int, int]:
@@ -653,8 +665,13 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         device = self.device()
         assert device is not None
         speed = value.speed
-        top, accel = await asyncio.gather(device.max_velocity.get_value(),
-                                          device.acceleration_egu())
+        if self.mocked:  # Motor's arithmetic on the mock signals
+            accel_time = await device.acceleration_time.get_value()
+            accel = speed / accel_time if accel_time > 0 else math.inf
+            top = await device.max_velocity.get_value()
+        else:
+            top, accel = await asyncio.gather(device.max_velocity.get_value(),
+                                              device.acceleration_egu())
         unit = self.link.units.get(self.axis, "")
         if speed > top:
             raise StageLimitsError(
@@ -669,7 +686,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         end = value.end_position + sign * distance
         for position in (start, end):  # both checked before anything moves
             await self.check_move(position)
-        ctx = _FlyCtx(value, start, end, speed / accel)
+        ctx = _FlyCtx(value, start, end, 0.0 if math.isinf(accel) else speed / accel)
         # To the run-up start at the axis's own velocity (Motor uses its maximum; a
         # stage's catalog maximum, 200 rev/s, is no safe travel speed), then the pass's.
         await self.move(start, lambda: None)
@@ -677,6 +694,9 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         return ctx
 
     async def on_kickoff(self, ctx: _FlyCtx) -> _FlyCtx:
+        if self.mocked:
+            ctx.travel = asyncio.ensure_future(self._mock_fly(ctx))
+            return ctx
         ctx.travel = asyncio.ensure_future(self._fly(ctx))
         self.flying = ctx
         await _started(self.link.controller, self.axis, ctx.travel,
@@ -685,6 +705,10 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
             # As Motor: return once the run-up is over, so the pass runs at its speed.
             await asyncio.wait([ctx.travel], timeout=ctx.ramp_time)
         return ctx
+
+    async def _mock_fly(self, ctx: _FlyCtx) -> bool:
+        await self.move(ctx.run_down_end, lambda: None)
+        return True
 
     async def _fly(self, ctx: _FlyCtx) -> bool:
         """The pass's move; False if a stop(success=True) ended it."""
@@ -833,6 +857,10 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         return self._axis
 
     @functools.cached_property
+    def _limit_lock(self) -> asyncio.Lock:
+        return asyncio.Lock()
+
+    @functools.cached_property
     def _logic(self) -> _AxisLogic:
         return _AxisLogic(setpoint=self.user_setpoint, readback=self.user_readback,
                           link=self._link, axis=self._axis, device=weakref.ref(self))
@@ -887,6 +915,9 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         await super().stop(success=success)  # type: ignore[no-untyped-call]
         await self.movable_logic.stop_flying(success)
         await self.movable_logic.wait_stopped()
+        if not self.movable_logic.mocked:
+            # As the motor record (and SimMotor): the setpoint becomes where it stopped.
+            await self.user_setpoint.set(await self._link.position(self._axis))
 
     # -- homing, range measure, offset (plan-friendly: each returns a status) ----------
 
@@ -919,12 +950,14 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         controller = self._link.controller
         async with self._link.moving(self._axis):
             letters = await getattr(controller, which)(self._axis)
-        if letters.get(self._axis, "@") not in ("@", ""):
-            raise MoveError(f"{self.name}: {which} ended with status "
-                            f"{letters[self._axis]!r}", dict(letters))
+        # Success letters: A after cal, D after rm (L2662-2721), @ from firmware that
+        # reports idle; '-' (axis disabled) and anything else is no calibration.
+        letter = letters.get(self._axis, "-")
+        if letter not in ("@", "A", "D"):
+            raise MoveError(f"{self.name}: {which} ended with status {letter!r}",
+                            dict(letters))
         await self.user_setpoint.set(await self._link.position(self._axis))
-        if which == "measure_range" or which == "calibrate":
-            await self._link.read_limits(self._axis)  # cal/rm set limits (L4727)
+        await self._link.read_limits(self._axis)  # cal/rm may set limits (L4727-4760)
 
     def _set_units(self) -> None:
         """Take the units and precision the link read when it opened."""
@@ -1028,11 +1061,14 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
     async def _put_limit(self, which: int, value: float | None) -> None:
         if value is None:
             raise ValueError(f"{self.name}: a limit needs a number")
-        pair = list(await self._link.read_limits(self._axis))
-        pair[which] = float(value)
-        limits: dict[str, Any] = {self._axis: (pair[0], pair[1])}
-        await self._link.controller.set_limits(**limits)
-        await self._link.read_limits(self._axis)
+        # Both limits go in one !lim line (L4540): a put of the other one at the same
+        # time (bps.mv(low, a, high, b)) waits, so that neither undoes the other.
+        async with self._limit_lock:
+            pair = list(await self._link.read_limits(self._axis))
+            pair[which] = float(value)
+            limits: dict[str, Any] = {self._axis: (pair[0], pair[1])}
+            await self._link.controller.set_limits(**limits)
+            await self._link.read_limits(self._axis)
 
     async def _dial(self, which: int) -> float:
         return await self._limit(which) - await self._offset()
@@ -1113,9 +1149,46 @@ class MarzhauserStage(StandardReadable):
         except KeyError:
             raise MissingAxisError(f"{self.name} has no axis {letter!r}") from None
 
+    async def refresh_settings(self) -> None:
+        """Read units, unit scales (``dim``, ``pitch``, ``gear``, ``usteps``), limits
+        and precision again: call it after changing them on the controller. Until then
+        the axes convert with what was read at connect."""
+        await self._link.refresh()
+        for axis in self._axes.values():
+            axis._set_units()
+
     async def aclose(self) -> None:
         """Stop what the devices move and close the controller."""
         await self._link.aclose()
+
+
+def _await_statuses(start: Callable[[], Sequence[Awaitable[Any]]]) -> MsgGenerator[None]:
+    """Plan stub: start statuses on the RunEngine's loop, wait for them in turn, and
+    raise the first failure in the plan (``bps.wait_for`` alone swallows it)."""
+    errors: list[BaseException] = []
+
+    async def wait() -> None:
+        for status in start():
+            try:
+                await status
+            except Exception as exc:
+                errors.append(exc)
+
+    yield from bps.wait_for([wait])
+    if errors:
+        raise errors[0]
+
+
+def home(*axes: MarzhauserAxis) -> MsgGenerator[None]:
+    """Plan stub: calibrate (``!cal``) each axis in turn (:meth:`MarzhauserAxis.home`);
+    the plan fails with the controller's failure."""
+    return _await_statuses(lambda: [axis.home() for axis in axes])
+
+
+def measure_range(*axes: MarzhauserAxis) -> MsgGenerator[None]:
+    """Plan stub: range measure (``!rm``) each axis in turn
+    (:meth:`MarzhauserAxis.measure_range`); the plan fails with the controller's failure."""
+    return _await_statuses(lambda: [axis.measure_range() for axis in axes])
 
 
 def close_stage(stage: MarzhauserStage) -> MsgGenerator[None]:
@@ -1199,6 +1272,8 @@ class _Pass:
     travel: asyncio.Task[bool] | None = None
     #: Set when a stop ends the pass: whether it counts as success (RunEngine pause).
     stopped: bool | None = None
+    #: When the trigger positions were uploaded (``time.time()``).
+    uploaded: float = 0.0
 
     def stopped_ok(self, mover: Mover | None = None) -> bool:
         """Whether a stop(success=True), and no failing stop, ended the pass."""
@@ -1208,10 +1283,18 @@ class _Pass:
 
 @dataclasses.dataclass(frozen=True)
 class _PassResult:
+    """What one completed pass gives: times are ``time.time()`` as the driver saw them."""
+
+    number: int
     scan: TriggerScan
     trigger_count: int
+    #: When the trigger positions were uploaded (or the range set).
+    uploaded: float
+    #: When ``?trigcount`` was read behind the pass's end.
+    ended: float
     snapshots: tuple[tuple[float, ...], ...]
-    time: float
+    #: When the snapshot array was read (the controller records no capture times).
+    snapshots_read: float
 
 
 @dataclasses.dataclass
@@ -1224,6 +1307,8 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
     running: list[_Pass] = dataclasses.field(default_factory=list)
     #: The latest pass prepared (describe_collect needs to know about snapshots).
     prepared: TriggerScan | None = None
+    #: Passes completed so far (numbers the passes in the documents).
+    passes: int = 0
 
     async def on_prepare(self, value: TriggerScan) -> _Pass:
         scan, ctx = value, _Pass(value)
@@ -1238,6 +1323,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
         else:
             assert scan.trigger_range is not None
             await controller.set_trigger_range(*scan.trigger_range, axis=scan.axis)
+        ctx.uploaded = time.time()
         await controller.set("trigcount", 0)
         if scan.snapshots:
             await controller.set("snsc", 0)  # captures append (L15171-15222): start empty
@@ -1278,14 +1364,16 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
             return
         controller = self.link.controller
         count = int(await controller.get("trigcount"))
+        ended = time.time()
         rows: list[list[float]] = []
         if ctx.scan.snapshots:
             rows = await controller.read_snapshot_positions()
         if count != ctx.scan.expected:
             log.warning("fly pass of %s gave %d trigger pulses, expected %d",
                         ctx.scan.axis, count, ctx.scan.expected)
-        self.results.append(_PassResult(ctx.scan, count, tuple(map(tuple, rows)),
-                                        time.time()))
+        self.passes += 1
+        self.results.append(_PassResult(self.passes, ctx.scan, count, ctx.uploaded, ended,
+                                        tuple(map(tuple, rows)), time.time()))
 
     async def stop(self, success: bool = False) -> None:
         """Stop a running pass (every axis stops) and disable the trigger output; with
@@ -1357,27 +1445,48 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     def _keys(self) -> tuple[str, str, dict[str, str]]:
         name = self.name
         return (f"{name}-trigger_count", f"{name}-triggers_expected",
-                {axis: f"{name}-snapshot_{axis}" for axis in self._present()})
-
-    def _present(self) -> tuple[str, ...]:
-        return AXES[: self._link.controller.context.axes]
+                {axis: f"{name}-snapshot_{axis}" for axis in self._link.axes})
 
     def describe_collect(self) -> dict[str, dict[str, DataKey]]:
-        """The streams :meth:`collect` fills (doubly nested: stream -> data keys)."""
+        """The streams :meth:`collect` fills (doubly nested: stream -> data keys): the
+        trigger count per pass; the trigger positions of each pass (their own stream,
+        one event per trigger, joined to detector frames by ``trigger_index``); with
+        snapshots, one event per captured position, one key per axis of the stage."""
         count_key, expected_key, snapshot_keys = self._keys()
-        source = f"{self._link.url} ?trigcount"
-        streams: dict[str, dict[str, DataKey]] = {self.name: {
+        name, url = self.name, self._link.url
+        source = f"{url} ?trigcount"
+        streams: dict[str, dict[str, DataKey]] = {name: {
             count_key: {"source": source, "dtype": "integer", "shape": []},
-            expected_key: {"source": f"{self.name} prepare", "dtype": "integer",
+            expected_key: {"source": f"{name} prepare", "dtype": "integer",
                            "shape": []},
         }}
+        scan = self.flyable_logic.prepared or next(
+            (result.scan for result in self._results), None)
+        axis = scan.axis if scan is not None else self._link.axes[0]
+        unit = self._link.units.get(axis, "")
+        streams[f"{name}_triggers"] = {
+            f"{name}-trigger_pass": {"source": f"{name} pass number", "dtype": "integer",
+                                     "shape": []},
+            f"{name}-trigger_index": {"source": f"{name} trigger index (0 = first pulse)",
+                                      "dtype": "integer", "shape": []},
+            f"{name}-trigger_axis": {"source": f"{name} prepare", "dtype": "string",
+                                     "shape": []},
+            f"{name}-trigger_position": {
+                "source": f"{url} trigger positions of axis {axis} as uploaded "
+                          "(!trigp, or computed from !trigr)",
+                "dtype": "number", "shape": [], "units": unit,
+                "precision": self._link.precision.get(axis, 4)},
+        }
         if any(result.scan.snapshots for result in self._results) or \
                 self._snapshots_prepared():
-            streams[f"{self.name}_snapshots"] = {
-                key: {"source": f"{self._link.url} ?snsa", "dtype": "number", "shape": [],
-                      "units": self._link.units.get(axis, ""),
-                      "precision": self._link.precision.get(axis, 4)}
-                for axis, key in snapshot_keys.items()}
+            streams[f"{name}_snapshots"] = {
+                key: {"source": f"{url} ?snsa {letter} (event time: when the driver read "
+                                "the snapshot array; the controller records no capture "
+                                "time)",
+                      "dtype": "number", "shape": [],
+                      "units": self._link.units.get(letter, ""),
+                      "precision": self._link.precision.get(letter, 4)}
+                for letter, key in snapshot_keys.items()}
         return streams
 
     def _snapshots_prepared(self) -> bool:
@@ -1385,19 +1494,31 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
         return scan is not None and scan.snapshots
 
     def collect(self) -> Iterator[PartialEvent]:
-        """One event per completed pass (trigger count), and one per snapshot row."""
+        """Per completed pass: one event with the trigger count (at the time the count
+        was read), one per trigger position (at the time of the upload), and one per
+        snapshot row (at the time the array was read)."""
         count_key, expected_key, snapshot_keys = self._keys()
+        name = self.name
         results, self._results[:] = list(self._results), []
         for result in results:
             yield {"data": {count_key: result.trigger_count,
                             expected_key: result.scan.expected},
-                   "timestamps": {count_key: result.time, expected_key: result.time},
-                   "time": result.time}
+                   "timestamps": {count_key: result.ended, expected_key: result.ended},
+                   "time": result.ended}
+            for index, position in enumerate(result.scan.trigger_positions):
+                data: dict[str, Any] = {
+                    f"{name}-trigger_pass": result.number, f"{name}-trigger_index": index,
+                    f"{name}-trigger_axis": result.scan.axis,
+                    f"{name}-trigger_position": position}
+                yield {"data": data, "timestamps": dict.fromkeys(data, result.uploaded),
+                       "time": result.uploaded}
             for row in result.snapshots:
-                data = {key: row[AXES.index(axis)] for axis, key in snapshot_keys.items()
-                        if AXES.index(axis) < len(row)}
-                yield {"data": data, "timestamps": dict.fromkeys(data, result.time),
-                       "time": result.time}
+                data = {key: row[AXES.index(letter)]
+                        for letter, key in snapshot_keys.items()
+                        if AXES.index(letter) < len(row)}
+                yield {"data": data,
+                       "timestamps": dict.fromkeys(data, result.snapshots_read),
+                       "time": result.snapshots_read}
 
 
 def fly_raster(stage: MarzhauserStage, flyer: MarzhauserFlyer,
