@@ -752,6 +752,48 @@ class Controller:
                     return letters
                 await asyncio.sleep(poll_interval)
 
+    async def stop(self, *axes: str, wait: bool = True) -> None:
+        """Stop the named axes (``stop("x")``, ``stop("x", "z")``) with the manual's
+        one-axis abort ``a x`` (L6785-6844: stops the moves of that axis with stopaccel);
+        the other axes go on. Without axes, stops every axis with ``a`` (as
+        ``abort(soft=True)``). Moves being awaited (or detached) that move a stopped axis
+        raise :class:`MoveError` once their axes stand still; moves of other axes are not
+        affected. An axis the controller lacks raises
+        :class:`~tango_aio.errors.InvalidCommandError` before anything is written. With
+        ``wait``, returns once the stopped axes stand still; raises
+        :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
+        :data:`~tango_aio.motion.STOP_WAIT` seconds.
+        """
+        if not axes:
+            await self.abort(soft=True, wait=wait)
+            return
+        present = AXES[: self.context.axes]
+        chosen: list[str] = []
+        for axis in axes:
+            letter = axis.lower() if isinstance(axis, str) else axis
+            if letter not in present:
+                raise InvalidCommandError(
+                    f"stop({axis!r}): the controller has no {str(axis).upper()} axis "
+                    f"(its axes: {' '.join(present).upper()})",
+                    instruction="a", parameter="axis", number=1)
+            if letter not in chosen:
+                chosen.append(letter)
+        self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
+        self._motion.stopped(chosen)
+        await self._protocol.stop_axes(True, axes=chosen)
+        if wait:
+            try:
+                async with asyncio.timeout(STOP_WAIT):
+                    while True:
+                        letters = await self.status()
+                        if all(letters.get(axis) != "M" for axis in chosen):
+                            return
+                        await asyncio.sleep(0.05)
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"{' '.join(chosen).upper()} still moving {STOP_WAIT:.0f} s after the "
+                    "stop") from None
+
     async def abort(self, *, soft: bool = False, wait: bool = True) -> None:
         """Stop all axes.
 

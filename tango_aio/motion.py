@@ -30,10 +30,13 @@ How a move is followed
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`,
    but only once the expected end has passed: before it, a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state.
-4. A move during which the driver itself wrote ``a`` or Ctrl+C never succeeds, whatever
-   letters are reported: the "stop epoch" counts the driver's stops, and a move that saw
-   it change raises :class:`MoveError` once its axes stand still. (Older firmware reports
-   axes stopped by ``a`` as ``@``, old L1917, so the letter alone cannot tell.)
+4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
+   Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
+   driver's stops per axis, and a move that saw the count of one of its axes change
+   raises :class:`MoveError` once its axes stand still. (Older firmware reports axes
+   stopped by ``a`` as ``@``, old L1917, so the letter alone cannot tell.) A one-axis
+   stop (``a x``, L6785-6844: "aborts ... of all axes or of a specified axis") counts
+   for that axis only: a move of other axes goes on and may succeed.
 
 Timeouts
 ========
@@ -276,6 +279,8 @@ class _Job:
     plan: MovePlan
     sent: MoveHandle
     started: float
+    #: The driver's stops of the moved axes when the line was written (see
+    #: :meth:`Motion.epoch`).
     epoch: int
     #: The hint count when the state was last read (at first: when the line was written;
     #: a hint from before it says nothing about this move).
@@ -291,8 +296,9 @@ class Motion:
         self._port = port
         self._lock = asyncio.Lock()
         self._detached: asyncio.Task[None] | None = None
-        #: How often the driver wrote ``a`` or Ctrl+C (the stop epoch).
-        self._stops = 0
+        #: Per axis, how often the driver stopped it (``a``, ``a x`` or Ctrl+C): the stop
+        #: epoch.
+        self._stops = dict.fromkeys(AXES, 0)
         #: How many hints (reports, stops, link changes) came so far.
         self._hints = 0
         self._wake = asyncio.Event()
@@ -317,10 +323,21 @@ class Motion:
         once the move is confirmed."""
         return submission in self._followed
 
-    def stopped(self) -> None:
-        """The driver wrote ``a`` or Ctrl+C: no move in flight may succeed; wake them."""
-        self._stops += 1
+    def stopped(self, axes: Sequence[str] | None = None) -> None:
+        """The driver stopped ``axes`` (``a x``; ``None``: every axis, ``a`` or Ctrl+C): no
+        move in flight that moves one of them may succeed; wake every move."""
+        for axis in AXES if axes is None else axes:
+            self._stops[axis] += 1
         self.hint()
+
+    def epoch(self, axes: Sequence[str]) -> int:
+        """How often the driver stopped any of ``axes`` so far (grows with each stop of
+        one of them, and only then)."""
+        return sum(self._stops.get(axis, 0) for axis in axes)
+
+    def _was_stopped(self, job: _Job) -> bool:
+        """Whether the driver stopped one of ``job``'s axes since its line was written."""
+        return job.epoch != self.epoch(job.plan.moved)
 
     def hint(self) -> None:
         """Something happened that may have ended a move (a completion report, matched or
@@ -349,7 +366,7 @@ class Motion:
             plan = await plan_for(command)
             hints = self._hints
             job = _Job(plan, self._port.send_checked(command, plan.batch),
-                       asyncio.get_running_loop().time(), self._stops, hints)
+                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -382,7 +399,7 @@ class Motion:
         except _LOST_READ:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed.
-            aborted = job.epoch != self._stops
+            aborted = self._was_stopped(job)
             await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
@@ -408,7 +425,7 @@ class Motion:
         interval = POLL_MIN
         while True:
             delay = min(next_poll, deadline) - loop.time()
-            if delay > 0 and job.epoch == self._stops and job.hints == self._hints:
+            if delay > 0 and not self._was_stopped(job) and job.hints == self._hints:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(delay):
                         await self._wake.wait()
@@ -417,12 +434,12 @@ class Motion:
             try:
                 letters, texts = await self._state()
             except _LOST_READ:
-                if job.epoch == self._stops:
+                if not self._was_stopped(job):
                     raise
                 # The driver's stop (e.g. an ignored Ctrl+C) disturbed the read.
                 letters, texts = {}, {}
             now = loop.time()
-            if job.epoch != self._stops:
+            if self._was_stopped(job):
                 return await self._aborted(job, letters)
             if any(letters.get(axis) == MOVING for axis in plan.moved):
                 if now >= deadline:
