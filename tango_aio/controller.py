@@ -649,7 +649,8 @@ class Controller:
         # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
         timed = command.name in ("moa", "mor", "m", "moc")
         delay = s.delay_ms / 1000.0 if timed else 0.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
+        settle = s.settle_ms / 1000.0
+        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
         absolute: dict[str, float] | None = None
         extend: Callable[[Mapping[str, str]], float] | None = None
         if command.instruction.completion in (Completion.CAL, Completion.RM):
@@ -676,7 +677,7 @@ class Controller:
                              default=0.0)
                 return MovePlan(command, moved, dict(targets), delay + travel + after,
                                 check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch)
+                                start=reader, batch=batch, delay=delay, settle=settle)
             if known is None or not set(targets) <= set(known):
                 known = None
                 start = {a: float(t) for a, t in (await self._position_texts()).items()}
@@ -689,7 +690,8 @@ class Controller:
             if known is not None and timeout is None:
                 extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend)
+                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
+                        delay=delay, settle=settle)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
