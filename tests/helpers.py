@@ -194,6 +194,31 @@ class Emulated:
         await self.tango.set("calbspeed", 8000)
 
 
+def emulated_position(emu: Emulated, axis: str) -> float:
+    """Where the emulator's axis really is, in its dim unit (its own state, not a reply)."""
+    motion = emu.model.motion
+    return motion.to_user(axis, motion.position(axis))
+
+
+async def wait_moving(emu: Emulated, axis: str) -> None:
+    """Poll the emulator until ``axis`` moves."""
+    for _ in range(400):
+        if (await emu.tango.status())[axis] == "M":
+            return
+        await asyncio.sleep(0.005)
+    raise AssertionError(f"{axis} did not start moving")
+
+
+def abort_from_outside(emu: Emulated) -> None:
+    """Stop every axis of the emulator as a second host or the keypad would: ``a`` reaches
+    the controller's interpreter without passing the driver's link (L6785-6844); its
+    report goes out on the link."""
+    emu.model.handle_line(b"a", asyncio.get_running_loop().time())
+    notify = emu.wire.notify  # the served link's wake-up: the stop ends earlier now
+    assert notify is not None
+    notify()
+
+
 class EmulatorFactory(Protocol):
     """The ``emulator`` fixture: ``await emulator(url=INSTANT, travel=None, **options)``."""
 

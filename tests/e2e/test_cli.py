@@ -492,7 +492,8 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
                                  "axes": {"vel": [[100.0]] * 4, "secvel": [[100.0]] * 4}}))
     code, out, _ = cli(capsys, "move", f"{SIM}&state={state}", "x=60")
     assert code == 1 and len(out.splitlines()) == 1, out
-    assert out.startswith("error: '!moa 60.0' ended with status")
+    assert out.startswith("error: '!moa 60.0' did not end at its target: X stopped at its "
+                          "upper limit switch (EE) (status S), at ")
     assert "x=S (limit switch) y=@ (ok) z=@ (ok)" in out
     assert describe_exception(MoveError("m", {"x": "T"})) == "m: x=T (timeout)"
 
