@@ -19,25 +19,35 @@ Devices:
   letter (``stage.x``, ``stage.y``...). ``connect()`` opens the driver (on the event loop
   it runs on, which :func:`ophyd_async.core.init_devices` makes the RunEngine's) and
   checks that the controller has the axes.
-* :class:`MarzhauserAxis` - Movable, Locatable, Stoppable, Readable, Configurable:
-  ``user_readback`` (hinted; named like the axis, e.g. ``stage-x``) and
-  ``user_setpoint`` in the axis's ``dim`` unit with the precision the controller's
-  ``?pos`` replies carry; ``velocity``, ``acceleration``, ``low_limit_travel`` and
-  ``high_limit_travel`` as configuration. ``set()`` checks the limits (``?lim``), reports
-  progress (:class:`~ophyd_async.core.WatcherUpdate` from positions polled while the
-  move runs) and publishes the final readback before it completes.
+* :class:`MarzhauserAxis` - a drop-in for ophyd-async's ``epics.motor.Motor`` where the
+  controller can back it (Movable, Locatable, Stoppable, Readable, Configurable,
+  Preparable, Flyable): ``user_readback`` (hinted; named like the axis, e.g.
+  ``stage-x``) and ``user_setpoint`` in the axis's ``dim`` unit (EGU) with the precision
+  of the controller's ``?pos`` replies; ``velocity`` in EGU/s, ``max_velocity``,
+  ``acceleration_time``, ``motor_egu``, ``motor_done_move``, ``offset``, travel and
+  dial limits, limit switches and the rest of the table in ``docs/howto/bluesky.md``.
+  ``set()`` checks the limits (``?lim``), reports progress
+  (:class:`~ophyd_async.core.WatcherUpdate` from positions polled while the move runs)
+  and publishes the confirmed final readback before it completes.
+  ``prepare(FlyMotorInfo(...))``/``kickoff()``/``complete()`` fly it as Motor does;
+  ``home()``, ``measure_range()``, ``set_current_position()`` and ``clear_offset()``
+  return statuses (plan stubs :func:`home`, :func:`measure_range`).
 * :class:`MarzhauserFlyer` - a hardware-triggered fly scan of one axis with the trigger
   output (and, optionally, snapshot capture); :func:`fly_raster` runs a raster of them.
+  Its documents carry the trigger positions of each pass (stream ``<name>_triggers``).
 
 Behaviour that follows from the controller:
 
 * Moves on one controller run one after another. Sets of different axes that arrive
-  within ``window`` seconds (``bps.mv(stage.x, 1, stage.y, 2)``) are merged by
+  together (``bps.mv(stage.x, 1, stage.y, 2)``) are merged by
   :class:`~tango_aio.coalesce.MoveCoalescer` into one ``!moa`` line.
-* ``stop()`` of any axis sends ``a``, which stops *every* axis of the controller
-  (manual L6785-6800): a move of another axis then fails with
-  :class:`~tango_aio.errors.MoveError`. ``stop(success=False)`` makes the stopped
-  axis's ``set()`` status fail; ``success=True`` (RunEngine pause) completes it.
+* ``stop()`` of an axis stops that axis alone (the manual's ``a x``, L6785-6844), and
+  only if it moves: a move of another axis goes on. ``stop(success=False)`` makes the
+  stopped axis's ``set()`` status fail; ``success=True`` (RunEngine pause) completes it.
+  A line that merged the stopped axis with others fails for all of its callers (the
+  driver fails the whole line), although the other axes go on to their targets.
+* While idle, nothing is polled: readbacks follow the driver's events (a move of any
+  caller of the same controller ends: one ``?pos``).
 * Devices share a plain :class:`StageLink` (URL, open controller, coalescer); an axis
   never keeps its parent device as an attribute, because ophyd-async would adopt it as a
   child.
@@ -60,6 +70,8 @@ import time
 import weakref
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Mapping, Sequence
 from typing import Any, NoReturn
+
+import anyio
 
 try:
     import bluesky.plan_stubs as bps
@@ -410,25 +422,21 @@ class StageLink:
         return len(self._movers)
 
     def mark_stop(self, success: bool, axis: str | None = None) -> None:
-        """A stop is coming: record its outcome on the moves it ends (those of ``axis``
-        and merged moves; every move if the stop stops every axis). With ``success``
-        (the RunEngine's pause) they complete instead of failing. A failing stop wins."""
-        every = axis is None or not self.one_axis_stop
+        """A stop is coming: record its outcome on the moves it ends (those of ``axis``;
+        every move if ``None``). With ``success`` (the RunEngine's pause) they complete
+        instead of failing, and so does every other move of this link: a line that merged
+        ``axis`` with others fails as a whole, and the RunEngine stops all it has set and
+        replays the plan from its checkpoint, so no reading follows such a completion. A
+        failing stop wins."""
         for mover in self._movers:
-            if every or mover.axis in (axis, None):
+            if axis is None or success or mover.axis in (axis, None):
                 mover.stopped = success if mover.stopped is None else \
                     mover.stopped and success
 
-    @property
-    def one_axis_stop(self) -> bool:
-        """Whether the driver stops one axis alone (the manual's one-axis ``a``)."""
-        return hasattr(self._controller, "stop")
-
     async def halt(self, axis: str | None = None) -> None:
-        """Stop ``axis`` (every axis if ``None``) if a move of it by this link runs or it
-        moves; otherwise write nothing. Without a one-axis stop in the driver, ``a``
-        stops every axis (L6785-6800). Returns without waiting: see
-        :meth:`wait_still`."""
+        """Stop ``axis`` (the manual's one-axis ``a x``, L6785-6844; every axis with
+        ``a`` if ``None``) if a move of it by this link runs or it moves; otherwise write
+        nothing. Returns without waiting: see :meth:`wait_still`."""
         controller = self._controller
         if controller is None:
             return  # nothing of ours can move
@@ -438,10 +446,10 @@ class StageLink:
             if not any(letter == "M" for letter_axis, letter in letters.items()
                        if axis is None or letter_axis == axis):
                 return
-        if axis is not None and self.one_axis_stop:
-            await getattr(controller, "stop")(axis, wait=False)  # noqa: B009 (core branch)
+        if axis is None:
+            await controller.stop(wait=False)
         else:
-            await controller.abort(soft=True, wait=False)
+            await controller.stop(axis, wait=False)
 
     async def wait_still(self, axis: str | None = None) -> None:
         """Wait until ``axis`` (every axis if ``None``) stands still, polling
@@ -632,7 +640,8 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
             async with self.link.moving(self.axis) as mover:
                 try:
                     async with asyncio.timeout(limit) as deadline:
-                        await self.link.coalescer.move_to(self.axis, target)
+                        await _until_stopped(
+                            self.link.coalescer.move_to(self.axis, target), mover)
                 except MoveError:
                     # A stop(success=True) (RunEngine pause) of another device ended
                     # this move too: complete, as StandardMovable does for ours.
@@ -754,6 +763,26 @@ async def _pass_move(link: StageLink, axis: str, target: float,
                 raise
             return False
     return True
+
+
+async def _until_stopped(move: Awaitable[str], mover: Mover) -> str:
+    """Await ``move``; when cancelled after a stop was requested for it (the stop has
+    sent ``a x``), let the line end by itself (bounded) instead of cancelling it: the
+    driver's cancel would stop every axis of the line with ``a``."""
+    task = asyncio.ensure_future(move)
+    try:
+        return await asyncio.shield(task)
+    except asyncio.CancelledError:
+        if mover.stopped is not None and not task.done():
+            with anyio.move_on_after(STOP_WAIT + 5, shield=True):
+                await asyncio.wait([task])
+        if not task.done():
+            task.cancel()
+            with anyio.move_on_after(STOP_WAIT + 5, shield=True):
+                await asyncio.wait([task])
+        if task.done() and not task.cancelled():
+            task.exception()  # its outcome is the stop's: retrieved, not raised
+        raise
 
 
 class _AxisMock(DeviceMock["MarzhauserAxis"]):

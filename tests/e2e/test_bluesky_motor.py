@@ -413,6 +413,30 @@ def test_stopping_an_idle_axis_leaves_another_axis_move_alone(
     assert emulated(stage)["y"] == 2.0
 
 
+def test_stopping_x_stops_x_only_and_a_y_move_goes_on(
+        RE: RunEngine, stage: MarzhauserStage, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
+    run(stage.controller.set("vel", 1.0, axis="x"))  # 2 mm/s
+    run(stage.controller.set("vel", 1.0, axis="y"))
+
+    async def move_both_stop_x() -> tuple[BaseException | None, BaseException | None]:
+        x_status = stage.x.set(10.0)
+        await _under_way(stage.x)
+        # Y runs a line of its own behind X's (!moa y 1.0 after X's move ends).
+        y_status = stage.y.set(1.0)
+        await stage.x.stop()
+        return await failure(x_status), await failure(y_status)
+
+    x_error, y_error = run(move_both_stop_x())
+    assert isinstance(x_error, RuntimeError)
+    assert y_error is None
+    assert emulated(stage)["y"] == 1.0
+    assert 0.1 < emulated(stage)["x"] < 10.0
+    written = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
+    assert any(line.endswith("-> b'!a x'") for line in written), written
+    assert not any(line.endswith("-> b'!a'") for line in written)  # no stop of all axes
+
+
 def test_pause_landing_in_a_flyer_kickoff_is_no_failure(
         RE: RunEngine, stage: MarzhauserStage) -> None:
     with init_devices():
