@@ -189,7 +189,7 @@ class StageLink:
     """
 
     def __init__(self, url: str, axes: str, options: dict[str, Any], *,
-                 window: float = 0.0, progress_interval: float = 0.1) -> None:
+                 window: float = 0.25, progress_interval: float = 0.1) -> None:
         self.url = url
         self.axes = axes
         self.options = dict(options)
@@ -251,7 +251,8 @@ class StageLink:
                 await controller.aclose()
                 raise
             self._controller = controller
-            self._coalescer = MoveCoalescer(controller, window=self.window)
+            self._coalescer = MoveCoalescer(controller, window=self.window,
+                                            collect="announced")
             self._follower = asyncio.ensure_future(self._follow(controller))
 
     async def aclose(self) -> None:
@@ -415,6 +416,12 @@ class StageLink:
                     with contextlib.suppress(TangoError):
                         await self.positions()
                     self._publish_done(None, 1)
+
+    def announce(self) -> Callable[[], None]:
+        """Announce a move request to the coalescer (see
+        :meth:`~tango_aio.coalesce.MoveCoalescer.announce`); a no-op before connecting."""
+        coalescer = self._coalescer
+        return coalescer.announce() if coalescer is not None else _nothing
 
     @property
     def in_flight(self) -> int:
@@ -627,6 +634,12 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         return self.link.units.get(self.axis), self.link.precision.get(self.axis)
 
     async def move(self, new_position: float, timeout: TimeoutCalculator) -> None:
+        await self.move_announced(new_position, timeout, None)
+
+    async def move_announced(self, new_position: float, timeout: TimeoutCalculator,
+                             arrived: Callable[[], None] | None) -> None:
+        """:meth:`move`, ending the announcement ``arrived`` of the coalescer once the
+        request has joined a batch."""
         # The controller bounds each move with its own estimate (Controller.move_to);
         # an explicit set(timeout=...) is applied on top.
         target = float(new_position)
@@ -641,7 +654,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
                 try:
                     async with asyncio.timeout(limit) as deadline:
                         await _until_stopped(
-                            self.link.coalescer.move_to(self.axis, target), mover)
+                            self.link.coalescer.move_to(self.axis, target, arrived), mover)
                 except MoveError:
                     # A stop(success=True) (RunEngine pause) of another device ended
                     # this move too: complete, as StandardMovable does for ours.
@@ -752,17 +765,22 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
 
 
 async def _pass_move(link: StageLink, axis: str, target: float,
-                     stopped_ok: Callable[[Mover], bool]) -> bool:
+                     stopped_ok: Callable[[Mover], bool],
+                     arrived: Callable[[], None] | None = None) -> bool:
     """Move ``axis`` to ``target`` for a fly pass (through the coalescer, published as a
     move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it."""
     async with link.moving(axis) as mover:
         try:
-            await link.coalescer.move_to(axis, target)
+            await link.coalescer.move_to(axis, target, arrived)
         except MoveError:
             if not stopped_ok(mover):
                 raise
             return False
     return True
+
+
+def _nothing() -> None:
+    """An announcement that announced nothing (no coalescer yet, or mock mode)."""
 
 
 async def _until_stopped(move: Awaitable[str], mover: Mover) -> str:
@@ -902,14 +920,34 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
     def flyable_logic(self) -> _AxisLogic:
         return self._logic
 
-    @WatchableAsyncStatus.wrap
-    async def set(self, new_position: float,
-                  timeout: CalculatableTimeout = CALCULATE_TIMEOUT  # type: ignore[assignment]
-                  ) -> AsyncIterator[WatcherUpdate[float]]:
+    def set(self, new_position: float,
+            timeout: CalculatableTimeout = CALCULATE_TIMEOUT  # type: ignore[assignment]
+            ) -> WatchableAsyncStatus[float]:
         """Move to ``new_position`` (StandardMovable's set, with progress from the
-        polled readback). The start of the progress reports is the position the link
-        knows (published by the latest read or event), so that a step costs no read of
-        its own; what completes the status is the controller's confirmed arrival."""
+        polled readback). The set announces itself to the move coalescer at once (as
+        the RunEngine calls it), so that sets started together merge into one line and
+        a single one waits for nothing. The start of the progress reports is the
+        position the link knows (published by the latest read or event), so that a step
+        costs no read of its own; what completes the status is the controller's
+        confirmed arrival."""
+        arrived = self._link.announce()
+        try:
+            return self._set(new_position, timeout, arrived)
+        except BaseException:
+            arrived()
+            raise
+
+    @WatchableAsyncStatus.wrap
+    async def _set(self, new_position: float, timeout: CalculatableTimeout,
+                   arrived: Callable[[], None]) -> AsyncIterator[WatcherUpdate[float]]:
+        try:
+            async for update in self._moving(new_position, timeout, arrived):
+                yield update
+        finally:
+            arrived()
+
+    async def _moving(self, new_position: float, timeout: CalculatableTimeout,
+                      arrived: Callable[[], None]) -> AsyncIterator[WatcherUpdate[float]]:
         logic = self.movable_logic
         self._stop_state = StopState.NONE
         known = self._link.known_position(self._axis)
@@ -919,8 +957,8 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         move_timeout = None if timeout == CALCULATE_TIMEOUT or isinstance(timeout, str) \
             else timeout
         try:
-            async with AsyncStatus(logic.move(new_position, MoveTimeout(move_timeout))) \
-                    as self._move_status:
+            async with AsyncStatus(logic.move_announced(
+                    new_position, MoveTimeout(move_timeout), arrived)) as self._move_status:
                 async for current in observe_value(logic.readback,
                                                    done_status=self._move_status):
                     yield WatcherUpdate(current=current, initial=initial,
@@ -1133,8 +1171,11 @@ class MarzhauserStage(StandardReadable):
     """A TANGO controller as an ophyd-async device with one child axis per letter.
 
     ``MarzhauserStage(url, axes="xy", name="stage", **connect_options)``:
-    ``connect_options`` go to :func:`tango_aio.connect`; ``window`` (0.02 s) is how long
-    sets of different axes are collected into one move, ``progress_interval`` (0.1 s)
+    ``connect_options`` go to :func:`tango_aio.connect`. Sets of different axes that the
+    RunEngine starts together (``bps.mv(stage.x, 1, stage.y, 2)``) are merged into one
+    move: each ``set()`` announces itself when called, and a move waits for the sets
+    announced while it was being collected, but never for time alone (a single set
+    waits for nothing); ``window`` (0.25 s) bounds that wait. ``progress_interval`` (0.1 s)
     how often positions are polled while a move runs. ``stage.x``, ``stage.y``... (or
     ``stage.axis("x")``) are the :class:`MarzhauserAxis` children; ``read()`` reads them
     all. Close with ``await stage.aclose()`` (or the :func:`close_stage` plan stub).
@@ -1146,7 +1187,7 @@ class MarzhauserStage(StandardReadable):
     a: MarzhauserAxis
 
     def __init__(self, url: str, axes: str = "xy", name: str = "stage", *,
-                 window: float = 0.02, progress_interval: float = 0.1,
+                 window: float = 0.25, progress_interval: float = 0.1,
                  **connect_options: Any) -> None:
         letters = axes.lower()
         if not letters or len(set(letters)) != len(letters) or set(letters) - set(AXES):
@@ -1338,6 +1379,8 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
     prepared: TriggerScan | None = None
     #: Passes completed so far (numbers the passes in the documents).
     passes: int = 0
+    #: The announcement of the run-up move that prepare() made (ends once it joined).
+    announced: Callable[[], None] = _nothing
 
     async def on_prepare(self, value: TriggerScan) -> _Pass:
         scan, ctx = value, _Pass(value)
@@ -1361,7 +1404,9 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
 
     async def _move(self, ctx: _Pass, target: float) -> bool:
         """Move the pass's axis; False if a stop(success=True) ended the move."""
-        arrived = await _pass_move(self.link, ctx.scan.axis, target, ctx.stopped_ok)
+        announced, self.announced = self.announced, _nothing
+        arrived = await _pass_move(self.link, ctx.scan.axis, target, ctx.stopped_ok,
+                                   announced)
         if not arrived:
             ctx.stopped = True
         return arrived
@@ -1454,6 +1499,17 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     @functools.cached_property
     def flyable_logic(self) -> _FlyLogic:
         return _FlyLogic(self._link, self._results)
+
+    def prepare(self, value: TriggerScan) -> AsyncStatus[None]:
+        """Move to the start of the pass and arm the trigger output (see the class).
+        The run-up move is announced at once, so that it merges with sets the RunEngine
+        starts together with it (``fly_raster``: the slow axis's move of the row)."""
+        logic = self.flyable_logic
+        logic.announced()  # an earlier prepare's, if it never moved
+        logic.announced = arrived = self._link.announce()
+        status = super().prepare(value)
+        status.add_callback(lambda _: arrived())
+        return status
 
     async def stop(self, success: bool = False) -> None:
         """Stop a running pass (``a``: every axis stops) and disable the trigger output.

@@ -96,8 +96,8 @@ def events(documents: list[tuple[str, dict[str, Any]]],
 
 @pytest.fixture
 def stage(RE: RunEngine, request: pytest.FixtureRequest) -> Iterator[MarzhauserStage]:
-    # An indirect parameter sets the coalescing window (default: the stage's 0.02 s).
-    window = getattr(request, "param", 0.02)
+    # An indirect parameter sets the longest wait for announced sets (default 0.25 s).
+    window = getattr(request, "param", 0.25)
     with init_devices():
         stage = MarzhauserStage(URL, axes="xy", window=window, progress_interval=0.02)
     run(_fast(stage))
@@ -401,9 +401,6 @@ def test_fly_scan_collects_snapshot_positions(
     assert -0.2 <= rows[0]["flyer-snapshot_x"] <= rows[1]["flyer-snapshot_x"] <= 1.0
 
 
-# The merge of the slow move with the run-up below needs both requests inside one window;
-# 0.02 s is too short on a loaded 2-core machine, 0.25 s is not.
-@pytest.mark.parametrize("stage", [0.25], indirect=True)
 def test_raster_fly_scan(RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer,
                          documents: list[Any], moves: Callable[[], list[str]]) -> None:
     RE(fly_raster(stage, flyer, 0, 2, 5, 0, 1, 3, run_up=0.25))
