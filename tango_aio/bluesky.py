@@ -101,7 +101,6 @@ try:
         WatchableAsyncStatus,
         WatcherUpdate,
         callback_on_mock_put,
-        default_mock_class,
         observe_value,
         set_mock_value,
     )
@@ -823,12 +822,15 @@ class _AxisMock(DeviceMock["MarzhauserAxis"]):
         callback_on_mock_put(device.user_setpoint, _instant_move)
 
 
-@default_mock_class(_AxisMock)
 class MarzhauserAxis(StandardReadable, StandardMovable[float],
                      StandardFlyable[FlyMotorInfo, _FlyCtx]):
     """One axis of a :class:`MarzhauserStage` (created by the stage), with the signals
     and methods of ophyd-async's ``epics.motor.Motor`` that the controller can back
     (the how-to ``docs/howto/bluesky.md`` has the table)."""
+
+    # What ophyd-async's default_mock_class decorator sets (a plain attribute, so that the
+    # docs build, which mocks ophyd_async, still sees the class).
+    _mock_class = _AxisMock
 
     def __init__(self, link: StageLink, axis: str, name: str = "") -> None:
         self._link = link  # a plain object: ophyd-async does not adopt it as a child
@@ -988,27 +990,26 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
 
     # -- homing, range measure, offset (plan-friendly: each returns a status) ----------
 
-    @AsyncStatus.wrap
-    async def home(self) -> None:
+    def home(self) -> AsyncStatus[None]:
         """Calibrate (``!cal``, L5259-5342): travel to the lower limit switch and set
         the origin there. The status fails (MoveError) if the controller reports one."""
-        await self._motion("calibrate")
+        return AsyncStatus(self._motion("calibrate"))
 
-    @AsyncStatus.wrap
-    async def measure_range(self) -> None:
+    def measure_range(self) -> AsyncStatus[None]:
         """Range measure (``!rm``, L5343-5424): travel to the upper limit switch and set
         the upper limit. The status fails (MoveError) if the controller reports one."""
-        await self._motion("measure_range")
+        return AsyncStatus(self._motion("measure_range"))
 
-    @AsyncStatus.wrap
-    async def set_current_position(self, position: float) -> None:
+    def set_current_position(self, position: float) -> AsyncStatus[None]:
         """Redefine where the axis is (``!pos``, L6900-6952) without moving: the offset
         changes by the difference (see :attr:`offset`)."""
-        await self._redefine(float(position))
+        return AsyncStatus(self._redefine(float(position)))
 
-    @AsyncStatus.wrap
-    async def clear_offset(self) -> None:
+    def clear_offset(self) -> AsyncStatus[None]:
         """Remove every ``!pos`` offset of this axis (``!posclr``, L6953-6996)."""
+        return AsyncStatus(self._clear_offset())
+
+    async def _clear_offset(self) -> None:
         await self.offset.set(0.0)
 
     async def _motion(self, which: str) -> None:
