@@ -23,7 +23,7 @@ pytest.importorskip("ophyd_async")
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 import test_bluesky as tb
-from bluesky import RunEngine
+from bluesky import RunEngine, RunEngineInterrupted
 from bluesky.utils import FailedStatus
 from ophyd_async.core import FlyMotorInfo, init_devices
 from ophyd_async.sim import SimMotor
@@ -458,19 +458,21 @@ def test_pause_landing_in_a_flyer_kickoff_is_no_failure(
 @pytest.mark.slow
 def test_pause_during_kickoff_then_resume_many_rounds(
         RE: RunEngine, stage: MarzhauserStage, documents: list[Any]) -> None:
-    with init_devices():
-        flyer = MarzhauserFlyer(stage)
-    scan = TriggerScan("x", start=-0.5, end=1.0, trigger_range=(0.0, 0.5, 2))
-    kickoff = flyer.kickoff
     state = {"pause": True}
 
-    def pausing_kickoff() -> Any:
-        if state["pause"]:
-            state["pause"] = False
-            threading.Thread(target=RE.request_pause).start()
-        return kickoff()
+    class PausingFlyer(MarzhauserFlyer):
+        """Requests a RunEngine pause as its kickoff starts (once per round)."""
 
-    flyer.kickoff = pausing_kickoff  # type: ignore[method-assign]
+        def kickoff(self) -> Any:
+            status = super().kickoff()
+            if state["pause"]:
+                state["pause"] = False
+                threading.Thread(target=RE.request_pause).start()
+            return status
+
+    with init_devices():
+        flyer = PausingFlyer(stage)
+    scan = TriggerScan("x", start=-0.5, end=1.0, trigger_range=(0.0, 0.5, 2))
 
     def plan() -> Any:
         yield from bps.open_run()
@@ -481,7 +483,6 @@ def test_pause_during_kickoff_then_resume_many_rounds(
         yield from bps.collect(flyer)
         yield from bps.close_run()
 
-    from bluesky import RunEngineInterrupted
     for _ in range(60):
         state["pause"] = True
         documents.clear()
