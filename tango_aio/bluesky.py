@@ -44,8 +44,9 @@ Behaviour that follows from the controller:
 * ``stop()`` of an axis stops that axis alone (the manual's ``a x``, L6785-6844), and
   only if it moves: a move of another axis goes on. ``stop(success=False)`` makes the
   stopped axis's ``set()`` status fail; ``success=True`` (RunEngine pause) completes it.
-  A line that merged the stopped axis with others fails for all of its callers (the
-  driver fails the whole line), although the other axes go on to their targets.
+  A line that merged the stopped axis with others fails in the driver as a whole; the
+  sets of its other axes still complete if those axes are confirmed idle at their
+  targets afterwards (fresh ``?statusaxis`` and ``?pos``), else they fail.
 * While idle, nothing is polled: readbacks follow the driver's events (a move of any
   caller of the same controller ends: one ``?pos``).
 * Devices share a plain :class:`StageLink` (URL, open controller, coalescer); an axis
@@ -115,7 +116,7 @@ from .controller import Controller
 from .errors import ControllerTimeoutError, InvalidCommandError, MoveError, TangoError
 from .events import MoveAborted, MoveFinished, PositionUpdate, Reconnected, StatusReport
 from .instructions import AXES, INSTRUCTIONS
-from .motion import STOP_WAIT
+from .motion import STOP_WAIT, position_tolerance
 from .units import DIM_MM_VEL, UnitScale
 
 __all__ = [
@@ -654,10 +655,11 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
                     async with asyncio.timeout(limit) as deadline:
                         await _until_stopped(
                             self.link.coalescer.move_to(self.axis, target, arrived), mover)
-                except MoveError:
+                except MoveError as exc:
                     # A stop(success=True) (RunEngine pause) of another device ended
                     # this move too: complete, as StandardMovable does for ours.
-                    if not mover.stopped_ok:
+                    if not mover.stopped_ok and not await self._arrived_anyway(
+                            target, exc, mover):
                         raise
                 except TimeoutError:
                     if not deadline.expired():
@@ -667,6 +669,28 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
                 await self._timed_out(target, limit)
         finally:
             ended.set_result(None)
+
+    async def _arrived_anyway(self, target: float, error: MoveError,
+                              mover: Mover) -> bool:
+        """Whether this axis, moved in a line that failed because *another* axis of it
+        was stopped (``a x`` stops one axis; the driver fails the whole line once all of
+        its axes stand still, and marks them all as stopped), arrived all the same: no
+        stop was asked for it, the line did not end it at a limit switch or timeout
+        (``S``/``T``), a fresh ``?statusaxis`` says it is idle (``@``), and a fresh
+        ``?pos`` puts it at the target (within 1.5 units of the printed digit, the
+        driver's own rule). Anything else: False, and the line's error stands."""
+        if mover.stopped is not None or error.statuses.get(self.axis) in ("S", "T"):
+            return False
+        controller = self.link.controller
+        try:
+            if (await controller.status()).get(self.axis) != "@":
+                return False
+            position = await self.link.position(self.axis)
+        except TangoError:
+            return False
+        digits = self.link.precision.get(self.axis, 0)
+        tolerance = position_tolerance("0." + "0" * digits if digits else "0")
+        return abs(position - target) <= tolerance
 
     async def _timed_out(self, target: float, limit: float | None) -> NoReturn:
         """Raise the TimeoutError of a move that ran out of ``limit`` seconds (the

@@ -437,6 +437,24 @@ def test_stopping_x_stops_x_only_and_a_y_move_goes_on(
     assert not any(line.endswith("-> b'!a'") for line in written)  # no stop of all axes
 
 
+def test_stopping_x_of_a_merged_line_lets_y_arrive_and_succeed(
+        RE: RunEngine, stage: MarzhauserStage, moves: Callable[[], list[str]]) -> None:
+    run(stage.controller.set("vel", x=1.0, y=1.0))  # 2 mm/s
+
+    async def move_both_stop_x() -> tuple[BaseException | None, BaseException | None]:
+        x_status, y_status = stage.x.set(10.0), stage.y.set(1.0)  # one line
+        await _under_way(stage.x)
+        await stage.x.stop()
+        return await failure(x_status), await failure(y_status)
+
+    x_error, y_error = run(move_both_stop_x())
+    assert moves() == ["!moa 10 1"]
+    assert isinstance(x_error, RuntimeError)
+    assert y_error is None  # Y was confirmed at its target after the line failed
+    assert emulated(stage)["y"] == 1.0
+    assert 0.1 < emulated(stage)["x"] < 10.0
+
+
 def test_pause_landing_in_a_flyer_kickoff_is_no_failure(
         RE: RunEngine, stage: MarzhauserStage) -> None:
     with init_devices():
