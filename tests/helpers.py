@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import asyncio
 import re
+import subprocess
+import sys
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, TypedDict, Unpack, cast
@@ -217,6 +219,37 @@ def abort_from_outside(emu: Emulated) -> None:
     notify = emu.wire.notify  # the served link's wake-up: the stop ends earlier now
     assert notify is not None
     notify()
+
+
+class PtySim:
+    """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the program
+    under test, so that we can see whether its axes still move after it ended."""
+
+    def __init__(self) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "tango_aio", "sim", "--pty",
+                                      "--baud", "0"], stdout=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None
+        self.path = self.proc.stdout.readline().strip()
+
+    def __enter__(self) -> PtySim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=10)
+        assert self.proc.stdout is not None
+        self.proc.stdout.close()
+
+    def moving_axes(self) -> list[str]:
+        """The axes that move now; asks twice for the position, 0.2 s apart."""
+        async def ask() -> list[str]:
+            async with connect(self.path) as tango:
+                before = await tango.position()
+                await asyncio.sleep(0.2)
+                after = await tango.position()
+                status = await tango.status()
+            return [a for a in status if status[a] == "M" or before[a] != after[a]]
+        return asyncio.run(ask())
 
 
 class EmulatorFactory(Protocol):

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 import serial
+from helpers import PtySim
 
 import tango_aio
 from tango_aio.cli import (
@@ -499,37 +500,6 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
 
 
 # -- Ctrl+C -------------------------------------------------------------------------------
-
-
-class PtySim:
-    """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the CLI under
-    test, so that we can see whether its axes still move after the CLI exited."""
-
-    def __init__(self) -> None:
-        self.proc = subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"],
-                                     stdout=subprocess.PIPE, text=True)
-        assert self.proc.stdout is not None
-        self.path = self.proc.stdout.readline().strip()
-
-    def __enter__(self) -> PtySim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.proc.terminate()
-        self.proc.wait(timeout=10)
-        assert self.proc.stdout is not None
-        self.proc.stdout.close()
-
-    def moving_axes(self) -> list[str]:
-        """The axes that move now; asks twice for the position, 0.2 s apart."""
-        async def ask() -> list[str]:
-            async with tango_aio.connect(self.path) as tango:
-                before = await tango.position()
-                await asyncio.sleep(0.2)
-                after = await tango.position()
-                status = await tango.status()
-            return [a for a in status if status[a] == "M" or before[a] != after[a]]
-        return asyncio.run(ask())
 
 
 def _interrupt_when(proc: subprocess.Popen[str], marker: str, timeout: float = 30) -> str:
