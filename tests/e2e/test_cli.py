@@ -248,11 +248,13 @@ def test_shell_ctrl_c_at_the_prompt_aborts_a_move(history: Path) -> None:
         term.send("\x03")  # Ctrl+C (the prompt has the terminal in raw mode)
         term.expect(r"abort sent \(Ctrl\+C\): all axes stop")
         term.expect(r"move finished: x=E \(error/aborted\) y=E \(error/aborted\) z=@ \(ok\)")
+        term.expect(r"move failed: X stopped: its move was aborted or not executed \(status "
+                    r"E\), at \d+\.\d+, target 50; Y stopped")
         term.expect("tango>")
         x, y = map(float, term.type("?pos", r"\d+\.\d+ \d+\.\d+")[0].split())
         assert 0 < x < 50 and 0 < y < 50  # stopped on the way
         term.send("\x04")  # Ctrl+D leaves
-        assert term.wait() == 0
+        assert term.wait() == 1  # the move did not end at its target (#26)
 
 
 def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
@@ -619,7 +621,8 @@ def test_leaving_the_shell_stops_the_axes() -> None:
     with PtySim() as sim:
         result = _decoded(b"!moa 40 40\n", sim.path)
         assert "stopping the axes that still move: x y" in result.stdout, result.stdout
-        assert result.returncode == 0
+        assert "move failed: X still moving when the shell was left" in result.stdout
+        assert result.returncode == 1  # the move did not end at its target (#26)
         assert sim.moving_axes() == []
 
 
