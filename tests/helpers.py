@@ -5,10 +5,15 @@ pytest ``pythonpath`` and mypy's ``mypy_path`` both name ``tests``). Fixtures st
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import re
+import signal
 import subprocess
 import sys
-from collections.abc import Awaitable, Callable, Mapping
+import threading
+import time
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, TypedDict, Unpack, cast
 
@@ -219,6 +224,28 @@ def abort_from_outside(emu: Emulated) -> None:
     notify = emu.wire.notify  # the served link's wake-up: the stop ends earlier now
     assert notify is not None
     notify()
+
+
+@contextlib.contextmanager
+def ctrl_c_when(ready: Callable[[], bool]) -> Iterator[None]:
+    """Press Ctrl+C (a real SIGINT to this process) once ``ready()`` holds, from a helper
+    thread, while the body blocks in the main thread."""
+    entered = threading.Event()
+
+    def press() -> None:
+        entered.wait()
+        while not ready():
+            time.sleep(0.001)
+        time.sleep(0.02)  # the main thread is in the body's blocking call by now
+        os.kill(os.getpid(), signal.SIGINT)
+
+    helper = threading.Thread(target=press)
+    helper.start()
+    try:
+        entered.set()
+        yield
+    finally:
+        helper.join()
 
 
 class PtySim:

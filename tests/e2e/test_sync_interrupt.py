@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
-from helpers import PtySim
+from helpers import PtySim, ctrl_c_when
 
 import tango_aio.sync
 from tango_aio.testing import faults
@@ -28,28 +28,6 @@ def tango() -> Iterator[tango_aio.sync.Controller]:
     with tango_aio.sync.connect(INSTANT) as controller:
         controller.set("vel", x=0.5, y=0.5)  # 100 mm at 0.5 mm/s: minutes of travel
         yield controller
-
-
-@contextlib.contextmanager
-def ctrl_c_when(ready: Callable[[], bool]) -> Iterator[None]:
-    """Press Ctrl+C (a real SIGINT to this process) once ``ready()`` holds, from a helper
-    thread, while the body blocks in the main thread."""
-    entered = threading.Event()
-
-    def press() -> None:
-        entered.wait()
-        while not ready():
-            time.sleep(0.001)
-        time.sleep(0.02)  # the main thread is in the body's blocking call by now
-        os.kill(os.getpid(), signal.SIGINT)
-
-    helper = threading.Thread(target=press)
-    helper.start()
-    try:
-        entered.set()
-        yield
-    finally:
-        helper.join()
 
 
 def x_moves(tango: tango_aio.sync.Controller) -> Callable[[], bool]:
