@@ -685,7 +685,8 @@ class Controller:
                              default=0.0)
                 return MovePlan(command, moved, dict(targets), delay + travel + after,
                                 check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch, delay=delay, settle=settle)
+                                start=reader, batch=batch, delay=delay, settle=settle,
+                                reports=self.autostatus != 0)
             if known is None or not set(targets) <= set(known):
                 known = None
                 start = {a: float(t) for a, t in (await self._position_texts()).items()}
@@ -699,7 +700,7 @@ class Controller:
                 extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
                         limit=check_timeout(timeout) or delay + limit + after, extend=extend,
-                        delay=delay, settle=settle)
+                        delay=delay, settle=settle, reports=self.autostatus != 0)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""

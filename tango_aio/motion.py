@@ -48,8 +48,10 @@ another one does not spend it), and covers ``delay`` before the start (L6845-686
 travel (trapezoid at the slowest plausible speed), ``pause`` after it (L6873-6899) and
 the closed-loop settling time ``ctrt`` (L11616-11631). When no report comes, the state is
 polled from shortly after the expected end, with an interval that grows to
-:data:`POLL_MAX`; the move fails with :class:`ControllerTimeoutError` (axes stopped) when
-the budget is spent and an axis still moves.
+:data:`POLL_MAX` (in autostatus 0, which sends no reports, every :data:`POLL_MAX` during
+the move as well: an early end is seen within that); the move fails with
+:class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
+moves.
 
 A ``move_to`` does not read the position before it is written (#19: that cost a whole
 round trip per move): its distance, and so its budget, is sized from the positions of
@@ -199,6 +201,10 @@ class MovePlan:
     #: Seconds of closed-loop settling (``ctrt``, L11616-11631): until the expected end,
     #: an axis near its target may still be settling.
     settle: float = 0.0
+    #: Whether the mode in force sends completion reports (not autostatus 0, L2060-2103):
+    #: without them the state is polled every :data:`POLL_MAX` during the move, so that
+    #: an early end (a limit switch, an abort) ends the call at once too.
+    reports: bool = True
     #: When ``limit`` was sized from a position read before this move (the last one the
     #: driver knows, see :attr:`Motion.positions`): seconds from now that the move may
     #: still take, given the positions printed now. Called once, when the axes still move
@@ -440,7 +446,10 @@ class Motion:
         plan = job.plan
         expected_end = job.started + plan.expected
         deadline = job.started + plan.limit
-        next_poll = expected_end + POLL_GRACE
+        # Without completion reports (autostatus 0) nothing tells of an early end (a limit
+        # switch, an abort by someone else): the state is polled during the move too.
+        next_poll = (expected_end + POLL_GRACE if plan.reports
+                     else min(job.started + POLL_MAX, expected_end + POLL_GRACE))
         interval = POLL_MIN
         while True:
             delay = min(next_poll, deadline) - loop.time()
@@ -471,8 +480,9 @@ class Motion:
                     deadline = now + plan.extend(texts)
                 if now < expected_end:
                     # A false hint (e.g. !joy 0): the real report or the expected end
-                    # comes next.
-                    next_poll = expected_end + POLL_GRACE
+                    # comes next (without reports: the next poll of the move).
+                    next_poll = (expected_end + POLL_GRACE if plan.reports
+                                 else min(now + POLL_MAX, expected_end + POLL_GRACE))
                 else:
                     next_poll = now + interval
                     interval = min(interval * 1.5, POLL_MAX)

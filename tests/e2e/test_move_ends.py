@@ -91,3 +91,18 @@ async def test_an_abort_by_someone_else_fails_the_move_at_once(
     assert 0.0 < emulated_position(emu, "x") < 40.0
     assert (await tango.position())["x"] == pytest.approx(emulated_position(emu, "x"),
                                                           abs=1e-3)
+
+
+async def test_without_reports_a_limit_switch_is_seen_by_polling_during_the_move(
+        emulator: EmulatorFactory) -> None:
+    """Autostatus 0 sends no report: the driver polls during the move, so the stop at
+    the switch ends the call long before the planned end."""
+    emu = await emulator(travel=4.0, autostatus=0)
+    tango = emu.tango
+    motion = emu.model.motion
+    start = motion.now
+    with pytest.raises(MoveError, match="upper limit switch"):
+        await tango.move_to(x=60.0)
+    assert not motion.is_moving("x")
+    planned = tango._settings.travel("x", 60.0)
+    assert motion.now - start < planned / 2
