@@ -1,7 +1,7 @@
 """No false success through any surface (#26): a cross-surface matrix.
 
 Rows are surfaces (the async driver, ``tango_aio.sync``, the shell's script mode,
-``tango-aio move``); columns are the ways a move can end (:data:`ENDINGS`). Each cell
+``tango-aio move``, a Bluesky plan on ``tango_aio.bluesky``); columns are the ways a move can end (:data:`ENDINGS`). Each cell
 drives one move of X through its surface into one ending, then checks two things:
 
 * the outcome the surface reported is the real one: a success only when the emulator's
@@ -29,6 +29,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
 from helpers import Emulated, PtySim, abort_from_outside, ctrl_c_when, one_axis
@@ -341,17 +342,102 @@ def move_row(ending: Ending) -> tuple[Outcome, Truth]:
     return Outcome(ok, readback, result.stdout + result.stderr[-2000:]), truth
 
 
+# -- a Bluesky plan (tango_aio.bluesky) ------------------------------------------------
+
+
+def bluesky_row(ending: Ending) -> tuple[Outcome, Truth]:
+    """A plan that moves the axis (``bps.mv``) and reads it, on a MarzhauserStage; the
+    interrupt is Ctrl+C as the RunEngine takes it: a pause, then ``RE.abort()``. A
+    success is a run whose stop document says "success"."""
+    pytest.importorskip("bluesky")
+    pytest.importorskip("ophyd_async")
+    import bluesky.plan_stubs as bps
+    from bluesky import RunEngine, RunEngineInterrupted
+    from bluesky.run_engine import call_in_bluesky_event_loop
+    from ophyd_async.core import init_devices
+
+    from tango_aio.bluesky import MarzhauserStage
+
+    loop = asyncio.new_event_loop()
+    engine = RunEngine({}, loop=loop, context_managers=[])
+    stops: list[str] = []
+    engine.subscribe(lambda name, doc: stops.append(doc["exit_status"])
+                     if name == "stop" else None)
+
+    def call(coro: Any) -> Any:
+        return call_in_bluesky_event_loop(coro, timeout=30)
+
+    try:
+        with init_devices():
+            stage = MarzhauserStage(INSTANT, axes="xy")
+        for line in _setup_lines(ending):
+            call(stage.controller.command(line))
+        emu = Emulated(stage.controller)
+        axis = stage.axis(ending.axis)
+
+        async def abort() -> None:
+            abort_from_outside(emu)
+
+        async def cut() -> None:
+            faults(stage.controller).disconnect()
+
+        def disturb() -> None:
+            for _ in range(5000):
+                if emu.model.motion.is_moving(ending.axis):
+                    break
+                time.sleep(0.002)
+            if ending.disturb == "abort":
+                call(abort())
+            elif ending.disturb == "interrupt":
+                engine.request_pause()
+            else:
+                call(cut())
+
+        def plan() -> Any:
+            yield from bps.open_run()
+            yield from bps.mv(axis, ending.target)
+            yield from bps.trigger_and_read([axis])
+            yield from bps.close_run()
+
+        helper = _thread(disturb) if ending.disturb else None
+        try:
+            engine(plan())
+            outcome = Outcome(stops[-1:] == ["success"], None, f"stop: {stops}")
+        except RunEngineInterrupted:
+            engine.abort()
+            outcome = Outcome(False, None, f"paused, aborted: {stops}")
+        except Exception as error:
+            outcome = Outcome(False, None, repr(error))
+        finally:
+            if helper is not None:
+                helper.join()
+        truth = call(_async_truth(emu, ending.axis))
+        if stage.controller.connected:
+            outcome.readback = call(axis.user_readback.get_value())
+        call(stage.aclose())
+        return outcome, truth
+    finally:
+        if engine.state not in ("idle", "panicked"):
+            engine.halt()
+        loop.call_soon_threadsafe(loop.stop)
+        engine._th.join()
+        loop.close()
+
+
 # -- the matrix ------------------------------------------------------------------------
 
 #: The rows: surface name -> its cell runner (async rows are coroutine functions).
 ROWS: dict[str, Callable[[Ending], object]] = {
-    "async": async_row, "sync": sync_row, "shell_script": shell_row, "move": move_row}
+    "async": async_row, "sync": sync_row, "shell_script": shell_row, "move": move_row,
+    "bluesky": bluesky_row}
 
 #: The cells of the default run (the rest run under ``slow``).
 #: (The CLI rows cost 3-4 s a cell on a loaded machine; tests/e2e/test_cli_exit.py
 #: samples them in the default run.)
 QUICK = {("async", e.name) for e in ENDINGS} | {("sync", "limit_switch"),
-                                               ("sync", "interrupt")}
+                                               ("sync", "interrupt"),
+                                               ("bluesky", "limit_switch"),
+                                               ("bluesky", "interrupt")}
 
 
 def _cells(rows: list[str]) -> list[object]:
@@ -365,8 +451,10 @@ async def test_async_cell(row: str, ending: Ending) -> None:
     check(ending, *await async_row(ending))
 
 
-@pytest.mark.parametrize(("row", "ending"), _cells(["sync", "shell_script", "move"]))
+@pytest.mark.parametrize(("row", "ending"),
+                         _cells(["sync", "shell_script", "move", "bluesky"]))
 def test_blocking_cell(row: str, ending: Ending) -> None:
     """Run in the main thread: the sync row's Ctrl+C is a real SIGINT."""
-    run = {"sync": sync_row, "shell_script": shell_row, "move": move_row}[row]
+    run = {"sync": sync_row, "shell_script": shell_row, "move": move_row,
+           "bluesky": bluesky_row}[row]
     check(ending, *run(ending))
