@@ -442,17 +442,18 @@ def test_stopping_x_of_a_merged_line_lets_y_arrive_and_succeed(
     run(stage.controller.set("vel", x=1.0, y=1.0))  # 2 mm/s
 
     async def move_both_stop_x() -> tuple[BaseException | None, BaseException | None]:
-        x_status, y_status = stage.x.set(10.0), stage.y.set(1.0)  # one line
+        # One line; Y travels at half X's speed (the line's vector interpolation).
+        x_status, y_status = stage.x.set(1.0), stage.y.set(0.5)
         await _under_way(stage.x)
         await stage.x.stop()
         return await failure(x_status), await failure(y_status)
 
     x_error, y_error = run(move_both_stop_x())
-    assert moves() == ["!moa 10 1"]
+    assert moves() == ["!moa 1 0.5"]
     assert isinstance(x_error, RuntimeError)
     assert y_error is None  # Y was confirmed at its target after the line failed
-    assert emulated(stage)["y"] == 1.0
-    assert 0.1 < emulated(stage)["x"] < 10.0
+    assert emulated(stage)["y"] == 0.5
+    assert 0.1 < emulated(stage)["x"] < 1.0
 
 
 def test_pause_landing_in_a_flyer_kickoff_is_no_failure(
@@ -566,6 +567,7 @@ def _times(documents: list[Any], descriptor: str) -> list[float]:
 # Cross-surface matrix, Bluesky row: a plan's move ends ...
 
 
+@pytest.mark.slow  # the default run has tests/e2e/test_surfaces.py's Bluesky cells
 def test_matrix_at_target(RE: RunEngine, stage: MarzhauserStage) -> None:
     RE(bps.mv(stage.x, 2.0))
     assert emulated(stage)["x"] == 2.0
@@ -582,6 +584,7 @@ def test_matrix_limit_switch(RE: RunEngine, stage: MarzhauserStage) -> None:
     assert run(stage.x.low_limit_switch.get_value()) == 1
 
 
+@pytest.mark.slow  # the default run has tests/e2e/test_surfaces.py's Bluesky cells
 def test_matrix_disabled_axis(RE: RunEngine, stage: MarzhauserStage) -> None:
     run(stage.controller.set("axis", 0, axis="x"))
     with pytest.raises(FailedStatus) as raised:
@@ -590,6 +593,7 @@ def test_matrix_disabled_axis(RE: RunEngine, stage: MarzhauserStage) -> None:
     assert emulated(stage)["x"] == 0.0
 
 
+@pytest.mark.slow  # the default run has tests/e2e/test_surfaces.py's Bluesky cells
 def test_matrix_abort_by_another_client(RE: RunEngine, stage: MarzhauserStage) -> None:
     run(stage.controller.set("vel", 1.0, axis="x"))  # 2 mm/s
 
@@ -604,6 +608,7 @@ def test_matrix_abort_by_another_client(RE: RunEngine, stage: MarzhauserStage) -
     assert emulated(stage)["x"] < 10.0
 
 
+@pytest.mark.slow  # the default run has tests/e2e/test_surfaces.py's Bluesky cells
 def test_matrix_link_lost(RE: RunEngine, stage: MarzhauserStage) -> None:
     run(stage.controller.set("vel", 1.0, axis="x"))
 
@@ -617,6 +622,7 @@ def test_matrix_link_lost(RE: RunEngine, stage: MarzhauserStage) -> None:
     assert isinstance(error, TangoError)
 
 
+@pytest.mark.slow  # the default run has tests/e2e/test_surfaces.py's Bluesky cells
 def test_matrix_refused_line(RE: RunEngine, stage: MarzhauserStage) -> None:
     run(stage.controller.set("lim", -5, 5, axis="x"))
     with pytest.raises(FailedStatus) as raised:
