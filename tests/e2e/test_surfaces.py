@@ -1,8 +1,9 @@
 """No false success through any surface (#26): a cross-surface matrix.
 
 Rows are surfaces (the async driver, ``tango_aio.sync``, the shell's script mode,
-``tango-aio move``, a Bluesky plan on ``tango_aio.bluesky``); columns are the ways a move can end (:data:`ENDINGS`). Each cell
-drives one move of X through its surface into one ending, then checks two things:
+``tango-aio move``, a Bluesky plan on ``tango_aio.bluesky``); columns are the ways a
+move can end (:data:`ENDINGS`). Each cell drives one move of X through its surface into
+one ending, then checks two things:
 
 * the outcome the surface reported is the real one: a success only when the emulator's
   own state says X stands at its target; every other ending is reported as a failure
