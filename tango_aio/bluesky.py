@@ -778,8 +778,8 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         travel.result()  # the pass's error, if any
 
     async def stop_flying(self, success: bool) -> None:
-        """Stop the running pass, if any: its ``complete()`` fails, or with ``success``
-        returns."""
+        """Stop the running pass, if any (the caller has sent the axis's stop): its
+        ``complete()`` fails, or with ``success`` returns."""
         ctx = self.flying
         if ctx is not None and ctx.travel is not None and not ctx.travel.done():
             ctx.stopped = success if ctx.stopped is None else ctx.stopped and success
@@ -794,7 +794,7 @@ async def _pass_move(link: StageLink, axis: str, target: float,
     move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it."""
     async with link.moving(axis) as mover:
         try:
-            await link.coalescer.move_to(axis, target, arrived)
+            await _until_stopped(link.coalescer.move_to(axis, target, arrived), mover)
         except MoveError:
             if not stopped_ok(mover):
                 raise
@@ -1475,11 +1475,15 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
                                         tuple(map(tuple, rows)), time.time()))
 
     async def stop(self, success: bool = False) -> None:
-        """Stop a running pass (every axis stops) and disable the trigger output; with
-        ``success`` its ``complete()`` returns without data instead of failing."""
+        """Stop a running pass (its axis alone, ``a x``) and disable the trigger output;
+        with ``success`` its ``complete()`` returns without data instead of failing."""
         for ctx in list(self.running):
             if ctx.travel is not None:
                 ctx.stopped = success if ctx.stopped is None else ctx.stopped and success
+                self.link.mark_stop(success, ctx.scan.axis)
+                if not ctx.travel.done():
+                    with contextlib.suppress(TangoError):
+                        await self.link.halt(ctx.scan.axis)
                 ctx.travel.cancel()
                 await asyncio.wait([ctx.travel])
         if self.link.connected:
@@ -1509,11 +1513,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     trigger list (or sets the range), clears the trigger counter and enables the trigger
     output; ``kickoff()`` starts the pass and returns once it runs; ``complete()`` waits
     for its end. ``collect()`` then yields, per pass, one event in the stream named like
-    the flyer with ``<name>-trigger_count`` and ``<name>-triggers_expected``, and with
-    ``snapshots`` one event per captured position in ``<name>_snapshots``
-    (``<name>-snapshot_x``...; the capture time is not reported, so these events carry
-    the time of the pass's end). ``stop()`` stops a running pass (every axis, ``a``) and
-    disables the trigger output.
+    the flyer with ``<name>-trigger_count`` and ``<name>-triggers_expected``; one event
+    per trigger position in ``<name>_triggers`` (pass, index, axis, position with its
+    unit); and with ``snapshots`` one event per captured position in
+    ``<name>_snapshots`` (``<name>-snapshot_x``... for the stage's axes only; the
+    controller records no capture time, so these events carry the time the driver read
+    the snapshot array, and their data keys say so). ``stop()`` stops a running pass (its
+    axis alone, ``a x``) and disables the trigger output.
     """
 
     def __init__(self, stage: MarzhauserStage, name: str = "flyer") -> None:
@@ -1537,10 +1543,9 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
         return status
 
     async def stop(self, success: bool = False) -> None:
-        """Stop a running pass (``a``: every axis stops) and disable the trigger output.
+        """Stop a running pass (its axis alone, ``a x``) and disable the trigger output.
         Its ``complete()`` then fails with MoveError, or with ``success`` returns without
         data."""
-        self._link.mark_stop(success)
         await self.flyable_logic.stop(success)
 
     async def pause(self) -> None:

@@ -425,7 +425,9 @@ def test_trigger_scan_validates_the_pass() -> None:
 
 
 def test_stopping_the_flyer_stops_the_pass(
-        RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer) -> None:
+        RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer,
+        caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
     run(_fast(stage, velocity=2))
     scan = TriggerScan("x", start=-0.1, end=10.0, trigger_range=(0.0, 9.0, 10))
 
@@ -443,6 +445,9 @@ def test_stopping_the_flyer_stops_the_pass(
     assert emulated(stage)["x"] < 10.0
     assert run(stage.controller.get("trig")) == 0
     assert run(stage.controller.get("trigcount")) < 10
+    written = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
+    assert any(line.endswith("-> b'!a x'") for line in written)  # the pass's axis only
+    assert not any(line.endswith("-> b'!a'") for line in written)
 
 
 def test_pause_during_a_fly_pass_then_resume(
