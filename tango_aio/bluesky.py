@@ -756,9 +756,20 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         return True
 
     async def _fly(self, ctx: _FlyCtx) -> bool:
-        """The pass's move; False if a stop(success=True) ended it."""
-        arrived = await _pass_move(self.link, self.axis, ctx.run_down_end,
-                                   lambda mover: mover.stopped_ok)
+        """The pass's move; False if a stop(success=True) ended it. A number as the
+        FlyMotorInfo's ``timeout`` bounds it, as for Motor (the default leaves the bound
+        to the driver's own estimate); running out stops the axis and raises a
+        TimeoutError naming the axis, the target and where it stopped."""
+        limit = ctx.info.timeout
+        seconds = None if limit is None or isinstance(limit, str) else float(limit)
+        try:
+            async with asyncio.timeout(seconds):
+                arrived = await _pass_move(self.link, self.axis, ctx.run_down_end,
+                                           lambda mover: mover.stopped_ok)
+        except TimeoutError:
+            if seconds is None:
+                raise
+            await self._timed_out(ctx.run_down_end, seconds)
         if not arrived:
             ctx.stopped = True
         return arrived

@@ -381,6 +381,24 @@ def test_motor_done_move_follows_a_move(RE: RunEngine, stage: MarzhauserStage) -
 # #26: no false success, words in the errors
 
 
+def test_fly_timeout_stops_the_pass_and_names_where(
+        RE: RunEngine, stage: MarzhauserStage) -> None:
+    # 10 mm in 5 s (2 mm/s), bounded to 0.3 s as a FlyMotorInfo may be (Motor's timeout).
+    info = FlyMotorInfo(start_position=0.0, end_position=10.0, time_for_move=5.0,
+                        timeout=0.3)
+
+    async def fly() -> BaseException | None:
+        await stage.x.prepare(info)
+        await stage.x.kickoff()
+        return await failure(stage.x.complete())
+
+    error = run(fly())
+    assert isinstance(error, TimeoutError)
+    assert "stage-x" in str(error) and "stopped at" in str(error)
+    assert run(stage.controller.status())["x"] != "M"
+    assert emulated(stage)["x"] < 10.0
+
+
 def test_set_timeout_names_axis_target_and_where_it_stopped(
         RE: RunEngine, stage: MarzhauserStage) -> None:
     run(stage.controller.set("vel", 0.5, axis="x"))  # 1 mm/s
