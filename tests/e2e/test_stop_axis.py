@@ -39,6 +39,9 @@ async def test_stopping_x_fails_the_x_move_and_the_queued_y_move_succeeds(
     with pytest.raises(MoveError) as raised:
         await x_move
     assert raised.value.statuses["x"] == "E"
+    assert "'!moa 5.0' was aborted: X was stopped by this program (a stop, abort or " \
+        "cancel), at " in str(raised.value)
+    assert str(raised.value).endswith(", target 5")
     assert 0.0 < emulated_position(emu, "x") < 5.0  # stopped on the way, by `a x`
     assert (await y_move)["y"] == "@"
     assert emulated_position(emu, "y") == pytest.approx(1.0)
