@@ -117,3 +117,18 @@ def test_the_blocking_stop_stops_one_axis() -> None:
         with pytest.raises(MoveError):
             x_move.result(timeout=10)
         assert 0 < tango.position()["x"] < 5.0
+
+
+async def test_older_firmware_stops_every_axis(emulator: EmulatorFactory) -> None:
+    """The older edition's ``a`` takes no axis (old L1907-1919): stop("x") stops all, and
+    the Y move it cut short fails rather than passing for a success."""
+    emu = await emulator("sim://?baud=0&profile=legacy")
+    tango = emu.tango
+    assert tango.identity.family == "older"
+    move = asyncio.create_task(tango.move_to(y=5.0))
+    await wait_moving(emu, "y")
+    await tango.stop("x")
+    assert not emu.model.motion.is_moving("y")
+    with pytest.raises(MoveError):
+        await move
+    assert emulated_position(emu, "y") < 5.0
