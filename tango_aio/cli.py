@@ -382,7 +382,8 @@ def describe_event(event: TangoEvent) -> str | None:
         return f"status report: {describe_letters(event.statuses)}"
     if isinstance(event, MoveAborted):
         if event.axes:
-            return f"stop sent (a {' '.join(event.axes)}): {' '.join(event.axes).upper()} stop"
+            lines = ", ".join(f"a {axis}" for axis in event.axes)
+            return f"stop sent ({lines}): {' '.join(event.axes).upper()} stop"
         return f"abort sent ({'Ctrl+C' if event.ctrl_c else 'a'}): all axes stop"
     if isinstance(event, UnsolicitedLine):
         return describe_line(event.line)

@@ -767,17 +767,15 @@ class Controller:
         """Stop the named axes (``stop("x")``, ``stop("x", "z")``) with the manual's
         one-axis abort ``a x`` (L6785-6844: stops the moves of that axis with stopaccel);
         the other axes go on. Without axes, stops every axis with ``a`` (as
-        ``abort(soft=True)``). Moves being awaited (or detached) that move a stopped axis
-        raise :class:`MoveError` once their axes stand still; moves of other axes are not
-        affected. An axis the controller lacks raises
-        :class:`~tango_aio.errors.InvalidCommandError` before anything is written. With
-        ``wait``, returns once the stopped axes stand still; raises
+        ``abort(soft=True)``), and so on firmware of the older manual, whose ``a`` takes no
+        axis (:attr:`Identity.family` ``"older"``: every axis stops). Moves being awaited
+        (or detached) that move a stopped axis raise :class:`MoveError` once their axes
+        stand still; moves of other axes are not affected. An axis the controller lacks
+        raises :class:`~tango_aio.errors.InvalidCommandError` before anything is written.
+        With ``wait``, returns once the stopped axes stand still; raises
         :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
         :data:`~tango_aio.motion.STOP_WAIT` seconds.
         """
-        if not axes:
-            await self.abort(soft=True, wait=wait)
-            return
         present = AXES[: self.context.axes]
         chosen: list[str] = []
         for axis in axes:
@@ -789,6 +787,11 @@ class Controller:
                     instruction="a", parameter="axis", number=1)
             if letter not in chosen:
                 chosen.append(letter)
+        if not chosen or (self._identity is not None and self._identity.family == "older"):
+            # The older edition's `a` takes no axis ("stops all axes", old L1907-1919):
+            # what it would make of `a x` is not written, so every axis is stopped.
+            await self.abort(soft=True, wait=wait)
+            return
         self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
         self._motion.stopped(chosen)
         await self._protocol.stop_axes(True, axes=chosen)

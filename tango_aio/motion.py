@@ -524,8 +524,11 @@ class Motion:
         """The driver stopped the axes during this move: wait until they stand still,
         then fail (never a success, whatever the letters say)."""
         texts: Mapping[str, str] = {}
+        # After a one-axis stop (``a x``) the line's other axes go on to their targets:
+        # wait for them within the move's own budget, at least STOP_WAIT.
+        left = job.started + job.plan.limit - asyncio.get_running_loop().time()
         with contextlib.suppress(TimeoutError, *_LOST_READ):
-            letters = await self._idle(job, STOP_WAIT)
+            letters = await self._idle(job, max(STOP_WAIT, left))
             texts = self.positions or {}
         self._finished(job, letters, ok=False)
         plan = job.plan

@@ -61,3 +61,12 @@ def test_move_exits_1_on_a_limit_switch_and_0_at_the_target(fast: str) -> None:
                           text=True, timeout=60, check=False)
     assert good.returncode == 0, good.stdout
     assert good.stdout.split()[-6:] == ["x=", "5.0000", "y=", "-5.0000", "z=", "0.0000"]
+
+
+def test_a_one_axis_stop_is_described_as_such() -> None:
+    from tango_aio.cli import describe_event
+    from tango_aio.events import MoveAborted
+
+    assert describe_event(MoveAborted(ctrl_c=False, axes=("x", "z"))) == \
+        "stop sent (a x, a z): X Z stop"
+    assert describe_event(MoveAborted(ctrl_c=True)) == "abort sent (Ctrl+C): all axes stop"

@@ -8,8 +8,10 @@ import asyncio
 import pytest
 from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
 
+import tango_aio.sync
 from tango_aio.errors import InvalidCommandError, MoveError
 from tango_aio.events import MoveAborted
+from tango_aio.group import ControllerGroup
 
 
 @pytest.fixture
@@ -39,6 +41,9 @@ async def test_stopping_x_fails_the_x_move_and_the_queued_y_move_succeeds(
     with pytest.raises(MoveError) as raised:
         await x_move
     assert raised.value.statuses["x"] == "E"
+    assert "'!moa 5.0' was aborted: X was stopped by this program (a stop, abort or " \
+        "cancel), at " in str(raised.value)
+    assert str(raised.value).endswith(", target 5")
     assert 0.0 < emulated_position(emu, "x") < 5.0  # stopped on the way, by `a x`
     assert (await y_move)["y"] == "@"
     assert emulated_position(emu, "y") == pytest.approx(1.0)
@@ -85,3 +90,45 @@ async def test_stop_without_axes_stops_every_axis(emu: Emulated) -> None:
     with pytest.raises(MoveError):
         await move
     assert emulated_position(emu, "x") < 5.0 and emulated_position(emu, "y") < 5.0
+
+
+async def test_a_group_stops_one_axis_of_its_members() -> None:
+    specs = {"stage": "sim://?baud=0", "focus": "sim://?baud=0"}
+    async with ControllerGroup(specs) as group:
+        stage, focus = group["stage"], group["focus"]
+        x_move = asyncio.create_task(stage.move_to(x=5.0))
+        y_move = asyncio.create_task(focus.move_to(y=1.0))
+        await wait_moving(Emulated(stage), "x")
+        await wait_moving(Emulated(focus), "y")
+        await group.stop("x")
+        with pytest.raises(MoveError):
+            await x_move
+        assert (await y_move)["y"] == "@"  # Y was not stopped
+        assert emulated_position(Emulated(focus), "y") == pytest.approx(1.0)
+
+
+def test_the_blocking_stop_stops_one_axis() -> None:
+    with tango_aio.sync.connect("sim://?baud=0") as tango:
+        x_move = tango.start_move_to(x=5.0)
+        while tango.status()["x"] != "M":
+            pass
+        tango.stop("x")
+        assert "M" not in tango.status().values()
+        with pytest.raises(MoveError):
+            x_move.result(timeout=10)
+        assert 0 < tango.position()["x"] < 5.0
+
+
+async def test_older_firmware_stops_every_axis(emulator: EmulatorFactory) -> None:
+    """The older edition's ``a`` takes no axis (old L1907-1919): stop("x") stops all, and
+    the Y move it cut short fails rather than passing for a success."""
+    emu = await emulator("sim://?baud=0&profile=legacy")
+    tango = emu.tango
+    assert tango.identity.family == "older"
+    move = asyncio.create_task(tango.move_to(y=5.0))
+    await wait_moving(emu, "y")
+    await tango.stop("x")
+    assert not emu.model.motion.is_moving("y")
+    with pytest.raises(MoveError):
+        await move
+    assert emulated_position(emu, "y") < 5.0
