@@ -652,9 +652,9 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
             await self.setpoint.set(target)
             async with self.link.moving(self.axis) as mover:
                 try:
-                    async with asyncio.timeout(limit) as deadline:
-                        await _until_stopped(
-                            self.link.coalescer.move_to(self.axis, target, arrived), mover)
+                    await _until_stopped(
+                        self.link.coalescer.move_to(self.axis, target, arrived), mover,
+                        limit, functools.partial(self.link.halt, self.axis))
                 except MoveError as exc:
                     # A stop(success=True) (RunEngine pause) of another device ended
                     # this move too: complete, as StandardMovable does for ours.
@@ -662,9 +662,8 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
                             target, exc, mover):
                         raise
                 except TimeoutError:
-                    if not deadline.expired():
-                        raise
-                    mover.timed_out = True
+                    if not mover.timed_out:
+                        raise  # the driver's (ControllerTimeoutError), not ours
             if mover.timed_out:
                 await self._timed_out(target, limit)
         finally:
@@ -762,13 +761,14 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         TimeoutError naming the axis, the target and where it stopped."""
         limit = ctx.info.timeout
         seconds = None if limit is None or isinstance(limit, str) else float(limit)
+        timed_out = Mover()
         try:
-            async with asyncio.timeout(seconds):
-                arrived = await _pass_move(self.link, self.axis, ctx.run_down_end,
-                                           lambda mover: mover.stopped_ok)
+            arrived = await _pass_move(self.link, self.axis, ctx.run_down_end,
+                                       lambda mover: mover.stopped_ok, limit=seconds,
+                                       timed_out=timed_out)
         except TimeoutError:
-            if seconds is None:
-                raise
+            if not timed_out.timed_out:
+                raise  # the driver's (ControllerTimeoutError), not ours
             await self._timed_out(ctx.run_down_end, seconds)
         if not arrived:
             ctx.stopped = True
@@ -800,12 +800,20 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
 
 async def _pass_move(link: StageLink, axis: str, target: float,
                      stopped_ok: Callable[[Mover], bool],
-                     arrived: Callable[[], None] | None = None) -> bool:
+                     arrived: Callable[[], None] | None = None, *,
+                     limit: float | None = None, timed_out: Mover | None = None) -> bool:
     """Move ``axis`` to ``target`` for a fly pass (through the coalescer, published as a
-    move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it."""
+    move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it. After
+    ``limit`` seconds the axis is stopped (``a x``) and TimeoutError raised, with
+    ``timed_out.timed_out`` set."""
     async with link.moving(axis) as mover:
         try:
-            await _until_stopped(link.coalescer.move_to(axis, target, arrived), mover)
+            await _until_stopped(link.coalescer.move_to(axis, target, arrived), mover,
+                                 limit, functools.partial(link.halt, axis))
+        except TimeoutError:
+            if timed_out is not None:
+                timed_out.timed_out = mover.timed_out
+            raise
         except MoveError:
             if not stopped_ok(mover):
                 raise
@@ -817,14 +825,25 @@ def _nothing() -> None:
     """An announcement that announced nothing (no coalescer yet, or mock mode)."""
 
 
-async def _until_stopped(move: Awaitable[str], mover: Mover) -> str:
+async def _until_stopped(move: Awaitable[str], mover: Mover, limit: float | None = None,
+                         halt: Callable[[], Awaitable[None]] | None = None) -> str:
     """Await ``move``; when cancelled after a stop was requested for it (the stop has
     sent ``a x``), let the line end by itself (bounded) instead of cancelling it: the
-    driver's cancel would stop every axis of the line with ``a``."""
+    driver's cancel would stop every axis of the line with ``a``. After ``limit``
+    seconds (a set's or a pass's own timeout): mark ``mover`` timed out, ``halt()`` (the
+    axis's one-axis stop), let the line end the same way and raise TimeoutError."""
     task = asyncio.ensure_future(move)
     try:
-        return await asyncio.shield(task)
-    except asyncio.CancelledError:
+        done, _ = await asyncio.wait([task], timeout=limit)
+        if done:
+            return task.result()
+        mover.timed_out = True
+        mover.stopped = False
+        if halt is not None:
+            with contextlib.suppress(TangoError):
+                await halt()
+        raise TimeoutError
+    except (asyncio.CancelledError, TimeoutError):
         if mover.stopped is not None and not task.done():
             with anyio.move_on_after(STOP_WAIT + 5, shield=True):
                 await asyncio.wait([task])

@@ -382,7 +382,8 @@ def test_motor_done_move_follows_a_move(RE: RunEngine, stage: MarzhauserStage) -
 
 
 def test_fly_timeout_stops_the_pass_and_names_where(
-        RE: RunEngine, stage: MarzhauserStage) -> None:
+        RE: RunEngine, stage: MarzhauserStage, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
     # 10 mm in 5 s (2 mm/s), bounded to 0.3 s as a FlyMotorInfo may be (Motor's timeout).
     info = FlyMotorInfo(start_position=0.0, end_position=10.0, time_for_move=5.0,
                         timeout=0.3)
@@ -397,10 +398,19 @@ def test_fly_timeout_stops_the_pass_and_names_where(
     assert "stage-x" in str(error) and "stopped at" in str(error)
     assert run(stage.controller.status())["x"] != "M"
     assert emulated(stage)["x"] < 10.0
+    _assert_one_axis_stop(caplog)
+
+
+def _assert_one_axis_stop(caplog: pytest.LogCaptureFixture) -> None:
+    """X was stopped with the one-axis stop, and nothing stopped every axis."""
+    written = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
+    assert any(line.endswith("-> b'!a x'") for line in written), written
+    assert not any(line.endswith("-> b'!a'") for line in written)
 
 
 def test_set_timeout_names_axis_target_and_where_it_stopped(
-        RE: RunEngine, stage: MarzhauserStage) -> None:
+        RE: RunEngine, stage: MarzhauserStage, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
     run(stage.controller.set("vel", 0.5, axis="x"))  # 1 mm/s
 
     async def move() -> BaseException | None:
@@ -413,6 +423,7 @@ def test_set_timeout_names_axis_target_and_where_it_stopped(
     message = str(error)
     assert "stage-x" in message and "20.0" in message and "stopped at" in message
     assert f"{where:.2f}"[:3] in message
+    _assert_one_axis_stop(caplog)
     RE(bps.mv(stage.x, 0))  # the next move works
     assert emulated(stage)["x"] == 0.0
 
@@ -450,9 +461,7 @@ def test_stopping_x_stops_x_only_and_a_y_move_goes_on(
     assert y_error is None
     assert emulated(stage)["y"] == 1.0
     assert 0.1 < emulated(stage)["x"] < 10.0
-    written = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
-    assert any(line.endswith("-> b'!a x'") for line in written), written
-    assert not any(line.endswith("-> b'!a'") for line in written)  # no stop of all axes
+    _assert_one_axis_stop(caplog)
 
 
 def test_stopping_x_of_a_merged_line_lets_y_arrive_and_succeed(
