@@ -877,7 +877,7 @@ class _AxisMock(DeviceMock["MarzhauserAxis"]):
 
 
 class MarzhauserAxis(StandardReadable, StandardMovable[float],
-                     StandardFlyable[FlyMotorInfo, _FlyCtx]):
+                     StandardFlyable[FlyMotorInfo, _FlyCtx], Pausable):
     """One axis of a :class:`MarzhauserStage` (created by the stage), with the signals
     and methods of ophyd-async's ``epics.motor.Motor`` that the controller can back
     (the how-to ``docs/howto/bluesky.md`` has the table)."""
@@ -1041,6 +1041,16 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         if not self.movable_logic.mocked:
             # As the motor record (and SimMotor): the setpoint becomes where it stopped.
             await self.user_setpoint.set(await self._link.position(self._axis))
+
+    async def pause(self) -> None:
+        """RunEngine pause: stop a running fly pass with success (its ``complete()``
+        returns; on resume the plan replays it from its checkpoint). The RunEngine stops
+        the axes it has ``set`` itself, but not a pass started by ``kickoff``."""
+        if self.movable_logic.flying is not None:
+            await self.stop(success=True)
+
+    async def resume(self) -> None:
+        """RunEngine resume: nothing to do (the replayed plan prepares the pass again)."""
 
     # -- homing, range measure, offset (plan-friendly: each returns a status) ----------
 

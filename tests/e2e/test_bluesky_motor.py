@@ -408,6 +408,40 @@ def _assert_one_axis_stop(caplog: pytest.LogCaptureFixture) -> None:
     assert not any(line.endswith("-> b'!a'") for line in written)
 
 
+def test_pause_during_an_axis_fly_pass_then_resume(
+        RE: RunEngine, stage: MarzhauserStage, documents: list[Any]) -> None:
+    # 2 mm in 1 s: the pause lands in the pass; on resume the plan flies it again.
+    info = FlyMotorInfo(start_position=0.0, end_position=2.0, time_for_move=1.0)
+    paused = threading.Event()
+
+    def pause_in_the_pass(reading: dict[str, Any]) -> None:
+        if 0.5 < reading["stage-x"]["value"] < 1.5 and not paused.is_set():
+            paused.set()
+            threading.Thread(target=RE.request_pause).start()
+
+    async def subscribe() -> None:
+        stage.x.subscribe_reading(pause_in_the_pass)
+
+    def plan() -> Any:
+        yield from bps.open_run()
+        yield from bps.checkpoint()
+        yield from bps.prepare(stage.x, info, wait=True)
+        yield from bps.kickoff(stage.x, wait=True)
+        yield from bps.complete(stage.x, wait=True)
+        yield from bps.close_run()
+
+    run(subscribe())
+    with pytest.raises(RunEngineInterrupted):
+        RE(plan())
+    assert run(stage.controller.status())["x"] != "M"  # the pass was stopped
+    assert 0.5 < emulated(stage)["x"] < 2.0
+    RE.resume()
+    ramp = run_up_distance(info.speed, run(stage.x.acceleration_egu()))
+    assert emulated(stage)["x"] == pytest.approx(2.0 + ramp, abs=1e-3)
+    assert [doc for name, doc in documents if name == "stop"][-1]["exit_status"] == \
+        "success"
+
+
 def test_set_timeout_names_axis_target_and_where_it_stopped(
         RE: RunEngine, stage: MarzhauserStage, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
