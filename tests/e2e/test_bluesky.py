@@ -171,7 +171,8 @@ def test_stage_has_one_child_per_axis_with_units_and_precision(
 
 def test_axes_follow_the_bluesky_protocols(
         stage: MarzhauserStage, flyer: MarzhauserFlyer) -> None:
-    for protocol in (Movable, Locatable, Stoppable, Readable, Configurable, Checkable):
+    for protocol in (Movable, Locatable, Stoppable, Readable, Configurable, Checkable,
+                     Flyable, Preparable, Pausable):
         assert isinstance(stage.x, protocol), protocol
     for flyer_protocol in (Flyable, Preparable, Collectable, Stoppable, Pausable):
         assert isinstance(flyer, flyer_protocol), flyer_protocol
