@@ -554,6 +554,14 @@ class Controller:
         self._check_axes(command, axes)
         await self._execute(command, check=check)
 
+    @property
+    def last_positions(self) -> dict[str, str] | None:
+        """The positions (as printed, dim units) of the driver's latest state read: after
+        a move returned, those read behind its report to confirm the arrival (no read
+        here; ``None`` before the first)."""
+        known = self._motion.positions
+        return None if known is None else dict(known)
+
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
         ``units``, else the axis' dim unit)."""
@@ -744,7 +752,8 @@ class Controller:
         # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
         timed = command.name in ("moa", "mor", "m", "moc")
         delay = s.delay_ms / 1000.0 if timed else 0.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
+        settle = s.settle_ms / 1000.0
+        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
         absolute: dict[str, float] | None = None
         extend: Callable[[Mapping[str, str]], float] | None = None
         if command.instruction.completion in (Completion.CAL, Completion.RM):
@@ -771,7 +780,8 @@ class Controller:
                              default=0.0)
                 return MovePlan(command, moved, dict(targets), delay + travel + after,
                                 check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch)
+                                start=reader, batch=batch, delay=delay, settle=settle,
+                                reports=self.autostatus != 0)
             if known is None or not set(targets) <= set(known):
                 known = None
                 start = {a: float(t) for a, t in (await self._position_texts()).items()}
@@ -784,7 +794,8 @@ class Controller:
             if known is not None and timeout is None:
                 extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend)
+                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
+                        delay=delay, settle=settle, reports=self.autostatus != 0)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
@@ -871,6 +882,51 @@ class Controller:
         flags = str(await self.query("?statuslimit")).strip()
         return all(flags[AXES.index(axis)] == "A" if len(flags) > AXES.index(axis) else False
                    for axis in wanted)
+
+    async def stop(self, *axes: str, wait: bool = True) -> None:
+        """Stop the named axes (``stop("x")``, ``stop("x", "z")``) with the manual's
+        one-axis abort ``a x`` (L6785-6844: stops the moves of that axis with stopaccel);
+        the other axes go on. Without axes, stops every axis with ``a`` (as
+        ``abort(soft=True)``), and so on firmware of the older manual, whose ``a`` takes no
+        axis (:attr:`Identity.family` ``"older"``: every axis stops). Moves being awaited
+        (or detached) that move a stopped axis raise :class:`MoveError` once their axes
+        stand still; moves of other axes are not affected. An axis the controller lacks
+        raises :class:`~tango_aio.errors.InvalidCommandError` before anything is written.
+        With ``wait``, returns once the stopped axes stand still; raises
+        :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
+        :data:`~tango_aio.motion.STOP_WAIT` seconds.
+        """
+        present = AXES[: self.context.axes]
+        chosen: list[str] = []
+        for axis in axes:
+            letter = axis.lower() if isinstance(axis, str) else axis
+            if letter not in present:
+                raise InvalidCommandError(
+                    f"stop({axis!r}): the controller has no {str(axis).upper()} axis "
+                    f"(its axes: {' '.join(present).upper()})",
+                    instruction="a", parameter="axis", number=1)
+            if letter not in chosen:
+                chosen.append(letter)
+        if not chosen or (self._identity is not None and self._identity.family == "older"):
+            # The older edition's `a` takes no axis ("stops all axes", old L1907-1919):
+            # what it would make of `a x` is not written, so every axis is stopped.
+            await self.abort(soft=True, wait=wait)
+            return
+        self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
+        self._motion.stopped(chosen)
+        await self._protocol.stop_axes(True, axes=chosen)
+        if wait:
+            try:
+                async with asyncio.timeout(STOP_WAIT):
+                    while True:
+                        letters = await self.status()
+                        if all(letters.get(axis) != "M" for axis in chosen):
+                            return
+                        await asyncio.sleep(0.05)
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"{' '.join(chosen).upper()} still moving {STOP_WAIT:.0f} s after the "
+                    "stop") from None
 
     async def abort(self, *, soft: bool = False, wait: bool = True) -> None:
         """Stop all axes.
