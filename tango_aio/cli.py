@@ -278,11 +278,20 @@ def _sim_url(args: argparse.Namespace) -> str:
     from .sim.profiles import Firmware
 
     switches = dict(_switch(text) for text in args.switch)
-    Firmware.from_options(args.profile, **switches)  # unknown names or values: ValueError
+    fingerprint = getattr(args, "fingerprint", None)
+    if fingerprint is not None:
+        if args.profile is not None:
+            raise ValueError("--fingerprint and --profile exclude each other")
+        # A probe's fingerprint: the unit's switch values (unknown names/values: ValueError)
+        Firmware.from_fingerprint(fingerprint).with_(**switches)
+        base: dict[str, object] = {"fingerprint": fingerprint}
+    else:
+        profile = args.profile or "manual"
+        Firmware.from_options(profile, **switches)  # unknown names or values: ValueError
+        base = {"profile": profile}
     query: dict[str, object] = {
         "axes": args.axes, "baud": args.baud, "latency": args.latency,
-        "processing": args.processing, "speed": _speed(args.speed), "profile": args.profile,
-        **switches}
+        "processing": args.processing, "speed": _speed(args.speed), **base, **switches}
     if args.state:
         query["state"] = args.state
     return "sim://?" + urlencode(query)
@@ -1040,8 +1049,11 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--latency", type=float, default=0.0, help="reply latency in s")
     sim.add_argument("--processing", type=float, default=0.0, help="time per line in s")
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
-    sim.add_argument("--profile", default="manual",
+    sim.add_argument("--profile", default=None,
                      help="firmware profile: manual (1.71, default) or legacy (older edition)")
+    sim.add_argument("--fingerprint", metavar="FILE",
+                     help="behave like the unit of this fingerprint (written by "
+                          "'tango-aio probe') as far as the firmware switches go")
     sim.add_argument("--switch", action="append", default=[], metavar="NAME=VALUE",
                      help="a firmware switch on top of the profile (repeatable), "
                           "e.g. echo=after; see the README's switch table")
