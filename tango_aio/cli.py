@@ -61,6 +61,7 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse
 from .instructions import Command as CommandLine
+from .probe import add_probe_command
 
 __all__ = ["main"]
 
@@ -1066,6 +1067,7 @@ def _parser() -> argparse.ArgumentParser:
     sim.set_defaults(run=_sim)
     _add_new_commands(commands)
     add_ioc_command(commands)
+    add_probe_command(commands)
     return parser
 
 
