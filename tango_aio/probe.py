@@ -597,14 +597,22 @@ class _Link:
                 await asyncio.wait_for(self._arrived.wait(), remaining)
 
     async def quiet(self, settle: float) -> None:
-        """Wait until no line arrived for ``settle`` seconds."""
+        """Wait until no line arrived for ``settle`` seconds.
+
+        A few more loop turns after the silence let bytes already on their way in be read
+        (a busy event loop can run a due timer before the I/O that came meanwhile)."""
         while True:
             if self._lost:
                 raise ConnectionLostError("the link to the controller was lost")
             self._arrived.clear()
             try:
                 await asyncio.wait_for(self._arrived.wait(), settle)
+                continue
             except TimeoutError:
+                pass
+            for _ in range(3):
+                await asyncio.sleep(0)
+            if not self._arrived.is_set():
                 return
 
     def trace_text(self) -> str:
