@@ -66,6 +66,7 @@ __all__ = [
     "ProbeOptions",
     "ProbeResult",
     "add_probe_command",
+    "comparable",
     "probe",
     "write_fingerprint",
 ]
@@ -706,6 +707,24 @@ class ProbeResult:
                              for name, obs in self.observations.items()},
             "extra": self.extra,
         }
+
+
+def comparable(fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """The parts of a fingerprint that do not depend on timing or on when it was written:
+    identity, axes, settings, switch values, and each observation's value and note (not
+    its lines, which hold positions a stop reached). Two probes of one unit give equal
+    ones."""
+    return {
+        "format": fingerprint.get("format"),
+        "identity": fingerprint.get("identity"),
+        "axes": fingerprint.get("axes"),
+        "settings": fingerprint.get("settings"),
+        "switches": fingerprint.get("switches"),
+        "unobserved": fingerprint.get("unobserved"),
+        "unknown": sorted(fingerprint.get("unknown") or {}),
+        "observations": {name: [obs.get("value"), obs.get("note")] for name, obs in
+                         (fingerprint.get("observations") or {}).items()},
+    }
 
 
 def write_fingerprint(result: ProbeResult, path: str | Path) -> Path:

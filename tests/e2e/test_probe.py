@@ -31,6 +31,7 @@ from tango_aio.probe import (
     Exchange,
     ProbeOptions,
     ProbeResult,
+    comparable,
     decide_ack_case,
     decide_echo_text,
     decide_help_number,
@@ -113,8 +114,16 @@ async def test_round_trip_profiles_and_new_variants_without_moves() -> None:
     check(await probe_all(["manual", "legacy", *UNSUPPORTED], FAST), FAST)
 
 
-async def test_round_trip_with_moves() -> None:
-    check(await probe_all(["manual", "legacy", "echo=completion"], FAST_MOVES), FAST_MOVES)
+async def test_round_trip_with_moves_and_the_example_fingerprints_are_current() -> None:
+    results = await probe_all(["manual", "legacy", "echo=completion"], FAST_MOVES)
+    check(results, FAST_MOVES)
+    # The examples of docs/howto/support-your-controller.md are these very probes
+    # (tools/gen_fingerprints.py runs them with the same options).
+    for name in PROFILES:
+        path = ROOT / "examples" / "fingerprints" / f"{name}.json"
+        shipped = json.loads(path.read_text(encoding="utf-8"))
+        assert comparable(shipped) == comparable(results[name].fingerprint()), \
+            f"{path} is out of date: python tools/gen_fingerprints.py"
 
 
 @pytest.mark.slow
