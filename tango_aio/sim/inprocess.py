@@ -17,7 +17,7 @@ model          the ``?version`` controller type                           TANGO-
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
-fingerprint    a probe's fingerprint file: its switch values (no profile)  none
+fingerprint    switch values of a ``tango-aio probe`` fingerprint file    none
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
 speed          the controller's time runs this many times as fast          1
 =============  =========================================================  ===========
