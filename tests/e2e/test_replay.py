@@ -6,7 +6,10 @@ wire log (:mod:`tango_aio.trace`)."""
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
+import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,6 +21,8 @@ from tango_aio.testing import ReplayMismatch, replay
 from tango_aio.trace import format_record, parse_trace, read_trace, record_trace
 
 pytestmark = pytest.mark.timeout(60)
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 async def session(url: str) -> None:
@@ -108,3 +113,26 @@ async def test_the_demo_replays(tmp_path: Path) -> None:
         async with replay(path) as player:
             await _demo(argparse.Namespace(url=player.url, rows=2, points=3, yes=True))
         assert player.matched > 50
+
+
+async def test_a_cli_session_logged_with_v_replays(tmp_path: Path) -> None:
+    """``tango-aio -v COMMAND 2> FILE``: the log is a trace (its records among the log's
+    other text), and the same command replays against it."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+    async def run(url: str) -> tuple[int, str]:
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "tango_aio", "-v", "info", url, env=env,
+            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+        _, err = await asyncio.wait_for(process.communicate(), 60)
+        assert process.returncode is not None
+        return process.returncode, err.decode("utf-8", "replace")
+
+    code, log = await run("sim://?baud=0")
+    assert code == 0, log
+    records = parse_trace(log)
+    assert len(records) > 10 and "tango_aio.wire" in log.splitlines()[0]
+    async with replay(log) as player:
+        code, again = await run(player.url)
+    assert code == 0, again
+    assert player.matched == sum(r.direction == "->" for r in records)
