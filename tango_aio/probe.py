@@ -493,7 +493,8 @@ class _RawProtocol(TangoProtocol):
         self._lost_cb = lost
 
     def data_received(self, data: bytes) -> None:
-        """Bytes from the controller, to the probe."""
+        """Bytes from the controller, to the probe (and the ``tango_aio.wire`` log)."""
+        self._trace_received(data)
         self._sink(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -1035,7 +1036,7 @@ class _Prober:
         # A value just below zero (numbers=negzero), when X stands near 0.
         below: Exchange | None = None
         tiny = 0.4 * 10.0 ** -decimals
-        if abs(p0) <= step * 5 and lo < -tiny:
+        if abs(p0) <= step and lo < -tiny:
             await self.move(f"!moa x {-tiny:.{decimals + 1}f}")
             below = await self.ask("?pos x")
             await self.back_to(p0_text, p0, decimals, wait, force=True)
