@@ -293,3 +293,40 @@ def test_the_decisions_name_what_no_value_describes() -> None:
     assert decide_help_number(Exchange(["?help 5"], [], 4)).value is None
     three = Exchange(["?lim"], ["a", "b", "c"], 0)
     assert decide_lim_cr_bug(3, three, None).unknown
+
+
+async def _cli(*args: str) -> tuple[int, str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tango_aio", *args, env=env, stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT)
+    out, _ = await asyncio.wait_for(process.communicate(), 60)
+    assert process.returncode is not None
+    return process.returncode, out.decode("utf-8", "replace")
+
+
+async def test_the_cli_says_so_and_asks_for_the_file_when_a_value_is_unknown(
+        tmp_path: Path) -> None:
+    recorded = await probe("sim://?baud=0", FAST)
+    text = recorded.trace.replace("<- b'OK...'", "<- b'OK!'")
+    fingerprint = tmp_path / "fp.json"
+    async with replay(text) as player:
+        code, out = await _cli("probe", player.url, "--settle", "0.1", "-o", str(fingerprint))
+    assert code == 0, out
+    (said,) = [line for line in out.splitlines() if "does something no switch" in line]
+    assert "ack_case" in said
+    assert f"Please send {fingerprint}" in out
+    assert json.loads(fingerprint.read_text(encoding="utf-8"))["unknown"]["ack_case"]
+
+
+async def test_a_probe_that_fails_still_writes_the_trace(tmp_path: Path) -> None:
+    silent = "1.0 -> b'?autostatus'\n2.0 -> b'?autostatus'\n"  # and no answer
+    trace = tmp_path / "wire.trace"
+    async with replay(silent) as player:
+        code, out = await _cli("probe", player.url, "--settle", "0.1", "--trace", str(trace),
+                               "-o", str(tmp_path / "fp.json"))
+    assert code == 1
+    assert "no answer to ?autostatus" in out and "please send it" in out
+    assert [r.data for r in parse_trace(trace.read_text(encoding="utf-8"))] == \
+        [b"?autostatus", b"?autostatus"]
+    assert not (tmp_path / "fp.json").exists()
