@@ -305,6 +305,7 @@ async def _cli(*args: str) -> tuple[int, str]:
     return process.returncode, out.decode("utf-8", "replace")
 
 
+@pytest.mark.slow
 async def test_the_cli_says_so_and_asks_for_the_file_when_a_value_is_unknown(
         tmp_path: Path) -> None:
     recorded = await probe("sim://?baud=0", FAST)

@@ -115,6 +115,7 @@ async def test_the_demo_replays(tmp_path: Path) -> None:
         assert player.matched > 50
 
 
+@pytest.mark.slow
 async def test_a_cli_session_logged_with_v_replays(tmp_path: Path) -> None:
     """``tango-aio -v COMMAND 2> FILE``: the log is a trace (its records among the log's
     other text), and the same command replays against it."""
