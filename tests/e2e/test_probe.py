@@ -244,16 +244,28 @@ def test_the_cli_probes_and_writes_the_fingerprint_and_trace(tmp_path: Path) -> 
     assert json.loads(fingerprint.read_text(encoding="utf-8"))["switches"]["echo"] == "after"
     records = parse_trace(trace.read_text(encoding="utf-8"))
     assert records[0].direction == "->" and records[0].data == b"?autostatus"
-    # The emulator command takes it.
-    from tango_aio.cli import _parser, _sim_url
 
-    args = _parser().parse_args(["sim", "--fingerprint", str(fingerprint), "--switch",
-                                 "line_end=crlf"])
-    url = _sim_url(args)
-    assert "fingerprint=" in url and "profile=" not in url
-    with pytest.raises(ValueError, match="exclude"):
-        _sim_url(_parser().parse_args(["sim", "--fingerprint", str(fingerprint),
-                                       "--profile", "legacy"]))
+
+async def test_the_emulator_command_serves_a_fingerprint(tmp_path: Path) -> None:
+    unit = await probe(url_of("ack_case=title"), FAST)
+    path = write_fingerprint(unit, tmp_path / "unit.json")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tango_aio", "sim", "--fingerprint", str(path), "--tcp",
+        "127.0.0.1:0", "--baud", "0", env=env, stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE)
+    try:
+        assert process.stdout is not None
+        url = (await asyncio.wait_for(process.stdout.readline(), 60)).decode().strip()
+        assert url.startswith("socket://"), url
+        served = await probe(url, FAST)
+    finally:
+        process.terminate()
+        await process.wait()
+    assert served.switches == unit.switches
+    assert served.switches["ack_case"] == "title"
+    both = await _cli("sim", "--fingerprint", str(path), "--profile", "legacy")
+    assert both[0] != 0 and "exclude" in both[1]
 
 
 def test_moves_without_yes_on_a_real_port_are_asked_for(tmp_path: Path) -> None:

@@ -5,7 +5,6 @@ wire log (:mod:`tango_aio.trace`)."""
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import logging
 import os
@@ -15,7 +14,6 @@ from pathlib import Path
 import pytest
 
 import tango_aio
-from tango_aio.cli import _demo
 from tango_aio.errors import TangoError
 from tango_aio.testing import ReplayMismatch, replay
 from tango_aio.trace import format_record, parse_trace, read_trace, record_trace
@@ -103,15 +101,28 @@ def test_the_trace_format_is_the_wire_log(caplog: pytest.LogCaptureFixture) -> N
     assert parse_trace(caplog.text)[-1].data == b"?pos"
 
 
+async def _cli(*args: str) -> tuple[int, str]:
+    """``tango-aio -v ARGS`` in a subprocess: (exit code, its log on stderr)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tango_aio", "-v", *args, env=env,
+        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+    _, err = await asyncio.wait_for(process.communicate(), 60)
+    assert process.returncode is not None
+    return process.returncode, err.decode("utf-8", "replace")
+
+
 @pytest.mark.slow
-async def test_the_demo_replays(tmp_path: Path) -> None:
-    path = tmp_path / "demo.trace"
-    with record_trace(path):
-        await _demo(argparse.Namespace(url="sim://?baud=0&speed=20", rows=2, points=3,
-                                       yes=True))
+async def test_the_demo_replays() -> None:
+    """``tango-aio -v demo`` recorded on the emulator replays, three times over."""
+    code, log = await _cli("demo", "--url", "sim://?baud=0&speed=20", "--rows", "2",
+                           "--points", "3")
+    assert code == 0, log
     for _ in range(3):
-        async with replay(path) as player:
-            await _demo(argparse.Namespace(url=player.url, rows=2, points=3, yes=True))
+        async with replay(log) as player:
+            code, again = await _cli("demo", "--url", player.url, "--rows", "2",
+                                     "--points", "3", "--yes")
+        assert code == 0, again
         assert player.matched > 50
 
 
@@ -119,21 +130,11 @@ async def test_the_demo_replays(tmp_path: Path) -> None:
 async def test_a_cli_session_logged_with_v_replays(tmp_path: Path) -> None:
     """``tango-aio -v COMMAND 2> FILE``: the log is a trace (its records among the log's
     other text), and the same command replays against it."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-
-    async def run(url: str) -> tuple[int, str]:
-        process = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "tango_aio", "-v", "info", url, env=env,
-            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
-        _, err = await asyncio.wait_for(process.communicate(), 60)
-        assert process.returncode is not None
-        return process.returncode, err.decode("utf-8", "replace")
-
-    code, log = await run("sim://?baud=0")
+    code, log = await _cli("info", "sim://?baud=0")
     assert code == 0, log
     records = parse_trace(log)
     assert len(records) > 10 and "tango_aio.wire" in log.splitlines()[0]
     async with replay(log) as player:
-        code, again = await run(player.url)
+        code, again = await _cli("info", player.url)
     assert code == 0, again
     assert player.matched == sum(r.direction == "->" for r in records)
