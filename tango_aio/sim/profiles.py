@@ -297,6 +297,9 @@ class Firmware:
             if not isinstance(data, Mapping):
                 raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
             fingerprint = data
+        kind = fingerprint.get("format", "tango_aio.fingerprint/")
+        if not str(kind).startswith("tango_aio.fingerprint/"):
+            raise ValueError(f"not a fingerprint: format {kind!r}")
         switches = fingerprint.get("switches")
         if not isinstance(switches, Mapping):
             raise ValueError("not a fingerprint: no 'switches' object")

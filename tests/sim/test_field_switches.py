@@ -113,6 +113,7 @@ def test_a_fingerprint_selects_switch_values(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("content", "message"), [
     ("[]", "no JSON object"), ("{}", "no 'switches'"), ("nope", "cannot read"),
+    ('{"format": "other/1", "switches": {}}', "format 'other/1'"),
     ('{"switches": {"echo": "sideways"}}', "echo='sideways'"),
     ('{"switches": {"speedy": "yes"}}', "speedy")])
 def test_a_bad_fingerprint_is_refused_in_words(tmp_path: Path, content: str,
