@@ -776,9 +776,15 @@ class _Prober:
 
     # -- exchanges --------------------------------------------------------------------------
 
+    def leftovers(self) -> None:
+        """Lines nobody asked for yet (kept in the fingerprint's ``extra``)."""
+        stray = self.link.take()
+        if stray:
+            self.extra.setdefault("stray_lines", []).extend(stray)
+
     async def settled(self, *lines: str) -> Exchange:
         """Write ``lines``; everything that arrives until ``settle`` s of silence."""
-        self.link.take()
+        self.leftovers()
         self.link.send(*lines)
         await self.link.quiet(self.options.settle)
         return Exchange(list(lines), self.link.take())
@@ -786,7 +792,7 @@ class _Prober:
     async def ask(self, *lines: str) -> Exchange:
         """Mode 1: write ``lines``, ``?err`` and ``?version``; the lines before the answer
         to ``?err`` are theirs (in mode 1 a read answers one line, L2087)."""
-        self.link.take()
+        self.leftovers()
         self.link.send(*lines, "?err", "?version")
         version = self.version
         try:
@@ -1011,14 +1017,25 @@ class _Prober:
             if len(refused.got) == 1 and refused.got[0][:1] == "E"
             else _unknown("a refused move answered more than one 'E' report", refused))
         await self.ask("?err")
-        # A move during a move.
-        await self.during(p0, sign * step, decimals, wait)
-        await self.back_to(p0_text, p0, decimals, wait)
-        # 'a' and Ctrl+C during a move.
-        await self.abort(p0, sign * step, decimals, wait, b"a\r", "a")
-        await self.back_to(p0_text, p0, decimals, wait)
-        await self.abort(p0, sign * step, decimals, wait, b"\x03", "ctrl_c")
-        await self.back_to(p0_text, p0, decimals, wait)
+        # A move during a move; 'a' and Ctrl+C during a move. Each needs the move to
+        # still run when the next line arrives: when it had ended, the move is tried
+        # again twice as long (up to three times, within a tenth of the travel).
+        longest = (hi - lo) / 10
+        attempts: list[Callable[[float, bool], Awaitable[bool]]] = [
+            lambda length, last: self.during(p0, sign * length, decimals, wait, last),
+            lambda length, last: self.abort(p0, sign * length, decimals, wait, b"a\r", "a",
+                                            last),
+            lambda length, last: self.abort(p0, sign * length, decimals, wait, b"\x03",
+                                            "ctrl_c", last)]
+        for attempt in attempts:
+            length = step
+            for tries in range(3):
+                last = tries == 2 or length >= longest
+                done = await attempt(length, last)
+                await self.back_to(p0_text, p0, decimals, wait)
+                if done or last:
+                    break
+                length = min(length * 2, longest)
         # A pause before the report.
         await self.pause(sign * step, decimals, wait, restore)
         # !joy 0 during a move.
@@ -1089,25 +1106,39 @@ class _Prober:
         await self.link.quiet(self.options.settle)
         self.link.take()
 
-    async def during(self, p0: float, step: float, decimals: int, wait: float) -> None:
-        """``move_during_move``: a second move sent while the first runs (L6606)."""
+    async def during(self, p0: float, step: float, decimals: int, wait: float,
+                     last: bool) -> bool:
+        """``move_during_move``: a second move sent while the first runs (L6606). False
+        (nothing recorded unless ``last``) when the first had ended before (its report
+        came before the answers to the lines after them)."""
         first, second = p0 + step, p0 + 2 * step
         lines = (f"!moa x {first:.{decimals}f}", f"!moa x {second:.{decimals}f}")
         sent = await self.ask(*lines)
         reports = [g for g in sent.got if _REPORT.match(g)]
+        ended = [g for g in reports if g[:1] != "E"]  # 'E': a refused second move's
+        if ended:
+            await self.wait_report(wait)
+            await self.link.quiet(max(self.options.settle, self.options.move_time))
+            self.link.take()
+            if last:
+                self.obs["move_during_move"] = _unseen(
+                    "the first move ended before the second arrived",
+                    ("refuse", "queue", "retarget"), Exchange(list(lines), sent.got, sent.err))
+            return False
         got = list(sent.got)
-        report, more = await self.wait_report(wait)
-        got += more
-        if report is not None:
-            reports.append(report)
-        status = await self.ask("?statusaxis x")
-        if status.got and status.got[0][:1] == "M":
-            report, more = await self.wait_report(wait)
-            got += more
-            if report is not None:
-                reports.append(report)
+        _, more = await self.wait_report(wait)
+        got += more + self.link.take()  # the second report may have come with the first
+        # Accepted, one report so far, and X not at the second target: the second move
+        # was queued and still runs (or is about to), with a report of its own to come.
+        now = await self.ask("?pos x")
+        with contextlib.suppress(IndexError, ValueError):
+            if sent.err == 0 and sum(bool(_REPORT.match(g)) for g in got) < 2 \
+                    and abs(float(now.got[0]) - second) > abs(step) / 20:
+                _, more = await self.wait_report(wait)
+                got += more
         await self.link.quiet(self.options.settle)
         got += self.link.take()
+        reports = [g for g in got if _REPORT.match(g)]
         where = await self.ask("?pos x")
         exchange = Exchange(list(lines), got, sent.err)
         try:
@@ -1115,7 +1146,7 @@ class _Prober:
         except (IndexError, ValueError):
             self.obs["move_during_move"] = _unknown("no position after the moves", exchange,
                                                     where)
-            return
+            return True
         tolerance = abs(step) / 20
         at_second = abs(at - second) <= tolerance
         at_first = abs(at - first) <= tolerance
@@ -1130,13 +1161,15 @@ class _Prober:
         else:
             self.obs["move_during_move"] = _unknown(
                 f"error {sent.err}, {len(reports)} reports, X at {at}", exchange, where)
-            return
+            return True
         self.obs["move_during_move"] = _seen(value, note, exchange, where)
+        return True
 
     async def abort(self, p0: float, step: float, decimals: int, wait: float, stop: bytes,
-                    kind: str) -> None:
+                    kind: str, last: bool) -> bool:
         """``a`` (``abort_letter``, ``abort_report``) or Ctrl+C (``ctrl_c``) during a
-        move (L6808-6834)."""
+        move (L6808-6834). False (nothing recorded unless ``last``) when the move had
+        ended before the stop arrived."""
         target = p0 + step
         line = f"!moa x {target:.{decimals}f}"
         self.link.take()
@@ -1149,6 +1182,9 @@ class _Prober:
         rest = self.link.take()
         got += rest
         reports = [g for g in got if _REPORT.match(g)]
+        # Ctrl+C where it is no stop: "\x03" was a line of its own, refused (an error);
+        # read before ?pos, which sets the error back to 0.
+        err = await self.ask("?err")
         where = await self.ask("?pos x")
         sent = [line, stop.decode("latin-1").rstrip("\r") or "(Ctrl+C)"]
         exchange = Exchange(sent, got)
@@ -1159,9 +1195,12 @@ class _Prober:
         stopped = abs(at - target) > abs(step) / 1000
         if kind == "a":
             if not stopped:
-                self.obs["abort_letter"] = _unseen("the move ended before 'a' arrived",
-                                                   ("E", "@"), exchange, where)
-                return
+                if last:
+                    self.obs["abort_letter"] = _unseen("the move ended before 'a' arrived",
+                                                       ("E", "@"), exchange, where)
+                    self.obs["abort_report"] = _unseen("the move ended before 'a' arrived",
+                                                       ("no", "yes"), exchange, where)
+                return False
             letter = first[:1] if first else None
             if letter in ("E", "@"):
                 self.obs["abort_letter"] = _seen(letter, f"the stopped axis reports "
@@ -1178,19 +1217,27 @@ class _Prober:
             else:
                 self.obs["abort_report"] = _unknown(f"{len(reports)} reports after 'a'",
                                                     exchange)
-            return
-        err = await self.ask("?err")
+            return True
+        refused = err.err not in (0, None)
+        if not stopped and not refused:
+            if last:
+                self.obs["ctrl_c"] = _unseen("the move ended before Ctrl+C arrived",
+                                             ("stop", "ignore", "stop_report"), exchange,
+                                             where, err)
+            return False
         if not stopped and len(reports) == 1:
-            value, note = "ignore", "the move ran to its target: 0x03 is an ordinary byte"
+            value, note = "ignore", ("the move ran to its target and 0x03 made a line of "
+                                     "its own, refused: an ordinary byte")
         elif stopped and len(reports) == 1:
             value, note = "stop", "the move stopped, only its own report"
         elif stopped and len(reports) == 2:
             value, note = "stop_report", "the move stopped, and a report of Ctrl+C's own"
         else:
-            self.obs["ctrl_c"] = _unknown(f"X at {at}, {len(reports)} reports", exchange,
-                                          where)
-            return
+            self.obs["ctrl_c"] = _unknown(f"X at {at}, {len(reports)} reports, error "
+                                          f"{err.err}", exchange, where, err)
+            return True
         self.obs["ctrl_c"] = _seen(value, note, exchange, where, err)
+        return True
 
     async def pause(self, step: float, decimals: int, wait: float,
                     restore: list[str]) -> None:
