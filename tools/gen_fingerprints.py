@@ -3,7 +3,7 @@
 ``python tools/gen_fingerprints.py`` probes ``sim://`` under each profile of
 :data:`tango_aio.sim.profiles.PROFILES` (with moves and ``!save``, as a lab would run
 ``tango-aio probe URL --moves --save``) and writes ``<profile>.json``. The files are the
-examples of the docs page "Help us support your controller"; ``tests/e2e/test_probe.py``
+examples of the docs page "Help us support your controller"; ``tests/e2e/test_firmware_probe.py``
 checks that they are current (:func:`tango_aio.probe.comparable`).
 """
 

@@ -2,7 +2,7 @@
 changes what the emulator sends as its documentation says.
 
 The driver does not serve these values yet (``SwitchDoc.unsupported``), so they are not in
-the firmware matrix; ``tests/e2e/test_probe.py`` checks that the probe recognises each.
+the firmware matrix; ``tests/e2e/test_firmware_probe.py`` checks that the probe recognises each.
 """
 
 from __future__ import annotations
