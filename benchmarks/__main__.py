@@ -25,7 +25,10 @@ Cases (``--cases`` picks some, in this order):
 * ``stopwait``: upload vs stop-and-wait on a plain pty and with 2 ms reply latency;
 * ``scaling``: N links (default 64) uploading at once to lean stand-ins: throughput of
   N x the bound, driver CPU per link wire-second, longest GC pause
-  (``benchmarks/scaling.py``).
+  (``benchmarks/scaling.py``);
+* ``bluesky``: a single-axis step-scan point through a RunEngine and
+  ``tango_aio.bluesky`` vs the driver's own ``move_to`` plus one read, tiny and tile
+  steps on a 57600 Bd pty (``benchmarks/bluesky.py``).
 
 Usage::
 
@@ -52,7 +55,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
 LoopFactory = Callable[[], asyncio.AbstractEventLoop]
-CASES = ("compat", "requests", "latency", "moves", "watch", "upload", "stopwait", "scaling")
+CASES = ("compat", "requests", "latency", "moves", "watch", "upload", "stopwait", "scaling",
+         "bluesky")
 
 
 @dataclass
@@ -247,10 +251,20 @@ def case_scaling(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row
     ]
 
 
+def case_bluesky(loop: LoopFactory | None, args: argparse.Namespace) -> list[Row]:
+    """A Bluesky step-scan point vs the driver's move_to plus one read."""
+    from benchmarks import bluesky
+
+    pairs = bluesky.run(10 if args.quick else 100, loop)
+    return [Row("bluesky", f"step-scan point, {scan.name.split(', ')[1]} (Bluesky list_scan "
+                "vs driver move_to + ?pos)", "ms", scan.ms_per_point, driver.ms_per_point,
+                False, "≤ 1.2× driver") for scan, driver in pairs]
+
+
 RUNNERS: dict[str, Callable[[LoopFactory | None, argparse.Namespace], list[Row]]] = {
     "compat": case_compat, "requests": case_requests, "latency": case_latency,
     "moves": case_moves, "watch": case_watch, "upload": case_upload,
-    "stopwait": case_stopwait, "scaling": case_scaling}
+    "stopwait": case_stopwait, "scaling": case_scaling, "bluesky": case_bluesky}
 
 
 # ------------------------------------------------------------------ running

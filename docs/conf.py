@@ -28,6 +28,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "tango_docs",  # docs/_ext: tables generated from the code (errors, CLI help)
+    "tango_pictures",  # docs/_ext: pictures drawn from a run of the emulator
 ]
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
@@ -41,7 +42,12 @@ myst_heading_anchors = 3
 autosummary_generate = True
 autosummary_imported_members = False
 autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython"]
-autodoc_default_options = {"members": True, "show-inheritance": True}
+# "ignore-module-all": a module's page documents what the module defines, not what it
+# re-exports (tango_aio.sim re-exports tango_aio.sim.model's classes, tango_aio.instructions
+# tango_aio.schema's): an object documented twice gets its source page's back-link
+# pointed at the wrong page (broken anchors, tools/check_links.py).
+autodoc_default_options = {"members": True, "show-inheritance": True,
+                           "ignore-module-all": True}
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
 # False: tango_aio.sync.connect takes its signature from tango_aio.connect (__signature__),
@@ -68,11 +74,37 @@ def _public_modules() -> list[str]:
     return names
 
 
+#: The modules a program uses (imports, or gets objects of); every other module is one of
+#: the driver's inner layers and is listed apart, under "Internals".
+PUBLIC_API = [
+    "tango_aio.connection", "tango_aio.controller", "tango_aio.sync", "tango_aio.errors",
+    "tango_aio.events", "tango_aio.status", "tango_aio.units", "tango_aio.group",
+    "tango_aio.discovery", "tango_aio.bulk", "tango_aio.reconnect", "tango_aio.instructions",
+    "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.sim",
+    "tango_aio.sim.inprocess", "tango_aio.sim.serve", "tango_aio.sim.model",
+    "tango_aio.sim.profiles", "tango_aio.sim.wire",
+]
+
+
+def _autosummary(names: list[str]) -> list[str]:
+    return [".. autosummary::", "   :toctree: api", "", *(f"   {name}" for name in names), ""]
+
+
 def _write_module_index() -> None:
-    """reference/modules.rst: an autosummary of every public module (generated, ignored
-    by git), so that a module added to the package is documented without editing here."""
-    lines = ["Modules", "=======", "", ".. autosummary::", "   :toctree: api", ""]
-    lines += [f"   {name}" for name in _public_modules()]
+    """reference/modules.rst: an autosummary of every module (generated, ignored by git),
+    the public API first and the internals apart, so that a module added to the package
+    is documented without editing here (as an internal one until listed in PUBLIC_API)."""
+    modules = _public_modules()
+    public = [name for name in PUBLIC_API if name in modules]
+    internal = [name for name in modules if name not in PUBLIC_API]
+    lines = ["Modules", "=======", "", "Public API", "----------", "",
+             "What programs use: connecting, moving, settings, lists, events, errors, "
+             "units, the emulator and the integrations.", "", *_autosummary(public),
+             "Internals", "---------", "",
+             "The driver's inner layers (the sans-IO core, the scheduler, the reply rules, "
+             "the transports, the emulator's parts), for contributors; see "
+             "ARCHITECTURE.md in the repository. They may change without notice.", "",
+             *_autosummary(internal)]
     text = "\n".join(lines) + "\n"
     target = HERE / "reference" / "modules.rst"
     if not target.exists() or target.read_text() != text:
@@ -85,6 +117,8 @@ def _write_module_index() -> None:
 
 _write_module_index()
 
-html_theme = "alabaster"
+# furo: made for API references (an "On this page" contents beside every long page, code
+# blocks that scroll instead of being clipped, a light and a dark scheme).
+html_theme = "furo"
 html_title = f"tango_aio {release}"
 html_static_path: list[str] = []

@@ -1,7 +1,8 @@
 """Bluesky on a TANGO stage: step scan, grid scan, fly scan, pause/resume and stop.
 
 Runs against the in-process emulator; pass a port to use a real controller
-(``python examples/bluesky_scan.py /dev/ttyUSB0``). Needs ``pip install 'tango-aio[bluesky]'``.
+(``python examples/bluesky_scan.py /dev/ttyUSB0``). Needs the bluesky extra
+(``pip install -e '.[bluesky]'`` in the checkout).
 """
 
 from __future__ import annotations

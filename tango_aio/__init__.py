@@ -36,7 +36,7 @@ if TYPE_CHECKING:
         connect,
     )
     from .controller import Controller, Identity
-    from .discovery import DiscoveredController, discover
+    from .discovery import DiscoveredController, PortProbe, discover, probe_ports
     from .errors import (
         AmplifiersDisabledError,
         Aux24VOverloadError,
@@ -45,6 +45,7 @@ if TYPE_CHECKING:
         BrakeVoltageError,
         ClosedLoopOffError,
         CommandRejectedError,
+        ConnectError,
         ConnectionLostError,
         ControllerError,
         ControllerTimeoutError,
@@ -72,10 +73,14 @@ if TYPE_CHECKING:
         MoveError,
         MoveNotAllowedError,
         MultiAxisMoveForbiddenError,
+        NoControllerError,
         NoError,
         NotConfiguredError,
         NotExecutableError,
         OutOfRangeError,
+        PortBusyError,
+        PortNotFoundError,
+        PortPermissionError,
         ProtocolError,
         RequestAbortedError,
         SafetyCircuitError,
@@ -118,6 +123,7 @@ __all__ = [
     "BrakeVoltageError",
     "ClosedLoopOffError",
     "CommandRejectedError",
+    "ConnectError",
     "ConnectOptions",
     "Connecting",
     "ConnectionLost",
@@ -159,10 +165,15 @@ __all__ = [
     "MoveFinished",
     "MoveNotAllowedError",
     "MultiAxisMoveForbiddenError",
+    "NoControllerError",
     "NoError",
     "NotConfiguredError",
     "NotExecutableError",
     "OutOfRangeError",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
+    "PortProbe",
     "PositionUpdate",
     "ProtocolError",
     "ReconnectPolicy",
@@ -184,6 +195,7 @@ __all__ = [
     "XposModuleError",
     "connect",
     "discover",
+    "probe_ports",
 ]
 
 #: The modules that define the names of ``__all__``, searched in this order (each module's

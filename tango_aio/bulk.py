@@ -37,6 +37,7 @@ from .instructions import (
     check_rows,
     encode_rows,
     parse,
+    wire_number,
 )
 from .protocol import Submission, TangoProtocol
 from .scheduler import Line, Run
@@ -129,10 +130,30 @@ class Column(Sequence[Sequence[float]]):
         return (self._values[index],)
 
 
+def _positions(values: object, what: str, name: str) -> list[float]:
+    """``values`` as floats, refusing what only looks like a sequence of numbers: a string
+    (``"123"`` would be the positions 1, 2, 3), booleans, ``None`` and other non-numbers
+    (:func:`~tango_aio.instructions.wire_number` decides what a number is)."""
+    if isinstance(values, str | bytes | bytearray) or not isinstance(values, Iterable):
+        raise InvalidCommandError(f"{name}: {what} must be a sequence of numbers, got "
+                                  f"{type(values).__name__} {values!r:.40}",
+                                  instruction=name, parameter="position", number=5)
+    out: list[float] = []
+    for index, value in enumerate(values):
+        try:
+            out.append(float(wire_number(value)))
+        except (TypeError, ValueError, OverflowError):
+            raise InvalidCommandError(f"{name}: {what} entry {index} is not a number: "
+                                      f"{value!r:.40}", instruction=name,
+                                      parameter="position", number=5) from None
+    return out
+
+
 def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
     """Check a trigger list before anything is sent: at most 10000 finite values, strictly
-    increasing or strictly decreasing (manual L13767-13830)."""
-    values = [float(p) for p in positions]
+    increasing or strictly decreasing (manual L13767-13830); a string, booleans or other
+    non-numbers are refused."""
+    values = _positions(positions, "the trigger list", "trigp")
     if len(values) > MAX_TRIGGERS:
         raise InvalidCommandError(f"trigp: {len(values)} entries, at most {MAX_TRIGGERS}",
                                   instruction="trigp", parameter="position", number=5)
@@ -423,8 +444,8 @@ def snapshot_spec() -> ListSpec:
 
 
 def check_axis(axis: str) -> str:
-    """Validate an axis letter."""
-    letter = axis.lower()
+    """Validate an axis letter (a string, one of x y z a in either case)."""
+    letter = axis.lower() if isinstance(axis, str) else axis
     if letter not in AXES:
         raise InvalidCommandError(f"{axis!r} is not an axis (x, y, z, a)", parameter="axis",
                                   number=1)
@@ -439,8 +460,11 @@ def validate_rows(rows: Sequence[Sequence[float]], axes: int) -> list[list[float
         raise InvalidCommandError(f"snsa: {len(rows)} rows, at most {MAX_SNAPSHOTS}",
                                   instruction="snsa", number=5)
     out: list[list[float]] = []
+    if isinstance(rows, str | bytes | bytearray):
+        raise InvalidCommandError(f"snsa: rows must be a sequence of rows, got {rows!r:.40}",
+                                  instruction="snsa", parameter="position", number=5)
     for index, row in enumerate(rows):
-        values = [float(v) for v in row]
+        values = _positions(row, f"row {index}", "snsa")
         if len(values) != axes or not all(math.isfinite(v) for v in values):
             raise InvalidCommandError(f"snsa: row {index} must hold {axes} finite values "
                                       f"(one per axis), got {row!r}",

@@ -1,7 +1,8 @@
 """The ``tango-aio`` command line.
 
 Every command takes ``--help``. Errors are printed as one line and give exit code 1
-(2 for usage errors, 130 after Ctrl+C). URLs are those of :func:`tango_aio.connect`;
+(2 for usage errors, 130 after Ctrl+C); a move that did not end at its target gives 1,
+in the shell too (docs/reference/cli.md, "Exit codes"). URLs are those of :func:`tango_aio.connect`;
 ``sim://`` runs the embedded emulator. Text that comes from the user or the controller is
 printed literally (never as rich markup). Ctrl+C stops the axes that a command started
 before it exits.
@@ -16,6 +17,7 @@ from . import _startup
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -59,8 +61,9 @@ from .events import (
     TangoEvent,
     UnsolicitedLine,
 )
-from .instructions import AXES, Form, Instruction, Signature, lookup, parse
+from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
+from .motion import FAILED_LETTERS, describe_stop, moved_axes, position_tolerance
 from .probe import add_probe_command
 
 __all__ = ["main"]
@@ -70,22 +73,32 @@ Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
 _T = TypeVar("_T")
 
 
+#: Control characters but the line feed: C0, DEL and C1 (ESC ] ... rewrites a terminal).
+_CONTROL = re.compile(r"[\x00-\x09\x0b-\x1f\x7f-\x9f]")
+
+
+def _escaped(text: str) -> str:
+    """``text`` with every control character but the line feed written as ``\\xNN``:
+    text from the controller (or a proxy) never reaches the terminal raw."""
+    return _CONTROL.sub(lambda match: f"\\x{ord(match.group()):02x}", text)
+
+
 def _say(text: str, style: str = "") -> None:
-    """Print ``text`` literally (no rich markup)."""
-    console.print(Text(text, style=style), soft_wrap=True)
+    """Print ``text`` literally (no rich markup, control characters escaped)."""
+    console.print(Text(_escaped(text), style=style), soft_wrap=True)
 
 
 def _table(title: str, columns: Sequence[str] = (), *, show_header: bool = True) -> Table:
-    """A table whose title is printed literally."""
-    table = Table(title=Text(title), show_header=show_header)
+    """A table whose title is printed literally (control characters escaped)."""
+    table = Table(title=Text(_escaped(title)), show_header=show_header)
     for column in columns:
         table.add_column(column, justify="right" if column == "position" else "left")
     return table
 
 
 def _row(table: Table, *cells: str) -> None:
-    """Add a row whose cells are printed literally."""
-    table.add_row(*(Text(cell) for cell in cells))
+    """Add a row whose cells are printed literally (control characters escaped)."""
+    table.add_row(*(Text(_escaped(cell)) for cell in cells))
 
 
 def _plural(count: int, one: str, many: str) -> str:
@@ -159,6 +172,11 @@ async def _demo_reference(tango: Controller) -> None:
             task = progress.add_task("starting", total=None)
             letters = await _follow(action(), _show_position(tango, progress, task), 0.2)
         _say(f"  done: {describe_letters(letters)}")
+    if tango.context.axes >= 3:
+        # The range measure leaves Z, the focus on a microscope, at its upper limit
+        # switch: it goes back to the middle of its range (moc, L6509).
+        _say("  Z (focus) back to the middle of its range (moc z)")
+        await _follow(tango.move_to_center("z"), lambda: asyncio.sleep(0), 0.2)
 
 
 def _show_position(tango: Controller, progress: Progress,
@@ -213,12 +231,36 @@ async def _info(args: argparse.Namespace) -> int:
         _row(table, "axes", str(ident.axes))
         _row(table, "options", ", ".join(sorted(ident.det.options)) or "-")
         _row(table, "serial", await tango.query("?readsn"))
-        _row(table, "position", _fmt_positions(await tango.position()))
+        dims = await tango.get("dim")
+        units = {axis: DIM_UNITS.get(int(dim), f"dim {dim}") for axis, dim in dims.items()}
+        positions = await tango.position()
+        _row(table, "position", "  ".join(f"{axis}={value:9.4f} {units.get(axis, '')}"
+                                          for axis, value in positions.items()))
         _row(table, "status", describe_letters(await tango.status()))
-        for name in ("dim", "pitch", "vel", "accel", "secvel"):
-            _row(table, name, str(await tango.query(f"?{name}")))
+        velocity = {axis: "mm/s" if int(dim) == 9 else "rev/s" for axis, dim in dims.items()}
+        for name, unit in (("dim", units), ("pitch", "mm/rev"), ("vel", velocity),
+                           ("accel", "m/s²"), ("secvel", "mm/s")):
+            text = str(await tango.query(f"?{name}"))
+            _row(table, name, _with_units(text, unit, name == "dim"))
         console.print(table)
     return 0
+
+
+#: The unit of each ``dim`` (manual L3061-3144; the conventions of tango_aio.units).
+DIM_UNITS = {0: "µsteps", 1: "µm", 2: "mm", 3: "°", 4: "rev", 5: "cm", 6: "m", 7: "inch",
+             8: "mil", 9: "mm"}
+
+
+def _with_units(text: str, unit: str | Mapping[str, str], named: bool) -> str:
+    """A per-axis reply (``2 2 2``) as ``x=2 mm ...`` (``named``: ``x=2 (mm)``); a reply
+    of another shape as it is, with a single unit behind it."""
+    values = text.split()
+    units = dict.fromkeys(AXES[: len(values)], unit) if isinstance(unit, str) else dict(unit)
+    if len(values) != len(units):
+        return f"{text} {next(iter(units.values()), '')}".strip()
+    return "  ".join(f"{axis}={value} ({units[axis]})" if named else
+                     f"{axis}={value} {units[axis]}"
+                     for axis, value in zip(units, values, strict=True))
 
 
 # -- sim --------------------------------------------------------------------------------
@@ -233,7 +275,7 @@ async def _sim(args: argparse.Namespace) -> int:
 
     address = _tcp_address(args.tcp) if args.tcp else None
     if args.per_connection and address is None:
-        raise ValueError("--per-connection needs --tcp (a pty serves one controller)")
+        raise _UsageError("--per-connection needs --tcp (a pty serves one controller)")
     url = _sim_url(args)
     sim_config, wire_config = configs_from_url(url)
     speed = speed_from_url(url)
@@ -257,18 +299,22 @@ async def _sim(args: argparse.Namespace) -> int:
     return 0
 
 
+class _UsageError(ValueError):
+    """A command line that cannot work as given: exit code 2, like argparse's errors."""
+
+
 def _tcp_address(text: str) -> tuple[str, int]:
-    """``HOST:PORT``, ``:PORT`` (127.0.0.1) or ``[IPv6]:PORT`` as (host, port); ValueError
-    with the reason for anything else."""
-    host, sep, port_text = text.rpartition(":")
-    if not sep:
-        raise ValueError(f"--tcp {text!r}: expected HOST:PORT, e.g. 127.0.0.1:4001")
+    """``HOST:PORT``, ``:PORT`` or ``PORT`` (host 127.0.0.1) or ``[IPv6]:PORT`` as (host,
+    port); a usage error with the reason for anything else."""
+    host, _, port_text = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
     elif ":" in host:
-        raise ValueError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. [::1]:4001")
+        raise _UsageError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. "
+                          f"[::1]:4001")
     if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise ValueError(f"--tcp {text!r}: the port must be a number 0-65535 (0: any free one)")
+        raise _UsageError(f"--tcp {text!r}: expected [HOST:]PORT, the port a number 0-65535 "
+                          f"(0: any free one), e.g. 4001 or 127.0.0.1:4001")
     return host or "127.0.0.1", int(port_text)
 
 
@@ -280,16 +326,19 @@ def _sim_url(args: argparse.Namespace) -> str:
 
     switches = dict(_switch(text) for text in args.switch)
     fingerprint = getattr(args, "fingerprint", None)
-    if fingerprint is not None:
-        if args.profile is not None:
-            raise ValueError("--fingerprint and --profile exclude each other")
-        # A probe's fingerprint: the unit's switch values (unknown names/values: ValueError)
-        Firmware.from_fingerprint(fingerprint).with_(**switches)
-        base: dict[str, object] = {"fingerprint": fingerprint}
-    else:
-        profile = args.profile or "manual"
-        Firmware.from_options(profile, **switches)  # unknown names or values: ValueError
-        base = {"profile": profile}
+    try:
+        if fingerprint is not None:
+            if args.profile is not None:
+                raise ValueError("--fingerprint and --profile exclude each other")
+            # A probe's fingerprint: the unit's switch values (unknown names or values)
+            Firmware.from_fingerprint(fingerprint).with_(**switches)
+            base: dict[str, object] = {"fingerprint": fingerprint}
+        else:
+            profile = args.profile or "manual"
+            Firmware.from_options(profile, **switches)  # unknown names or values
+            base = {"profile": profile}
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
     query: dict[str, object] = {
         "axes": args.axes, "baud": args.baud, "latency": args.latency,
         "processing": args.processing, "speed": _speed(args.speed), **base, **switches}
@@ -304,13 +353,13 @@ def _speed(text: str) -> float:
     try:
         return check_speed(float(text))
     except ValueError:
-        raise ValueError(f"--speed {text!r}: expected a finite number > 0, e.g. 20") from None
+        raise _UsageError(f"--speed {text!r}: expected a finite number > 0, e.g. 20") from None
 
 
 def _switch(text: str) -> tuple[str, str]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip() or not value.strip():
-        raise ValueError(f"--switch {text!r}: expected NAME=VALUE, e.g. echo=after")
+        raise _UsageError(f"--switch {text!r}: expected NAME=VALUE, e.g. echo=after")
     return name.strip(), value.strip()
 
 
@@ -387,6 +436,9 @@ def describe_event(event: TangoEvent) -> str | None:
     if isinstance(event, StatusReport):
         return f"status report: {describe_letters(event.statuses)}"
     if isinstance(event, MoveAborted):
+        if event.axes:
+            lines = ", ".join(f"a {axis}" for axis in event.axes)
+            return f"stop sent ({lines}): {' '.join(event.axes).upper()} stop"
         return f"abort sent ({'Ctrl+C' if event.ctrl_c else 'a'}): all axes stop"
     if isinstance(event, UnsolicitedLine):
         return describe_line(event.line)
@@ -402,10 +454,18 @@ def describe_exception(exc: BaseException) -> str:
     words, and each member of an exception group."""
     if isinstance(exc, BaseExceptionGroup):
         return "; ".join(dict.fromkeys(describe_exception(e) for e in exc.exceptions))
-    text = " ".join(str(exc).split()) or type(exc).__name__
+    text = _escaped(" ".join(str(exc).split()) or type(exc).__name__)
     if isinstance(exc, MoveError) and exc.statuses:
+        text = re.sub(r" with status \{[^{}]*\}", "", text)  # said in words below
+        text = re.sub(r"\{([^{}]*)\}", _pairs, text)
         text = f"{text}: {describe_letters(exc.statuses)}"
     return text
+
+
+def _pairs(match: re.Match[str]) -> str:
+    """``{'x': '0.5000', 'y': 1.0}`` (a dict in a message) as ``x=0.5000 y=1.0``."""
+    pairs = re.findall(r"'([^']*)': '?([^',]*)'?", match.group(1))
+    return " ".join(f"{key}={value}" for key, value in pairs) if pairs else match.group(0)
 
 
 _FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
@@ -413,7 +473,8 @@ _FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
 
 def describe_instruction(entry: Instruction) -> str:
     """Help text of one instruction from the catalog (the shell's ``help NAME``)."""
-    lines = [f"{entry.name}: {entry.summary}"]
+    first, *more = _summary_parts(entry.summary)
+    lines = [f"{entry.name}: {first}", *(f"  {part}" for part in more)]
     if entry.aliases:
         lines.append(f"  also written: {', '.join(entry.aliases)}")
     for form in sorted(entry.forms, key=_FORM_ORDER.index):
@@ -427,6 +488,29 @@ def describe_instruction(entry: Instruction) -> str:
     if entry.section:
         lines.append(f"  manual section {entry.section}, line {entry.line}")
     return "\n".join(lines)
+
+
+@functools.lru_cache(maxsize=1)
+def _summary_split() -> re.Pattern[str]:
+    """Where a catalog summary runs two of the manual's example lines together: before a
+    verb that starts summaries (``... 10 10 10 Move Y axis to ...``)."""
+    from .instructions import INSTRUCTIONS
+
+    verbs = {entry.summary.split()[0] for entry in INSTRUCTIONS.values() if entry.summary}
+    verbs = {verb for verb in verbs if len(verb) > 2 and verb.isalpha() and verb.istitle()
+             and verb not in _NOT_VERBS}
+    alternatives = "|".join(sorted(verbs))
+    return re.compile(rf"(?<=[a-z0-9)\]]) (?=(?:{alternatives}) )")
+
+
+#: Words that start some summaries but do not start a sentence of their own.
+_NOT_VERBS = frozenset({"Maximum", "Closed", "Multi", "One", "Only", "Liquid", "Trigger",
+                        "Virtual", "Power", "Dummy"})
+
+
+def _summary_parts(summary: str) -> list[str]:
+    """A catalog summary as its sentences (see :func:`_summary_split`)."""
+    return [part.strip() for part in _summary_split().split(summary) if part.strip()]
 
 
 def _usage(sig: Signature) -> list[str]:
@@ -509,12 +593,41 @@ class _TerminalReader:
 
     def __init__(self, history: Path) -> None:
         from prompt_toolkit import PromptSession
-        from prompt_toolkit.history import FileHistory
+        from prompt_toolkit.history import FileHistory, History, InMemoryHistory
 
-        self._session: PromptSession[str] = PromptSession(history=FileHistory(str(history)))
+        class KeptHistory(FileHistory):
+            """A history file that, once it cannot be written, warns once and is no
+            longer written (instead of an error in the prompt after every line)."""
+
+            failed = False
+
+            def store_string(self, string: str) -> None:
+                if not self.failed:
+                    try:
+                        super().store_string(string)
+                    except OSError as exc:
+                        self.failed = True
+                        _history_warning(history, exc)
+
+        kept: History
+        try:
+            with open(history, "ab"):  # can it be written? Say so once, at the start
+                pass
+        except OSError as exc:
+            _history_warning(history, exc)
+            kept = InMemoryHistory()
+        else:
+            kept = KeptHistory(str(history))
+        self._session: PromptSession[str] = PromptSession(history=kept)
 
     async def read(self) -> str:
         return await self._session.prompt_async(_PROMPT, handle_sigint=False)
+
+
+def _history_warning(history: Path, exc: OSError) -> None:
+    _say(f"warning: the history file {history} cannot be written "
+         f"({exc.strerror or exc}): no history is kept; set TANGO_AIO_HISTORY to another "
+         f"file", "yellow")
 
 
 def read_bounded_line(stream: BinaryIO, limit: int) -> tuple[bytes, bool]:
@@ -580,8 +693,11 @@ def history_path() -> Path:
 class Shell:
     """The interactive line shell of ``tango-aio shell`` on a connected controller.
 
-    :meth:`run` returns the exit status: 1 when the connection was lost or, for a
-    ``script``, when a line failed (invalid, rejected by the controller, an error); else 0.
+    :meth:`run` returns the exit status: 1 when the connection was lost, when a move a
+    line started did not end at its target (judged at ``wait``, when its completion
+    report comes, and on leaving: a move still running then is stopped and counts as
+    failed) or, for a ``script``, when a line failed (invalid, rejected by the
+    controller, an error); else 0.
     """
 
     def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False
@@ -594,6 +710,13 @@ class Shell:
         self._job: asyncio.Future[None] | None = None
         self._aborting: asyncio.Future[None] | None = None
         self._lost = asyncio.Event()
+        #: Moves the shell's lines started and not judged yet: axis -> (serial, target;
+        #: ``None`` where the line gives no absolute target: mor, cal, rm, moc).
+        self._moves: dict[str, tuple[int, float | None]] = {}
+        self._serial = 0
+        self._judging = asyncio.Lock()
+        #: How many judged moves did not end at their target.
+        self.move_failures = 0
 
     async def run(self) -> int:
         """Read, validate and send lines until ``exit``, ``quit``, end of input or the
@@ -604,11 +727,14 @@ class Shell:
                 with _sigint_calls(self._on_sigint):
                     await self._loop()
                     if not self._lost.is_set():
+                        await self._settle_abort()
+                        await self._judge(leaving=True)
                         await self._stop_moving()
             finally:
                 printer.cancel()
                 await asyncio.wait({printer})
-        return 1 if (self.script and self.failures) or self._lost.is_set() else 0
+        failed = (self.script and self.failures) or self.move_failures or self._lost.is_set()
+        return 1 if failed else 0
 
     async def _loop(self) -> None:
         while True:
@@ -687,13 +813,67 @@ class Shell:
         if words == ["wait"]:
             letters = await self.tango.wait_idle()
             _say(f"idle: {describe_letters(letters)}")
+            await self._judge()
             return
         command = parse(line, self.tango.context)
         if command.is_read:
             _say(describe_reply(command, await self.tango.query(line)))
         else:
             await self.tango.command(line)
+            self._started(command)
             _say("ok", "dim")
+
+    def _started(self, command: CommandLine) -> None:
+        """Remember the axes (and absolute targets) of a move line the controller took,
+        to judge later whether it ended at its target."""
+        if command.instruction.completion is None and command.name != "go":
+            return
+        present = AXES[: self.tango.context.axes]
+        axes = moved_axes(command, present)
+        targets: dict[str, float] = {}
+        if command.name in ("moa", "go") and command.values:
+            targets = dict(zip(axes, (float(v) for v in command.values), strict=False))
+        for axis in axes:
+            self._serial += 1
+            self._moves[axis] = (self._serial, targets.get(axis))
+
+    async def _judge(self, *, leaving: bool = False) -> None:
+        """Judge the moves the shell's lines started whose axes stand now: each must
+        stand at its target without a failure letter (``E``, ``S``, ``T``; ``-``: a
+        disabled axis). ``leaving``: an axis still moving counts as failed (it is stopped
+        next). Failures are printed in words and counted."""
+        async with self._judging:
+            pending = dict(self._moves)
+            if not pending:
+                return
+            try:
+                letters = await self.tango.status()
+                reply = await self.tango.query("?pos")
+            except (TangoError, TimeoutError) as exc:
+                _say(f"error: reading the state after a move: {describe_exception(exc)}",
+                     "red")
+                self.move_failures += 1
+                return
+            texts = dict(zip(AXES[: self.tango.context.axes], reply.split(),
+                             strict=False))
+            failed = []
+            for axis, (serial, target) in pending.items():
+                letter = letters.get(axis, "-")
+                if letter == "M" and not leaving:
+                    continue  # not ended yet
+                if self._moves.get(axis, (0, None))[0] == serial:
+                    del self._moves[axis]
+                text = texts.get(axis)
+                if letter == "M":
+                    failed.append(describe_stop(axis, letter, text, target,
+                                                why="still moving when the shell was left"))
+                elif letter in FAILED_LETTERS or letter == "-" or (
+                        target is not None and (text is None or abs(float(text) - target)
+                                                > position_tolerance(text))):
+                    failed.append(describe_stop(axis, letter, text, target))
+            if failed:
+                self.move_failures += 1
+                _say(f"move failed: {'; '.join(failed)}", "red")
 
     @staticmethod
     def help(topic: str | None) -> str:
@@ -702,10 +882,14 @@ class Shell:
             return SHELL_HELP
         if topic.lstrip("-").isdigit():
             return describe_error(int(topic))
+        name = topic.lstrip("!?").lower()
         try:
-            return describe_instruction(lookup(topic.lstrip("!?").lower()))
+            return describe_instruction(lookup(name))
         except InvalidCommandError:
-            return f"no instruction {topic!r} in the catalog; 'help' lists the shell's commands"
+            close = similar_names(name)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
+            return (f"no instruction {topic!r} in the catalog; {hint}'help' lists the "
+                    f"shell's commands")
 
     def _on_sigint(self) -> None:
         if self._job is not None:
@@ -742,6 +926,9 @@ class Shell:
                 _say(text, "red" if isinstance(event, ConnectionLost) else "cyan")
             if isinstance(event, ConnectionLost):
                 self._lost.set()
+            elif isinstance(event, MoveFinished | StatusReport) and self._moves:
+                with contextlib.suppress(TangoError, TimeoutError):
+                    await self._judge()
 
 
 async def _shell(args: argparse.Namespace) -> int:
@@ -751,14 +938,17 @@ async def _shell(args: argparse.Namespace) -> int:
     words. ``help`` lists the shell's commands, ``help moa`` explains an instruction.
     Ctrl+C aborts (all axes stop); Ctrl+D, ``exit`` or ``quit`` leave, stopping axes that
     still move. Lines piped into the shell run as a script, whose exit status is 1 if any
-    line failed. History is kept
+    line failed; in both modes it is 1 if a move did not end at its target (a move still
+    running at the end is stopped and counts as failed). History is kept
     in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        if ident is not None:
-            _say(f"connected to {ident.model} firmware {ident.firmware}, "
-                 f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
-                 f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", "bold")
+        if ident is not None:  # on stderr: stdout holds the replies only (a script's)
+            Console(stderr=True, highlight=False).print(Text(
+                f"connected to {ident.model} firmware {ident.firmware}, "
+                f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+                f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
+                soft_wrap=True)
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 
@@ -770,19 +960,55 @@ async def _shell(args: argparse.Namespace) -> int:
 # -- move -------------------------------------------------------------------------------
 
 
-def _axis_target(token: str) -> tuple[str, float]:
-    """argparse type of ``x=1.5``."""
+#: A number as a user types it (no ``1_000``, no ``nan``), then an optional unit.
+_TARGET = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Zµ/]*)")
+
+
+def _axis_target(token: str) -> tuple[str, float, str | None]:
+    """argparse type of ``x=1.5``, ``x=1mm`` or ``y=-500um``: axis, value and unit
+    (``None``: the controller's unit)."""
+    from .units import check_unit
+
     axis, sep, text = token.partition("=")
     axis = axis.strip().lower()
     if not sep or axis not in AXES:
         raise argparse.ArgumentTypeError(f"expected AXIS=VALUE, AXIS one of x y z a: {token!r}")
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {token!r}") from None
+    match = _TARGET.fullmatch(text.strip())
+    if match is None:
+        raise argparse.ArgumentTypeError(f"not a number: {token!r} (write e.g. x=1000, "
+                                         f"x=1.5mm or x=-500um)")
+    value = float(match.group(1))
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"not a finite number: {token!r}")
-    return axis, value
+    unit = match.group(2) or None
+    if unit is not None:
+        try:
+            check_unit(unit)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{token!r}: {exc}") from None
+    return axis, value, unit
+
+
+def _one_unit(targets: Sequence[tuple[str, float, str | None]]
+              ) -> tuple[dict[str, float], str | None]:
+    """The targets in one unit: lengths in different units are converted to mm; a unit
+    on some axes and none on others is refused (which unit would the bare ones be?)."""
+    from .units import LENGTH_UNITS
+
+    units = {unit for _, _, unit in targets}
+    if len(units) > 1 and None in units:
+        raise _UsageError("give every axis a unit, or none (the controller's unit)")
+    if len(units) > 1 and not units <= set(LENGTH_UNITS):
+        raise _UsageError(f"the units {', '.join(sorted(map(str, units)))} do not convert "
+                          f"into each other: give every axis the same unit")
+    chosen = next(iter(units)) if len(units) == 1 else "mm"
+    values: dict[str, float] = {}
+    for axis, value, unit in targets:
+        if axis in values:
+            raise _UsageError(f"axis {axis} given twice")
+        values[axis] = value if unit == chosen or unit is None else \
+            float(value * LENGTH_UNITS[unit])
+    return values, chosen
 
 
 def _distance(start: Mapping[str, float], end: Mapping[str, float]) -> float:
@@ -791,14 +1017,11 @@ def _distance(start: Mapping[str, float], end: Mapping[str, float]) -> float:
 
 async def _move(args: argparse.Namespace) -> int:
     """Move axes to absolute positions (x=10 y=5), or by distances with --relative,
-    showing the distance covered; prints the final status letters in words. Ctrl+C stops
-    the axes."""
-    targets: dict[str, float] = {}
-    for axis, value in args.targets:
-        if axis in targets:
-            raise ValueError(f"axis {axis} given twice")
-        targets[axis] = value
-    async with connect(args.url) as tango:
+    showing the distance covered; prints the final status letters in words. Values are in
+    the controller's unit, or carry their own (x=1.5mm, y=-500um; nm um mm cm m in mil
+    rev ustep). Ctrl+C stops the axes."""
+    targets, unit = _one_unit(args.targets)
+    async with connect(args.url, units=unit) as tango:
         start = await tango.position()
         ends = {a: start.get(a, 0.0) + v if args.relative else v for a, v in targets.items()}
         mover: Callable[..., Awaitable[dict[str, str]]] = (
@@ -834,7 +1057,7 @@ def _monitor_table(url: str, positions: Mapping[str, float],
 
 async def _monitor(args: argparse.Namespace) -> int:
     """Show a live table of the positions and status letters of every axis, refreshed
-    every --interval seconds, until Ctrl+C (or --count refreshes)."""
+    every --interval seconds, until Ctrl+C (exit code 130) or --count refreshes (0)."""
     stop = asyncio.Event()
     async with connect(args.url) as tango:
         with _sigint_calls(stop.set), Live(console=console, auto_refresh=False) as live:
@@ -849,23 +1072,25 @@ async def _monitor(args: argparse.Namespace) -> int:
                     await asyncio.wait_for(stop.wait(), args.interval)
         if not console.is_terminal:
             console.line()  # Live leaves its last render without a newline
-    return 0
+    return 130 if stop.is_set() else 0  # Ctrl+C ended it: 130, as every command
 
 
 # -- ports ------------------------------------------------------------------------------
 
 
 async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
-    """Port → "model firmware" of the controllers :func:`tango_aio.discover` finds."""
-    from .discovery import discover
+    """Port → what probing it found, in a few words: "TANGO model firmware", "no
+    answer", "permission denied (...)", "busy (...)", "not found"."""
+    from .discovery import probe_ports
 
-    found = await discover(timeout=timeout, ports=ports or None)
-    return {item.port: f"{item.model} {item.firmware}" for item in found}
+    results = await probe_ports(timeout=timeout, ports=ports or None)
+    return {item.port: item.result for item in results}
 
 
 async def _ports(args: argparse.Namespace) -> int:
     """List the serial ports; with --probe, ask each one for ?version to find the TANGO
-    controllers (this writes a line to every port probed)."""
+    controllers (this writes a line to every port probed) and say for each port what it
+    found: TANGO model firmware, no answer, permission denied, busy or not found."""
     from serial.tools import list_ports
 
     infos = await asyncio.to_thread(list_ports.comports)
@@ -873,10 +1098,10 @@ async def _ports(args: argparse.Namespace) -> int:
     rows.update({port: ("", "") for port in args.port if port not in rows})
     found = await _probe(args.timeout, args.port) if args.probe else None
     table = _table("Serial ports", ("device", "description", "hwid",
-                                    *(("TANGO",) if found is not None else ())))
+                                    *(("probe",) if found is not None else ())))
     for device, (description, hwid) in rows.items():
         probed = not args.port or device in args.port
-        extra = () if found is None else (found.get(device, "-" if probed else "not probed"),)
+        extra = () if found is None else (found.get(device, "-") if probed else "not probed",)
         _row(table, device, description, hwid, *extra)
     if rows:
         console.print(table)
@@ -896,20 +1121,50 @@ _MAX_POSITION_LINES = 10 * MAX_TRIGGERS
 async def _upload_trigp(args: argparse.Namespace) -> int:
     """Upload a trigger position list (one position per line; blank lines and lines
     starting with # are ignored) at wire speed, with a progress bar."""
-    positions = validate_trigger_positions(read_positions(args.file))  # before connecting
-    async with connect(args.url) as tango:
-        with _progress() as progress:
-            task = progress.add_task(f"trigp {args.axis}", total=len(positions))
-            await tango.upload_trigger_positions(
-                positions, axis=args.axis,
-                progress=lambda done, total: progress.update(task, completed=done))
-        count = int(await tango.get("trigc"))
+    lines: list[int] = []
+    positions = read_positions(args.file, lines)
+    if not positions:
+        raise ValueError(f"{args.file}: no positions (an empty list would clear the "
+                         f"controller's list; send !trigp {args.axis} 0 for that)")
+    with _by_file_line(args.file, lines):
+        validate_trigger_positions(positions)  # before connecting
+        async with connect(args.url) as tango:
+            with _progress() as progress:
+                task = progress.add_task(f"trigp {args.axis}", total=len(positions))
+                await tango.upload_trigger_positions(
+                    positions, axis=args.axis,
+                    progress=lambda done, total: progress.update(task, completed=done))
+            count = int(await tango.get("trigc"))
     _say(f"uploaded {count} trigger positions to axis {args.axis}")
     return 0
 
 
-def read_positions(path: str) -> list[float]:
-    """Positions from a text file, one per line (blank lines and ``#`` comments skipped).
+@contextlib.contextmanager
+def _by_file_line(path: str, lines: Sequence[int]) -> Iterator[None]:
+    """Name a bad or rejected entry by its file line (``positions.txt:7``), as the
+    file's own errors are, not by its index in the list."""
+    from .bulk import UploadError
+
+    try:
+        yield
+    except UploadError as exc:
+        if 0 <= exc.index < len(lines):
+            raise TangoError(f"{path}:{lines[exc.index]}: rejected by the controller with "
+                             f"{describe_error(exc.number)}") from exc
+        raise
+    except InvalidCommandError as exc:
+        found = re.search(r"entry (\d+)", str(exc))
+        if found is None or int(found.group(1)) >= len(lines):
+            raise
+        text = re.sub(r"(the trigger list )?entry \d+", "the position", str(exc))
+        raise InvalidCommandError(f"{path}:{lines[int(found.group(1))]}: {text}",
+                                  instruction=exc.instruction, parameter=exc.parameter,
+                                  number=exc.number) from exc
+
+
+def read_positions(path: str, lines: list[int] | None = None) -> list[float]:
+    """Positions from a text file, one per line (blank lines and ``#`` comments skipped);
+    ``lines`` (if given) receives the file line of each position.
 
     Reading is bounded: lines of at most 200 bytes, at most 100000 lines and one position
     more than a trigger list holds (so ``/dev/zero`` or a huge file fails at once).
@@ -933,6 +1188,8 @@ def read_positions(path: str) -> list[float]:
             except ValueError:
                 raise ValueError(f"{path}:{number}: not a number: {text!r}") from None
             values.append(value)
+            if lines is not None:
+                lines.append(number)
             if len(values) > MAX_TRIGGERS:
                 raise ValueError(f"{path}: more than {MAX_TRIGGERS} positions "
                                  f"(the most a trigger list holds)")
@@ -970,6 +1227,7 @@ def _number_type(kind: Callable[[str], _T], what: str, *, minimum: float = 0.0,
 
 _count_type = _number_type(int, "a whole number", minimum=1, allow_minimum=True)
 _seconds_type = _number_type(float, "a number of seconds")
+_delay_type = _number_type(float, "a number of seconds", allow_minimum=True)
 
 
 def _url_type(text: str) -> str:
@@ -997,9 +1255,12 @@ def check_sim_url(url: str) -> None:
     if twice:
         raise ValueError(f"sim:// option(s) given more than once: {', '.join(twice)}")
     for key, value in pairs:
-        with contextlib.suppress(ValueError):
-            if not math.isfinite(float(value)):
-                raise ValueError(f"sim:// option {key}={value!r} is not a finite number")
+        try:
+            number = float(value)
+        except ValueError:
+            continue  # a word (profile=legacy): the emulator checks it below
+        if not math.isfinite(number):
+            raise ValueError(f"sim:// option {key}={value!r} is not a finite number")
     try:
         configs_from_url(url)
     except ValueError:
@@ -1026,8 +1287,9 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = commands.add_parser("demo", help="calibrate and run a raster scan (emulator)",
                                description=_plain(_demo.__doc__))
-    demo.add_argument("--url", type=_url_type, default="sim://",
-                      help="controller URL (default: sim://)")
+    demo.add_argument("url", type=_url_type, nargs="?", default="sim://",
+                      help="controller URL (default: sim://, the emulator)")
+    demo.add_argument("--url", type=_url_type, dest="old_url", help=argparse.SUPPRESS)
     demo.add_argument("--rows", type=_count_type, default=4, help="scan rows (default 4)")
     demo.add_argument("--points", type=_count_type, default=10,
                       help="triggers per row (default 10)")
@@ -1043,12 +1305,12 @@ def _parser() -> argparse.ArgumentParser:
     where = sim.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a pty (default); "
                        "prints the device path as the first line")
-    where.add_argument("--tcp", metavar="HOST:PORT",
+    where.add_argument("--tcp", metavar="[HOST:]PORT",
                        help="serve on TCP for socket:// URLs (host defaults to 127.0.0.1)")
     sim.add_argument("--axes", type=int, default=3, help="number of axes 1-4 (default 3)")
     sim.add_argument("--baud", type=int, default=57600, help="wire speed, 0 = instant")
-    sim.add_argument("--latency", type=float, default=0.0, help="reply latency in s")
-    sim.add_argument("--processing", type=float, default=0.0, help="time per line in s")
+    sim.add_argument("--latency", type=_delay_type, default=0.0, help="reply latency in s")
+    sim.add_argument("--processing", type=_delay_type, default=0.0, help="time per line in s")
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
     sim.add_argument("--profile", default=None,
                      help="firmware profile: manual (1.71, default) or legacy (older edition)")
@@ -1198,6 +1460,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _startup.finished()
         args = _parser().parse_args(argv)
         debug = args.debug
+        if getattr(args, "old_url", None):  # demo --url, the old spelling of its argument
+            args.url = args.old_url
         if args.command == "demo" and not args.yes and not _is_emulator(args.url) \
                 and not _confirm_demo(args.url):
             _say("demo cancelled: nothing was moved")
@@ -1207,6 +1471,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         _say("interrupted", "yellow")
         return 130
+    except _UsageError as exc:
+        _say(f"error: {describe_exception(exc)}", "red")
+        return 2
     except Exception as exc:
         if debug:
             raise

@@ -14,7 +14,12 @@ line, so the axes travel together::
 Rules:
 
 * A batch collects requests for ``window`` seconds from its first request, then runs as
-  one :meth:`Controller.move_to <tango_aio.controller.Controller.move_to>`. A second request
+  one :meth:`Controller.move_to <tango_aio.controller.Controller.move_to>`. With
+  ``collect="announced"`` it waits no fixed time: callers :meth:`~MoveCoalescer.announce`
+  a request before they prepare it (Bluesky's ``set()`` does, as the RunEngine calls it);
+  a batch runs one loop turn after its first request as soon as no announced request is
+  still on its way (those join it), and at most ``window`` seconds after it began. A
+  single move then costs no waiting at all (#28 target 3). A second request
   for an axis already in the batch being collected closes that batch at once (it runs
   now) and starts the next one; batches run in the order they were started.
 * Every caller of a batch gets the batch's outcome: its own axis's status letter, or the
@@ -40,6 +45,7 @@ import asyncio
 import contextlib
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -84,24 +90,51 @@ class MoveCoalescer:
     """Merges moves of different axes of one Controller that arrive within `window`
     seconds into one `move_to` (one `!moa` line)."""
 
-    def __init__(self, controller: Controller, *, window: float = 0.02) -> None:
+    def __init__(self, controller: Controller, *, window: float = 0.02,
+                 collect: str = "window") -> None:
         if not (math.isfinite(window) and window >= 0):
             raise ValueError(f"window must be a finite number >= 0, got {window!r}")
+        if collect not in ("window", "announced"):
+            raise ValueError(f"collect must be 'window' or 'announced', got {collect!r}")
         self.controller = controller
         self.window = window
+        self.collect = collect
+        self._announced = 0
+        self._arrived = asyncio.Event()
         self._collecting: _Batch | None = None
         self._last: asyncio.Task[dict[str, str]] | None = None
         self._batches: set[_Batch] = set()
         self._closed = False
 
-    async def move_to(self, axis: str, target: float) -> str:
+    def announce(self) -> Callable[[], None]:
+        """Announce a request that is on its way (``collect="announced"``): the batch
+        being collected waits for it. Returns the function that ends the announcement
+        (call it once the request was made, or given up; later calls do nothing)."""
+        self._announced += 1
+        done = False
+
+        def arrived() -> None:
+            nonlocal done
+            if not done:
+                done = True
+                self._announced -= 1
+                self._arrived.set()
+
+        return arrived
+
+    async def move_to(self, axis: str, target: float,
+                      arrived: Callable[[], None] | None = None) -> str:
         """Move one axis as part of the next merged move; return its status letter,
         raise the merged move's MoveError/TangoError. A second request for an axis that is
         already in the batch being collected closes that batch and starts the next one.
         Cancelling one caller stops the merged move (all axes), as Controller.move_to does."""
-        value = self._checked(axis, target)
-        batch = self._batch_for(axis)
-        batch.targets[axis] = value
+        try:
+            value = self._checked(axis, target)
+            batch = self._batch_for(axis)
+            batch.targets[axis] = value
+        finally:
+            if arrived is not None:
+                arrived()  # it has joined (or failed): no batch waits for it any more
         task = batch.task
         assert task is not None
         try:
@@ -153,6 +186,7 @@ class MoveCoalescer:
             return batch
         if batch is not None:
             batch.close()
+            self._arrived.set()  # a batch waiting for announced requests runs now
         batch = _Batch()
         batch.task = asyncio.ensure_future(self._run(batch, self._last))
         self._last = batch.task
@@ -172,7 +206,13 @@ class MoveCoalescer:
                    previous: asyncio.Task[dict[str, str]] | None) -> dict[str, str]:
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(self.window):
-                await batch.closed.wait()
+                if self.collect == "window":
+                    await batch.closed.wait()
+                else:
+                    await asyncio.sleep(0)  # requests made in this loop turn join
+                    while self._announced and not batch.closed.is_set():
+                        self._arrived.clear()
+                        await self._arrived.wait()
         batch.close()
         if self._collecting is batch:
             self._collecting = None

@@ -17,9 +17,11 @@ from __future__ import annotations
 import asyncio
 import collections.abc
 import contextlib
+import errno
 import functools
 import logging
 import os
+import re
 import urllib.parse
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -28,7 +30,14 @@ from typing import Any
 
 from ._checks import check_count, check_timeout
 from .controller import Controller
-from .errors import ConnectionLostError
+from .errors import (
+    ConnectError,
+    ControllerTimeoutError,
+    NoControllerError,
+    PortBusyError,
+    PortNotFoundError,
+    PortPermissionError,
+)
 from .fdlink import FdTransport
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .protocol import DEAD_AFTER, TangoProtocol
@@ -73,7 +82,7 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
     try:
         port = await _in_thread(open_port)
     except (OSError, serial.SerialException) as exc:
-        raise ConnectionLostError(f"cannot open {url!r}: {exc}") from exc
+        raise port_error(url, exc) from exc
     loop = asyncio.get_running_loop()
     released = _watch_release(port, loop)
     try:
@@ -102,6 +111,55 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
             log.warning("%s: the port was not released within %.0f s", url, RELEASE_WAIT)
 
     return transport, protocol, release
+
+
+#: errno values of a port that is not there, is not ours, is held by another program.
+_MISSING = {errno.ENOENT, errno.ENODEV, errno.ENXIO}
+_DENIED = {errno.EACCES, errno.EPERM}
+_HELD = {errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY}
+
+
+def port_error(url: str, exc: BaseException) -> ConnectError:
+    """The :class:`ConnectError` for a failure to open the serial port ``url``, in the
+    user's terms with the next step. pyserial repeats the errno in its messages ("[Errno
+    2] could not open port ...: [Errno 2] ..."), so only the operating system's words are
+    kept."""
+    number = getattr(exc, "errno", None)
+    if not isinstance(number, int):
+        number = next((arg for arg in getattr(exc, "args", ()) if isinstance(arg, int)), None)
+    text = str(exc)
+    if number in _MISSING or "FileNotFoundError" in text:
+        return PortNotFoundError(f"no serial port {url}: is the adapter plugged in, is the "
+                                 f"name right? `tango-aio ports` lists the serial ports",
+                                 url)
+    if number in _DENIED and "lock" not in text.lower():
+        return PortPermissionError(
+            f"permission denied for {url}: add yourself to the dialout group "
+            f"(sudo usermod -aG dialout $USER) and log in again", url)
+    if number in _HELD or "exclusively lock" in text or (
+            os.name == "nt" and "PermissionError" in text):  # Windows: in use is EACCES
+        return PortBusyError(f"{url} is busy: another program holds it (a tango-aio shell, "
+                             f"a terminal program, another connect()); close that first",
+                             url)
+    reason = os.strerror(number) if number is not None else \
+        re.sub(r"\[Errno -?\d+\] ?", "", text)
+    return ConnectError(f"cannot open {url}: {reason}", url)
+
+
+def check_url(url: str) -> None:
+    """Raise ValueError for a URL that names a scheme the driver does not open (before
+    anything is opened): ``tcp://`` and the like suggest ``socket://``; ``sim:/`` and
+    other almost-URLs are not taken for device paths."""
+    match = re.match(r"([A-Za-z][A-Za-z0-9+.-]+):(/*)", url)
+    if match is None:
+        return
+    scheme, slashes = match.group(1).lower(), match.group(2)
+    if scheme in ("tcp", "telnet", "ip", "tcpip", "ser2net", "raw"):
+        rest = url[match.end():]
+        raise ValueError(f"{url!r}: for a TCP connection (ser2net, a terminal server) "
+                         f"write socket://{rest or 'HOST:PORT'}")
+    if scheme in ("sim", "socket") and slashes != "//":
+        raise ValueError(f"{url!r}: write {scheme}://{url[match.end():]}")
 
 
 def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future[None]:
@@ -161,7 +219,9 @@ async def _open_socket(url: str, factory: ProtocolFactory
     try:
         return await loop.create_connection(factory, parts.hostname, parts.port)
     except OSError as exc:
-        raise ConnectionLostError(f"cannot connect to {url!r}: {exc}") from exc
+        reason = os.strerror(exc.errno) if exc.errno else str(exc) or type(exc).__name__
+        raise ConnectError(f"cannot connect to {url}: {reason} (is the server running, "
+                           f"are host and port right?)", url) from exc
 
 
 async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
@@ -271,10 +331,23 @@ async def _connect(url: str, options: ConnectOptions) -> Controller:
     controller.units = options.units
     try:
         await controller.setup(autostatus=options.autostatus, identify=options.identify)
+    except ControllerTimeoutError as exc:
+        await controller.aclose()
+        raise _no_controller(url, options) from exc
     except BaseException:
         await controller.aclose()
         raise
     return controller
+
+
+def _no_controller(url: str, options: ConnectOptions) -> NoControllerError:
+    """Nothing answered while :func:`connect` set the controller up: said in the user's
+    terms (not the lines the driver sent)."""
+    where = url if url.startswith(("sim://", "socket://", "rfc2217://")) \
+        else f"{url} at {options.baudrate} Bd"
+    return NoControllerError(f"no TANGO answered on {where}: is it switched on, is this "
+                             f"its port? `tango-aio ports --probe` lists the ports that "
+                             f"answer", url)
 
 
 class Connecting(collections.abc.Coroutine[Any, Any, Controller]):
@@ -335,7 +408,12 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     ``async with tango_aio.connect("/dev/ttyUSB0") as tango: ...`` or
     ``tango = await tango_aio.connect("sim://?axes=3")`` then ``await tango.aclose()``.
     Every option is a keyword (a misspelt one raises :class:`TypeError`) and is checked
-    before anything is opened (:class:`ValueError`).
+    before anything is opened (:class:`ValueError`), as is the URL (``tcp://`` is refused
+    with a pointer to ``socket://``). A link that cannot be set up raises a
+    :class:`~tango_aio.errors.ConnectError`: :class:`~tango_aio.errors.PortNotFoundError`,
+    :class:`~tango_aio.errors.PortPermissionError`,
+    :class:`~tango_aio.errors.PortBusyError`, :class:`~tango_aio.errors.NoControllerError`
+    (nothing answered), or the class itself (e.g. a refused TCP connection).
 
     Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports, which are opened
     exclusively (a second open of the same port fails); ``autostatus`` (1; ``None`` keeps
@@ -363,6 +441,7 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     with ConnectionLostError and is not retried; calls made while the link is down fail at
     once with ConnectionLostError (``await tango.wait_connected(timeout)`` waits instead).
     """
+    check_url(url)
     options = ConnectOptions(
         baudrate=baudrate, rtscts=rtscts, autostatus=autostatus, identify=identify,
         reply_timeout=reply_timeout, credit_limit=credit_limit, marker_chunk=marker_chunk,

@@ -3,9 +3,18 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import logging
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
+from collections.abc import (
+    AsyncIterator,
+    Awaitable,
+    Callable,
+    Iterable,
+    Iterator,
+    Mapping,
+    Sequence,
+)
 from dataclasses import dataclass, field
 from decimal import Decimal
 from fractions import Fraction
@@ -59,6 +68,7 @@ from .instructions import (
     VersionInfo,
     build,
     build_axes,
+    check_axis_word,
     parse,
     parse_reply,
 )
@@ -150,6 +160,10 @@ class Controller:
         #: The cached settings (move timing, validation context): tango_aio.state.
         self._settings = DriverState()
         self._motion = Motion(_Port(self))
+        #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
+        self._motion_calls: set[asyncio.Event] = set()
+        #: Held by a move with its own velocity/acceleration (set, moved, restored).
+        self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
@@ -371,6 +385,12 @@ class Controller:
         if command.is_read:
             raise InvalidCommandError(f"{command.line!r} is a read; use query()",
                                       instruction=command.name)
+        if command.name in _LIST_POSITIONS:
+            # A non-zero list position below the resolution is stored as 0.0 (L4080-4100),
+            # as upload_trigger_positions() refuses it.
+            tiny = [v for v in command.values if isinstance(v, float) and 0 < abs(v) < 0.5]
+            if tiny:
+                check_resolution([tiny], [min(await self._resolution())], command.name)
         await self._execute(command, check=check, timeout=timeout)
 
     def validate_move(self, /, *, relative: bool = False, **axes: float) -> None:
@@ -509,6 +529,8 @@ class Controller:
         values than axes is read again axis by axis, so that no value is credited to the
         wrong axis (a unit that leaves disabled axes out).
         """
+        if axis is not None:
+            check_axis_word(axis, name)  # "" or "y 5" would read something else
         command = build(name, *args, form=Form.READ, axis=axis, context=self.context) \
             if args else _read_command(name, axis, self.context)
         if axis is None and not args and name in AXIS_BY_AXIS:
@@ -531,6 +553,14 @@ class Controller:
         command = build(name, *args, form=Form.SET, axis=axis, context=self.context, **axes)
         self._check_axes(command, axes)
         await self._execute(command, check=check)
+
+    @property
+    def last_positions(self) -> dict[str, str] | None:
+        """The positions (as printed, dim units) of the driver's latest state read: after
+        a move returned, those read behind its report to confirm the arrival (no read
+        here; ``None`` before the first)."""
+        known = self._motion.positions
+        return None if known is None else dict(known)
 
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
@@ -564,7 +594,8 @@ class Controller:
     # -- motion (followed by tango_aio.motion) --------------------------------------------
 
     async def move_to(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      unit: str | None = None, **axes: float) -> dict[str, str]:
+                      unit: str | None = None, velocity: Speed | None = None,
+                      acceleration: Speed | None = None, **axes: float) -> dict[str, str]:
         """Move to absolute positions (``move_to(x=10, y=5)``, any set of axes) and wait
         until every named axis stands still at its target.
 
@@ -576,17 +607,71 @@ class Controller:
         written. Axes not named are never moved: a set that does not start at X without
         gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
         semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
-        the connection's ``units``, else the dim unit) or pint Quantities."""
+        the connection's ``units``, else the dim unit) or pint Quantities.
+
+        ``velocity`` and ``acceleration`` apply to this move only: one number for every
+        moved axis, or a mapping per axis (``velocity={"x": 5}``), in ``unit`` per second
+        (squared) when ``unit`` is given, else as :meth:`set_velocity` and
+        :meth:`set_acceleration` take them. The moved axes' ``vel``/``accel`` are read,
+        set, and written back once the move has ended (also when it failed or was
+        cancelled). Moves of this controller that pass their own ``velocity`` or
+        ``acceleration`` run one after the other; a move without them that runs at the
+        same time moves at the speed in force (so either give every concurrent move its
+        speed, or none)."""
         check_timeout(timeout)  # refused before anything is read or written
-        axes = await self._to_controller(axes, unit, 0)
-        return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
+        with self._motion_call():
+            axes = await self._to_controller(axes, unit, 0)
+            async with self._move_settings(axes, unit, velocity, acceleration):
+                return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
-                      unit: str | None = None, **axes: float) -> dict[str, str]:
-        """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`."""
+                      unit: str | None = None, velocity: Speed | None = None,
+                      acceleration: Speed | None = None, **axes: float) -> dict[str, str]:
+        """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`
+        (``velocity`` and ``acceleration`` for this move only, too)."""
         check_timeout(timeout)  # refused before anything is read or written
-        axes = await self._to_controller(axes, unit, 0)
-        return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+        with self._motion_call():
+            axes = await self._to_controller(axes, unit, 0)
+            async with self._move_settings(axes, unit, velocity, acceleration):
+                return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+
+    @contextlib.asynccontextmanager
+    async def _move_settings(self, axes: Mapping[str, Any], unit: str | None,
+                             velocity: Speed | None, acceleration: Speed | None
+                             ) -> AsyncIterator[None]:
+        """Set ``vel``/``accel`` of the moved axes for the block, then write back what
+        was read before (shielded: also after a failure or a cancellation)."""
+        wanted = [(name, value, power) for name, value, power in
+                  (("vel", velocity, 1), ("accel", acceleration, 2)) if value is not None]
+        if not wanted:
+            yield
+            return
+        async with self._move_settings_lock:
+            lines: list[Command] = []
+            for name, value, power in wanted:
+                per_axis = _per_moved_axis(name, value, axes)
+                scaled = unit if unit is None else f"{unit}/s{'2' if power == 2 else ''}"
+                converted = await self._to_controller(per_axis, scaled, power)
+                lines += [build(name, v, axis=a, context=self.context)
+                          for a, v in converted.items()]  # all checked before a byte
+            for line in lines:
+                self._check_axes(line)
+            saved: list[Command] = []
+            try:
+                for line in lines:
+                    assert line.axis is not None
+                    before = await self.get(line.name, axis=line.axis)
+                    saved.append(build(line.name, before, axis=line.axis,
+                                       context=self.context))
+                    await self._execute(line, check=True)
+                yield
+            finally:
+                if saved:
+                    await asyncio.shield(self._restore(saved))
+
+    async def _restore(self, lines: Sequence[Command]) -> None:
+        for line in reversed(lines):
+            await self._execute(line, check=True)
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
                     stop_on_cancel: bool, relative: bool) -> dict[str, str]:
@@ -618,6 +703,24 @@ class Controller:
 
     async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
                                stop_on_cancel: bool) -> dict[str, str]:
+        with self._motion_call():
+            return await self._per_axis_motion_run(name, axes, timeout, stop_on_cancel)
+
+    @contextlib.contextmanager
+    def _motion_call(self) -> Iterator[None]:
+        """Record a motion call (move_to, calibrate...) from its first step to its end, so
+        that :meth:`wait_idle` waits for a move whose line is not written yet."""
+        done = asyncio.Event()
+        self._motion_calls.add(done)
+        try:
+            yield
+        finally:
+            self._motion_calls.discard(done)
+            done.set()
+
+    async def _per_axis_motion_run(self, name: str, axes: tuple[str, ...],
+                                   timeout: float | None, stop_on_cancel: bool
+                                   ) -> dict[str, str]:
         check_timeout(timeout)  # refused before anything is written
         if not axes:
             return await self._run_motion(build(name, form=Form.SET), timeout,
@@ -649,7 +752,8 @@ class Controller:
         # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
         timed = command.name in ("moa", "mor", "m", "moc")
         delay = s.delay_ms / 1000.0 if timed else 0.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
+        settle = s.settle_ms / 1000.0
+        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
         absolute: dict[str, float] | None = None
         extend: Callable[[Mapping[str, str]], float] | None = None
         if command.instruction.completion in (Completion.CAL, Completion.RM):
@@ -676,7 +780,8 @@ class Controller:
                              default=0.0)
                 return MovePlan(command, moved, dict(targets), delay + travel + after,
                                 check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch)
+                                start=reader, batch=batch, delay=delay, settle=settle,
+                                reports=self.autostatus != 0)
             if known is None or not set(targets) <= set(known):
                 known = None
                 start = {a: float(t) for a, t in (await self._position_texts()).items()}
@@ -689,7 +794,8 @@ class Controller:
             if known is not None and timeout is None:
                 extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend)
+                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
+                        delay=delay, settle=settle, reports=self.autostatus != 0)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
@@ -744,13 +850,83 @@ class Controller:
 
     async def wait_idle(self, *, poll_interval: float = 0.05,
                         timeout: float | None = None) -> dict[str, str]:
-        """Poll ``statusaxis`` until no axis is moving; return the letters."""
+        """Wait until no motion call of this controller is under way (one started a moment
+        ago, e.g. with ``asyncio.ensure_future(tango.move_to(...))``, included, though its
+        line is not written yet), then poll ``statusaxis`` until no axis is moving; return
+        the letters."""
         async with asyncio.timeout(check_timeout(timeout)):
+            await asyncio.sleep(0)  # a motion task just scheduled takes its first step
+            while self._motion_calls:
+                await next(iter(self._motion_calls)).wait()
             while True:
                 letters = await self.status()
                 if "M" not in letters.values():
                     return letters
                 await asyncio.sleep(poll_interval)
+
+    async def is_busy(self) -> bool:
+        """Whether a motion call of this controller is under way or any axis moves
+        (``statusaxis`` ``M``): the momentary answer; :meth:`wait_idle` waits."""
+        await asyncio.sleep(0)  # a motion task just scheduled takes its first step
+        return bool(self._motion_calls) or "M" in (await self.status()).values()
+
+    async def is_calibrated(self, *axes: str) -> bool:
+        """Whether ``axes`` (default: every present axis) have been calibrated (``cal``)
+        since power-on, from ``?statuslimit`` (its characters 0-3 are ``A`` for a
+        calibrated X, Y, Z, A; L5136-5191)."""
+        present = AXES[: self.context.axes]
+        for axis in axes:
+            check_axis_word(axis, "statuslimit")
+        wanted = [axis.lower() for axis in axes] or list(present)
+        self._check_axes(_read_command("statuslimit", None, self.context), wanted)
+        flags = str(await self.query("?statuslimit")).strip()
+        return all(flags[AXES.index(axis)] == "A" if len(flags) > AXES.index(axis) else False
+                   for axis in wanted)
+
+    async def stop(self, *axes: str, wait: bool = True) -> None:
+        """Stop the named axes (``stop("x")``, ``stop("x", "z")``) with the manual's
+        one-axis abort ``a x`` (L6785-6844: stops the moves of that axis with stopaccel);
+        the other axes go on. Without axes, stops every axis with ``a`` (as
+        ``abort(soft=True)``), and so on firmware of the older manual, whose ``a`` takes no
+        axis (:attr:`Identity.family` ``"older"``: every axis stops). Moves being awaited
+        (or detached) that move a stopped axis raise :class:`MoveError` once their axes
+        stand still; moves of other axes are not affected. An axis the controller lacks
+        raises :class:`~tango_aio.errors.InvalidCommandError` before anything is written.
+        With ``wait``, returns once the stopped axes stand still; raises
+        :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
+        :data:`~tango_aio.motion.STOP_WAIT` seconds.
+        """
+        present = AXES[: self.context.axes]
+        chosen: list[str] = []
+        for axis in axes:
+            letter = axis.lower() if isinstance(axis, str) else axis
+            if letter not in present:
+                raise InvalidCommandError(
+                    f"stop({axis!r}): the controller has no {str(axis).upper()} axis "
+                    f"(its axes: {' '.join(present).upper()})",
+                    instruction="a", parameter="axis", number=1)
+            if letter not in chosen:
+                chosen.append(letter)
+        if not chosen or (self._identity is not None and self._identity.family == "older"):
+            # The older edition's `a` takes no axis ("stops all axes", old L1907-1919):
+            # what it would make of `a x` is not written, so every axis is stopped.
+            await self.abort(soft=True, wait=wait)
+            return
+        self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
+        self._motion.stopped(chosen)
+        await self._protocol.stop_axes(True, axes=chosen)
+        if wait:
+            try:
+                async with asyncio.timeout(STOP_WAIT):
+                    while True:
+                        letters = await self.status()
+                        if all(letters.get(axis) != "M" for axis in chosen):
+                            return
+                        await asyncio.sleep(0.05)
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"{' '.join(chosen).upper()} still moving {STOP_WAIT:.0f} s after the "
+                    "stop") from None
 
     async def abort(self, *, soft: bool = False, wait: bool = True) -> None:
         """Stop all axes.
@@ -817,6 +993,7 @@ class Controller:
         """
         letter = check_axis(axis)
         values = validate_trigger_positions(positions)
+        self._check_axes(build("trigp", 0, axis=letter))  # an axis it has, before any byte
         resolution = await self._resolution()
         rows = Column(values)
         check_resolution(rows, [resolution[AXES.index(letter)]], "trigp")
@@ -831,8 +1008,22 @@ class Controller:
     async def set_trigger_range(self, start: float, end: float, count: int,
                                 axis: str | None = None) -> None:
         """Set equidistant trigger positions (``!trigr [axis] start end count``); ``count``
-        includes both ends."""
+        includes both ends. ``start`` above ``end`` triggers while the axis travels in the
+        negative direction (L13529-13532), so both orders are accepted; a position whose
+        magnitude exceeds :data:`MAX_TRIGGER_POSITION` (no stage travels that far in any
+        ``dim`` unit) or a non-zero one below the position resolution (it would be stored
+        as 0.0) is refused before anything is written, as is an axis the controller does
+        not have."""
         command = build("trigr", start, end, count, axis=axis, context=self.context)
+        self._check_axes(command)
+        for value in (start, end):
+            if abs(float(value)) > MAX_TRIGGER_POSITION:
+                raise InvalidCommandError(
+                    f"trigr: position {value!r} is beyond any stage's travel (at most "
+                    f"{MAX_TRIGGER_POSITION:g} in the dim unit)", instruction="trigr",
+                    parameter="position", number=5)
+        quantum = min(await self._resolution())
+        check_resolution([[float(start), float(end)]], [quantum], "trigr")
         await self._execute(command, check=True)
 
     async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
@@ -1161,6 +1352,31 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
     if order == list(AXES[: len(order)]):
         return [{axis: axes[axis] for axis in order}]
     return [{axis: axes[axis]} for axis in order]
+
+
+#: A per-move velocity or acceleration: one number for every moved axis, or per axis.
+Speed = float | Mapping[str, float]
+
+
+def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[str, Any]:
+    """``value`` for each moved axis; a mapping must name moved axes only."""
+    if isinstance(value, Mapping):
+        extra = sorted(set(value) - set(axes))
+        if extra:
+            raise InvalidCommandError(f"{name}: {', '.join(extra)} is not moved by this "
+                                      f"call (moved: {', '.join(axes)})",
+                                      instruction=name, parameter="axis", number=1)
+        return dict(value)
+    return dict.fromkeys(axes, value)
+
+
+#: Instructions whose float values are list positions (checked against the resolution).
+_LIST_POSITIONS = frozenset({"trigp", "trigr", "snsa"})
+
+#: The largest trigger position magnitude :meth:`Controller.set_trigger_range` accepts,
+#: in the controller's ``dim`` unit: a kilometre in mm, a metre in nm (the manual gives no
+#: bound; a larger value is a caller's mistake, e.g. 1e200 would be a 230-byte line).
+MAX_TRIGGER_POSITION = 1e9
 
 
 @functools.lru_cache(maxsize=256)

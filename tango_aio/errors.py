@@ -14,7 +14,10 @@ who failed:
   :class:`UnknownControllerError`.
 * :class:`MoveError`: a move ended, but not at its target (per-axis status letters).
 * :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
-* :class:`ConnectionLostError`: the link went away; the cause is chained.
+* :class:`ConnectionLostError`: a working link went away; the cause is chained.
+* :class:`ConnectError`: a link could not be set up at all, one subclass per reason with
+  the next step in its message: :class:`PortNotFoundError`, :class:`PortPermissionError`,
+  :class:`PortBusyError`, :class:`NoControllerError`.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ __all__ = [
     "BrakeVoltageError",
     "ClosedLoopOffError",
     "CommandRejectedError",
+    "ConnectError",
     "ConnectionLostError",
     "ControllerError",
     "ControllerTimeoutError",
@@ -61,10 +65,14 @@ __all__ = [
     "MoveError",
     "MoveNotAllowedError",
     "MultiAxisMoveForbiddenError",
+    "NoControllerError",
     "NoError",
     "NotConfiguredError",
     "NotExecutableError",
     "OutOfRangeError",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
     "ProtocolError",
     "RequestAbortedError",
     "SafetyCircuitError",
@@ -118,6 +126,37 @@ class ConnectionLostError(TangoError):
 
 class ControllerTimeoutError(TangoError, TimeoutError):
     """The controller did not answer within the allowed time."""
+
+
+class ConnectError(TangoError):
+    """:func:`~tango_aio.connect` could not set up a link (as opposed to
+    :class:`ConnectionLostError`, a working link that went away). The message says what
+    to do next; ``__cause__`` holds the operating system's error, if any. ``url`` is what
+    was being opened."""
+
+    def __init__(self, message: str, url: str = "") -> None:
+        super().__init__(message)
+        self.url = url
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return type(self), (str(self), self.url), self.__dict__
+
+
+class PortNotFoundError(ConnectError):
+    """The serial port does not exist (unplugged, or a mistyped name)."""
+
+
+class PortPermissionError(ConnectError):
+    """This user may not open the serial port (on Linux: not in the ``dialout`` group)."""
+
+
+class PortBusyError(ConnectError):
+    """Another program (or another :func:`~tango_aio.connect`) holds the serial port."""
+
+
+class NoControllerError(ConnectError, ControllerTimeoutError):
+    """The link opened, but no TANGO answered on it (switched off, wrong port, wrong baud
+    rate). Also a :class:`ControllerTimeoutError`, which is what nothing answering is."""
 
 
 class RequestAbortedError(TangoError):

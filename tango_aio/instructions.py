@@ -170,6 +170,10 @@ def _check_range(param: Param, value: float, name: str, hi: float | None) -> Non
                     name, param.name, 5)
 
 
+#: A number in exponent notation (``1e3``), which the wire format refuses.
+_EXPONENT_RE: Final = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)[eE][+-]?\d+")
+
+
 def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int | str:
     """Validate one token against ``param`` and return its typed value."""
     if param.kind is Kind.BITS:
@@ -183,6 +187,10 @@ def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int |
                         name, param.name, 5)
         return token.lower()
     if not _NUMBER_RE.match(token):
+        if _EXPONENT_RE.fullmatch(token):
+            raise _fail(f"{name}: {param.name} {token!r} is in exponent notation, which is "
+                        f"refused: write the number out (e.g. 1000, 0.001)", name,
+                        param.name, 5)
         raise _fail(f"{name}: {param.name} must be a number, got {token!r}", name, param.name, 5)
     if param.kind is Kind.FLOAT:
         value = float(token)
@@ -227,12 +235,42 @@ MAX_SNAPSHOTS: Final = list_capacity("snsa")
 def lookup(name: str) -> Instruction:
     """Return the instruction called ``name`` or one of its aliases (case-insensitive).
 
-    Raises :class:`InvalidCommandError` for an unknown name.
+    Raises :class:`InvalidCommandError` for an unknown name, with the closest names
+    (``unknown instruction 'mao' (did you mean moa?)``).
     """
     entry = _BY_ALIAS.get(name.lower())
     if entry is None:
-        raise _fail(f"unknown instruction {name!r}", name, None, 4)
+        close = similar_names(name)
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise _fail(f"unknown instruction {name!r}{hint}", name, None, 4)
     return entry
+
+
+def similar_names(name: str) -> list[str]:
+    """Up to three instruction names (or aliases) spelt like ``name``: at most one typing
+    mistake away (two for long names; a swap of neighbours counts as one), closest
+    first, then those with the same letters (``mao`` → ``moa``), then alphabetically."""
+    typed = name.lower()
+    most = 1 if len(typed) <= 4 else 2
+    scored = [(distance, sorted(alias) != sorted(typed), alias) for alias in _BY_ALIAS
+              if (distance := _typing_distance(typed, alias)) <= most]
+    return [alias for *_, alias in sorted(scored)[:3]]
+
+
+def _typing_distance(a: str, b: str) -> int:
+    """Edits (insert, delete, replace, swap two neighbours) that turn ``a`` into ``b``."""
+    if abs(len(a) - len(b)) > 2:
+        return 3
+    rows = [list(range(len(b) + 1))]
+    for i in range(1, len(a) + 1):
+        row = [i] + [0] * len(b)
+        for j in range(1, len(b) + 1):
+            row[j] = min(rows[-1][j] + 1, row[j - 1] + 1,
+                         rows[-1][j - 1] + (a[i - 1] != b[j - 1]))
+            if i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
+                row[j] = min(row[j], rows[-2][j - 2] + 1)
+        rows.append(row)
+    return rows[-1][-1]
 
 
 # --------------------------------------------------------------------------------------
@@ -321,6 +359,12 @@ def _axis_values(
     if len(rest) > groups * len(group):
         raise _fail(f"{entry.name}: too many values, at most {groups * len(group)}",
                     entry.name, None, 6)
+    if groups == len(AXES) and len(rest) > ctx.axes * len(group):
+        # A value for an axis the controller does not have: the emulator answers error 1
+        # (no valid axis name), as a line naming that axis would get.
+        present = " ".join(AXES[: ctx.axes]).upper()
+        raise _fail(f"{entry.name}: {-(-len(rest) // len(group))} axis values, but the "
+                    f"controller has {ctx.axes} (axes {present})", entry.name, None, 1)
     taken = rest[:]
     rest.clear()
     required = sum(1 for p in group if not p.optional)
@@ -433,6 +477,8 @@ def _build(
 ) -> Command:
     entry = lookup(name)
     the_form = form if isinstance(form, Form) else Form(form)
+    if axis is not None:
+        check_axis_word(axis, entry.name)
     parts: list[str] = [the_form.value + entry.name]
     if axes:
         _check_lead_count(entry, the_form, args)
@@ -455,6 +501,14 @@ def _build(
     command = parse(" ".join(parts), context)
     _check_words(command, given)
     return command
+
+
+def check_axis_word(axis: object, name: str) -> None:
+    """Refuse an ``axis=`` argument that is not one axis letter (``x``, ``y``, ``z``,
+    ``a``, either case): ``""`` would address every axis, ``"y 5"`` smuggle in a value,
+    ``1`` is no letter at all."""
+    if not isinstance(axis, str) or axis.lower() not in AXES:
+        raise _fail(f"{name}: axis must be one of x, y, z, a, got {axis!r}", name, "axis", 1)
 
 
 def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> None:

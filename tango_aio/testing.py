@@ -40,6 +40,7 @@ driver writes the same lines: see :mod:`tango_aio.replay`.
 
 from __future__ import annotations
 
+import math
 import urllib.parse
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from dataclasses import dataclass
@@ -154,6 +155,8 @@ class Faults:
 
     def delay(self, seconds: float, replies: int = 1) -> None:
         """Hold the next ``replies`` replies back by ``seconds`` (later output waits)."""
+        _seconds(seconds)
+
         def action(wire: Wire) -> None:
             wire.faults.reply_delay = seconds
             wire.faults.delay_replies += _count(replies)
@@ -168,11 +171,20 @@ class Faults:
     def stall(self, seconds: float) -> None:
         """Stop the controller's interpreter for ``seconds`` (input still fills the
         buffer; moves go on)."""
+        _seconds(seconds)
         self._do(lambda wire: wire.stall(seconds))
 
     def disconnect(self, *, mid_reply: bool = False) -> None:
         """Cut the link now, or halfway through the next reply."""
         self._do(lambda wire: wire.disconnect(mid_reply=mid_reply))
+
+
+def _seconds(seconds: float) -> float:
+    """Refuse a time that is not a finite number of seconds >= 0 (nan, -1, inf, a bool)."""
+    if isinstance(seconds, bool) or not isinstance(seconds, int | float) \
+            or not math.isfinite(seconds) or seconds < 0:
+        raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
+    return float(seconds)
 
 
 def _count(replies: int) -> int:

@@ -33,6 +33,22 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 gc.disable()
 
 
+#: xdist workers per usable core for ``-n auto`` (pyproject addopts): most tests wait on
+#: the emulated wire or on subprocesses, so several per core pay (2 cores: 10 workers, the
+#: default run in about a minute). ``TANGO_AIO_TEST_WORKERS`` sets the count outright.
+WORKERS_PER_CORE = 5
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """The number of xdist workers for ``-n auto``: it follows the machine's cores."""
+    chosen = os.environ.get("TANGO_AIO_TEST_WORKERS")
+    if chosen:
+        return max(1, int(chosen))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+    return max(2, min(WORKERS_PER_CORE * cores, 32))
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the package and the test modules once, before the xdist workers start."""

@@ -90,7 +90,19 @@ def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentPar
     return {}
 
 
+def _drop_sourceless_modules(app: Any) -> list[Any]:
+    """viewcode lists, on its "module code" index, modules whose source it could not read
+    (``builtins``, of an object defined in C), linking to pages it never writes: forget
+    them before its pages are collected (tools/check_links.py finds such links)."""
+    modules = getattr(app.env, "_viewcode_modules", None)
+    if modules:
+        for name in [name for name, entry in modules.items() if not entry]:
+            del modules[name]
+    return []
+
+
 def setup(app: Any) -> dict[str, Any]:
     app.add_directive("tango-error-table", ErrorTable)
     app.add_directive("tango-cli-help", CliHelp)
+    app.connect("html-collect-pages", _drop_sourceless_modules, priority=400)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -33,6 +33,7 @@ Choices where the manual is silent are documented where they are implemented:
 
 from __future__ import annotations
 
+import math
 import random
 from collections import deque
 from collections.abc import Callable
@@ -175,8 +176,11 @@ class WireConfig:
             raise ValueError("input_buffer_size must hold at least one character and a CR")
         if not 0.0 <= self.fragment_probability <= 1.0:
             raise ValueError("fragment_probability must be within [0, 1]")
-        if min(self.processing_time_per_line, self.stall_duration, self.reply_latency,
-               self.fragment_gap) < 0.0 or self.stall_every_lines < 0:
+        times = (self.processing_time_per_line, self.stall_duration, self.reply_latency,
+                 self.fragment_gap)
+        if not all(math.isfinite(t) for t in times):
+            raise ValueError("times must be finite numbers of seconds")
+        if min(times) < 0.0 or self.stall_every_lines < 0:
             raise ValueError("times and counts must not be negative")
 
     @property

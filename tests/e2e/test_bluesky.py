@@ -96,8 +96,8 @@ def events(documents: list[tuple[str, dict[str, Any]]],
 
 @pytest.fixture
 def stage(RE: RunEngine, request: pytest.FixtureRequest) -> Iterator[MarzhauserStage]:
-    # An indirect parameter sets the coalescing window (default: the stage's 0.02 s).
-    window = getattr(request, "param", 0.02)
+    # An indirect parameter sets the longest wait for announced sets (default 0.25 s).
+    window = getattr(request, "param", 0.25)
     with init_devices():
         stage = MarzhauserStage(URL, axes="xy", window=window, progress_interval=0.02)
     run(_fast(stage))
@@ -165,13 +165,14 @@ def test_stage_has_one_child_per_axis_with_units_and_precision(
     assert described["stage-x"]["precision"] == 4
     assert stage.x.hints == {"fields": ["stage-x"]}
     config = run(stage.x.describe_configuration())
-    assert config["stage-x-velocity"]["units"] == "rev/s"
+    assert config["stage-x-velocity"]["units"] == "mm/s"
     assert config["stage-x-acceleration"]["units"] == "m/s^2"
 
 
 def test_axes_follow_the_bluesky_protocols(
         stage: MarzhauserStage, flyer: MarzhauserFlyer) -> None:
-    for protocol in (Movable, Locatable, Stoppable, Readable, Configurable, Checkable):
+    for protocol in (Movable, Locatable, Stoppable, Readable, Configurable, Checkable,
+                     Flyable, Preparable, Pausable):
         assert isinstance(stage.x, protocol), protocol
     for flyer_protocol in (Flyable, Preparable, Collectable, Stoppable, Pausable):
         assert isinstance(flyer, flyer_protocol), flyer_protocol
@@ -179,8 +180,11 @@ def test_axes_follow_the_bluesky_protocols(
 
 def test_axes_do_not_keep_the_parent_device(stage: MarzhauserStage) -> None:
     assert [name for name, _ in stage.x.children()] == [
-        "user_readback", "user_setpoint", "velocity", "acceleration",
-        "low_limit_travel", "high_limit_travel"]
+        "user_readback", "user_setpoint", "motor_egu", "motor_resolution",
+        "steps_per_revolution", "units_per_revolution", "velocity", "offset",
+        "acceleration", "low_limit_travel", "high_limit_travel", "max_velocity",
+        "acceleration_time", "precision", "motor_done_move", "dial_low_limit_travel",
+        "dial_high_limit_travel", "low_limit_switch", "high_limit_switch", "motor_stop"]
     assert stage.x.parent is stage
 
 
@@ -398,9 +402,6 @@ def test_fly_scan_collects_snapshot_positions(
     assert -0.2 <= rows[0]["flyer-snapshot_x"] <= rows[1]["flyer-snapshot_x"] <= 1.0
 
 
-# The merge of the slow move with the run-up below needs both requests inside one window;
-# 0.02 s is too short on a loaded 2-core machine, 0.25 s is not.
-@pytest.mark.parametrize("stage", [0.25], indirect=True)
 def test_raster_fly_scan(RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer,
                          documents: list[Any], moves: Callable[[], list[str]]) -> None:
     RE(fly_raster(stage, flyer, 0, 2, 5, 0, 1, 3, run_up=0.25))
@@ -425,7 +426,9 @@ def test_trigger_scan_validates_the_pass() -> None:
 
 
 def test_stopping_the_flyer_stops_the_pass(
-        RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer) -> None:
+        RE: RunEngine, stage: MarzhauserStage, flyer: MarzhauserFlyer,
+        caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
     run(_fast(stage, velocity=2))
     scan = TriggerScan("x", start=-0.1, end=10.0, trigger_range=(0.0, 9.0, 10))
 
@@ -443,6 +446,9 @@ def test_stopping_the_flyer_stops_the_pass(
     assert emulated(stage)["x"] < 10.0
     assert run(stage.controller.get("trig")) == 0
     assert run(stage.controller.get("trigcount")) < 10
+    written = [r.getMessage() for r in caplog.records if r.name == "tango_aio.wire"]
+    assert any(line.endswith("-> b'!a x'") for line in written)  # the pass's axis only
+    assert not any(line.endswith("-> b'!a'") for line in written)
 
 
 def test_pause_during_a_fly_pass_then_resume(

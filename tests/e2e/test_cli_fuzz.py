@@ -78,7 +78,7 @@ def _argv(rng: random.Random, files: list[str]) -> list[str]:
         argv = ["shell", url]
     elif command == "demo":  # only what ends before anything moves
         argv = ["demo", rng.choice(["--rows", "--points"]), rng.choice(NUMBERS[3:]),
-                "--url", rng.choice([u for u in URLS if u not in (SIM, "SIM://?baud=0")])]
+                rng.choice([u for u in URLS if u not in (SIM, "SIM://?baud=0")])]
     elif command == "help":
         argv = [rng.choice(["info", "move", "monitor", "ports", "shell", "demo"]), "--help"]
     else:
@@ -152,7 +152,7 @@ _LONG = [["info", "sim://?baud=57600&latency=0.02"],
          ["monitor", SIM, "--interval", "0.05"],
          ["shell", SIM],
          ["upload-trigp", "sim://?baud=57600", "POSITIONS"],
-         ["demo", "--url", SIM, "--rows", "2", "--points", "3"]]
+         ["demo", SIM, "--rows", "2", "--points", "3"]]
 
 
 def _output_of(proc: subprocess.Popen[bytes]) -> str:

@@ -7,7 +7,7 @@ import logging
 from collections.abc import AsyncIterator, Callable
 
 import pytest
-from helpers import Emulated, EmulatorFactory
+from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
 
 from tango_aio.coalesce import MoveCoalescer, _lines
 from tango_aio.errors import InvalidCommandError, MoveError, TangoError
@@ -41,25 +41,10 @@ def moves(caplog: pytest.LogCaptureFixture) -> Callable[[], list[str]]:
     return lambda: motion_lines(caplog)
 
 
-def emulated_position(emu: Emulated, axis: str) -> float:
-    """Where the emulator's axis really is, in its dim unit."""
-    motion = emu.model.motion
-    return motion.to_user(axis, motion.position(axis))
-
-
 def _normalised(line: str) -> str:
     """``!moa 1.0 -2.50`` -> ``!moa 1 -2.5`` (number formatting is not under test)."""
     return " ".join(f"{float(word):g}" if word[-1].isdigit() else word
                     for word in line.split())
-
-
-async def wait_moving(emu: Emulated, axis: str) -> None:
-    """Poll the emulator until ``axis`` moves."""
-    for _ in range(400):
-        if (await emu.tango.status())[axis] == "M":
-            return
-        await asyncio.sleep(0.005)
-    raise AssertionError(f"{axis} did not start moving")
 
 
 async def test_concurrent_requests_become_one_line(
@@ -192,3 +177,50 @@ async def test_aclose_stops_a_running_move_and_refuses_new_requests(
 async def test_window_must_be_valid(emu: Emulated) -> None:
     with pytest.raises(ValueError):
         MoveCoalescer(emu.tango, window=-1)
+
+
+async def test_announced_single_request_waits_for_no_window(
+        emu: Emulated, moves: Callable[[], list[str]]) -> None:
+    # A window of an hour: only the announcements may make a batch wait (#28 target 3).
+    merger = MoveCoalescer(emu.tango, window=3600, collect="announced")
+    try:
+        async with asyncio.timeout(30):
+            assert await merger.move_to("x", 1.0) == "@"
+        assert moves() == ["!moa 1"]
+    finally:
+        await merger.aclose()
+
+
+async def test_announced_requests_join_the_batch_they_were_announced_to(
+        emu: Emulated, moves: Callable[[], list[str]]) -> None:
+    merger = MoveCoalescer(emu.tango, window=3600, collect="announced")
+    try:
+        arrived = merger.announce()  # Y is on its way (e.g. a set reading ?lim first)
+        first = asyncio.create_task(merger.move_to("x", 1.0))
+        for _ in range(20):  # loop turns pass: X's batch waits for Y
+            await asyncio.sleep(0)
+        assert moves() == []
+        second = asyncio.create_task(merger.move_to("y", 2.0, arrived))
+        async with asyncio.timeout(30):
+            assert list(await asyncio.gather(first, second)) == ["@", "@"]
+        assert moves() == ["!moa 1 2"]
+        arrived()  # ending it again does nothing
+        async with asyncio.timeout(30):  # and no later batch waits for it
+            await merger.move_to("x", 0.0)
+    finally:
+        await merger.aclose()
+
+
+async def test_an_announcement_given_up_releases_the_batch(emu: Emulated) -> None:
+    merger = MoveCoalescer(emu.tango, window=3600, collect="announced")
+    try:
+        arrived = merger.announce()
+        first = asyncio.create_task(merger.move_to("x", 1.0))
+        await asyncio.sleep(0)
+        arrived()  # the announced request failed before it was made
+        async with asyncio.timeout(30):
+            assert await first == "@"
+        with pytest.raises(ValueError, match="collect"):
+            MoveCoalescer(emu.tango, collect="sometimes")
+    finally:
+        await merger.aclose()

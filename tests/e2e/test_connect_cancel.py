@@ -21,6 +21,7 @@ from helpers import (
 from tango_aio.connection import connect
 from tango_aio.errors import (
     ConnectionLostError,
+    PortBusyError,
 )
 from tango_aio.protocol import TangoProtocol
 from tango_aio.sim.serve import serve_pty
@@ -80,7 +81,7 @@ async def test_a_protocol_closed_before_connection_made_closes_its_transport() -
 
 async def test_serial_ports_are_opened_exclusively() -> None:
     async with await serve_pty(make_model) as server, connect(server.path):
-        with pytest.raises(ConnectionLostError, match="exclusive") as info:
+        with pytest.raises(PortBusyError, match="busy") as info:
             await connect(server.path)
         assert isinstance(info.value.__cause__, serial.SerialException)
 

@@ -43,7 +43,7 @@ async def test_aclose_returns_once_the_serial_port_is_released() -> None:
 
 async def test_a_second_open_of_the_same_port_fails() -> None:
     async with await serve_pty(make_model) as server, tango_aio.connect(server.path):
-        with pytest.raises(tango_aio.ConnectionLostError, match="cannot open"):
+        with pytest.raises(tango_aio.PortBusyError, match="busy"):
             await tango_aio.connect(server.path)
 
 

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = ROOT / "docs"
 _BLOCK = re.compile(r"^```python[ \t]*\n(.*?)^```[ \t]*$", re.MULTILINE | re.DOTALL)
 
 
@@ -42,6 +43,7 @@ def test_python_block_runs(name: str, code: str, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a hang's bound: the build takes minutes on a loaded machine
 def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     pytest.importorskip("sphinx")
     pytest.importorskip("myst_parser")
@@ -55,3 +57,21 @@ def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     assert "OutOfRangeError" in errors and "LimitSwitchActiveError" in errors
     assert "tango-aio upload-trigp" in (html / "reference" / "cli.html").read_text()
     assert "move_to" in (html / "reference" / "api" / "tango_aio.controller.html").read_text()
+    # No broken internal link or anchor (viewcode's back-links, its module index).
+    check = subprocess.run([sys.executable, str(ROOT / "tools" / "check_links.py"),
+                            str(html)], capture_output=True, text=True, check=False)
+    assert check.returncode == 0, check.stdout + check.stderr
+    # A theme made for API references, with an on-page contents; the public API apart
+    # from the internals.
+    controller = (html / "reference" / "api" / "tango_aio.controller.html").read_text()
+    assert "furo" in controller and "On this page" in controller
+    modules = (html / "reference" / "modules.html").read_text()
+    # (the sidebar, before the page's own text, lists every module)
+    public, internals = modules.split('id="public-api"', 1)[1].split('id="internals"', 1)
+    assert "tango_aio.controller" in public and "tango_aio.core" not in public
+    assert "tango_aio.core" in internals and "tango_aio.scheduler" in internals
+    # The pictures, drawn from a run of the emulator at build time.
+    replies = (html / "concepts" / "replies.html").read_text()
+    assert "<svg" in replies and "reply to ?statusaxis" in replies
+    raster = (html / "howto" / "raster-scan.html").read_text()
+    assert raster.count("class='pulse'") == 27

@@ -134,6 +134,10 @@ async def test_a_late_reply_is_dropped(emulator: EmulatorFactory) -> None:
     emu.wire.faults.reply_delay = 0.6
     with pytest.raises(ControllerTimeoutError):
         await tango.query("?vel", timeout=0.2)
-    await asyncio.sleep(0.5)  # the late reply and the marker's arrive meanwhile
+    # The late reply and the marker's arrive: waited for, not a time (a loaded machine).
+    await wait_until(lambda: not emu.wire.rx_pending and not emu.wire.busy
+                     and not emu.wire.tx_pending, timeout=30)
+    for _ in range(TICKS):  # the replies reach the driver
+        await asyncio.sleep(0)
     assert await tango.get("vel", axis="x") == 11.5
     assert await tango.position() == {"x": 0.0, "y": 0.0, "z": 0.0}

@@ -13,7 +13,7 @@ import pytest
 from benchmarks import canned, profiles
 from benchmarks.__main__ import CASES, RUNNERS, Row, table
 
-MODULES = ["benchmarks.__main__", "benchmarks.canned", "benchmarks.moves",
+MODULES = ["benchmarks.__main__", "benchmarks.bluesky", "benchmarks.canned", "benchmarks.moves",
            "benchmarks.profiles", "benchmarks.scaling", "benchmarks.upload",
            "benchmarks.watch"]
 
