@@ -120,9 +120,9 @@ class Handlers(Peripherals):
         code = int(c.values[0]) if c.values else self.m.error
         texts = OLDER_HELP if self.m.firmware.instruction_set == "older" else HELP
         text = texts.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
-        if c.values and self.m.firmware.help_number == "no":
-            return [text]
-        return [f"ERROR {code},{text}"]
+        bare = c.values and self.m.firmware.help_number == "no"
+        reply = text if bare else f"ERROR {code},{text}"
+        return [reply.lower() if self.m.firmware.help_case == "lower" else reply]
 
     def i_service(self, c: Command) -> Reply:
         """``service``: several lines; ``END_SERVICE_PRINT.`` last from firmware
@@ -191,7 +191,7 @@ class Handlers(Peripherals):
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":
             letters = letters.replace("-", "")
-        return [letters + ".-"]
+        return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
 
     def i_calst(self, c: Command) -> Reply:
         return [self.m.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
