@@ -189,7 +189,9 @@ async def test_stop_during_a_move_fails_the_put_short_of_the_target(
         assert 0.0 < position < 40.0
         assert await client.get("X.RBV") == pytest.approx(position, abs=1e-3)
         assert await client.get("X.DMOV") == 1
-        assert (await client.alarm("X"))[1] == AlarmSeverity.MAJOR_ALARM
+        # A user's stop is not a fault: no alarm, no MSTA problem bit.
+        assert (await client.alarm("X"))[1] == AlarmSeverity.NO_ALARM
+        assert not await client.get("X.MSTA") & Msta.PROBLEM
 
 
 async def test_spmg_stop_stops_and_refuses_moves_until_go(ca_env: dict[str, str]) -> None:
@@ -240,8 +242,16 @@ async def test_limits_are_the_controllers_and_are_enforced(ca_env: dict[str, str
 
 async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
     async with one_stage() as (tango, _, client):
+        # VMAX starts at the controller's own speed; VELO above it is VMAX.
+        assert await client.get("Z.VMAX") == pytest.approx(10.0)
+        await client.put("Z.VELO", 20.0)
+        assert await tango.get("vel", axis="z") == pytest.approx(10.0)
+        await client.put("Z.VMAX", 30.0)
         await client.put("Z.VELO", 20.0)  # mm/s with pitch 1 mm: 20 rev/s
         assert await tango.get("vel", axis="z") == pytest.approx(20.0)
+        assert await client.get("Z.VMAX") == pytest.approx(30.0)  # stays where put
+        with pytest.raises(PutFailed):
+            await client.put("Z.VMAX", 1e6)  # above the vel ceiling (200 rev/s)
         await client.put("Z.ACCL", 0.1)  # 20 mm/s in 0.1 s: 200 mm/s² = 0.2 m/s²
         assert await tango.get("accel", axis="z") == pytest.approx(0.2)
         assert await client.get("Z.ACCL") == pytest.approx(0.1)
