@@ -450,15 +450,20 @@ class AxisServer:
                 self._positive = positive
                 await self._motion_of(motion, request)
         except MoveStoppedError:
+            if self.server.link_up and self.controller.connected:
+                await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
             raise
         except TangoError:
+            # The record's alarm shows on its fields too, as a motor record's SEVR does:
+            # classic ophyd's EpicsMotor fails a move when RBV is in alarm at DMOV=1.
             self._problem = True
+            if self.server.link_up and self.controller.connected:
+                await self._set_alarm(AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
             raise
         else:
             self._problem = False
             if self.server.link_up:
-                await self.record.alarm.write(status=AlarmStatus.NO_ALARM,
-                                              severity=AlarmSeverity.NO_ALARM)
+                await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
         finally:
             self._busy -= 1
             await self._finish()

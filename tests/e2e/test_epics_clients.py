@@ -16,8 +16,8 @@ import contextlib
 import json
 import os
 import sys
-from importlib.util import find_spec
 from collections.abc import AsyncIterator, Mapping
+from importlib.util import find_spec
 from typing import Any
 
 import pytest
@@ -36,6 +36,7 @@ from tango_aio.epics.ioc import TangoIoc, build_ioc  # noqa: E402
 
 pytestmark = [
     pytest.mark.timeout(300),
+    pytest.mark.usefixtures("ca_env"),
     pytest.mark.skipif(os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop",
                        reason="caproto IOC in a uvloop loop: see test_epics"),
 ]
@@ -160,12 +161,101 @@ async def _ordering(rounds: int, points: int, side: int, runs: int) -> None:
     assert ophyd_async["events"] == side ** 3
 
 
-async def test_a_completed_put_shows_the_final_readback_to_every_client(
-        ca_env: dict[str, str]) -> None:
+async def test_a_completed_put_shows_the_final_readback_to_every_client() -> None:
     await _ordering(rounds=4, points=5, side=2, runs=1)
 
 
 @pytest.mark.slow
-async def test_a_completed_put_shows_the_final_readback_over_many_rounds(
-        ca_env: dict[str, str]) -> None:
+async def test_a_completed_put_shows_the_final_readback_over_many_rounds() -> None:
     await _ordering(rounds=100, points=33, side=3, runs=3)
+
+
+# ----------------------------------------------------------------- STOP, SPMG, queues
+
+#: pyepics: ``spmg``: SPMG=Stop then at once a VAL put, then Go, ``rounds`` times;
+#: ``queued``: ``rounds`` VAL puts without waiting, then STOP; ``tweaks``: three TWF
+#: presses, then STOP. After a STOP, RBV and MOVN are sampled for ``sample`` seconds.
+STOPS = """
+import json, random, sys, time, warnings
+warnings.simplefilter("ignore")
+import epics
+
+prefix, mode, rounds, sample = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
+x = prefix + "X"
+pvs = [epics.get_pv(x + name) for name in ("", ".RBV", ".MOVN", ".SPMG", ".STOP", ".TWF")]
+assert all(pv.wait_for_connection(30) for pv in pvs)
+if mode == "spmg":
+    for i in range(rounds):
+        epics.caput(x + ".SPMG", 0, wait=True)  # Stop
+        epics.caput(x, 5.0 + i % 3, wait=False)
+        epics.caput(x + ".SPMG", 3, wait=True)  # Go
+elif mode == "queued":
+    for i in range(rounds):
+        epics.caput(x, random.uniform(1.0, 30.0), wait=False)
+elif mode == "tweaks":
+    epics.caput(x + ".TWV", 3.0, wait=True)
+    for i in range(3):
+        epics.caput(x + ".TWF", 1, wait=False)
+epics.caput(x + ".STOP", 1, wait=True)
+samples = []
+end = time.monotonic() + sample
+while time.monotonic() < end:
+    samples.append([epics.caget(x + ".RBV"), epics.caget(x + ".MOVN")])
+    time.sleep(0.05)
+print(json.dumps({"samples": samples}))
+"""
+
+
+def _spy_moves(tango: Controller) -> list[str]:
+    """Record every move line the IOC sends to ``tango`` from now on."""
+    lines: list[str] = []
+    submit = tango.protocol.submit
+
+    def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+        if command.line.startswith(("!moa", "!mor", "!m ")):
+            lines.append(command.line)
+        return submit(command, *args, **kwargs)
+
+    tango.protocol.submit = spy  # type: ignore[method-assign]
+    return lines
+
+
+async def _stops(*runs: tuple[str, int, float]) -> list[tuple[list[str], float]]:
+    """Run the STOPS client once per ``(mode, rounds, sample)`` against one IOC; check
+    that the axis stood still through every sample; return the move lines each run sent
+    and where the axis stood."""
+    outcomes = []
+    async with connect(INSTANT) as tango:
+        await _stage(tango)
+        async with serving({"": tango}, "STP:"):
+            for mode, rounds, sample in runs:
+                moves = _spy_moves(tango)
+                try:
+                    result = await run_client(STOPS, "STP:", mode, rounds, sample)
+                finally:
+                    del tango.protocol.submit
+                assert (await tango.status())["x"] != "M"
+                still = (await tango.position())["x"]
+                samples = result["samples"]
+                assert samples, "no samples"
+                assert all(movn == 0 for _, movn in samples), mode
+                assert all(abs(rbv - still) < 1e-3 for rbv, _ in samples), mode
+                outcomes.append((moves, still))
+    return outcomes
+
+
+async def test_spmg_stop_refuses_a_val_put_right_behind_it() -> None:
+    [(moves, still)] = await _stops(("spmg", 10, 0.2))
+    assert moves == []
+    assert still == 0.0
+
+
+async def test_stop_after_queued_puts_and_tweaks_leaves_the_axis_standing() -> None:
+    await _stops(("queued", 50, 1.0), ("tweaks", 0, 1.0))
+
+
+@pytest.mark.slow
+async def test_spmg_stop_and_stop_many_rounds() -> None:
+    [(moves, still)] = await _stops(("spmg", 100, 0.2))
+    assert moves == [] and still == 0.0
+    await _stops(*[("queued", 50, 10.0), ("tweaks", 0, 10.0)] * 2)
