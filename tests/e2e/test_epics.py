@@ -364,7 +364,10 @@ def test_policy_decides_per_host_and_user() -> None:
     assert everyone.may_write("any", "one") and not everyone.restricted
     assert not AccessPolicy(read_only=True).may_write("any", "one")
     hosts = AccessPolicy.build(hosts=["pc3.lab.example"])
-    assert hosts.may_write("PC3", "x") and hosts.may_write("pc3.lab.example", "x")
+    assert hosts.may_write("PC3.Lab.Example", "x") and hosts.may_write("pc3.lab.example", "x")
+    assert not hosts.may_write("PC3", "x")  # whole names only
+    assert not hosts.may_write("pc3.evil.example", "x")
+    assert not hosts.may_write("ACQ-PC.evil.example", "x")
     assert not hosts.may_write("pc4", "x") and not hosts.may_write(None, "x")
     ips = AccessPolicy.build(hosts=["10.0.0.5"])
     assert ips.may_write("10.0.0.5", "x") and not ips.may_write("10", "x")
