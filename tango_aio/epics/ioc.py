@@ -644,6 +644,11 @@ class AxisServer:
         await f.enable_control.write("Enable" if enabled else "Disable", verify_value=False)
         await self._publish_dial(await c.get("pos", axis=axis))
         await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+        # LVIO says whether the position (VAL at start) is inside the limits: caproto's
+        # record starts with LVIO=1.
+        low, high = f.dial_low_limit.value, f.dial_high_limit.value
+        inside = (low == high == 0.0) or low <= self._dial <= high
+        await f.limit_violation.write(0 if inside else 1, verify_value=False)
 
     async def _optional(self, name: str, default: float, axis: str | None = None) -> Any:
         """Read ``name``; a controller that refuses it (older firmware may lack gear,

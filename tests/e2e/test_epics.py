@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import socket
 from collections.abc import AsyncIterator, Iterator, Mapping
@@ -424,3 +425,52 @@ async def test_stopping_the_ioc_stops_the_moves_it_started(ca_env: dict[str, str
             await task
         assert (await tango.status())["x"] != "M"
         assert (await tango.position())["x"] < 40.0
+
+
+# ------------------------------------------------------- motor-record semantics (#26)
+
+
+async def test_val_during_a_move_retargets(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        first = asyncio.create_task(client.put("X", 20.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X", 1.0)  # stop, then move to the new VAL
+        with pytest.raises(PutFailed):
+            await first  # replaced: it never reached 20
+        assert await client.get("X") == pytest.approx(1.0)
+        assert (await tango.position())["x"] == pytest.approx(1.0)
+        assert await client.get("X.DMOV") == 1
+
+
+async def test_pause_then_go_resumes_toward_val(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        move = asyncio.create_task(client.put("X", 8.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X.SPMG", "Pause")
+        with pytest.raises(PutFailed):
+            await move
+        assert (await tango.position())["x"] < 8.0
+        await client.put("X.SPMG", "Go")
+        await client.until("X.RBV", 8.0)
+        await client.until("X.DMOV", 1)
+        assert (await tango.position())["x"] == pytest.approx(8.0)
+
+
+async def test_lvio_and_refused_values(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        assert await client.get("X.LVIO") == 0  # inside the limits at start-up
+        with pytest.raises(PutFailed):
+            await client.put("X", 1e5)  # beyond DHLM: LVIO, no motion
+        assert await client.get("X.LVIO") == 1
+        for field, value in (("OFF", math.nan), ("OFF", 1e308), ("VELO", math.inf),
+                             ("DIR", 1), ("VBAS", 1.0), ("JOGF", 1), ("MRES", 0.1),
+                             ("RVAL", 5)):
+            with pytest.raises(PutFailed):
+                await client.put(f"X.{field}", value)
+        assert await client.get("X.OFF") == 0.0
+        assert (await tango.position())["x"] == 0.0
+        await client.put("X.DVAL", 2.0)
+        assert (await tango.position())["x"] == pytest.approx(2.0)
+        await client.put("X.RLV", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+        assert await client.get("X.LVIO") == 0
