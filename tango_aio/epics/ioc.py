@@ -284,17 +284,18 @@ class AxisServer:
         self._published: dict[str, float] = {}
 
     async def _set_alarm(self, status: AlarmStatus, severity: AlarmSeverity) -> None:
-        """Set the record's alarm and that of its other served fields (RBV shows INVALID
-        too).
+        """Set the record's alarm and that of its fields (RBV shows INVALID too).
 
-        The fields keep alarms of their own: caproto re-applies a channel's own alarm
-        state when it is written, so a shared alarm would be reset by the next RBV.
+        caproto gives the record one alarm and its fields another, shared by all of them;
+        each is written once. A numeric channel written *with* verification re-applies
+        the alarm its own value limits give (none here), which would clear this one: the
+        readbacks are therefore written with ``verify_value=False``.
         """
         fields = self.record.fields
-        channels = [self.record, *(fields[name] for name in ALARM_FIELDS)]
-        for channel in channels:
-            if (channel.alarm.status, channel.alarm.severity) != (status, severity):
-                await channel.alarm.write(status=status, severity=severity)
+        alarms = {id(c.alarm): c.alarm for c in (self.record, *(fields[name] for name in
+                                                                  ALARM_FIELDS))}
+        for alarm in alarms.values():
+            await alarm.write(status=status, severity=severity)
 
     @property
     def controller(self) -> Controller:
@@ -419,7 +420,7 @@ class AxisServer:
         low, high = f.dial_low_limit.value, f.dial_high_limit.value
         inside = (low == high == 0.0) or low <= dial <= high
         if f.limit_violation.value != (0 if inside else 1):
-            await f.limit_violation.write(0 if inside else 1)
+            await f.limit_violation.write(0 if inside else 1, verify_value=False)
         if not inside:
             raise MotorRefusedError(f"{self.record.pvname}: dial target {dial} outside the "
                                     f"limits [{low}, {high}]")
@@ -439,7 +440,7 @@ class AxisServer:
         self._busy += 1
         try:
             if f.done_moving_to_value.value != 0:
-                await f.done_moving_to_value.write(0)
+                await f.done_moving_to_value.write(0, verify_value=False)
             await self._cancel_running()
             async with self._turn:
                 if request != self._request:
@@ -472,7 +473,7 @@ class AxisServer:
         """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
         f = self._f
         if f.motor_is_moving.value != 1:
-            await f.motor_is_moving.write(1)
+            await f.motor_is_moving.write(1, verify_value=False)
         await self._publish_status()
         task = self._motion = asyncio.ensure_future(motion())
         try:
@@ -512,9 +513,9 @@ class AxisServer:
             await self.server.link_lost()
         elif not self._busy:
             if f.motor_is_moving.value != 0:
-                await f.motor_is_moving.write(0)
+                await f.motor_is_moving.write(0, verify_value=False)
             if f.done_moving_to_value.value != 1:
-                await f.done_moving_to_value.write(1)
+                await f.done_moving_to_value.write(1, verify_value=False)
         await self._publish_status()
         await self.server.flush()
 
@@ -705,7 +706,7 @@ class AxisServer:
         last = channel.value
         if value == last or (abs(value - last) <= deadband and deadband > 0):
             return
-        await channel.write(value)
+        await channel.write(value, verify_value=False)  # keeps the record's alarm
 
     async def poll_update(self, dial: float, letter: str) -> None:
         """Publish a polled position and status letter (DMOV=1 once a move that lost
@@ -716,9 +717,9 @@ class AxisServer:
             self._standing_unknown = False
             f = self._f
             if f.motor_is_moving.value != int(moving):
-                await f.motor_is_moving.write(int(moving))
+                await f.motor_is_moving.write(int(moving), verify_value=False)
             if f.done_moving_to_value.value != int(not moving):
-                await f.done_moving_to_value.write(int(not moving))
+                await f.done_moving_to_value.write(int(not moving), verify_value=False)
         await self._publish_status(moving=letter == "M")
 
     async def slow_update(self, readsw: str, statuslimit: str) -> None:
@@ -727,9 +728,9 @@ class AxisServer:
         self._homed = calibrated(statuslimit, self.letter)
         f = self._f
         if f.user_high_limit_switch.value != int(self._switches.high):
-            await f.user_high_limit_switch.write(int(self._switches.high))
+            await f.user_high_limit_switch.write(int(self._switches.high), verify_value=False)
         if f.user_low_limit_switch.value != int(self._switches.low):
-            await f.user_low_limit_switch.write(int(self._switches.low))
+            await f.user_low_limit_switch.write(int(self._switches.low), verify_value=False)
         await self._publish_status()
 
     async def _publish_status(self, moving: bool | None = None) -> None:
@@ -741,7 +742,7 @@ class AxisServer:
                     problem=self._problem, comm_error=not self.server.link_up,
                     homed=self._homed, positive=self._positive)
         if f.motor_status.value != word:
-            await f.motor_status.write(word)
+            await f.motor_status.write(word, verify_value=False)
 
     async def link_changed(self, up: bool) -> None:
         """The link went down (INVALID/COMM alarm) or came back (settings re-read)."""

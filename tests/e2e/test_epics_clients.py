@@ -353,9 +353,6 @@ KNOWN_FALSE_SUCCESS = {
        "setpoint's put callback fails (ECA_PUTFAIL)" for ending in ENDINGS[1:]},
     ("ophyd", "stop"): "classic ophyd judges a move by RBV's alarm at DMOV=1, and a STOP "
                        "raises no alarm (as the motor record's does not)",
-    ("ophyd", "disabled axis"): "classic ophyd reports success; cause not yet found",
-    ("ophyd", "abort by another client"): "classic ophyd reports success; cause not yet "
-                                          "found",
 }
 
 
