@@ -232,7 +232,9 @@ class AxisGroup(PVGroup):  # type: ignore[misc]
 class ControllerPVs(PVGroup):  # type: ignore[misc]
     """The PVs of one controller (``P:CONNECTED`` ...)."""
 
+    # CONNECTED has an alarm of its own: it stays NO_ALARM while the others go INVALID.
     connected = pvproperty(name="CONNECTED", value=0, read_only=True,
+                           alarm_group="connected",
                            doc="1 while the link to the controller is up")
     error = pvproperty(name="ERROR", value=0, read_only=True,
                        doc="last error: controller error number, -1 other, 0 none")
@@ -806,8 +808,8 @@ class ControllerServer:
     async def report_error(self, exc: BaseException) -> None:
         """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``)."""
         number = exc.number if isinstance(exc, ControllerError) else -1
-        await self.group.error.write(number)
-        await self.group.error_text.write(str(exc)[:255])
+        await self.group.error.write(number, verify_value=False)
+        await self.group.error_text.write(str(exc)[:255], verify_value=False)
         if not self.link_up:  # the failed put's WRITE alarm must not hide the link state
             for axis in self.axes:
                 await axis.assert_invalid()
@@ -826,9 +828,9 @@ class ControllerServer:
         status = AlarmStatus.NO_ALARM if up else AlarmStatus.COMM
         for pv in (group.autostatus, group.trigcount, group.error, group.error_text):
             await pv.alarm.write(status=status, severity=severity)
-        await group.connected.write(int(up))
+        await group.connected.write(int(up), verify_value=False)
         if up:
-            await group.autostatus.write(self.controller.autostatus)
+            await group.autostatus.write(self.controller.autostatus, verify_value=False)
             log.info("%s: connected to %s", self.prefix, self.controller.url)
         # Up only once every setting was read: a failed read is tried again next poll.
         self.link_up = up
@@ -864,8 +866,8 @@ class ControllerServer:
             statuslimit = await c.query("?statuslimit")
             for axis in self.axes:
                 await axis.slow_update(readsw, statuslimit)
-            await self.group.trigcount.write(int(await c.get("trigcount")))
-            await self.group.autostatus.write(c.autostatus)
+            await self.group.trigcount.write(int(await c.get("trigcount")), verify_value=False)
+            await self.group.autostatus.write(c.autostatus, verify_value=False)
 
     async def aclose(self) -> None:
         """Stop what the coalescer is moving."""

@@ -27,7 +27,7 @@ _MISSING = [name for name in ("caproto", "epics", "ophyd", "ophyd_async", "blues
 if _MISSING:
     pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
-from helpers import INSTANT  # noqa: E402
+from helpers import INSTANT, wire_of  # noqa: E402
 from test_epics import ca_env  # noqa: E402, F401 - ca_env is a fixture
 
 from tango_aio.connection import connect  # noqa: E402
@@ -364,3 +364,60 @@ KNOWN_FALSE_SUCCESS = {
     for client in CLIENTS for ending in ENDINGS])
 async def test_matrix_ioc_rows(client: str, ending: str) -> None:
     await _cell(client, ending)
+
+
+# -------------------------------------------------------------------- the link lost
+
+#: pyepics watches DMOV, RBV, ERROR:TEXT and CONNECTED (value and severity, in the order
+#: they arrive on the one circuit), puts VAL=30 without waiting, and records ``seconds``.
+LINK = """
+import json, sys, threading, time, warnings
+warnings.simplefilter("ignore")
+import epics
+prefix, seconds = sys.argv[1], float(sys.argv[2])
+events, lock = [], threading.Lock()
+def record(pvname=None, value=None, severity=None, **kw):
+    with lock:
+        events.append([pvname[len(prefix):], value if not isinstance(value, bytes) else
+                       value.decode(), severity])
+pvs = [epics.PV(prefix + name, form="time", callback=record, auto_monitor=True)
+       for name in ("X.DMOV", "X.RBV", "ERROR:TEXT", "CONNECTED")]
+assert all(pv.wait_for_connection(30) for pv in pvs)
+time.sleep(0.3)
+epics.caput(prefix + "X", 30.0, wait=False)
+time.sleep(seconds)
+with lock:
+    print(json.dumps({"events": events}))
+"""
+
+
+async def _link_drop() -> None:
+    async with connect(INSTANT) as tango:
+        await _stage(tango)
+        async with serving({"": tango}, "LNK:"):
+            client = asyncio.create_task(run_client(LINK, "LNK:", 2.5))
+            async with asyncio.timeout(60):
+                while (await tango.status())["x"] != "M":  # noqa: ASYNC110 - polls
+                    await asyncio.sleep(0.02)
+            await asyncio.sleep(0.2)
+            wire_of(tango).disconnect()
+            events = (await client)["events"]
+    moved = [i for i, (name, value, _) in enumerate(events) if name == "X.DMOV" and value == 0]
+    assert moved, events
+    after = events[moved[0]:]
+    # Never DMOV=1 without an alarm once the move started: the link went down mid-move.
+    assert not [e for e in after if e[0] == "X.DMOV" and e[1] == 1 and e[2] == 0], after
+    last = {name: (value, severity) for name, value, severity in after}
+    assert last["CONNECTED"] == (0, 0)
+    for name in ("X.DMOV", "X.RBV", "ERROR:TEXT"):
+        assert last[name][1] == 3, (name, last)  # INVALID
+
+
+async def test_a_link_lost_mid_move_never_shows_dmov_1_without_alarm() -> None:
+    await _link_drop()
+
+
+@pytest.mark.slow
+async def test_a_link_lost_mid_move_twenty_times() -> None:
+    for _ in range(20):
+        await _link_drop()
