@@ -1,7 +1,8 @@
 """The ``tango-aio`` command line.
 
 Every command takes ``--help``. Errors are printed as one line and give exit code 1
-(2 for usage errors, 130 after Ctrl+C). URLs are those of :func:`tango_aio.connect`;
+(2 for usage errors, 130 after Ctrl+C); a move that did not end at its target gives 1,
+in the shell too (docs/reference/cli.md, "Exit codes"). URLs are those of :func:`tango_aio.connect`;
 ``sim://`` runs the embedded emulator. Text that comes from the user or the controller is
 printed literally (never as rich markup). Ctrl+C stops the axes that a command started
 before it exits.
@@ -61,6 +62,7 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse
 from .instructions import Command as CommandLine
+from .motion import FAILED_LETTERS, describe_stop, moved_axes, position_tolerance
 
 __all__ = ["main"]
 
@@ -379,6 +381,8 @@ def describe_event(event: TangoEvent) -> str | None:
     if isinstance(event, StatusReport):
         return f"status report: {describe_letters(event.statuses)}"
     if isinstance(event, MoveAborted):
+        if event.axes:
+            return f"stop sent (a {' '.join(event.axes)}): {' '.join(event.axes).upper()} stop"
         return f"abort sent ({'Ctrl+C' if event.ctrl_c else 'a'}): all axes stop"
     if isinstance(event, UnsolicitedLine):
         return describe_line(event.line)
@@ -572,8 +576,11 @@ def history_path() -> Path:
 class Shell:
     """The interactive line shell of ``tango-aio shell`` on a connected controller.
 
-    :meth:`run` returns the exit status: 1 when the connection was lost or, for a
-    ``script``, when a line failed (invalid, rejected by the controller, an error); else 0.
+    :meth:`run` returns the exit status: 1 when the connection was lost, when a move a
+    line started did not end at its target (judged at ``wait``, when its completion
+    report comes, and on leaving: a move still running then is stopped and counts as
+    failed) or, for a ``script``, when a line failed (invalid, rejected by the
+    controller, an error); else 0.
     """
 
     def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False
@@ -586,6 +593,13 @@ class Shell:
         self._job: asyncio.Future[None] | None = None
         self._aborting: asyncio.Future[None] | None = None
         self._lost = asyncio.Event()
+        #: Moves the shell's lines started and not judged yet: axis -> (serial, target;
+        #: ``None`` where the line gives no absolute target: mor, cal, rm, moc).
+        self._moves: dict[str, tuple[int, float | None]] = {}
+        self._serial = 0
+        self._judging = asyncio.Lock()
+        #: How many judged moves did not end at their target.
+        self.move_failures = 0
 
     async def run(self) -> int:
         """Read, validate and send lines until ``exit``, ``quit``, end of input or the
@@ -596,11 +610,14 @@ class Shell:
                 with _sigint_calls(self._on_sigint):
                     await self._loop()
                     if not self._lost.is_set():
+                        await self._settle_abort()
+                        await self._judge(leaving=True)
                         await self._stop_moving()
             finally:
                 printer.cancel()
                 await asyncio.wait({printer})
-        return 1 if (self.script and self.failures) or self._lost.is_set() else 0
+        failed = (self.script and self.failures) or self.move_failures or self._lost.is_set()
+        return 1 if failed else 0
 
     async def _loop(self) -> None:
         while True:
@@ -679,13 +696,67 @@ class Shell:
         if words == ["wait"]:
             letters = await self.tango.wait_idle()
             _say(f"idle: {describe_letters(letters)}")
+            await self._judge()
             return
         command = parse(line, self.tango.context)
         if command.is_read:
             _say(describe_reply(command, await self.tango.query(line)))
         else:
             await self.tango.command(line)
+            self._started(command)
             _say("ok", "dim")
+
+    def _started(self, command: CommandLine) -> None:
+        """Remember the axes (and absolute targets) of a move line the controller took,
+        to judge later whether it ended at its target."""
+        if command.instruction.completion is None and command.name != "go":
+            return
+        present = AXES[: self.tango.context.axes]
+        axes = moved_axes(command, present)
+        targets: dict[str, float] = {}
+        if command.name in ("moa", "go") and command.values:
+            targets = dict(zip(axes, (float(v) for v in command.values), strict=False))
+        for axis in axes:
+            self._serial += 1
+            self._moves[axis] = (self._serial, targets.get(axis))
+
+    async def _judge(self, *, leaving: bool = False) -> None:
+        """Judge the moves the shell's lines started whose axes stand now: each must
+        stand at its target without a failure letter (``E``, ``S``, ``T``; ``-``: a
+        disabled axis). ``leaving``: an axis still moving counts as failed (it is stopped
+        next). Failures are printed in words and counted."""
+        async with self._judging:
+            pending = dict(self._moves)
+            if not pending:
+                return
+            try:
+                letters = await self.tango.status()
+                reply = await self.tango.query("?pos")
+            except (TangoError, TimeoutError) as exc:
+                _say(f"error: reading the state after a move: {describe_exception(exc)}",
+                     "red")
+                self.move_failures += 1
+                return
+            texts = dict(zip(AXES[: self.tango.context.axes], reply.split(),
+                             strict=False))
+            failed = []
+            for axis, (serial, target) in pending.items():
+                letter = letters.get(axis, "-")
+                if letter == "M" and not leaving:
+                    continue  # not ended yet
+                if self._moves.get(axis, (0, None))[0] == serial:
+                    del self._moves[axis]
+                text = texts.get(axis)
+                if letter == "M":
+                    failed.append(describe_stop(axis, letter, text, target,
+                                                why="still moving when the shell was left"))
+                elif letter in FAILED_LETTERS or letter == "-" or (
+                        target is not None and (text is None or abs(float(text) - target)
+                                                > position_tolerance(text))):
+                    failed.append(describe_stop(axis, letter, text, target))
+            if failed:
+                self.move_failures += 1
+                _say(f"move failed: {'; '.join(failed)}", "red")
 
     @staticmethod
     def help(topic: str | None) -> str:
@@ -734,6 +805,9 @@ class Shell:
                 _say(text, "red" if isinstance(event, ConnectionLost) else "cyan")
             if isinstance(event, ConnectionLost):
                 self._lost.set()
+            elif isinstance(event, MoveFinished | StatusReport) and self._moves:
+                with contextlib.suppress(TangoError, TimeoutError):
+                    await self._judge()
 
 
 async def _shell(args: argparse.Namespace) -> int:
@@ -743,14 +817,17 @@ async def _shell(args: argparse.Namespace) -> int:
     words. ``help`` lists the shell's commands, ``help moa`` explains an instruction.
     Ctrl+C aborts (all axes stop); Ctrl+D, ``exit`` or ``quit`` leave, stopping axes that
     still move. Lines piped into the shell run as a script, whose exit status is 1 if any
-    line failed. History is kept
+    line failed; in both modes it is 1 if a move did not end at its target (a move still
+    running at the end is stopped and counts as failed). History is kept
     in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        if ident is not None:
-            _say(f"connected to {ident.model} firmware {ident.firmware}, "
-                 f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
-                 f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", "bold")
+        if ident is not None:  # on stderr: stdout holds the replies only (a script's)
+            Console(stderr=True, highlight=False).print(Text(
+                f"connected to {ident.model} firmware {ident.firmware}, "
+                f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+                f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
+                soft_wrap=True)
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 

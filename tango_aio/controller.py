@@ -649,7 +649,8 @@ class Controller:
         # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
         timed = command.name in ("moa", "mor", "m", "moc")
         delay = s.delay_ms / 1000.0 if timed else 0.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + s.settle_ms / 1000.0
+        settle = s.settle_ms / 1000.0
+        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
         absolute: dict[str, float] | None = None
         extend: Callable[[Mapping[str, str]], float] | None = None
         if command.instruction.completion in (Completion.CAL, Completion.RM):
@@ -676,7 +677,7 @@ class Controller:
                              default=0.0)
                 return MovePlan(command, moved, dict(targets), delay + travel + after,
                                 check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch)
+                                start=reader, batch=batch, delay=delay, settle=settle)
             if known is None or not set(targets) <= set(known):
                 known = None
                 start = {a: float(t) for a, t in (await self._position_texts()).items()}
@@ -689,7 +690,8 @@ class Controller:
             if known is not None and timeout is None:
                 extend = functools.partial(self._rest_budget, absolute, limit + after)
         return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend)
+                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
+                        delay=delay, settle=settle)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
@@ -751,6 +753,48 @@ class Controller:
                 if "M" not in letters.values():
                     return letters
                 await asyncio.sleep(poll_interval)
+
+    async def stop(self, *axes: str, wait: bool = True) -> None:
+        """Stop the named axes (``stop("x")``, ``stop("x", "z")``) with the manual's
+        one-axis abort ``a x`` (L6785-6844: stops the moves of that axis with stopaccel);
+        the other axes go on. Without axes, stops every axis with ``a`` (as
+        ``abort(soft=True)``). Moves being awaited (or detached) that move a stopped axis
+        raise :class:`MoveError` once their axes stand still; moves of other axes are not
+        affected. An axis the controller lacks raises
+        :class:`~tango_aio.errors.InvalidCommandError` before anything is written. With
+        ``wait``, returns once the stopped axes stand still; raises
+        :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
+        :data:`~tango_aio.motion.STOP_WAIT` seconds.
+        """
+        if not axes:
+            await self.abort(soft=True, wait=wait)
+            return
+        present = AXES[: self.context.axes]
+        chosen: list[str] = []
+        for axis in axes:
+            letter = axis.lower() if isinstance(axis, str) else axis
+            if letter not in present:
+                raise InvalidCommandError(
+                    f"stop({axis!r}): the controller has no {str(axis).upper()} axis "
+                    f"(its axes: {' '.join(present).upper()})",
+                    instruction="a", parameter="axis", number=1)
+            if letter not in chosen:
+                chosen.append(letter)
+        self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
+        self._motion.stopped(chosen)
+        await self._protocol.stop_axes(True, axes=chosen)
+        if wait:
+            try:
+                async with asyncio.timeout(STOP_WAIT):
+                    while True:
+                        letters = await self.status()
+                        if all(letters.get(axis) != "M" for axis in chosen):
+                            return
+                        await asyncio.sleep(0.05)
+            except TimeoutError:
+                raise ControllerTimeoutError(
+                    f"{' '.join(chosen).upper()} still moving {STOP_WAIT:.0f} s after the "
+                    "stop") from None
 
     async def abort(self, *, soft: bool = False, wait: bool = True) -> None:
         """Stop all axes.

@@ -56,9 +56,12 @@ class MoveFinished:
 
 @dataclass(frozen=True, slots=True)
 class MoveAborted:
-    """Axes were stopped by an abort (``a`` or Ctrl+C)."""
+    """Axes were stopped by an abort (``a`` or Ctrl+C), or by :meth:`Controller.stop
+    <tango_aio.controller.Controller.stop>` of some axes (``a x``)."""
 
     ctrl_c: bool
+    #: The axes stopped (``()``: every axis).
+    axes: tuple[str, ...] = ()
     time: float = field(default_factory=_now)
 
 

@@ -381,6 +381,16 @@ class ControllerGroup(Mapping[str, Controller]):
             name: lambda c: c.measure_range(timeout=timeout, stop_on_cancel=stop_on_cancel)
             for name in selected}, fail_fast)
 
+    async def stop(self, *axes: str, names: Iterable[str] | None = None,
+                   wait: bool = True) -> None:
+        """Stop the named axes (``a x``; every axis without axes) of every member (or of
+        those in ``names``) in parallel; see :meth:`Controller.stop`. Every member is
+        attempted even if some fail; the failures are raised as a :class:`GroupError`
+        afterwards. Moves of other axes go on."""
+        selected = self._select(names)
+        await self._run("stop", {
+            name: lambda c: c.stop(*axes, wait=wait) for name in selected}, False)
+
     async def abort(self, names: Iterable[str] | None = None, *, soft: bool = False,
                     wait: bool = True) -> None:
         """Stop every member (or those in ``names``) in parallel.

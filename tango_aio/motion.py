@@ -27,13 +27,19 @@ How a move is followed
    against the target for ``move_to``/``move_by``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
    and stands within :func:`position_tolerance` of its target. An axis that stopped
-   elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`,
-   but only once the expected end has passed: before it, a move that has not started yet
-   (``!delay``, L6845-6868) can read like the previous state.
-4. A move during which the driver itself wrote ``a`` or Ctrl+C never succeeds, whatever
-   letters are reported: the "stop epoch" counts the driver's stops, and a move that saw
-   it change raises :class:`MoveError` once its axes stand still. (Older firmware reports
-   axes stopped by ``a`` as ``@``, old L1917, so the letter alone cannot tell.)
+   elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
+   at once (a limit switch, an abort, a disabled axis: #26), unless the driver knows a
+   reason why the read may come too early: a move that has not started yet
+   (``!delay``, L6845-6868) can read like the previous state until the delay is over,
+   and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
+   expected end (:func:`_too_early`).
+4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
+   Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
+   driver's stops per axis, and a move that saw the count of one of its axes change
+   raises :class:`MoveError` once its axes stand still. (Older firmware reports axes
+   stopped by ``a`` as ``@``, old L1917, so the letter alone cannot tell.) A one-axis
+   stop (``a x``, L6785-6844: "aborts ... of all axes or of a specified axis") counts
+   for that axis only: a move of other axes goes on and may succeed.
 
 Timeouts
 ========
@@ -97,6 +103,7 @@ __all__ = [
     "MotionPort",
     "MovePlan",
     "MoveTiming",
+    "describe_stop",
     "moved_axes",
     "position_tolerance",
     "travel_time",
@@ -109,6 +116,10 @@ STOP_WAIT = 10.0
 
 #: Status letters that mean a move did not end where it should (manual L2689-2711).
 FAILED_LETTERS = frozenset("EST")
+
+#: Letters of a moved axis that end a move at once (:func:`_too_early`): the failure
+#: letters, and ``-`` for an axis that is disabled (L2711).
+_FINAL = FAILED_LETTERS | {"-"}
 
 #: The only letter that means "still moving" (manual L2676-2681: "every response except
 #: of 'M' means the axis has stopped").
@@ -181,6 +192,13 @@ class MovePlan:
     limit: float
     #: Position tolerance per moved axis (``targets`` only).
     tolerance: Mapping[str, float] = field(default_factory=dict)
+    #: Seconds the controller holds the move back before it starts (``!delay``,
+    #: L6845-6868), as the driver knows it: until then a stopped axis may be one that
+    #: has not started yet.
+    delay: float = 0.0
+    #: Seconds of closed-loop settling (``ctrt``, L11616-11631): until the expected end,
+    #: an axis near its target may still be settling.
+    settle: float = 0.0
     #: When ``limit`` was sized from a position read before this move (the last one the
     #: driver knows, see :attr:`Motion.positions`): seconds from now that the move may
     #: still take, given the positions printed now. Called once, when the axes still move
@@ -276,12 +294,17 @@ class _Job:
     plan: MovePlan
     sent: MoveHandle
     started: float
+    #: The driver's stops of the moved axes when the line was written (see
+    #: :meth:`Motion.epoch`).
     epoch: int
     #: The hint count when the state was last read (at first: when the line was written;
     #: a hint from before it says nothing about this move).
     hints: int
     #: Whether :attr:`MovePlan.extend` has been used.
     extended: bool = False
+    #: When the line's check came back: the controller had taken the line by then, so
+    #: its ``!delay`` ends at the latest :attr:`MovePlan.delay` later.
+    checked: float = 0.0
 
 
 class Motion:
@@ -291,8 +314,9 @@ class Motion:
         self._port = port
         self._lock = asyncio.Lock()
         self._detached: asyncio.Task[None] | None = None
-        #: How often the driver wrote ``a`` or Ctrl+C (the stop epoch).
-        self._stops = 0
+        #: Per axis, how often the driver stopped it (``a``, ``a x`` or Ctrl+C): the stop
+        #: epoch.
+        self._stops = dict.fromkeys(AXES, 0)
         #: How many hints (reports, stops, link changes) came so far.
         self._hints = 0
         self._wake = asyncio.Event()
@@ -317,10 +341,21 @@ class Motion:
         once the move is confirmed."""
         return submission in self._followed
 
-    def stopped(self) -> None:
-        """The driver wrote ``a`` or Ctrl+C: no move in flight may succeed; wake them."""
-        self._stops += 1
+    def stopped(self, axes: Sequence[str] | None = None) -> None:
+        """The driver stopped ``axes`` (``a x``; ``None``: every axis, ``a`` or Ctrl+C): no
+        move in flight that moves one of them may succeed; wake every move."""
+        for axis in AXES if axes is None else axes:
+            self._stops[axis] += 1
         self.hint()
+
+    def epoch(self, axes: Sequence[str]) -> int:
+        """How often the driver stopped any of ``axes`` so far (grows with each stop of
+        one of them, and only then)."""
+        return sum(self._stops.get(axis, 0) for axis in axes)
+
+    def _was_stopped(self, job: _Job) -> bool:
+        """Whether the driver stopped one of ``job``'s axes since its line was written."""
+        return job.epoch != self.epoch(job.plan.moved)
 
     def hint(self) -> None:
         """Something happened that may have ended a move (a completion report, matched or
@@ -349,7 +384,7 @@ class Motion:
             plan = await plan_for(command)
             hints = self._hints
             job = _Job(plan, self._port.send_checked(command, plan.batch),
-                       asyncio.get_running_loop().time(), self._stops, hints)
+                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -377,12 +412,13 @@ class Motion:
     async def _checked(self, job: _Job) -> dict[str, str]:
         try:
             error = await self._port.error_of(job.sent, self._port.reply_timeout)
+            job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
         except _LOST_READ:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed.
-            aborted = job.epoch != self._stops
+            aborted = self._was_stopped(job)
             await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
@@ -408,7 +444,7 @@ class Motion:
         interval = POLL_MIN
         while True:
             delay = min(next_poll, deadline) - loop.time()
-            if delay > 0 and job.epoch == self._stops and job.hints == self._hints:
+            if delay > 0 and not self._was_stopped(job) and job.hints == self._hints:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(delay):
                         await self._wake.wait()
@@ -417,12 +453,12 @@ class Motion:
             try:
                 letters, texts = await self._state()
             except _LOST_READ:
-                if job.epoch == self._stops:
+                if not self._was_stopped(job):
                     raise
                 # The driver's stop (e.g. an ignored Ctrl+C) disturbed the read.
                 letters, texts = {}, {}
             now = loop.time()
-            if job.epoch != self._stops:
+            if self._was_stopped(job):
                 return await self._aborted(job, letters)
             if any(letters.get(axis) == MOVING for axis in plan.moved):
                 if now >= deadline:
@@ -450,10 +486,9 @@ class Motion:
                                 "by polling ?statusaxis", plan.command.line)
                 self._finished(job, letters, ok=True)
                 return letters
-            if now < expected_end:
-                # Before the expected end a stopped axis may be one whose move has not
-                # started yet (!delay, L6845-6868): look again at the expected end.
-                next_poll = expected_end + POLL_GRACE
+            wait_until = _too_early(job, letters, now, expected_end)
+            if wait_until is not None:
+                next_poll = wait_until
                 continue
             self._finished(job, letters, ok=False)
             raise MoveError(f"{plan.command.line!r} {verdict}", letters)
@@ -478,12 +513,20 @@ class Motion:
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
         then fail (never a success, whatever the letters say)."""
+        texts: Mapping[str, str] = {}
         with contextlib.suppress(TimeoutError, *_LOST_READ):
             letters = await self._idle(job, STOP_WAIT)
+            texts = self.positions or {}
         self._finished(job, letters, ok=False)
-        raise MoveError(f"{job.plan.command.line!r} was aborted",
-                        {a: ("E" if a in job.plan.moved and s not in FAILED_LETTERS else s)
-                         for a, s in letters.items()})
+        plan = job.plan
+        raise MoveError(
+            f"{plan.command.line!r} was aborted: " + "; ".join(
+                describe_stop(a, letters.get(a, "-"), texts.get(a),
+                              None if plan.targets is None else plan.targets.get(a),
+                              why="was stopped by this program (a stop, abort or cancel)")
+                for a in plan.moved),
+            {a: ("E" if a in plan.moved and s not in FAILED_LETTERS else s)
+             for a, s in letters.items()})
 
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
         async with asyncio.timeout(timeout):
@@ -541,24 +584,80 @@ class Motion:
 def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]
              ) -> str | None:
     """``None`` if every moved axis ended well, judged from one state read (the letters
-    and the positions read right behind them); else what went wrong."""
-    failed = {a: letters.get(a, "-") for a in plan.moved
-              if letters.get(a, "-") in FAILED_LETTERS}
-    if failed:
-        return f"ended with status {dict(letters)}"
-    if plan.targets is None:
-        return None
-    off = {}
-    for axis, target in plan.targets.items():
+    and the positions read right behind them); else what went wrong, in words (#26):
+    which axis, where it stopped, its target and why."""
+    failed = [a for a in plan.moved if letters.get(a, "-") in FAILED_LETTERS]
+    off = []
+    for axis, target in (plan.targets or {}).items():
         text = texts.get(axis)
-        if text is None:
-            off[axis] = "not read"
-            continue
-        if abs(float(text) - target) > max(position_tolerance(text),
-                                           plan.tolerance.get(axis, 0.0)):
-            off[axis] = text
-    if off:
-        return f"stopped short of its target: at {off}, target {dict(plan.targets)}"
+        if text is None or abs(float(text) - target) > max(
+                position_tolerance(text), plan.tolerance.get(axis, 0.0)):
+            off.append(axis)
+    if not failed and not off:
+        return None
+    bad = [a for a in plan.moved if a in failed or a in off]
+    return "did not end at its target: " + "; ".join(
+        describe_stop(axis, letters.get(axis, "-"), texts.get(axis),
+                      None if plan.targets is None else plan.targets.get(axis))
+        for axis in bad)
+
+
+#: Why an axis stopped, by the letter it reads (L2693-2711).
+_WHY = {
+    "E": "stopped: its move was aborted or not executed (status E)",
+    "T": "timed out (status T)",
+    "-": "is disabled or absent (status -) and did not move",
+}
+
+
+def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
+                  why: str | None = None) -> str:
+    """One axis of a failed move in words: ``"X stopped at its upper limit switch (status
+    S) at 50.05, target 60"``. ``text``: the position as read (``None``: not read);
+    ``why`` overrides what the letter says (e.g. an abort by this program). Which limit
+    switch is told from the direction of travel: an axis that stopped below its target
+    was moving up, towards its upper switch (EE), and the reverse (the manual's letter
+    ``S`` does not say which, L2699)."""
+    name = axis.upper()
+    where = "position not read" if text is None else f"at {text}"
+    aim = "" if target is None else f", target {target:g}"
+    if why is not None:
+        return f"{name} {why}, {where}{aim}"
+    if letter == "S":
+        side = "a limit switch"
+        if text is not None and target is not None and float(text) != target:
+            side = ("its upper limit switch (EE)" if float(text) < target
+                    else "its lower limit switch (E0)")
+        return f"{name} stopped at {side} (status S), {where}{aim}"
+    reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
+    return f"{name} {reason}, {where}{aim}"
+
+
+def _too_early(job: _Job, letters: Mapping[str, str], now: float, expected_end: float
+               ) -> float | None:
+    """When a failed verdict read at ``now`` may not be the move's end: the time to read
+    the state again, else ``None`` (the verdict stands, the move fails now).
+
+    A move that ends at a limit switch, an error or an abort ends the call at once (#26):
+    the state was read after the controller had taken the line (its check came back),
+    so the moved axes are moving or have ended. Only two things the driver knows of let
+    a stopped axis read like that before the move really ended:
+
+    * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
+      (counted from the check, a bound on when the controller took the line);
+    * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
+      target with a letter that does not say it failed (``@``) may still be settling;
+      until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
+      is disabled, L2711: it does not move at all) is final.
+    """
+    plan = job.plan
+    if plan.delay > 0:
+        started_by = job.checked + plan.delay + POLL_GRACE
+        if now < started_by:
+            return started_by
+    failed = any(letters.get(a, "-") in _FINAL for a in plan.moved)
+    if plan.settle > 0 and not failed and now < expected_end:
+        return expected_end + POLL_GRACE
     return None
 
 

@@ -540,14 +540,19 @@ class TangoProtocol(asyncio.Protocol):
                 return controller_error(code, line)
         return None
 
-    async def stop_axes(self, soft: bool, *, timeout: float = 5.0) -> None:
+    async def stop_axes(self, soft: bool, *, timeout: float = 5.0,
+                        axes: Sequence[str] = ()) -> None:
         """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
         makes the controller discard its input buffer: requests in flight fail with
         :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
         the mode in force is read again (a discarded line may have changed it). Returns
-        once ``a`` is queued, or once the stream is in step after Ctrl+C."""
+        once ``a`` is queued, or once the stream is in step after Ctrl+C. With ``axes``
+        (``soft`` only), one ``a x`` per axis stops only those (L6785-6844)."""
         if soft:
-            self.submit(_SOFT_STOP)
+            for axis in axes:
+                self.submit(build("a", form=Form.SET, axis=axis))
+            if not axes:
+                self.submit(_SOFT_STOP)
             return
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)

@@ -22,6 +22,10 @@ thread, exactly like cancelling the awaited call: a move stops its axes (unless
 ``stop_on_cancel=False``) and the interrupt is re-raised once they stand still (at most
 :data:`STOP_WAIT` seconds later). ``start_*`` methods return a
 :class:`concurrent.futures.Future`; cancelling that future cancels the move the same way.
+Ctrl+C in *any* blocking call (``wait_idle()``, ``get()``, ``position()``, an event
+iterator...) also cancels every ``start_*`` call of this program still running, on every
+blocking object, so what the program started stops too (#26); so does Ctrl+C while a
+``start_*`` call is being started.
 
 :class:`ControllerGroup` is the blocking twin of :class:`tango_aio.ControllerGroup`; its
 members (``group["stage"]``) are blocking controllers on the group's thread.
@@ -37,6 +41,7 @@ import inspect
 import os
 import queue
 import threading
+import time
 import weakref
 from collections.abc import (
     AsyncIterator,
@@ -60,7 +65,7 @@ from .events import PositionUpdate, Subscription, TangoEvent
 from .group import ControllerGroup as AsyncGroup
 from .group import ControllerSpec, GroupEvent, GroupSubscription
 
-__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect"]
+__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect", "stop_started"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -138,12 +143,23 @@ class Portal:
             if began is not None:  # cancel it there and wait for its clean-up (axes stopped)
                 self.portal.call(began.cancel)
                 finished.wait(STOP_WAIT)
+            stop_started()  # and what start_* calls started (moves this program began)
             raise
 
     def start(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
               ) -> concurrent.futures.Future[R]:
-        """Start ``func(*args, **kwargs)`` in the driver's thread; return its future."""
-        return self.portal.start_task_soon(functools.partial(func, *args, **kwargs))
+        """Start ``func(*args, **kwargs)`` in the driver's thread; return its future. The
+        call is recorded until it has finished: Ctrl+C in any blocking call cancels it
+        (:func:`stop_started`), as does Ctrl+C while it is being started."""
+        started = _Started(self)
+        try:
+            return self.portal.start_task_soon(started.wrap(func, *args, **kwargs))
+        except KeyboardInterrupt:
+            stop_started()
+            raise
+        except BaseException:
+            started.forget()  # never started (e.g. the portal has stopped)
+            raise
 
     def iterate(self, source: AsyncIterator[T]) -> Iterator[T]:
         """Iterate an async iterator of the driver's thread from this thread; leaving the
@@ -166,6 +182,73 @@ class Portal:
             with contextlib.suppress(RuntimeError):  # already stopping
                 self.portal.call(self.portal.stop)
             self._thread.join()
+
+
+#: The ``start_*`` calls of this process whose task has not finished (see
+#: :func:`stop_started`).
+_RUNNING: set[_Started] = set()
+_RUNNING_LOCK = threading.Lock()
+
+
+class _Started:
+    """One call started with :meth:`Portal.start`: what its task tells the caller's
+    thread (whether it began, its cancel scope, when its clean-up is over)."""
+
+    def __init__(self, portal: Portal) -> None:
+        self._portal = portal
+        self._lock = threading.Lock()
+        self._interrupted = False
+        self._scope: anyio.CancelScope | None = None
+        self.finished = threading.Event()
+        """Set once the task has ended, its clean-up (stopping the axes) included."""
+        with _RUNNING_LOCK:
+            _RUNNING.add(self)
+
+    def wrap(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
+             ) -> Callable[[], Awaitable[R]]:
+        """The task to start: ``func(*args, **kwargs)`` in a cancel scope of its own,
+        not begun at all if it was cancelled before it could begin."""
+        async def run() -> R:
+            try:
+                with anyio.CancelScope() as scope:
+                    with self._lock:
+                        if self._interrupted:
+                            raise anyio.get_cancelled_exc_class()
+                        self._scope = scope
+                    return await func(*args, **kwargs)
+                raise anyio.get_cancelled_exc_class()  # cancelled by cancel() below
+            finally:
+                self.forget()
+        return run
+
+    def forget(self) -> None:
+        """The task was never started: nothing to stop or wait for."""
+        self.finished.set()
+        with _RUNNING_LOCK:
+            _RUNNING.discard(self)
+
+    def cancel(self) -> None:
+        """Cancel the task from another thread (it stops its move, as a cancelled
+        awaited move does); returns once the cancellation is handed over."""
+        with self._lock:
+            self._interrupted = True
+            scope = self._scope
+        if scope is not None and not self.finished.is_set():
+            with contextlib.suppress(RuntimeError):  # the portal has stopped: nothing runs
+                self._portal.portal.call(scope.cancel)
+
+
+def stop_started() -> None:
+    """Cancel every ``start_*`` call of this process still running (Ctrl+C landed in a
+    blocking call, #26) and wait, at most :data:`STOP_WAIT` seconds, until they have
+    ended: a started move stops its axes (unless ``stop_on_cancel=False``)."""
+    with _RUNNING_LOCK:
+        running = list(_RUNNING)
+    for started in running:
+        started.cancel()
+    deadline = time.monotonic() + STOP_WAIT
+    for started in running:
+        started.finished.wait(max(0.0, deadline - time.monotonic()))
 
 
 async def _anext(source: AsyncIterator[T]) -> T:
@@ -258,8 +341,13 @@ class _Wrapper(Generic[A]):
     def _join_started(self) -> None:
         """Wait for every ``start_*`` call so far; raise the first one's error, if any
         (a started move that failed must not pass for an idle stage)."""
-        started, self._started = self._started, []
-        concurrent.futures.wait(started)
+        started = list(self._started)
+        try:
+            concurrent.futures.wait(started)
+        except KeyboardInterrupt:
+            stop_started()  # Ctrl+C while waiting: the started moves stop
+            raise
+        self._started = [f for f in self._started if f not in started]
         for future in started:
             if not future.cancelled() and future.exception() is not None:
                 raise future.exception()  # type: ignore[misc]
@@ -298,6 +386,7 @@ class Controller(_Wrapper[AsyncController]):
     move_to_center = _Blocking(AsyncController.move_to_center)
     go = _Blocking(AsyncController.go)
     speed = _Blocking(AsyncController.speed)
+    stop = _Blocking(AsyncController.stop)
     abort = _Blocking(AsyncController.abort)
     check_fault = _Blocking(AsyncController.check_fault)
     upload_trigger_positions = _Blocking(AsyncController.upload_trigger_positions)
@@ -390,10 +479,19 @@ class Controller(_Wrapper[AsyncController]):
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        self.close()
+        _leave(self, exc)
 
     def __repr__(self) -> str:
         return f"<tango_aio.sync.Controller {self.url!r}>"
+
+
+def _leave(wrapper: Controller | ControllerGroup, exc: BaseException | None) -> None:
+    """Leave a ``with`` block: on Ctrl+C (wherever it landed in the block, even between
+    two calls), stop what ``start_*`` calls started first (:func:`stop_started`), then
+    close."""
+    if isinstance(exc, KeyboardInterrupt):
+        stop_started()
+    wrapper.close()
 
 
 async def _subscribe(controller: AsyncController | AsyncGroup, maxsize: int) -> Any:
@@ -460,6 +558,7 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
     move_by = _Blocking(AsyncGroup.move_by)
     calibrate = _Blocking(AsyncGroup.calibrate)
     measure_range = _Blocking(AsyncGroup.measure_range)
+    stop = _Blocking(AsyncGroup.stop)
     abort = _Blocking(AsyncGroup.abort)
     position = _Blocking(AsyncGroup.position)
     status = _Blocking(AsyncGroup.status)
@@ -519,4 +618,4 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        self.close()
+        _leave(self, exc)

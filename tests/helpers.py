@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import asyncio
 import re
+import subprocess
+import sys
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, TypedDict, Unpack, cast
@@ -192,6 +194,62 @@ class Emulated:
         for name, value in (("secvel", 100), ("vel", 100), ("accel", 20), ("stopaccel", 20)):
             await self.tango.set(name, axis=None, check=True, **dict.fromkeys(present, value))
         await self.tango.set("calbspeed", 8000)
+
+
+def emulated_position(emu: Emulated, axis: str) -> float:
+    """Where the emulator's axis really is, in its dim unit (its own state, not a reply)."""
+    motion = emu.model.motion
+    return motion.to_user(axis, motion.position(axis))
+
+
+async def wait_moving(emu: Emulated, axis: str) -> None:
+    """Poll the emulator until ``axis`` moves."""
+    for _ in range(400):
+        if (await emu.tango.status())[axis] == "M":
+            return
+        await asyncio.sleep(0.005)
+    raise AssertionError(f"{axis} did not start moving")
+
+
+def abort_from_outside(emu: Emulated) -> None:
+    """Stop every axis of the emulator as a second host or the keypad would: ``a`` reaches
+    the controller's interpreter without passing the driver's link (L6785-6844); its
+    report goes out on the link."""
+    emu.model.handle_line(b"a", asyncio.get_running_loop().time())
+    notify = emu.wire.notify  # the served link's wake-up: the stop ends earlier now
+    assert notify is not None
+    notify()
+
+
+class PtySim:
+    """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the program
+    under test, so that we can see whether its axes still move after it ended."""
+
+    def __init__(self) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "tango_aio", "sim", "--pty",
+                                      "--baud", "0"], stdout=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None
+        self.path = self.proc.stdout.readline().strip()
+
+    def __enter__(self) -> PtySim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=10)
+        assert self.proc.stdout is not None
+        self.proc.stdout.close()
+
+    def moving_axes(self) -> list[str]:
+        """The axes that move now; asks twice for the position, 0.2 s apart."""
+        async def ask() -> list[str]:
+            async with connect(self.path) as tango:
+                before = await tango.position()
+                await asyncio.sleep(0.2)
+                after = await tango.position()
+                status = await tango.status()
+            return [a for a in status if status[a] == "M" or before[a] != after[a]]
+        return asyncio.run(ask())
 
 
 class EmulatorFactory(Protocol):

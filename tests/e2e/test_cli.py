@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 import serial
+from helpers import PtySim
 
 import tango_aio
 from tango_aio.cli import (
@@ -247,11 +248,13 @@ def test_shell_ctrl_c_at_the_prompt_aborts_a_move(history: Path) -> None:
         term.send("\x03")  # Ctrl+C (the prompt has the terminal in raw mode)
         term.expect(r"abort sent \(Ctrl\+C\): all axes stop")
         term.expect(r"move finished: x=E \(error/aborted\) y=E \(error/aborted\) z=@ \(ok\)")
+        term.expect(r"move failed: X stopped: its move was aborted or not executed \(status "
+                    r"E\), at \d+\.\d+, target 50; Y stopped")
         term.expect("tango>")
         x, y = map(float, term.type("?pos", r"\d+\.\d+ \d+\.\d+")[0].split())
         assert 0 < x < 50 and 0 < y < 50  # stopped on the way
         term.send("\x04")  # Ctrl+D leaves
-        assert term.wait() == 0
+        assert term.wait() == 1  # the move did not end at its target (#26)
 
 
 def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
@@ -492,43 +495,13 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
                                  "axes": {"vel": [[100.0]] * 4, "secvel": [[100.0]] * 4}}))
     code, out, _ = cli(capsys, "move", f"{SIM}&state={state}", "x=60")
     assert code == 1 and len(out.splitlines()) == 1, out
-    assert out.startswith("error: '!moa 60.0' ended with status")
+    assert out.startswith("error: '!moa 60.0' did not end at its target: X stopped at its "
+                          "upper limit switch (EE) (status S), at ")
     assert "x=S (limit switch) y=@ (ok) z=@ (ok)" in out
     assert describe_exception(MoveError("m", {"x": "T"})) == "m: x=T (timeout)"
 
 
 # -- Ctrl+C -------------------------------------------------------------------------------
-
-
-class PtySim:
-    """``tango-aio sim --pty`` in a subprocess: an emulator that outlives the CLI under
-    test, so that we can see whether its axes still move after the CLI exited."""
-
-    def __init__(self) -> None:
-        self.proc = subprocess.Popen([*CLI, "sim", "--pty", "--baud", "0"],
-                                     stdout=subprocess.PIPE, text=True)
-        assert self.proc.stdout is not None
-        self.path = self.proc.stdout.readline().strip()
-
-    def __enter__(self) -> PtySim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.proc.terminate()
-        self.proc.wait(timeout=10)
-        assert self.proc.stdout is not None
-        self.proc.stdout.close()
-
-    def moving_axes(self) -> list[str]:
-        """The axes that move now; asks twice for the position, 0.2 s apart."""
-        async def ask() -> list[str]:
-            async with tango_aio.connect(self.path) as tango:
-                before = await tango.position()
-                await asyncio.sleep(0.2)
-                after = await tango.position()
-                status = await tango.status()
-            return [a for a in status if status[a] == "M" or before[a] != after[a]]
-        return asyncio.run(ask())
 
 
 def _interrupt_when(proc: subprocess.Popen[str], marker: str, timeout: float = 30) -> str:
@@ -648,7 +621,8 @@ def test_leaving_the_shell_stops_the_axes() -> None:
     with PtySim() as sim:
         result = _decoded(b"!moa 40 40\n", sim.path)
         assert "stopping the axes that still move: x y" in result.stdout, result.stdout
-        assert result.returncode == 0
+        assert "move failed: X still moving when the shell was left" in result.stdout
+        assert result.returncode == 1  # the move did not end at its target (#26)
         assert sim.moving_axes() == []
 
 

@@ -7,7 +7,7 @@ import logging
 from collections.abc import AsyncIterator, Callable
 
 import pytest
-from helpers import Emulated, EmulatorFactory
+from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
 
 from tango_aio.coalesce import MoveCoalescer, _lines
 from tango_aio.errors import InvalidCommandError, MoveError, TangoError
@@ -41,25 +41,10 @@ def moves(caplog: pytest.LogCaptureFixture) -> Callable[[], list[str]]:
     return lambda: motion_lines(caplog)
 
 
-def emulated_position(emu: Emulated, axis: str) -> float:
-    """Where the emulator's axis really is, in its dim unit."""
-    motion = emu.model.motion
-    return motion.to_user(axis, motion.position(axis))
-
-
 def _normalised(line: str) -> str:
     """``!moa 1.0 -2.50`` -> ``!moa 1 -2.5`` (number formatting is not under test)."""
     return " ".join(f"{float(word):g}" if word[-1].isdigit() else word
                     for word in line.split())
-
-
-async def wait_moving(emu: Emulated, axis: str) -> None:
-    """Poll the emulator until ``axis`` moves."""
-    for _ in range(400):
-        if (await emu.tango.status())[axis] == "M":
-            return
-        await asyncio.sleep(0.005)
-    raise AssertionError(f"{axis} did not start moving")
 
 
 async def test_concurrent_requests_become_one_line(
