@@ -444,7 +444,14 @@ class AxisServer:
             if f.done_moving_to_value.value != 0:
                 await f.done_moving_to_value.write(0, verify_value=False)
             await self._cancel_running()
-            async with self._turn:
+        except BaseException:
+            self._busy -= 1
+            await self._finish()
+            raise
+        # The turn covers the final publishing too: the next request (or a STOP that
+        # waits for its turn) starts after this one's RBV/DMOV are out.
+        async with self._turn:
+            try:
                 if request != self._request:
                     raise MoveStoppedError(f"{self.record.pvname}: replaced or stopped "
                                            "before it started")
@@ -452,24 +459,24 @@ class AxisServer:
                 self._require_go()
                 self._positive = positive
                 await self._motion_of(motion, request)
-        except MoveStoppedError:
-            if self.server.link_up and self.controller.connected:
-                await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
-            raise
-        except TangoError:
-            # The record's alarm shows on its fields too, as a motor record's SEVR does:
-            # classic ophyd's EpicsMotor fails a move when RBV is in alarm at DMOV=1.
-            self._problem = True
-            if self.server.link_up and self.controller.connected:
-                await self._set_alarm(AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
-            raise
-        else:
-            self._problem = False
-            if self.server.link_up:
-                await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
-        finally:
-            self._busy -= 1
-            await self._finish()
+            except MoveStoppedError:
+                if self.server.link_up and self.controller.connected:
+                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+                raise
+            except TangoError:
+                # The record's alarm shows on its fields too, as a motor record's SEVR
+                # does: classic ophyd's EpicsMotor fails a move when RBV is in alarm.
+                self._problem = True
+                if self.server.link_up and self.controller.connected:
+                    await self._set_alarm(AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
+                raise
+            else:
+                self._problem = False
+                if self.server.link_up:
+                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+            finally:
+                self._busy -= 1
+                await self._finish()
 
     async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int) -> None:
         """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
@@ -497,11 +504,19 @@ class AxisServer:
                 raise
 
     async def _cancel_running(self) -> None:
-        """Stop the running request's motion (its put fails) and wait until it stood."""
+        """Stop the running request's motion (its put fails) and wait until it ended.
+
+        A move not yet sent is withdrawn; a sent one is stopped with the one-axis stop
+        (``a x``, L6785-6844), so the other axes of a merged line go on to their targets.
+        """
         task = self._motion
-        if task is not None and not task.done():
+        if task is None or task.done():
+            return
+        if self.server.coalescer.pending(self.letter) or not self.controller.connected:
             task.cancel()
-            await asyncio.wait([task])
+        else:
+            await self.controller.stop(self.letter)
+        await asyncio.wait([task])
 
     async def _finish(self) -> None:
         """A request ended: read the position; unless another request follows, publish
@@ -525,16 +540,18 @@ class AxisServer:
         """STOP, or SPMG Stop/Pause: stop this axis, drop every waiting request, and
         return once it stands still.
 
-        A move this IOC started is cancelled (a merged move then stops as a whole, its
-        other axes' puts fail too); otherwise ``!a <axis>`` (L6785) is sent.
+        A move this IOC started and not yet sent is withdrawn; otherwise the axis gets the
+        one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on.
         """
         self._request += 1  # every waiting request is now stale
         self._require_link()
-        task = self._motion
-        if task is not None and not task.done():
-            await self._cancel_running()
-        else:
-            await self.controller.command(f"!a {self.letter}")
+        await self._cancel_running()
+        # Whatever moves this axis now (a move sent as it was withdrawn, another
+        # program's) gets the one-axis stop too; stop() returns once it stands.
+        if (await self.controller.status()).get(self.letter) == "M":
+            await self.controller.stop(self.letter)
+        async with self._turn:  # the stopped and the stale requests have ended
+            await self._finish()
 
     async def tweak(self, sign: int) -> None:
         """TWF/TWR: move VAL by TWV."""
