@@ -88,11 +88,13 @@ def add_ioc_command(commands: Any) -> None:
 
 class _BeaconFailures(logging.Filter):
     """Let caproto's "Failed to send beacon" through once, without its traceback: with
-    no caRepeater listening (usual on a PC that only serves) it repeats for ever."""
+    no caRepeater listening (usual on a PC that only serves) it repeats for ever. On
+    loopback (``quiet``) it is not shown at all: no caRepeater there is the normal case,
+    and clients on this machine find the IOC by its search replies, not its beacons."""
 
-    def __init__(self) -> None:
+    def __init__(self, quiet: bool = False) -> None:
         super().__init__()
-        self.seen = False
+        self.seen = quiet
 
     def filter(self, record: logging.LogRecord) -> bool:
         if not record.getMessage().startswith("Failed to send beacon"):
@@ -131,7 +133,7 @@ async def run_ioc(args: argparse.Namespace) -> int:
               "install it with: pip install 'tango-aio[epics]'", file=sys.stderr)
         return 1
     _environment(interfaces, args.port)
-    logging.getLogger("caproto.ctx").addFilter(_BeaconFailures())
+    logging.getLogger("caproto.ctx").addFilter(_BeaconFailures(loopback_only(interfaces)))
     with _terminated_by_sigterm() as terminated:
         try:
             await _serve(args, controllers, policy, interfaces)

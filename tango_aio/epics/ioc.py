@@ -793,7 +793,9 @@ class ControllerServer:
         self.group = ControllerPVs(prefix)
         self.link_up = controller.connected
         self.context: FlushingContext | None = None
-        count = controller.identity.axes if controller.identity else controller.context.axes
+        # The context's axis count: set by identification, or the connect() default when
+        # the controller was connected with identify=False (the identity is not read).
+        count = controller.context.axes
         self.axes = [AxisServer(self, letter) for letter in AXES[:count]]
 
     @property
@@ -976,6 +978,15 @@ class TangoIoc:
                 await server.aclose()
 
 
+def _unidentified(controller: Controller) -> bool:
+    """Whether ``controller`` was connected without reading its identity."""
+    try:
+        _ = controller.identity
+    except RuntimeError:
+        return True
+    return False
+
+
 async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     policy: AccessPolicy | None = None, poll: float = 0.1,
                     window: float = 0.02) -> TangoIoc:
@@ -985,6 +996,9 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
     ``<prefix>X``, any other name ``<prefix><name>:X``. ``poll`` is the seconds between
     position reads, ``window`` the :class:`~tango_aio.coalesce.MoveCoalescer` window.
     """
+    for controller in controllers.values():
+        if controller.connected and controller.context.axes and _unidentified(controller):
+            await controller.identify()  # connected with identify=False: axes unknown
     servers = [ControllerServer(controller, f"{prefix}{name}:" if name else prefix,
                                 poll=poll, window=window)
                for name, controller in controllers.items()]

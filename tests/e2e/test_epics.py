@@ -20,7 +20,7 @@ pytest.importorskip("caproto")
 
 from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, ChannelType
 from caproto.asyncio.client import Context as ClientContext
-from helpers import INSTANT, make_model
+from helpers import INSTANT, EmulatorFactory, make_model
 
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
@@ -474,3 +474,43 @@ async def test_lvio_and_refused_values(ca_env: dict[str, str]) -> None:
         await client.put("X.RLV", 1.0)
         assert (await tango.position())["x"] == pytest.approx(3.0)
         assert await client.get("X.LVIO") == 0
+
+
+async def test_hls_on_the_emulators_upper_switch(ca_env: dict[str, str],
+                                                 emulator: EmulatorFactory) -> None:
+    emulated = await emulator(travel=4.0)  # switches at -2 and +2 mm
+    tango = emulated.tango
+    await emulated.make_fast()
+    await tango.command("!lim x -100 100")
+    async with serving({"": tango}) as (_, client):
+        with pytest.raises(PutFailed):
+            await client.put("X", 10.0)  # ends on the upper switch (EE of X)
+        await client.until("X.HLS", 1)
+        assert await client.get("Z.LLS") == 0 and await client.get("X.LLS") == 0
+        assert await client.get("X.MSTA") & Msta.PLUS_LS
+        assert (await client.alarm("X.RBV"))[1] == AlarmSeverity.MAJOR_ALARM
+
+
+async def test_idle_readbacks_are_not_resent(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (_, _, client):
+        await client.put("X", 0.5)
+        pv = await client.pv("X.RBV")
+        updates: list[float] = []
+        subscription = pv.subscribe(data_type=ChannelType.DOUBLE)
+
+        def update(_: Any, reply: Any) -> None:
+            updates.append(reply.data[0])
+
+        token = subscription.add_callback(update)  # held weakly: ``update`` stays in scope
+        await client.until("X.RBV", 0.5)
+        await client.put("X.DESC", "idle")  # a round trip: the first update has come
+        await asyncio.sleep(0.5)  # ten polls of the idle axis (poll=0.05 s)
+        await subscription.remove_callback(token)
+        assert updates == [pytest.approx(0.5)]  # the initial value only
+
+
+async def test_an_unidentified_controller_is_served(ca_env: dict[str, str]) -> None:
+    async with connect(INSTANT, identify=False) as tango:
+        ioc = await build_ioc({"": tango}, "T:")
+        assert [axis.letter for axis in ioc.servers[0].axes] == ["x", "y", "z"]
+        await ioc.servers[0].aclose()

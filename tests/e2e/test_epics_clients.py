@@ -239,7 +239,8 @@ async def _stops(*runs: tuple[str, int, float]) -> list[tuple[list[str], float]]
                 samples = result["samples"]
                 assert samples, "no samples"
                 assert all(movn == 0 for _, movn in samples), (mode, samples[:5])
-                assert all(abs(rbv - still) < 1e-3 for rbv, _ in samples), (mode, still, samples[:5])
+                assert all(abs(rbv - still) < 1e-3 for rbv, _ in samples), (
+                    mode, still, samples[:5])
                 outcomes.append((moves, still))
     return outcomes
 
