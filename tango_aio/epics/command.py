@@ -83,6 +83,9 @@ def add_ioc_command(commands: Any) -> None:
     ioc.add_argument("--merge-window", type=float, default=0.02,
                      help="puts to other axes within this many seconds become one move "
                           "(default 0.02)")
+    ioc.add_argument("--autosave", metavar="FILE",
+                     help="keep OFF, the soft limits, VELO and VMAX of every record in "
+                          "FILE (JSON) and put them back when the IOC starts")
     ioc.set_defaults(run=run_ioc)
 
 
@@ -176,7 +179,7 @@ async def _serve(args: argparse.Namespace, controllers: dict[str, str],
         connected = {name: await stack.enter_async_context(connect(url, reconnect=True))
                      for name, url in controllers.items()}
         ioc = await build_ioc(connected, args.prefix, policy=policy, poll=args.poll,
-                              window=args.merge_window)
+                              window=args.merge_window, autosave=args.autosave)
         records = [axis.record.pvname for server in ioc.servers for axis in server.axes]
         print(f"serving motor records {', '.join(records)} on {', '.join(interfaces)}; "
               f"{policy.describe()}", flush=True)

@@ -41,6 +41,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from contextvars import ContextVar
 from typing import Any
@@ -61,6 +62,7 @@ from ..controller import Controller
 from ..errors import ConnectionLostError, ControllerError, MoveError, TangoError
 from ..instructions import AXES, lookup
 from .access import AccessPolicy
+from .autosave import SAVED, Autosave
 from .flush import FlushingContext
 from .record import AxisUnits, LimitSwitches, calibrated, limit_switches, msta
 
@@ -71,6 +73,9 @@ log = logging.getLogger("tango_aio.epics")
 #: The fields that show the link's INVALID alarm with the record.
 ALARM_FIELDS = ("RBV", "DRBV", "DMOV", "MOVN", "MSTA", "HLS", "LLS", "LVIO", "VELO",
                 "VMAX", "ACCL", "HLM", "LLM", "DHLM", "DLLM", "OFF", "CNEN", "DVAL")
+
+#: The fields whose put rewrites the autosave file (user limits are saved as dial ones).
+AUTOSAVED = frozenset({"OFF", "HLM", "LLM", "DHLM", "DLLM", "VELO", "VMAX"})
 
 #: The status letters of an axis that reached its target (@), was calibrated (A) or had
 #: its range measured (D); any other letter ends a move short (L2676-2720).
@@ -283,7 +288,7 @@ class AxisServer:
         self._dial = 0.0
         self._positive = True
         self._motion: asyncio.Future[Any] | None = None
-        self._published: dict[str, float] = {}
+        self._saving: set[asyncio.Future[None]] = set()
 
     async def _set_alarm(self, status: AlarmStatus, severity: AlarmSeverity) -> None:
         """Set the record's alarm and that of its fields (RBV shows INVALID too).
@@ -314,6 +319,48 @@ class AxisServer:
         """A client put ``value`` to ``field``: act on it, return the value to store.
 
         Raises (the put fails, ECA_PUTFAIL) for a value this IOC does not carry out."""
+        stored = await self._put_field(field, value)
+        if field in AUTOSAVED:
+            self._save_soon()
+        return stored
+
+    def _save_soon(self) -> None:
+        """Write the autosave file once caproto has stored the value being put (the
+        put's own task stores it before it next waits)."""
+        if self.server.autosave is not None:
+            task = asyncio.ensure_future(self._save())
+            self._saving.add(task)
+            task.add_done_callback(self._saving.discard)
+
+    async def _save(self) -> None:
+        autosave = self.server.autosave
+        if autosave is None:
+            return
+        fields = self.record.fields
+        try:
+            autosave.store(self.record.pvname, {name: fields[name].value for name in SAVED})
+        except OSError as exc:
+            log.error("%s: autosave to %s failed: %s", self.record.pvname, autosave.path,
+                      exc)
+
+    async def restore(self, saved: Mapping[str, float]) -> None:
+        """Put back the autosaved fields (at start, once the controller is connected)."""
+        f = self._f
+        if "DLLM" in saved or "DHLM" in saved:
+            low = saved.get("DLLM", f.dial_low_limit.value)
+            high = saved.get("DHLM", f.dial_high_limit.value)
+            await self.controller.command(f"!lim {self.letter} {low} {high}")
+            await self._read_limits()
+        if "OFF" in saved:
+            await f.user_offset.write(saved["OFF"], verify_value=False)
+            await self.offset_changed(saved["OFF"])
+            await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+        if "VMAX" in saved:
+            await f.max_velocity.write(saved["VMAX"], verify_value=False)
+        if "VELO" in saved:
+            await self.set_velocity(saved["VELO"])
+
+    async def _put_field(self, field: str, value: Any) -> Any:
         f = self._f
         if isinstance(value, float) and field not in ("DESC",):
             _finite(self.record.pvname, field, value)
@@ -785,8 +832,10 @@ class ControllerServer:
     """The PVs of one controller: its axes and controller PVs, and the poller."""
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
-                 window: float = 0.02) -> None:
+                 window: float = 0.02, autosave: Autosave | None = None) -> None:
         self.controller = controller
+        self.autosave = autosave
+        self._restored = autosave is None
         self.prefix = prefix
         self.poll = poll
         self.coalescer = MoveCoalescer(controller, window=window)
@@ -851,6 +900,12 @@ class ControllerServer:
         if up:
             await group.autostatus.write(self.controller.autostatus, verify_value=False)
             log.info("%s: connected to %s", self.prefix, self.controller.url)
+            if not self._restored and self.autosave is not None:
+                for axis in self.axes:
+                    saved = self.autosave.values.get(axis.record.pvname)
+                    if saved:
+                        await axis.restore(saved)
+                self._restored = True
         # Up only once every setting was read: a failed read is tried again next poll.
         self.link_up = up
 
@@ -989,18 +1044,24 @@ def _unidentified(controller: Controller) -> bool:
 
 async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     policy: AccessPolicy | None = None, poll: float = 0.1,
-                    window: float = 0.02) -> TangoIoc:
+                    window: float = 0.02,
+                    autosave: str | os.PathLike[str] | None = None) -> TangoIoc:
     """Build (and :meth:`~TangoIoc.start`) an IOC for ``controllers``.
 
     ``controllers`` maps a name to a connected controller; the name ``""`` gives PVs
     ``<prefix>X``, any other name ``<prefix><name>:X``. ``poll`` is the seconds between
     position reads, ``window`` the :class:`~tango_aio.coalesce.MoveCoalescer` window.
+    ``autosave``: a file that keeps OFF, the soft limits, VELO and VMAX across restarts
+    (:mod:`.autosave`); its values are put back once each controller is connected.
     """
+    saved = Autosave(autosave) if autosave is not None else None
+    if saved is not None:
+        saved.load()
     for controller in controllers.values():
         if controller.connected and controller.context.axes and _unidentified(controller):
             await controller.identify()  # connected with identify=False: axes unknown
     servers = [ControllerServer(controller, f"{prefix}{name}:" if name else prefix,
-                                poll=poll, window=window)
+                                poll=poll, window=window, autosave=saved)
                for name, controller in controllers.items()]
     ioc = TangoIoc(servers, policy or AccessPolicy())
     await ioc.start()
