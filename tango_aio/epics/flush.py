@@ -13,6 +13,10 @@ each circuit releases it once every update queued ahead of it was written to its
 So a put handler that publishes RBV, DMOV and MOVN and then awaits ``flush()`` returns
 only when those updates are out to every subscribed client, and the put response
 follows them on the same TCP stream.
+
+The circuits also send each open channel's access rights again when the client reports
+another host or user name (caproto decides them only when a channel is created; writes
+are checked with the names of the moment either way).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+import caproto as ca
 from caproto.asyncio.server import Context, VirtualCircuit
 
 __all__ = ["FlushingContext"]
@@ -48,7 +53,26 @@ class _CircuitMarker:
 
 
 class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
-    """A circuit whose subscription queue passes flush markers."""
+    """A circuit whose subscription queue passes flush markers, and which decides every
+    channel's access rights again when the client reports a new host or user name."""
+
+    async def _process_command(self, command: Any) -> Any:
+        response = await super()._process_command(command)
+        if isinstance(command, (ca.HostNameRequest, ca.ClientNameRequest)):
+            response = [*(response or []), *self._rights()]
+        return response
+
+    def _rights(self) -> list[Any]:
+        """The access rights of every open channel, for the names reported now."""
+        rights = []
+        for channel in list(self.circuit.channels.values()):
+            try:
+                entry = self.context[channel.name]
+            except KeyError:
+                continue
+            access = entry.check_access(self.client_hostname, self.client_username)
+            rights.append(ca.AccessRightsResponse(cid=channel.cid, access_rights=access))
+        return rights
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)

@@ -19,7 +19,14 @@ import pytest
 
 pytest.importorskip("caproto")
 
-from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, ChannelType
+from caproto import (
+    AccessRights,
+    AlarmSeverity,
+    AlarmStatus,
+    CAStatus,
+    ChannelType,
+    HostNameRequest,
+)
 from caproto.asyncio.client import Context as ClientContext
 from helpers import INSTANT, EmulatorFactory, make_model
 
@@ -548,3 +555,24 @@ async def test_autosave_keeps_offset_limits_and_speed_across_restarts(
     async with connect(INSTANT) as tango:
         with pytest.raises(ValueError, match="not an autosave file"):
             await build_ioc({"": tango}, "T:", autosave=saved)
+
+
+async def test_access_is_decided_again_when_a_client_renames_itself(
+        ca_env: dict[str, str]) -> None:
+    policy = AccessPolicy.build(hosts=["allowed-host"])
+    async with one_stage(policy=policy, host_name="intruder") as (tango, _, client):
+        pv = await client.pv("X")
+        assert pv.channel.access_rights == AccessRights.READ
+
+        async def rename(name: str, rights: AccessRights) -> None:
+            await pv.circuit_manager.send(HostNameRequest(name))
+            async with asyncio.timeout(10):
+                while pv.channel.access_rights != rights:  # noqa: ASYNC110 - CA pushes it
+                    await asyncio.sleep(0.02)
+
+        await rename("ALLOWED-HOST", AccessRights.READ | AccessRights.WRITE)
+        await client.put("X", 0.5)
+        await rename("allowed-host.evil.example", AccessRights.READ)
+        with pytest.raises(PutFailed, match="ECA_NOWTACCESS"):
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(0.5)
