@@ -832,14 +832,15 @@ class ControllerServer:
     """The PVs of one controller: its axes and controller PVs, and the poller."""
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
-                 window: float = 0.02, autosave: Autosave | None = None) -> None:
+                 window: float = 0.02, autosave: Autosave | None = None,
+                 group: ControllerPVs | None = None) -> None:
         self.controller = controller
         self.autosave = autosave
         self._restored = autosave is None
         self.prefix = prefix
         self.poll = poll
         self.coalescer = MoveCoalescer(controller, window=window)
-        self.group = ControllerPVs(prefix)
+        self.group = group if group is not None else ControllerPVs(prefix)
         self.link_up = controller.connected
         self.context: FlushingContext | None = None
         # The context's axis count: set by identification, or the connect() default when
@@ -991,34 +992,107 @@ def _guard(pv: Any, policy: AccessPolicy,
     pv.auth_write = auth_write
 
 
+class WaitingServer:
+    """A controller that could not be reached when the IOC started.
+
+    Its controller PVs are served at once (``CONNECTED`` 0, the others INVALID); ``open``
+    is tried again every ``retry`` seconds, and once it gives a controller the axes'
+    motor records are added and served like those of the others.
+    """
+
+    def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
+                 *, poll: float, window: float, autosave: Autosave | None,
+                 retry: float = 2.0) -> None:
+        self.open_controller = open_controller
+        self.prefix = prefix
+        self.retry = retry
+        self.group = ControllerPVs(prefix)
+        self._options = {"poll": poll, "window": window, "autosave": autosave}
+        self.server: ControllerServer | None = None
+
+    @property
+    def pvdb(self) -> dict[str, Any]:
+        """The controller PVs, served while waiting."""
+        return dict(self.group.pvdb)
+
+    async def start(self) -> None:
+        """Publish the waiting state: CONNECTED=0, every other PV INVALID."""
+        for pv in (self.group.autostatus, self.group.trigcount, self.group.error,
+                   self.group.error_text):
+            await pv.alarm.write(status=AlarmStatus.COMM,
+                                 severity=AlarmSeverity.INVALID_ALARM)
+        await self.group.error_text.write(f"waiting for the controller at {self.prefix}",
+                                          verify_value=False)
+
+    async def connect(self) -> ControllerServer:
+        """Try until the controller answers; return its server (started)."""
+        while True:
+            try:
+                controller = await self.open_controller()
+            except (TangoError, OSError) as exc:
+                log.info("%s: controller not reachable yet: %s", self.prefix, exc)
+                await asyncio.sleep(self.retry)
+                continue
+            if _unidentified(controller):
+                await controller.identify()
+            server = ControllerServer(controller, self.prefix, group=self.group,
+                                      **self._options)  # type: ignore[arg-type]
+            await server.start()
+            self.server = server
+            return server
+
+
 class TangoIoc:
     """An IOC serving one or more controllers. Build it with :func:`build_ioc`."""
 
-    def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy) -> None:
+    def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy,
+                 waiting: Sequence[WaitingServer] = ()) -> None:
         self.servers = list(servers)
+        self.waiting = list(waiting)
         self.policy = policy
         self.pvdb: dict[str, Any] = {}
+        self._context: FlushingContext | None = None
         for server in self.servers:
-            overlap = set(self.pvdb) & set(server.pvdb)
-            if overlap:
-                raise ValueError(f"PV names used twice: {sorted(overlap)[:3]}")
-            self.pvdb.update(server.pvdb)
-            for pv in server.pvdb.values():
-                _guard(pv, policy, server.report_error)
-                for name, field in getattr(pv, "fields", {}).items():  # "P:X.VELO"
-                    _guard(field, policy, server.report_error, writable=name in WRITABLE)
+            self._add(server.pvdb, server.report_error)
+        for pending in self.waiting:  # read-only controller PVs: nothing to report
+            self._add(pending.pvdb, _ignore)
+
+    def _add(self, pvdb: Mapping[str, Any],
+             on_error: Callable[[BaseException], Awaitable[None]]) -> None:
+        """Serve ``pvdb`` too, each PV guarded by the access policy."""
+        overlap = set(self.pvdb) & set(pvdb)
+        if overlap:
+            raise ValueError(f"PV names used twice: {sorted(overlap)[:3]}")
+        for pv in pvdb.values():
+            _guard(pv, self.policy, on_error)
+            for name, field in getattr(pv, "fields", {}).items():  # "P:X.VELO"
+                _guard(field, self.policy, on_error, writable=name in WRITABLE)
+        self.pvdb.update(pvdb)
 
     async def start(self) -> None:
         """Read every controller's settings and publish the first values."""
         for server in self.servers:
             await server.start()
+        for waiting in self.waiting:
+            await waiting.start()
+
+    async def _serve_when_connected(self, waiting: WaitingServer) -> None:
+        server = await waiting.connect()
+        server.context = self._context
+        self.servers.append(server)
+        self._add({name: pv for name, pv in server.pvdb.items()
+                   if name not in self.pvdb}, server.report_error)
+        log.info("%s: controller connected; serving its axes", waiting.prefix)
+        await server.run()
 
     async def run(self, interfaces: Sequence[str] = ("127.0.0.1",)) -> None:
         """Serve on ``interfaces`` until cancelled; stops the moves this IOC started."""
-        context = FlushingContext(self.pvdb, list(interfaces))
+        context = self._context = FlushingContext(self.pvdb, list(interfaces))
         for server in self.servers:
             server.context = context
         tasks = [asyncio.ensure_future(server.run()) for server in self.servers]
+        tasks += [asyncio.ensure_future(self._serve_when_connected(waiting))
+                  for waiting in self.waiting]
         tasks.append(asyncio.ensure_future(context.run()))
         try:
             done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
@@ -1031,6 +1105,13 @@ class TangoIoc:
             await asyncio.gather(*tasks, return_exceptions=True)
             for server in self.servers:
                 await server.aclose()
+            for waiting in self.waiting:
+                if waiting.server is not None:
+                    await waiting.server.controller.aclose()
+
+
+async def _ignore(exc: BaseException) -> None:
+    """No controller to report a failed put to yet."""
 
 
 def _unidentified(controller: Controller) -> bool:
@@ -1045,7 +1126,9 @@ def _unidentified(controller: Controller) -> bool:
 async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     policy: AccessPolicy | None = None, poll: float = 0.1,
                     window: float = 0.02,
-                    autosave: str | os.PathLike[str] | None = None) -> TangoIoc:
+                    autosave: str | os.PathLike[str] | None = None,
+                    waiting: Mapping[str, Callable[[], Awaitable[Controller]]] | None = None,
+                    retry: float = 2.0) -> TangoIoc:
     """Build (and :meth:`~TangoIoc.start`) an IOC for ``controllers``.
 
     ``controllers`` maps a name to a connected controller; the name ``""`` gives PVs
@@ -1053,6 +1136,9 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
     position reads, ``window`` the :class:`~tango_aio.coalesce.MoveCoalescer` window.
     ``autosave``: a file that keeps OFF, the soft limits, VELO and VMAX across restarts
     (:mod:`.autosave`); its values are put back once each controller is connected.
+    ``waiting`` maps names (as ``controllers``) to functions that open a controller not
+    reachable yet: its controller PVs are served at once with ``CONNECTED`` 0, the
+    function is tried every ``retry`` seconds, and its axes are served once it works.
     """
     saved = Autosave(autosave) if autosave is not None else None
     if saved is not None:
@@ -1063,6 +1149,9 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
     servers = [ControllerServer(controller, f"{prefix}{name}:" if name else prefix,
                                 poll=poll, window=window, autosave=saved)
                for name, controller in controllers.items()]
-    ioc = TangoIoc(servers, policy or AccessPolicy())
+    pending = [WaitingServer(opener, f"{prefix}{name}:" if name else prefix, poll=poll,
+                             window=window, autosave=saved, retry=retry)
+               for name, opener in (waiting or {}).items()]
+    ioc = TangoIoc(servers, policy or AccessPolicy(), pending)
     await ioc.start()
     return ioc

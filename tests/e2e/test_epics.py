@@ -576,3 +576,34 @@ async def test_access_is_decided_again_when_a_client_renames_itself(
         with pytest.raises(PutFailed, match="ECA_NOWTACCESS"):
             await client.put("X", 1.0)
         assert (await tango.position())["x"] == pytest.approx(0.5)
+
+
+async def test_a_controller_down_at_start_is_served_once_it_comes(
+        ca_env: dict[str, str]) -> None:
+    port = free_port()
+    url = f"socket://127.0.0.1:{port}"
+
+    async def open_controller() -> Controller:
+        return await connect(url, reconnect=True)
+
+    ioc = await build_ioc({}, "W:", poll=0.05, waiting={"": open_controller}, retry=0.05)
+    task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+    context = ClientContext()
+    server = None
+    try:
+        client = Client(context, "W:")
+        assert await client.get("CONNECTED") == 0
+        assert "W:X" not in ioc.pvdb
+        server = await serve_tcp(make_model, port=port)
+        await client.until("CONNECTED", 1)
+        await client.put("X", 1.5)  # the axes are served now
+        assert await client.get("X.RBV") == pytest.approx(1.5)
+        assert await client.alarm("X") == (AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+    finally:
+        await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        if server is not None:
+            server.close()
+            await server.wait_closed()
