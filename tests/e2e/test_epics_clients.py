@@ -28,7 +28,7 @@ if _MISSING:
     pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
 from helpers import INSTANT, wire_of  # noqa: E402
-from test_epics import ca_env  # noqa: E402, F401 - ca_env is a fixture
+from test_epics import ca_env, free_port  # noqa: E402, F401 - ca_env is a fixture
 
 from tango_aio.connection import connect  # noqa: E402
 from tango_aio.controller import Controller  # noqa: E402
@@ -129,7 +129,13 @@ async def run_client(script: str, *args: object, timeout: float = 240) -> Any:
 @contextlib.asynccontextmanager
 async def serving(controllers: Mapping[str, Controller],
                   prefix: str) -> AsyncIterator[TangoIoc]:
-    """The IOC, served on loopback in this event loop, until the block ends."""
+    """The IOC, served on loopback in this event loop, until the block ends.
+
+    Each IOC gets a port of its own (the client subprocesses inherit it): caproto leaves
+    the UDP socket of an IOC that ended bound, and searches sent to a reused port are
+    not answered."""
+    port = str(free_port())
+    os.environ["EPICS_CAS_SERVER_PORT"] = os.environ["EPICS_CA_SERVER_PORT"] = port
     ioc = await build_ioc(controllers, prefix, poll=0.05)
     task = asyncio.create_task(ioc.run(["127.0.0.1"]))
     try:
@@ -150,12 +156,14 @@ async def _stage(tango: Controller) -> None:
 
 
 async def _ordering(rounds: int, points: int, side: int, runs: int) -> None:
-    async with connect(INSTANT) as tango:
-        await _stage(tango)
-        async with serving({"": tango}, "ORD:"):
+    # Two controllers, so that the clients running side by side never move one axis.
+    async with connect(INSTANT) as one, connect(INSTANT) as two:
+        await _stage(one)
+        await _stage(two)
+        async with serving({"a": one, "b": two}, "ORD:"):
             pyepics, ophyd_async = await asyncio.gather(
-                run_client(PYEPICS, "ORD:", rounds),
-                run_client(OPHYD_ASYNC, "ORD:", points, side, runs))
+                run_client(PYEPICS, "ORD:a:", rounds),
+                run_client(OPHYD_ASYNC, "ORD:b:", points, side, runs))
     assert pyepics["wrong"] == []
     assert ophyd_async["wrong"] == []
     assert ophyd_async["events"] == side ** 3
