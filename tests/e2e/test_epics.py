@@ -484,6 +484,13 @@ async def test_lvio_and_refused_values(ca_env: dict[str, str]) -> None:
         await client.put("X.RLV", 1.0)
         assert (await tango.position())["x"] == pytest.approx(3.0)
         assert await client.get("X.LVIO") == 0
+        await client.put("X.SSET", 1)  # SET mode: a VAL put redefines the position
+        assert await client.get("X.SET") == 1
+        await client.put("X", 10.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+        assert await client.get("X.RBV") == pytest.approx(10.0)
+        await client.put("X.SUSE", 1)
+        assert await client.get("X.SET") == 0
 
 
 async def test_hls_on_the_emulators_upper_switch(ca_env: dict[str, str],

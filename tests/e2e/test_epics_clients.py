@@ -174,8 +174,19 @@ async def test_a_completed_put_shows_the_final_readback_to_every_client() -> Non
 
 
 @pytest.mark.slow
-async def test_a_completed_put_shows_the_final_readback_over_many_rounds() -> None:
-    await _ordering(rounds=100, points=33, side=3, runs=3)
+@pytest.mark.parametrize("burners", [0, 2])
+async def test_a_completed_put_shows_the_final_readback_over_many_rounds(
+        burners: int) -> None:
+    """100 rounds per pyepics/ophyd client, 3 scans and grids; also with two processes
+    burning CPU beside it (the issue's loaded machine)."""
+    burning = [await asyncio.create_subprocess_exec(sys.executable, "-c", "while True: pass")
+               for _ in range(burners)]
+    try:
+        await _ordering(rounds=100, points=33, side=3, runs=3)
+    finally:
+        for process in burning:
+            process.kill()
+            await process.wait()
 
 
 # ----------------------------------------------------------------- STOP, SPMG, queues
