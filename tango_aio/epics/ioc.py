@@ -5,9 +5,11 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
 * ``P:X`` ... ``P:A``: a motor record per present axis (see :mod:`.record` for units).
   A put to VAL starts the move (through a :class:`~tango_aio.coalesce.MoveCoalescer`,
   so puts to different axes that arrive together become one ``!moa`` line); a put with
-  callback completes when the move has ended, after RBV and DMOV were published. A move
-  that fails (status E, S or T, a controller error, a lost link) fails the put and puts
-  the record in a WRITE/MAJOR alarm until the next successful move.
+  callback completes when the move has ended and the final RBV, MOVN=0 and DMOV=1 are on
+  the wire to every client (:mod:`.flush`). A move that ends anywhere but at its target
+  (any status letter but @/A/D, a controller error, a lost link, a refused line) fails
+  the put, sets the MSTA problem bit and puts the record and its fields in a MAJOR alarm
+  until the next successful move.
 * ``P:CONNECTED`` (0/1), ``P:ERROR`` (number of the last error: the controller's error
   number, -1 for a failure without one, 0 none), ``P:ERROR:TEXT``, ``P:AUTOSTATUS``,
   ``P:TRIGCOUNT``.
@@ -19,18 +21,25 @@ every PV but CONNECTED is in an INVALID/COMM alarm; when the driver has reconnec
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 
-* STOP, and SPMG set to Stop or Pause, send ``!a <axis>`` (L6785: abort one axis). The
-  stopped move's put then fails: the target was not reached. While SPMG is Stop or Pause
-  a put to VAL is refused (Pause does not hold the move for a later Go).
+* Motion requests run one at a time per axis (:class:`AxisServer`): a VAL put during a
+  move retargets (the one-axis stop ``a x``, L6785-6844, then the new move), and a newer
+  request replaces a waiting one. STOP, and SPMG set to Stop or Pause, stop the axis the
+  same way and drop every waiting request; the stopped put fails (the target was not
+  reached) without an alarm. While SPMG is Stop or Pause every motion request is refused
+  (the flag is set before the stop is awaited, so a VAL right behind it is refused too);
+  Pause then Go resumes the move toward VAL.
 * HOMR runs ``cal`` (reverse, to the lower limit switch, sets the origin, L5259), HOMF
   runs ``rm`` (forward, to the upper limit switch, sets the upper limit, L5343).
 * SET=Set: a put to VAL redefines the position instead of moving; with FOFF=Variable the
   user offset OFF changes, with FOFF=Frozen the controller's position is set (``!pos``,
   L6900).
 * HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522); a VAL outside
-  them is refused before anything is sent (LVIO=1).
-* VELO sets ``vel``; ACCL sets ``accel`` so that VELO is reached in ACCL seconds; a new
-  VELO keeps ``accel`` (ACCL is recomputed).
+  them sets LVIO=1 and fails the put before anything is sent.
+* VELO sets ``vel`` (at most VMAX, which starts at the controller's own speed); ACCL sets
+  ``accel`` so that VELO is reached in ACCL seconds; a new VELO keeps ``accel`` (ACCL is
+  recomputed). DVAL and RLV move through VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS
+  (but 0), JOGF/JOGR/JVEL, RVAL and MRES refuse writes (:data:`REFUSED`), and every field
+  not in :data:`WRITABLE` is read-only.
 * CNEN Enable/Disable sends ``!axis <axis> 1`` / ``0`` (L3919: a disabled axis keeps its
   motor current, so a vertical axis does not drop; ``-1``, power off, is never sent).
 """
