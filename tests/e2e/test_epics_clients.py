@@ -27,12 +27,13 @@ _MISSING = [name for name in ("caproto", "epics", "ophyd", "ophyd_async", "blues
 if _MISSING:
     pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
-from helpers import INSTANT, wire_of  # noqa: E402
+from helpers import INSTANT, Emulated, EmulatorFactory, wire_of  # noqa: E402
 from test_epics import ca_env, free_port  # noqa: E402, F401 - ca_env is a fixture
 
 from tango_aio.connection import connect  # noqa: E402
 from tango_aio.controller import Controller  # noqa: E402
 from tango_aio.epics.ioc import TangoIoc, build_ioc  # noqa: E402
+from tango_aio.testing import faults  # noqa: E402
 
 pytestmark = [
     pytest.mark.timeout(300),
@@ -330,40 +331,58 @@ print(json.dumps(out))
 """
 
 CLIENTS = ("pyepics", "ophyd", "ophyd-async")
-ENDINGS = ("target", "disabled axis", "abort by another client", "stop")
+ENDINGS = ("target", "limit switch", "disabled axis", "abort by another client", "stop",
+           "link lost", "refused line")
 
 
-async def _cell(client: str, ending: str) -> None:
-    async with connect(INSTANT) as tango:
-        await _stage(tango)
-        async with serving({"": tango}, "MTX:") as ioc:
-            axis = ioc.servers[0].axes[0]
-            if ending == "disabled axis":
-                await tango.command("!axis x 0")
-            mover = asyncio.create_task(run_client(MOVE, "MTX:", client, 15.0))
-            if ending in ("abort by another client", "stop"):
-                async with asyncio.timeout(60):
-                    while (await tango.status())["x"] != "M":  # noqa: ASYNC110 - polls
-                        await asyncio.sleep(0.02)
-                if ending == "stop":
-                    await axis.put_field("STOP", 1)
-                else:
-                    await tango.command("!a")
-            result = await mover
-            final = (await tango.position())["x"]
+async def _cell(emulator: EmulatorFactory, client: str, ending: str) -> None:
+    """One cell: ``client`` moves X to 15 mm while the move ends as ``ending`` says;
+    what the client reports must be what happened (the emulator's own state)."""
+    emulated = await emulator(travel=4.0 if ending == "limit switch" else None)
+    tango = emulated.tango
+    await _stage(tango)
+    if ending == "limit switch":  # switches at +-2 mm, soft limits out of the way
+        await tango.command("!lim x -100 100")
+    async with serving({"": tango}, "MTX:") as ioc:
+        axis = ioc.servers[0].axes[0]
+        if ending == "disabled axis":
+            await tango.command("!axis x 0")
+        if ending == "refused line":  # another program narrows the limits: the IOC's
+            await tango.command("!lim x -5 5")  # own check passes, the controller refuses
+        mover = asyncio.create_task(run_client(MOVE, "MTX:", client, 15.0))
+        if ending in ("abort by another client", "stop", "link lost"):
+            async with asyncio.timeout(60):
+                while (await tango.status())["x"] != "M":  # noqa: ASYNC110 - polls
+                    await asyncio.sleep(0.02)
+            if ending == "stop":
+                await axis.put_field("STOP", 1)
+            elif ending == "link lost":
+                wire_of(tango).disconnect()
+            else:
+                await tango.command("!a")
+        result = await mover
+        final, _ = emulated_axes(emulated)["x"]
     arrived = abs(final - 15.0) < 1e-3
-    assert arrived == (ending == "target"), (final, ending)
+    if ending != "link lost":  # the emulator may go on to the target unseen: unknown
+        assert arrived == (ending == "target"), (final, ending)
     if not (client == "pyepics" and ending == "stop"):  # no alarm: pyepics can't tell
-        assert result["ok"] == arrived, result
-    assert result["position"] == pytest.approx(final, abs=1e-3), result
+        assert result["ok"] == (ending == "target"), result
+    if ending != "link lost":  # else the last position the IOC could read
+        assert result["position"] == pytest.approx(final, abs=1e-3), result
     if client == "pyepics":  # alarm and problem bit: a fault, but not a user's stop
-        fault = ending in ("disabled axis", "abort by another client")
+        fault = ending not in ("target", "stop")
         assert (result["severity"] != 0) == fault, result
         assert result["problem"] == fault, result
 
 
-async def test_a_move_on_a_disabled_axis_fails_for_pyepics() -> None:
-    await _cell("pyepics", "disabled axis")
+def emulated_axes(emulated: Emulated) -> dict[str, tuple[float, float]]:
+    """The emulator's own state: (position in mm, velocity in rev/s) of each axis."""
+    return faults(emulated.tango).axes()
+
+
+async def test_a_move_on_a_disabled_axis_fails_for_pyepics(
+        emulator: EmulatorFactory) -> None:
+    await _cell(emulator, "pyepics", "disabled axis")
 
 
 #: Cells where the client reports a success although the move ended short (see the
@@ -382,8 +401,8 @@ KNOWN_FALSE_SUCCESS = {
         strict=True, reason=KNOWN_FALSE_SUCCESS[client, ending])]
         if (client, ending) in KNOWN_FALSE_SUCCESS else [])
     for client in CLIENTS for ending in ENDINGS])
-async def test_matrix_ioc_rows(client: str, ending: str) -> None:
-    await _cell(client, ending)
+async def test_matrix_ioc_rows(emulator: EmulatorFactory, client: str, ending: str) -> None:
+    await _cell(emulator, client, ending)
 
 
 # -------------------------------------------------------------------- the link lost
