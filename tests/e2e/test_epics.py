@@ -270,6 +270,7 @@ async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
 
 async def test_homing_forward_runs_a_range_measure(ca_env: dict[str, str]) -> None:
     async with one_stage() as (tango, _, client):
+        await client.put("X.VMAX", 100.0)  # VMAX starts at the controller's speed
         await client.put("X.VELO", 100.0)
         await client.put("X.HOMF", 1)
         assert "D" in await tango.query("?statuslimit")

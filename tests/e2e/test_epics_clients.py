@@ -272,7 +272,7 @@ async def test_spmg_stop_refuses_a_val_put_right_behind_it() -> None:
 
 
 async def test_stop_after_queued_puts_and_tweaks_leaves_the_axis_standing() -> None:
-    await _stops(("queued", 50, 1.0), ("tweaks", 0, 1.0))
+    await _stops(("queued", 50, 0.5), ("tweaks", 0, 0.5))
 
 
 @pytest.mark.slow
@@ -439,7 +439,7 @@ async def _link_drops(cycles: int) -> None:
         async with serving({"": tango}, "LNK:"):
             for _ in range(cycles):
                 await tango.command("!pos x 0")
-                client = asyncio.create_task(run_client(LINK, "LNK:", 2.5))
+                client = asyncio.create_task(run_client(LINK, "LNK:", 1.5))
                 async with asyncio.timeout(60):
                     while (await tango.status())["x"] != "M":  # noqa: ASYNC110 - polls
                         await asyncio.sleep(0.02)
