@@ -205,11 +205,13 @@ class Handlers(Peripherals):
             self.m.motion.vel_to_user(i, self.m.motion.velocity(i)), digits))]
 
     def i_readsw(self, c: Command) -> Reply:
-        bits = []
-        for index in range(4):
-            e0, ee = self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
-            bits += ["1" if e0 else "0", "0", "1" if ee else "0"]
-        return ["".join(bits)]
+        # 12 characters: E0 of X Y Z A, then Ref of X Y Z A (always 0 on a TANGO), then
+        # EE of X Y Z A (L5027-5078; the example "000000001000" is EE of X actuated).
+        states = [self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
+                  for index in range(4)]
+        e0 = "".join("1" if low else "0" for low, _ in states)
+        ee = "".join("1" if high else "0" for _, high in states)
+        return [e0 + "0000" + ee]
 
     def i_swin(self, c: Command) -> Reply:
         levels = []
