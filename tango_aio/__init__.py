@@ -26,7 +26,9 @@ if getattr(sys, "argv", None) and \
         sys.argv[0].replace("\\", "/").rpartition("/")[2].startswith("tango-aio"):
     # This process is the ``tango-aio`` command (its console script, tango-aio.exe on
     # Windows): quiet Ctrl+C from here on, before anything heavy loads (issue #16).
-    from . import _startup  # noqa: F401
+    from . import _startup
+
+    _startup.install()
 
 if TYPE_CHECKING:
     from .bulk import UploadError

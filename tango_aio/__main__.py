@@ -2,6 +2,10 @@
 
 import sys
 
-from .cli import main
+from . import _startup
+
+_startup.install()  # before the command line loads: Ctrl+C while it loads exits quietly
+
+from .cli import main  # noqa: E402
 
 sys.exit(main())

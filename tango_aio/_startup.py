@@ -1,6 +1,7 @@
 """Ctrl+C while the command line starts ends quietly.
 
-The ``tango-aio`` command imports this module before anything else, so that an interrupt
+The ``tango-aio`` command (and ``python -m tango_aio``) calls :func:`install` before
+anything else is imported, so that an interrupt
 while the rest of the command line loads (asyncio, rich, the driver: about 0.2 s) prints
 one line and exits with 130 at once (``os._exit``) instead of a ``KeyboardInterrupt``
 traceback (issue #16).
@@ -19,7 +20,7 @@ import sys
 import threading
 from types import FrameType
 
-__all__ = ["finished"]
+__all__ = ["finished", "install"]
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
@@ -34,16 +35,22 @@ def _interrupted(signum: int, frame: FrameType | None) -> None:
     os._exit(130)
 
 
-def _install() -> bool:
+_installed = False
+
+
+def install() -> bool:
+    """This process is the command: from now until :func:`finished`, Ctrl+C exits quietly
+    with 130. Only the command's own start calls it, never an import: a program or a test
+    process that merely imports :mod:`tango_aio.cli` keeps its own Ctrl+C. Returns whether
+    it was installed (not outside the main thread, nor over someone else's handler)."""
+    global _installed
     if threading.current_thread() is not threading.main_thread():
         return False
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         return False
     signal.signal(signal.SIGINT, _interrupted)
+    _installed = True
     return True
-
-
-_installed = _install()
 
 
 def finished() -> None:

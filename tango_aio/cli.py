@@ -64,6 +64,7 @@ from .events import (
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
 from .motion import FAILED_LETTERS, describe_stop, moved_axes, position_tolerance
+from .probe import add_probe_command
 
 __all__ = ["main"]
 
@@ -341,14 +342,23 @@ def _sim_url(args: argparse.Namespace) -> str:
     from .sim.profiles import Firmware
 
     switches = dict(_switch(text) for text in args.switch)
+    fingerprint = getattr(args, "fingerprint", None)
     try:
-        Firmware.from_options(args.profile, **switches)  # unknown names or values
+        if fingerprint is not None:
+            if args.profile is not None:
+                raise ValueError("--fingerprint and --profile exclude each other")
+            # A probe's fingerprint: the unit's switch values (unknown names or values)
+            Firmware.from_fingerprint(fingerprint).with_(**switches)
+            base: dict[str, object] = {"fingerprint": fingerprint}
+        else:
+            profile = args.profile or "manual"
+            Firmware.from_options(profile, **switches)  # unknown names or values
+            base = {"profile": profile}
     except ValueError as exc:
         raise _UsageError(str(exc)) from None
     query: dict[str, object] = {
         "axes": args.axes, "baud": args.baud, "latency": args.latency,
-        "processing": args.processing, "speed": _speed(args.speed), "profile": args.profile,
-        **switches}
+        "processing": args.processing, "speed": _speed(args.speed), **base, **switches}
     if args.state:
         query["state"] = args.state
     return "sim://?" + urlencode(query)
@@ -1310,8 +1320,11 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--latency", type=_delay_type, default=0.0, help="reply latency in s")
     sim.add_argument("--processing", type=_delay_type, default=0.0, help="time per line in s")
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
-    sim.add_argument("--profile", default="manual",
+    sim.add_argument("--profile", default=None,
                      help="firmware profile: manual (1.71, default) or legacy (older edition)")
+    sim.add_argument("--fingerprint", metavar="FILE",
+                     help="behave like the unit of this fingerprint (written by "
+                          "'tango-aio probe') as far as the firmware switches go")
     sim.add_argument("--switch", action="append", default=[], metavar="NAME=VALUE",
                      help="a firmware switch on top of the profile (repeatable), "
                           "e.g. echo=after; see the README's switch table")
@@ -1324,6 +1337,7 @@ def _parser() -> argparse.ArgumentParser:
     sim.set_defaults(run=_sim)
     _add_new_commands(commands)
     add_ioc_command(commands)
+    add_probe_command(commands)
     return parser
 
 

@@ -149,6 +149,12 @@ class MoveCoalescer:
             raise  # this caller was cancelled just as the batch ended
         return letters.get(axis, "@")
 
+    def pending(self, axis: str) -> bool:
+        """Whether a move of ``axis`` waits in a batch not yet sent (cancelling its
+        caller then only withdraws it; nothing has moved)."""
+        return any(batch.state is not _State.MOVING and axis in batch.targets
+                   for batch in self._batches)
+
     async def aclose(self) -> None:
         """Stop every pending and running merged move (running axes are stopped) and
         refuse new requests."""

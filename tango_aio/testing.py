@@ -32,6 +32,10 @@ motion settings; ``real`` - 57600 Bd pacing and the controller's own settings.
     faults.stall(0.5)       # the controller stops reading for 0.5 s
     faults.disconnect()     # the link is cut
     faults.axes()["x"]      # (position, velocity): where the emulated X axis really is
+
+:func:`replay` plays a recorded wire trace back (a session on a real unit, recorded with
+:func:`tango_aio.trace.record_trace` or ``tango-aio probe --trace``) and checks that the
+driver writes the same lines: see :mod:`tango_aio.replay`.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import pytest
 
 from .connection import connect
 from .controller import Controller
+from .replay import Replay, ReplayMismatch, replay
 from .sim.model import ControllerModel
 from .sim.wire import Wire
 from .sync import Controller as SyncController
@@ -56,11 +61,14 @@ __all__ = [
     "Emulated",
     "EmulatedSync",
     "Faults",
+    "Replay",
+    "ReplayMismatch",
     "emulator_url",
     "faults",
     "open_emulated",
     "pytest_addoption",
     "pytest_configure",
+    "replay",
     "tango_emulator",
     "tango_emulator_factory",
     "tango_emulator_sync",

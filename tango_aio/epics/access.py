@@ -6,10 +6,11 @@ it connects, and the server decides per channel what that client may do (caproto
 same with the same reported names). :class:`AccessPolicy` is that decision:
 
 * ``read_only``: nobody writes; every client reads.
-* ``hosts``: if given, only clients reporting one of these host names write. Names are
-  compared case-insensitively, and a fully qualified name also matches its first label
-  (``pc3.lab.example`` matches ``--allow-host pc3`` and the other way round), because
-  clients report either form depending on their system's configuration.
+* ``hosts``: if given, only clients reporting one of these host names write. Whole names
+  are compared, case-insensitively: ``pc3.lab.example`` matches only a client reporting
+  ``pc3.lab.example`` (or ``PC3.LAB.EXAMPLE``), not ``pc3`` nor ``pc3.evil.example``;
+  give each form a client may report (``--allow-host pc3 --allow-host pc3.lab.example``).
+  The decision is made again at every write, with the names the client reports then.
 * ``users``: if given, only clients reporting one of these user names write
   (case-sensitive, as user names are on POSIX).
 * With both, a client must match both. Everyone else gets read access.
@@ -27,14 +28,9 @@ from dataclasses import dataclass
 __all__ = ["AccessPolicy"]
 
 
-def _host_forms(name: str) -> set[str]:
-    """A host name in the forms it may be reported in: as given and its first label
-    (an IP address is kept whole)."""
-    name = name.strip().lower().rstrip(".")
-    forms = {name}
-    if name and not name.replace(".", "").isdigit() and ":" not in name:
-        forms.add(name.split(".", 1)[0])
-    return forms
+def _host(name: str) -> str:
+    """A host name as compared: lower case, without a trailing dot (whole names only)."""
+    return name.strip().lower().rstrip(".")
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,10 +61,8 @@ class AccessPolicy:
         if self.read_only:
             return False
         if self.hosts:
-            allowed: set[str] = set()
-            for host in self.hosts:
-                allowed |= _host_forms(host)
-            if not hostname or not (_host_forms(hostname) & allowed):
+            allowed = {_host(host) for host in self.hosts}
+            if not hostname or _host(hostname) not in allowed:
                 return False
         return not self.users or (username or "") in self.users
 

@@ -13,16 +13,19 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import ipaddress
 import logging
 import os
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
 from .._platform import signal_calls
 from ..connection import connect
+from ..controller import Controller
+from ..errors import TangoError
 from .access import AccessPolicy
 
 __all__ = ["add_ioc_command", "parse_controllers", "run_ioc"]
@@ -84,16 +87,21 @@ def add_ioc_command(commands: Any) -> None:
     ioc.add_argument("--merge-window", type=float, default=0.02,
                      help="puts to other axes within this many seconds become one move "
                           "(default 0.02)")
+    ioc.add_argument("--autosave", metavar="FILE",
+                     help="keep OFF, the soft limits, VELO and VMAX of every record in "
+                          "FILE (JSON) and put them back when the IOC starts")
     ioc.set_defaults(run=run_ioc)
 
 
 class _BeaconFailures(logging.Filter):
     """Let caproto's "Failed to send beacon" through once, without its traceback: with
-    no caRepeater listening (usual on a PC that only serves) it repeats for ever."""
+    no caRepeater listening (usual on a PC that only serves) it repeats for ever. On
+    loopback (``quiet``) it is not shown at all: no caRepeater there is the normal case,
+    and clients on this machine find the IOC by its search replies, not its beacons."""
 
-    def __init__(self) -> None:
+    def __init__(self, quiet: bool = False) -> None:
         super().__init__()
-        self.seen = False
+        self.seen = quiet
 
     def filter(self, record: logging.LogRecord) -> bool:
         if not record.getMessage().startswith("Failed to send beacon"):
@@ -132,7 +140,7 @@ async def run_ioc(args: argparse.Namespace) -> int:
               "install it with: pip install 'tango-aio[epics]'", file=sys.stderr)
         return 1
     _environment(interfaces, args.port)
-    logging.getLogger("caproto.ctx").addFilter(_BeaconFailures())
+    logging.getLogger("caproto.ctx").addFilter(_BeaconFailures(loopback_only(interfaces)))
     with _terminated_by_sigterm() as terminated:
         try:
             await _serve(args, controllers, policy, interfaces)
@@ -165,11 +173,27 @@ async def _serve(args: argparse.Namespace, controllers: dict[str, str],
     from .ioc import build_ioc
 
     async with contextlib.AsyncExitStack() as stack:
-        connected = {name: await stack.enter_async_context(connect(url, reconnect=True))
-                     for name, url in controllers.items()}
+        connected: dict[str, Controller] = {}
+        waiting: dict[str, Callable[[], Awaitable[Controller]]] = {}
+        for name, url in controllers.items():
+            try:
+                connected[name] = await stack.enter_async_context(
+                    connect(url, reconnect=True))
+            except (TangoError, OSError) as exc:
+                # Down at start: serve CONNECTED=0 and keep trying (issue #30 item 14).
+                print(f"controller {url} not reachable ({exc}); serving "
+                      f"{args.prefix}{name + ':' if name else ''}CONNECTED=0 until it "
+                      "answers", file=sys.stderr, flush=True)
+                waiting[name] = functools.partial(_open, url)
         ioc = await build_ioc(connected, args.prefix, policy=policy, poll=args.poll,
-                              window=args.merge_window)
+                              window=args.merge_window, autosave=args.autosave,
+                              waiting=waiting)
         records = [axis.record.pvname for server in ioc.servers for axis in server.axes]
-        print(f"serving motor records {', '.join(records)} on {', '.join(interfaces)}; "
-              f"{policy.describe()}", flush=True)
+        print(f"serving motor records {', '.join(records) or '(none yet)'} on "
+              f"{', '.join(interfaces)}; {policy.describe()}", flush=True)
         await ioc.run(interfaces)
+
+
+async def _open(url: str) -> Controller:
+    """Open a controller that was down when the IOC started (closed by the IOC)."""
+    return await connect(url, reconnect=True)

@@ -5,9 +5,11 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
 * ``P:X`` ... ``P:A``: a motor record per present axis (see :mod:`.record` for units).
   A put to VAL starts the move (through a :class:`~tango_aio.coalesce.MoveCoalescer`,
   so puts to different axes that arrive together become one ``!moa`` line); a put with
-  callback completes when the move has ended, after RBV and DMOV were published. A move
-  that fails (status E, S or T, a controller error, a lost link) fails the put and puts
-  the record in a WRITE/MAJOR alarm until the next successful move.
+  callback completes when the move has ended and the final RBV, MOVN=0 and DMOV=1 are on
+  the wire to every client (:mod:`.flush`). A move that ends anywhere but at its target
+  (any status letter but @/A/D, a controller error, a lost link, a refused line) fails
+  the put, sets the MSTA problem bit and puts the record and its fields in a MAJOR alarm
+  until the next successful move.
 * ``P:CONNECTED`` (0/1), ``P:ERROR`` (number of the last error: the controller's error
   number, -1 for a failure without one, 0 none), ``P:ERROR:TEXT``, ``P:AUTOSTATUS``,
   ``P:TRIGCOUNT``.
@@ -19,18 +21,25 @@ every PV but CONNECTED is in an INVALID/COMM alarm; when the driver has reconnec
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 
-* STOP, and SPMG set to Stop or Pause, send ``!a <axis>`` (L6785: abort one axis). The
-  stopped move's put then fails: the target was not reached. While SPMG is Stop or Pause
-  a put to VAL is refused (Pause does not hold the move for a later Go).
+* Motion requests run one at a time per axis (:class:`AxisServer`): a VAL put during a
+  move retargets (the one-axis stop ``a x``, L6785-6844, then the new move), and a newer
+  request replaces a waiting one. STOP, and SPMG set to Stop or Pause, stop the axis the
+  same way and drop every waiting request; the stopped put fails (the target was not
+  reached) without an alarm. While SPMG is Stop or Pause every motion request is refused
+  (the flag is set before the stop is awaited, so a VAL right behind it is refused too);
+  Pause then Go resumes the move toward VAL.
 * HOMR runs ``cal`` (reverse, to the lower limit switch, sets the origin, L5259), HOMF
   runs ``rm`` (forward, to the upper limit switch, sets the upper limit, L5343).
 * SET=Set: a put to VAL redefines the position instead of moving; with FOFF=Variable the
   user offset OFF changes, with FOFF=Frozen the controller's position is set (``!pos``,
   L6900).
 * HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522); a VAL outside
-  them is refused before anything is sent (LVIO=1).
-* VELO sets ``vel``; ACCL sets ``accel`` so that VELO is reached in ACCL seconds; a new
-  VELO keeps ``accel`` (ACCL is recomputed).
+  them sets LVIO=1 and fails the put before anything is sent.
+* VELO sets ``vel`` (at most VMAX, which starts at the controller's own speed); ACCL sets
+  ``accel`` so that VELO is reached in ACCL seconds; a new VELO keeps ``accel`` (ACCL is
+  recomputed). DVAL and RLV move through VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS
+  (but 0), JOGF/JOGR/JVEL, RVAL and MRES refuse writes (:data:`REFUSED`), and every field
+  not in :data:`WRITABLE` is read-only.
 * CNEN Enable/Disable sends ``!axis <axis> 1`` / ``0`` (L3919: a disabled axis keeps its
   motor current, so a vertical axis does not drop; ``-1``, power off, is never sent).
 """
@@ -41,17 +50,19 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 from collections.abc import Awaitable, Callable, Mapping, Sequence
+from contextvars import ContextVar
 from typing import Any
 
-from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, Forbidden
-from caproto.asyncio.server import Context
+from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, Forbidden, SkipWrite
 from caproto.server import PVGroup, pvproperty
-from caproto.server.menus import motorSPMG, motorTORQ
+from caproto.server.menus import motorDIR, motorSPMG, motorTORQ
 from caproto.server.records import MotorFields, register_record
 from caproto.server.server import (
     PvpropertyDouble,
     PvpropertyEnum,
+    PvpropertyInteger,
     PvpropertyShort,
 )
 
@@ -59,8 +70,9 @@ from ..coalesce import MoveCoalescer
 from ..controller import Controller
 from ..errors import ConnectionLostError, ControllerError, MoveError, TangoError
 from ..instructions import AXES, lookup
-from ..motion import FAILED_LETTERS
 from .access import AccessPolicy
+from .autosave import SAVED, Autosave
+from .flush import FlushingContext
 from .record import AxisUnits, LimitSwitches, calibrated, limit_switches, msta
 
 __all__ = ["MotorRefusedError", "TangoIoc", "build_ioc"]
@@ -68,7 +80,30 @@ __all__ = ["MotorRefusedError", "TangoIoc", "build_ioc"]
 log = logging.getLogger("tango_aio.epics")
 
 #: The fields that show the link's INVALID alarm with the record.
-READBACK_FIELDS = ("RBV", "DRBV", "DMOV", "MOVN", "MSTA", "HLS", "LLS")
+ALARM_FIELDS = ("RBV", "DRBV", "DMOV", "MOVN", "MSTA", "HLS", "LLS", "LVIO", "VELO",
+                "VMAX", "ACCL", "HLM", "LLM", "DHLM", "DLLM", "OFF", "CNEN", "DVAL")
+
+#: The fields whose put rewrites the autosave file (user limits are saved as dial ones).
+AUTOSAVED = frozenset({"OFF", "HLM", "LLM", "DHLM", "DLLM", "VELO", "VMAX"})
+
+#: The status letters of an axis that reached its target (@), was calibrated (A) or had
+#: its range measured (D); any other letter ends a move short (L2676-2720).
+ARRIVED = frozenset("@AD")
+
+#: The largest magnitude a float field takes (positions are at most a few metres in any
+#: unit; this refuses 1e308 and friends, which would overflow user = dial + OFF).
+MAX_MAGNITUDE = 1e9
+
+#: Why each field this IOC serves but does not carry out refuses a write.
+REFUSED = {
+    "DIR": "only Pos is supported (user and dial directions are the same)",
+    "VBAS": "a TANGO axis has no base velocity; only 0 is accepted",
+    "RVAL": "raw steps are not exposed; put VAL or DVAL",
+    "MRES": "the resolution follows the controller's dim, pitch and usteps",
+    "JOGF": "jogging is not supported; use TWF/TWR or VAL",
+    "JOGR": "jogging is not supported; use TWF/TWR or VAL",
+    "JVEL": "jogging is not supported",
+}
 
 #: How many polls of ``?pos``/``?statusaxis`` per read of switches and counters.
 SLOW_EVERY = 5
@@ -80,7 +115,20 @@ class MotorRefusedError(TangoError, ValueError):
 
 
 class MoveStoppedError(TangoError):
-    """The move was stopped (STOP or SPMG) before it reached its target."""
+    """The move was stopped (STOP, SPMG, or a newer VAL) before it reached its target:
+    the put fails, but the record raises no alarm (a user's stop is not a fault)."""
+
+
+def _finite(pvname: str, field: str, value: float) -> None:
+    """Refuse NaN, infinities and absurd magnitudes before anything is done."""
+    if not math.isfinite(value) or abs(value) > MAX_MAGNITUDE:
+        raise MotorRefusedError(f"{pvname}.{field}: {value!r} is not a usable number")
+
+
+def _log_failure(task: asyncio.Future[Any]) -> None:
+    """Done-callback of a background move (Pause, then Go): log how it failed."""
+    if not task.cancelled() and task.exception() is not None:
+        log.warning("resumed move failed: %s", task.exception())
 
 
 # ---------------------------------------------------------------------------- the record
@@ -92,78 +140,18 @@ def _axis_of(fields: Any) -> AxisServer:
     return axis
 
 
-async def _put_stop(fields: Any, instance: Any, value: int) -> int:
-    if value:
-        await _axis_of(fields).stop()
-    return 0
+def _put(field: str) -> Callable[[Any, Any, Any], Awaitable[Any]]:
+    """The put handler of ``field``: :meth:`AxisServer.put_field` does the work."""
+
+    async def put(fields: Any, instance: Any, value: Any) -> Any:
+        return await _stopped_is_no_fault(_axis_of(fields).put_field(field, value))
+
+    put.__name__ = f"_put_{field.lower()}"
+    return put
 
 
-async def _put_spmg(fields: Any, instance: Any, value: str) -> str:
-    if value in ("Stop", "Pause"):
-        await _axis_of(fields).stop()
-    return value
-
-
-async def _put_velo(fields: Any, instance: Any, value: float) -> float:
-    return await _axis_of(fields).set_velocity(float(value))
-
-
-async def _put_accl(fields: Any, instance: Any, value: float) -> float:
-    return await _axis_of(fields).set_acceleration_time(float(value))
-
-
-async def _put_hlm(fields: Any, instance: Any, value: float) -> float:
-    dial = float(value) - fields.user_offset.value
-    return await _axis_of(fields).set_limit(high=True, dial=dial)
-
-
-async def _put_llm(fields: Any, instance: Any, value: float) -> float:
-    dial = float(value) - fields.user_offset.value
-    return await _axis_of(fields).set_limit(high=False, dial=dial)
-
-
-async def _put_dhlm(fields: Any, instance: Any, value: float) -> float:
-    await _axis_of(fields).set_limit(high=True, dial=float(value))
-    return value
-
-
-async def _put_dllm(fields: Any, instance: Any, value: float) -> float:
-    await _axis_of(fields).set_limit(high=False, dial=float(value))
-    return value
-
-
-async def _put_twf(fields: Any, instance: Any, value: int) -> int:
-    if value:
-        await _axis_of(fields).tweak(+1)
-    return 0
-
-
-async def _put_twr(fields: Any, instance: Any, value: int) -> int:
-    if value:
-        await _axis_of(fields).tweak(-1)
-    return 0
-
-
-async def _put_homf(fields: Any, instance: Any, value: int) -> int:
-    if value:
-        await _axis_of(fields).home(forward=True)
-    return 0
-
-
-async def _put_homr(fields: Any, instance: Any, value: int) -> int:
-    if value:
-        await _axis_of(fields).home(forward=False)
-    return 0
-
-
-async def _put_off(fields: Any, instance: Any, value: float) -> float:
-    await _axis_of(fields).offset_changed(float(value))
-    return value
-
-
-async def _put_cnen(fields: Any, instance: Any, value: str) -> str:
-    await _axis_of(fields).set_enabled(value == "Enable")
-    return value
+def _field(name: str, dtype: Any, doc: str, **kwargs: Any) -> Any:
+    return pvproperty(name=name, dtype=dtype, doc=doc, put=_put(name), **kwargs)
 
 
 @register_record
@@ -172,7 +160,7 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
 
     Registered under its own record type name, so caproto's plain ``motor`` record is left
     alone; RTYP still reads ``motor``. (A field's handler can only be replaced by declaring
-    the field again in a subclass.)
+    the field again in a subclass.) Fields not in :data:`WRITABLE` refuse writes.
     """
 
     _record_type = "tango_motor"
@@ -182,39 +170,65 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
-    stop = pvproperty(name="STOP", dtype=PvpropertyShort, doc="Stop", put=_put_stop)
-    stop_pause_move_go = pvproperty(name="SPMG", dtype=PvpropertyEnum, value=3,
-                                    enum_strings=motorSPMG.get_string_tuple(),
-                                    doc="Stop/Pause/Move/Go", put=_put_spmg)
-    velocity = pvproperty(name="VELO", dtype=PvpropertyDouble, doc="Velocity (EGU/s)",
-                          put=_put_velo)
-    seconds_to_velocity = pvproperty(name="ACCL", dtype=PvpropertyDouble, value=0.2,
-                                     doc="Seconds to Velocity", put=_put_accl)
-    user_high_limit = pvproperty(name="HLM", dtype=PvpropertyDouble, doc="User High Limit",
-                                 put=_put_hlm)
-    user_low_limit = pvproperty(name="LLM", dtype=PvpropertyDouble, doc="User Low Limit",
-                                put=_put_llm)
-    dial_high_limit = pvproperty(name="DHLM", dtype=PvpropertyDouble, doc="Dial High Limit",
-                                 put=_put_dhlm)
-    dial_low_limit = pvproperty(name="DLLM", dtype=PvpropertyDouble, doc="Dial Low Limit",
-                                put=_put_dllm)
-    tweak_motor_forward = pvproperty(name="TWF", dtype=PvpropertyShort,
-                                     doc="Tweak motor Forward", put=_put_twf)
-    tweak_motor_reverse = pvproperty(name="TWR", dtype=PvpropertyShort,
-                                     doc="Tweak motor Reverse", put=_put_twr)
-    home_forward = pvproperty(name="HOMF", dtype=PvpropertyShort, doc="Home Forward",
-                              put=_put_homf)
-    home_reverse = pvproperty(name="HOMR", dtype=PvpropertyShort, doc="Home Reverse",
-                              put=_put_homr)
-    user_offset = pvproperty(name="OFF", dtype=PvpropertyDouble, doc="User Offset (EGU)",
-                             put=_put_off)
-    enable_control = pvproperty(name="CNEN", dtype=PvpropertyEnum, value=1,
-                                enum_strings=motorTORQ.get_string_tuple(),
-                                doc="Enable control", put=_put_cnen)
+    stop = _field("STOP", PvpropertyShort, "Stop")
+    stop_pause_move_go = _field("SPMG", PvpropertyEnum, "Stop/Pause/Move/Go", value=3,
+                                enum_strings=motorSPMG.get_string_tuple())
+    velocity = _field("VELO", PvpropertyDouble, "Velocity (EGU/s)")
+    max_velocity = _field("VMAX", PvpropertyDouble, "Max. Velocity (EGU/s)")
+    base_velocity = _field("VBAS", PvpropertyDouble, "Base Velocity (EGU/s)")
+    seconds_to_velocity = _field("ACCL", PvpropertyDouble, "Seconds to Velocity",
+                                 value=0.2)
+    user_high_limit = _field("HLM", PvpropertyDouble, "User High Limit")
+    user_low_limit = _field("LLM", PvpropertyDouble, "User Low Limit")
+    dial_high_limit = _field("DHLM", PvpropertyDouble, "Dial High Limit")
+    dial_low_limit = _field("DLLM", PvpropertyDouble, "Dial Low Limit")
+    tweak_motor_forward = _field("TWF", PvpropertyShort, "Tweak motor Forward")
+    tweak_motor_reverse = _field("TWR", PvpropertyShort, "Tweak motor Reverse")
+    tweak_step_size = _field("TWV", PvpropertyDouble, "Tweak Step Size (EGU)")
+    home_forward = _field("HOMF", PvpropertyShort, "Home Forward")
+    home_reverse = _field("HOMR", PvpropertyShort, "Home Reverse")
+    user_offset = _field("OFF", PvpropertyDouble, "User Offset (EGU)")
+    enable_control = _field("CNEN", PvpropertyEnum, "Enable control", value=1,
+                            enum_strings=motorTORQ.get_string_tuple())
+    user_direction = _field("DIR", PvpropertyEnum, "User Direction", value=0,
+                            enum_strings=motorDIR.get_string_tuple())
+    relative_value = _field("RLV", PvpropertyDouble, "Relative Value")
+    dial_desired_value = _field("DVAL", PvpropertyDouble, "Dial Desired Value (EGU)")
+    raw_desired_value = _field("RVAL", PvpropertyInteger, "Raw Desired Value")
+    set_set_mode = _field("SSET", PvpropertyShort, "Set SET Mode")
+    set_use_mode = _field("SUSE", PvpropertyShort, "Set USE Mode")
+    motor_step_size = _field("MRES", PvpropertyDouble, "Motor Step Size (EGU)")
+    jog_motor_forward = _field("JOGF", PvpropertyShort, "Jog motor Forward")
+    jog_motor_reverse = _field("JOGR", PvpropertyShort, "Jog motor Reverse")
+    jog_velocity = _field("JVEL", PvpropertyDouble, "Jog Velocity (EGU/s)")
+    monitor_deadband = _field("MDEL", PvpropertyDouble, "Monitor Deadband")
+    archive_deadband = _field("ADEL", PvpropertyDouble, "Archive Deadband")
+
+
+#: The fields a client may write (besides VAL); every other field refuses writes.
+WRITABLE = frozenset({
+    "STOP", "SPMG", "VELO", "VMAX", "VBAS", "ACCL", "HLM", "LLM", "DHLM", "DLLM", "TWF",
+    "TWR", "TWV", "HOMF", "HOMR", "OFF", "CNEN", "DIR", "RLV", "DVAL", "RVAL", "SSET",
+    "SUSE", "MRES", "JOGF", "JOGR", "JVEL", "SET", "FOFF", "MDEL", "ADEL", "DESC",
+})
+
+
+#: The stop that ended the current put (set by the handler, read by :func:`_guard`).
+_STOPPED: ContextVar[MoveStoppedError | None] = ContextVar("_STOPPED", default=None)
+
+
+async def _stopped_is_no_fault(put: Awaitable[Any]) -> Any:
+    """Await a put handler; a :class:`MoveStoppedError` skips caproto's WRITE/MAJOR alarm
+    (the put still fails: :func:`_guard` answers ECA_PUTFAIL)."""
+    try:
+        return await put
+    except MoveStoppedError as exc:
+        _STOPPED.set(exc)
+        raise SkipWrite from exc
 
 
 async def _put_val(group: AxisGroup, instance: Any, value: float) -> float:
-    await group.axis.move(float(value))
+    await _stopped_is_no_fault(group.axis.move(float(value)))
     return value
 
 
@@ -229,10 +243,12 @@ class AxisGroup(PVGroup):  # type: ignore[misc]
         super().__init__(prefix)
 
 
-class ControllerGroup(PVGroup):  # type: ignore[misc]
+class ControllerPVs(PVGroup):  # type: ignore[misc]
     """The PVs of one controller (``P:CONNECTED`` ...)."""
 
+    # CONNECTED has an alarm of its own: it stays NO_ALARM while the others go INVALID.
     connected = pvproperty(name="CONNECTED", value=0, read_only=True,
+                           alarm_group="connected",
                            doc="1 while the link to the controller is up")
     error = pvproperty(name="ERROR", value=0, read_only=True,
                        doc="last error: controller error number, -1 other, 0 none")
@@ -253,7 +269,15 @@ def _fields(record: Any) -> Any:
 
 
 class AxisServer:
-    """Drives one axis for its motor record and publishes what the poller reads."""
+    """Drives one axis for its motor record and publishes what the poller reads.
+
+    Motion requests (VAL and the fields that move: DVAL, RLV, TWF/TWR, HOMF/HOMR) run one
+    at a time. A new request first stops the running one (VAL during a move retargets)
+    and replaces a request still waiting (the record has one VAL, so nothing piles up).
+    STOP and SPMG Stop/Pause stop the running request and drop the waiting one. Every
+    request carries a number (:attr:`_request`); one that is no longer the newest when
+    its turn comes fails without moving.
+    """
 
     def __init__(self, server: ControllerServer, letter: str) -> None:
         self.server = server
@@ -262,24 +286,32 @@ class AxisServer:
         self.group = AxisGroup(f"{server.prefix}{letter.upper()}", axis=self)
         self.record: Any = self.group.motor
         self._busy = 0
-        self._stop_requested = False
+        self._request = 0
+        self._turn = asyncio.Lock()
+        self._halted = False  # SPMG is Stop or Pause (set before any await)
+        self._resume: float | None = None  # Pause interrupted a move to this user value
         self._problem = False
+        self._standing_unknown = False  # a move ended with the link down
         self._switches = LimitSwitches()
         self._homed = False
         self._dial = 0.0
         self._positive = True
         self._motion: asyncio.Future[Any] | None = None
+        self._saving: set[asyncio.Future[None]] = set()
 
     async def _set_alarm(self, status: AlarmStatus, severity: AlarmSeverity) -> None:
-        """Set the record's alarm and that of its readback fields (RBV shows INVALID too).
+        """Set the record's alarm and that of its fields (RBV shows INVALID too).
 
-        The fields keep alarms of their own: caproto re-applies a channel's own alarm
-        state when it is written, so a shared alarm would be reset by the next RBV.
+        caproto gives the record one alarm and its fields another, shared by all of them;
+        each is written once. A numeric channel written *with* verification re-applies
+        the alarm its own value limits give (none here), which would clear this one: the
+        readbacks are therefore written with ``verify_value=False``.
         """
         fields = self.record.fields
-        channels = [self.record, *(fields[name] for name in READBACK_FIELDS)]
-        for channel in channels:
-            await channel.alarm.write(status=status, severity=severity)
+        alarms = {id(c.alarm): c.alarm for c in (self.record, *(fields[name] for name in
+                                                                  ALARM_FIELDS))}
+        for alarm in alarms.values():
+            await alarm.write(status=status, severity=severity)
 
     @property
     def controller(self) -> Controller:
@@ -290,108 +322,305 @@ class AxisServer:
     def _f(self) -> Any:
         return _fields(self.record)
 
+    # -- field puts ----------------------------------------------------------------------
+
+    async def put_field(self, field: str, value: Any) -> Any:
+        """A client put ``value`` to ``field``: act on it, return the value to store.
+
+        Raises (the put fails, ECA_PUTFAIL) for a value this IOC does not carry out."""
+        stored = await self._put_field(field, value)
+        if field in AUTOSAVED:
+            self._save_soon()
+        return stored
+
+    def _save_soon(self) -> None:
+        """Write the autosave file once caproto has stored the value being put (the
+        put's own task stores it before it next waits)."""
+        if self.server.autosave is not None:
+            task = asyncio.ensure_future(self._save())
+            self._saving.add(task)
+            task.add_done_callback(self._saving.discard)
+
+    async def _save(self) -> None:
+        autosave = self.server.autosave
+        if autosave is None:
+            return
+        fields = self.record.fields
+        try:
+            autosave.store(self.record.pvname, {name: fields[name].value for name in SAVED})
+        except OSError as exc:
+            log.error("%s: autosave to %s failed: %s", self.record.pvname, autosave.path,
+                      exc)
+
+    async def restore(self, saved: Mapping[str, float]) -> None:
+        """Put back the autosaved fields (at start, once the controller is connected)."""
+        f = self._f
+        if "DLLM" in saved or "DHLM" in saved:
+            low = saved.get("DLLM", f.dial_low_limit.value)
+            high = saved.get("DHLM", f.dial_high_limit.value)
+            await self.controller.command(f"!lim {self.letter} {low} {high}")
+            await self._read_limits()
+        if "OFF" in saved:
+            await f.user_offset.write(saved["OFF"], verify_value=False)
+            await self.offset_changed(saved["OFF"])
+            await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+        if "VMAX" in saved:
+            await f.max_velocity.write(saved["VMAX"], verify_value=False)
+        if "VELO" in saved:
+            await self.set_velocity(saved["VELO"])
+
+    async def _put_field(self, field: str, value: Any) -> Any:
+        f = self._f
+        if isinstance(value, float) and field not in ("DESC",):
+            _finite(self.record.pvname, field, value)
+        if field == "STOP":
+            if value:
+                await self.stop()
+            return 0
+        if field == "SPMG":
+            return await self._put_spmg(value)
+        if field in ("TWF", "TWR"):
+            if value:
+                await self.tweak(+1 if field == "TWF" else -1)
+            return 0
+        if field in ("HOMF", "HOMR"):
+            if value:
+                await self.home(forward=field == "HOMF")
+            return 0
+        if field == "VELO":
+            return await self.set_velocity(float(value))
+        if field == "VMAX":
+            return await self._put_vmax(float(value))
+        if field == "ACCL":
+            return await self.set_acceleration_time(float(value))
+        if field in ("HLM", "LLM"):
+            dial = float(value) - f.user_offset.value
+            return await self.set_limit(high=field == "HLM", dial=dial)
+        if field in ("DHLM", "DLLM"):
+            await self.set_limit(high=field == "DHLM", dial=float(value))
+            return value
+        if field == "OFF":
+            await self.offset_changed(float(value))
+            return value
+        if field == "CNEN":
+            await self.set_enabled(value == "Enable")
+            return value
+        if field == "RLV":
+            if value:
+                await self.move(self.record.value + float(value))
+            return 0.0
+        if field == "DVAL":
+            await self.move(float(value) + f.user_offset.value)
+            return value
+        if field in ("SSET", "SUSE"):
+            if value:
+                await f.set_use_switch.write("Set" if field == "SSET" else "Use")
+            return 0
+        if field in ("TWV", "MDEL", "ADEL"):
+            if float(value) < 0:
+                raise MotorRefusedError(f"{self.record.pvname}.{field} must be >= 0")
+            return value
+        if field == "DIR" and value in ("Pos", 0):
+            return value
+        if field == "VBAS" and float(value) == 0.0:
+            return value
+        raise MotorRefusedError(f"{self.record.pvname}.{field}: {REFUSED[field]}")
+
+    async def _put_spmg(self, value: str) -> str:
+        if value in ("Stop", "Pause"):
+            # The flag is set before the first await: a VAL put right behind is refused.
+            self._halted = True
+            resume = self.record.value if value == "Pause" and self._busy else None
+            await self.stop()
+            self._resume = resume
+            return value
+        self._halted = False
+        resume, self._resume = self._resume, None
+        if value == "Go" and resume is not None:  # Pause, then Go: on toward VAL
+            task = asyncio.ensure_future(self.move(resume))
+            task.add_done_callback(_log_failure)
+        return value
+
+    async def _put_vmax(self, vmax: float) -> float:
+        if vmax <= 0 or vmax > self._vmax_ceiling():
+            raise MotorRefusedError(f"{self.record.pvname}.VMAX must be in (0, "
+                                    f"{self._vmax_ceiling():g}] {self.units.egu}/s")
+        if self._f.velocity.value > vmax:
+            await self.set_velocity(vmax, vmax=vmax)
+        return vmax
+
     # -- motion --------------------------------------------------------------------------
 
     async def move(self, target: float) -> None:
         """VAL was put: move there (or redefine the position with SET=Set)."""
         self._require_link()
         f = self._f
-        if f.stop_pause_move_go.value in ("Stop", "Pause"):
-            raise MotorRefusedError(f"{self.record.pvname}: SPMG is "
-                                    f"{f.stop_pause_move_go.value}; set it to Go to move")
-        if not math.isfinite(target):
-            raise MotorRefusedError(f"{self.record.pvname}: target {target!r} is not finite")
+        self._require_go()
+        _finite(self.record.pvname, "VAL", target)
         if f.set_use_switch.value == "Set":
             await self._redefine(target)
             return
         dial = target - f.user_offset.value
         await self._check_limits(dial)
-        self._positive = dial >= self._dial
-        await f.dial_desired_value.write(dial)
-        await self._run(lambda: self.server.coalescer.move_to(self.letter, dial))
+        await self.record.write(target, verify_value=False)  # VAL shows the newest target
+        await f.dial_desired_value.write(dial, verify_value=False)
+        await self._run(lambda: self.server.coalescer.move_to(self.letter, dial),
+                        positive=dial >= self._dial)
+
+    def _require_go(self) -> None:
+        if self._halted:
+            raise MotorRefusedError(f"{self.record.pvname}: SPMG is "
+                                    f"{self._f.stop_pause_move_go.value}; set it to Go to "
+                                    "move")
 
     async def _check_limits(self, dial: float) -> None:
         f = self._f
         low, high = f.dial_low_limit.value, f.dial_high_limit.value
         inside = (low == high == 0.0) or low <= dial <= high
-        await f.limit_violation.write(0 if inside else 1)
+        if f.limit_violation.value != (0 if inside else 1):
+            await f.limit_violation.write(0 if inside else 1, verify_value=False)
         if not inside:
             raise MotorRefusedError(f"{self.record.pvname}: dial target {dial} outside the "
                                     f"limits [{low}, {high}]")
 
-    async def _run(self, motion: Callable[[], Awaitable[Any]]) -> None:
-        """Run ``motion`` with DMOV=0; publish RBV, then DMOV=1, before returning.
+    async def _run(self, motion: Callable[[], Awaitable[Any]], *,
+                   positive: bool = True) -> None:
+        """Run ``motion`` once it is this request's turn, with DMOV=0; before returning,
+        publish RBV, MOVN=0 and DMOV=1 (unless another request follows) and wait until
+        those updates are on the wire to every client.
 
         The motion runs in a task of its own, which :meth:`stop` cancels: a move not yet
         sent is withdrawn, a running one is stopped (by the coalescer or the controller).
         """
         f = self._f
+        self._request += 1
+        request = self._request
         self._busy += 1
-        self._stop_requested = False
-        await f.done_moving_to_value.write(0)
-        await f.motor_is_moving.write(1)
+        try:
+            if f.done_moving_to_value.value != 0:
+                await f.done_moving_to_value.write(0, verify_value=False)
+            await self._cancel_running()
+        except BaseException:
+            self._busy -= 1
+            await self._finish()
+            raise
+        # The turn covers the final publishing too: the next request (or a STOP that
+        # waits for its turn) starts after this one's RBV/DMOV are out.
+        async with self._turn:
+            try:
+                if request != self._request:
+                    raise MoveStoppedError(f"{self.record.pvname}: replaced or stopped "
+                                           "before it started")
+                self._require_link()
+                self._require_go()
+                self._positive = positive
+                await self._motion_of(motion, request)
+            except MoveStoppedError:
+                if self.server.link_up and self.controller.connected:
+                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+                raise
+            except TangoError:
+                # The record's alarm shows on its fields too, as a motor record's SEVR
+                # does: classic ophyd's EpicsMotor fails a move when RBV is in alarm.
+                self._problem = True
+                if self.server.link_up and self.controller.connected:
+                    await self._set_alarm(AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
+                raise
+            else:
+                self._problem = False
+                if self.server.link_up:
+                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+            finally:
+                self._busy -= 1
+                await self._finish()
+
+    async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int) -> None:
+        """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
+        f = self._f
+        if f.motor_is_moving.value != 1:
+            await f.motor_is_moving.write(1, verify_value=False)
+        await self._publish_status()
         task = self._motion = asyncio.ensure_future(motion())
         try:
-            try:
-                await asyncio.wait([task])
-            except asyncio.CancelledError:  # the IOC shuts down: stop the move
-                task.cancel()
-                await asyncio.wait([task])
-                raise
-            if task.cancelled() or self._stop_requested:
-                raise MoveStoppedError(f"{self.record.pvname}: stopped before the target")
-            try:
-                task.result()
-            except MoveError as exc:
-                # A merged move reports every axis: this one may have arrived anyway.
-                if exc.statuses.get(self.letter, "E") in FAILED_LETTERS:
-                    raise
-        except TangoError:
-            self._problem = True
-            raise
-        else:
-            self._problem = False
-            if self.server.link_up:
-                await self.record.alarm.write(status=AlarmStatus.NO_ALARM,
-                                              severity=AlarmSeverity.NO_ALARM)
-        finally:
-            self._busy -= 1
-            with contextlib.suppress(TangoError):
-                await self._publish_dial(await self.controller.get("pos", axis=self.letter))
-            if not self._busy:
-                await f.motor_is_moving.write(0)
-                await f.done_moving_to_value.write(1)
-                await self._publish_status()
-
-    async def stop(self) -> None:
-        """STOP, or SPMG Stop/Pause: stop this axis and return once it stands still.
-
-        A move this IOC started is cancelled (a merged move then stops as a whole, its
-        other axes' puts fail too); otherwise ``!a <axis>`` (L6785) is sent.
-        """
-        self._require_link()
-        task = self._motion
-        if task is not None and not task.done():
-            self._stop_requested = True
+            await asyncio.wait([task])
+        except asyncio.CancelledError:  # the IOC shuts down: stop the move
             task.cancel()
             await asyncio.wait([task])
+            raise
+        if task.cancelled() or request != self._request:
+            if not task.cancelled():
+                task.exception()  # retrieved: the stop is what is reported
+            raise MoveStoppedError(f"{self.record.pvname}: stopped before the target")
+        try:
+            task.result()
+        except MoveError as exc:
+            # A merged move reports every axis: this one may have arrived anyway
+            # (@ arrived, A calibrated, D range measured; anything else ended short).
+            if exc.statuses.get(self.letter, "E") not in ARRIVED:
+                raise
+
+    async def _cancel_running(self) -> None:
+        """Stop the running request's motion (its put fails) and wait until it ended.
+
+        A move not yet sent is withdrawn; a sent one is stopped with the one-axis stop
+        (``a x``, L6785-6844), so the other axes of a merged line go on to their targets.
+        """
+        task = self._motion
+        if task is None or task.done():
+            return
+        if self.server.coalescer.pending(self.letter) or not self.controller.connected:
+            task.cancel()
         else:
-            await self.controller.command(f"!a {self.letter}")
+            await self.controller.stop(self.letter)
+        await asyncio.wait([task])
+
+    async def _finish(self) -> None:
+        """A request ended: read the position; unless another request follows, publish
+        MOVN=0 and DMOV=1 (only while the link is up: a move that lost its link has not
+        been seen to stand); then wait until every client has those updates."""
+        f = self._f
+        with contextlib.suppress(TangoError):
+            await self._publish_dial(await self.controller.get("pos", axis=self.letter))
+        if not self.controller.connected:
+            self._standing_unknown = True
+            await self.server.link_lost()
+        elif not self._busy:
+            if f.motor_is_moving.value != 0:
+                await f.motor_is_moving.write(0, verify_value=False)
+            if f.done_moving_to_value.value != 1:
+                await f.done_moving_to_value.write(1, verify_value=False)
+        await self._publish_status()
+        await self.server.flush()
+
+    async def stop(self) -> None:
+        """STOP, or SPMG Stop/Pause: stop this axis, drop every waiting request, and
+        return once it stands still.
+
+        A move this IOC started and not yet sent is withdrawn; otherwise the axis gets the
+        one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on.
+        """
+        self._request += 1  # every waiting request is now stale
+        self._require_link()
+        await self._cancel_running()
+        # Whatever moves this axis now (a move sent as it was withdrawn, another
+        # program's) gets the one-axis stop too; stop() returns once it stands.
+        if (await self.controller.status()).get(self.letter) == "M":
+            await self.controller.stop(self.letter)
+        async with self._turn:  # the stopped and the stale requests have ended
+            await self._finish()
 
     async def tweak(self, sign: int) -> None:
         """TWF/TWR: move VAL by TWV."""
         f = self._f
-        target = self.record.value + sign * abs(f.tweak_step_size.value)
-        await self.record.write(target)
+        await self.move(self.record.value + sign * abs(f.tweak_step_size.value))
 
     async def home(self, *, forward: bool) -> None:
         """HOMF: ``rm`` (upper switch); HOMR: ``cal`` (lower switch)."""
         self._require_link()
-        if self._f.stop_pause_move_go.value in ("Stop", "Pause"):
-            raise MotorRefusedError(f"{self.record.pvname}: SPMG is not Go")
+        self._require_go()
         run = self.controller.measure_range if forward else self.controller.calibrate
         try:
-            await self._run(lambda: run(self.letter))
+            await self._run(lambda: run(self.letter), positive=forward)
         finally:
             with contextlib.suppress(TangoError):
                 await self._read_limits()
@@ -407,9 +636,14 @@ class AxisServer:
 
     # -- settings ------------------------------------------------------------------------
 
-    async def set_velocity(self, velo: float) -> float:
-        """VELO was put: set ``vel``; returns the VELO the controller took."""
+    async def set_velocity(self, velo: float, *, vmax: float | None = None) -> float:
+        """VELO was put: set ``vel`` (a VELO above VMAX is VMAX, as in the motor record);
+        returns the VELO the controller took."""
         self._require_link()
+        top = self._f.max_velocity.value if vmax is None else vmax
+        if velo <= 0:
+            raise MotorRefusedError(f"{self.record.pvname}.VELO must be > 0")
+        velo = min(velo, top) if top > 0 else velo
         await self.controller.set("vel", round(self.units.vel_from_velo(velo), 6),
                                   axis=self.letter)
         await self._read_speed()
@@ -442,6 +676,8 @@ class AxisServer:
     async def offset_changed(self, offset: float) -> None:
         """OFF changed: republish every user value (user = dial + OFF)."""
         f = self._f
+        if abs(offset) > MAX_MAGNITUDE:
+            raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
         await f.user_readback_value.write(self._dial + offset)
         await f.user_high_limit.write(f.dial_high_limit.value + offset, verify_value=False)
         await f.user_low_limit.write(f.dial_low_limit.value + offset, verify_value=False)
@@ -451,6 +687,12 @@ class AxisServer:
         """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919)."""
         self._require_link()
         await self.controller.command(f"!axis {self.letter} {1 if enabled else 0}")
+
+    def _vmax_ceiling(self) -> float:
+        """The largest VMAX: the `vel` instruction's ceiling (L3452) in EGU/s."""
+        spec = lookup("vel").write[0].per_axis[0]
+        top = spec.hi_dim9 if self.units.dim == 9 and spec.hi_dim9 else spec.hi
+        return self.units.velo_from_vel(float(top or 0.0))
 
     def _require_link(self) -> None:
         if not self.server.link_up:
@@ -478,6 +720,11 @@ class AxisServer:
         await f.enable_control.write("Enable" if enabled else "Disable", verify_value=False)
         await self._publish_dial(await c.get("pos", axis=axis))
         await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+        # LVIO says whether the position (VAL at start) is inside the limits: caproto's
+        # record starts with LVIO=1.
+        low, high = f.dial_low_limit.value, f.dial_high_limit.value
+        inside = (low == high == 0.0) or low <= self._dial <= high
+        await f.limit_violation.write(0 if inside else 1, verify_value=False)
 
     async def _optional(self, name: str, default: float, axis: str | None = None) -> Any:
         """Read ``name``; a controller that refuses it (older firmware may lack gear,
@@ -493,10 +740,12 @@ class AxisServer:
         c, axis, f = self.controller, self.letter, self._f
         velo = self.units.velo_from_vel(float(await c.get("vel", axis=axis)))
         accel = float(await c.get("accel", axis=axis))
-        spec = lookup("vel").write[0].per_axis[0]
-        top = spec.hi_dim9 if self.units.dim == 9 and spec.hi_dim9 else spec.hi
         await f.velocity.write(velo, verify_value=False)
-        await f.max_velocity.write(self.units.velo_from_vel(float(top or 0.0)))
+        if f.max_velocity.value <= 0:
+            # VMAX starts at the speed the controller is set to (its saved `vel`, the one
+            # speed known to suit the stage), not the `vel` ceiling of 200 rev/s (L3452);
+            # a client raises it with a VMAX put, and it stays where it is put.
+            await f.max_velocity.write(velo, verify_value=False)
         await f.seconds_to_velocity.write(self.units.accl_from_accel(velo, accel),
                                           verify_value=False)
 
@@ -512,27 +761,40 @@ class AxisServer:
 
     async def _publish_drive_limits(self, offset: float) -> None:
         f = self._f
+        # Display limits only: control limits would make caproto refuse an out-of-limit
+        # VAL before the record sees it, and the motor record sets LVIO for that.
         await self.record.write_metadata(
-            lower_ctrl_limit=f.dial_low_limit.value + offset,
-            upper_ctrl_limit=f.dial_high_limit.value + offset)
+            lower_disp_limit=f.dial_low_limit.value + offset,
+            upper_disp_limit=f.dial_high_limit.value + offset)
 
     async def _publish_dial(self, dial: float) -> None:
         self._dial = float(dial)
         f = self._f
-        await f.dial_readback_value.write(self._dial)
-        await f.user_readback_value.write(self._dial + f.user_offset.value)
+        await self._publish_changed(f.dial_readback_value, self._dial)
+        await self._publish_changed(f.user_readback_value, self._dial + f.user_offset.value)
+
+    async def _publish_changed(self, channel: Any, value: float) -> None:
+        """Write ``value`` to a readback only if it moved by more than MDEL from the value
+        last sent (any change with MDEL=0), as the motor record posts its monitors."""
+        f = self._f
+        deadband = max(f.monitor_deadband.value, 0.0)
+        last = channel.value
+        if value == last or (abs(value - last) <= deadband and deadband > 0):
+            return
+        await channel.write(value, verify_value=False)  # keeps the record's alarm
 
     async def poll_update(self, dial: float, letter: str) -> None:
-        """Publish a polled position and status letter."""
+        """Publish a polled position and status letter (DMOV=1 once a move that lost
+        its link is seen to stand)."""
+        await self._publish_dial(dial)
         if not self._busy:
-            await self._publish_dial(dial)
             moving = letter == "M"
+            self._standing_unknown = False
             f = self._f
             if f.motor_is_moving.value != int(moving):
-                await f.motor_is_moving.write(int(moving))
-                await f.done_moving_to_value.write(int(not moving))
-        else:
-            await self._publish_dial(dial)
+                await f.motor_is_moving.write(int(moving), verify_value=False)
+            if f.done_moving_to_value.value != int(not moving):
+                await f.done_moving_to_value.write(int(not moving), verify_value=False)
         await self._publish_status(moving=letter == "M")
 
     async def slow_update(self, readsw: str, statuslimit: str) -> None:
@@ -540,19 +802,22 @@ class AxisServer:
         self._switches = limit_switches(readsw, self.letter)
         self._homed = calibrated(statuslimit, self.letter)
         f = self._f
-        await f.user_high_limit_switch.write(int(self._switches.high))
-        await f.user_low_limit_switch.write(int(self._switches.low))
+        if f.user_high_limit_switch.value != int(self._switches.high):
+            await f.user_high_limit_switch.write(int(self._switches.high), verify_value=False)
+        if f.user_low_limit_switch.value != int(self._switches.low):
+            await f.user_low_limit_switch.write(int(self._switches.low), verify_value=False)
         await self._publish_status()
 
     async def _publish_status(self, moving: bool | None = None) -> None:
         f = self._f
         if moving is None:
             moving = bool(f.motor_is_moving.value)
-        word = msta(moving=moving or bool(self._busy), switches=self._switches,
+        word = msta(moving=moving or bool(self._busy) or self._standing_unknown,
+                    switches=self._switches,
                     problem=self._problem, comm_error=not self.server.link_up,
                     homed=self._homed, positive=self._positive)
         if f.motor_status.value != word:
-            await f.motor_status.write(word)
+            await f.motor_status.write(word, verify_value=False)
 
     async def link_changed(self, up: bool) -> None:
         """The link went down (INVALID/COMM alarm) or came back (settings re-read)."""
@@ -576,14 +841,20 @@ class ControllerServer:
     """The PVs of one controller: its axes and controller PVs, and the poller."""
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
-                 window: float = 0.02) -> None:
+                 window: float = 0.02, autosave: Autosave | None = None,
+                 group: ControllerPVs | None = None) -> None:
         self.controller = controller
+        self.autosave = autosave
+        self._restored = autosave is None
         self.prefix = prefix
         self.poll = poll
         self.coalescer = MoveCoalescer(controller, window=window)
-        self.group = ControllerGroup(prefix)
+        self.group = group if group is not None else ControllerPVs(prefix)
         self.link_up = controller.connected
-        count = controller.identity.axes if controller.identity else controller.context.axes
+        self.context: FlushingContext | None = None
+        # The context's axis count: set by identification, or the connect() default when
+        # the controller was connected with identify=False (the identity is not read).
+        count = controller.context.axes
         self.axes = [AxisServer(self, letter) for letter in AXES[:count]]
 
     @property
@@ -595,14 +866,28 @@ class ControllerServer:
         return pvdb
 
     async def start(self) -> None:
-        """Read the settings and publish the first values (raises if it cannot)."""
-        await self._set_link(self.controller.connected, force=True)
+        """Read the settings and publish the first values (with the controller down, the
+        PVs start INVALID and the poller connects them when it comes)."""
+        try:
+            await self._set_link(self.controller.connected, force=True)
+        except ConnectionLostError:
+            await self._set_link(False, force=True)
+
+    async def flush(self) -> None:
+        """Wait until the monitor updates published so far are on the wire to every
+        client (no-op before the server runs)."""
+        if self.context is not None:
+            await self.context.flush()
+
+    async def link_lost(self) -> None:
+        """A request saw the link down: every PV but CONNECTED goes INVALID now."""
+        await self._set_link(False)
 
     async def report_error(self, exc: BaseException) -> None:
         """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``)."""
         number = exc.number if isinstance(exc, ControllerError) else -1
-        await self.group.error.write(number)
-        await self.group.error_text.write(str(exc)[:255])
+        await self.group.error.write(number, verify_value=False)
+        await self.group.error_text.write(str(exc)[:255], verify_value=False)
         if not self.link_up:  # the failed put's WRITE alarm must not hide the link state
             for axis in self.axes:
                 await axis.assert_invalid()
@@ -621,10 +906,16 @@ class ControllerServer:
         status = AlarmStatus.NO_ALARM if up else AlarmStatus.COMM
         for pv in (group.autostatus, group.trigcount, group.error, group.error_text):
             await pv.alarm.write(status=status, severity=severity)
-        await group.connected.write(int(up))
+        await group.connected.write(int(up), verify_value=False)
         if up:
-            await group.autostatus.write(self.controller.autostatus)
+            await group.autostatus.write(self.controller.autostatus, verify_value=False)
             log.info("%s: connected to %s", self.prefix, self.controller.url)
+            if not self._restored and self.autosave is not None:
+                for axis in self.axes:
+                    saved = self.autosave.values.get(axis.record.pvname)
+                    if saved:
+                        await axis.restore(saved)
+                self._restored = True
         # Up only once every setting was read: a failed read is tried again next poll.
         self.link_up = up
 
@@ -659,8 +950,8 @@ class ControllerServer:
             statuslimit = await c.query("?statuslimit")
             for axis in self.axes:
                 await axis.slow_update(readsw, statuslimit)
-            await self.group.trigcount.write(int(await c.get("trigcount")))
-            await self.group.autostatus.write(c.autostatus)
+            await self.group.trigcount.write(int(await c.get("trigcount")), verify_value=False)
+            await self.group.autostatus.write(c.autostatus, verify_value=False)
 
     async def aclose(self) -> None:
         """Stop what the coalescer is moving."""
@@ -671,7 +962,8 @@ class ControllerServer:
 
 
 def _guard(pv: Any, policy: AccessPolicy,
-           on_error: Callable[[BaseException], Awaitable[None]]) -> None:
+           on_error: Callable[[BaseException], Awaitable[None]], *,
+           writable: bool = True) -> None:
     """Make ``pv`` refuse writes to clients the policy does not allow (status
     ECA_NOWTACCESS), and answer a put whose handler failed with the status ECA_PUTFAIL.
 
@@ -683,13 +975,20 @@ def _guard(pv: Any, policy: AccessPolicy,
 
     def check_access(hostname: str, username: str) -> AccessRights:
         rights = own_check(hostname, username)
-        if not policy.may_write(hostname, username):
+        if not writable or not policy.may_write(hostname, username):
             rights &= ~AccessRights.WRITE
         return rights
 
     async def auth_write(hostname: str, username: str, *args: Any, **kwargs: Any) -> Any:
+        _STOPPED.set(None)
         try:
-            return await own_write(hostname, username, *args, **kwargs)
+            status = await own_write(hostname, username, *args, **kwargs)
+            stopped = _STOPPED.get()
+            if stopped is not None:
+                log.info("%s: put by %s@%s ended short: %s", pv.pvname, username,
+                         hostname, stopped)
+                return CAStatus.ECA_PUTFAIL
+            return status
         except Forbidden:
             log.warning("%s: write refused to %s@%s", pv.pvname, username, hostname)
             return CAStatus.ECA_NOWTACCESS
@@ -702,32 +1001,107 @@ def _guard(pv: Any, policy: AccessPolicy,
     pv.auth_write = auth_write
 
 
+class WaitingServer:
+    """A controller that could not be reached when the IOC started.
+
+    Its controller PVs are served at once (``CONNECTED`` 0, the others INVALID); ``open``
+    is tried again every ``retry`` seconds, and once it gives a controller the axes'
+    motor records are added and served like those of the others.
+    """
+
+    def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
+                 *, poll: float, window: float, autosave: Autosave | None,
+                 retry: float = 2.0) -> None:
+        self.open_controller = open_controller
+        self.prefix = prefix
+        self.retry = retry
+        self.group = ControllerPVs(prefix)
+        self._options = {"poll": poll, "window": window, "autosave": autosave}
+        self.server: ControllerServer | None = None
+
+    @property
+    def pvdb(self) -> dict[str, Any]:
+        """The controller PVs, served while waiting."""
+        return dict(self.group.pvdb)
+
+    async def start(self) -> None:
+        """Publish the waiting state: CONNECTED=0, every other PV INVALID."""
+        for pv in (self.group.autostatus, self.group.trigcount, self.group.error,
+                   self.group.error_text):
+            await pv.alarm.write(status=AlarmStatus.COMM,
+                                 severity=AlarmSeverity.INVALID_ALARM)
+        await self.group.error_text.write(f"waiting for the controller at {self.prefix}",
+                                          verify_value=False)
+
+    async def connect(self) -> ControllerServer:
+        """Try until the controller answers; return its server (started)."""
+        while True:
+            try:
+                controller = await self.open_controller()
+            except (TangoError, OSError) as exc:
+                log.info("%s: controller not reachable yet: %s", self.prefix, exc)
+                await asyncio.sleep(self.retry)
+                continue
+            if _unidentified(controller):
+                await controller.identify()
+            server = ControllerServer(controller, self.prefix, group=self.group,
+                                      **self._options)  # type: ignore[arg-type]
+            await server.start()
+            self.server = server
+            return server
+
+
 class TangoIoc:
     """An IOC serving one or more controllers. Build it with :func:`build_ioc`."""
 
-    def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy) -> None:
+    def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy,
+                 waiting: Sequence[WaitingServer] = ()) -> None:
         self.servers = list(servers)
+        self.waiting = list(waiting)
         self.policy = policy
         self.pvdb: dict[str, Any] = {}
+        self._context: FlushingContext | None = None
         for server in self.servers:
-            overlap = set(self.pvdb) & set(server.pvdb)
-            if overlap:
-                raise ValueError(f"PV names used twice: {sorted(overlap)[:3]}")
-            self.pvdb.update(server.pvdb)
-            for pv in server.pvdb.values():
-                _guard(pv, policy, server.report_error)
-                for field in getattr(pv, "fields", {}).values():  # served as "P:X.VELO"
-                    _guard(field, policy, server.report_error)
+            self._add(server.pvdb, server.report_error)
+        for pending in self.waiting:  # read-only controller PVs: nothing to report
+            self._add(pending.pvdb, _ignore)
+
+    def _add(self, pvdb: Mapping[str, Any],
+             on_error: Callable[[BaseException], Awaitable[None]]) -> None:
+        """Serve ``pvdb`` too, each PV guarded by the access policy."""
+        overlap = set(self.pvdb) & set(pvdb)
+        if overlap:
+            raise ValueError(f"PV names used twice: {sorted(overlap)[:3]}")
+        for pv in pvdb.values():
+            _guard(pv, self.policy, on_error)
+            for name, field in getattr(pv, "fields", {}).items():  # "P:X.VELO"
+                _guard(field, self.policy, on_error, writable=name in WRITABLE)
+        self.pvdb.update(pvdb)
 
     async def start(self) -> None:
         """Read every controller's settings and publish the first values."""
         for server in self.servers:
             await server.start()
+        for waiting in self.waiting:
+            await waiting.start()
+
+    async def _serve_when_connected(self, waiting: WaitingServer) -> None:
+        server = await waiting.connect()
+        server.context = self._context
+        self.servers.append(server)
+        self._add({name: pv for name, pv in server.pvdb.items()
+                   if name not in self.pvdb}, server.report_error)
+        log.info("%s: controller connected; serving its axes", waiting.prefix)
+        await server.run()
 
     async def run(self, interfaces: Sequence[str] = ("127.0.0.1",)) -> None:
         """Serve on ``interfaces`` until cancelled; stops the moves this IOC started."""
-        context = Context(self.pvdb, list(interfaces))
+        context = self._context = FlushingContext(self.pvdb, list(interfaces))
+        for server in self.servers:
+            server.context = context
         tasks = [asyncio.ensure_future(server.run()) for server in self.servers]
+        tasks += [asyncio.ensure_future(self._serve_when_connected(waiting))
+                  for waiting in self.waiting]
         tasks.append(asyncio.ensure_future(context.run()))
         try:
             done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
@@ -740,20 +1114,53 @@ class TangoIoc:
             await asyncio.gather(*tasks, return_exceptions=True)
             for server in self.servers:
                 await server.aclose()
+            for waiting in self.waiting:
+                if waiting.server is not None:
+                    await waiting.server.controller.aclose()
+
+
+async def _ignore(exc: BaseException) -> None:
+    """No controller to report a failed put to yet."""
+
+
+def _unidentified(controller: Controller) -> bool:
+    """Whether ``controller`` was connected without reading its identity."""
+    try:
+        _ = controller.identity
+    except RuntimeError:
+        return True
+    return False
 
 
 async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     policy: AccessPolicy | None = None, poll: float = 0.1,
-                    window: float = 0.02) -> TangoIoc:
+                    window: float = 0.02,
+                    autosave: str | os.PathLike[str] | None = None,
+                    waiting: Mapping[str, Callable[[], Awaitable[Controller]]] | None = None,
+                    retry: float = 2.0) -> TangoIoc:
     """Build (and :meth:`~TangoIoc.start`) an IOC for ``controllers``.
 
     ``controllers`` maps a name to a connected controller; the name ``""`` gives PVs
     ``<prefix>X``, any other name ``<prefix><name>:X``. ``poll`` is the seconds between
     position reads, ``window`` the :class:`~tango_aio.coalesce.MoveCoalescer` window.
+    ``autosave``: a file that keeps OFF, the soft limits, VELO and VMAX across restarts
+    (:mod:`.autosave`); its values are put back once each controller is connected.
+    ``waiting`` maps names (as ``controllers``) to functions that open a controller not
+    reachable yet: its controller PVs are served at once with ``CONNECTED`` 0, the
+    function is tried every ``retry`` seconds, and its axes are served once it works.
     """
+    saved = Autosave(autosave) if autosave is not None else None
+    if saved is not None:
+        saved.load()
+    for controller in controllers.values():
+        if controller.connected and controller.context.axes and _unidentified(controller):
+            await controller.identify()  # connected with identify=False: axes unknown
     servers = [ControllerServer(controller, f"{prefix}{name}:" if name else prefix,
-                                poll=poll, window=window)
+                                poll=poll, window=window, autosave=saved)
                for name, controller in controllers.items()]
-    ioc = TangoIoc(servers, policy or AccessPolicy())
+    pending = [WaitingServer(opener, f"{prefix}{name}:" if name else prefix, poll=poll,
+                             window=window, autosave=saved, retry=retry)
+               for name, opener in (waiting or {}).items()]
+    ioc = TangoIoc(servers, policy or AccessPolicy(), pending)
     await ioc.start()
     return ioc

@@ -79,6 +79,17 @@ class ScaledHandler:
         """The controller logic (e.g. the :class:`~tango_aio.sim.model.ControllerModel`)."""
         self.clock = EmulatorClock(speed, host_now() if origin is None else origin)
         """The conversion between the wire's time and the logic's."""
+        # What the wire asks its handler, passed on from the logic (the wire reads these
+        # once, with getattr: without them a scaled emulator ignored ctrl_c=ignore).
+        self.ctrl_c_stops: bool = getattr(self.handler, "ctrl_c_stops", True)
+        """Whether Ctrl+C bypasses the parser (the logic's answer)."""
+        self.local_echo: bool = getattr(self.handler, "local_echo", False)
+        """Whether the link echoes every byte sent (the logic's answer)."""
+
+    def reboots(self, line: bytes) -> bool:
+        """Whether ``line`` restarts the controller (the logic's answer, if it has one)."""
+        ask = getattr(self.handler, "reboots", None)
+        return bool(ask(line)) if ask is not None else False
 
     def handle_line(self, line: bytes, now: float) -> None:
         """Execute one line at emulator time."""

@@ -120,9 +120,9 @@ class Handlers(Peripherals):
         code = int(c.values[0]) if c.values else self.m.error
         texts = OLDER_HELP if self.m.firmware.instruction_set == "older" else HELP
         text = texts.get(code, ERROR_DESCRIPTIONS.get(code, "unknown error"))
-        if c.values and self.m.firmware.help_number == "no":
-            return [text]
-        return [f"ERROR {code},{text}"]
+        bare = c.values and self.m.firmware.help_number == "no"
+        reply = text if bare else f"ERROR {code},{text}"
+        return [reply.lower() if self.m.firmware.help_case == "lower" else reply]
 
     def i_service(self, c: Command) -> Reply:
         """``service``: several lines; ``END_SERVICE_PRINT.`` last from firmware
@@ -191,7 +191,7 @@ class Handlers(Peripherals):
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":
             letters = letters.replace("-", "")
-        return [letters + ".-"]
+        return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
 
     def i_calst(self, c: Command) -> Reply:
         return [self.m.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
@@ -205,11 +205,13 @@ class Handlers(Peripherals):
             self.m.motion.vel_to_user(i, self.m.motion.velocity(i)), digits))]
 
     def i_readsw(self, c: Command) -> Reply:
-        bits = []
-        for index in range(4):
-            e0, ee = self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
-            bits += ["1" if e0 else "0", "0", "1" if ee else "0"]
-        return ["".join(bits)]
+        # 12 characters: E0 of X Y Z A, then Ref of X Y Z A (always 0 on a TANGO), then
+        # EE of X Y Z A (L5027-5078; the example "000000001000" is EE of X actuated).
+        states = [self.m.motion.switch_state(index) if index < self.m.axes else (False, False)
+                  for index in range(4)]
+        e0 = "".join("1" if low else "0" for low, _ in states)
+        ee = "".join("1" if high else "0" for _, high in states)
+        return [e0 + "0000" + ee]
 
     def i_swin(self, c: Command) -> Reply:
         levels = []

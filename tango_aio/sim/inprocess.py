@@ -17,11 +17,15 @@ model          the ``?version`` controller type                           TANGO-
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
+fingerprint    switch values of a ``tango-aio probe`` fingerprint file    none
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
 speed          the controller's time runs this many times as fast          1
 =============  =========================================================  ===========
 
 Example: ``sim://?profile=legacy&echo=after`` (the profile first, single switches on top).
+``sim://?fingerprint=unit.json`` behaves like the unit ``tango-aio probe`` wrote
+``unit.json`` for, as far as the switches go (:meth:`Firmware.from_fingerprint`); single
+switches go on top of it too.
 ``speed`` (a finite number > 0) scales motion, pauses and the controller's timeouts; the
 wire keeps its baud rate, latency and processing times (:mod:`tango_aio.sim.clock`).
 """
@@ -52,7 +56,8 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         raise ValueError(f"not a sim:// URL: {url!r}")
     query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
     known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
-             "seed", "model", "firmware", "state", "profile", "speed", *SWITCHES}
+             "seed", "model", "firmware", "state", "profile", "fingerprint", "speed",
+             *SWITCHES}
     unknown = set(query) - known
     if unknown:
         raise ValueError(f"unknown sim:// option(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -60,10 +65,16 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
     if not 1 <= axes <= 4:
         raise ValueError(f"sim:// axes must be 1..4, got {axes}")
     switches = {name: value for name, value in query.items() if name in SWITCHES}
+    if "fingerprint" in query:
+        if "profile" in query:
+            raise ValueError("sim:// takes a profile or a fingerprint, not both")
+        firmware = Firmware.from_fingerprint(query["fingerprint"]).with_(**switches)
+    else:
+        firmware = Firmware.from_options(query.get("profile", "manual"), **switches)
     sim = SimConfig(
         axes=axes,
         model=query.get("model", "TANGO-DT"),
-        firmware=Firmware.from_options(query.get("profile", "manual"), **switches),
+        firmware=firmware,
         version=query.get("firmware", "1.71"),
         state_file=Path(query["state"]) if "state" in query else None,
     )

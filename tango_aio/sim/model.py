@@ -158,6 +158,8 @@ class _Session:
     internal_permanent: bool = False
     #: Job ids of moves whose mode-2 ``OK...`` comes with their report (``move_ok``).
     ok_owed: set[int] = field(default_factory=set)
+    #: Mode-4 echoes of move lines owed at their completion (``echo=completion``), by job.
+    echo_owed: dict[int, str] = field(default_factory=dict)
     #: ``a``/Ctrl+C owe a report of their own once the axes stand (``abort_report``,
     #: ``ctrl_c=stop_report``).
     stop_report_owed: bool = False
@@ -173,6 +175,9 @@ class ControllerModel:
         self.firmware: Firmware = self.config.firmware
         self._emit = emit
         self._line_end = b"\r\n" if self.firmware.line_end == "crlf" else b"\r"
+        #: The link echoes every byte the host sends (switch ``local_echo``; the wire
+        #: asks, like :attr:`ctrl_c_stops`).
+        self.local_echo = self.firmware.local_echo == "yes"
         #: The job id of the move the current line started (set by the move handlers).
         self.last_job: int | None = None
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
@@ -338,13 +343,18 @@ class ControllerModel:
             self._send(self._echo_text(text))
         if mode == 2 and (text.startswith("!") or
                           (text.startswith("?") and firmware.ack_reads != "no")):
-            self._send(self._err_text(code))
+            self._send(self._ack_text(self._err_text(code)))
 
     def _run(self, command: Command, text: str) -> None:
         firmware = self.firmware
         before = self.session.autostatus
         echo = self._echo_text(text)
-        if firmware.echo == "before" and self._echoes(command, before):
+        # echo=completion: a move line's echo waits for the move (sent below, or with
+        # its report); every other line is echoed like echo=before.
+        moves = command.instruction.completion is not None and command.executes
+        at_completion = firmware.echo == "completion" and moves
+        if (firmware.echo == "before" or (firmware.echo == "completion" and not moves)) \
+                and self._echoes(command, before):
             self._send(echo)
         self._prepare_triggers(command)
         self.last_job = None
@@ -376,6 +386,12 @@ class ControllerModel:
                 self.session.ok_owed.add(self.last_job)
             else:
                 self._send(ack)
+        if at_completion and self._echoes(command, before):
+            if (code == 0 and self.last_job is not None
+                    and self.motion.has_job(self.last_job)):
+                self.session.echo_owed[self.last_job] = echo
+            else:
+                self._send(echo)  # refused, or nothing to wait for
         if code and command.instruction.completion is not None and command.executes:
             self._refused_move(command)
         if firmware.echo == "after" and self._echoes(command, after):
@@ -392,6 +408,8 @@ class ControllerModel:
         """The echo: the exact text, or (``echo_text=normalized``) re-printed."""
         if self.firmware.echo_text == "exact":
             return text
+        if self.firmware.echo_text == "nobang":
+            return text[1:] if text.startswith("!") else text
         return " ".join(_reprint(token) for token in text.lower().split())
 
     def _ack(self, command: Command, code: int, before: int, after: int) -> str | None:
@@ -406,11 +424,20 @@ class ControllerModel:
         if mode != 2:
             return None
         if command.form is Form.SET and not command.is_read:
-            if command.instruction.exec_reply is Shape.ACK:
-                return None
+            if command.instruction.exec_reply is Shape.ACK and self.firmware.save_ack == "once":
+                return None  # save_ack=twice: acknowledged after its own OK... as well
         elif not (command.form is Form.READ and self.firmware.ack_reads != "no"):
             return None
-        return "OK..." if code == 0 else self._err_text(code)
+        return self._ack_text("OK..." if code == 0 else self._err_text(code))
+
+    def _ack_text(self, text: str) -> str:
+        """A mode-2 acknowledgement in the case of switch ``ack_case``."""
+        case = self.firmware.ack_case
+        if case == "lower":
+            return text.lower()
+        if case == "title":
+            return text.capitalize()
+        return text
 
     def _err_text(self, code: int) -> str:
         """``ERR 5`` (L2152), or bare ``ERR`` with ``err_number=no`` (L2099)."""
@@ -485,7 +512,10 @@ class ControllerModel:
         if owed:
             self.session.ok_owed.discard(job)
             if mode == 2:
-                self._send("OK...")
+                self._send(self._ack_text("OK..."))
+        echo = self.session.echo_owed.pop(job, None) if job is not None else None
+        if echo is not None and mode == 4:
+            self._send(echo)
         letters = self.joystick_letters(letters)
         if self.firmware.report_width == "axes":
             letters = letters[: self.axes]

@@ -27,8 +27,11 @@ the manual.
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from types import MappingProxyType
 
 __all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "switch_table", "variants"]
@@ -47,6 +50,10 @@ class SwitchDoc:
     lines: str
     #: What each value changes.
     effect: str
+    #: Values the driver does not serve yet (issue #32): the emulator offers them so that
+    #: the probe (``tango-aio probe``) can recognise such a unit, and :func:`variants`
+    #: leaves them out of a client's test matrix unless asked.
+    unsupported: tuple[str, ...] = ()
 
     @property
     def default(self) -> str:
@@ -56,19 +63,25 @@ class SwitchDoc:
 
 _DOCS: tuple[SwitchDoc, ...] = (
     # -- mode 4 (echo) -----------------------------------------------------------------------
-    SwitchDoc("echo", ("before", "after"), "L2117, L2168",
+    SwitchDoc("echo", ("before", "after", "completion"), "L2117, L2168",
               "Mode 4 echoes a line before executing it, or after. So `before`: "
               "`!autostatus 1` sent in mode 4 is echoed and `!autostatus 4` sent in mode 1 "
-              "is not; `after`: the reverse."),
+              "is not; `after`: the reverse. `completion`: like `before`, but a move line "
+              "that starts a move is echoed only when it completes, just before its "
+              "report (L2117 does not say when the echo comes).",
+              unsupported=("completion",)),
     SwitchDoc("echo_report", ("yes", "no"), "L2117, L2168",
               "A move in mode 4 also sends its completion report after the echo (`yes`), "
               "or the echo is all it gets (`no`)."),
     SwitchDoc("echo_all", ("no", "yes"), "L2117, old L723",
               "Mode 4 echoes only set and move lines (`no`), or all input: reads and "
               "lines without `!` too (`yes`, old L723: \"echoes all input\")."),
-    SwitchDoc("echo_text", ("exact", "normalized"), "L2168",
+    SwitchDoc("echo_text", ("exact", "normalized", "nobang"), "L2117, L2168",
               "The echo is the exact text received, or the line re-printed: lower case, "
-              "single spaces, numbers re-formatted (`!MOA  1.50` -> `!moa 1.5`)."),
+              "single spaces, numbers re-formatted (`!MOA  1.50` -> `!moa 1.5`), or the "
+              "exact text without its leading `!` (`nobang`: `!moa 1` -> `moa 1`; L2117 "
+              "only says \"echoes the instruction\").",
+              unsupported=("nobang",)),
     # -- mode 2 (acknowledge) ------------------------------------------------------------------
     SwitchDoc("ack_reads", ("no", "before", "after"), "L2099-2103",
               "Mode 2 acknowledges `!` lines only (`no`), or `?` reads too, with `OK...` "
@@ -82,6 +95,17 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("move_ok", ("immediate", "completion"), "L2099-2103",
               "A move's `OK...` in mode 2 comes at once (`immediate`), or only when it "
               "completes, just before its report (`completion`)."),
+    SwitchDoc("ack_case", ("upper", "lower", "title"), "L2099-2103, L2150-2152",
+              "Mode 2 acknowledgements as the manual prints them, `OK...` and `ERR 5` "
+              "(`upper`), or in another case: `ok...`/`err 5` (`lower`), `Ok...`/`Err 5` "
+              "(`title`). Replies that are the data of a line (`save`, `?status`) keep "
+              "the manual's case.",
+              unsupported=("lower", "title")),
+    SwitchDoc("save_ack", ("once", "twice"), "L1738-1762, L2081, L2099-2103",
+              "`!save` (and `!restore`) answer `OK...` in every mode (L2081); in mode 2 "
+              "that answer is the acknowledgement (`once`), or the line is acknowledged "
+              "again after it (`twice`: `OK...` `OK...`).",
+              unsupported=("twice",)),
     # -- moves -----------------------------------------------------------------------------------
     SwitchDoc("refused_move_report", ("no", "yes"), "L2705, L6337-6343",
               "A refused move (e.g. outside the limits) only sets the error (`no`), or "
@@ -97,6 +121,10 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("report_width", ("four", "axes"), "L2089, L2141, L5404",
               "Completion reports carry letters for X Y Z A always, absent axes `-` "
               "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
+    SwitchDoc("status_tail", ("yes", "no"), "L2662-2725",
+              "`?statusaxis` (all axes) ends with `.-` like every example of the manual "
+              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`).",
+              unsupported=("no",)),
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
@@ -118,6 +146,10 @@ _DOCS: tuple[SwitchDoc, ...] = (
     # -- firmware replies ----------------------------------------------------------------------
     SwitchDoc("help_number", ("yes", "no"), "L2915-2919, old L805-819",
               "`?help N` answers `ERROR N,text` (`yes`) or the text only (`no`)."),
+    SwitchDoc("help_case", ("upper", "lower"), "L2915-2919",
+              "`help` answers as the manual prints it, `ERROR 5,number outside range` "
+              "(`upper`), or in lower case: `error 5,number outside range` (`lower`).",
+              unsupported=("lower",)),
     SwitchDoc("service_end", ("yes", "no"), "L2937-2943",
               "`service` ends with `END_SERVICE_PRINT.` (firmware 1.60C/1.61 on) or "
               "without an end marker (`no`)."),
@@ -138,6 +170,12 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "Every instruction of the 1.71 manual (`full`), or only those of the older "
               "edition: the others, and values for `help`/`version` (which took none "
               "there), answer error 4."),
+    # -- the link ------------------------------------------------------------------------
+    SwitchDoc("local_echo", ("no", "yes"), "L8-10, L2117",
+              "The link returns only the controller's replies (`no`), or, like a serial "
+              "adapter or an RS-485 converter with local echo, also every byte the host "
+              "sends, at once (`yes`; the manual knows only mode 4's echo, L2117).",
+              unsupported=("yes",)),
 )
 
 #: Every switch by name, in documentation order.
@@ -168,6 +206,10 @@ class Firmware:
     ack_mode_change: str = "new"
     #: Mode 2: a move's ``OK...`` ``immediate`` or at ``completion``.
     move_ok: str = "immediate"
+    #: Mode 2: acknowledgements in ``upper`` (``OK...``), ``lower`` or ``title`` case.
+    ack_case: str = "upper"
+    #: Mode 2: ``!save`` acknowledged ``once`` (its own ``OK...``) or ``twice``.
+    save_ack: str = "once"
     #: A refused move also sends a report with ``E`` (``no``/``yes``).
     refused_move_report: str = "no"
     #: A move for moving axes: ``refuse``, ``queue`` or ``retarget``.
@@ -176,6 +218,8 @@ class Firmware:
     zero_move_report: str = "yes"
     #: Report letters for ``four`` axes always or as many as the unit has (``axes``).
     report_width: str = "four"
+    #: ``?statusaxis`` ends with ``.-`` (``yes``/``no``).
+    status_tail: str = "yes"
     #: ``sa`` shows absent/disabled axes as ``dash`` or leaves them out (``omit``).
     absent_axes: str = "dash"
     #: Idle/completed axes while the joystick is enabled: ``@`` or ``J``.
@@ -188,6 +232,8 @@ class Firmware:
     ctrl_c: str = "stop"
     #: ``?help N`` repeats N (``yes``/``no``).
     help_number: str = "yes"
+    #: ``help`` answers in ``upper`` (``ERROR 5,...``) or ``lower`` case.
+    help_case: str = "upper"
     #: ``service`` ends with ``END_SERVICE_PRINT.`` (``yes``/``no``).
     service_end: str = "yes"
     #: Extra CR in ``?lim``: ``extmode0``, ``none`` or ``both``.
@@ -200,6 +246,8 @@ class Firmware:
     numbers: str = "plain"
     #: Instructions known: ``full`` (1.71) or ``older`` (the older edition's).
     instruction_set: str = "full"
+    #: The link echoes every byte sent (``no``/``yes``: an adapter with local echo).
+    local_echo: str = "no"
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -227,6 +275,40 @@ class Firmware:
             _check(name, value)
         return dataclasses.replace(self, **switches)
 
+    @classmethod
+    def from_fingerprint(cls, fingerprint: Mapping[str, object] | str | os.PathLike[str]
+                         ) -> Firmware:
+        """The firmware a fingerprint describes (a file written by ``tango-aio probe``, or
+        its JSON already loaded).
+
+        A fingerprint is, for the emulator, just switch values: its ``switches`` mapping
+        on top of the ``manual`` profile. A switch the probe could not observe (absent, or
+        ``null``: e.g. the move switches of a probe without ``--moves``) keeps the
+        ``manual`` value; what it recorded as unknown is not a switch value and is left
+        out. Raises ValueError for a file that is not a fingerprint or holds a switch
+        name or value the emulator does not know.
+        """
+        if not isinstance(fingerprint, Mapping):
+            path = Path(fingerprint)
+            try:
+                data = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, json.JSONDecodeError) as exc:
+                raise ValueError(f"cannot read fingerprint {str(path)!r}: {exc}") from None
+            if not isinstance(data, Mapping):
+                raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
+            fingerprint = data
+        kind = fingerprint.get("format", "tango_aio.fingerprint/")
+        if not str(kind).startswith("tango_aio.fingerprint/"):
+            raise ValueError(f"not a fingerprint: format {kind!r}")
+        switches = fingerprint.get("switches")
+        if not isinstance(switches, Mapping):
+            raise ValueError("not a fingerprint: no 'switches' object")
+        chosen = {str(name): value for name, value in switches.items() if value is not None}
+        for name, value in chosen.items():
+            if not isinstance(value, str):
+                raise ValueError(f"fingerprint switch {name}={value!r} is not a string")
+        return cls().with_(**chosen)
+
     def changed(self) -> dict[str, str]:
         """The switches whose value differs from the ``manual`` profile."""
         return {name: getattr(self, name) for name, doc in SWITCHES.items()
@@ -253,24 +335,30 @@ PROFILES: Mapping[str, Firmware] = MappingProxyType({
 })
 
 
-def variants() -> list[tuple[str, Firmware]]:
+def variants(*, unsupported: bool = False) -> list[tuple[str, Firmware]]:
     """``manual``, ``legacy``, then ``manual`` with each single non-default switch value
-    (named ``switch=value``): the firmwares a client's test matrix runs against."""
+    (named ``switch=value``): the firmwares a client's test matrix runs against.
+
+    Values the driver does not serve yet (:attr:`SwitchDoc.unsupported`) are left out
+    unless ``unsupported`` is true (the probe's tests take every value)."""
     out: list[tuple[str, Firmware]] = list(PROFILES.items())
     manual = PROFILES["manual"]
     for name, doc in SWITCHES.items():
         for value in doc.values[1:]:
-            out.append((f"{name}={value}", manual.with_(**{name: value})))
+            if unsupported or value not in doc.unsupported:
+                out.append((f"{name}={value}", manual.with_(**{name: value})))
     return out
 
 
 def switch_table() -> str:
     """The Markdown table of every switch (the README's, checked by a test)."""
-    rows = ["| switch | values | `manual` | `legacy` | manual lines |",
+    rows = ["| switch | values (* not served by the driver yet) | `manual` | `legacy` "
+            "| manual lines |",
             "|---|---|---|---|---|"]
     legacy = PROFILES["legacy"]
     for name, doc in SWITCHES.items():
-        values = " \\| ".join(f"`{v}`" for v in doc.values)
+        values = " \\| ".join(f"`{v}`" + ("*" if v in doc.unsupported else "")
+                               for v in doc.values)
         rows.append(f"| `{name}` | {values} | `{doc.default}` | `{getattr(legacy, name)}` "
                     f"| {doc.lines} |")
     return "\n".join(rows)

@@ -290,6 +290,7 @@ class Wire:
         self.handler: LineHandler = make_handler(self.emit)
         """The controller logic built by the factory."""
         self._ctrl_c_stops: bool = getattr(self.handler, "ctrl_c_stops", True)
+        self._local_echo: bool = getattr(self.handler, "local_echo", False)
         self._reboots: Callable[[bytes], bool] | None = getattr(self.handler, "reboots", None)
         self._handler_deadline = self.handler.next_deadline()
 
@@ -328,6 +329,12 @@ class Wire:
         start = max(self._now, self._rx_free_at)
         self._rx.append(_Segment(start, bytes(data)))
         self._rx_free_at = start + len(data) * self._bt
+        if self._local_echo:
+            # An adapter with local echo (switch local_echo): every byte comes back as
+            # it goes out, interleaved with the replies at the byte level.
+            echo_at = max(start, self._tx_free_at)
+            self._tx.append(_Segment(echo_at, bytes(data)))
+            self._tx_free_at = echo_at + len(data) * self._bt
         self._advance(self._now)
 
     def poll_chunks(self, now: float) -> list[bytes]:

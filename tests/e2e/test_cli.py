@@ -234,8 +234,8 @@ def history(tmp_path: Path) -> Path:
     return tmp_path / "history"
 
 
-def _shell(url: str, history: Path) -> Terminal:
-    term = Terminal("shell", url, env={"TANGO_AIO_HISTORY": str(history), "TERM": "xterm",
+def _shell(url: str, history: Path, *options: str) -> Terminal:
+    term = Terminal(*options, "shell", url, env={"TANGO_AIO_HISTORY": str(history), "TERM": "xterm",
                                        "PROMPT_TOOLKIT_NO_CPR": "1"})
     term.expect(r"connected to TANGO-DT firmware 1\.71, 3 axes")
     term.expect("tango>")
@@ -275,9 +275,11 @@ def test_shell_ctrl_c_at_the_prompt_aborts_a_move(history: Path) -> None:
 
 
 def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
-    with _shell(SIM + "&latency=0.25", history) as term:
+    with _shell(SIM + "&latency=0.5", history, "-v") as term:
         term.send("?version\r")
-        time.sleep(0.1)     # the read waits for its reply; the terminal is in cooked mode,
+        # The read is on the wire (-v logs it) and waits 0.5 s for its reply: a sleep
+        # instead missed that window on a loaded machine. The terminal is in cooked mode,
+        term.expect(r"-> b'\?version")
         term.send("\x03")   # so Ctrl+C raises SIGINT
         term.expect(r"interrupted: \?version")
         term.expect(r"abort sent \(Ctrl\+C\)")

@@ -199,7 +199,7 @@ _EARLY = ("import sys; sys.argv[0] = '/usr/bin/tango-aio'; import tango_aio; "
 def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
     # The interrupt arrives, deterministically, right after the start-up guard is in place
     # and before the rest of the command line has been imported.
-    probe = ("import os, signal, sys; import tango_aio._startup; "
+    probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
              "os.kill(os.getpid(), signal.SIGINT); import tango_aio.cli; "
              "print('not interrupted')")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
@@ -211,11 +211,24 @@ def test_ctrl_c_after_the_command_line_loaded_but_before_main_ends_quietly() -> 
     # The module's body (its class and function definitions, after the imports) is part
     # of start-up: seen under load, an interrupt there printed a traceback from a class
     # statement of tango_aio.cli.
-    probe = ("import os, signal, sys; import tango_aio._startup; import tango_aio.cli; "
+    probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
+             "import tango_aio.cli; "
              "os.kill(os.getpid(), signal.SIGINT); print('not interrupted')")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                           timeout=60, check=False)
     assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
+
+
+def test_importing_the_command_line_leaves_ctrl_c_to_the_importer() -> None:
+    # A program (or a pytest worker) that imports tango_aio.cli without running the
+    # command keeps Python's KeyboardInterrupt: the quiet exit of start-up is only the
+    # command's (it once ended a test worker that later pressed Ctrl+C on purpose).
+    probe = ("import os, signal, sys, time; import tango_aio.cli\n"
+             "try:\n    os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
+             "except KeyboardInterrupt:\n    print('caught')")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert (done.returncode, done.stdout, done.stderr) == (0, "caught\n", "")
 
 
 def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:

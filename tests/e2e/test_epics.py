@@ -8,18 +8,27 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import socket
 from collections.abc import AsyncIterator, Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 pytest.importorskip("caproto")
 
-from caproto import AccessRights, AlarmSeverity, AlarmStatus, CAStatus, ChannelType
+from caproto import (
+    AccessRights,
+    AlarmSeverity,
+    AlarmStatus,
+    CAStatus,
+    ChannelType,
+    HostNameRequest,
+)
 from caproto.asyncio.client import Context as ClientContext
-from helpers import INSTANT, make_model
+from helpers import INSTANT, EmulatorFactory, make_model
 
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
@@ -130,8 +139,10 @@ class Client:
 @contextlib.asynccontextmanager
 async def serving(controllers: Mapping[str, Controller], *, prefix: str = "T:",
                   policy: AccessPolicy | None = None, host_name: str | None = None,
-                  window: float = 0.02) -> AsyncIterator[tuple[TangoIoc, Client]]:
-    ioc = await build_ioc(controllers, prefix, policy=policy, poll=0.05, window=window)
+                  window: float = 0.02, autosave: Path | None = None,
+                  ) -> AsyncIterator[tuple[TangoIoc, Client]]:
+    ioc = await build_ioc(controllers, prefix, policy=policy, poll=0.05, window=window,
+                          autosave=autosave)
     task = asyncio.create_task(ioc.run(["127.0.0.1"]))
     context = ClientContext(host_name=host_name)
     try:
@@ -189,7 +200,9 @@ async def test_stop_during_a_move_fails_the_put_short_of_the_target(
         assert 0.0 < position < 40.0
         assert await client.get("X.RBV") == pytest.approx(position, abs=1e-3)
         assert await client.get("X.DMOV") == 1
-        assert (await client.alarm("X"))[1] == AlarmSeverity.MAJOR_ALARM
+        # A user's stop is not a fault: no alarm, no MSTA problem bit.
+        assert (await client.alarm("X"))[1] == AlarmSeverity.NO_ALARM
+        assert not await client.get("X.MSTA") & Msta.PROBLEM
 
 
 async def test_spmg_stop_stops_and_refuses_moves_until_go(ca_env: dict[str, str]) -> None:
@@ -240,8 +253,16 @@ async def test_limits_are_the_controllers_and_are_enforced(ca_env: dict[str, str
 
 async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
     async with one_stage() as (tango, _, client):
+        # VMAX starts at the controller's own speed; VELO above it is VMAX.
+        assert await client.get("Z.VMAX") == pytest.approx(10.0)
+        await client.put("Z.VELO", 20.0)
+        assert await tango.get("vel", axis="z") == pytest.approx(10.0)
+        await client.put("Z.VMAX", 30.0)
         await client.put("Z.VELO", 20.0)  # mm/s with pitch 1 mm: 20 rev/s
         assert await tango.get("vel", axis="z") == pytest.approx(20.0)
+        assert await client.get("Z.VMAX") == pytest.approx(30.0)  # stays where put
+        with pytest.raises(PutFailed):
+            await client.put("Z.VMAX", 1e6)  # above the vel ceiling (200 rev/s)
         await client.put("Z.ACCL", 0.1)  # 20 mm/s in 0.1 s: 200 mm/s² = 0.2 m/s²
         assert await tango.get("accel", axis="z") == pytest.approx(0.2)
         assert await client.get("Z.ACCL") == pytest.approx(0.1)
@@ -249,6 +270,7 @@ async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
 
 async def test_homing_forward_runs_a_range_measure(ca_env: dict[str, str]) -> None:
     async with one_stage() as (tango, _, client):
+        await client.put("X.VMAX", 100.0)  # VMAX starts at the controller's speed
         await client.put("X.VELO", 100.0)
         await client.put("X.HOMF", 1)
         assert "D" in await tango.query("?statuslimit")
@@ -354,7 +376,10 @@ def test_policy_decides_per_host_and_user() -> None:
     assert everyone.may_write("any", "one") and not everyone.restricted
     assert not AccessPolicy(read_only=True).may_write("any", "one")
     hosts = AccessPolicy.build(hosts=["pc3.lab.example"])
-    assert hosts.may_write("PC3", "x") and hosts.may_write("pc3.lab.example", "x")
+    assert hosts.may_write("PC3.Lab.Example", "x") and hosts.may_write("pc3.lab.example", "x")
+    assert not hosts.may_write("PC3", "x")  # whole names only
+    assert not hosts.may_write("pc3.evil.example", "x")
+    assert not hosts.may_write("ACQ-PC.evil.example", "x")
     assert not hosts.may_write("pc4", "x") and not hosts.may_write(None, "x")
     ips = AccessPolicy.build(hosts=["10.0.0.5"])
     assert ips.may_write("10.0.0.5", "x") and not ips.may_write("10", "x")
@@ -411,3 +436,182 @@ async def test_stopping_the_ioc_stops_the_moves_it_started(ca_env: dict[str, str
             await task
         assert (await tango.status())["x"] != "M"
         assert (await tango.position())["x"] < 40.0
+
+
+# ------------------------------------------------------- motor-record semantics (#26)
+
+
+async def test_val_during_a_move_retargets(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        first = asyncio.create_task(client.put("X", 20.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X", 1.0)  # stop, then move to the new VAL
+        with pytest.raises(PutFailed):
+            await first  # replaced: it never reached 20
+        assert await client.get("X") == pytest.approx(1.0)
+        assert (await tango.position())["x"] == pytest.approx(1.0)
+        assert await client.get("X.DMOV") == 1
+
+
+async def test_pause_then_go_resumes_toward_val(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        move = asyncio.create_task(client.put("X", 8.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X.SPMG", "Pause")
+        with pytest.raises(PutFailed):
+            await move
+        assert (await tango.position())["x"] < 8.0
+        await client.put("X.SPMG", "Go")
+        await client.until("X.RBV", 8.0)
+        await client.until("X.DMOV", 1)
+        assert (await tango.position())["x"] == pytest.approx(8.0)
+
+
+async def test_lvio_and_refused_values(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        assert await client.get("X.LVIO") == 0  # inside the limits at start-up
+        with pytest.raises(PutFailed):
+            await client.put("X", 1e5)  # beyond DHLM: LVIO, no motion
+        assert await client.get("X.LVIO") == 1
+        for field, value in (("OFF", math.nan), ("OFF", 1e308), ("VELO", math.inf),
+                             ("DIR", 1), ("VBAS", 1.0), ("JOGF", 1), ("MRES", 0.1),
+                             ("RVAL", 5)):
+            with pytest.raises(PutFailed):
+                await client.put(f"X.{field}", value)
+        assert await client.get("X.OFF") == 0.0
+        assert (await tango.position())["x"] == 0.0
+        await client.put("X.DVAL", 2.0)
+        assert (await tango.position())["x"] == pytest.approx(2.0)
+        await client.put("X.RLV", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+        assert await client.get("X.LVIO") == 0
+        await client.put("X.SSET", 1)  # SET mode: a VAL put redefines the position
+        assert await client.get("X.SET") == 1
+        await client.put("X", 10.0)
+        assert (await tango.position())["x"] == pytest.approx(3.0)
+        assert await client.get("X.RBV") == pytest.approx(10.0)
+        await client.put("X.SUSE", 1)
+        assert await client.get("X.SET") == 0
+
+
+async def test_hls_on_the_emulators_upper_switch(ca_env: dict[str, str],
+                                                 emulator: EmulatorFactory) -> None:
+    emulated = await emulator(travel=4.0)  # switches at -2 and +2 mm
+    tango = emulated.tango
+    await emulated.make_fast()
+    await tango.command("!lim x -100 100")
+    async with serving({"": tango}) as (_, client):
+        with pytest.raises(PutFailed):
+            await client.put("X", 10.0)  # ends on the upper switch (EE of X)
+        await client.until("X.HLS", 1)
+        assert await client.get("Z.LLS") == 0 and await client.get("X.LLS") == 0
+        assert await client.get("X.MSTA") & Msta.PLUS_LS
+        assert (await client.alarm("X.RBV"))[1] == AlarmSeverity.MAJOR_ALARM
+
+
+async def test_idle_readbacks_are_not_resent(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (_, _, client):
+        await client.put("X", 0.5)
+        pv = await client.pv("X.RBV")
+        updates: list[float] = []
+        subscription = pv.subscribe(data_type=ChannelType.DOUBLE)
+
+        def update(_: Any, reply: Any) -> None:
+            updates.append(reply.data[0])
+
+        token = subscription.add_callback(update)  # held weakly: ``update`` stays in scope
+        await client.until("X.RBV", 0.5)
+        await client.put("X.DESC", "idle")  # a round trip: the first update has come
+        await asyncio.sleep(0.5)  # ten polls of the idle axis (poll=0.05 s)
+        await subscription.remove_callback(token)
+        assert updates == [pytest.approx(0.5)]  # the initial value only
+
+
+async def test_an_unidentified_controller_is_served(ca_env: dict[str, str]) -> None:
+    async with connect(INSTANT, identify=False) as tango:
+        ioc = await build_ioc({"": tango}, "T:")
+        assert [axis.letter for axis in ioc.servers[0].axes] == ["x", "y", "z"]
+        await ioc.servers[0].aclose()
+
+
+async def test_autosave_keeps_offset_limits_and_speed_across_restarts(
+        ca_env: dict[str, str], tmp_path: Path) -> None:
+    saved = tmp_path / "ioc.autosave"
+    async with connect(INSTANT) as tango:
+        async with serving({"": tango}, autosave=saved) as (_, client):
+            await client.put("X.OFF", 1.5)
+            await client.put("X.DHLM", 50.0)
+            await client.put("X.DLLM", -5.0)
+            await client.put("X.VMAX", 40.0)
+            await client.put("X.VELO", 30.0)
+        assert saved.exists()
+    async with connect(INSTANT) as fresh:  # a power-cycled controller: its defaults
+        assert await fresh.get("lim", axis="x") != pytest.approx((-5.0, 50.0))
+        # Restored at start (read in process: a second server in one test is not found
+        # again by the caproto client's cached search).
+        ioc = await build_ioc({"": fresh}, "T:", autosave=saved)
+        fields = ioc.pvdb["T:X"].fields
+        assert fields["OFF"].value == pytest.approx(1.5)
+        assert fields["HLM"].value == pytest.approx(51.5)
+        assert fields["VMAX"].value == pytest.approx(40.0)
+        assert fields["VELO"].value == pytest.approx(30.0)
+        assert fields["RBV"].value == pytest.approx(1.5)
+        assert await fresh.get("lim", axis="x") == pytest.approx((-5.0, 50.0))
+        assert await fresh.get("vel", axis="x") == pytest.approx(30.0)
+        await ioc.servers[0].aclose()
+    saved.write_text("not json")
+    async with connect(INSTANT) as tango:
+        with pytest.raises(ValueError, match="not an autosave file"):
+            await build_ioc({"": tango}, "T:", autosave=saved)
+
+
+async def test_access_is_decided_again_when_a_client_renames_itself(
+        ca_env: dict[str, str]) -> None:
+    policy = AccessPolicy.build(hosts=["allowed-host"])
+    async with one_stage(policy=policy, host_name="intruder") as (tango, _, client):
+        pv = await client.pv("X")
+        assert pv.channel.access_rights == AccessRights.READ
+
+        async def rename(name: str, rights: AccessRights) -> None:
+            await pv.circuit_manager.send(HostNameRequest(name))
+            async with asyncio.timeout(10):
+                while pv.channel.access_rights != rights:  # noqa: ASYNC110 - CA pushes it
+                    await asyncio.sleep(0.02)
+
+        await rename("ALLOWED-HOST", AccessRights.READ | AccessRights.WRITE)
+        await client.put("X", 0.5)
+        await rename("allowed-host.evil.example", AccessRights.READ)
+        with pytest.raises(PutFailed, match="ECA_NOWTACCESS"):
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(0.5)
+
+
+async def test_a_controller_down_at_start_is_served_once_it_comes(
+        ca_env: dict[str, str]) -> None:
+    port = free_port()
+    url = f"socket://127.0.0.1:{port}"
+
+    async def open_controller() -> Controller:
+        return await connect(url, reconnect=True)
+
+    ioc = await build_ioc({}, "W:", poll=0.05, waiting={"": open_controller}, retry=0.05)
+    task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+    context = ClientContext()
+    server = None
+    try:
+        client = Client(context, "W:")
+        assert await client.get("CONNECTED") == 0
+        assert "W:X" not in ioc.pvdb
+        server = await serve_tcp(make_model, port=port)
+        await client.until("CONNECTED", 1)
+        await client.put("X", 1.5)  # the axes are served now
+        assert await client.get("X.RBV") == pytest.approx(1.5)
+        assert await client.alarm("X") == (AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+    finally:
+        await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        if server is not None:
+            server.close()
+            await server.wait_closed()

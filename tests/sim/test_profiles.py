@@ -162,10 +162,14 @@ def test_variants_are_manual_legacy_and_each_single_switch_value() -> None:
     assert names[:2] == ["manual", "legacy"]
     assert len(set(names)) == len(names)
     singles = VARIANTS[2:]
-    assert len(singles) == sum(len(doc.values) - 1 for doc in SWITCHES.values())
+    assert len(singles) == sum(len(set(doc.values[1:]) - set(doc.unsupported))
+                               for doc in SWITCHES.values())
     for name, firmware in singles:
         switch, value = name.split("=")
         assert firmware.changed() == {switch: value}
+        assert value not in SWITCHES[switch].unsupported
+    every = variants(unsupported=True)[2:]
+    assert len(every) == sum(len(doc.values) - 1 for doc in SWITCHES.values())
 
 
 def test_sim_urls_select_a_profile_and_switches() -> None:
@@ -241,7 +245,7 @@ def test_echo_decides_which_mode_changes_are_echoed(echo: str) -> None:
     s = sim(echo=echo)
     into = s.send("!autostatus 4")
     out = s.send("!vel 3", "!autostatus 1")
-    if echo == "before":  # echoed under the mode in force when the line arrives
+    if echo in ("before", "completion"):  # echoed under the mode in force on arrival
         assert into == [] and out == ["!vel 3", "!autostatus 1"]
     else:  # echoed under the mode in force after it ran
         assert into == ["!autostatus 4"] and out == ["!vel 3"]
@@ -282,7 +286,8 @@ def test_echo_text_exact_or_normalized(echo_text: str) -> None:
     s = sim(echo_text=echo_text)
     s.send("!autostatus 4")
     lines = s.send("!MOA  1.50 +0.250") + s.settle()
-    echo = "!MOA  1.50 +0.250" if echo_text == "exact" else "!moa 1.5 0.25"
+    echo = {"exact": "!MOA  1.50 +0.250", "normalized": "!moa 1.5 0.25",
+            "nobang": "MOA  1.50 +0.250"}[echo_text]
     assert lines == [echo, "@@@-."]
 
 
