@@ -700,8 +700,9 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
             where = f"stopped at {await self.link.position(self.axis)} {unit}"
         except TangoError as exc:
             where = f"its position could not be read ({exc})"
+        within = "its time limit" if limit is None else f"{limit:.3g} s"
         raise TimeoutError(f"{self.name}: the move to {target} {unit} did not end within "
-                           f"{limit} s; {where}")
+                           f"{within}; {where}")
 
     # -- fly scans (ophyd-async Motor's semantics) ----------------------------------------
 
