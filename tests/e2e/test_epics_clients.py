@@ -389,7 +389,9 @@ async def test_a_move_on_a_disabled_axis_fails_for_pyepics(
 #: reasons); the IOC answers the put with ECA_PUTFAIL and, but for a STOP, an alarm.
 KNOWN_FALSE_SUCCESS = {
     **{("ophyd-async", ending): "ophyd-async 0.21's Motor.set does not raise when the "
-       "setpoint's put callback fails (ECA_PUTFAIL)" for ending in ENDINGS[1:]},
+       "setpoint's put callback fails (ECA_PUTFAIL): aioca raises CANothing, which is "
+       "falsy for a failure, and the stamina/tenacity retry around SignalW.set takes a "
+       "falsy exception for success" for ending in ENDINGS[1:]},
     ("ophyd", "stop"): "classic ophyd judges a move by RBV's alarm at DMOV=1, and a STOP "
                        "raises no alarm (as the motor record's does not)",
 }
@@ -476,3 +478,24 @@ async def test_a_link_lost_mid_move_never_shows_dmov_1_without_alarm() -> None:
 @pytest.mark.slow
 async def test_a_link_lost_mid_move_twenty_times() -> None:
     await _link_drops(20)
+
+
+def test_the_ophyd_async_false_success_is_its_retry_loop_taking_a_falsy_error() -> None:
+    # Why the ophyd-async cells above are expected to fail: the IOC's ECA_PUTFAIL reaches
+    # aioca, which raises CANothing; a failure's CANothing is falsy, and the retry loop
+    # that ophyd-async's SignalW.set runs every put in lets a falsy exception pass as a
+    # success. Should either library change, this test fails and the cells can be
+    # expected to pass.
+    aioca = pytest.importorskip("aioca")
+    stamina = pytest.importorskip("stamina")
+    failure = aioca.CANothing("P:X.VAL", 160)  # ECA_PUTFAIL, as the IOC answers
+    assert not failure
+
+    async def put() -> str:
+        async for attempt in stamina.retry_context(on=TimeoutError, attempts=1,
+                                                   wait_initial=0, wait_jitter=0):
+            with attempt:
+                raise failure
+        return "taken for a success"
+
+    assert asyncio.run(put()) == "taken for a success"
