@@ -163,7 +163,7 @@ def routing_svg(lines: list[WireLine]) -> str:
     each arrow labelled with the line and what it is."""
     step, top = 34, 70
     height = top + step * (len(lines) + 1) + 30
-    out = [f"<svg xmlns='http://www.w3.org/2000/svg' viewBox='0 0 900 {height}' "
+    out = [f"<svg xmlns='http://www.w3.org/2000/svg' viewBox='-40 0 940 {height}' "
            f"width='100%' role='img' aria-label='The lines of one move on the wire'>",
            "<defs><marker id='arrow' viewBox='0 0 10 10' refX='10' refY='5' "
            "markerWidth='8' markerHeight='8' orient='auto-start-reverse'>"
