@@ -38,7 +38,7 @@ import re
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, cast
 
 from .trace import TraceRecord, parse_trace
 
@@ -185,8 +185,9 @@ class _Player(asyncio.Protocol):
         self.buffer = b""
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.state._connected(transport)
+        # A stream transport, though not always a subclass of asyncio.Transport (uvloop's
+        # TCPTransport is not).
+        self.state._connected(cast(asyncio.Transport, transport))
 
     def data_received(self, data: bytes) -> None:
         *lines, self.buffer = (self.buffer + data).split(b"\r")
