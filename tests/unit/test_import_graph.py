@@ -162,7 +162,6 @@ def test_every_module_has_a_layer_in_the_page() -> None:
     assert layer["tango_aio.sim.wire"][1] == EMULATOR
 
 
-@pytest.mark.xfail(strict=True, reason="state.py (core) imports motion.MoveTiming (controller)")
 def test_every_import_keeps_the_layer_rules() -> None:
     """A module imports only its own layer or the layers above it, counting function-level
     and ``TYPE_CHECKING`` imports; the emulator imports only the catalog and the errors."""
