@@ -31,7 +31,6 @@ if getattr(sys, "argv", None) and \
     _startup.install()
 
 if TYPE_CHECKING:
-    from .bulk import UploadError
     from .connection import (
         Connecting,
         ConnectOptions,
@@ -60,6 +59,7 @@ if TYPE_CHECKING:
         HardwareFaultError,
         HdiDeviceError,
         HdiIsrError,
+        IdentityMismatchError,
         InternalControllerError,
         InternalDataError,
         InvalidAxisNameError,
@@ -70,10 +70,13 @@ if TYPE_CHECKING:
         JoystickEnabledError,
         LimitSwitchActiveError,
         LineTooLongError,
+        MissingAxisError,
         MissingPrefixError,
+        MotorRefusedError,
         MotorSupplyOverloadError,
         MoveError,
         MoveNotAllowedError,
+        MoveStoppedError,
         MultiAxisMoveForbiddenError,
         NoControllerError,
         NoError,
@@ -83,14 +86,17 @@ if TYPE_CHECKING:
         PortBusyError,
         PortNotFoundError,
         PortPermissionError,
+        ProbeError,
         ProtocolError,
         RequestAbortedError,
         SafetyCircuitError,
+        StageLimitsError,
         StateError,
         TangoError,
         TvrActiveError,
         TvrAxisActiveError,
         UnknownControllerError,
+        UploadError,
         WriteProtectedError,
         WrongParameterCountError,
         XposModuleError,
@@ -113,7 +119,7 @@ if TYPE_CHECKING:
         GroupEvent,
         GroupSubscription,
     )
-    from .reconnect import IdentityMismatchError, ReconnectPolicy
+    from .reconnect import ReconnectPolicy
     from .status import AxisStatus
 
 __all__ = [
@@ -160,12 +166,15 @@ __all__ = [
     "JoystickEnabledError",
     "LimitSwitchActiveError",
     "LineTooLongError",
+    "MissingAxisError",
     "MissingPrefixError",
+    "MotorRefusedError",
     "MotorSupplyOverloadError",
     "MoveAborted",
     "MoveError",
     "MoveFinished",
     "MoveNotAllowedError",
+    "MoveStoppedError",
     "MultiAxisMoveForbiddenError",
     "NoControllerError",
     "NoError",
@@ -177,11 +186,13 @@ __all__ = [
     "PortPermissionError",
     "PortProbe",
     "PositionUpdate",
+    "ProbeError",
     "ProtocolError",
     "ReconnectPolicy",
     "Reconnected",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "StageLimitsError",
     "StateError",
     "StatusReport",
     "Subscription",

@@ -113,11 +113,21 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
 from .coalesce import MoveCoalescer
 from .connection import connect
 from .controller import Controller
-from .errors import ControllerTimeoutError, InvalidCommandError, MoveError, TangoError
+from .errors import (
+    ControllerTimeoutError,
+    InvalidCommandError,
+    MissingAxisError,
+    MoveError,
+    StageLimitsError,
+    TangoError,
+)
 from .events import MoveAborted, MoveFinished, PositionUpdate, Reconnected, StatusReport
 from .instructions import AXES, INSTRUCTIONS
-from .motion import STOP_WAIT, position_tolerance
+from .motion import STOP_WAIT
+from .status import ABSENT, ARRIVED_LETTERS, MOVING
+from .timing import position_tolerance
 from .units import DIM_MM_VEL, UnitScale
+from .units import DIM_UNITS as _DIM_UNITS
 
 __all__ = [
     "MarzhauserAxis",
@@ -141,18 +151,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: Position unit of each ``dim`` (manual L3061-3144); dim 9 is mm with velocities in mm/s.
-DIM_UNITS = {0: "µstep", 1: "µm", 2: "mm", 3: "deg", 4: "rev", 5: "cm", 6: "m",
-             7: "in", 8: "mil", 9: "mm"}
+DIM_UNITS = {dim: unit.symbol for dim, unit in _DIM_UNITS.items()}
 #: ``accel`` is always in m/s² (manual L3303, L3329; see tango_aio.units).
 ACCEL_UNIT = "m/s^2"
-
-
-class StageLimitsError(InvalidCommandError):
-    """A target lies outside the axis's travel limits (``?lim``); nothing was moved."""
-
-
-class MissingAxisError(TangoError, LookupError):
-    """The controller does not have an axis the device was asked to provide."""
 
 
 # --------------------------------------------------------------------------------------
@@ -450,7 +451,7 @@ class StageLink:
         ours = any(axis is None or mover.axis in (axis, None) for mover in self._movers)
         if not ours:
             letters = await controller.status()
-            if not any(letter == "M" for letter_axis, letter in letters.items()
+            if not any(letter == MOVING for letter_axis, letter in letters.items()
                        if axis is None or letter_axis == axis):
                 return
         if axis is None:
@@ -469,7 +470,7 @@ class StageLink:
             async with asyncio.timeout(STOP_WAIT):
                 while True:
                     letters = await controller.status()
-                    if not any(letter == "M" for moving, letter in letters.items()
+                    if not any(letter == MOVING for moving, letter in letters.items()
                                if axis is None or moving == axis):
                         return
                     await asyncio.sleep(0.05)
@@ -1085,8 +1086,8 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
             letters = await getattr(controller, which)(self._axis)
         # Success letters: A after cal, D after rm (L2662-2721), @ from firmware that
         # reports idle; '-' (axis disabled) and anything else is no calibration.
-        letter = letters.get(self._axis, "-")
-        if letter not in ("@", "A", "D"):
+        letter = letters.get(self._axis, ABSENT)
+        if letter not in ARRIVED_LETTERS:
             raise MoveError(f"{self.name}: {which} ended with status {letter!r}",
                             dict(letters))
         await self.user_setpoint.set(await self._link.position(self._axis))
@@ -1164,7 +1165,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
 
     async def _done_move(self) -> int:
         letters = await self._link.controller.status()
-        return int(letters.get(self._axis) != "M")
+        return int(letters.get(self._axis) != MOVING)
 
     async def _offset(self) -> float:
         return await self._controller_get("posclr")
@@ -1179,7 +1180,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
     async def _redefine(self, position: float) -> None:
         """``!pos`` of this axis (refused while it moves: the origin would slip)."""
         controller = self._link.controller
-        if (await controller.status()).get(self._axis) == "M":
+        if (await controller.status()).get(self._axis) == MOVING:
             raise InvalidCommandError(f"{self.name}: cannot redefine the position while "
                                       "the axis moves", instruction="pos", number=5)
         old = await self._link.position(self._axis)
@@ -1539,7 +1540,7 @@ async def _started(controller: Controller, axis: str, travel: asyncio.Task[bool]
     (RunEngine pause) cancelled before it was seen moving is no failure (#26: the pause
     that lands during kickoff)."""
     while not travel.done():
-        if (await controller.status()).get(axis) == "M":
+        if (await controller.status()).get(axis) == MOVING:
             return
         await asyncio.wait([travel], timeout=0.01)
     if travel.cancelled() and stopped_ok():

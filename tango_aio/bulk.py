@@ -25,7 +25,12 @@ from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TypeVar, overload
 
-from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
+from .errors import (
+    InvalidCommandError,
+    ProtocolError,
+    UploadError,
+    controller_error,
+)
 from .instructions import (
     AXES,
     MAX_SNAPSHOTS,
@@ -68,21 +73,6 @@ CHECKPOINT = 200
 SLICE = 25
 
 Progress = Callable[[int, int], None]
-
-
-class UploadError(TangoError):
-    """An entry of a list upload was rejected by the controller.
-
-    ``index`` is the 0-based index of the first rejected entry, ``number`` the controller's
-    error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
-    controller then holds the entries before ``index``.
-    """
-
-    def __init__(self, index: int, number: int, command: str) -> None:
-        super().__init__(f"entry {index} ({command!r}) was rejected with error {number}")
-        self.index = index
-        self.number = number
-        self.command = command
 
 
 @dataclass(frozen=True, slots=True)

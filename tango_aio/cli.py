@@ -63,8 +63,10 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
-from .motion import FAILED_LETTERS, describe_stop, moved_axes, position_tolerance
+from .motion import describe_stop
 from .probe import add_probe_command
+from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from .timing import moved_axes, position_tolerance
 
 __all__ = ["main"]
 
@@ -382,11 +384,13 @@ def _switch(text: str) -> tuple[str, str]:
 
 # -- decoding of replies and events -----------------------------------------------------
 
-#: What each status letter means (manual L2689-2711; C and U from the older manual).
+#: Each status letter (:mod:`tango_aio.status`) in the shell's short words.
 LETTER_MEANINGS: dict[str, str] = {
-    "@": "ok", "M": "moving", "J": "ok, joystick", "S": "limit switch",
-    "A": "ok, calibrated", "D": "ok, range measured", "E": "error/aborted",
-    "T": "timeout", "C": "closed loop", "U": "manual adjustment", "-": "absent",
+    AxisStatus.READY: "ok", AxisStatus.MOVING: "moving", AxisStatus.JOYSTICK: "ok, joystick",
+    AxisStatus.LIMIT_SWITCH: "limit switch", AxisStatus.CALIBRATED: "ok, calibrated",
+    AxisStatus.RANGE_MEASURED: "ok, range measured", AxisStatus.ERROR: "error/aborted",
+    AxisStatus.TIMEOUT: "timeout", AxisStatus.CLOSED_LOOP: "closed loop",
+    AxisStatus.MANUAL_ADJUSTMENT: "manual adjustment", ABSENT: "absent",
 }
 
 _KIND_NAMES = {"move": "move", "cal": "calibration", "rm": "range measure"}
@@ -402,7 +406,7 @@ def letters_of_line(line: str) -> dict[str, str]:
     """The per-axis letters of a completion or statusaxis line (``@@E-.``, ``@@@-.-``);
     absent axes (``-``) are left out."""
     head = line.strip().split(".", 1)[0]
-    return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != "-"}
+    return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != ABSENT}
 
 
 def describe_error(code: int | None) -> str:
@@ -866,16 +870,16 @@ class Shell:
                              strict=False))
             failed = []
             for axis, (serial, target) in pending.items():
-                letter = letters.get(axis, "-")
-                if letter == "M" and not leaving:
+                letter = letters.get(axis, ABSENT)
+                if letter == MOVING and not leaving:
                     continue  # not ended yet
                 if self._moves.get(axis, (0, None))[0] == serial:
                     del self._moves[axis]
                 text = texts.get(axis)
-                if letter == "M":
+                if letter == MOVING:
                     failed.append(describe_stop(axis, letter, text, target,
                                                 why="still moving when the shell was left"))
-                elif letter in FAILED_LETTERS or letter == "-" or (
+                elif letter in FAILED_LETTERS or letter == ABSENT or (
                         target is not None and (text is None or abs(float(text) - target)
                                                 > position_tolerance(text))):
                     failed.append(describe_stop(axis, letter, text, target))
@@ -919,7 +923,7 @@ class Shell:
         """Stop the axes that still move when the shell is left."""
         await self._settle_abort()
         try:
-            moving = [a for a, s in (await self.tango.status()).items() if s == "M"]
+            moving = [a for a, s in (await self.tango.status()).items() if s == MOVING]
             if moving:
                 _say(f"stopping the axes that still move: {' '.join(moving)}", "yellow")
                 await self.tango.abort()

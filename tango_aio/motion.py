@@ -93,6 +93,7 @@ from .errors import (
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
+from .status import FAILED_LETTERS, MOVING
 from .timing import MoveTiming, moved_axes, position_tolerance, travel_time
 
 __all__ = [
@@ -115,16 +116,9 @@ log = logging.getLogger("tango_aio")
 #: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
 STOP_WAIT = 10.0
 
-#: Status letters that mean a move did not end where it should (manual L2689-2711).
-FAILED_LETTERS = frozenset("EST")
-
 #: Letters of a moved axis that end a move at once (:func:`_too_early`): the failure
 #: letters, and ``-`` for an axis that is disabled (L2711).
 _FINAL = FAILED_LETTERS | {"-"}
-
-#: The only letter that means "still moving" (manual L2676-2681: "every response except
-#: of 'M' means the axis has stopped").
-MOVING = "M"
 
 #: First and longest interval between two state polls once the expected end has passed.
 POLL_MIN = 0.05
