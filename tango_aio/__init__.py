@@ -12,7 +12,7 @@ fixture in :mod:`tango_aio.testing`.
 # Theory of operation: the names below are imported on first use (PEP 562), not when the
 # package is imported. ``import tango_aio.sim`` or the ``tango-aio`` command then pays only
 # for what it uses, and the command line installs its Ctrl+C handling before the heavy
-# modules load (an interrupt during start-up ends quietly, issue #16). Type checkers and
+# modules load (an interrupt during start-up ends quietly). Type checkers and
 # IDEs read the explicit imports in the TYPE_CHECKING block; a test keeps that block,
 # ``__all__`` and ``_HOMES`` in step.
 
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 if getattr(sys, "argv", None) and \
         sys.argv[0].replace("\\", "/").rpartition("/")[2].startswith("tango-aio"):
     # This process is the ``tango-aio`` command (its console script, tango-aio.exe on
-    # Windows): quiet Ctrl+C from here on, before anything heavy loads (issue #16).
+    # Windows): quiet Ctrl+C from here on, before anything heavy loads.
     from . import _startup
 
     _startup.install()

@@ -695,7 +695,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def _timed_out(self, target: float, limit: float | None) -> NoReturn:
         """Raise the TimeoutError of a move that ran out of ``limit`` seconds (the
         cancelled move has stopped its axes): it names the axis, the target and where
-        the axis stopped (#26 item 6)."""
+        the axis stopped."""
         unit = self.link.units.get(self.axis, "")
         try:
             where = f"stopped at {await self.link.position(self.axis)} {unit}"
@@ -1537,7 +1537,7 @@ async def _started(controller: Controller, axis: str, travel: asyncio.Task[bool]
                    stopped_ok: Callable[[], bool]) -> None:
     """Return once ``axis`` moves or the pass has already ended (a short pass may end
     between two polls); raise its error if it failed. A pass that a stop with success
-    (RunEngine pause) cancelled before it was seen moving is no failure (#26: the pause
+    (RunEngine pause) cancelled before it was seen moving is no failure (the pause
     that lands during kickoff)."""
     while not travel.done():
         if (await controller.status()).get(axis) == MOVING:

@@ -10,7 +10,7 @@ before it exits.
 
 from __future__ import annotations
 
-# First of all: Ctrl+C while the modules below load ends quietly (issue #16).
+# First of all: Ctrl+C while the modules below load ends quietly.
 from . import _startup
 
 # isort: split
@@ -148,7 +148,6 @@ async def _demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None  # connect() identifies
         _say(f"Connected to {ident.model} firmware {ident.firmware}, "
              f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}", "bold")
         await _demo_reference(tango)
@@ -226,7 +225,6 @@ async def _info(args: argparse.Namespace) -> int:
     """Print the controller's identity and main settings."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None  # connect() identifies
         table = _table(f"TANGO at {args.url}", show_header=False)
         _row(table, "model", ident.model)
         _row(table, "firmware", ident.firmware)
@@ -311,7 +309,7 @@ PTY_NEEDS_POSIX = ("the pty emulator needs a POSIX system (Linux, macOS); on Win
 
 
 def _check_pty_platform() -> None:
-    """Raise a one-line error where there are no ptys (Windows; issue #27)."""
+    """Raise a one-line error where there are no ptys (Windows)."""
     from ._platform import WINDOWS
 
     if WINDOWS:
@@ -955,12 +953,12 @@ async def _shell(args: argparse.Namespace) -> int:
     in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        if ident is not None:  # on stderr: stdout holds the replies only (a script's)
-            Console(stderr=True, highlight=False).print(Text(
-                f"connected to {ident.model} firmware {ident.firmware}, "
-                f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
-                f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
-                soft_wrap=True)
+        # On stderr: stdout holds the replies only (a script's).
+        Console(stderr=True, highlight=False).print(Text(
+            f"connected to {ident.model} firmware {ident.firmware}, "
+            f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+            f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
+            soft_wrap=True)
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 
@@ -1339,13 +1337,13 @@ def _parser() -> argparse.ArgumentParser:
                      help="with --tcp: a fresh controller for every connection (default: "
                           "one controller for the server's life)")
     sim.set_defaults(run=_sim)
-    _add_new_commands(commands)
+    _add_operator_commands(commands)
     add_ioc_command(commands)
     add_probe_command(commands)
     return parser
 
 
-def _add_new_commands(commands: Any) -> None:
+def _add_operator_commands(commands: Any) -> None:
     """The subcommands shell, move, monitor, ports and upload-trigp."""
     shell = commands.add_parser("shell", help="interactive command line shell",
                                 description=_plain(_shell.__doc__))

@@ -1,4 +1,4 @@
-"""``tango-aio probe``: learn what a controller's firmware does, from the wire (issue #32).
+"""``tango-aio probe``: learn what a controller's firmware does, from the wire.
 
 The manual leaves many details open (:mod:`tango_aio.sim.profiles` lists them as the
 emulator's *switches*). The probe finds, on a real unit, the value of every switch that can
