@@ -124,7 +124,7 @@ from .errors import (
 from .events import MoveAborted, MoveFinished, PositionUpdate, Reconnected, StatusReport
 from .instructions import AXES, INSTRUCTIONS
 from .motion import STOP_WAIT
-from .status import ABSENT, ARRIVED_LETTERS, MOVING
+from .status import ABSENT, ARRIVED_LETTERS, MOVING, AxisStatus
 from .timing import position_tolerance
 from .units import DIM_MM_VEL, UnitScale
 from .units import DIM_UNITS as _DIM_UNITS
@@ -679,11 +679,12 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         (``S``/``T``), a fresh ``?statusaxis`` says it is idle (``@``), and a fresh
         ``?pos`` puts it at the target (within 1.5 units of the printed digit, the
         driver's own rule). Anything else: False, and the line's error stands."""
-        if mover.stopped is not None or error.statuses.get(self.axis) in ("S", "T"):
+        ended_short = (AxisStatus.LIMIT_SWITCH, AxisStatus.TIMEOUT)
+        if mover.stopped is not None or error.statuses.get(self.axis) in ended_short:
             return False
         controller = self.link.controller
         try:
-            if (await controller.status()).get(self.axis) != "@":
+            if (await controller.status()).get(self.axis) != AxisStatus.READY:
                 return False
             position = await self.link.position(self.axis)
         except TangoError:
@@ -787,7 +788,8 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         if travel.cancelled():
             if ctx.stopped is True:
                 return
-            raise MoveError(f"the fly pass of {self.name} was stopped", {self.axis: "E"})
+            raise MoveError(f"the fly pass of {self.name} was stopped",
+                            {self.axis: AxisStatus.ERROR.value})
         travel.result()  # the pass's error, if any
 
     async def stop_flying(self, success: bool) -> None:
@@ -1481,7 +1483,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
     async def on_kickoff(self, ctx: _Pass) -> _Pass:
         if ctx.stopped is not None:
             raise MoveError(f"the preparation of the {ctx.scan.axis} pass was stopped",
-                            {ctx.scan.axis: "E"})
+                            {ctx.scan.axis: AxisStatus.ERROR.value})
         ctx.travel = asyncio.ensure_future(self._move(ctx, ctx.scan.end))
         self.running.append(ctx)
         await _started(self.link.controller, ctx.scan.axis, ctx.travel, ctx.stopped_ok)
@@ -1500,7 +1502,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
             if ctx.stopped_ok():
                 return
             raise MoveError(f"the fly pass of {ctx.scan.axis} was stopped",
-                            {ctx.scan.axis: "E"})
+                            {ctx.scan.axis: AxisStatus.ERROR.value})
         if not travel.result():  # raises the pass's error, if any
             return
         controller = self.link.controller

@@ -77,7 +77,7 @@ from ..errors import (
     TangoError,
 )
 from ..instructions import AXES, lookup
-from ..status import ARRIVED_LETTERS, MOVING
+from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
 from ..units import DEFAULT_USTEPS, DIM_MM_VEL
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
@@ -551,7 +551,7 @@ class AxisServer:
         except MoveError as exc:
             # A merged move reports every axis: this one may have arrived anyway
             # (@ arrived, A calibrated, D range measured; anything else ended short).
-            if exc.statuses.get(self.letter, "E") not in ARRIVED_LETTERS:
+            if exc.statuses.get(self.letter, AxisStatus.ERROR) not in ARRIVED_LETTERS:
                 raise
 
     async def _cancel_running(self) -> None:
@@ -939,7 +939,7 @@ class ControllerServer:
         letters = await c.status()
         for axis in self.axes:
             await axis.poll_update(positions.get(axis.letter, 0.0),
-                                   letters.get(axis.letter, "@"))
+                                   letters.get(axis.letter, AxisStatus.READY.value))
         if slow:
             readsw = await c.query("?readsw")
             statuslimit = await c.query("?statuslimit")
