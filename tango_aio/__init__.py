@@ -12,7 +12,7 @@ fixture in :mod:`tango_aio.testing`.
 # Theory of operation: the names below are imported on first use (PEP 562), not when the
 # package is imported. ``import tango_aio.sim`` or the ``tango-aio`` command then pays only
 # for what it uses, and the command line installs its Ctrl+C handling before the heavy
-# modules load (an interrupt during start-up ends quietly, issue #16). Type checkers and
+# modules load (an interrupt during start-up ends quietly). Type checkers and
 # IDEs read the explicit imports in the TYPE_CHECKING block; a test keeps that block,
 # ``__all__`` and ``_HOMES`` in step.
 
@@ -25,13 +25,12 @@ from typing import TYPE_CHECKING, Any
 if getattr(sys, "argv", None) and \
         sys.argv[0].replace("\\", "/").rpartition("/")[2].startswith("tango-aio"):
     # This process is the ``tango-aio`` command (its console script, tango-aio.exe on
-    # Windows): quiet Ctrl+C from here on, before anything heavy loads (issue #16).
+    # Windows): quiet Ctrl+C from here on, before anything heavy loads.
     from . import _startup
 
     _startup.install()
 
 if TYPE_CHECKING:
-    from .bulk import UploadError
     from .connection import (
         Connecting,
         ConnectOptions,
@@ -60,6 +59,7 @@ if TYPE_CHECKING:
         HardwareFaultError,
         HdiDeviceError,
         HdiIsrError,
+        IdentityMismatchError,
         InternalControllerError,
         InternalDataError,
         InvalidAxisNameError,
@@ -70,10 +70,13 @@ if TYPE_CHECKING:
         JoystickEnabledError,
         LimitSwitchActiveError,
         LineTooLongError,
+        MissingAxisError,
         MissingPrefixError,
+        MotorRefusedError,
         MotorSupplyOverloadError,
         MoveError,
         MoveNotAllowedError,
+        MoveStoppedError,
         MultiAxisMoveForbiddenError,
         NoControllerError,
         NoError,
@@ -83,14 +86,17 @@ if TYPE_CHECKING:
         PortBusyError,
         PortNotFoundError,
         PortPermissionError,
+        ProbeError,
         ProtocolError,
         RequestAbortedError,
         SafetyCircuitError,
+        StageLimitsError,
         StateError,
         TangoError,
         TvrActiveError,
         TvrAxisActiveError,
         UnknownControllerError,
+        UploadError,
         WriteProtectedError,
         WrongParameterCountError,
         XposModuleError,
@@ -113,7 +119,7 @@ if TYPE_CHECKING:
         GroupEvent,
         GroupSubscription,
     )
-    from .reconnect import IdentityMismatchError, ReconnectPolicy
+    from .reconnect import ReconnectPolicy
     from .status import AxisStatus
 
 __all__ = [
@@ -160,12 +166,15 @@ __all__ = [
     "JoystickEnabledError",
     "LimitSwitchActiveError",
     "LineTooLongError",
+    "MissingAxisError",
     "MissingPrefixError",
+    "MotorRefusedError",
     "MotorSupplyOverloadError",
     "MoveAborted",
     "MoveError",
     "MoveFinished",
     "MoveNotAllowedError",
+    "MoveStoppedError",
     "MultiAxisMoveForbiddenError",
     "NoControllerError",
     "NoError",
@@ -177,11 +186,13 @@ __all__ = [
     "PortPermissionError",
     "PortProbe",
     "PositionUpdate",
+    "ProbeError",
     "ProtocolError",
     "ReconnectPolicy",
     "Reconnected",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "StageLimitsError",
     "StateError",
     "StatusReport",
     "Subscription",

@@ -1,4 +1,4 @@
-"""The one place the package asks which platform it runs on (issue #27).
+"""The one place the package asks which platform it runs on.
 
 Windows lacks what the POSIX code paths use: ptys (``os.openpty``), ``termios``, ``tty``,
 ``fcntl`` (the ``flock`` port lock), ``resource``, ``signal.pthread_sigmask``, and an event

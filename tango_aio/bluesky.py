@@ -113,11 +113,21 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
 from .coalesce import MoveCoalescer
 from .connection import connect
 from .controller import Controller
-from .errors import ControllerTimeoutError, InvalidCommandError, MoveError, TangoError
+from .errors import (
+    ControllerTimeoutError,
+    InvalidCommandError,
+    MissingAxisError,
+    MoveError,
+    StageLimitsError,
+    TangoError,
+)
 from .events import MoveAborted, MoveFinished, PositionUpdate, Reconnected, StatusReport
 from .instructions import AXES, INSTRUCTIONS
-from .motion import STOP_WAIT, position_tolerance
+from .motion import STOP_WAIT
+from .status import ABSENT, ARRIVED_LETTERS, MOVING, AxisStatus
+from .timing import position_tolerance
 from .units import DIM_MM_VEL, UnitScale
+from .units import DIM_UNITS as _DIM_UNITS
 
 __all__ = [
     "MarzhauserAxis",
@@ -141,18 +151,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: Position unit of each ``dim`` (manual L3061-3144); dim 9 is mm with velocities in mm/s.
-DIM_UNITS = {0: "µstep", 1: "µm", 2: "mm", 3: "deg", 4: "rev", 5: "cm", 6: "m",
-             7: "in", 8: "mil", 9: "mm"}
+DIM_UNITS = {dim: unit.symbol for dim, unit in _DIM_UNITS.items()}
 #: ``accel`` is always in m/s² (manual L3303, L3329; see tango_aio.units).
 ACCEL_UNIT = "m/s^2"
-
-
-class StageLimitsError(InvalidCommandError):
-    """A target lies outside the axis's travel limits (``?lim``); nothing was moved."""
-
-
-class MissingAxisError(TangoError, LookupError):
-    """The controller does not have an axis the device was asked to provide."""
 
 
 # --------------------------------------------------------------------------------------
@@ -450,7 +451,7 @@ class StageLink:
         ours = any(axis is None or mover.axis in (axis, None) for mover in self._movers)
         if not ours:
             letters = await controller.status()
-            if not any(letter == "M" for letter_axis, letter in letters.items()
+            if not any(letter == MOVING for letter_axis, letter in letters.items()
                        if axis is None or letter_axis == axis):
                 return
         if axis is None:
@@ -469,7 +470,7 @@ class StageLink:
             async with asyncio.timeout(STOP_WAIT):
                 while True:
                     letters = await controller.status()
-                    if not any(letter == "M" for moving, letter in letters.items()
+                    if not any(letter == MOVING for moving, letter in letters.items()
                                if axis is None or moving == axis):
                         return
                     await asyncio.sleep(0.05)
@@ -678,11 +679,12 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         (``S``/``T``), a fresh ``?statusaxis`` says it is idle (``@``), and a fresh
         ``?pos`` puts it at the target (within 1.5 units of the printed digit, the
         driver's own rule). Anything else: False, and the line's error stands."""
-        if mover.stopped is not None or error.statuses.get(self.axis) in ("S", "T"):
+        ended_short = (AxisStatus.LIMIT_SWITCH, AxisStatus.TIMEOUT)
+        if mover.stopped is not None or error.statuses.get(self.axis) in ended_short:
             return False
         controller = self.link.controller
         try:
-            if (await controller.status()).get(self.axis) != "@":
+            if (await controller.status()).get(self.axis) != AxisStatus.READY:
                 return False
             position = await self.link.position(self.axis)
         except TangoError:
@@ -694,7 +696,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def _timed_out(self, target: float, limit: float | None) -> NoReturn:
         """Raise the TimeoutError of a move that ran out of ``limit`` seconds (the
         cancelled move has stopped its axes): it names the axis, the target and where
-        the axis stopped (#26 item 6)."""
+        the axis stopped."""
         unit = self.link.units.get(self.axis, "")
         try:
             where = f"stopped at {await self.link.position(self.axis)} {unit}"
@@ -786,7 +788,8 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         if travel.cancelled():
             if ctx.stopped is True:
                 return
-            raise MoveError(f"the fly pass of {self.name} was stopped", {self.axis: "E"})
+            raise MoveError(f"the fly pass of {self.name} was stopped",
+                            {self.axis: AxisStatus.ERROR.value})
         travel.result()  # the pass's error, if any
 
     async def stop_flying(self, success: bool) -> None:
@@ -1085,8 +1088,8 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
             letters = await getattr(controller, which)(self._axis)
         # Success letters: A after cal, D after rm (L2662-2721), @ from firmware that
         # reports idle; '-' (axis disabled) and anything else is no calibration.
-        letter = letters.get(self._axis, "-")
-        if letter not in ("@", "A", "D"):
+        letter = letters.get(self._axis, ABSENT)
+        if letter not in ARRIVED_LETTERS:
             raise MoveError(f"{self.name}: {which} ended with status {letter!r}",
                             dict(letters))
         await self.user_setpoint.set(await self._link.position(self._axis))
@@ -1164,7 +1167,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
 
     async def _done_move(self) -> int:
         letters = await self._link.controller.status()
-        return int(letters.get(self._axis) != "M")
+        return int(letters.get(self._axis) != MOVING)
 
     async def _offset(self) -> float:
         return await self._controller_get("posclr")
@@ -1179,7 +1182,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
     async def _redefine(self, position: float) -> None:
         """``!pos`` of this axis (refused while it moves: the origin would slip)."""
         controller = self._link.controller
-        if (await controller.status()).get(self._axis) == "M":
+        if (await controller.status()).get(self._axis) == MOVING:
             raise InvalidCommandError(f"{self.name}: cannot redefine the position while "
                                       "the axis moves", instruction="pos", number=5)
         old = await self._link.position(self._axis)
@@ -1480,7 +1483,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
     async def on_kickoff(self, ctx: _Pass) -> _Pass:
         if ctx.stopped is not None:
             raise MoveError(f"the preparation of the {ctx.scan.axis} pass was stopped",
-                            {ctx.scan.axis: "E"})
+                            {ctx.scan.axis: AxisStatus.ERROR.value})
         ctx.travel = asyncio.ensure_future(self._move(ctx, ctx.scan.end))
         self.running.append(ctx)
         await _started(self.link.controller, ctx.scan.axis, ctx.travel, ctx.stopped_ok)
@@ -1499,7 +1502,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
             if ctx.stopped_ok():
                 return
             raise MoveError(f"the fly pass of {ctx.scan.axis} was stopped",
-                            {ctx.scan.axis: "E"})
+                            {ctx.scan.axis: AxisStatus.ERROR.value})
         if not travel.result():  # raises the pass's error, if any
             return
         controller = self.link.controller
@@ -1536,10 +1539,10 @@ async def _started(controller: Controller, axis: str, travel: asyncio.Task[bool]
                    stopped_ok: Callable[[], bool]) -> None:
     """Return once ``axis`` moves or the pass has already ended (a short pass may end
     between two polls); raise its error if it failed. A pass that a stop with success
-    (RunEngine pause) cancelled before it was seen moving is no failure (#26: the pause
+    (RunEngine pause) cancelled before it was seen moving is no failure (the pause
     that lands during kickoff)."""
     while not travel.done():
-        if (await controller.status()).get(axis) == "M":
+        if (await controller.status()).get(axis) == MOVING:
             return
         await asyncio.wait([travel], timeout=0.01)
     if travel.cancelled() and stopped_ok():

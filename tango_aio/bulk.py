@@ -25,7 +25,12 @@ from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TypeVar, overload
 
-from .errors import InvalidCommandError, ProtocolError, TangoError, controller_error
+from .errors import (
+    InvalidCommandError,
+    ProtocolError,
+    UploadError,
+    controller_error,
+)
 from .instructions import (
     AXES,
     MAX_SNAPSHOTS,
@@ -70,21 +75,6 @@ SLICE = 25
 Progress = Callable[[int, int], None]
 
 
-class UploadError(TangoError):
-    """An entry of a list upload was rejected by the controller.
-
-    ``index`` is the 0-based index of the first rejected entry, ``number`` the controller's
-    error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
-    controller then holds the entries before ``index``.
-    """
-
-    def __init__(self, index: int, number: int, command: str) -> None:
-        super().__init__(f"entry {index} ({command!r}) was rejected with error {number}")
-        self.index = index
-        self.number = number
-        self.command = command
-
-
 @dataclass(frozen=True, slots=True)
 class ListSpec:
     """How one controller list is written, counted and read: what
@@ -107,7 +97,7 @@ class ListSpec:
 class Column(Sequence[Sequence[float]]):
     """A list of numbers seen as rows of one value each, without a list per row: an
     upload keeps its rows until each chunk is made, and one object per entry made a
-    64-link upload's full garbage collections long (#19 target 7)."""
+    64-link upload's full garbage collections long."""
 
     def __init__(self, values: list[float]) -> None:
         self._values = values
@@ -253,7 +243,8 @@ class ListTransfer:
         only checked before the clear (:func:`~tango_aio.instructions.check_rows`, whose
         rows :func:`~tango_aio.instructions.encode_rows` cannot fail on); each chunk's
         lines are made as bytes when it is queued, while the chunks before it are on the
-        wire (#19: 64 uploads in one process used to start one list-build apart), so
+        wire (building every list before the first byte made 64 uploads in one process
+        start one list-build apart), so
         ``rows`` must not change until the upload has ended (the controller's methods
         pass copies they validated). Otherwise every line is built before the clear, as
         commands."""
@@ -265,7 +256,7 @@ class ListTransfer:
         else:
             chunks = self._pieces(prepare(spec, rows))
             # Not kept through the upload: one list per entry (the caller's rows) made a
-            # 64-link upload's full garbage collections scan 200 000 objects (#19 target 7).
+            # 64-link upload's full garbage collections scan 200 000 objects.
             del rows
         async with self.lock:
             await clear()
@@ -275,7 +266,7 @@ class ListTransfer:
                  ) -> Iterator[Run | list[Command]]:
         """The append lines of ``rows`` (checked) cut at the checkpoints, each piece made
         when it is asked for, as one row value (a :class:`~tango_aio.scheduler.Run`: its
-        bytes, no Command per entry, #19), or as commands where a mode change since
+        bytes, no Command per entry), or as commands where a mode change since
         makes its lines owe replies."""
         for start in range(0, len(rows), CHECKPOINT):
             piece = list(spec.encode(rows[start:start + CHECKPOINT]))

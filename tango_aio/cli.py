@@ -10,7 +10,7 @@ before it exits.
 
 from __future__ import annotations
 
-# First of all: Ctrl+C while the modules below load ends quietly (issue #16).
+# First of all: Ctrl+C while the modules below load ends quietly.
 from . import _startup
 
 # isort: split
@@ -63,8 +63,10 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
-from .motion import FAILED_LETTERS, describe_stop, moved_axes, position_tolerance
+from .motion import describe_stop
 from .probe import add_probe_command
+from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from .timing import moved_axes, position_tolerance
 
 __all__ = ["main"]
 
@@ -146,7 +148,6 @@ async def _demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None  # connect() identifies
         _say(f"Connected to {ident.model} firmware {ident.firmware}, "
              f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}", "bold")
         await _demo_reference(tango)
@@ -224,7 +225,6 @@ async def _info(args: argparse.Namespace) -> int:
     """Print the controller's identity and main settings."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        assert ident is not None  # connect() identifies
         table = _table(f"TANGO at {args.url}", show_header=False)
         _row(table, "model", ident.model)
         _row(table, "firmware", ident.firmware)
@@ -309,7 +309,7 @@ PTY_NEEDS_POSIX = ("the pty emulator needs a POSIX system (Linux, macOS); on Win
 
 
 def _check_pty_platform() -> None:
-    """Raise a one-line error where there are no ptys (Windows; issue #27)."""
+    """Raise a one-line error where there are no ptys (Windows)."""
     from ._platform import WINDOWS
 
     if WINDOWS:
@@ -382,11 +382,13 @@ def _switch(text: str) -> tuple[str, str]:
 
 # -- decoding of replies and events -----------------------------------------------------
 
-#: What each status letter means (manual L2689-2711; C and U from the older manual).
+#: Each status letter (:mod:`tango_aio.status`) in the shell's short words.
 LETTER_MEANINGS: dict[str, str] = {
-    "@": "ok", "M": "moving", "J": "ok, joystick", "S": "limit switch",
-    "A": "ok, calibrated", "D": "ok, range measured", "E": "error/aborted",
-    "T": "timeout", "C": "closed loop", "U": "manual adjustment", "-": "absent",
+    AxisStatus.READY: "ok", AxisStatus.MOVING: "moving", AxisStatus.JOYSTICK: "ok, joystick",
+    AxisStatus.LIMIT_SWITCH: "limit switch", AxisStatus.CALIBRATED: "ok, calibrated",
+    AxisStatus.RANGE_MEASURED: "ok, range measured", AxisStatus.ERROR: "error/aborted",
+    AxisStatus.TIMEOUT: "timeout", AxisStatus.CLOSED_LOOP: "closed loop",
+    AxisStatus.MANUAL_ADJUSTMENT: "manual adjustment", ABSENT: "absent",
 }
 
 _KIND_NAMES = {"move": "move", "cal": "calibration", "rm": "range measure"}
@@ -402,7 +404,7 @@ def letters_of_line(line: str) -> dict[str, str]:
     """The per-axis letters of a completion or statusaxis line (``@@E-.``, ``@@@-.-``);
     absent axes (``-``) are left out."""
     head = line.strip().split(".", 1)[0]
-    return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != "-"}
+    return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != ABSENT}
 
 
 def describe_error(code: int | None) -> str:
@@ -866,16 +868,16 @@ class Shell:
                              strict=False))
             failed = []
             for axis, (serial, target) in pending.items():
-                letter = letters.get(axis, "-")
-                if letter == "M" and not leaving:
+                letter = letters.get(axis, ABSENT)
+                if letter == MOVING and not leaving:
                     continue  # not ended yet
                 if self._moves.get(axis, (0, None))[0] == serial:
                     del self._moves[axis]
                 text = texts.get(axis)
-                if letter == "M":
+                if letter == MOVING:
                     failed.append(describe_stop(axis, letter, text, target,
                                                 why="still moving when the shell was left"))
-                elif letter in FAILED_LETTERS or letter == "-" or (
+                elif letter in FAILED_LETTERS or letter == ABSENT or (
                         target is not None and (text is None or abs(float(text) - target)
                                                 > position_tolerance(text))):
                     failed.append(describe_stop(axis, letter, text, target))
@@ -919,7 +921,7 @@ class Shell:
         """Stop the axes that still move when the shell is left."""
         await self._settle_abort()
         try:
-            moving = [a for a, s in (await self.tango.status()).items() if s == "M"]
+            moving = [a for a, s in (await self.tango.status()).items() if s == MOVING]
             if moving:
                 _say(f"stopping the axes that still move: {' '.join(moving)}", "yellow")
                 await self.tango.abort()
@@ -951,12 +953,12 @@ async def _shell(args: argparse.Namespace) -> int:
     in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
-        if ident is not None:  # on stderr: stdout holds the replies only (a script's)
-            Console(stderr=True, highlight=False).print(Text(
-                f"connected to {ident.model} firmware {ident.firmware}, "
-                f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
-                f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
-                soft_wrap=True)
+        # On stderr: stdout holds the replies only (a script's).
+        Console(stderr=True, highlight=False).print(Text(
+            f"connected to {ident.model} firmware {ident.firmware}, "
+            f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+            f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
+            soft_wrap=True)
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 
@@ -1335,13 +1337,13 @@ def _parser() -> argparse.ArgumentParser:
                      help="with --tcp: a fresh controller for every connection (default: "
                           "one controller for the server's life)")
     sim.set_defaults(run=_sim)
-    _add_new_commands(commands)
+    _add_operator_commands(commands)
     add_ioc_command(commands)
     add_probe_command(commands)
     return parser
 
 
-def _add_new_commands(commands: Any) -> None:
+def _add_operator_commands(commands: Any) -> None:
     """The subcommands shell, move, monitor, ports and upload-trigp."""
     shell = commands.add_parser("shell", help="interactive command line shell",
                                 description=_plain(_shell.__doc__))

@@ -19,7 +19,7 @@ Rules:
   a request before they prepare it (Bluesky's ``set()`` does, as the RunEngine calls it);
   a batch runs one loop turn after its first request as soon as no announced request is
   still on its way (those join it), and at most ``window`` seconds after it began. A
-  single move then costs no waiting at all (#28 target 3). A second request
+  single move then costs no waiting at all. A second request
   for an axis already in the batch being collected closes that batch at once (it runs
   now) and starts the next one; batches run in the order they were started.
 * Every caller of a batch gets the batch's outcome: its own axis's status letter, or the

@@ -88,12 +88,13 @@ async def _open_serial(url: str, factory: ProtocolFactory, *, baudrate: int, rts
     released = _watch_release(port, loop)
     try:
         if POSIX and type(port) is serial.Serial:
-            # A plain POSIX port: its descriptor read and written directly (#19).
+            # A plain POSIX port: its descriptor read and written directly (fewer system calls per
+            # reply than pyserial-asyncio's select-then-read, tango_aio/fdlink.py).
             protocol = factory()
             transport: asyncio.BaseTransport = FdTransport(loop, protocol, port)
         elif WINDOWS:
             # Windows: a reader and a writer thread around pyserial's blocking calls, not
-            # pyserial-asyncio's 0.5 ms polling (#27, tango_aio/threadlink.py).
+            # pyserial-asyncio's 0.5 ms polling (tango_aio/threadlink.py).
             protocol = factory()
             transport = _thread_transport(loop, protocol, port)
         else:

@@ -14,10 +14,16 @@ who failed:
   :class:`UnknownControllerError`.
 * :class:`MoveError`: a move ended, but not at its target (per-axis status letters).
 * :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
-* :class:`ConnectionLostError`: a working link went away; the cause is chained.
+* :class:`ConnectionLostError`: a working link went away; the cause is chained
+  (:class:`IdentityMismatchError`: a different controller answered after a reconnect).
 * :class:`ConnectError`: a link could not be set up at all, one subclass per reason with
   the next step in its message: :class:`PortNotFoundError`, :class:`PortPermissionError`,
   :class:`PortBusyError`, :class:`NoControllerError`.
+* The errors of one surface, each defined here and re-exported by its module:
+  :class:`UploadError` (list uploads, :mod:`tango_aio.bulk`), :class:`ProbeError`
+  (``tango-aio probe``), :class:`MotorRefusedError` and :class:`MoveStoppedError` (the
+  EPICS IOC), :class:`StageLimitsError` and :class:`MissingAxisError` (the Bluesky
+  devices).
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ __all__ = [
     "HardwareFaultError",
     "HdiDeviceError",
     "HdiIsrError",
+    "IdentityMismatchError",
     "InternalControllerError",
     "InternalDataError",
     "InvalidAxisNameError",
@@ -60,10 +67,13 @@ __all__ = [
     "JoystickEnabledError",
     "LimitSwitchActiveError",
     "LineTooLongError",
+    "MissingAxisError",
     "MissingPrefixError",
+    "MotorRefusedError",
     "MotorSupplyOverloadError",
     "MoveError",
     "MoveNotAllowedError",
+    "MoveStoppedError",
     "MultiAxisMoveForbiddenError",
     "NoControllerError",
     "NoError",
@@ -73,14 +83,17 @@ __all__ = [
     "PortBusyError",
     "PortNotFoundError",
     "PortPermissionError",
+    "ProbeError",
     "ProtocolError",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "StageLimitsError",
     "StateError",
     "TangoError",
     "TvrActiveError",
     "TvrAxisActiveError",
     "UnknownControllerError",
+    "UploadError",
     "WriteProtectedError",
     "WrongParameterCountError",
     "XposModuleError",
@@ -122,6 +135,11 @@ class ProtocolError(TangoError):
 
 class ConnectionLostError(TangoError):
     """The connection to the controller is gone. ``__cause__`` holds the original error."""
+
+
+class IdentityMismatchError(ConnectionLostError):
+    """After a reconnect a different controller answered (model, firmware or axes changed);
+    the driver stopped reconnecting."""
 
 
 class ControllerTimeoutError(TangoError, TimeoutError):
@@ -179,6 +197,50 @@ class MoveError(TangoError):
         # BaseException pickles as ``cls(*self.args)``, which lacks ``statuses``; the
         # instance dict (``statuses``, ``__notes__``...) is restored as the state.
         return type(self), (str(self), self.statuses), self.__dict__
+
+
+# -- the errors of one surface (each module re-exports its own) --------------------------
+
+
+class UploadError(TangoError):
+    """An entry of a list upload was rejected by the controller.
+
+    ``index`` is the 0-based index of the first rejected entry, ``number`` the controller's
+    error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
+    controller then holds the entries before ``index``.
+    """
+
+    def __init__(self, index: int, number: int, command: str) -> None:
+        super().__init__(f"entry {index} ({command!r}) was rejected with error {number}")
+        self.index = index
+        self.number = number
+        self.command = command
+
+
+class ProbeError(TangoError):
+    """The probe could not go on (the controller stopped answering, or it answered in a
+    way the probe cannot follow). Its text says what it saw; ``trace`` is the wire trace
+    up to there (filled in by :func:`~tango_aio.probe.probe`)."""
+
+    trace: str = ""
+
+
+class MotorRefusedError(TangoError, ValueError):
+    """A motor-record request that was refused before anything was sent (a target
+    outside the limits, SPMG in Stop or Pause, the link down)."""
+
+
+class MoveStoppedError(TangoError):
+    """The move was stopped (STOP, SPMG, or a newer VAL) before it reached its target:
+    the put fails, but the record raises no alarm (a user's stop is not a fault)."""
+
+
+class StageLimitsError(InvalidCommandError):
+    """A target lies outside the axis's travel limits (``?lim``); nothing was moved."""
+
+
+class MissingAxisError(TangoError, LookupError):
+    """The controller does not have an axis the device was asked to provide."""
 
 
 class ControllerError(TangoError):

@@ -8,7 +8,7 @@ transports do: the event loop's reader callback takes what has arrived with one
 non-blocking ``os.read``, and ``write`` hands the bytes to ``os.write`` at once, keeping
 only what the kernel did not take and writing it when the descriptor is writable again.
 
-Why not pyserial-asyncio (#19): its reads go through ``Serial.read``, which calls
+Why not pyserial-asyncio: its reads go through ``Serial.read``, which calls
 ``select`` before every ``os.read`` (two system calls and a Python loop per received
 chunk). At 57600 Bd a reply arrives in chunks of a few bytes, so per-chunk costs are what
 a position watch or a many-link upload pays for; ``benchmarks/watch.py`` and

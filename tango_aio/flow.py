@@ -125,7 +125,7 @@ class CreditWindow:
 
         The same counts as :meth:`wrote` line by line with those checks between
         (tests/unit/test_flow.py compares them), in one pass of local arithmetic: a
-        list upload takes tens of lines at a time (#19)."""
+        list upload takes tens of lines at a time."""
         start = ends[first - 1] if first else 0
         self.wrote(ends[first] - start, None)
         unmarked, outstanding = self.unmarked, self.outstanding

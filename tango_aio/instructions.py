@@ -559,7 +559,7 @@ def encode_rows(
 ) -> Iterator[bytes]:
     """``build(name, *lead, *row).to_bytes()`` for each row, as :func:`build_rows` checks
     them, but without a :class:`Command` per row that passes its plan's checks: a list
-    upload keeps its lines as bytes (#19: building was a third of a 64-link upload's
+    upload keeps its lines as bytes (building was a third of a 64-link upload's
     CPU). Same bytes and errors as :func:`build` (``tests/unit/test_build_rows.py``)."""
     return _rows(name, lead, rows, form, context, _RowPlan.encode, Command.to_bytes)
 
@@ -575,8 +575,8 @@ def check_rows(
     """``True`` for each row of ``rows``; raise what :func:`build_rows` raises for the
     first bad one, without making the lines. A list upload validates every entry before
     it clears the list, and then makes each chunk's lines (:func:`encode_rows`, which
-    cannot fail on rows checked here) while the chunks before it are on the wire (#19:
-    64 uploads started one list-build apart). A row of plain in-range floats written
+    cannot fail on rows checked here) while the chunks before it are on the wire (so
+    that 64 uploads do not start one list-build apart). A row of plain in-range floats written
     without an exponent is checked by its numbers alone (its line cannot be too long:
     :attr:`_RowPlan.short`); any other row is built in full."""
     return _rows(name, lead, rows, form, context, _RowPlan.passes, _accepted)
@@ -710,7 +710,7 @@ def _plain_row(bounds: Sequence[tuple[float, float, float]],
     """Whether every value of ``row`` is a finite ``float`` within its ``bounds`` (what
     :func:`_check_range` allows) whose ``repr()`` has no exponent, so that
     :func:`format_number` writes exactly that ``repr()``: what an upload passes. One call
-    per row, not per value (#19: the hot path of a list upload)."""
+    per row, not per value (the hot path of a list upload)."""
     low_plain, high_plain = _PLAIN_FLOATS
     for (lowest, highest, least), value in zip(bounds, row, strict=True):
         # NaN fails the first comparison; an infinity the magnitude test.

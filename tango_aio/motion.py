@@ -76,7 +76,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import NoReturn, Protocol
@@ -94,7 +93,8 @@ from .errors import (
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
-from .units import UnitScale
+from .status import FAILED_LETTERS, MOVING
+from .timing import MoveTiming, moved_axes, position_tolerance, travel_time
 
 __all__ = [
     "FAILED_LETTERS",
@@ -116,16 +116,9 @@ log = logging.getLogger("tango_aio")
 #: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
 STOP_WAIT = 10.0
 
-#: Status letters that mean a move did not end where it should (manual L2689-2711).
-FAILED_LETTERS = frozenset("EST")
-
 #: Letters of a moved axis that end a move at once (:func:`_too_early`): the failure
 #: letters, and ``-`` for an axis that is disabled (L2711).
 _FINAL = FAILED_LETTERS | {"-"}
-
-#: The only letter that means "still moving" (manual L2676-2681: "every response except
-#: of 'M' means the axis has stopped").
-MOVING = "M"
 
 #: First and longest interval between two state polls once the expected end has passed.
 POLL_MIN = 0.05
@@ -138,45 +131,6 @@ POLL_GRACE = 0.05
 _LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
 
 _KINDS = {Completion.MOVE: "move", Completion.CAL: "cal", Completion.RM: "rm"}
-
-
-@dataclass(slots=True)
-class MoveTiming:
-    """Per-axis and global settings the driver caches to time moves."""
-
-    dims: list[int] = field(default_factory=lambda: [2, 2, 2, 2])
-    pitch: list[float] = field(default_factory=lambda: [1.0] * 4)
-    vel: list[float] = field(default_factory=lambda: [10.0] * 4)
-    accel: list[float] = field(default_factory=lambda: [1.0] * 4)
-    secvel: list[float] = field(default_factory=lambda: [10.0] * 4)
-    extmode: int = 0
-    #: ``!delay`` (ms) before a moa/mor/m/moc starts (L6845-6868).
-    delay_ms: float = 0.0
-    #: ``!pause`` (ms) after the axes reached their target, before the report (L6873-6899).
-    pause_ms: float = 0.0
-    #: ``!ctrt`` (ms): longest closed-loop settling before the report (L11616-11631).
-    settle_ms: float = 0.0
-
-    def travel(self, axis: str, distance: float) -> float:
-        """Seconds a single-axis trapezoid move of ``distance`` takes at the slowest
-        plausible speed (vel capped by secvel)."""
-        index = AXES.index(axis)
-        scale = UnitScale(dim=self.dims[index], pitch=self.pitch[index])
-        return travel_time(abs(scale.pos_from_user(distance)),
-                           min(scale.vel_from_user(self.vel[index]),
-                               scale.mm_to_rev(self.secvel[index])),
-                           scale.accel_to_rev(self.accel[index]))
-
-
-def travel_time(revs: float, speed: float, accel: float) -> float:
-    """Seconds to travel ``revs`` revolutions with a trapezoid profile (60 s when the
-    speed or acceleration is unknown)."""
-    if speed <= 0 or accel <= 0 or not math.isfinite(speed + accel):
-        return 60.0
-    ramp = speed / accel
-    if revs < speed * ramp:
-        return 2.0 * math.sqrt(revs / accel)
-    return revs / speed + ramp
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,24 +188,6 @@ class MovePlan:
         """``"move"``, ``"cal"`` or ``"rm"`` (for :class:`MoveFinished`)."""
         completion = self.command.instruction.completion
         return _KINDS.get(completion, "move") if completion else "move"
-
-
-def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
-    """The axes a motion line moves: its axis, the leading axes it has values for, or every
-    present axis (``cal``, ``rm``, ``moc`` without an axis)."""
-    if command.axis is not None:
-        return (command.axis,)
-    if command.values:
-        return tuple(AXES[: len(command.values)])
-    return tuple(present)
-
-
-def position_tolerance(text: str) -> float:
-    """How far a position read as ``text`` may be from its target: one and a half units of
-    its last printed digit (the controller prints positions rounded to its ``resolution``,
-    L4080-4100; a ``move_by`` target carries the rounding of the start position too)."""
-    digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
-    return 1.5 * 10.0 ** -digits
 
 
 class MotionPort(Protocol):

@@ -12,7 +12,7 @@ would be taken by the request before its own. Two rules stop that:
    the protocol resynchronises instead of handing it over.
 2. **Separate.** Two requests in a row whose replies could be taken for each other
    (:meth:`ReplyPattern.overlaps`: ``?vel x`` then ``?accel y``, one number each) get a
-   *separator* written between them (#14 item 1): a read whose reply looks like neither
+   *separator* written between them: a read whose reply looks like neither
    (``err``, ``help`` or ``?help N``, see :meth:`ProtocolCore.separate
    <tango_aio.core.ProtocolCore.separate>`). "In a row" means in write order, whether or
    not the first is answered yet: its real reply may still be on its way.
@@ -147,7 +147,7 @@ _PER_AXIS: Final = {
 
 def normal_line(text: str) -> str:
     """The form in which a command line and its mode-4 echo are compared: the echo is
-    matched by instruction, not by exact text (#13: some firmware re-formats it, e.g.
+    matched by instruction, not by exact text (some firmware re-formats it, e.g.
     ``!MOA 1.50`` echoed as ``!moa 1.5``). Case, blanks and the way numbers are written
     do not count; the instruction, axis and values do."""
     return " ".join(_normal_token(token) for token in text.lower().split())

@@ -1,4 +1,4 @@
-"""``tango-aio probe``: learn what a controller's firmware does, from the wire (issue #32).
+"""``tango-aio probe``: learn what a controller's firmware does, from the wire.
 
 The manual leaves many details open (:mod:`tango_aio.sim.profiles` lists them as the
 emulator's *switches*). The probe finds, on a real unit, the value of every switch that can
@@ -51,8 +51,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import ConnectionLostError, TangoError
+from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
+from .status import MOVING
 from .trace import format_record, trace_header
 
 __all__ = [
@@ -104,14 +105,6 @@ _NUMBER = re.compile(r"^[+-]?\d+(\.\d+)?$")
 _VERSION_NEW = re.compile(r"^[^,]+, Version [^,]+, .*\S , \d\d:\d\d:\d\d$")
 _VERSION_OLD = re.compile(r"^[^,]+, Version [^,]+, .*\S, \d\d:\d\d:\d\d$")
 _NEG_ZERO = re.compile(r"^-0(\.0*)?$")
-
-
-class ProbeError(TangoError):
-    """The probe could not go on (the controller stopped answering, or it answered in a
-    way the probe cannot follow). Its text says what it saw; ``trace`` is the wire trace
-    up to there (filled in by :func:`probe`)."""
-
-    trace: str = ""
 
 
 # ---------------------------------------------------------------------------------------
@@ -1272,7 +1265,7 @@ class _Prober:
                 await asyncio.sleep(0.05)
                 self.link.send("?statusaxis x")
                 await self.link.quiet(self.options.settle)
-                if not any(g[:1] == "M" for g in self.link.inbox[-2:]):
+                if not any(g[:1] == MOVING for g in self.link.inbox[-2:]):
                     break
         await self.link.quiet(self.options.settle)
         got += self.link.take()

@@ -33,7 +33,7 @@ from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
 from typing import Generic, Protocol, TypeVar
 
-from .errors import ConnectionLostError, TangoError
+from .errors import ConnectionLostError, IdentityMismatchError, TangoError
 from .protocol import TangoProtocol
 
 __all__ = [
@@ -56,11 +56,6 @@ Closer = Callable[[], Awaitable[None]]
 #: Opens the URL again: returns a connected protocol and its closer, or raises
 #: :class:`~tango_aio.errors.ConnectionLostError` (the URL cannot be opened now).
 Opener = Callable[[], Awaitable[tuple[TangoProtocol, Closer | None]]]
-
-
-class IdentityMismatchError(ConnectionLostError):
-    """After a reconnect a different controller answered (model, firmware or axes changed);
-    the driver stopped reconnecting."""
 
 
 @dataclass(frozen=True, slots=True)

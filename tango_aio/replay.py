@@ -1,5 +1,5 @@
 """Replay a recorded wire trace as a test: the controller's side plays back, the driver's
-lines are checked (issue #32). Use it as :func:`tango_aio.testing.replay`.
+lines are checked. Use it as :func:`tango_aio.testing.replay`.
 
 A trace (:mod:`tango_aio.trace`: the driver's wire log, :func:`~tango_aio.trace.record_trace`,
 or ``tango-aio probe --trace``) holds every line written to the controller (``->``) and

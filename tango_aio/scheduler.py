@@ -38,7 +38,7 @@ submitted so far, until :meth:`WriteScheduler.release`.
 
 A run of list entries that owe nothing (``!trigp -1 pos`` in autostatus 1) is one
 :class:`Run` record from :meth:`WriteScheduler.pack`: one bytes blob and its line ends,
-not one object per line (#19). It goes on the wire line by line under the same rules:
+not one object per line. It goes on the wire line by line under the same rules:
 the same bytes, markers and separators as one :class:`Line` per entry
 (``tests/unit/test_scheduler.py`` compares the two on random traffic).
 
@@ -100,7 +100,7 @@ class Line:
     guard: ReplyPattern | None = None
     #: Write a separator right behind this line, in the same write, where the credit
     #: allows (:meth:`WriteScheduler.next_write`): a request that usually comes next and
-    #: looks like this one's reply then needs none of its own (#19: a move's confirming
+    #: looks like this one's reply then needs none of its own (a move's confirming
     #: ``?pos`` and the next move's ``?err`` probe).
     separate_after: bool = False
     #: Whether a reply (data or acknowledgement) will confirm this line's bytes.
@@ -224,7 +224,7 @@ class WriteScheduler:
         """:meth:`pack` for lines given as bytes (CR included), every one a line of
         ``template``'s instruction in its form (what
         :func:`~tango_aio.instructions.encode_rows` gives: a list upload without a
-        Command per entry, #19). What a line owes depends only on its instruction and
+        Command per entry). What a line owes depends only on its instruction and
         form in a mode (:func:`~tango_aio.core.expectation`), so ``template`` speaks for
         all; a line that does not start like it gives ``None``."""
         mode = self._queued_mode if self._queue else self.core.autostatus
@@ -361,7 +361,7 @@ class WriteScheduler:
         does not look like its own and goes out without a separator (rule 3 decides that
         as always, so skipping this one never weakens rule 3). Written in the same write
         as the line, its bytes are on the wire while the controller still answers that
-        line, instead of in front of the next request (#19: 6 bytes, about 1.1 ms at
+        line, instead of in front of the next request (6 bytes, about 1.1 ms at
         57600 Bd, before every move)."""
         last = self._last_owed
         if not self.separators or last is None:
@@ -434,8 +434,8 @@ class WriteScheduler:
         """The separator to write before a line owing ``owes`` (``None``: none needed;
         :data:`_WAIT`: none exists, wait for the reply instead). One is needed when the
         last line owed by the line written before looks alike: a line too many (or too
-        few) between them would shift a reply onto the wrong request (#14 item 1,
-        :mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
+        few) between them would shift a reply onto the wrong request
+        (:mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
         last = self._last_owed
         if owes is None or last is None or not last.overlaps(owes):
             return None

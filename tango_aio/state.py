@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from .instructions import AXES, INSTRUCTIONS, Command, Context, Instruction
-from .motion import MoveTiming
+from .timing import MoveTiming
 
 __all__ = ["CACHED_SETTINGS", "DriverState"]
 
@@ -32,7 +32,7 @@ CACHED_SETTINGS: Final = tuple(entry for entry in INSTRUCTIONS.values() if entry
 
 @dataclass(slots=True)
 class DriverState(MoveTiming):
-    """The settings the driver caches (the :class:`~tango_aio.motion.MoveTiming` fields)
+    """The settings the driver caches (the :class:`~tango_aio.timing.MoveTiming` fields)
     and the number of configured axes: everything the validation context and move
     timing depend on. Pure: no I/O, no event loop."""
 

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Mapping
+from typing import Final
 
-__all__ = ["AxisStatus", "axis_statuses"]
+__all__ = ["ABSENT", "ARRIVED_LETTERS", "FAILED_LETTERS", "MOVING", "AxisStatus",
+           "axis_statuses"]
 
 
 class AxisStatus(enum.StrEnum):
@@ -78,6 +80,24 @@ _MEANINGS: dict[AxisStatus, str] = {
     AxisStatus.CLOSED_LOOP: "closed loop",
     AxisStatus.MANUAL_ADJUSTMENT: "manual adjustment",
 }
+
+
+#: The only letter that means "still moving" (L2676-2681: "every response except of 'M'
+#: means the axis has stopped").
+MOVING: Final = AxisStatus.MOVING.value
+
+#: The letters of a move that did not end where it should (E, S, T; L2699, L2705-2709).
+FAILED_LETTERS: Final = frozenset(status.value for status in AxisStatus if status.is_failure)
+
+#: The letters of an axis that reached its target (``@``), was calibrated (``A``) or had its
+#: range measured (``D``); any other letter ends a move short (L2676-2720).
+ARRIVED_LETTERS: Final = frozenset(
+    status.value for status in (AxisStatus.READY, AxisStatus.CALIBRATED,
+                                AxisStatus.RANGE_MEASURED))
+
+#: The place-holder letter of an axis that is not enabled or not present (L2711); not an
+#: :class:`AxisStatus`, since such an axis is left out of the per-axis dictionaries.
+ABSENT: Final = "-"
 
 
 def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:

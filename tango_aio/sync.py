@@ -24,7 +24,7 @@ thread, exactly like cancelling the awaited call: a move stops its axes (unless
 :class:`concurrent.futures.Future`; cancelling that future cancels the move the same way.
 Ctrl+C in *any* blocking call (``wait_idle()``, ``get()``, ``position()``, an event
 iterator...) also cancels every ``start_*`` call of this program still running, on every
-blocking object, so what the program started stops too (#26); so does Ctrl+C while a
+blocking object, so what the program started stops too; so does Ctrl+C while a
 ``start_*`` call is being started.
 
 :class:`ControllerGroup` is the blocking twin of :class:`tango_aio.ControllerGroup`; its
@@ -240,7 +240,7 @@ class _Started:
 
 def stop_started() -> None:
     """Cancel every ``start_*`` call of this process still running (Ctrl+C landed in a
-    blocking call, #26) and wait, at most :data:`STOP_WAIT` seconds, until they have
+    blocking call) and wait, at most :data:`STOP_WAIT` seconds, until they have
     ended: a started move stops its axes (unless ``stop_on_cancel=False``)."""
     with _RUNNING_LOCK:
         running = list(_RUNNING)

@@ -5,7 +5,7 @@ Theory of operation
 Windows has no file descriptor an event loop could watch for a serial port: its loop (the
 proactor) completes overlapped I/O on sockets and pipes, not on COM handles, and
 pyserial-asyncio's Windows path polls ``in_waiting`` every 0.5 ms instead (a core kept
-busy, and up to 0.5 ms added to every reply; issue #27). pyserial's own Windows ``Serial``
+busy, and up to 0.5 ms added to every reply). pyserial's own Windows ``Serial``
 already does overlapped I/O and waits for it in the kernel, so this transport lets two
 threads wait there, and hands what they did to the loop:
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 __all__ = [
     "DEFAULT_USTEPS",
@@ -46,10 +46,12 @@ __all__ = [
     "DIM_MM_VEL",
     "DIM_REV",
     "DIM_UM",
+    "DIM_UNITS",
     "DIM_USTEPS",
     "LENGTH_UNITS",
     "MM_PER_INCH",
     "MOTOR_UNITS",
+    "DimUnit",
     "Quantity",
     "UnitScale",
     "accel_to_rev",
@@ -79,17 +81,34 @@ DEFAULT_USTEPS = 40000
 MM_PER_INCH = 25.4
 """Millimetres per inch (dim 7); a mil (dim 8) is 1/1000 inch."""
 
-# User units per millimetre of travel, for every dim except 0 (microsteps).
-_USER_PER_MM: dict[int, float] = {
-    DIM_UM: 1000.0,
-    DIM_MM: 1.0,
-    DIM_DEG: 360.0,
-    DIM_REV: 1.0,
-    DIM_CM: 0.1,
-    DIM_M: 0.001,
-    DIM_INCH: 1.0 / MM_PER_INCH,
-    DIM_MIL: 1000.0 / MM_PER_INCH,
-    DIM_MM_VEL: 1.0,
+# Millimetres per dim unit for every dim except 0 (dims 3 and 4 are derived from mm, see
+# the module docstring; dim 9 is mm for positions).
+_MM_PER_DIM: dict[int, Fraction] = {
+    DIM_UM: Fraction(1, 1000), DIM_MM: Fraction(1), DIM_DEG: Fraction(1, 360),
+    DIM_REV: Fraction(1), DIM_CM: Fraction(10), DIM_M: Fraction(1000),
+    DIM_INCH: Fraction(254, 10), DIM_MIL: Fraction(254, 10_000), DIM_MM_VEL: Fraction(1),
+}
+
+# User units per millimetre of travel, for every dim except 0 (microsteps): the same
+# table inverted (each inverse rounds to the float it had when written as 1.0 / 25.4 etc.).
+_USER_PER_MM: dict[int, float] = {dim: float(1 / mm) for dim, mm in _MM_PER_DIM.items()}
+
+
+class DimUnit(NamedTuple):
+    """The name of one ``dim``'s position unit, spelt two ways."""
+
+    #: ASCII (``um``, ``ustep``, ``inch``): for Channel Access, whose strings are latin-1.
+    ascii: str
+    #: The short form with symbols (``µm``, ``µstep``, ``in``): for ophyd-async metadata.
+    symbol: str
+
+
+#: The position unit of each ``dim`` (L3061-3144); dim 9 is mm, with velocities in mm/s.
+DIM_UNITS: dict[int, DimUnit] = {
+    DIM_USTEPS: DimUnit("ustep", "µstep"), DIM_UM: DimUnit("um", "µm"),
+    DIM_MM: DimUnit("mm", "mm"), DIM_DEG: DimUnit("deg", "deg"), DIM_REV: DimUnit("rev", "rev"),
+    DIM_CM: DimUnit("cm", "cm"), DIM_M: DimUnit("m", "m"), DIM_INCH: DimUnit("inch", "in"),
+    DIM_MIL: DimUnit("mil", "mil"), DIM_MM_VEL: DimUnit("mm", "mm"),
 }
 
 
@@ -193,14 +212,6 @@ LENGTH_UNITS: dict[str, Fraction] = {
 
 #: Units that count motor revolutions (``rev``) and microsteps (``ustep``, see ``usteps``).
 MOTOR_UNITS = ("rev", "ustep")
-
-# Millimetres per dim unit for every dim except 0 (dims 3 and 4 are derived from mm, see
-# the module docstring; dim 9 is mm for positions).
-_MM_PER_DIM: dict[int, Fraction] = {
-    DIM_UM: Fraction(1, 1000), DIM_MM: Fraction(1), DIM_DEG: Fraction(1, 360),
-    DIM_REV: Fraction(1), DIM_CM: Fraction(10), DIM_M: Fraction(1000),
-    DIM_INCH: Fraction(254, 10), DIM_MIL: Fraction(254, 10_000), DIM_MM_VEL: Fraction(1),
-}
 
 _PER_SECOND = ("/s",)
 _PER_SECOND2 = ("/s2", "/s^2", "/s**2", "/s²")

@@ -180,7 +180,8 @@ async def _serve(args: argparse.Namespace, controllers: dict[str, str],
                 connected[name] = await stack.enter_async_context(
                     connect(url, reconnect=True))
             except (TangoError, OSError) as exc:
-                # Down at start: serve CONNECTED=0 and keep trying (issue #30 item 14).
+                # Down at start: serve CONNECTED=0 and keep trying, so that
+                # clients see the IOC and its link state before the controller is up.
                 print(f"controller {url} not reachable ({exc}); serving "
                       f"{args.prefix}{name + ':' if name else ''}CONNECTED=0 until it "
                       "answers", file=sys.stderr, flush=True)

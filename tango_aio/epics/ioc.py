@@ -68,14 +68,23 @@ from caproto.server.server import (
 
 from ..coalesce import MoveCoalescer
 from ..controller import Controller
-from ..errors import ConnectionLostError, ControllerError, MoveError, TangoError
+from ..errors import (
+    ConnectionLostError,
+    ControllerError,
+    MotorRefusedError,
+    MoveError,
+    MoveStoppedError,
+    TangoError,
+)
 from ..instructions import AXES, lookup
+from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
+from ..units import DEFAULT_USTEPS, DIM_MM_VEL
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
 from .flush import FlushingContext
 from .record import AxisUnits, LimitSwitches, calibrated, limit_switches, msta
 
-__all__ = ["MotorRefusedError", "TangoIoc", "build_ioc"]
+__all__ = ["MotorRefusedError", "MoveStoppedError", "TangoIoc", "build_ioc"]
 
 log = logging.getLogger("tango_aio.epics")
 
@@ -85,10 +94,6 @@ ALARM_FIELDS = ("RBV", "DRBV", "DMOV", "MOVN", "MSTA", "HLS", "LLS", "LVIO", "VE
 
 #: The fields whose put rewrites the autosave file (user limits are saved as dial ones).
 AUTOSAVED = frozenset({"OFF", "HLM", "LLM", "DHLM", "DLLM", "VELO", "VMAX"})
-
-#: The status letters of an axis that reached its target (@), was calibrated (A) or had
-#: its range measured (D); any other letter ends a move short (L2676-2720).
-ARRIVED = frozenset("@AD")
 
 #: The largest magnitude a float field takes (positions are at most a few metres in any
 #: unit; this refuses 1e308 and friends, which would overflow user = dial + OFF).
@@ -107,16 +112,6 @@ REFUSED = {
 
 #: How many polls of ``?pos``/``?statusaxis`` per read of switches and counters.
 SLOW_EVERY = 5
-
-
-class MotorRefusedError(TangoError, ValueError):
-    """A motor-record request that was refused before anything was sent (a target
-    outside the limits, SPMG in Stop or Pause, the link down)."""
-
-
-class MoveStoppedError(TangoError):
-    """The move was stopped (STOP, SPMG, or a newer VAL) before it reached its target:
-    the put fails, but the record raises no alarm (a user's stop is not a fault)."""
 
 
 def _finite(pvname: str, field: str, value: float) -> None:
@@ -556,7 +551,7 @@ class AxisServer:
         except MoveError as exc:
             # A merged move reports every axis: this one may have arrived anyway
             # (@ arrived, A calibrated, D range measured; anything else ended short).
-            if exc.statuses.get(self.letter, "E") not in ARRIVED:
+            if exc.statuses.get(self.letter, AxisStatus.ERROR) not in ARRIVED_LETTERS:
                 raise
 
     async def _cancel_running(self) -> None:
@@ -604,7 +599,7 @@ class AxisServer:
         await self._cancel_running()
         # Whatever moves this axis now (a move sent as it was withdrawn, another
         # program's) gets the one-axis stop too; stop() returns once it stands.
-        if (await self.controller.status()).get(self.letter) == "M":
+        if (await self.controller.status()).get(self.letter) == MOVING:
             await self.controller.stop(self.letter)
         async with self._turn:  # the stopped and the stale requests have ended
             await self._finish()
@@ -691,7 +686,7 @@ class AxisServer:
     def _vmax_ceiling(self) -> float:
         """The largest VMAX: the `vel` instruction's ceiling (L3452) in EGU/s."""
         spec = lookup("vel").write[0].per_axis[0]
-        top = spec.hi_dim9 if self.units.dim == 9 and spec.hi_dim9 else spec.hi
+        top = spec.hi_dim9 if self.units.dim == DIM_MM_VEL and spec.hi_dim9 else spec.hi
         return self.units.velo_from_vel(float(top or 0.0))
 
     def _require_link(self) -> None:
@@ -706,7 +701,7 @@ class AxisServer:
         self.units = AxisUnits(int(await c.get("dim", axis=axis)),
                                float(await c.get("pitch", axis=axis)),
                                float(await self._optional("gear", 1.0, axis=axis)),
-                               int(await self._optional("usteps", 40000)))
+                               int(await self._optional("usteps", DEFAULT_USTEPS)))
         f = self._f
         precision = int(await self._optional("resolution", 4))
         await self.record.write_metadata(units=self.units.egu, precision=precision)
@@ -788,14 +783,14 @@ class AxisServer:
         its link is seen to stand)."""
         await self._publish_dial(dial)
         if not self._busy:
-            moving = letter == "M"
+            moving = letter == MOVING
             self._standing_unknown = False
             f = self._f
             if f.motor_is_moving.value != int(moving):
                 await f.motor_is_moving.write(int(moving), verify_value=False)
             if f.done_moving_to_value.value != int(not moving):
                 await f.done_moving_to_value.write(int(not moving), verify_value=False)
-        await self._publish_status(moving=letter == "M")
+        await self._publish_status(moving=letter == MOVING)
 
     async def slow_update(self, readsw: str, statuslimit: str) -> None:
         """Publish the limit switches and the homed state."""
@@ -944,7 +939,7 @@ class ControllerServer:
         letters = await c.status()
         for axis in self.axes:
             await axis.poll_update(positions.get(axis.letter, 0.0),
-                                   letters.get(axis.letter, "@"))
+                                   letters.get(axis.letter, AxisStatus.READY.value))
         if slow:
             readsw = await c.query("?readsw")
             statuslimit = await c.query("?statuslimit")

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 
 from ..instructions import AXES
-from ..units import UnitScale
+from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [
     "EGU_BY_DIM",
@@ -31,20 +31,17 @@ __all__ = [
 ]
 
 #: The engineering unit of each ``dim`` (L3061-3144): ASCII, as CA strings are latin-1.
-EGU_BY_DIM: dict[int, str] = {
-    0: "ustep", 1: "um", 2: "mm", 3: "deg", 4: "rev", 5: "cm", 6: "m", 7: "inch",
-    8: "mil", 9: "mm",
-}
+EGU_BY_DIM: dict[int, str] = {dim: unit.ascii for dim, unit in DIM_UNITS.items()}
 
 
 @dataclass(frozen=True, slots=True)
 class AxisUnits:
     """The unit settings of one axis: converts controller values to record fields."""
 
-    dim: int = 2
+    dim: int = DIM_MM
     pitch: float = 1.0
     gear: float = 1.0
-    usteps: int = 40000
+    usteps: int = DEFAULT_USTEPS
 
     @property
     def scale(self) -> UnitScale:

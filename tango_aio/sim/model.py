@@ -92,8 +92,7 @@ class SimConfig:
 
     ``firmware`` is the behaviour where the manual is silent (the ``manual`` profile by
     default, see :mod:`tango_aio.sim.profiles`); ``version`` is the version number
-    ``?version`` shows. For compatibility a string given as ``firmware`` is taken as the
-    version number (``SimConfig(firmware="1.69")``).
+    ``?version`` shows.
     """
 
     axes: int = 3
@@ -108,11 +107,6 @@ class SimConfig:
     #: Extra interpreter time of blocking instructions, in seconds.
     reset_time: float = 1.0
     motion: MotionConfig | None = None
-
-    def __post_init__(self) -> None:
-        if isinstance(self.firmware, str):  # the former meaning of the field
-            object.__setattr__(self, "version", self.firmware)
-            object.__setattr__(self, "firmware", Firmware())
 
     @property
     def det(self) -> int:

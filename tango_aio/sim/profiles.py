@@ -50,7 +50,7 @@ class SwitchDoc:
     lines: str
     #: What each value changes.
     effect: str
-    #: Values the driver does not serve yet (issue #32): the emulator offers them so that
+    #: Values the driver does not serve yet: the emulator offers them so that
     #: the probe (``tango-aio probe``) can recognise such a unit, and :func:`variants`
     #: leaves them out of a client's test matrix unless asked.
     unsupported: tuple[str, ...] = ()
@@ -325,7 +325,7 @@ def _check(name: str, value: object) -> None:
 #: The named profiles.
 PROFILES: Mapping[str, Firmware] = MappingProxyType({
     "manual": Firmware(),
-    # The older edition where it differs from 1.71 (issue #12): help takes no parameter
+    # The older edition where it differs from 1.71: help takes no parameter
     # (old L805-819), 'a' is answered like a move (old L725) and its axes report '@'
     # (old L1917), mode 4 echoes all input (old L723), no END_SERVICE_PRINT. (added with
     # 1.60C/1.61, L2941-2943), the old ?version format (old L426), only its instructions.

@@ -188,10 +188,10 @@ def test_sim_urls_reject_unknown_names_and_values(query: str, named: str) -> Non
         configs_from_url(f"sim://?{query}")
 
 
-def test_a_version_string_as_firmware_still_sets_the_version() -> None:
-    config = SimConfig(firmware="1.69")  # type: ignore[arg-type]
+def test_the_version_number_is_separate_from_the_firmware_behaviour() -> None:
+    config = SimConfig(version="1.69")
     assert (config.version, config.firmware) == ("1.69", Firmware())
-    assert Sim(firmware="1.69").ask("?version 1") == "1.69"
+    assert Sim(version="1.69").ask("?version 1") == "1.69"
 
 
 def test_the_readme_table_lists_every_switch() -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from tango_aio.instructions import INSTRUCTIONS, Context, build, parse
-from tango_aio.motion import MoveTiming
 from tango_aio.state import CACHED_SETTINGS, DriverState
+from tango_aio.timing import MoveTiming
 
 
 def test_starts_at_the_power_on_timing_and_context() -> None:

@@ -188,3 +188,18 @@ async def test_bad_values_and_units_are_refused_before_anything_is_sent() -> Non
             with pytest.raises(tango_aio.InvalidCommandError):
                 await call
         assert wire_of(tango).lines_processed == before
+
+
+def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
+    from tango_aio.bluesky import DIM_UNITS as bluesky_units
+    from tango_aio.epics.record import EGU_BY_DIM
+    from tango_aio.units import DIM_UNITS, user_per_rev
+
+    assert sorted(DIM_UNITS) == list(range(10))
+    assert all(unit.ascii.isascii() for unit in DIM_UNITS.values())
+    assert {dim: unit.ascii for dim, unit in DIM_UNITS.items()} == EGU_BY_DIM
+    assert bluesky_units == {dim: unit.symbol for dim, unit in DIM_UNITS.items()}
+    assert (EGU_BY_DIM[7], bluesky_units[7], bluesky_units[0]) == ("inch", "in", "µstep")
+    # The user-per-mm factors are the inverse of the mm-per-unit table, bit for bit.
+    assert [user_per_rev(dim, 1.0, 1.0, 40000) for dim in (1, 3, 5, 6, 7, 8)] == [
+        1000.0, 360.0, 0.1, 0.001, 1.0 / 25.4, 1000.0 / 25.4]
