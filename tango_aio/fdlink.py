@@ -29,55 +29,31 @@ protocol hears ``connection_lost`` after it returned.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import os
 from typing import Any
 
-__all__ = ["FdTransport"]
+from .portlink import CLOSE_DRAIN, PortTransport
+
+__all__ = ["CLOSE_DRAIN", "FdTransport"]
 
 log = logging.getLogger("tango_aio.fdlink")
 
 #: Bytes taken per read (a 256-byte input buffer on the controller; replies are short).
 READ_SIZE = 4096
-#: Seconds :meth:`FdTransport.close` lets buffered bytes drain before it drops them (a
-#: port whose output is held back, e.g. by hardware flow control, is still released).
-CLOSE_DRAIN = 2.0
-
-
-class FdTransport(asyncio.Transport):
+class FdTransport(PortTransport):
     """An open pyserial port's descriptor as a transport (see the module docstring)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
-        super().__init__({"serial": port})
-        self._loop = loop
-        self._protocol = protocol
-        self._port = port
+        super().__init__(loop, protocol, port)
         self._fd: int = port.fileno()
         os.set_blocking(self._fd, False)
         self._buffer = bytearray()
-        self._closing = False
-        self._lost = False
-        self._reading = True
-        self._drain: asyncio.TimerHandle | None = None
         loop.call_soon(protocol.connection_made, self)
         loop.call_soon(self._start_reading)
 
     # -- asyncio.Transport --------------------------------------------------------------
-
-    def get_protocol(self) -> asyncio.BaseProtocol:
-        return self._protocol
-
-    def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
-        assert isinstance(protocol, asyncio.Protocol)
-        self._protocol = protocol
-
-    def is_closing(self) -> bool:
-        return self._closing
-
-    def is_reading(self) -> bool:
-        return self._reading and not self._closing
 
     def pause_reading(self) -> None:
         if self._reading and not self._closing:
@@ -108,22 +84,6 @@ class FdTransport(asyncio.Transport):
         if written < len(data):
             self._buffer += memoryview(data)[written:]
             self._loop.add_writer(self._fd, self._write_ready)
-
-    def can_write_eof(self) -> bool:
-        return False
-
-    def close(self) -> None:
-        if self._closing:
-            return
-        self._closing = True
-        self._stop_reading()
-        if not self._buffer:
-            self._finish(None)
-        else:
-            self._drain = self._loop.call_later(CLOSE_DRAIN, self._fail, None)
-
-    def abort(self) -> None:
-        self._fail(None)
 
     # -- internals ----------------------------------------------------------------------
 
@@ -162,7 +122,7 @@ class FdTransport(asyncio.Transport):
             if self._closing:
                 self._finish(None)
 
-    def _fail(self, exc: Exception | None) -> None:
+    def _fail(self, exc: BaseException | None) -> None:
         """End the link now (an I/O error, end of file, or :meth:`abort`)."""
         if exc is not None:
             log.debug("serial port %s: %r", self._port.port, exc)
@@ -172,24 +132,3 @@ class FdTransport(asyncio.Transport):
             self._loop.remove_writer(self._fd)
             self._buffer.clear()
         self._finish(exc)
-
-    def _finish(self, exc: Exception | None) -> None:
-        """Close the port in a worker thread, then tell the protocol (once)."""
-        if self._lost:
-            return
-        self._lost = True
-        self._reading = False
-        if self._drain is not None:
-            self._drain.cancel()
-        task = self._loop.create_task(self._close_port(exc))
-        _background.add(task)
-        task.add_done_callback(_background.discard)
-
-    async def _close_port(self, exc: Exception | None) -> None:
-        with contextlib.suppress(Exception):
-            await self._loop.run_in_executor(None, self._port.close)
-        self._protocol.connection_lost(exc)
-
-
-#: Tasks closing ports (kept referenced until done).
-_background: set[asyncio.Task[None]] = set()

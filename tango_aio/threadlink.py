@@ -51,6 +51,8 @@ import logging
 import threading
 from typing import Any
 
+from .portlink import CLOSE_DRAIN, PortTransport
+
 __all__ = ["CLOSE_DRAIN", "READ_TIMEOUT", "ThreadTransport"]
 
 log = logging.getLogger("tango_aio.threadlink")
@@ -58,15 +60,12 @@ log = logging.getLogger("tango_aio.threadlink")
 #: Seconds a blocking read waits for a first byte before the reader thread looks again
 #: whether it should stop (a port without ``cancel_read`` stops within this time).
 READ_TIMEOUT = 0.1
-#: Seconds :meth:`ThreadTransport.close` lets buffered bytes be written before it drops
-#: them (a port whose output is held back, e.g. by hardware flow control, is released).
-CLOSE_DRAIN = 2.0
 #: Seconds closing waits for each thread to end (a driver that never returns from a
 #: read or write must not hang the program; the port is closed regardless).
 JOIN_WAIT = 5.0
 
 
-class ThreadTransport(asyncio.Transport):
+class ThreadTransport(PortTransport):
     """An open pyserial port as a transport, through a reader and a writer thread (see
     the module docstring). ``port`` is any object with pyserial's blocking ``Serial``
     interface: ``read``, ``write``, ``in_waiting``, ``timeout``, ``close``, and optionally
@@ -74,17 +73,10 @@ class ThreadTransport(asyncio.Transport):
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
-        super().__init__({"serial": port})
-        self._loop = loop
-        self._protocol = protocol
-        self._port = port
+        super().__init__(loop, protocol, port)
         port.timeout = READ_TIMEOUT
-        self._closing = False  # loop side: close(), abort() or a failure came
-        self._lost = False  # loop side: the port is being closed, connection_lost follows
-        self._reading = True
         self._held: list[bytes] = []  # read while paused, delivered on resume
         self._pending = 0  # bytes handed to write() and not yet written (loop side)
-        self._drain: asyncio.TimerHandle | None = None
         # Shared with the threads (under _lock): the bytes to write, and the stop flag.
         self._lock = threading.Lock()
         self._wake_writer = threading.Condition(self._lock)
@@ -100,19 +92,6 @@ class ThreadTransport(asyncio.Transport):
         loop.call_soon(self._start)
 
     # -- asyncio.Transport --------------------------------------------------------------
-
-    def get_protocol(self) -> asyncio.BaseProtocol:
-        return self._protocol
-
-    def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
-        assert isinstance(protocol, asyncio.Protocol)
-        self._protocol = protocol
-
-    def is_closing(self) -> bool:
-        return self._closing
-
-    def is_reading(self) -> bool:
-        return self._reading and not self._closing
 
     def pause_reading(self) -> None:
         if self._reading and not self._closing:
@@ -138,22 +117,6 @@ class ThreadTransport(asyncio.Transport):
         with self._lock:
             self._outgoing += data
             self._wake_writer.notify()
-
-    def can_write_eof(self) -> bool:
-        return False
-
-    def close(self) -> None:
-        if self._closing:
-            return
-        self._closing = True
-        self._may_read.clear()
-        if not self._pending:
-            self._finish(None)
-        else:
-            self._drain = self._loop.call_later(CLOSE_DRAIN, self._fail, None)
-
-    def abort(self) -> None:
-        self._fail(None)
 
     # -- loop side ----------------------------------------------------------------------
 
@@ -188,26 +151,10 @@ class ThreadTransport(asyncio.Transport):
             self._outgoing.clear()
         self._finish(exc)
 
-    def _finish(self, exc: BaseException | None) -> None:
-        """Stop the threads and close the port in a worker thread, then tell the protocol
-        (once)."""
-        if self._lost:
-            return
-        self._lost = True
-        self._reading = False
-        if self._drain is not None:
-            self._drain.cancel()
-        task = self._loop.create_task(self._close_port(exc))
-        _background.add(task)
-        task.add_done_callback(_background.discard)
+    def _stop_reading(self) -> None:
+        self._may_read.clear()
 
-    async def _close_port(self, exc: BaseException | None) -> None:
-        with contextlib.suppress(Exception):
-            await self._loop.run_in_executor(None, self._stop_and_close)
-        error = exc if isinstance(exc, Exception) or exc is None else ConnectionError(exc)
-        self._protocol.connection_lost(error)
-
-    def _stop_and_close(self) -> None:
+    def _close_blocking(self) -> None:
         """In a worker thread: end both threads, then close the port."""
         self._stop.set()
         self._may_read.set()  # a paused reader wakes up to see the stop
@@ -277,5 +224,3 @@ def _name(port: Any) -> str:
     return str(getattr(port, "port", None) or getattr(port, "name", "") or "port")
 
 
-#: Tasks closing ports (kept referenced until done).
-_background: set[asyncio.Task[None]] = set()

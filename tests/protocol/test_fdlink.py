@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import pytest
 from helpers import WINDOWS
 
-from tango_aio import fdlink
+from tango_aio import portlink
 from tango_aio.fdlink import FdTransport
 
 pytestmark = pytest.mark.timeout(30)
@@ -165,7 +165,7 @@ async def test_paused_reading_holds_the_bytes_until_resumed(pair: Pair) -> None:
 async def test_close_drops_what_cannot_drain(pair: Pair,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     # Nobody reads the other side: the bytes cannot all go; the port is released anyway.
-    monkeypatch.setattr(fdlink, "CLOSE_DRAIN", 0.05)
+    monkeypatch.setattr(portlink, "CLOSE_DRAIN", 0.05)
     pair.transport.write(b"z" * 100_000)
     pair.transport.close()
     assert await asyncio.wait_for(pair.protocol.lost, 5.0) is None

@@ -25,7 +25,7 @@ from helpers import make_model, posix_only, serve_pty
 
 import tango_aio
 import tango_aio.connection as connection_module
-from tango_aio import threadlink
+from tango_aio import portlink, threadlink
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.threadlink import ThreadTransport
 
@@ -257,7 +257,7 @@ async def test_close_writes_what_is_buffered_then_closes_the_port_in_a_worker(
 
 async def test_close_gives_up_on_a_write_that_never_completes(
         link: Link, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(threadlink, "CLOSE_DRAIN", 0.05)
+    monkeypatch.setattr(portlink, "CLOSE_DRAIN", 0.05)
     link.port.hold_writes.set()  # e.g. hardware flow control holds the output back
     link.transport.write(b"?pos\r")
     link.transport.close()
