@@ -112,10 +112,17 @@ print(json.dumps({"wrong": wrong, "events": len(events)}))
 """
 
 
+#: Ends a client script that ran to its end without the interpreter's teardown: pyepics'
+#: libca threads can crash the process while it exits (seen once as SIGSEGV, after the
+#: script had printed its result), which is no part of what a test judges.
+_QUIET_EXIT = "\nimport os as _os, sys as _sys\n_sys.stdout.flush()\n_sys.stderr.flush()\n" \
+              "_os._exit(0)\n"
+
+
 async def run_client(script: str, *args: object, timeout: float = 240) -> Any:
     """Run a client script in a subprocess; return the JSON of its last line."""
     process = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", script, *map(str, args), stdout=asyncio.subprocess.PIPE,
+        sys.executable, "-c", script + _QUIET_EXIT, *map(str, args), stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
     try:
         out, err = await asyncio.wait_for(process.communicate(), timeout)
