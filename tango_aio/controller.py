@@ -559,7 +559,7 @@ class Controller:
         """The positions (as printed, dim units) of the driver's latest state read: after
         a move returned, those read behind its report to confirm the arrival (no read
         here; ``None`` before the first)."""
-        known = self._motion.positions
+        known = self._motion.latest
         return None if known is None else dict(known)
 
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
@@ -583,8 +583,8 @@ class Controller:
         response = await self._request(_read_command("pos", None, self.context))
         texts = " ".join(response.lines).split()
         if len(texts) == len(present):
-            self._motion.positions = dict(zip(present, texts, strict=True))
-            return dict(self._motion.positions)
+            self._motion.saw(dict(zip(present, texts, strict=True)))
+            return dict(zip(present, texts, strict=True))
         out = {}
         for axis in present:
             reply = await self._request(_read_command("pos", axis, self.context))
@@ -1191,7 +1191,8 @@ class Controller:
                 return
             await asyncio.sleep(interval)
 
-    async def _status_and_positions(self, *, separate_after: bool = False
+    async def _status_and_positions(self, *, separate_after: bool = False,
+                                    axes: Sequence[str] = ()
                                     ) -> tuple[dict[str, str], dict[str, str]]:
         """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
         one round trip. Their replies (letters, numbers) cannot be taken for each other,
@@ -1199,11 +1200,21 @@ class Controller:
         ``separate_after``: a separator follows in the same write (a move's confirmation:
         the next move's ``?err`` probe would otherwise need one in front of its line).
         A reply with another number of values than axes is read again the plain way,
-        axis by axis (:meth:`status`, :meth:`_position_texts`)."""
+        axis by axis (:meth:`status`, :meth:`_position_texts`).
+
+        ``axes``: the one axis whose position is wanted (a move's confirmation, #28), on
+        a unit whose per-axis reads were found to answer one value (identify,
+        ``per_axis_replies``): ``?pos x`` instead of ``?pos``, and only that position is
+        returned. Its reply is 7 bytes against 21 on a 3-axis unit (about 2.7 ms at
+        57600 Bd, on the path of every move). The letters are still read first, for every
+        axis: an axis that reads stopped cannot move again before the position read right
+        behind it (no line is written in between), so the position is where it stopped."""
         context = self.context
         present = AXES[: context.axes]
         status = _read_command("statusaxis", None, context)
-        pos = _read_command("pos", None, context)
+        single = len(axes) == 1 and len(present) > 1 and axes[0] in present \
+            and self._exact_replies()
+        pos = _read_command("pos", axes[0] if single else None, context)
         first, second = self._protocol.submit_together((status, pos),
                                                        separate_after=separate_after)
         try:
@@ -1217,9 +1228,13 @@ class Controller:
             second, self.reply_timeout)).lines).split()
         if not isinstance(letters, dict) or len(letters) != len(present):
             letters = await self.status()
-        if len(texts) != len(present):
+        if single and len(texts) == 1:
+            positions = {axes[0]: texts[0]}
+        elif len(texts) != len(present):
             return letters, await self._position_texts()
-        positions = self._motion.positions = dict(zip(present, texts, strict=True))
+        else:
+            positions = dict(zip(present, texts, strict=True))
+        self._motion.saw(positions)
         return letters, dict(positions)
 
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
@@ -1275,10 +1290,10 @@ class _Port:
     async def status(self) -> dict[str, str]:
         return await self._c.status()
 
-    async def state(self) -> tuple[dict[str, str], dict[str, str]]:
+    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
         # A raster's next move_to follows this read: its ?err probe looks like the
         # positions, and a separator behind them keeps it off the move's path (#19).
-        return await self._c._status_and_positions(separate_after=True)
+        return await self._c._status_and_positions(separate_after=True, axes=axes)
 
     def publish(self, event: object) -> None:
         self._c._hub.publish(event)  # type: ignore[arg-type]

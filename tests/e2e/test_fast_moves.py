@@ -177,7 +177,27 @@ async def test_the_separator_a_move_needs_goes_out_with_the_confirmation(
     assert all(lines[i - 1].startswith("<- ") for i in moves), lines
     # Every ?help is written right behind a ?pos, before any of their replies came.
     helps = [i for i, line in enumerate(lines) if line == "-> b'?help'"]
-    assert helps and all(lines[i - 1] == "-> b'?pos'" for i in helps), lines
+    # (#28: only the moved axis' position, ?pos x, see the test below).
+    assert helps and all(lines[i - 1] == "-> b'?pos x'" for i in helps), lines
     # aclose waited for the last separator's reply (the next program on the port would
     # read it otherwise).
     assert lines[-1].startswith("<- b'ERROR"), lines
+
+
+async def test_the_confirmation_reads_the_moved_axis_alone(
+        emulator: EmulatorFactory, caplog: pytest.LogCaptureFixture) -> None:
+    """#28: behind the report, ``?statusaxis`` (every axis, first) and the position of the
+    one moved axis (``?pos x``: 7 reply bytes instead of 21 on three axes); a move of
+    several axes still reads ``?pos``. ``last_positions`` holds what was read."""
+    tango = (await emulator("sim://?baud=57600")).tango
+    await tango.move_to(x=0.5)
+    with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
+        await tango.move_to(y=0.25)
+        assert tango.last_positions == {"y": "0.2500"}
+        await tango.move_to(x=0.25, y=0.5)
+        assert tango.last_positions == {"x": "0.2500", "y": "0.5000", "z": "0.0000"}
+    lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
+             if r.name == "tango_aio.wire" and "->" in r.getMessage()]
+    reads = [line for line in lines if "?statusaxis" in line or "?pos" in line]
+    assert reads == ["-> b'?statusaxis'", "-> b'?pos y'",
+                     "-> b'?statusaxis'", "-> b'?pos'"], lines
