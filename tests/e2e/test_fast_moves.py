@@ -20,7 +20,6 @@ one before #19: ``?pos`` read first, then the line.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import random
 from typing import Any
@@ -38,7 +37,7 @@ from test_matrix import (
     sim_axes,
 )
 
-from tango_aio.errors import ControllerError, MoveError, TangoError
+from tango_aio.errors import MoveError, TangoError
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -235,8 +234,9 @@ async def test_an_unanswered_sa_is_not_asked_again(
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
         await tango.move_to(x=0.5)
         assert tango.last_positions == {"x": "0.5000"}
-        with contextlib.suppress(ControllerError):  # error 4 of the unanswered sa
-            await tango.move_to(x=0.25)
+        # The error 4 the unanswered sa left is not taken for the next move's (the resync
+        # after the lost read reads the error state).
+        await tango.move_to(x=0.25)
         await tango.move_to(x=0.75)
     assert (await tango.position())["x"] == 0.75
     lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
