@@ -28,8 +28,9 @@ How a move is followed
    reads stopped stays where it stopped until the position is read right behind them.
    This read is as short as the unit allows (#28): ``sa`` (the 1.71 alias, L2663) for
    the letters, and ``?pos x`` for a move of one axis X, so that a tile step pays
-   ``sa\r?pos x\r`` (10 bytes out, 14 back) instead of ``?statusaxis\r?pos\r`` (17 out,
-   28 back on three axes); see ``Controller._status_and_positions``. A move succeeds only when every
+   ``sa`` and ``?pos x`` (10 bytes out with their CRs, 14 back) instead of
+   ``?statusaxis`` and ``?pos`` (17 out, 28 back on three axes); see
+   ``Controller._status_and_positions``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
    and stands within :func:`position_tolerance` of its target. An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
