@@ -13,7 +13,7 @@ real link. Side by side, in one run:
   against the raw client writing ``!vel x v\\r?err\\r`` and waiting for the ``0``;
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
   2 ms after the move line (and puts the axes at the target, where the driver's
-  ``?pos`` confirming the move finds them), against the raw client writing
+  ``?pos``/``?pos x`` confirming the move finds them), against the raw client writing
   ``!moa x v\\r?err\\r`` and waiting for the ``?err`` reply and the report. Reported are
   CPU per move and the completion latency: from the moment the report is handed to the
   client (``data_received``) until the awaiting coroutine runs again.
@@ -112,9 +112,11 @@ class CannedTransport(asyncio.Transport):
         here, before the report is due)."""
         self.model.handle_line(line.replace(b"moa", b"pos", 1), time.monotonic())
         self._emitted.clear()
-        if b"?pos" in self.memory:  # replayed from now on: remember the new position
-            self.model.handle_line(b"?pos", time.monotonic())
-            self.memory[b"?pos"] = b"".join(self._emitted)
+        # Replayed from now on: remember the new position (``?pos``, and ``?pos x`` of a
+        # confirmation that reads the moved axis alone, #28).
+        for read in [line for line in self.memory if line.startswith(b"?pos")]:
+            self.model.handle_line(read, time.monotonic())
+            self.memory[read] = b"".join(self._emitted)
             self._emitted.clear()
 
     def _report(self) -> None:

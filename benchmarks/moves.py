@@ -114,6 +114,16 @@ def raw_moves(path: str, moves: int, line: Callable[[int], str], check: bool,
     return Rate(f"raw {kind}{line(0).split()[0]}", moves, seconds)
 
 
+def set_speed(path: str, speed: float) -> None:
+    """Set X's ``secvel`` and ``vel`` to ``speed`` mm/s (pitch 1, dim 2) and check it."""
+    with serial.Serial(path, 57600, stopbits=2, timeout=5) as port:
+        port.write(b"\r")
+        port.reset_input_buffer()
+        port.write(f"!secvel x {speed}\r!vel x {speed}\r?err\r".encode())
+        if (reply := _read_line(port)) != "0":
+            raise RuntimeError(f"setting the speed to {speed} failed: error {reply}")
+
+
 def _read_line(port: serial.Serial) -> str:
     raw = port.read_until(b"\r")
     if not raw.endswith(b"\r"):
@@ -121,49 +131,61 @@ def _read_line(port: serial.Serial) -> str:
     return raw[:-1].decode("latin-1")
 
 
-async def driver_moves(path: str, moves: int, relative: bool) -> Rate:
-    """``move_to`` / ``move_by`` through the driver."""
+async def driver_moves(path: str, moves: int, relative: bool, step: float = STEP) -> Rate:
+    """``move_to`` / ``move_by`` through the driver, steps of ``step`` mm."""
     async with tango_aio.connect(path) as tango:
         start = time.perf_counter()
         for index in range(moves):
             if relative:
-                await tango.move_by(x=STEP if index % 2 == 0 else -STEP)
+                await tango.move_by(x=step if index % 2 == 0 else -step)
             else:
-                await tango.move_to(x=STEP if index % 2 == 0 else 0.0)
+                await tango.move_to(x=step if index % 2 == 0 else 0.0)
         seconds = time.perf_counter() - start
     return Rate("driver move_by" if relative else "driver move_to", moves, seconds)
 
 
-def absolute(index: int) -> str:
+def absolute(index: int, step: float = STEP) -> str:
     """The raw client's absolute move line."""
-    return f"!moa x {STEP if index % 2 == 0 else 0.0}"
+    return f"!moa x {step if index % 2 == 0 else 0.0}"
 
 
-def relative(index: int) -> str:
+def relative(index: int, step: float = STEP) -> str:
     """The raw client's relative move line."""
-    return f"!mor x {STEP if index % 2 == 0 else -STEP}"
+    return f"!mor x {step if index % 2 == 0 else -step}"
 
 
 def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None,
-        confirmed: bool = True) -> list[tuple[Rate, Rate]]:
+        confirmed: bool = True, step: float = STEP, speed: float | None = None
+        ) -> list[tuple[Rate, Rate]]:
     """Every pair (driver, raw baseline), measured one after the other on one emulator;
     the driver runs in a loop made by ``loop_factory`` (default asyncio's). With
-    ``confirmed``, also the pairs against the raw client with the driver's guarantee."""
+    ``confirmed``, also the pairs against the raw client with the driver's guarantee.
+    ``step``: the distance of each move in mm (0.01: tiny steps, the wire is all there
+    is; 1.0: tile steps of a tiled microscope scan, issue 28); ``speed``: X's ``vel``
+    and ``secvel`` in mm/s (issue 28's tile steps: 40; default: the emulator's)."""
+    def moa(index: int) -> str:
+        return absolute(index, step)
+
+    def mor(index: int) -> str:
+        return relative(index, step)
+
     with emulator_pty() as path, asyncio.Runner(loop_factory=loop_factory) as runner:
+        if speed is not None:
+            set_speed(path, speed)
         pairs = [
-            (runner.run(driver_moves(path, moves, relative=False)),
-             raw_moves(path, moves, absolute, check=False)),
-            (runner.run(driver_moves(path, moves, relative=False)),
-             raw_moves(path, moves, absolute, check=True)),
-            (runner.run(driver_moves(path, moves, relative=True)),
-             raw_moves(path, moves, relative, check=False)),
+            (runner.run(driver_moves(path, moves, relative=False, step=step)),
+             raw_moves(path, moves, moa, check=False)),
+            (runner.run(driver_moves(path, moves, relative=False, step=step)),
+             raw_moves(path, moves, moa, check=True)),
+            (runner.run(driver_moves(path, moves, relative=True, step=step)),
+             raw_moves(path, moves, mor, check=False)),
         ]
         if confirmed:
             pairs += [
-                (runner.run(driver_moves(path, moves, relative=False)),
-                 raw_moves(path, moves, absolute, check=True, confirm=True)),
-                (runner.run(driver_moves(path, moves, relative=True)),
-                 raw_moves(path, moves, relative, check=True, confirm=True)),
+                (runner.run(driver_moves(path, moves, relative=False, step=step)),
+                 raw_moves(path, moves, moa, check=True, confirm=True)),
+                (runner.run(driver_moves(path, moves, relative=True, step=step)),
+                 raw_moves(path, moves, mor, check=True, confirm=True)),
             ]
         return pairs
 
@@ -181,8 +203,12 @@ def main() -> None:
     """Run the benchmark and print its table."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--moves", type=int, default=200, help="moves per case")
+    parser.add_argument("--step", type=float, default=STEP,
+                        help="mm per move (0.01: tiny steps; 1: tile steps)")
+    parser.add_argument("--speed", type=float, default=None,
+                        help="X's vel and secvel in mm/s (issue 28's tile steps: 40)")
     args = parser.parse_args()
-    print(table(run(args.moves)))
+    print(table(run(args.moves, step=args.step, speed=args.speed)))
 
 
 if __name__ == "__main__":

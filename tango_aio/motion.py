@@ -24,7 +24,13 @@ How a move is followed
    poll a move, L2662-2721: every letter except ``M`` means the axis stopped) and
    ``?pos``, written back to back (one round trip: their replies, letters and numbers,
    cannot be taken for each other, so neither waits for the other), the position checked
-   against the target for ``move_to``/``move_by``. A move succeeds only when every
+   against the target for ``move_to``/``move_by``. The letters come first: an axis that
+   reads stopped stays where it stopped until the position is read right behind them.
+   This read is as short as the unit allows (#28): ``sa`` (the 1.71 alias, L2663) for
+   the letters, and ``?pos x`` for a move of one axis X, so that a tile step pays
+   ``sa`` and ``?pos x`` (10 bytes out with their CRs, 14 back) instead of
+   ``?statusaxis`` and ``?pos`` (17 out, 28 back on three axes); see
+   ``Controller._status_and_positions``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
    and stands within :func:`position_tolerance` of its target. An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
@@ -219,9 +225,11 @@ class MotionPort(Protocol):
         """``?statusaxis`` of every present axis (letters assigned with certainty)."""
         ...
 
-    async def state(self) -> tuple[dict[str, str], dict[str, str]]:
-        """``?statusaxis`` and ``?pos`` of every present axis, written back to back: the
-        letters and the positions as printed by the controller."""
+    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
+        """``?statusaxis`` of every present axis and the positions of at least ``axes``,
+        written back to back: the letters and the positions as printed by the
+        controller (see :meth:`Controller._status_and_positions
+        <tango_aio.controller.Controller._status_and_positions>`)."""
         ...
 
     def publish(self, event: object) -> None:
@@ -264,10 +272,18 @@ class Motion:
         self._wake = asyncio.Event()
         #: The submissions of the moves being followed.
         self._followed: set[Submission] = set()
-        #: The positions (as printed) of the latest state read, ``None`` before the first.
+        #: The positions (as printed) the driver read last, per axis (a confirmation reads
+        #: only the moved axes, so the others may be older), ``None`` before the first.
         #: Only move timeouts are sized from them (see :meth:`Controller._plan
         #: <tango_aio.controller.Controller._plan>`), never a target or a verdict.
         self.positions: dict[str, str] | None = None
+        #: The positions of the latest read alone (the axes it read).
+        self.latest: dict[str, str] | None = None
+
+    def saw(self, texts: Mapping[str, str]) -> None:
+        """Record the positions (as printed) of one read of some or all axes."""
+        self.latest = dict(texts)
+        self.positions = {**(self.positions or {}), **texts}
 
     # -- state seen by the facade ---------------------------------------------------------
 
@@ -396,7 +412,7 @@ class Motion:
             job.hints = self._hints  # hints from now on come after this state read
             self._port.check_link()
             try:
-                letters, texts = await self._state()
+                letters, texts = await self._state(plan.moved)
             except _LOST_READ:
                 if not self._was_stopped(job):
                     raise
@@ -439,21 +455,21 @@ class Motion:
             self._finished(job, letters, ok=False)
             raise MoveError(f"{plan.command.line!r} {verdict}", letters)
 
-    async def _state(self) -> tuple[dict[str, str], dict[str, str]]:
+    async def _state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
         """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
         to back: one round trip), read again (up to 3 times) when the read was lost:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
         (the stream is resynchronised each time, so the next read is in step)."""
         for _ in range(2):
             try:
-                return self._remember(await self._port.state())
+                return self._remember(await self._port.state(axes))
             except _LOST_READ:
                 self._port.check_link()
-        return self._remember(await self._port.state())
+        return self._remember(await self._port.state(axes))
 
     def _remember(self, state: tuple[dict[str, str], dict[str, str]]
                   ) -> tuple[dict[str, str], dict[str, str]]:
-        self.positions = state[1]
+        self.saw(state[1])
         return state
 
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
@@ -480,7 +496,7 @@ class Motion:
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
         async with asyncio.timeout(timeout):
             while True:
-                letters, _ = await self._state()
+                letters, _ = await self._state(job.plan.moved)
                 if all(letters.get(a) != MOVING for a in job.plan.moved):
                     return letters
                 await asyncio.sleep(POLL_MIN)

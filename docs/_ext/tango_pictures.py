@@ -59,16 +59,19 @@ class _WireRecorder(logging.Handler):
 
 def label_replies(lines: list[WireLine]) -> list[WireLine]:
     """Join each received line to what it is: a completion report, or the reply to the
-    oldest read still unanswered (a read, ``?...``, gets exactly one reply line)."""
+    oldest read still unanswered (a read, ``?...`` or ``sa``, gets exactly one reply
+    line)."""
     from tango_aio.core import is_completion_line
 
     waiting: list[str] = []
     for line in lines:
         if line.sent:
-            if line.text.startswith("?"):
+            if line.text.startswith("?") or line.text == "sa":
                 waiting.append(line.text)
                 line.meaning = ("the driver's separator: a reply like no other"
-                                if line.text == "?help" else "a read: one reply line")
+                                if line.text == "?help" else
+                                "a read (?statusaxis, spelt short): one reply line"
+                                if line.text == "sa" else "a read: one reply line")
             else:
                 line.meaning = "the move: no reply line in autostatus 1"
         elif is_completion_line(line.text):

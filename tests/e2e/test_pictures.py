@@ -28,19 +28,21 @@ async def test_the_reply_routing_picture_is_the_wire_log_of_one_move() -> None:
     lines = await pictures.record_move()
     sent = [line.text for line in lines if line.sent]
     received = {line.text: line.meaning for line in lines if not line.sent}
-    assert "!moa 10.0 5.0" in sent and "?statusaxis" in sent
+    # The confirmation reads the letters with sa, ?statusaxis spelt short (#28).
+    assert "!moa 10.0 5.0" in sent and "sa" in sent
     assert received["@@@-."].startswith("completion report")
-    assert received["@@@-.-"] == "reply to ?statusaxis"
+    assert received["@@@-.-"] == "reply to sa"
     assert received["10.0000 5.0000 0.0000"] == "reply to ?pos"
     # Every reply answers a read sent before it: as many replies as reads.
-    reads = [line for line in lines if line.sent and line.text.startswith("?")]
+    reads = [line for line in lines
+             if line.sent and (line.text.startswith("?") or line.text == "sa")]
     replies = [line for line in lines if not line.sent and line.meaning.startswith("reply")]
     assert len(reads) == len(replies)
     svg = ElementTree.fromstring(pictures.routing_svg(lines))
     arrows = svg.findall(f".//{SVG}line[@class='wire-line']")
     assert len(arrows) == len(lines)
     texts = {element.text for element in svg.iter(f"{SVG}text")}
-    assert "!moa 10.0 5.0" in texts and "reply to ?statusaxis" in texts
+    assert "!moa 10.0 5.0" in texts and "reply to sa" in texts
 
 
 async def test_the_raster_picture_shows_where_the_emulator_fired() -> None:
