@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import pickle
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -237,10 +236,11 @@ def _every_tango_error() -> set[type[TangoError]]:
     import pkgutil
 
     import tango_aio
+    from tango_aio._platform import WINDOWS
 
     for module in pkgutil.walk_packages(tango_aio.__path__, "tango_aio."):
         if module.name != "tango_aio.__main__" and not (
-                module.name == "tango_aio.sim.ptyserve" and sys.platform == "win32"):
+                module.name == "tango_aio.sim.ptyserve" and WINDOWS):  # POSIX only
             importlib.import_module(module.name)
     found: set[type[TangoError]] = set()
     todo: list[type[TangoError]] = [TangoError]
