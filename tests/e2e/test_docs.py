@@ -72,6 +72,6 @@ def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     assert "tango_aio.core" in internals and "tango_aio.scheduler" in internals
     # The pictures, drawn from a run of the emulator at build time.
     replies = (html / "concepts" / "replies.html").read_text()
-    assert "<svg" in replies and "reply to ?statusaxis" in replies
+    assert "<svg" in replies and "reply to sa" in replies
     raster = (html / "howto" / "raster-scan.html").read_text()
     assert raster.count("class='pulse'") == 27
