@@ -89,7 +89,8 @@ async def test_an_abort_by_someone_else_fails_the_move_at_once(
     # state that ended it), not at the planned end of the move.
     assert motion.now - aborted < tango._settings.travel("x", 40.0) / 2
     assert not emu.model.motion.is_moving("x")
-    assert 0.0 < emulated_position(emu, "x") < 40.0
+    # Short of the target; it may not have left 0 yet when the abort came (seen under uvloop).
+    assert 0.0 <= emulated_position(emu, "x") < 40.0
     assert (await tango.position())["x"] == pytest.approx(emulated_position(emu, "x"),
                                                           abs=1e-3)
 
