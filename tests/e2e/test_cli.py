@@ -531,14 +531,7 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
 
 def _interrupt_when(proc: subprocess.Popen[str], marker: str, timeout: float = 30) -> str:
     """Send SIGINT once ``marker`` appears on the CLI's stdout; return all its output."""
-    assert proc.stdout is not None
-    seen = ""
-    deadline = time.monotonic() + timeout
-    while marker not in seen:
-        assert time.monotonic() < deadline, seen
-        line = proc.stdout.readline()
-        assert line, f"{marker!r} never appeared in {seen!r}"
-        seen += line
+    seen = _read_until(proc, marker, timeout)
     time.sleep(0.3)  # the axes are under way
     proc.send_signal(signal.SIGINT)
     rest, _ = proc.communicate(timeout=30)

@@ -196,15 +196,20 @@ _EARLY = ("import sys; sys.argv[0] = '/usr/bin/tango-aio'; import tango_aio; "
           "from tango_aio.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
+def _run_probe(probe: str) -> tuple[int, str, str]:
+    """Run ``probe`` with ``python -c``; its exit code, stdout and stderr."""
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=60, check=False)
+    return done.returncode, done.stdout, done.stderr
+
+
 def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
     # The interrupt arrives, deterministically, right after the start-up guard is in place
     # and before the rest of the command line has been imported.
     probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
              "os.kill(os.getpid(), signal.SIGINT); import tango_aio.cli; "
              "print('not interrupted')")
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                          timeout=60, check=False)
-    assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
+    assert _run_probe(probe) == (130, "", "interrupted\n")
 
 
 def test_ctrl_c_after_the_command_line_loaded_but_before_main_ends_quietly() -> None:
@@ -214,9 +219,7 @@ def test_ctrl_c_after_the_command_line_loaded_but_before_main_ends_quietly() -> 
     probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
              "import tango_aio.cli; "
              "os.kill(os.getpid(), signal.SIGINT); print('not interrupted')")
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                          timeout=60, check=False)
-    assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
+    assert _run_probe(probe) == (130, "", "interrupted\n")
 
 
 def test_importing_the_command_line_leaves_ctrl_c_to_the_importer() -> None:
@@ -226,9 +229,7 @@ def test_importing_the_command_line_leaves_ctrl_c_to_the_importer() -> None:
     probe = ("import os, signal, sys, time; import tango_aio.cli\n"
              "try:\n    os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
              "except KeyboardInterrupt:\n    print('caught')")
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                          timeout=60, check=False)
-    assert (done.returncode, done.stdout, done.stderr) == (0, "caught\n", "")
+    assert _run_probe(probe) == (0, "caught\n", "")
 
 
 def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
