@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import math
 import os
+import random
 import socket
 from collections.abc import AsyncIterator, Iterator, Mapping
 from pathlib import Path
@@ -49,16 +50,21 @@ pytestmark = [
 
 
 def free_port() -> int:
-    """A port free for both TCP and UDP on loopback."""
-    for _ in range(50):
+    """A port free for both TCP and UDP on loopback, in this test worker's own range.
+
+    Below Linux's ephemeral range (32768-60999), so that no socket that another process
+    or xdist worker binds to port 0 in the meantime can take it; each worker draws from
+    a slice of its own, so that two workers never hand out the same port."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    base = 20000 + (int(worker) if worker.isdigit() else 0) % 12 * 1000
+    for port in random.sample(range(base, base + 1000), 100):
         with socket.socket() as tcp, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-            tcp.bind(("127.0.0.1", 0))
-            port = tcp.getsockname()[1]
             try:
+                tcp.bind(("127.0.0.1", port))
                 udp.bind(("127.0.0.1", port))
             except OSError:
                 continue
-            return int(port)
+            return port
     raise RuntimeError("no free port")
 
 
