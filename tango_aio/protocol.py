@@ -331,6 +331,10 @@ class TangoProtocol(asyncio.Protocol):
             _fail(submission.completion, error)
         for marker in self._markers.values():
             _fail(marker, error)
+        # An exchange of connect's (detect, a mode exchange) waits on its own future: it
+        # fails now too, not after its reply timeout (#32 item 5).
+        if self._collected is not None:
+            _fail(self._collected, error)
         self._submissions.clear()
         self._markers.clear()
         self.scheduler.drop_queue()
