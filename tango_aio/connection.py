@@ -211,12 +211,17 @@ def _check_pollable(port: Any) -> None:
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:
     """Run ``open_port`` in a thread; if the caller is cancelled meanwhile, the thread
-    still finishes (threads cannot be interrupted), and the port it opened is closed."""
+    still finishes (threads cannot be interrupted), and the port it opened is closed
+    before the cancellation goes on: a connect() to the same port right after must not
+    find it locked (#32 item 5). Cancelled again while it waits, it leaves the closing to
+    the thread's end."""
     task = asyncio.ensure_future(asyncio.to_thread(open_port))
     try:
         return await asyncio.shield(task)
     except asyncio.CancelledError:
-        task.add_done_callback(_close_opened)
+        task.add_done_callback(_close_opened)  # runs before asyncio.wait's own callback
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.wait([task])
         raise
 
 

@@ -4,9 +4,13 @@ fails at once with ConnectionLostError, and a cancelled connect releases its por
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import time
+from typing import Any
 
 import pytest
-from helpers import make_model
+import serial
+from helpers import make_model, opened, serve_pty
 
 import tango_aio
 from tango_aio import ConnectionLostError, Controller
@@ -60,3 +64,51 @@ async def test_clients_connecting_at_once_fail_fast_or_connect() -> None:
 @pytest.mark.slow
 async def test_a_hundred_clients_connecting_at_once_fail_fast_or_connect() -> None:
     await _connect_many(100)
+
+
+async def test_a_connect_cancelled_while_the_port_opens_has_closed_it_when_it_returns(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    real = serial.serial_for_url
+    ports: list[Any] = []
+
+    def slow_open(*args: Any, **kwargs: Any) -> Any:
+        time.sleep(0.2)  # runs in the opening thread
+        ports.append(real(*args, **kwargs))
+        return ports[-1]
+
+    async with await serve_pty(make_model) as server:
+        monkeypatch.setattr(serial, "serial_for_url", slow_open)
+        task = asyncio.create_task(opened(server.path))
+        await asyncio.sleep(0.05)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert len(ports) == 1 and not ports[0].is_open  # closed before connect returned
+
+
+async def _cancel_and_reopen(path: str, ticks: int) -> None:
+    """Cancel a connect to ``path`` after ``ticks`` loop iterations (opening, connecting,
+    setting up); the port then opens again at once: no "Could not exclusively lock
+    port"."""
+    task = asyncio.create_task(opened(path))
+    for _ in range(ticks):
+        await asyncio.sleep(0)
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await (await task).aclose()  # it finished before the cancellation came
+    async with tango_aio.connect(path) as tango:
+        assert tango.connected
+
+
+@pytest.mark.parametrize("ticks", [0, 1, 2, 3, 5, 8, 13, 21, 34, 55, 89, 144])
+async def test_a_cancelled_pty_connect_releases_the_port_before_it_returns(
+        ticks: int) -> None:
+    async with await serve_pty(make_model) as server:
+        await _cancel_and_reopen(server.path, ticks)
+
+
+@pytest.mark.slow
+async def test_sixty_cancelled_pty_connects_in_a_row_each_release_the_port() -> None:
+    async with await serve_pty(make_model) as server:
+        for attempt in range(60):
+            await _cancel_and_reopen(server.path, attempt * 3)
