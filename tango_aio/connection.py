@@ -41,6 +41,7 @@ from .errors import (
 )
 from .fdlink import FdTransport
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
+from .linktiming import byte_time
 from .protocol import DEAD_AFTER, TangoProtocol
 from .reconnect import Closer, Reconnect, ReconnectPolicy
 from .units import check_unit
@@ -335,10 +336,14 @@ class ConnectOptions:
 
 async def _connect(url: str, options: ConnectOptions) -> Controller:
     def factory() -> TangoProtocol:
-        return TangoProtocol(credit_limit=options.credit_limit,
-                             marker_chunk=options.marker_chunk,
-                             reply_timeout=options.reply_timeout, detect=True,
-                             dead_after=options.dead_after, keepalive=options.keepalive)
+        protocol = TangoProtocol(credit_limit=options.credit_limit,
+                                 marker_chunk=options.marker_chunk,
+                                 reply_timeout=options.reply_timeout, detect=True,
+                                 dead_after=options.dead_after, keepalive=options.keepalive)
+        if not url.startswith(("sim://", "socket://")):  # a serial port opened at baudrate
+            protocol.link.byte_seconds = byte_time(options.baudrate)
+            protocol.quiet_interval = protocol.link.quiet_interval
+        return protocol
 
     policy = options.policy()
     opener = functools.partial(_open_link, url, factory,

@@ -74,6 +74,7 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, encode, parse
+from .linktiming import LinkTiming
 from .patterns import ACK_PATTERN, normal_line
 from .scheduler import Line, Run, WriteScheduler
 
@@ -256,9 +257,15 @@ class TangoProtocol(asyncio.Protocol):
         #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
         self.detect_at_connect = detect
         self._detected: dict[str, str] = {}
-        #: Seconds of silence after the reply of ``help`` that end a resync without a
-        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`).
-        self.quiet_interval = 0.05
+        #: The link's timing: its byte time where the baud rate is known (set by
+        #: ``connect``) and the round trips measured by connect's exchanges.
+        self.link = LinkTiming()
+        #: Seconds without a byte after the reply of ``help`` that end a resync without a
+        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: the
+        #: link's :attr:`~tango_aio.linktiming.LinkTiming.quiet_interval`, grown by every
+        #: round trip measured (#32 item 5).
+        self.quiet_interval = self.link.quiet_interval
+        self._round_trip_from: float | None = None  # an exchange's write, until a byte
         self._quiet_help = False
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collect: list[str] | None = None
@@ -966,6 +973,7 @@ class TangoProtocol(asyncio.Protocol):
         in_step = False
         try:
             self._write(b"".join(encode(line) for line in lines))
+            self._round_trip_from = self._loop.time()
             self.scheduler.written_lines += len(lines)
             serial = self.scheduler.written_lines
             try:
@@ -983,6 +991,7 @@ class TangoProtocol(asyncio.Protocol):
             in_step = True
         finally:
             self._collect = self._collected = None
+            self._round_trip_from = None
             self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
@@ -1045,6 +1054,12 @@ class TangoProtocol(asyncio.Protocol):
             self._quiet_timer.cancel()
         self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
 
+    def _measured(self, round_trip: float) -> None:
+        """An exchange's first byte came ``round_trip`` seconds after its write."""
+        self._round_trip_from = None
+        if self.link.observe(round_trip):
+            self.quiet_interval = max(self.quiet_interval, self.link.quiet_interval)
+
     def _end_collection(self) -> None:
         """What :meth:`_exchange` waits for has come (or the link is quiet)."""
         if self._quiet_timer is not None:
@@ -1099,6 +1114,10 @@ class TangoProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         """Called by asyncio with bytes from the controller."""
         self._trace_received(data)
+        if self._round_trip_from is not None:
+            self._measured(self._loop.time() - self._round_trip_from)
+        if self._quiet_timer is not None:
+            self._quiet_from_now()  # quiet means no byte, not no line (a slow link)
         self.core.receive_data(data)
         self._dispatch_pending()
         self._flush()
