@@ -82,6 +82,7 @@ from .motion import (
 )
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
+from .restart import RestartWatch, report_suggests_restart, settings_of
 from .state import CACHED_SETTINGS, DriverState
 from .status import AxisStatus, axis_statuses
 from .units import UnitScale, from_controller, plain, to_controller
@@ -183,6 +184,9 @@ class Controller:
         #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
         self.units: str | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        #: Notices a controller that restarted behind the link and recovers (#32 item 5).
+        self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
+        self._restarts.attach(protocol)
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -216,6 +220,7 @@ class Controller:
         (separators, credit markers) are waited for first, for at most
         :data:`CLOSE_SETTLE` seconds."""
         self._closing = True
+        self._restarts.close()
         self._motion.cancel_detached()
         if self._reconnector is not None:
             await self._reconnector.stop()
@@ -360,6 +365,13 @@ class Controller:
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 settings.load(entry, 0)
         self._update_context()
+
+    async def _reload_settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Read the cached settings again (after a restart); their values before and
+        after (:func:`~tango_aio.restart.settings_of`)."""
+        before = settings_of(self._settings)
+        await self.refresh_settings()
+        return before, settings_of(self._settings)
 
     def _update_context(self) -> None:
         settings = self._settings
@@ -1263,6 +1275,8 @@ class Controller:
 
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
         if isinstance(event, Completed):
+            if report_suggests_restart(self._protocol.autostatus, bool(event.letters)):
+                self._restarts.suspect()  # a report the mode in force does not send
             self._publish_completion(event, submission)
             self._motion.hint()
         elif isinstance(event, Unsolicited):
@@ -1352,6 +1366,7 @@ class _Relink:
         c = self._c
         c._protocol = staged._protocol
         c._protocol.set_callbacks(c._on_protocol_event, c._on_connection_lost)
+        c._restarts.attach(c._protocol)
         c._settings = staged._settings
         c._identity = staged._identity or c._identity
         c._on_close = closer

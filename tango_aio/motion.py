@@ -89,12 +89,14 @@ from typing import NoReturn, Protocol
 import anyio
 
 from .errors import (
+    ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     MoveError,
     ProtocolError,
     RequestAbortedError,
     TangoError,
+    outcome_unknown,
 )
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
@@ -373,14 +375,17 @@ class Motion:
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
-        except _LOST_READ:
+        except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
-            # move may or may not run. Stop it and fail: success is never assumed.
+            # move may or may not run. Stop it and fail: success is never assumed, and
+            # the error says the line may have run (#32 item 5: no blind retry).
             aborted = self._was_stopped(job)
             await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
-            raise
+            raise outcome_unknown(exc, job.sent.command.line) from exc
+        except ConnectionLostError as exc:
+            raise outcome_unknown(exc, job.sent.command.line) from exc
         if error is not None:
             job.sent.forget()
             raise error

@@ -266,6 +266,11 @@ class TangoProtocol(asyncio.Protocol):
         #: round trip measured (#32 item 5).
         self.quiet_interval = self.link.quiet_interval
         self._round_trip_from: float | None = None  # an exchange's write, until a byte
+        #: Called when a request or marker got no answer in time, and when
+        #: :meth:`verify_autostatus` restored the driver's mode (found, restored): a
+        #: controller may have restarted behind the link (:mod:`tango_aio.restart`).
+        self.on_unanswered: Callable[[], None] | None = None
+        self.on_restored: Callable[[int, int], None] | None = None
         self._quiet_help = False
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collect: list[str] | None = None
@@ -609,6 +614,8 @@ class TangoProtocol(asyncio.Protocol):
                     "restarted; restoring autostatus %d", actual, expected, expected)
         await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
                                 timeout)
+        if self.on_restored is not None:
+            self.on_restored(actual, expected)
         return True
 
     # -- writing ------------------------------------------------------------------------
@@ -817,6 +824,8 @@ class TangoProtocol(asyncio.Protocol):
         that were in flight together count once (they time out together when one reply is
         lost), so each count is a line written after the previous count. Returns whether
         the link was declared lost."""
+        if self.on_unanswered is not None and self._lost is None:
+            self.on_unanswered()
         if serial <= self._counted_upto:
             return False
         self._counted_upto = self.scheduler.written_lines

@@ -464,7 +464,7 @@ class Wire:
         their latency is the link's, but cutting at arrival keeps this simple), and every
         byte that arrives while it is off (counted in :attr:`lost_bytes`). The logic
         restarts as at power-on through its optional ``reboot(now)`` (the emulator's:
-        settings from the state file, autostatus 1, counters 0, L2062; the manual says
+        settings from the state file, autostatus 1 (L2069), counters 0; the manual says
         nothing of a power cycle behind a live link: it is what a restart does, L1837-1857).
         Without ``now`` the time is taken from :attr:`clock`, else the last time seen.
         """
