@@ -360,11 +360,22 @@ class Controller:
             # is 0, its behaviour; delay, pause and ctrt: nothing to wait for).
             try:
                 known = not older or entry.in_older_manual
-                value = await self.get(entry.name) if known else 0
+                value = await self._read_or_absent(entry.name) if known else 0
                 settings.load(entry, value)
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 settings.load(entry, 0)
         self._update_context()
+
+    async def _read_or_absent(self, name: str) -> Any:
+        """Read the global setting ``name``, which a unit may lack (an optional module,
+        a smaller model: no reply at all, error 4, L970): a separator goes right behind
+        the read in the same write, so a missing reply shows at once, as the separator's
+        reply in its place (:class:`ProtocolError`), and not after the reply timeout
+        (#32 item 5)."""
+        command = _read_command(name, None, self.context)
+        (submission,) = self._protocol.submit_together((command,), separate_after=True)
+        response = await self._protocol.wait_reply(submission, self.reply_timeout)
+        return parse_reply(command, response.lines)
 
     async def _reload_settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """Read the cached settings again (after a restart); their values before and

@@ -15,6 +15,7 @@ from helpers import make_model, opened, serve_pty
 import tango_aio
 from tango_aio import ConnectionLostError, Controller
 from tango_aio.sim.serve import serve_tcp
+from tango_aio.sim.wire import WireConfig
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -112,3 +113,62 @@ async def test_sixty_cancelled_pty_connects_in_a_row_each_release_the_port() -> 
     async with await serve_pty(make_model) as server:
         for attempt in range(60):
             await _cancel_and_reopen(server.path, attempt * 3)
+
+
+# -- a controller still busy with an earlier program's queries
+
+#: Queries of every reply shape connect reads, as an earlier program may have left them.
+EARLIER = b"".join(line + b"\r" for line in [
+    b"?version", b"?det", b"?autostatus", b"?pos", b"?vel", b"?err", b"help", b"?help 5",
+    b"?dim", b"?pitch", b"?accel", b"?secvel", b"?delay", b"?pause", b"?ctrt"] * 3)
+
+
+async def _connect_and_check(path: str) -> None:
+    async with tango_aio.connect(path, autostatus=2) as tango:
+        assert tango.identity.model == "TANGO-DT" and tango.identity.axes == 3
+        assert await tango.get("autostatus") == 2
+        assert set(await tango.position()) == {"x", "y", "z"}
+        assert (await tango.get("vel"))["x"] == 10.0
+
+
+@pytest.mark.parametrize("baud", [4800, 57600])
+async def test_connect_comes_into_step_behind_an_earlier_programs_queries(
+        baud: int) -> None:
+    """An earlier program wrote its queries and went away; the controller still answers
+    them, slowly, to whoever opens the port next."""
+    async with await serve_pty(make_model, WireConfig(baud=baud)) as server:
+        port = serial.Serial(server.path, timeout=0)
+        port.write(EARLIER)
+        port.close()
+        await _connect_and_check(server.path)
+
+
+@pytest.mark.parametrize("ticks", [5, 20, 60])
+async def test_connect_comes_into_step_behind_its_own_abandoned_attempt(ticks: int) -> None:
+    """A first attempt is cancelled while its exchanges are answered (at 4800 Bd); the
+    next one, started at once, reads none of its replies."""
+    async with await serve_pty(make_model, WireConfig(baud=4800)) as server:
+        first = asyncio.create_task(opened(server.path, autostatus=4))
+        for _ in range(ticks):
+            await asyncio.sleep(0)
+        first.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await (await first).aclose()
+        await _connect_and_check(server.path)
+
+
+@pytest.mark.parametrize("lacks", ["ctrt", "pause", "extmode", "delay,pause,ctrt"])
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+async def test_a_unit_lacking_a_setting_connects_at_once_and_times_moves_without_it(
+        lacks: str, profile: str) -> None:
+    """A read the unit does not know is answered by nothing (error 4): connect does not
+    wait a reply timeout for it (NEVER), and the setting counts as absent (0)."""
+    url = f"sim://?baud=0&profile={profile}&lacks={lacks}"
+    async with tango_aio.connect(url, reply_timeout=NEVER, autostatus=2) as tango:
+        timing = tango._settings
+        for name in lacks.split(","):
+            field = {"delay": "delay_ms", "pause": "pause_ms", "ctrt": "settle_ms"}.get(
+                name, name)
+            assert getattr(timing, field) == 0, name
+        await tango.move_to(x=0.2)
+        assert (await tango.position())["x"] == pytest.approx(0.2)
