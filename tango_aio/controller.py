@@ -43,6 +43,8 @@ from .errors import (
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
+    RequestAbortedError,
+    outcome_unknown,
     parse_error_reply,
 )
 from .events import (
@@ -464,6 +466,11 @@ class Controller:
                     await self._blame(error.number, self._timeout(timeout)):
                 raise
             response = Response()
+        except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
+                ConnectionLostError) as error:
+            if command.instruction.completion is None or not command.executes:
+                raise
+            raise outcome_unknown(error, command.line) from error  # a raw move may have run
         self._track(command)
         return response
 

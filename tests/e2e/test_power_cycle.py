@@ -82,3 +82,25 @@ async def test_the_driver_recovers_from_a_power_cycle(mode: int) -> None:
 @pytest.mark.parametrize("mode", range(5))
 async def test_the_driver_recovers_from_twenty_power_cycles(mode: int) -> None:
     await _power_cycles(mode, 20)
+
+
+@pytest.mark.parametrize("mode", [2, 4])
+async def test_a_raw_move_line_that_may_have_run_says_so(mode: int) -> None:
+    async with tango_aio.connect("sim://?baud=0", autostatus=mode,
+                                 reply_timeout=0.5) as tango:
+        fault = faults(tango)
+        fault.power_cycle(0.0)
+        with pytest.raises(MoveOutcomeUnknown) as info:
+            await tango.command("!mor 0.5")
+        assert isinstance(info.value, tango_aio.ControllerTimeoutError)
+        assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)  # it did run
+
+
+@pytest.mark.parametrize("mode", [2, 4])
+async def test_a_set_line_unanswered_after_a_restart_claims_no_move(mode: int) -> None:
+    async with tango_aio.connect("sim://?baud=0", autostatus=mode,
+                                 reply_timeout=0.5) as tango:
+        faults(tango).power_cycle(0.0)
+        with pytest.raises(tango_aio.ControllerTimeoutError) as info:
+            await tango.command("!vel x 5")
+        assert not isinstance(info.value, MoveOutcomeUnknown)
