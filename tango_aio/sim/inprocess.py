@@ -16,8 +16,7 @@ seed           random seed for fragmentation and faults                   none
 model          the ``?version`` controller type                           TANGO-DT
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
-lacks          instructions the unit lacks (``ctrt,pause``): each     none
-               answers nothing and sets error 4
+lacks          instructions it lacks (``ctrt,pause``): no reply, error 4  none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
 fingerprint    switch values of a ``tango-aio probe`` fingerprint file    none
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
