@@ -1,0 +1,222 @@
+"""Every public function and method of the package documents its parameters and its result
+in numpydoc sections (``Parameters``, ``Returns``, ``Yields``), which the API reference
+shows as fields. ruff's pydocstyle and pydoclint rules (pyproject.toml) check the sections'
+form and the ``Raises``/``Returns`` a body calls for; no ruff rule asks for a
+``Parameters`` section to exist, so this test does.
+
+Read from the source (ast), so that a module needing an optional extra is checked too."""
+
+from __future__ import annotations
+
+import ast
+import re
+import tomllib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[2] / "tango_aio"
+
+#: sections pending: module being restructured (issue 31; the lead removes these after the
+#: merge, with their per-file ignores in pyproject.toml).
+RESTRUCTURED = {
+    "protocol.py", "core.py", "controller.py", "motion.py", "timing.py", "session.py",
+    "scheduler.py", "errors.py",
+}
+#: Generated from the reference data (tools/), not written by hand.
+GENERATED = {"_catalog.py"}
+#: sections pending: not yet written (each still has a function without them; the test
+#: below fails when one is finished, so that it leaves this list).
+PENDING: set[str] = {
+    "bluesky.py", "bulk.py", "cli.py", "coalesce.py", "connection.py", "discovery.py",
+    "epics/access.py", "epics/autosave.py", "epics/command.py", "epics/ioc.py",
+    "epics/record.py", "events.py", "fdlink.py", "flow.py", "group.py", "instructions.py",
+    "patterns.py", "portlink.py", "probe.py", "reconnect.py", "replay.py", "replyrules.py",
+    "schema.py", "sim/clock.py", "sim/handlers.py", "sim/inprocess.py", "sim/lists.py",
+    "sim/model.py", "sim/motion.py", "sim/params.py", "sim/peripherals.py", "sim/profiles.py",
+    "sim/ptyserve.py", "sim/serve.py", "sim/state.py", "sim/wire.py", "state.py", "status.py",
+    "stream.py", "testing.py", "threadlink.py", "trace.py", "units.py",
+}
+
+_HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
+                     re.MULTILINE)
+_DECORATORS_WITHOUT_SECTIONS = {"property", "cached_property", "overload", "setter", "deleter"}
+
+
+def _relative(path: Path) -> str:
+    return path.relative_to(PACKAGE).as_posix()
+
+
+def _public_modules() -> Iterator[Path]:
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE).parts
+        if any(part.startswith("_") and part != "__init__.py" for part in parts):
+            continue
+        yield path
+
+
+def _decorator_names(node: ast.FunctionDef | ast.AsyncFunctionDef) -> set[str]:
+    names = set()
+    for decorator in node.decorator_list:
+        target = decorator.func if isinstance(decorator, ast.Call) else decorator
+        names.add(ast.unparse(target).rpartition(".")[2])
+    return names
+
+
+def _top_level(body: list[ast.stmt]) -> Iterator[ast.stmt]:
+    """The statements of a module or class body, looking into ``if`` and ``try`` blocks
+    (a definition that depends on the platform or on an optional import)."""
+    for node in body:
+        if isinstance(node, ast.If):
+            yield from _top_level(node.body)
+            yield from _top_level(node.orelse)
+        elif isinstance(node, ast.Try):
+            for block in (node.body, node.orelse, node.finalbody):
+                yield from _top_level(block)
+            for handler in node.handlers:
+                yield from _top_level(handler.body)
+        else:
+            yield node
+
+
+def _public_functions(
+        tree: ast.Module) -> Iterator[tuple[str, ast.FunctionDef | ast.AsyncFunctionDef, bool]]:
+    """(qualified name, node, is a method) of each public function and public method of a
+    public class."""
+    for node in _top_level(tree.body):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            if not node.name.startswith("_"):
+                yield node.name, node, False
+        elif isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+            for member in _top_level(node.body):
+                if isinstance(member, ast.FunctionDef | ast.AsyncFunctionDef) \
+                        and not member.name.startswith("_"):
+                    yield f"{node.name}.{member.name}", member, True
+
+
+def _yields(node: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
+    """Whether the function itself (not a function nested in it) yields."""
+    stack: list[ast.AST] = list(node.body)
+    while stack:
+        child = stack.pop()
+        if isinstance(child, ast.Yield | ast.YieldFrom):
+            return True
+        if not isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda
+                          | ast.ClassDef):
+            stack.extend(ast.iter_child_nodes(child))
+    return False
+
+
+def sections(docstring: str) -> dict[str, list[str]]:
+    """The numpydoc sections of a docstring: header to the names its entries list (an
+    entry is a line at the header's indent, ``name : type`` or ``a, b : type``)."""
+    found: dict[str, list[str]] = {}
+    headers = list(_HEADER.finditer(docstring))
+    ends = [header.start() for header in headers[1:]] + [len(docstring)] * bool(headers)
+    for header, end in zip(headers, ends, strict=True):
+        indent = header.group("indent")
+        body = docstring[header.end():end]
+        names = []
+        for line in body.splitlines():
+            if line.strip() and line.startswith(indent) and not line[len(indent)].isspace():
+                names.extend(name.strip() for name in line.split(" : ")[0].split(","))
+        found[header.group("name")] = names
+    return found
+
+
+def problems(source: str) -> list[str]:
+    """What each public function and method of a module's source lacks."""
+    found = []
+    for name, node, method in _public_functions(ast.parse(source)):
+        decorators = _decorator_names(node)
+        if decorators & _DECORATORS_WITHOUT_SECTIONS:
+            continue
+        docstring = ast.get_docstring(node) or ""
+        documented = sections(docstring)
+        arguments = node.args
+        parameters = [*arguments.posonlyargs, *arguments.args]
+        if method and "staticmethod" not in decorators:
+            parameters = parameters[1:]  # self or cls
+        names = [parameter.arg for parameter in [*parameters, *arguments.kwonlyargs]]
+        if arguments.vararg:
+            names.append(f"*{arguments.vararg.arg}")
+        if arguments.kwarg:
+            names.append(f"**{arguments.kwarg.arg}")
+        listed = {entry.lstrip("*") for entry in documented.get("Parameters", [])}
+        missing = [parameter for parameter in names if parameter.lstrip("*") not in listed]
+        if missing:
+            found.append(f"{name}: Parameters lacks {', '.join(missing)}")
+        returns = ast.unparse(node.returns) if node.returns else "None"
+        if _yields(node):
+            if "Yields" not in documented:
+                found.append(f"{name}: no Yields section")
+        elif returns not in {"None", "NoReturn", "Never"} and "Returns" not in documented:
+            found.append(f"{name}: no Returns section (returns {returns})")
+    return found
+
+
+def _checked() -> list[Path]:
+    return [path for path in _public_modules()
+            if _relative(path) not in RESTRUCTURED | GENERATED | PENDING]
+
+
+@pytest.mark.parametrize("path", _checked(), ids=_relative)
+def test_public_functions_document_parameters_and_results(path: Path) -> None:
+    assert problems(path.read_text(encoding="utf-8")) == []
+
+
+@pytest.mark.parametrize("name", sorted(PENDING))
+def test_a_pending_module_is_still_pending(name: str) -> None:
+    assert problems((PACKAGE / name).read_text(encoding="utf-8")), \
+        f"{name} documents every function now: take it off PENDING and pyproject.toml"
+
+
+def test_the_ruff_exceptions_are_the_same_modules() -> None:
+    """pyproject.toml lets exactly these modules go without the pydoclint rules."""
+    config = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))
+    ignores = config["tool"]["ruff"]["lint"]["per-file-ignores"]
+    without = {key.removeprefix("tango_aio/") for key, rules in ignores.items()
+               if key.startswith("tango_aio/") and "DOC" in rules}
+    assert without == RESTRUCTURED | GENERATED | PENDING
+
+
+def test_the_check_finds_what_is_missing() -> None:
+    source = '''
+def move(axis: str, target: float, *, wait: bool = True) -> float:
+    """Move.
+
+    Parameters
+    ----------
+    axis : str
+        The axis.
+    target
+        Where to.
+    """
+
+
+class Stage:
+    def read(self, *names: str) -> Iterator[float]:
+        """Read.
+
+        Parameters
+        ----------
+        *names
+            Which.
+        """
+        yield 1.0
+
+    @property
+    def position(self) -> float:
+        """The position."""
+
+    def _private(self, x: int) -> int:
+        """Not checked."""
+'''
+    assert problems(source) == [
+        "move: Parameters lacks wait",
+        "move: no Returns section (returns float)",
+        "Stage.read: no Yields section",
+    ]
+    assert sections("Summary.\n\nReturns\n-------\nfloat\n    The value.\n") \
+        == {"Returns": ["float"]}
