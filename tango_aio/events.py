@@ -186,7 +186,18 @@ class EventHub:
         return len(self._subscribers)
 
     def subscribe(self, maxsize: int = 256) -> Subscription:
-        """A new subscription buffering up to ``maxsize`` events."""
+        """A new subscription buffering up to ``maxsize`` events.
+
+        Parameters
+        ----------
+        maxsize
+            How many events the subscription holds before it drops the oldest.
+
+        Returns
+        -------
+        Subscription
+            The new subscription.
+        """
         subscription = Subscription(self, maxsize)
         if self._closed:
             subscription.end()
@@ -196,7 +207,13 @@ class EventHub:
         return subscription
 
     def publish(self, event: TangoEvent) -> None:
-        """Deliver ``event`` to every subscriber (never blocks)."""
+        """Deliver ``event`` to every subscriber (never blocks).
+
+        Parameters
+        ----------
+        event
+            The event.
+        """
         for subscription in list(self._subscribers.values()):
             subscription.offer(event)
 
