@@ -32,11 +32,11 @@ PENDING: set[str] = {
     "cli.py", "coalesce.py", "discovery.py",
     "epics/access.py", "epics/autosave.py", "epics/command.py", "epics/ioc.py",
     "epics/record.py", "fdlink.py", "flow.py", "instructions.py",
-    "patterns.py", "portlink.py", "probe.py", "reconnect.py", "replay.py", "replyrules.py",
+    "patterns.py", "portlink.py", "probe.py", "reconnect.py", "replyrules.py",
     "schema.py", "sim/clock.py", "sim/handlers.py", "sim/inprocess.py", "sim/lists.py",
     "sim/model.py", "sim/motion.py", "sim/params.py", "sim/peripherals.py", "sim/profiles.py",
     "sim/ptyserve.py", "sim/serve.py", "sim/state.py", "sim/wire.py", "state.py", "status.py",
-    "stream.py", "testing.py", "threadlink.py", "trace.py",
+    "stream.py", "threadlink.py",
 }
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
