@@ -32,7 +32,7 @@ PENDING: set[str] = {
     "cli.py", "coalesce.py", "discovery.py",
     "epics/access.py", "epics/autosave.py", "epics/command.py", "epics/ioc.py",
     "epics/record.py", "fdlink.py", "flow.py", "instructions.py",
-    "patterns.py", "portlink.py", "probe.py", "reconnect.py", "replyrules.py",
+    "patterns.py", "portlink.py", "reconnect.py", "replyrules.py",
     "schema.py", "sim/clock.py", "sim/handlers.py", "sim/inprocess.py", "sim/lists.py",
     "sim/model.py", "sim/motion.py", "sim/params.py", "sim/peripherals.py", "sim/profiles.py",
     "sim/ptyserve.py", "sim/serve.py", "sim/state.py", "sim/wire.py", "state.py", "status.py",
