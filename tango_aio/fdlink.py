@@ -66,9 +66,23 @@ class FdTransport(PortTransport):
             self._loop.add_reader(self._fd, self._read_ready)
 
     def get_write_buffer_size(self) -> int:
+        """The bytes written but not yet handed to the file descriptor.
+
+        Returns
+        -------
+        int
+            Their number.
+        """
         return len(self._buffer)
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
+        """Write ``data`` to the file descriptor, buffering what it does not take now.
+
+        Parameters
+        ----------
+        data
+            The bytes (ignored once the transport is closing).
+        """
         if self._closing or not data:
             return
         if self._buffer:

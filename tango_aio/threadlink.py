@@ -108,9 +108,23 @@ class ThreadTransport(PortTransport):
             self._protocol.data_received(data)
 
     def get_write_buffer_size(self) -> int:
+        """The bytes written but not yet written to the port by its thread.
+
+        Returns
+        -------
+        int
+            Their number.
+        """
         return self._pending
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
+        """Hand ``data`` to the port's writer thread (never blocks).
+
+        Parameters
+        ----------
+        data
+            The bytes (ignored once the transport is closing).
+        """
         if self._closing or not data:
             return
         self._pending += len(data)
