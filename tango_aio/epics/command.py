@@ -163,23 +163,7 @@ def _environment(interfaces: list[str], port: int | None) -> None:
 async def run_ioc(args: argparse.Namespace) -> int:
     """Serve TANGO controllers over EPICS Channel Access: one motor record per axis
     (PREFIX X, Y, Z, A) and controller PVs (PREFIX CONNECTED, ERROR, AUTOSTATUS,
-    TRIGCOUNT). Runs until interrupted; moves this IOC started are stopped on exit.
-
-    Parameters
-    ----------
-    args
-        The parsed command line.
-
-    Returns
-    -------
-    int
-        The exit status.
-
-    Raises
-    ------
-    CancelledError
-        Cancelled other than by SIGTERM (Ctrl+C).
-    """
+    TRIGCOUNT). Runs until interrupted; moves this IOC started are stopped on exit."""  # noqa: DOC201, DOC501 - the ioc command's --help text, no sections
     controllers = parse_controllers(args.url, args.controller)
     policy = AccessPolicy.build(read_only=args.read_only, hosts=args.allow_host,
                                 users=args.allow_user)
