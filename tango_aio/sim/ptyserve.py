@@ -169,5 +169,19 @@ async def serve_pty(factory: HandlerFactory, config: WireConfig | None = None, *
 
     ``speed``: the controller runs that many times as fast as the host's clock
     (:mod:`tango_aio.sim.clock`); the wire keeps its timing.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
+    config
+        The wire's configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+
+    Returns
+    -------
+    PtyServer
+        The running server.
     """
     return PtyServer(Wire(scaled_factory(factory, speed), config))
