@@ -30,11 +30,6 @@ GENERATED = {"_catalog.py"}
 #: line and returns the reply lines (``None``: no reply), as these modules' docstrings say
 #: once for all of them; the sections would repeat that on every handler.
 HANDLER_MODULES = {"sim/handlers.py", "sim/peripherals.py"}
-#: sections pending: not yet written (each still has a function without them; the test
-#: below fails when one is finished, so that it leaves this list).
-PENDING: set[str] = {
-    "sim/motion.py",
-}
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
                      re.MULTILINE)
@@ -168,7 +163,7 @@ def problems(source: str, *, handlers: bool = False) -> list[str]:
 
 def _checked() -> list[Path]:
     return [path for path in _public_modules()
-            if _relative(path) not in RESTRUCTURED | GENERATED | PENDING]
+            if _relative(path) not in RESTRUCTURED | GENERATED]
 
 
 @pytest.mark.parametrize("path", _checked(), ids=_relative)
@@ -177,19 +172,13 @@ def test_public_functions_document_parameters_and_results(path: Path) -> None:
     assert problems(path.read_text(encoding="utf-8"), handlers=handlers) == []
 
 
-@pytest.mark.parametrize("name", sorted(PENDING))
-def test_a_pending_module_is_still_pending(name: str) -> None:
-    assert problems((PACKAGE / name).read_text(encoding="utf-8")), \
-        f"{name} documents every function now: take it off PENDING and pyproject.toml"
-
-
 def test_the_ruff_exceptions_are_the_same_modules() -> None:
     """pyproject.toml lets exactly these modules go without the pydoclint rules."""
     config = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))
     ignores = config["tool"]["ruff"]["lint"]["per-file-ignores"]
     without = {key.removeprefix("tango_aio/") for key, rules in ignores.items()
                if key.startswith("tango_aio/") and "DOC" in rules}
-    assert without == RESTRUCTURED | GENERATED | PENDING
+    assert without == RESTRUCTURED | GENERATED
 
 
 def test_the_check_finds_what_is_missing() -> None:
