@@ -2093,16 +2093,22 @@ def fly_raster(stage: MarzhauserStage, flyer: MarzhauserFlyer,
         The stage whose axes fly.
     flyer
         The stage's flyer (the trigger output).
-    fast_start, fast_stop
-        The first and last trigger position of the fast axis.
+    fast_start
+        The first trigger position of the fast axis.
+    fast_stop
+        The last trigger position of the fast axis.
     fast_num
         Triggers per row (at least 1).
-    slow_start, slow_stop
-        The first and last row position of the slow axis.
+    slow_start
+        The first row position of the slow axis.
+    slow_stop
+        The last row position of the slow axis.
     slow_num
         Number of rows (at least 1).
-    fast, slow
-        The letters of the fast and the slow axis.
+    fast
+        The letter of the fast axis.
+    slow
+        The letter of the slow axis.
     run_up
         Distance (EGU, positive) before the first and after the last trigger position.
     snake

@@ -529,9 +529,11 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     url
         A serial device (``/dev/ttyUSB0``, ``COM3``), a pyserial URL, ``socket://host:port``
         or ``sim://`` (see the module).
-    baudrate, rtscts
-        For serial ports (57600, False), which are opened exclusively (a second open of the
-        same port fails).
+    baudrate
+        The baud rate of a serial port (57600). Serial ports are opened exclusively (a
+        second open of the same port fails).
+    rtscts
+        RTS/CTS handshake on a serial port (False).
     autostatus
         The autostatus mode to select (1; ``None`` keeps the controller's mode).
     identify
@@ -539,11 +541,18 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     reply_timeout
         Seconds (5.0): a request unanswered for that long raises ControllerTimeoutError
         after the stream was resynchronised.
-    credit_limit, marker_chunk
-        Flow control: at most ``credit_limit`` (255) bytes written but not yet processed,
-        and ``marker_chunk`` (160) reply-less bytes between ``err`` markers.
-    reconnect, reconnect_initial, reconnect_max, reconnect_attempts
-        Automatic reconnect (False, 0.1 s, 5.0 s, ``None``), described above.
+    credit_limit
+        Flow control: at most this many bytes (255) written but not yet processed.
+    marker_chunk
+        Flow control: at most this many reply-less bytes (160) between ``err`` markers.
+    reconnect
+        Reconnect automatically after a link loss (False), described above.
+    reconnect_initial
+        Seconds to wait before the first attempt (0.1).
+    reconnect_max
+        The longest wait between two attempts, in seconds (5.0).
+    reconnect_attempts
+        The most attempts after a loss (``None``: until the controller is closed).
     units
         The physical unit of positions for the whole connection (``"mm"``, ``"um"``, ...;
         see :mod:`tango_aio.units`; ``None``: the controller's ``dim`` unit); velocities

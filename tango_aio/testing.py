@@ -308,8 +308,12 @@ async def open_emulated(*, profile: str = "manual", axes: int = 3, speed: str = 
 
     Parameters
     ----------
-    profile, axes, speed
-        The emulator's options, as for :func:`emulator_url`.
+    profile
+        The firmware profile (see :func:`emulator_url`).
+    axes
+        The number of axes (1-4).
+    speed
+        One of :data:`SPEEDS`.
     **connect_options
         Options of :func:`tango_aio.connect`.
 
