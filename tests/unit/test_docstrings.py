@@ -109,7 +109,7 @@ def sections(docstring: str) -> dict[str, list[str]]:
     for header, end in zip(headers, ends, strict=True):
         indent = header.group("indent")
         body = docstring[header.end():end]
-        names = []
+        names: list[str] = []
         for line in body.splitlines():
             if line.strip() and line.startswith(indent) and not line[len(indent)].isspace():
                 names.extend(name.strip() for name in line.split(" : ")[0].split(","))
