@@ -187,6 +187,19 @@ class StageLink:
     (the progress of ``set()``); while idle, nothing is polled: the readbacks follow the
     driver's events (a move, calibration or abort of any caller of the same controller
     ends: one ``?pos``; a position update: published as it is).
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    axes
+        The stage's axis letters (``"xy"``).
+    options
+        Options of :func:`tango_aio.connect`.
+    window
+        The longest wait of the move coalescer for announced sets, in seconds.
+    progress_interval
+        Seconds between two position reads while a move runs.
     """
 
     def __init__(self, url: str, axes: str, options: dict[str, Any], *,
@@ -1129,7 +1142,17 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
                      StandardFlyable[FlyMotorInfo, _FlyCtx], Pausable):
     """One axis of a :class:`MarzhauserStage` (created by the stage), with the signals
     and methods of ophyd-async's ``epics.motor.Motor`` that the controller can back
-    (the how-to ``docs/howto/bluesky.md`` has the table)."""
+    (the how-to ``docs/howto/bluesky.md`` has the table).
+
+    Parameters
+    ----------
+    link
+        The stage's link.
+    axis
+        The axis letter.
+    name
+        The device name (the stage names its children).
+    """
 
     # What ophyd-async's default_mock_class decorator sets (a plain attribute, so that the
     # docs build, which mocks ophyd_async, still sees the class).
@@ -1558,6 +1581,26 @@ class MarzhauserStage(StandardReadable):
     how often positions are polled while a move runs. ``stage.x``, ``stage.y``... (or
     ``stage.axis("x")``) are the :class:`MarzhauserAxis` children; ``read()`` reads them
     all. Close with ``await stage.aclose()`` (or the :func:`close_stage` plan stub).
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    axes
+        The axis letters, distinct, of ``xyza``.
+    name
+        The device name.
+    window
+        The longest wait for sets announced together, in seconds.
+    progress_interval
+        Seconds between two position reads while a move runs.
+    **connect_options
+        Options of :func:`tango_aio.connect`.
+
+    Raises
+    ------
+    ValueError
+        ``axes`` are not distinct axis letters.
     """
 
     x: MarzhauserAxis
@@ -1929,6 +1972,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     controller records no capture time, so these events carry the time the driver read
     the snapshot array, and their data keys say so). ``stop()`` stops a running pass (its
     axis alone, ``a x``) and disables the trigger output.
+
+    Parameters
+    ----------
+    stage
+        The stage whose axes fly.
+    name
+        The device name.
     """
 
     def __init__(self, stage: MarzhauserStage, name: str = "flyer") -> None:

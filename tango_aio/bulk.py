@@ -97,7 +97,13 @@ class ListSpec:
 class Column(Sequence[Sequence[float]]):
     """A list of numbers seen as rows of one value each, without a list per row: an
     upload keeps its rows until each chunk is made, and one object per entry made a
-    64-link upload's full garbage collections long."""
+    64-link upload's full garbage collections long.
+
+    Parameters
+    ----------
+    values
+        The numbers, one per row.
+    """
 
     def __init__(self, values: list[float]) -> None:
         self._values = values
@@ -292,7 +298,17 @@ def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float]
 
 
 class ListTransfer:
-    """Pipelined list uploads and downloads on one protocol."""
+    """Pipelined list uploads and downloads on one protocol.
+
+    Parameters
+    ----------
+    protocol
+        The link's protocol.
+    reply_timeout
+        Seconds to wait for each reply.
+    lock
+        The lock held for a whole transfer; ``None`` for a new one.
+    """
 
     def __init__(self, protocol: TangoProtocol, reply_timeout: float = 5.0,
                  lock: asyncio.Lock | None = None) -> None:

@@ -877,6 +877,15 @@ class Shell:
     report comes, and on leaving: a move still running then is stopped and counts as
     failed) or, for a ``script``, when a line failed (invalid, rejected by the
     controller, an error); else 0.
+
+    Parameters
+    ----------
+    tango
+        The connected controller.
+    reader
+        Where the input lines come from.
+    script
+        The input is piped (a failed line makes the exit status 1).
     """
 
     def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False

@@ -88,7 +88,23 @@ class _Batch:
 
 class MoveCoalescer:
     """Merges moves of different axes of one Controller that arrive within `window`
-    seconds into one `move_to` (one `!moa` line)."""
+    seconds into one `move_to` (one `!moa` line).
+
+    Parameters
+    ----------
+    controller
+        The controller whose moves are merged.
+    window
+        Seconds to collect moves (``collect="window"``), or the longest wait for announced
+        ones (``"announced"``).
+    collect
+        ``"window"`` or ``"announced"`` (see :meth:`announce`).
+
+    Raises
+    ------
+    ValueError
+        ``window`` is not a finite number >= 0, or ``collect`` is unknown.
+    """
 
     def __init__(self, controller: Controller, *, window: float = 0.02,
                  collect: str = "window") -> None:

@@ -428,7 +428,15 @@ class Connecting(collections.abc.Coroutine[Any, Any, Controller]):
     """What :func:`connect` returns: await it, use it with ``async with``, or hand it to
     anything that takes a coroutine (``asyncio.run(tango_aio.connect(url))``,
     ``asyncio.create_task``): it is one, created lazily, so a ``Connecting`` that is never
-    awaited opens nothing and warns about nothing."""
+    awaited opens nothing and warns about nothing.
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    options
+        The checked options.
+    """
 
     def __init__(self, url: str, options: ConnectOptions) -> None:
         self.url = url

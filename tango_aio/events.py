@@ -138,6 +138,13 @@ class Subscription(BoundedStream[TangoEvent]):
     or iterate directly and call :meth:`aclose` when done. A subscription nobody refers to
     any more (``async for event in tango.events(): return``) is unregistered by itself:
     the hub only holds weak references, so forgetting to close one leaks nothing.
+
+    Parameters
+    ----------
+    hub
+        The hub it subscribes to.
+    maxsize
+        How many events it holds before it drops the oldest.
     """
 
     def __init__(self, hub: EventHub, maxsize: int) -> None:

@@ -42,7 +42,17 @@ log = logging.getLogger("tango_aio.fdlink")
 #: Bytes taken per read (a 256-byte input buffer on the controller; replies are short).
 READ_SIZE = 4096
 class FdTransport(PortTransport):
-    """An open pyserial port's descriptor as a transport (see the module docstring)."""
+    """An open pyserial port's descriptor as a transport (see the module docstring).
+
+    Parameters
+    ----------
+    loop
+        The event loop.
+    protocol
+        The protocol the received bytes go to.
+    port
+        The open pyserial port.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:

@@ -50,7 +50,20 @@ class _Written:
 
 
 class CreditWindow:
-    """Counts outstanding bytes and says when a marker is needed."""
+    """Counts outstanding bytes and says when a marker is needed.
+
+    Parameters
+    ----------
+    limit
+        The most bytes outstanding.
+    chunk
+        The most reply-less bytes between two markers (capped to fit ``limit``).
+
+    Raises
+    ------
+    ValueError
+        ``limit`` leaves no room for a marker.
+    """
 
     def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK) -> None:
         if limit < len(MARKER) + 1:

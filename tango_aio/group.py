@@ -92,6 +92,17 @@ class GroupError(ExceptionGroup[Exception]):
     its controller. ``failures`` maps controller name → exception, ``results`` maps the
     name of each member that succeeded to what it returned, and ``cancelled`` names the
     members whose operation was cancelled because of ``fail_fast``.
+
+    Parameters
+    ----------
+    message
+        The message.
+    failures
+        The exception of each failed member, by name.
+    results
+        The result of each member that succeeded, by name.
+    cancelled
+        The members cancelled because of ``fail_fast``.
     """
 
     failures: dict[str, Exception]
@@ -157,6 +168,13 @@ class GroupSubscription(BoundedStream[GroupEvent]):
 
     Each member's events are moved over by a small asyncio task owned by the
     subscription (cancelled by :meth:`close`).
+
+    Parameters
+    ----------
+    members
+        The subscription of each member, by name.
+    maxsize
+        How many events it holds before it drops the oldest.
     """
 
     def __init__(self, members: Mapping[str, Subscription], maxsize: int) -> None:
@@ -226,6 +244,18 @@ class ControllerGroup(Mapping[str, Controller]):
     (``group["stage"]``, ``for name in group``, ``group.items()``); controllers are
     available while the group is open. See the module documentation for the failure
     policy shared by all operations.
+
+    Parameters
+    ----------
+    controllers
+        A URL, or ``(url, options)``, by member name.
+    **options
+        Options of :func:`~tango_aio.connect` for every member.
+
+    Raises
+    ------
+    ValueError
+        A member name is not a non-empty string.
     """
 
     def __init__(self, controllers: Mapping[str, ControllerSpec], **options: Any) -> None:

@@ -34,7 +34,17 @@ CLOSE_DRAIN = 2.0
 
 class PortTransport(asyncio.Transport):
     """An open pyserial port as a transport: the part both serial transports share (see
-    the module docstring). Subclasses do the reading and writing."""
+    the module docstring). Subclasses do the reading and writing.
+
+    Parameters
+    ----------
+    loop
+        The event loop.
+    protocol
+        The protocol the received bytes go to.
+    port
+        The open pyserial port.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:

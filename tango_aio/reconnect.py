@@ -206,6 +206,13 @@ class Reconnector(Generic[StagedT]):
     It is armed (:meth:`arm`) once the controller's first set-up has succeeded: a first
     connect that fails just raises. :meth:`start` begins an outage's attempts; the owner
     stops them with :meth:`stop` (``aclose``).
+
+    Parameters
+    ----------
+    reconnect
+        How to open and set up the link again.
+    port
+        What the controller offers the reconnector.
     """
 
     def __init__(self, reconnect: Reconnect, port: ReconnectPort[StagedT]) -> None:

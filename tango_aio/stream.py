@@ -49,7 +49,13 @@ def check_maxsize(maxsize: object) -> int:
 
 class BoundedStream(Generic[T]):
     """An async-iterable buffer of at most ``maxsize`` items that drops its oldest item
-    on overflow (see the module documentation)."""
+    on overflow (see the module documentation).
+
+    Parameters
+    ----------
+    maxsize
+        The most items held.
+    """
 
     def __init__(self, maxsize: int) -> None:
         self._maxsize = check_maxsize(maxsize)

@@ -689,7 +689,15 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
     """Several controllers driven concurrently, blocking: the twin of
     :class:`tango_aio.ControllerGroup` (same arguments and methods). Opened by the
     constructor; close it with ``close()`` or use it as a context manager. Members are
-    blocking :class:`Controller` objects on the group's thread."""
+    blocking :class:`Controller` objects on the group's thread.
+
+    Parameters
+    ----------
+    controllers
+        A URL, or ``(url, options)``, by member name.
+    **options
+        Options of :func:`tango_aio.connect` for every member.
+    """
 
     def __init__(self, controllers: Mapping[str, ControllerSpec], **options: Any) -> None:
         portal = Portal()

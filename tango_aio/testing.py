@@ -124,6 +124,13 @@ class Faults:
     Each method acts on the link the controller uses at the moment of the call (a
     reconnect opens a new one). Call it from the event loop the controller runs on (for a
     :class:`tango_aio.sync.Controller` use :attr:`EmulatedSync.faults`, which does that).
+
+    Parameters
+    ----------
+    controller
+        The emulated controller.
+    run
+        Runs a call on the controller's event loop; ``None`` to call directly.
     """
 
     def __init__(self, controller: Controller,

@@ -69,7 +69,17 @@ class ThreadTransport(PortTransport):
     """An open pyserial port as a transport, through a reader and a writer thread (see
     the module docstring). ``port`` is any object with pyserial's blocking ``Serial``
     interface: ``read``, ``write``, ``in_waiting``, ``timeout``, ``close``, and optionally
-    ``cancel_read``/``cancel_write``."""
+    ``cancel_read``/``cancel_write``.
+
+    Parameters
+    ----------
+    loop
+        The event loop.
+    protocol
+        The protocol the received bytes go to.
+    port
+        The open port (pyserial's blocking interface).
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:

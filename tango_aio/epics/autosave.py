@@ -24,7 +24,13 @@ SAVED = ("DLLM", "DHLM", "OFF", "VMAX", "VELO")
 
 
 class Autosave:
-    """The autosave file of one IOC: :meth:`load` at start, :meth:`store` after a put."""
+    """The autosave file of one IOC: :meth:`load` at start, :meth:`store` after a put.
+
+    Parameters
+    ----------
+    path
+        The autosave file.
+    """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)

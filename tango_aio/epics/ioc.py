@@ -156,6 +156,11 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
     Registered under its own record type name, so caproto's plain ``motor`` record is left
     alone; RTYP still reads ``motor``. (A field's handler can only be replaced by declaring
     the field again in a subclass.) Fields not in :data:`WRITABLE` refuse writes.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        caproto's arguments of a record's fields.
     """
 
     _record_type = "tango_motor"
@@ -239,7 +244,15 @@ async def _put_val(group: AxisGroup, instance: Any, value: float) -> float:
 
 
 class AxisGroup(PVGroup):  # type: ignore[misc]
-    """One motor record (the PV is the group's prefix, e.g. ``P:X``)."""
+    """One motor record (the PV is the group's prefix, e.g. ``P:X``).
+
+    Parameters
+    ----------
+    prefix
+        The record's PV name.
+    axis
+        The axis it drives.
+    """
 
     motor = pvproperty(name="", value=0.0, record="tango_motor", precision=4,
                        doc="TANGO axis", put=_put_val)
@@ -283,6 +296,13 @@ class AxisServer:
     STOP and SPMG Stop/Pause stop the running request and drop the waiting one. Every
     request carries a number (:attr:`_request`); one that is no longer the newest when
     its turn comes fails without moving.
+
+    Parameters
+    ----------
+    server
+        The controller's server.
+    letter
+        The axis letter.
     """
 
     def __init__(self, server: ControllerServer, letter: str) -> None:
@@ -980,7 +1000,24 @@ class AxisServer:
 
 
 class ControllerServer:
-    """The PVs of one controller: its axes and controller PVs, and the poller."""
+    """The PVs of one controller: its axes and controller PVs, and the poller.
+
+    Parameters
+    ----------
+    controller
+        The connected controller.
+    prefix
+        The PV prefix of its PVs.
+    poll
+        Seconds between position reads.
+    window
+        The move coalescer's window, in seconds.
+    autosave
+        The autosave file; ``None`` for none.
+    group
+        The controller PVs, if already served (a waiting controller's); ``None`` for new
+        ones.
+    """
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
                  window: float = 0.02, autosave: Autosave | None = None,
@@ -1155,6 +1192,17 @@ class WaitingServer:
     Its controller PVs are served at once (``CONNECTED`` 0, the others INVALID); ``open``
     is tried again every ``retry`` seconds, and once it gives a controller the axes'
     motor records are added and served like those of the others.
+
+    Parameters
+    ----------
+    open_controller
+        Opens the controller.
+    prefix
+        The PV prefix of its PVs.
+    poll, window, autosave
+        As for :class:`ControllerServer`.
+    retry
+        Seconds between two tries.
     """
 
     def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
@@ -1206,7 +1254,17 @@ class WaitingServer:
 
 
 class TangoIoc:
-    """An IOC serving one or more controllers. Build it with :func:`build_ioc`."""
+    """An IOC serving one or more controllers. Build it with :func:`build_ioc`.
+
+    Parameters
+    ----------
+    servers
+        The servers of the connected controllers.
+    policy
+        Who may write.
+    waiting
+        The controllers not reachable yet.
+    """
 
     def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy,
                  waiting: Sequence[WaitingServer] = ()) -> None:

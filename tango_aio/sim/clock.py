@@ -63,7 +63,15 @@ def check_speed(speed: float) -> float:
 
 
 class EmulatorClock:
-    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``."""
+    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``.
+
+    Parameters
+    ----------
+    speed
+        Emulator seconds per host second (finite, > 0).
+    origin
+        The instant where both clocks agree.
+    """
 
     def __init__(self, speed: float, origin: float) -> None:
         self.speed = check_speed(speed)
@@ -114,6 +122,17 @@ class ScaledHandler:
 
     Build it on the host clock at ``origin`` (default: :func:`host_now` once the logic is
     built, so the logic's own start time is not later than the origin).
+
+    Parameters
+    ----------
+    make_handler
+        Makes the controller logic.
+    emit
+        Where the logic's output goes.
+    speed
+        Emulator seconds per host second.
+    origin
+        The instant where both clocks agree; ``None`` as described above.
     """
 
     def __init__(self, make_handler: HandlerFactory, emit: Emit, speed: float,

@@ -26,7 +26,13 @@ Reply = list[str] | None
 
 
 class Handlers(Peripherals):
-    """The special instructions of one :class:`ControllerModel`."""
+    """The special instructions of one :class:`ControllerModel`.
+
+    Parameters
+    ----------
+    model
+        The emulated controller.
+    """
 
     def __init__(self, model: ControllerModel) -> None:
         self.m = model

@@ -29,7 +29,15 @@ __all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "Trigge
 
 
 class ListError(Exception):
-    """A list operation was refused; ``code`` is the controller error number."""
+    """A list operation was refused; ``code`` is the controller error number.
+
+    Parameters
+    ----------
+    code
+        The controller error number.
+    message
+        What was refused.
+    """
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(message)

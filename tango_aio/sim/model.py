@@ -75,7 +75,15 @@ __all__ = ["ControllerModel", "Refused", "SimConfig"]
 
 
 class Refused(Exception):
-    """An instruction was not executed; ``code`` is the error number to set."""
+    """An instruction was not executed; ``code`` is the error number to set.
+
+    Parameters
+    ----------
+    code
+        The error number.
+    message
+        What was refused; empty for the error's description.
+    """
 
     def __init__(self, code: int, message: str = "") -> None:
         super().__init__(message or ERROR_DESCRIPTIONS.get(code, "error"))
@@ -160,7 +168,18 @@ class _Session:
 
 
 class ControllerModel:
-    """An emulated TANGO controller (the interpreter behind the wire)."""
+    """An emulated TANGO controller (the interpreter behind the wire).
+
+    Parameters
+    ----------
+    emit
+        Where the replies go.
+    config
+        The emulator's configuration; ``None`` for the default.
+    now
+        The start time; ``None`` for the running loop's clock
+        (:func:`~tango_aio.sim.clock.host_now`).
+    """
 
     def __init__(self, emit: Emit, config: SimConfig | None = None,
                  now: float | None = None) -> None:

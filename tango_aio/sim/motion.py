@@ -146,7 +146,15 @@ _P_REPORT = 4
 
 
 class MotionRefused(Exception):
-    """A command was not executed; ``code`` is the controller error number to report."""
+    """A command was not executed; ``code`` is the controller error number to report.
+
+    Parameters
+    ----------
+    code
+        The controller error number.
+    message
+        What was refused.
+    """
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(f"error {code}: {message}")
@@ -723,7 +731,20 @@ class _Action:
 
 
 class MotionModel:
-    """Deterministic virtual-time motion model of a TANGO controller (see module doc)."""
+    """Deterministic virtual-time motion model of a TANGO controller (see module doc).
+
+    Parameters
+    ----------
+    config
+        The axes' configuration; ``None`` for the default.
+    start_time
+        The model's start time.
+
+    Raises
+    ------
+    ValueError
+        The configuration has no 1-4 axes.
+    """
 
     def __init__(self, config: MotionConfig | None = None, *, start_time: float = 0.0) -> None:
         self._config = config if config is not None else MotionConfig()

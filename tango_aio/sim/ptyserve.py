@@ -40,6 +40,11 @@ class PtyServer:
     one session: after a disconnect fault or :meth:`close` the master is closed and the
     host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
     and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`.
+
+    Parameters
+    ----------
+    wire
+        The emulated link.
     """
 
     def __init__(self, wire: Wire) -> None:

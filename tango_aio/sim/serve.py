@@ -91,6 +91,15 @@ class WireRunner:
     ``throttle`` (optional) is called with True when more than :data:`INPUT_QUEUE_LIMIT`
     input bytes wait for the line, and with False once they are down to
     :data:`INPUT_QUEUE_RESUME`: the serving layer stops and resumes reading from the host.
+
+    Parameters
+    ----------
+    wire
+        The wire to drive.
+    write
+        Where the wire's output goes.
+    throttle
+        Called to stop (True) and resume (False) reading from the host.
     """
 
     def __init__(self, wire: Wire, write: Callable[[bytes], None],
@@ -196,6 +205,11 @@ class SharedController:
     * While no connection is attached, the controller runs on (moves finish, timeouts
       expire); whatever it sends meanwhile is lost, as with no host listening. It is
       advanced to the present when the next connection attaches.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
     """
 
     def __init__(self, factory: HandlerFactory) -> None:
@@ -347,6 +361,17 @@ class TcpServer:
 
     With ``shared=False`` every connection gets a fresh power-on controller, and several
     connections may be open at once.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
+    config
+        The wire configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+    shared
+        One controller for every connection, or a fresh one per connection.
     """
 
     def __init__(self, factory: HandlerFactory, config: WireConfig | None = None, *,
@@ -500,6 +525,13 @@ class SimTransport(asyncio.Transport):
     the loop, one call per chunk (so fragmentation is visible). ``close()`` reports
     ``connection_lost(None)``; a disconnect fault reports
     ``connection_lost(ConnectionResetError)``. Extra info: ``"wire"`` and ``"peername"``.
+
+    Parameters
+    ----------
+    protocol
+        The protocol the output goes to.
+    wire
+        The emulated link.
     """
 
     def __init__(self, protocol: asyncio.Protocol, wire: Wire) -> None:

@@ -54,7 +54,15 @@ _LEGACY_KEYS = frozenset({"axes", "global"})
 
 
 class StateFileError(ValueError):
-    """The state file cannot be used: it is not ours, or its content is not valid."""
+    """The state file cannot be used: it is not ours, or its content is not valid.
+
+    Parameters
+    ----------
+    path
+        The file concerned.
+    reason
+        What is wrong with it.
+    """
 
     def __init__(self, path: Path, reason: str) -> None:
         super().__init__(f"state file {path}: {reason}")

@@ -306,6 +306,13 @@ class Wire:
     Use :meth:`feed` for bytes from the host, :meth:`poll` (or :meth:`poll_chunks`) for
     bytes to the host, and :meth:`next_deadline` to know when to call :meth:`poll` next.
     ``now`` must not decrease between calls (a smaller value is treated as the last one).
+
+    Parameters
+    ----------
+    make_handler
+        Makes the controller logic, given the wire's ``emit``.
+    config
+        The timing configuration; ``None`` for the default.
     """
 
     def __init__(self, make_handler: HandlerFactory, config: WireConfig | None = None) -> None:

@@ -75,7 +75,8 @@ def _top_level(body: list[ast.stmt]) -> Iterator[ast.stmt]:
 def _public_functions(
         tree: ast.Module) -> Iterator[tuple[str, ast.FunctionDef | ast.AsyncFunctionDef, bool]]:
     """(qualified name, node, is a method) of each public function and public method of a
-    public class."""
+    public class; a class's ``__init__`` as the class itself (numpydoc documents the
+    constructor's parameters in the class docstring)."""
     for node in _top_level(tree.body):
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
             if not node.name.startswith("_"):
@@ -85,6 +86,14 @@ def _public_functions(
                 if isinstance(member, ast.FunctionDef | ast.AsyncFunctionDef) \
                         and not member.name.startswith("_"):
                     yield f"{node.name}.{member.name}", member, True
+                elif isinstance(member, ast.FunctionDef) and member.name == "__init__":
+                    yield node.name, _constructor(node, member), True
+
+
+def _constructor(cls: ast.ClassDef, init: ast.FunctionDef) -> ast.FunctionDef:
+    """``init`` with the class's docstring, and no result to document."""
+    return ast.FunctionDef(name=init.name, args=init.args, body=[*cls.body[:1], *init.body],
+                           decorator_list=[], returns=None, type_params=[])
 
 
 def _yields(node: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
@@ -215,6 +224,19 @@ class Stage:
 
     def _private(self, x: int) -> int:
         """Not checked."""
+
+
+class Axis:
+    """An axis.
+
+    Parameters
+    ----------
+    letter
+        Its letter.
+    """
+
+    def __init__(self, letter: str, speed: float) -> None:
+        """Not where numpydoc looks."""
 '''
     assert problems(source) == [
         "move: Parameters lacks wait",
@@ -222,6 +244,7 @@ class Stage:
         "Stage.read: no Yields section",
         "Stage.command: Parameters lacks x",
         "Stage.command: no Returns section (returns int)",
+        "Axis: Parameters lacks speed",
     ]
     assert problems(source + "\nHELP = move.__doc__\n") == problems(source)[2:]
     handler = "class Handlers:\n    def i_pos(self, c: Command) -> Reply:\n        ...\n"
