@@ -9,6 +9,7 @@ Read from the source (ast), so that a module needing an optional extra is checke
 from __future__ import annotations
 
 import ast
+import copy
 import re
 import tomllib
 from collections.abc import Iterator
@@ -92,8 +93,11 @@ def _public_functions(
 
 def _constructor(cls: ast.ClassDef, init: ast.FunctionDef) -> ast.FunctionDef:
     """``init`` with the class's docstring, and no result to document."""
-    return ast.FunctionDef(name=init.name, args=init.args, body=[*cls.body[:1], *init.body],
-                           decorator_list=[], returns=None, type_params=[])
+    constructor = copy.copy(init)
+    constructor.body = [*cls.body[:1], *init.body]
+    constructor.decorator_list = []
+    constructor.returns = None
+    return constructor
 
 
 def _yields(node: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
