@@ -40,6 +40,7 @@ import functools
 import inspect
 import os
 import queue
+import re
 import threading
 import time
 import weakref
@@ -344,6 +345,24 @@ class _Blocking(Generic[A, P, R]):
         return self.__get__(obj, type(obj))(*args, **kwargs)
 
 
+def _without_returns(doc: str | None) -> str:
+    """``doc`` dedented, so that its numpydoc sections still parse after the line put
+    before it, and without its Returns section: a ``start_*`` call returns the future.
+
+    Parameters
+    ----------
+    doc
+        The async method's docstring.
+
+    Returns
+    -------
+    str
+        The text to follow that line.
+    """
+    text = inspect.cleandoc(doc or "")
+    return re.sub(r"(?ms)^Returns\n-+\n.*?(?=^\S[^\n]*\n-+\n|\Z)", "", text).rstrip()
+
+
 class _Starter(Generic[A, P, R]):
     """``start_<name>``: start the async method ``method`` and return a future at once."""
 
@@ -351,7 +370,7 @@ class _Starter(Generic[A, P, R]):
         self._method = method
         self.__doc__ = (f"Start :meth:`{method.__name__}` and return at once a "
                         ":class:`concurrent.futures.Future` of its result (cancelling the "
-                        f"future cancels it).\n\n{method.__doc__ or ''}")
+                        f"future cancels it).\n\n{_without_returns(method.__doc__)}")
 
     @overload
     def __get__(self, obj: None, owner: type[Any]) -> _Starter[A, P, R]: ...
