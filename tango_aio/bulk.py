@@ -211,6 +211,11 @@ def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     -------
     list[Command]
         The append commands, in order.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
     """
     return list(_numbered(spec.append(rows)))
 
@@ -230,6 +235,11 @@ def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes
     -------
     list[bytes]
         The append lines, in order.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
     """
     return list(_numbered(spec.encode(rows)))
 
@@ -244,6 +254,11 @@ def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
         The list (which instruction appends, counts and reads).
     rows
         The entries, one sequence of numbers each.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
     """
     for _ in _numbered(spec.check(rows)):
         pass

@@ -727,6 +727,11 @@ def build_rows(
     -------
     Iterator[Command]
         The command of each row, built as it is asked for.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is built).
     """
     return _rows(name, lead, rows, form, context, _RowPlan.build, _same_command)
 
@@ -762,6 +767,11 @@ def encode_rows(
     -------
     Iterator[bytes]
         The line of each row (CR included), made as it is asked for.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is made).
     """
     return _rows(name, lead, rows, form, context, _RowPlan.encode, Command.to_bytes)
 
@@ -800,6 +810,11 @@ def check_rows(
     -------
     Iterator[bool]
         ``True`` per row checked.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is checked).
     """
     return _rows(name, lead, rows, form, context, _RowPlan.passes, _accepted)
 

@@ -583,6 +583,11 @@ class Controller(_Wrapper[AsyncController]):
             Check ``axes`` as distances from the current position, not as targets.
         **axes
             Target (or distance) of each axis, by axis name (``x=1.0``).
+
+        Raises
+        ------
+        InvalidCommandError
+            A target is not valid (see :meth:`tango_aio.Controller.validate_move`).
         """
         self.aio.validate_move(relative=relative, **axes)
 
@@ -687,6 +692,15 @@ def connect(url: str = "sim://", **options: Any) -> Controller:
     -------
     Controller
         The connected blocking controller, with a driver thread of its own.
+
+    Raises
+    ------
+    TypeError
+        An unknown option.
+    ValueError
+        An invalid option or URL, before anything is opened.
+    ConnectError
+        The link cannot be set up (see :func:`tango_aio.connect`).
     """
     connecting = _connection.connect(url, **options)  # checks the options first
     portal = Portal()

@@ -366,6 +366,11 @@ class AxisServer:
         -------
         Any
             The value the field stores.
+
+        Raises
+        ------
+        TangoError
+            The IOC does not carry the value out (the put fails, ECA_PUTFAIL).
         """
         stored = await self._put_field(field, value)
         if field in AUTOSAVED:

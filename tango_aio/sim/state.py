@@ -84,6 +84,13 @@ def load_state(path: Path | None, store: ParamStore) -> None:
         The state file; ``None`` for none.
     store
         The parameters to update.
+
+    Raises
+    ------
+    StateFileError
+        The file is not a valid state file.
+    OSError
+        The file cannot be read.
     """
     if path is None:
         return
