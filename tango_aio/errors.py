@@ -251,7 +251,20 @@ def outcome_unknown(error: TangoError, command: str) -> TangoError:
     """``error`` (raised for the motion line ``command`` after it was written) as the
     :class:`MoveOutcomeUnknown` class of its kind, the same message with what it means
     appended; ``error`` itself if it is of none of those kinds or says so already. Raise
-    the result ``from error``."""
+    the result ``from error``.
+
+    Parameters
+    ----------
+    error
+        What the motion call raised.
+    command
+        The motion line.
+
+    Returns
+    -------
+    TangoError
+        The error to raise.
+    """
     if isinstance(error, MoveOutcomeUnknown):
         return error
     for kind, unknown in _OUTCOME_UNKNOWN:

@@ -50,7 +50,23 @@ MAX_QUIET = 2.0
 
 
 def byte_time(baudrate: int) -> float:
-    """Seconds one byte takes on the line at ``baudrate`` (11 bits, 8N2: L8-10)."""
+    """Seconds one byte takes on the line at ``baudrate`` (11 bits, 8N2: L8-10).
+
+    Parameters
+    ----------
+    baudrate
+        The rate the port is opened with, in Bd.
+
+    Returns
+    -------
+    float
+        Seconds per byte.
+
+    Raises
+    ------
+    ValueError
+        ``baudrate`` is not positive.
+    """
     if baudrate <= 0:
         raise ValueError(f"baudrate must be positive, got {baudrate}")
     return BITS_PER_BYTE / baudrate
@@ -59,7 +75,25 @@ def byte_time(baudrate: int) -> float:
 def quiet_interval(byte_seconds: float, round_trip: float) -> float:
     """Seconds without a byte after which a link is taken as quiet: at least
     :data:`MIN_QUIET`, :data:`QUIET_BYTES` byte times and :data:`QUIET_ROUND_TRIPS`
-    measured round trips, at most :data:`MAX_QUIET` (0 for an unknown value)."""
+    measured round trips, at most :data:`MAX_QUIET`.
+
+    Parameters
+    ----------
+    byte_seconds
+        Seconds one byte takes on the line (0 when the baud rate is not known).
+    round_trip
+        The longest round trip measured, in seconds (0 before any).
+
+    Returns
+    -------
+    float
+        The quiet interval, in seconds.
+
+    Raises
+    ------
+    ValueError
+        A time is negative or not finite.
+    """
     for value in (byte_seconds, round_trip):
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"times must be finite and not negative, got {value}")
@@ -76,7 +110,18 @@ class LinkTiming:
     round_trip: float = 0.0
 
     def observe(self, round_trip: float) -> bool:
-        """Record a measured round trip; whether the quiet interval grew."""
+        """Record a measured round trip.
+
+        Parameters
+        ----------
+        round_trip
+            Seconds from writing an exchange to its first byte back.
+
+        Returns
+        -------
+        bool
+            Whether the quiet interval grew.
+        """
         if not (math.isfinite(round_trip) and round_trip > self.round_trip):
             return False
         before = self.quiet_interval

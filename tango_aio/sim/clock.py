@@ -165,7 +165,13 @@ class ScaledHandler:
         return bool(ask(line)) if ask is not None else False
 
     def reboot(self, now: float) -> None:
-        """Restart the logic as at power-on (if it can), at emulator time."""
+        """Restart the logic as at power-on (if it can), at emulator time.
+
+        Parameters
+        ----------
+        now
+            The wire's (host) time of the restart.
+        """
         restart = getattr(self.handler, "reboot", None)
         if restart is not None:
             restart(self.clock.to_emulator(now))

@@ -587,6 +587,18 @@ class Wire:
         settings from the state file, autostatus 1 (L2069), counters 0; the manual says
         nothing of a power cycle behind a live link: it is what a restart does, L1837-1857).
         Without ``now`` the time is taken from :attr:`clock`, else the last time seen.
+
+        Parameters
+        ----------
+        off
+            Seconds the controller stays off.
+        now
+            When the power goes off.
+
+        Raises
+        ------
+        ValueError
+            ``off`` is negative or not finite.
         """
         if not (math.isfinite(off) and off >= 0.0):
             raise ValueError(f"off must be a finite number of seconds >= 0, got {off!r}")
