@@ -63,10 +63,9 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
-from .motion import describe_stop
 from .probe import add_probe_command
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
-from .timing import moved_axes, position_tolerance
+from .timing import describe_stop, moved_axes, position_tolerance
 
 __all__ = ["main"]
 

@@ -72,18 +72,12 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import (
-    FAILED_LETTERS,
-    STOP_WAIT,
-    Motion,
-    MovePlan,
-    moved_axes,
-    position_tolerance,
-)
+from .motion import STOP_WAIT, Motion, MovePlan
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
-from .status import AxisStatus, axis_statuses
+from .status import FAILED_LETTERS, AxisStatus, axis_statuses
+from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
 from .units import UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
@@ -749,56 +743,43 @@ class Controller:
                     relative: bool, timeout: float | None) -> MovePlan:
         """Targets and timing of a motion line, from where its axes are now (called once
         the previous move has ended)."""
-        s = self._settings
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
-        # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
-        timed = command.name in ("moa", "mor", "m", "moc")
-        delay = s.delay_ms / 1000.0 if timed else 0.0
-        settle = s.settle_ms / 1000.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
-        absolute: dict[str, float] | None = None
-        extend: Callable[[Mapping[str, str]], float] | None = None
-        if command.instruction.completion in (Completion.CAL, Completion.RM):
-            travel, limit = 0.0, 150.0  # caltimeout is at most 120 s per axis (L5251)
-        elif targets is None:  # moc: the distance is not known here
-            travel, limit = 0.0, 120.0
+        reports = self.autostatus != 0
+        timeout = check_timeout(timeout)
+        if targets is None:  # cal, rm, moc: the distance is not known here
+            return MovePlan(command, moved, None,
+                            move_budget(self._settings, command, None, timeout),
+                            reports=reports)
+        # A move_to does not read ?pos first (a whole round trip per move). Its distance is
+        # taken from the positions of the driver's latest state read, as a provisional
+        # budget (motion.py "Timeouts"): a stale one only shifts the first poll and is
+        # extended once from the positions read at its end. What is confirmed does not
+        # depend on it: the target is the caller's, and success needs ?statusaxis and ?pos
+        # read after the move (L2662-2721). A move_by reads the start: its target is start
+        # + distance, and a stale start would make the driver confirm the wrong target:
+        # its ?pos is written right before the line, in the same write (the targets are
+        # added once the reply is in, before the move is confirmed), so it costs bytes but
+        # no round trip. Without a known position (the first move of a connection) the
+        # start is read first.
+        known = None if relative else self._motion.positions
+        if relative and self._motion.positions is not None and self._exact_replies():
+            batch = object()
+            return MovePlan(command, moved, dict(targets),
+                            move_budget(self._settings, command, targets, timeout),
+                            start=self._start_reader(batch), batch=batch, reports=reports)
+        if known is None or not set(targets) <= set(known):
+            known = None
+            start = {a: float(t) for a, t in (await self._position_texts()).items()}
         else:
-            # #19: a move_to does not read ?pos first (a whole round trip per move). Its
-            # distance is taken from the positions of the driver's latest state read, as
-            # a provisional budget (motion.py "Timeouts"): a stale one only shifts the
-            # first poll and is extended once from the positions read at its end. What
-            # is confirmed does not depend on it: the target is the caller's, and success
-            # needs ?statusaxis and ?pos read after the move (L2662-2721). A move_by
-            # reads the start: its target is start + distance, and a stale start would
-            # make the driver confirm the wrong target: its ?pos is written right before
-            # the line, in the same write (the targets are added once the reply is in,
-            # before the move is confirmed), so it costs bytes but no round trip. Without
-            # a known position (the first move of a connection) the start is read first.
-            known = None if relative else self._motion.positions
-            if relative and self._motion.positions is not None and self._exact_replies():
-                batch = object()
-                reader = self._start_reader(batch)
-                travel = max((s.travel(a, abs(float(v))) for a, v in targets.items()),
-                             default=0.0)
-                return MovePlan(command, moved, dict(targets), delay + travel + after,
-                                check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch, delay=delay, settle=settle,
-                                reports=self.autostatus != 0)
-            if known is None or not set(targets) <= set(known):
-                known = None
-                start = {a: float(t) for a, t in (await self._position_texts()).items()}
-            else:
-                start = {a: float(known[a]) for a in targets}
-            absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
-            travel = max((s.travel(a, abs(absolute[a] - start[a])) for a in absolute),
-                         default=0.0)
-            limit = 2.0 * travel + 2.0
-            if known is not None and timeout is None:
-                extend = functools.partial(self._rest_budget, absolute, limit + after)
-        return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
-                        delay=delay, settle=settle, reports=self.autostatus != 0)
+            start = {a: float(known[a]) for a in targets}
+        absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
+        budget = move_budget(self._settings, command,
+                             {a: absolute[a] - start[a] for a in absolute}, timeout)
+        extend: Callable[[Mapping[str, str]], float] | None = None
+        if known is not None and timeout is None:
+            extend = functools.partial(self._rest_budget, absolute, budget)
+        return MovePlan(command, moved, absolute, budget, extend=extend, reports=reports)
 
     def _status_command(self) -> Command:
         """The letters read of a move's confirmation: ``sa``, the alias the 1.71 manual
@@ -836,16 +817,11 @@ class Controller:
 
         return start
 
-    def _rest_budget(self, targets: Mapping[str, float], fallback: float,
+    def _rest_budget(self, targets: Mapping[str, float], budget: Budget,
                      now: Mapping[str, str]) -> float:
         """Seconds a move to ``targets`` may still take from the positions printed
-        ``now`` (the budget rule of :meth:`_plan`: twice the travel, 2 s, pause and
-        settling; ``fallback`` when a position was not read)."""
-        s = self._settings
-        if not set(targets) <= set(now):
-            return fallback
-        travel = max(s.travel(a, abs(t - float(now[a]))) for a, t in targets.items())
-        return 2.0 * travel + 2.0 + (s.pause_ms + s.settle_ms) / 1000.0
+        ``now`` (:func:`~tango_aio.timing.rest_budget` with the settings in force)."""
+        return rest_budget(self._settings, targets, now, budget.fallback)
 
     async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use

@@ -32,13 +32,14 @@ How a move is followed
    ``?statusaxis`` and ``?pos`` (17 out, 28 back on three axes); see
    ``Controller._status_and_positions``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
-   and stands within :func:`position_tolerance` of its target. An axis that stopped
+   and stands within :func:`~tango_aio.timing.position_tolerance` of its target (the
+   verdict is :func:`tango_aio.timing.verdict`). An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
    at once (a limit switch, an abort, a disabled axis: #26), unless the driver knows a
    reason why the read may come too early: a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state until the delay is over,
    and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
-   expected end (:func:`_too_early`).
+   expected end (:func:`tango_aio.timing.too_early`).
 4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
    Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
    driver's stops per axis, and a move that saw the count of one of its axes change
@@ -100,38 +101,18 @@ from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
 from .status import FAILED_LETTERS, MOVING
-from .timing import MoveTiming, moved_axes, position_tolerance, travel_time
+from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
 
-__all__ = [
-    "FAILED_LETTERS",
-    "POLL_MAX",
-    "POLL_MIN",
-    "STOP_WAIT",
-    "Motion",
-    "MotionPort",
-    "MovePlan",
-    "MoveTiming",
-    "describe_stop",
-    "moved_axes",
-    "position_tolerance",
-    "travel_time",
-]
+__all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan"]
 
 log = logging.getLogger("tango_aio")
 
 #: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
 STOP_WAIT = 10.0
 
-#: Letters of a moved axis that end a move at once (:func:`_too_early`): the failure
-#: letters, and ``-`` for an axis that is disabled (L2711).
-_FINAL = FAILED_LETTERS | {"-"}
-
 #: First and longest interval between two state polls once the expected end has passed.
 POLL_MIN = 0.05
 POLL_MAX = 0.5
-
-#: Extra time after the expected end before the first poll (report latency on the wire).
-POLL_GRACE = 0.05
 
 #: A state read that failed but left the link usable (ConnectionLostError is not one).
 _LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
@@ -148,19 +129,13 @@ class MovePlan:
     moved: tuple[str, ...]
     #: Absolute targets to confirm with ``?pos`` (``None``: cal, rm, moc have none).
     targets: Mapping[str, float] | None
-    #: Seconds from writing the line to its expected end (delay + travel + pause).
-    expected: float
-    #: Seconds from writing the line before the move is given up (timeout).
-    limit: float
+    #: How long the line may take (:func:`~tango_aio.timing.move_budget`): its expected
+    #: end, its limit, its ``!delay`` (until then a stopped axis may be one that has not
+    #: started yet) and its closed-loop settling (until the expected end an axis near its
+    #: target may still be settling).
+    budget: Budget
     #: Position tolerance per moved axis (``targets`` only).
     tolerance: Mapping[str, float] = field(default_factory=dict)
-    #: Seconds the controller holds the move back before it starts (``!delay``,
-    #: L6845-6868), as the driver knows it: until then a stopped axis may be one that
-    #: has not started yet.
-    delay: float = 0.0
-    #: Seconds of closed-loop settling (``ctrt``, L11616-11631): until the expected end,
-    #: an axis near its target may still be settling.
-    settle: float = 0.0
     #: Whether the mode in force sends completion reports (not autostatus 0, L2060-2103):
     #: without them the state is polled every :data:`POLL_MAX` during the move, so that
     #: an early end (a limit switch, an abort) ends the call at once too.
@@ -188,6 +163,16 @@ class MovePlan:
             raise ProtocolError(f"?pos before {self.command.line!r} printed {dict(start)}")
         targets = {a: float(start[a]) + d for a, d in self.targets.items()}
         return replace(self, targets=targets, start=None, batch=None)
+
+    @property
+    def expected(self) -> float:
+        """Seconds from writing the line to its expected end (delay + travel + pause)."""
+        return self.budget.expected
+
+    @property
+    def limit(self) -> float:
+        """Seconds from writing the line before the move is given up (timeout)."""
+        return self.budget.limit
 
     @property
     def kind(self) -> str:
@@ -440,20 +425,21 @@ class Motion:
                     interval = min(interval * 1.5, POLL_MAX)
                 continue
             letters = _with_report(job, letters)
-            verdict = _verdict(plan, letters, texts)
-            if verdict is None:
+            failure = verdict(plan.moved, plan.targets, plan.tolerance, letters, texts)
+            if failure is None:
                 report = job.sent.submission.completion
                 if report is not None and not report.done():
                     log.warning("no completion report for %r; axes at the target, settled "
                                 "by polling ?statusaxis", plan.command.line)
                 self._finished(job, letters, ok=True)
                 return letters
-            wait_until = _too_early(job, letters, now, expected_end)
+            wait_until = too_early(plan.budget, plan.moved, letters, job.checked, now,
+                                   expected_end)
             if wait_until is not None:
                 next_poll = wait_until
                 continue
             self._finished(job, letters, ok=False)
-            raise MoveError(f"{plan.command.line!r} {verdict}", letters)
+            raise MoveError(f"{plan.command.line!r} {failure}", letters)
 
     async def _state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
         """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
@@ -544,86 +530,6 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
-
-
-def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]
-             ) -> str | None:
-    """``None`` if every moved axis ended well, judged from one state read (the letters
-    and the positions read right behind them); else what went wrong, in words (#26):
-    which axis, where it stopped, its target and why."""
-    failed = [a for a in plan.moved if letters.get(a, "-") in FAILED_LETTERS]
-    off = []
-    for axis, target in (plan.targets or {}).items():
-        text = texts.get(axis)
-        if text is None or abs(float(text) - target) > max(
-                position_tolerance(text), plan.tolerance.get(axis, 0.0)):
-            off.append(axis)
-    if not failed and not off:
-        return None
-    bad = [a for a in plan.moved if a in failed or a in off]
-    return "did not end at its target: " + "; ".join(
-        describe_stop(axis, letters.get(axis, "-"), texts.get(axis),
-                      None if plan.targets is None else plan.targets.get(axis))
-        for axis in bad)
-
-
-#: Why an axis stopped, by the letter it reads (L2693-2711).
-_WHY = {
-    "E": "stopped: its move was aborted or not executed (status E)",
-    "T": "timed out (status T)",
-    "-": "is disabled or absent (status -) and did not move",
-}
-
-
-def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
-                  why: str | None = None) -> str:
-    """One axis of a failed move in words: ``"X stopped at its upper limit switch (status
-    S) at 50.05, target 60"``. ``text``: the position as read (``None``: not read);
-    ``why`` overrides what the letter says (e.g. an abort by this program). Which limit
-    switch is told from the direction of travel: an axis that stopped below its target
-    was moving up, towards its upper switch (EE), and the reverse (the manual's letter
-    ``S`` does not say which, L2699)."""
-    name = axis.upper()
-    where = "position not read" if text is None else f"at {text}"
-    aim = "" if target is None else f", target {target:g}"
-    if why is not None:
-        return f"{name} {why}, {where}{aim}"
-    if letter == "S":
-        side = "a limit switch"
-        if text is not None and target is not None and float(text) != target:
-            side = ("its upper limit switch (EE)" if float(text) < target
-                    else "its lower limit switch (E0)")
-        return f"{name} stopped at {side} (status S), {where}{aim}"
-    reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
-    return f"{name} {reason}, {where}{aim}"
-
-
-def _too_early(job: _Job, letters: Mapping[str, str], now: float, expected_end: float
-               ) -> float | None:
-    """When a failed verdict read at ``now`` may not be the move's end: the time to read
-    the state again, else ``None`` (the verdict stands, the move fails now).
-
-    A move that ends at a limit switch, an error or an abort ends the call at once (#26):
-    the state was read after the controller had taken the line (its check came back),
-    so the moved axes are moving or have ended. Only two things the driver knows of let
-    a stopped axis read like that before the move really ended:
-
-    * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
-      (counted from the check, a bound on when the controller took the line);
-    * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
-      target with a letter that does not say it failed (``@``) may still be settling;
-      until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
-      is disabled, L2711: it does not move at all) is final.
-    """
-    plan = job.plan
-    if plan.delay > 0:
-        started_by = job.checked + plan.delay + POLL_GRACE
-        if now < started_by:
-            return started_by
-    failed = any(letters.get(a, "-") in _FINAL for a in plan.moved)
-    if plan.settle > 0 and not failed and now < expected_end:
-        return expected_end + POLL_GRACE
-    return None
 
 
 def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:

@@ -13,11 +13,20 @@ step with every accepted set) and from the geometry of the move:
   acceleration ``accel``. The waits around a move, ``delay`` before it (L6845-6868),
   ``pause`` after it (L6873-6899) and the closed-loop settling ``ctrt`` (L11616-11631),
   are cached with it; the controller adds them to the travel to size a move's budget.
+* :func:`move_budget` sizes one motion line's :class:`Budget`: the expected end (delay,
+  travel, pause and settling) and the limit at which it is given up (twice the travel and
+  :data:`MARGIN`, or the caller's timeout; fixed limits for ``cal``/``rm`` and ``moc``,
+  whose distance is not known); :func:`rest_budget` sizes once more what a move may still
+  take from where its axes stand (a budget sized from stale positions is extended once).
 * :func:`moved_axes` says which axes a motion line moves, so that only those are
   confirmed.
 * :func:`position_tolerance` says how far a printed position may stand from its target
   and still be "at" it: the controller prints positions rounded (L4080-4100), so the
   tolerance follows the printed digits.
+* :func:`verdict` judges one state read (status letters and positions) of a move that
+  stopped: ``None`` if every moved axis ended well, else in words what went wrong
+  (:func:`describe_stop`); :func:`too_early` says when a failed verdict may still be read
+  too early (``!delay``, closed-loop settling) and so does not stand yet.
 
 Everything here is a pure function of its arguments, tested synchronously
 (``tests/unit/test_timing.py``); :mod:`tango_aio.motion` asks it and does the waiting.
@@ -26,16 +35,52 @@ Everything here is a pure function of its arguments, tested synchronously
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-from .instructions import AXES, Command
+from .instructions import AXES, Command, Completion
+from .status import FAILED_LETTERS
 from .units import UnitScale
 
-__all__ = ["UNKNOWN_TRAVEL", "MoveTiming", "moved_axes", "position_tolerance", "travel_time"]
+__all__ = [
+    "CAL_LIMIT",
+    "MARGIN",
+    "MOC_LIMIT",
+    "POLL_GRACE",
+    "UNKNOWN_TRAVEL",
+    "Budget",
+    "MoveTiming",
+    "describe_stop",
+    "move_budget",
+    "moved_axes",
+    "position_tolerance",
+    "rest_budget",
+    "too_early",
+    "travel_time",
+    "verdict",
+]
 
 #: Seconds :func:`travel_time` gives a move whose speed or acceleration is unknown.
 UNKNOWN_TRAVEL = 60.0
+
+#: Seconds a move's limit adds to twice its travel (report latency, a loaded host).
+MARGIN = 2.0
+
+#: Limit (s) of a ``cal`` or ``rm`` line: ``caltimeout`` is at most 120 s per axis (L5251).
+CAL_LIMIT = 150.0
+
+#: Limit (s) of a ``moc`` line, whose distance the driver does not know.
+MOC_LIMIT = 120.0
+
+#: Extra time after the expected end before the state is read (report latency on the wire).
+POLL_GRACE = 0.05
+
+#: The lines ``!delay`` and ``!pause`` apply to (L6856, L6887).
+_DELAYED = frozenset({"moa", "mor", "m", "moc"})
+
+#: Letters of a moved axis that end a move at once (:func:`too_early`): the failure
+#: letters, and ``-`` for an axis that is disabled (L2711).
+_FINAL = FAILED_LETTERS | {"-"}
 
 
 @dataclass(slots=True)
@@ -93,3 +138,147 @@ def position_tolerance(text: str) -> float:
     L4080-4100; a ``move_by`` target carries the rounding of the start position too)."""
     digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
     return 1.5 * 10.0 ** -digits
+
+
+@dataclass(frozen=True, slots=True)
+class Budget:
+    """How long one motion line may take, in seconds counted from writing it."""
+
+    #: ``!delay`` before the move starts (L6845-6868).
+    delay: float
+    #: The travel itself (the slowest moved axis, trapezoid at the slowest plausible speed).
+    travel: float
+    #: ``!pause`` after the axes arrived (L6873-6899) and closed-loop settling.
+    after: float
+    #: Closed-loop settling (``ctrt``, L11616-11631), part of ``after``.
+    settle: float
+    #: When the move is given up (the caller's timeout, or the computed limit).
+    limit: float
+
+    @property
+    def expected(self) -> float:
+        """When the move should have ended: delay, travel, pause and settling."""
+        return self.delay + self.travel + self.after
+
+    @property
+    def fallback(self) -> float:
+        """What :func:`rest_budget` gives when a position was not read: the limit without
+        the delay (the move has started by then)."""
+        return self.limit - self.delay
+
+
+def _travel(timing: MoveTiming, distances: Mapping[str, float]) -> float:
+    """Seconds the slowest of ``distances`` (per axis, user units) takes."""
+    return max((timing.travel(axis, abs(d)) for axis, d in distances.items()), default=0.0)
+
+
+def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, float] | None,
+                timeout: float | None = None) -> Budget:
+    """The budget of ``command``, which moves its axes by ``distances`` (``None``: not
+    known, ``cal``, ``rm`` and ``moc``); ``timeout`` (the caller's) replaces the limit."""
+    delayed = command.name in _DELAYED
+    delay = timing.delay_ms / 1000.0 if delayed else 0.0
+    settle = timing.settle_ms / 1000.0
+    after = (timing.pause_ms / 1000.0 if delayed else 0.0) + settle
+    if command.instruction.completion in (Completion.CAL, Completion.RM):
+        travel, limit = 0.0, CAL_LIMIT
+    elif distances is None:
+        travel, limit = 0.0, MOC_LIMIT
+    else:
+        travel = _travel(timing, distances)
+        limit = 2.0 * travel + MARGIN
+    return Budget(delay, travel, after, settle, timeout or delay + limit + after)
+
+
+def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[str, str],
+                fallback: float) -> float:
+    """Seconds a move to ``targets`` may still take from the positions printed ``now``
+    (the limit rule of :func:`move_budget` without the delay; ``fallback`` when a position
+    was not read)."""
+    if not set(targets) <= set(now):
+        return fallback
+    travel = _travel(timing, {a: t - float(now[a]) for a, t in targets.items()})
+    return 2.0 * travel + MARGIN + (timing.pause_ms + timing.settle_ms) / 1000.0
+
+
+def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
+            tolerance: Mapping[str, float], letters: Mapping[str, str],
+            texts: Mapping[str, str]) -> str | None:
+    """``None`` if every moved axis ended well, judged from one state read (the
+    ``letters`` and the positions ``texts`` read right behind them); else what went
+    wrong, in words: which axis, where it stopped, its target and why. An axis ended well
+    when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711) and stands within
+    :func:`position_tolerance` (or its ``tolerance``) of its target."""
+    failed = [a for a in moved if letters.get(a, "-") in FAILED_LETTERS]
+    off = []
+    for axis, target in (targets or {}).items():
+        text = texts.get(axis)
+        if text is None or abs(float(text) - target) > max(
+                position_tolerance(text), tolerance.get(axis, 0.0)):
+            off.append(axis)
+    if not failed and not off:
+        return None
+    bad = [a for a in moved if a in failed or a in off]
+    return "did not end at its target: " + "; ".join(
+        describe_stop(axis, letters.get(axis, "-"), texts.get(axis),
+                      None if targets is None else targets.get(axis))
+        for axis in bad)
+
+
+def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
+              checked: float, now: float, expected_end: float) -> float | None:
+    """When a failed verdict read at ``now`` may not be the move's end: the time to read
+    the state again, else ``None`` (the verdict stands, the move fails now). ``checked``:
+    when the line's check came back (the controller had taken the line by then).
+
+    A move that ends at a limit switch, an error or an abort ends the call at once: the
+    state was read after the controller had taken the line, so the moved axes are moving
+    or have ended. Only two things the driver knows of let a stopped axis read like that
+    before the move really ended:
+
+    * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
+      (counted from the check, a bound on when the controller took the line);
+    * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
+      target with a letter that does not say it failed (``@``) may still be settling;
+      until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
+      is disabled, L2711: it does not move at all) is final.
+    """
+    if budget.delay > 0:
+        started_by = checked + budget.delay + POLL_GRACE
+        if now < started_by:
+            return started_by
+    failed = any(letters.get(a, "-") in _FINAL for a in moved)
+    if budget.settle > 0 and not failed and now < expected_end:
+        return expected_end + POLL_GRACE
+    return None
+
+
+#: Why an axis stopped, by the letter it reads (L2693-2711).
+_WHY = {
+    "E": "stopped: its move was aborted or not executed (status E)",
+    "T": "timed out (status T)",
+    "-": "is disabled or absent (status -) and did not move",
+}
+
+
+def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
+                  why: str | None = None) -> str:
+    """One axis of a failed move in words: ``"X stopped at its upper limit switch (status
+    S) at 50.05, target 60"``. ``text``: the position as read (``None``: not read);
+    ``why`` overrides what the letter says (e.g. an abort by this program). Which limit
+    switch is told from the direction of travel: an axis that stopped below its target
+    was moving up, towards its upper switch (EE), and the reverse (the manual's letter
+    ``S`` does not say which, L2699)."""
+    name = axis.upper()
+    where = "position not read" if text is None else f"at {text}"
+    aim = "" if target is None else f", target {target:g}"
+    if why is not None:
+        return f"{name} {why}, {where}{aim}"
+    if letter == "S":
+        side = "a limit switch"
+        if text is not None and target is not None and float(text) != target:
+            side = ("its upper limit switch (EE)" if float(text) < target
+                    else "its lower limit switch (E0)")
+        return f"{name} stopped at {side} (status S), {where}{aim}"
+    reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
+    return f"{name} {reason}, {where}{aim}"
