@@ -10,6 +10,7 @@ from collections.abc import (
     AsyncIterator,
     Awaitable,
     Callable,
+    Coroutine,
     Iterable,
     Iterator,
     Mapping,
@@ -19,7 +20,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from fractions import Fraction
 from types import TracebackType
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from ._checks import check_count, check_timeout
 from .bulk import (
@@ -153,7 +154,8 @@ class Controller:
         self._hub = EventHub()
         #: The cached settings (move timing, validation context): tango_aio.state.
         self._settings = DriverState()
-        self._motion = Motion(_Port(self))
+        self._motion = Motion(_Port(self._start_move, self._accepted, self._stop_all,
+                                    self._read_state, self._hub.publish))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
@@ -170,7 +172,9 @@ class Controller:
         self._closing = False
         #: Reconnects after a loss (``reconnect``), armed once setup() has succeeded.
         self._reconnector: Reconnector[Controller] | None = (
-            None if reconnect is None else Reconnector(reconnect, _Relink(self)))
+            None if reconnect is None else Reconnector(reconnect, _Relink(
+                lambda: self.url, self._signature, self._release_link, self._stage,
+                self._adopt, self._reconnected, self._give_up)))
         #: Set (and replaced) whenever the link goes up or down: wakes wait_connected().
         self._link_event = asyncio.Event()
         #: The physical position unit of this connection (``connect(url, units="mm")``);
@@ -1260,86 +1264,93 @@ class Controller:
             ok = not (set(letters.values()) & FAILED_LETTERS)
             self._hub.publish(MoveFinished(kind, letters, ok))
 
+    # -- what Motion and the Reconnector see (handed over as _Port and _Relink) -------------
 
-class _Port:
-    """The controller as :class:`~tango_aio.motion.Motion` sees it
-    (:class:`~tango_aio.motion.MotionPort`)."""
+    def _start_move(self, command: Command, batch: object | None) -> MoveHandle:
+        return self._send(command, check=True, batch=batch)
 
-    def __init__(self, controller: Controller) -> None:
-        self._c = controller
-
-    @property
-    def reply_timeout(self) -> float:
-        return self._c.reply_timeout
-
-    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
-        return self._c._send(command, check=True, batch=batch)
-
-    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
-        error = await self._c._error_of(sent, timeout)
+    async def _accepted(self, sent: MoveHandle) -> ControllerError | None:
+        error = await self._error_of(sent, self.reply_timeout)
         if error is None:
-            self._c._track(sent.command)
+            self._track(sent.command)
         return error
 
-    async def write_stop(self) -> None:
-        await self._c.protocol.stop_axes(True)
+    async def _stop_all(self) -> None:
+        await self._protocol.stop_axes(True)
 
-    def check_link(self) -> None:
-        self._c.protocol.check()
-
-    async def status(self) -> dict[str, str]:
-        return await self._c.status()
-
-    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
+    async def _read_state(self, axes: Sequence[str]
+                          ) -> tuple[dict[str, str], dict[str, str]]:
+        self._protocol.check()
         # A raster's next move_to follows this read: its ?err probe looks like the
-        # positions, and a separator behind them keeps it off the move's path (#19).
-        return await self._c._status_and_positions(separate_after=True, axes=axes)
+        # positions, and a separator behind them keeps it off the move's path.
+        return await self._status_and_positions(separate_after=True, axes=axes)
 
-    def publish(self, event: object) -> None:
-        self._c._hub.publish(event)  # type: ignore[arg-type]
-
-
-class _Relink:
-    """The controller as its :class:`~tango_aio.reconnect.Reconnector` sees it
-    (:class:`~tango_aio.reconnect.ReconnectPort`)."""
-
-    def __init__(self, controller: Controller) -> None:
-        self._c = controller
-
-    @property
-    def url(self) -> str:
-        return self._c.url
-
-    def signature(self, controller: Controller | None = None) -> Signature | None:
-        identity = (controller or self._c)._identity
+    def _signature(self, controller: Controller | None = None) -> Signature | None:
+        identity = (controller or self)._identity
         return None if identity is None else (identity.model, identity.firmware,
                                               identity.axes)
 
-    async def release_link(self) -> None:
-        closer, self._c._on_close = self._c._on_close, None
+    async def _release_link(self) -> None:
+        closer, self._on_close = self._on_close, None
         if closer is not None:
             await closer()  # e.g. the sim:// emulator of the lost link
 
-    def stage(self, protocol: TangoProtocol, closer: Closer | None) -> Controller:
-        return Controller(protocol, url=self._c.url, reply_timeout=self._c.reply_timeout,
+    def _stage(self, protocol: TangoProtocol, closer: Closer | None) -> Controller:
+        return Controller(protocol, url=self.url, reply_timeout=self.reply_timeout,
                           on_close=closer)
 
-    def adopt(self, staged: Controller, closer: Closer | None) -> None:
-        c = self._c
-        c._protocol = staged._protocol
-        c._protocol.set_callbacks(c._on_protocol_event, c._on_connection_lost)
-        c._settings = staged._settings
-        c._identity = staged._identity or c._identity
-        c._on_close = closer
+    def _adopt(self, staged: Controller, closer: Closer | None) -> None:
+        self._protocol = staged._protocol
+        self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        self._settings = staged._settings
+        self._identity = staged._identity or self._identity
+        self._on_close = closer
 
-    def reconnected(self, attempt: int) -> None:
-        self._c._hub.publish(Reconnected(attempt))
-        self._c._link_changed()
+    def _reconnected(self, attempt: int) -> None:
+        self._hub.publish(Reconnected(attempt))
+        self._link_changed()
 
-    def give_up(self, lost: ConnectionLostError) -> None:
-        self._c._protocol.give_up(lost)
-        self._c._hub.close()
-        self._c._link_changed()
+    def _give_up(self, lost: ConnectionLostError) -> None:
+        self._protocol.give_up(lost)
+        self._hub.close()
+        self._link_changed()
+
+
+@dataclass(frozen=True, slots=True)
+class _Port:
+    """The controller as :class:`~tango_aio.motion.Motion` sees it
+    (:class:`~tango_aio.motion.MotionPort`): the controller's own methods, handed over."""
+
+    start: Callable[[Command, object | None], MoveHandle]
+    accepted: Callable[[MoveHandle], Coroutine[Any, Any, ControllerError | None]]
+    stop: Callable[[], Coroutine[Any, Any, None]]
+    read_state: Callable[[Sequence[str]],
+                         Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]]
+    finished: Callable[[MoveFinished], None]
+
+
+@dataclass(frozen=True, slots=True)
+class _Relink:
+    """The controller as its :class:`~tango_aio.reconnect.Reconnector` sees it
+    (:class:`~tango_aio.reconnect.ReconnectPort`): the controller's own methods, handed
+    over."""
+
+    url_of: Callable[[], str]
+    signature: _SignatureOf
+    release_link: Callable[[], Coroutine[Any, Any, None]]
+    stage: Callable[[TangoProtocol, Closer | None], Controller]
+    adopt: Callable[[Controller, Closer | None], None]
+    reconnected: Callable[[int], None]
+    give_up: Callable[[ConnectionLostError], None]
+
+    @property
+    def url(self) -> str:
+        """The URL that is opened again."""
+        return self.url_of()
+
+
+class _SignatureOf(Protocol):
+    def __call__(self, controller: Controller | None = None) -> Signature | None: ...
 
 
 def _ignore_outcome(future: asyncio.Future[Any]) -> None:

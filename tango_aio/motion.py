@@ -182,43 +182,34 @@ class MovePlan:
 
 
 class MotionPort(Protocol):
-    """What :class:`Motion` needs from the controller facade."""
+    """What :class:`Motion` needs from the controller facade: five intents, each one
+    step of a move (the controller keeps the link, the settings and the subscribers)."""
 
-    @property
-    def reply_timeout(self) -> float:
-        """Seconds to wait for a reply."""
-        ...
-
-    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
+    def start(self, command: Command, batch: object | None) -> MoveHandle:
         """Write a motion line and its check (in ``batch``, see :attr:`MovePlan.batch`);
         return at once."""
         ...
 
-    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
-        """Wait for the check of ``sent``; the controller's error, if it refused it."""
+    async def accepted(self, sent: MoveHandle) -> ControllerError | None:
+        """Wait (up to the reply timeout) for the check of ``sent``: the controller's
+        error if it refused the line, else ``None`` (and the settings the line sets are
+        taken over)."""
         ...
 
-    async def write_stop(self) -> None:
+    async def stop(self) -> None:
         """Write ``a`` (stop every axis, keep queued lines)."""
         ...
 
-    def check_link(self) -> None:
-        """Raise ConnectionLostError if the link is gone."""
+    async def read_state(self, axes: Sequence[str]
+                         ) -> tuple[dict[str, str], dict[str, str]]:
+        """The status letters of every present axis and the positions of at least
+        ``axes``, as printed, read back to back (see :meth:`Controller._status_and_positions
+        <tango_aio.controller.Controller._status_and_positions>`). Raises
+        ConnectionLostError at once if the link is gone."""
         ...
 
-    async def status(self) -> dict[str, str]:
-        """``?statusaxis`` of every present axis (letters assigned with certainty)."""
-        ...
-
-    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
-        """``?statusaxis`` of every present axis and the positions of at least ``axes``,
-        written back to back: the letters and the positions as printed by the
-        controller (see :meth:`Controller._status_and_positions
-        <tango_aio.controller.Controller._status_and_positions>`)."""
-        ...
-
-    def publish(self, event: object) -> None:
-        """Hand an event to the subscribers."""
+    def finished(self, event: MoveFinished) -> None:
+        """A followed move has ended: hand ``event`` to the subscribers."""
         ...
 
 
@@ -326,7 +317,7 @@ class Motion:
             await self._join_detached()
             plan = await plan_for(command)
             hints = self._hints
-            job = _Job(plan, self._port.send_checked(command, plan.batch),
+            job = _Job(plan, self._port.start(command, plan.batch),
                        asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
             try:
                 return await self._run(job)
@@ -354,7 +345,7 @@ class Motion:
 
     async def _checked(self, job: _Job) -> dict[str, str]:
         try:
-            error = await self._port.error_of(job.sent, self._port.reply_timeout)
+            error = await self._port.accepted(job.sent)
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
@@ -395,7 +386,6 @@ class Motion:
                     async with asyncio.timeout(delay):
                         await self._wake.wait()
             job.hints = self._hints  # hints from now on come after this state read
-            self._port.check_link()
             try:
                 letters, texts = await self._state(plan.moved)
             except _LOST_READ:
@@ -447,11 +437,9 @@ class Motion:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
         (the stream is resynchronised each time, so the next read is in step)."""
         for _ in range(2):
-            try:
-                return self._remember(await self._port.state(axes))
-            except _LOST_READ:
-                self._port.check_link()
-        return self._remember(await self._port.state(axes))
+            with contextlib.suppress(*_LOST_READ):
+                return self._remember(await self._port.read_state(axes))
+        return self._remember(await self._port.read_state(axes))
 
     def _remember(self, state: tuple[dict[str, str], dict[str, str]]
                   ) -> tuple[dict[str, str], dict[str, str]]:
@@ -496,7 +484,7 @@ class Motion:
     async def _stop_and_wait(self, job: _Job) -> None:
         """Write ``a`` and wait (bounded) until the moved axes stand still."""
         with contextlib.suppress(TangoError):
-            await self._port.write_stop()
+            await self._port.stop()
             self.stopped()
         with contextlib.suppress(TangoError, TimeoutError):
             await self._idle(job, STOP_WAIT)
@@ -509,12 +497,12 @@ class Motion:
         comes from a level-triggered anyio scope that would otherwise cancel every await of
         this clean-up at once."""
         with contextlib.suppress(TangoError):
-            await self._port.write_stop()
+            await self._port.stop()
             self.stopped()
         try:
             with contextlib.suppress(Exception, asyncio.CancelledError), \
                     anyio.move_on_after(STOP_WAIT, shield=True):
-                if await self._port.error_of(job.sent, self._port.reply_timeout) is None:
+                if await self._port.accepted(job.sent) is None:
                     await self._idle(job, STOP_WAIT)
         finally:
             job.sent.forget()
@@ -529,7 +517,7 @@ class Motion:
             job.sent.forget()
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
-        self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
+        self._port.finished(MoveFinished(job.plan.kind, dict(letters), ok))
 
 
 def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:

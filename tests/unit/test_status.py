@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tango_aio import cli, motion
+from tango_aio import cli, motion, timing
 from tango_aio.status import ABSENT, ARRIVED_LETTERS, FAILED_LETTERS, MOVING, AxisStatus
 
 
@@ -16,7 +16,8 @@ def test_the_letter_sets_are_the_manuals() -> None:
 
 
 def test_motion_and_the_shell_use_the_same_letters() -> None:
-    assert motion.FAILED_LETTERS is FAILED_LETTERS
+    assert vars(motion)["FAILED_LETTERS"] is FAILED_LETTERS
+    assert vars(timing)["FAILED_LETTERS"] is FAILED_LETTERS
     assert set(cli.LETTER_MEANINGS) == {*AxisStatus, ABSENT}
     assert cli.describe_letters({"x": "@", "y": "E", "z": "-"}) == (
         "x=@ (ok) y=E (error/aborted) z=- (absent)")
