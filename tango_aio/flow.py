@@ -52,11 +52,16 @@ class _Written:
 class CreditWindow:
     """Counts outstanding bytes and says when a marker is needed."""
 
-    def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK) -> None:
+    def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK,
+                 reserve: int = 0) -> None:
+        """``reserve``: bytes a line written right before a marker may take (the
+        scheduler's separator): a full ``chunk`` of reply-less bytes, that line and the
+        marker must fit in ``limit``, or nothing could ever confirm them (the chunk is cut
+        down to fit, to 1 byte at least)."""
         if limit < len(MARKER) + 1:
             raise ValueError(f"credit limit {limit} is too small")
         self.limit = limit
-        self.chunk = min(chunk, limit - len(MARKER))
+        self.chunk = max(1, min(chunk, limit - len(MARKER) - reserve))
         self._written: deque[_Written] = deque()
         self.outstanding = 0
         #: Reply-less bytes written since the last line that owes a reply.

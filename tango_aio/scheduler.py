@@ -158,12 +158,10 @@ class WriteScheduler:
                  marker_chunk: int = DEFAULT_CHUNK, separators: bool = True) -> None:
         self.core = core
         #: The write-credit account (see :mod:`tango_aio.flow`).
-        self.credit = CreditWindow(credit_limit, marker_chunk)
-        # A marker may need a separator before it: both must fit behind a full chunk of
-        # unconfirmed reply-less bytes, or nothing could ever confirm them (a small limit;
-        # found by tests/unit/test_scheduler.py). 160 of 255 by default: unchanged.
-        self.credit.chunk = max(1, min(self.credit.chunk,
-                                       credit_limit - _SEPARATOR_SIZE - len(MARKER)))
+        #: A marker may need a separator before it: both must fit behind a full chunk of
+        #: unconfirmed reply-less bytes (the window's ``reserve``; 160 of 255 by default
+        #: is not cut).
+        self.credit = CreditWindow(credit_limit, marker_chunk, reserve=_SEPARATOR_SIZE)
         #: Look-alike lines: ``True`` writes a separator between two in a row; ``False``
         #: only keeps them from being in flight together (see :mod:`tango_aio.patterns`).
         self.separators = separators
