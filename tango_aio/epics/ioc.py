@@ -162,6 +162,12 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        # RTYP must read "motor" from the first client read on, before any await. caproto
+        # (1.3) has no public synchronous setter for a read-only field: ChannelData.write
+        # is a coroutine, a pvproperty's ``value=`` is overwritten by
+        # records.RecordFieldGroup.__init__ with ``_record_type`` (which must stay
+        # "tango_motor", the registry key), and that __init__ itself sets RTYP and NAME
+        # by writing ``_data["value"]``. So this does what caproto does.
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
