@@ -77,7 +77,7 @@ from .motion import STOP_WAIT, Motion, MovePlan
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
-from .status import FAILED_LETTERS, AxisStatus, axis_statuses
+from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
 from .units import UnitScale, from_controller, plain, to_controller
 
@@ -857,7 +857,7 @@ class Controller:
                 await next(iter(self._motion_calls)).wait()
             while True:
                 letters = await self.status()
-                if "M" not in letters.values():
+                if MOVING not in letters.values():
                     return letters
                 await asyncio.sleep(poll_interval)
 
@@ -865,7 +865,7 @@ class Controller:
         """Whether a motion call of this controller is under way or any axis moves
         (``statusaxis`` ``M``): the momentary answer; :meth:`wait_idle` waits."""
         await asyncio.sleep(0)  # a motion task just scheduled takes its first step
-        return bool(self._motion_calls) or "M" in (await self.status()).values()
+        return bool(self._motion_calls) or MOVING in (await self.status()).values()
 
     async def is_calibrated(self, *axes: str) -> bool:
         """Whether ``axes`` (default: every present axis) have been calibrated (``cal``)
@@ -877,7 +877,7 @@ class Controller:
         wanted = [axis.lower() for axis in axes] or list(present)
         self._check_axes(_read_command("statuslimit", None, self.context), wanted)
         flags = str(await self.query("?statuslimit")).strip()
-        return all(flags[AXES.index(axis)] == "A" if len(flags) > AXES.index(axis) else False
+        return all(len(flags) > AXES.index(axis) and flags[AXES.index(axis)] == CALIBRATED_FLAG
                    for axis in wanted)
 
     async def stop(self, *axes: str, wait: bool = True) -> None:
@@ -917,7 +917,7 @@ class Controller:
                 async with asyncio.timeout(STOP_WAIT):
                     while True:
                         letters = await self.status()
-                        if all(letters.get(axis) != "M" for axis in chosen):
+                        if all(letters.get(axis) != MOVING for axis in chosen):
                             return
                         await asyncio.sleep(0.05)
             except TimeoutError:
@@ -1179,7 +1179,7 @@ class Controller:
         while True:
             letters, texts = await self._status_and_positions()
             update = PositionUpdate(await self._from_controller(texts, chosen, 0))
-            idle = "M" not in letters.values() and not self._motion.busy
+            idle = MOVING not in letters.values() and not self._motion.busy
             if not (follow and idle and update.positions == last):
                 self._hub.publish(update)
                 yield update

@@ -100,7 +100,7 @@ from .errors import (
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
-from .status import FAILED_LETTERS, MOVING
+from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
 from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan"]
@@ -460,11 +460,11 @@ class Motion:
         plan = job.plan
         raise MoveError(
             f"{plan.command.line!r} was aborted: " + "; ".join(
-                describe_stop(a, letters.get(a, "-"), texts.get(a),
+                describe_stop(a, letters.get(a, ABSENT), texts.get(a),
                               None if plan.targets is None else plan.targets.get(a),
                               why="was stopped by this program (a stop, abort or cancel)")
                 for a in plan.moved),
-            {a: ("E" if a in plan.moved and s not in FAILED_LETTERS else s)
+            {a: (AxisStatus.ERROR if a in plan.moved and s not in FAILED_LETTERS else s)
              for a, s in letters.items()})
 
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:

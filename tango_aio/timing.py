@@ -39,7 +39,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from .instructions import AXES, Command, Completion
-from .status import FAILED_LETTERS
+from .status import ABSENT, FAILED_LETTERS, AxisStatus
 from .units import UnitScale
 
 __all__ = [
@@ -80,7 +80,7 @@ _DELAYED = frozenset({"moa", "mor", "m", "moc"})
 
 #: Letters of a moved axis that end a move at once (:func:`too_early`): the failure
 #: letters, and ``-`` for an axis that is disabled (L2711).
-_FINAL = FAILED_LETTERS | {"-"}
+_FINAL = FAILED_LETTERS | {ABSENT}
 
 
 @dataclass(slots=True)
@@ -209,7 +209,7 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
     wrong, in words: which axis, where it stopped, its target and why. An axis ended well
     when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711) and stands within
     :func:`position_tolerance` (or its ``tolerance``) of its target."""
-    failed = [a for a in moved if letters.get(a, "-") in FAILED_LETTERS]
+    failed = [a for a in moved if letters.get(a, ABSENT) in FAILED_LETTERS]
     off = []
     for axis, target in (targets or {}).items():
         text = texts.get(axis)
@@ -220,7 +220,7 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
         return None
     bad = [a for a in moved if a in failed or a in off]
     return "did not end at its target: " + "; ".join(
-        describe_stop(axis, letters.get(axis, "-"), texts.get(axis),
+        describe_stop(axis, letters.get(axis, ABSENT), texts.get(axis),
                       None if targets is None else targets.get(axis))
         for axis in bad)
 
@@ -247,7 +247,7 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
         started_by = checked + budget.delay + POLL_GRACE
         if now < started_by:
             return started_by
-    failed = any(letters.get(a, "-") in _FINAL for a in moved)
+    failed = any(letters.get(a, ABSENT) in _FINAL for a in moved)
     if budget.settle > 0 and not failed and now < expected_end:
         return expected_end + POLL_GRACE
     return None
@@ -255,9 +255,9 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
 
 #: Why an axis stopped, by the letter it reads (L2693-2711).
 _WHY = {
-    "E": "stopped: its move was aborted or not executed (status E)",
-    "T": "timed out (status T)",
-    "-": "is disabled or absent (status -) and did not move",
+    AxisStatus.ERROR: "stopped: its move was aborted or not executed (status E)",
+    AxisStatus.TIMEOUT: "timed out (status T)",
+    ABSENT: "is disabled or absent (status -) and did not move",
 }
 
 
@@ -274,7 +274,7 @@ def describe_stop(axis: str, letter: str, text: str | None, target: float | None
     aim = "" if target is None else f", target {target:g}"
     if why is not None:
         return f"{name} {why}, {where}{aim}"
-    if letter == "S":
+    if letter == AxisStatus.LIMIT_SWITCH:
         side = "a limit switch"
         if text is not None and target is not None and float(text) != target:
             side = ("its upper limit switch (EE)" if float(text) < target

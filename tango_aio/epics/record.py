@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 from ..instructions import AXES
+from ..status import CALIBRATED_FLAG
 from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [
@@ -103,7 +104,7 @@ def limit_switches(readsw: str, axis: str) -> LimitSwitches:
 def calibrated(statuslimit: str, axis: str) -> bool:
     """Whether ``?statuslimit`` says ``axis`` was calibrated (``A`` in group 1, L5136)."""
     index = AXES.index(axis)
-    return len(statuslimit) > index and statuslimit[index] == "A"
+    return len(statuslimit) > index and statuslimit[index] == CALIBRATED_FLAG
 
 
 class Msta:

@@ -21,3 +21,14 @@ def test_motion_and_the_shell_use_the_same_letters() -> None:
     assert set(cli.LETTER_MEANINGS) == {*AxisStatus, ABSENT}
     assert cli.describe_letters({"x": "@", "y": "E", "z": "-"}) == (
         "x=@ (ok) y=E (error/aborted) z=- (absent)")
+
+
+def test_a_completion_report_may_hold_every_documented_letter_and_no_other() -> None:
+    from tango_aio.core import is_completion_line
+    from tango_aio.status import LETTERS
+
+    assert LETTERS == {*AxisStatus, ABSENT}
+    for letter in LETTERS:
+        assert is_completion_line(f"{letter}@.") and is_completion_line(f"{letter}.")
+    for other in "BFGKNOPQRVWXYZ0 ":
+        assert not is_completion_line(f"{other}@.")
