@@ -62,6 +62,7 @@ __all__ = [
     "split_unit",
     "to_controller",
     "user_per_rev",
+    "velocity_unit",
 ]
 
 DIM_USTEPS = 0
@@ -110,6 +111,12 @@ DIM_UNITS: dict[int, DimUnit] = {
     DIM_CM: DimUnit("cm", "cm"), DIM_M: DimUnit("m", "m"), DIM_INCH: DimUnit("inch", "in"),
     DIM_MIL: DimUnit("mil", "mil"), DIM_MM_VEL: DimUnit("mm", "mm"),
 }
+
+
+def velocity_unit(dim: int) -> str:
+    """The unit of ``vel`` for an axis in ``dim``: motor rev/s, mm/s in dim 9 (L189,
+    L3452)."""
+    return "mm/s" if dim == DIM_MM_VEL else "rev/s"
 
 
 def mm_per_rev(pitch: float, gear: float) -> float:

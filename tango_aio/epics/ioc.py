@@ -76,9 +76,9 @@ from ..errors import (
     MoveStoppedError,
     TangoError,
 )
-from ..instructions import AXES, lookup
+from ..instructions import AXES, lookup, upper_bound
 from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
-from ..units import DEFAULT_USTEPS, DIM_MM_VEL
+from ..units import DEFAULT_USTEPS
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
 from .flush import FlushingContext
@@ -692,7 +692,7 @@ class AxisServer:
     def _vmax_ceiling(self) -> float:
         """The largest VMAX: the `vel` instruction's ceiling (L3452) in EGU/s."""
         spec = lookup("vel").write[0].per_axis[0]
-        top = spec.hi_dim9 if self.units.dim == DIM_MM_VEL and spec.hi_dim9 else spec.hi
+        top = upper_bound(spec, self.units.dim)
         return self.units.velo_from_vel(float(top or 0.0))
 
     def _require_link(self) -> None:

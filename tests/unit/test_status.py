@@ -27,7 +27,7 @@ def test_a_completion_report_may_hold_every_documented_letter_and_no_other() -> 
     from tango_aio.core import is_completion_line
     from tango_aio.status import LETTERS
 
-    assert LETTERS == {*AxisStatus, ABSENT}
+    assert {*AxisStatus, ABSENT} == LETTERS
     for letter in LETTERS:
         assert is_completion_line(f"{letter}@.") and is_completion_line(f"{letter}.")
     for other in "BFGKNOPQRVWXYZ0 ":

@@ -203,3 +203,14 @@ def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
     # The user-per-mm factors are the inverse of the mm-per-unit table, bit for bit.
     assert [user_per_rev(dim, 1.0, 1.0, 40000) for dim in (1, 3, 5, 6, 7, 8)] == [
         1000.0, 360.0, 0.1, 0.001, 1.0 / 25.4, 1000.0 / 25.4]
+
+
+def test_the_velocity_unit_follows_the_dim() -> None:
+    from tango_aio.instructions import lookup, upper_bound
+    from tango_aio.units import DIM_MM_VEL, velocity_unit
+
+    assert [velocity_unit(dim) for dim in (0, 2, 8, DIM_MM_VEL)] == [
+        "rev/s", "rev/s", "rev/s", "mm/s"]
+    vel = lookup("vel").write[0].per_axis[0]
+    assert vel.hi_dim9 is not None and vel.hi_dim9 != vel.hi
+    assert upper_bound(vel, DIM_MM_VEL) == vel.hi_dim9 and upper_bound(vel, 2) == vel.hi
