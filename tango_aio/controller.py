@@ -79,7 +79,7 @@ from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
-from .units import UnitScale, from_controller, plain, to_controller
+from .units import Measure, UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
 
@@ -566,10 +566,10 @@ class Controller:
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
         ``units``, else the axis' dim unit)."""
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
-        return await self._from_controller(positions, chosen, 0)
+        return await self._from_controller(positions, chosen, Measure.POSITION)
 
     async def status(self) -> dict[str, str]:
         """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
@@ -621,7 +621,7 @@ class Controller:
         speed, or none)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
-            axes = await self._to_controller(axes, unit, 0)
+            axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
                 return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
 
@@ -632,7 +632,7 @@ class Controller:
         (``velocity`` and ``acceleration`` for this move only, too)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
-            axes = await self._to_controller(axes, unit, 0)
+            axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
                 return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
 
@@ -642,17 +642,18 @@ class Controller:
                              ) -> AsyncIterator[None]:
         """Set ``vel``/``accel`` of the moved axes for the block, then write back what
         was read before (shielded: also after a failure or a cancellation)."""
-        wanted = [(name, value, power) for name, value, power in
-                  (("vel", velocity, 1), ("accel", acceleration, 2)) if value is not None]
+        wanted = [(name, value, measure) for name, value, measure in
+                  (("vel", velocity, Measure.VELOCITY),
+                   ("accel", acceleration, Measure.ACCELERATION)) if value is not None]
         if not wanted:
             yield
             return
         async with self._move_settings_lock:
             lines: list[Command] = []
-            for name, value, power in wanted:
+            for name, value, measure in wanted:
                 per_axis = _per_moved_axis(name, value, axes)
-                scaled = unit if unit is None else f"{unit}/s{'2' if power == 2 else ''}"
-                converted = await self._to_controller(per_axis, scaled, power)
+                scaled = unit if unit is None else unit + measure.suffix
+                converted = await self._to_controller(per_axis, scaled, measure)
                 lines += [build(name, v, axis=a, context=self.context)
                           for a, v in converted.items()]  # all checked before a byte
             for line in lines:
@@ -831,7 +832,7 @@ class Controller:
         """Start ``go`` moves to absolute targets (no completion report; use
         :meth:`wait_idle`). A later ``go`` overrides the targets mid-move. Targets in
         ``unit`` as for :meth:`move_to`."""
-        axes = await self._to_controller(axes, unit, 0)
+        axes = await self._to_controller(axes, unit, Measure.POSITION)
         command = build_axes("go", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
@@ -840,7 +841,7 @@ class Controller:
         """Run axes at constant speed (rev/s, or mm/s in dim 9; or in ``unit``, e.g.
         ``"mm/s"``, default the connection's ``units`` per second); 0 stops. No completion
         report: use :meth:`wait_idle`."""
-        axes = await self._to_controller(axes, unit, 1)
+        axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
@@ -1048,43 +1049,43 @@ class Controller:
         return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
                                 int(usteps)) for axis in dims}
 
-    def _unit(self, unit: str | None, power: int) -> str | None:
-        """The caller's unit, else the connection's ``units`` per second ``power``."""
+    def _unit(self, unit: str | None, measure: Measure) -> str | None:
+        """The caller's unit, else the connection's ``units`` made a unit of ``measure``."""
         if unit is not None or self.units is None:
             return unit
-        return self.units + ("", "/s", "/s2")[power]
+        return self.units + measure.suffix
 
     async def _to_controller(self, values: Mapping[str, Any], unit: str | None,
-                             power: int) -> dict[str, Any]:
-        """Per-axis ``values`` in the controller's unit (``power`` 0 position, 1 velocity,
-        2 acceleration; see :func:`tango_aio.units.to_controller`). Without a unit and
+                             measure: Measure) -> dict[str, Any]:
+        """Per-axis ``values`` of ``measure`` in the controller's unit (see
+        :func:`tango_aio.units.to_controller`). Without a unit and
         without pint Quantities nothing is read and they are returned as they are, but
         for Decimal and Fraction as floats (the move-time estimate computes with them)."""
-        chosen = self._unit(unit, power)
+        chosen = self._unit(unit, measure)
         if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
             return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
                     for axis, value in values.items()}
         try:  # checked before anything is read or written
-            given = {axis: plain(value, chosen, power) for axis, value in values.items()}
+            given = {axis: plain(value, chosen, measure) for axis, value in values.items()}
         except (TypeError, ValueError) as exc:
             raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         scales = await self.unit_scales()
-        return {axis: to_controller(number, of, power, scales[axis]) if axis in scales
+        return {axis: to_controller(number, of, measure, scales[axis]) if axis in scales
                 else number for axis, (number, of) in given.items()}
 
-    def _reading_unit(self, unit: str | None, power: int) -> str | None:
+    def _reading_unit(self, unit: str | None, measure: Measure) -> str | None:
         """The unit a reading is converted to (see :meth:`_unit`), checked before
         anything is read."""
-        chosen = self._unit(unit, power)
+        chosen = self._unit(unit, measure)
         if chosen is not None:
             try:
-                plain(0.0, chosen, power)
+                plain(0.0, chosen, measure)
             except ValueError as exc:
                 raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         return chosen
 
     async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
-                               power: int) -> dict[str, Any]:
+                               measure: Measure) -> dict[str, Any]:
         """Per-axis readings (numbers, or sequences of numbers) converted from the
         controller's unit to ``chosen`` (from :meth:`_reading_unit`)."""
         scales = await self.unit_scales() if chosen is not None else {}
@@ -1092,7 +1093,7 @@ class Controller:
         def convert(axis: str, value: float) -> float:
             if chosen is None:
                 return float(value)
-            return from_controller(float(value), chosen, power, scales[axis])
+            return from_controller(float(value), chosen, measure, scales[axis])
 
         return {axis: tuple(convert(axis, v) for v in value)
                 if isinstance(value, list | tuple) else convert(axis, value)
@@ -1101,35 +1102,37 @@ class Controller:
     async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
         (``"mm/s"``; default: the connection's ``units`` per second)."""
-        chosen = self._reading_unit(unit, 1)
-        return await self._from_controller(await self.get("vel"), chosen, 1)
+        chosen = self._reading_unit(unit, Measure.VELOCITY)
+        return await self._from_controller(await self.get("vel"), chosen, Measure.VELOCITY)
 
     async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
-        await self.set("vel", **await self._to_controller(axes, unit, 1))
+        await self.set("vel", **await self._to_controller(axes, unit, Measure.VELOCITY))
 
     async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
         default: the connection's ``units`` per second squared)."""
-        chosen = self._reading_unit(unit, 2)
-        return await self._from_controller(await self.get("accel"), chosen, 2)
+        chosen = self._reading_unit(unit, Measure.ACCELERATION)
+        return await self._from_controller(await self.get("accel"), chosen, Measure.ACCELERATION)
 
     async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``accel`` per axis, see :meth:`acceleration`."""
-        await self.set("accel", **await self._to_controller(axes, unit, 2))
+        await self.set("accel", **await self._to_controller(axes, unit, Measure.ACCELERATION))
 
     async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
         """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
         ``unit`` (default: the connection's ``units``, else the dim unit)."""
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         pairs = await self.get("lim")
-        return await self._from_controller(pairs, chosen, 0)
+        return await self._from_controller(pairs, chosen, Measure.POSITION)
 
     async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:
         """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``)."""
-        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit, 0)
-        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit, 0)
+        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit,
+                                          Measure.POSITION)
+        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit,
+                                          Measure.POSITION)
         await self.set("lim", axis=None, check=True,
                        **{axis: [lower[axis], upper[axis]] for axis in axes})
 
@@ -1174,11 +1177,11 @@ class Controller:
         it yields only when a position changed, so a paused scan does not flood the
         caller."""
         check_timeout(interval, "interval")
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         last: Mapping[str, float] | None = None
         while True:
             letters, texts = await self._status_and_positions()
-            update = PositionUpdate(await self._from_controller(texts, chosen, 0))
+            update = PositionUpdate(await self._from_controller(texts, chosen, Measure.POSITION))
             idle = MOVING not in letters.values() and not self._motion.busy
             if not (follow and idle and update.positions == last):
                 self._hub.publish(update)
