@@ -623,7 +623,7 @@ class Controller:
         with self._motion_call():
             axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
-                return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
+                return await self._move("moa", axes, timeout, stop_on_cancel)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, velocity: Speed | None = None,
@@ -634,7 +634,7 @@ class Controller:
         with self._motion_call():
             axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
-                return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+                return await self._move("mor", axes, timeout, stop_on_cancel)
 
     @contextlib.asynccontextmanager
     async def _move_settings(self, axes: Mapping[str, Any], unit: str | None,
@@ -676,14 +676,13 @@ class Controller:
             await self._execute(line, check=True)
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
-                    stop_on_cancel: bool, relative: bool) -> dict[str, str]:
+                    stop_on_cancel: bool) -> dict[str, str]:
         lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
         for line, part in zip(lines, _line_groups(axes), strict=True):
             self._check_axes(line, part)
         letters: dict[str, str] = {}
         for line, part in zip(lines, _line_groups(axes), strict=True):
-            letters.update(await self._run_motion(line, timeout, stop_on_cancel, part,
-                                                  relative))
+            letters.update(await self._run_motion(line, timeout, stop_on_cancel, part))
         return letters
 
     async def calibrate(self, *axes: str, timeout: float | None = None,
@@ -726,28 +725,29 @@ class Controller:
         check_timeout(timeout)  # refused before anything is written
         if not axes:
             return await self._run_motion(build(name, form=Form.SET), timeout,
-                                          stop_on_cancel, None, False)
+                                          stop_on_cancel, None)
         letters: dict[str, str] = {}
         for axis in axes:
             command = build(name, form=Form.SET, axis=axis)
-            letters.update(await self._run_motion(command, timeout, stop_on_cancel, None,
-                                                  False))
+            letters.update(await self._run_motion(command, timeout, stop_on_cancel, None))
         return letters
 
     async def _run_motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
-                          targets: Mapping[str, float] | None, relative: bool
-                          ) -> dict[str, str]:
+                          targets: Mapping[str, float] | None) -> dict[str, str]:
         self._check_axes(command, targets or ())
 
         async def plan(line: Command) -> MovePlan:
-            return await self._plan(line, targets, relative, timeout)
+            return await self._plan(line, targets, timeout)
 
         return await self._motion.run(command, plan, stop_on_cancel)
 
     async def _plan(self, command: Command, targets: Mapping[str, float] | None,
-                    relative: bool, timeout: float | None) -> MovePlan:
+                    timeout: float | None) -> MovePlan:
         """Targets and timing of a motion line, from where its axes are now (called once
-        the previous move has ended)."""
+        the previous move has ended). ``targets``: the line's values per axis, distances
+        for ``mor`` (relative to the current position, L6365-6376), absolute positions for
+        ``moa``."""
+        relative = command.name == "mor"
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
         reports = self.autostatus != 0
