@@ -161,7 +161,7 @@ class Controller:
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
-        #: Whether a confirmation may read the letters with ``sa`` (#28): cleared for
+        #: Whether a confirmation may read the letters with ``sa``: cleared for
         #: good once an ``sa`` went unanswered (a firmware that does not know it).
         self._short_status = True
         self._on_close = on_close
@@ -789,7 +789,7 @@ class Controller:
     def _status_command(self) -> Command:
         """The letters read of a move's confirmation: ``sa``, the alias the 1.71 manual
         gives ``?statusaxis`` (L2663: "?statusaxis or statusaxis or sa"), 3 bytes on the
-        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move, #28);
+        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move);
         ``?statusaxis`` where the alias is not known to work: a unit of the older
         edition's family (its section has no alias, old L733), one that left an ``sa``
         unanswered, and modes 2 and 4, whose acknowledgements and echoes the manual
@@ -1194,7 +1194,7 @@ class Controller:
     async def _status_and_positions(self, *, separate_after: bool = False,
                                     axes: Sequence[str] = ()
                                     ) -> tuple[dict[str, str], dict[str, str]]:
-        """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
+        """``?statusaxis`` and ``?pos`` of every present axis, written back to back:
         one round trip. Their replies (letters, numbers) cannot be taken for each other,
         so the protocol writes no separator between them and neither waits for the other.
         ``separate_after``: a separator follows in the same write (a move's confirmation:
@@ -1202,7 +1202,7 @@ class Controller:
         A reply with another number of values than axes is read again the plain way,
         axis by axis (:meth:`status`, :meth:`_position_texts`).
 
-        ``axes``: the one axis whose position is wanted (a move's confirmation, #28), on
+        ``axes``: the one axis whose position is wanted (a move's confirmation), on
         a unit whose per-axis reads were found to answer one value (identify,
         ``per_axis_replies``): ``?pos x`` instead of ``?pos``, and only that position is
         returned. Its reply is 7 bytes against 21 on a 3-axis unit (about 2.7 ms at
@@ -1425,5 +1425,5 @@ _SHORT_STATUS: Final = _spelled("sa")
 def _read_command(name: str, axis: str | None, context: Context) -> Command:
     """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
     built once per name, axis and context: commands are immutable values, and the
-    per-request path need not validate the same line again (#19)."""
+    per-request path need not validate the same line again."""
     return build(name, form=Form.READ, axis=axis, context=context)

@@ -26,7 +26,7 @@ How a move is followed
    cannot be taken for each other, so neither waits for the other), the position checked
    against the target for ``move_to``/``move_by``. The letters come first: an axis that
    reads stopped stays where it stopped until the position is read right behind them.
-   This read is as short as the unit allows (#28): ``sa`` (the 1.71 alias, L2663) for
+   This read is as short as the unit allows: ``sa`` (the 1.71 alias, L2663) for
    the letters, and ``?pos x`` for a move of one axis X, so that a tile step pays
    ``sa`` and ``?pos x`` (10 bytes out with their CRs, 14 back) instead of
    ``?statusaxis`` and ``?pos`` (17 out, 28 back on three axes); see
@@ -35,7 +35,7 @@ How a move is followed
    and stands within :func:`~tango_aio.timing.position_tolerance` of its target (the
    verdict is :func:`tango_aio.timing.verdict`). An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
-   at once (a limit switch, an abort, a disabled axis: #26), unless the driver knows a
+   at once (a limit switch, an abort, a disabled axis), unless the driver knows a
    reason why the read may come too early: a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state until the delay is over,
    and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
@@ -60,7 +60,7 @@ the move as well: an early end is seen within that); the move fails with
 :class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
 moves.
 
-A ``move_to`` does not read the position before it is written (#19: that cost a whole
+A ``move_to`` does not read the position before it is written (that would cost a whole
 round trip per move): its distance, and so its budget, is sized from the positions of
 the driver's latest state read (:attr:`Motion.positions`). Those may be stale (the
 joystick or another program may have moved the stage since), so such a budget is
@@ -330,7 +330,7 @@ class Motion:
 
     async def _join_detached(self) -> None:
         """Wait until a detached move has ended. If this wait is cancelled, the detached
-        move stays recorded, so the next move still waits for it (#14 item 3)."""
+        move stays recorded, so the next move still waits for it."""
         while (detached := self._detached) is not None:
             await asyncio.shield(detached)
             if self._detached is detached:
