@@ -95,6 +95,7 @@ __all__ = [
     "UnknownControllerError",
     "UploadError",
     "WriteProtectedError",
+    "WrongEventLoopError",
     "WrongParameterCountError",
     "XposModuleError",
     "controller_error",
@@ -144,6 +145,11 @@ class IdentityMismatchError(ConnectionLostError):
 
 class ControllerTimeoutError(TangoError, TimeoutError):
     """The controller did not answer within the allowed time."""
+
+
+class WrongEventLoopError(TangoError, RuntimeError):
+    """A connection was used from another event loop than the one it was opened on
+    (re-exported by :mod:`tango_aio.protocol`)."""
 
 
 class ConnectError(TangoError):
