@@ -736,17 +736,17 @@ class Controller:
                           targets: Mapping[str, float] | None) -> dict[str, str]:
         self._check_axes(command, targets or ())
 
-        async def plan(line: Command) -> MovePlan:
-            return await self._plan(line, targets, timeout)
+        async def plan(line: Command, known: Mapping[str, str] | None) -> MovePlan:
+            return await self._plan(line, targets, timeout, known)
 
         return await self._motion.run(command, plan, stop_on_cancel)
 
     async def _plan(self, command: Command, targets: Mapping[str, float] | None,
-                    timeout: float | None) -> MovePlan:
+                    timeout: float | None, last: Mapping[str, str] | None) -> MovePlan:
         """Targets and timing of a motion line, from where its axes are now (called once
         the previous move has ended). ``targets``: the line's values per axis, distances
         for ``mor`` (relative to the current position, L6365-6376), absolute positions for
-        ``moa``."""
+        ``moa``. ``last``: the positions (as printed) the driver read last, if any."""
         relative = command.name == "mor"
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
@@ -767,8 +767,8 @@ class Controller:
         # added once the reply is in, before the move is confirmed), so it costs bytes but
         # no round trip. Without a known position (the first move of a connection) the
         # start is read first.
-        known = None if relative else self._motion.positions
-        if relative and self._motion.positions is not None and self._exact_replies():
+        known = None if relative else last
+        if relative and last is not None and self._exact_replies():
             batch = object()
             return MovePlan(command, moved, dict(targets),
                             move_budget(self._settings, command, targets, timeout),

@@ -305,17 +305,20 @@ class Motion:
 
     # -- running a move ------------------------------------------------------------------
 
-    async def run(self, command: Command, plan_for: Callable[[Command], Awaitable[MovePlan]],
+    async def run(self, command: Command,
+                  plan_for: Callable[[Command, Mapping[str, str] | None], Awaitable[MovePlan]],
                   stop_on_cancel: bool) -> dict[str, str]:
         """Write ``command`` once no other move is in flight, follow it to its end and
         return the status letters of every present axis.
 
         ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
-        queued move's timeout and targets are computed from where its axes really start.
+        queued move's timeout and targets are computed from where its axes really start;
+        it gets the line and :attr:`positions` (the positions last read, ``None`` before
+        the first read).
         """
         async with self._lock:
             await self._join_detached()
-            plan = await plan_for(command)
+            plan = await plan_for(command, self.positions)
             hints = self._hints
             job = _Job(plan, self._port.start(command, plan.batch),
                        asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
