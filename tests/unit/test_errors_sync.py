@@ -3,28 +3,23 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import pytest
+from helpers import load_tool
 
 from tango_aio import errors
 
 ROOT = Path(__file__).resolve().parents[2]
-GENERATOR = ROOT / "tools" / "gen_errors.py"
 ERRORS = ROOT / "tango_aio" / "errors.py"
 REFERENCE = ROOT / "reference" / "errors.json"
 
 
 @pytest.fixture(scope="module")
 def generator() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("gen_errors", GENERATOR)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("gen_errors")
 
 
 @pytest.fixture(scope="module")
