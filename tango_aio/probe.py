@@ -53,7 +53,7 @@ from typing import Any
 
 from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
-from .status import MOVING
+from .status import ABSENT, MOVING, AxisStatus
 from .trace import format_record, trace_header
 
 __all__ = [
@@ -326,7 +326,7 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if axes >= 4:
         out["absent_axes"] = _unseen("every axis is present", ("dash", "omit"), exchange)
         present = letters
-    elif len(letters) == 4 and set(letters[axes:]) <= {"-"}:
+    elif len(letters) == 4 and set(letters[axes:]) <= {ABSENT}:
         out["absent_axes"] = _seen("dash", "absent axes show '-'", exchange)
         present = letters[:axes]
     elif len(letters) == axes:
@@ -339,10 +339,10 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if joy == 0 or joy is None:
         out["joystick_letter"] = _unseen("the joystick is off (or ?joy unknown): idle axes "
                                          "show '@' under either value", ("@", "J"), exchange)
-    elif set(present) == {"@"}:
+    elif set(present) == {AxisStatus.READY}:
         out["joystick_letter"] = _seen("@", "idle axes show '@' with the joystick on",
                                        exchange)
-    elif set(present) == {"J"}:
+    elif set(present) == {AxisStatus.JOYSTICK}:
         out["joystick_letter"] = _seen("J", "idle axes show 'J' with the joystick on",
                                        exchange)
     else:
@@ -1009,7 +1009,7 @@ class _Prober:
         self.obs["refused_move_report"] = (
             _seen("no", "a refused move sends nothing", refused) if not refused.got else
             _seen("yes", "a refused move reports 'E'", refused)
-            if len(refused.got) == 1 and refused.got[0][:1] == "E"
+            if len(refused.got) == 1 and refused.got[0][:1] == AxisStatus.ERROR
             else _unknown("a refused move answered more than one 'E' report", refused))
         await self.ask("?err")
         # A move during a move; 'a' and Ctrl+C during a move. Each needs the move to
@@ -1083,7 +1083,7 @@ class _Prober:
 
     def decide_move_letter(self, move: Exchange) -> Observation:
         letter = move.got[-1][:1]
-        if letter in ("@", "J"):
+        if letter in (AxisStatus.READY, AxisStatus.JOYSTICK):
             return _seen(letter, f"a completed move reports {letter!r} with the joystick on",
                          move)
         return _unknown(f"a completed move reports {letter!r}", move)
@@ -1110,7 +1110,7 @@ class _Prober:
         lines = (f"!moa x {first:.{decimals}f}", f"!moa x {second:.{decimals}f}")
         sent = await self.ask(*lines)
         reports = [g for g in sent.got if _REPORT.match(g)]
-        ended = [g for g in reports if g[:1] != "E"]  # 'E': a refused second move's
+        ended = [g for g in reports if g[:1] != AxisStatus.ERROR]  # a refused second move's
         if ended:
             await self.wait_report(wait)
             await self.link.quiet(max(self.options.settle, self.options.move_time))
@@ -1197,7 +1197,7 @@ class _Prober:
                                                        ("no", "yes"), exchange, where)
                 return False
             letter = first[:1] if first else None
-            if letter in ("E", "@"):
+            if letter in (AxisStatus.ERROR, AxisStatus.READY):
                 self.obs["abort_letter"] = _seen(letter, f"the stopped axis reports "
                                                          f"{letter!r}", exchange, where)
             else:
