@@ -60,7 +60,23 @@ class AxisStatus(enum.StrEnum):
     @classmethod
     def of(cls, letter: str) -> AxisStatus:
         """The member for ``letter``; ``ValueError`` for a letter the manuals do not
-        document."""
+        document.
+
+        Parameters
+        ----------
+        letter
+            A status letter (``"@"``, ``"M"``...).
+
+        Returns
+        -------
+        AxisStatus
+            Its member.
+
+        Raises
+        ------
+        ValueError
+            The letter is not documented.
+        """
         try:
             return cls(letter)
         except ValueError:
@@ -109,5 +125,16 @@ CALIBRATED_FLAG: Final = "A"
 
 
 def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:
-    """``{"x": "@", "y": "M"}`` → ``{"x": AxisStatus.READY, "y": AxisStatus.MOVING}``."""
+    """``{"x": "@", "y": "M"}`` → ``{"x": AxisStatus.READY, "y": AxisStatus.MOVING}``.
+
+    Parameters
+    ----------
+    letters
+        The status letter of each axis, by axis letter.
+
+    Returns
+    -------
+    dict[str, AxisStatus]
+        The member of each axis, by axis letter.
+    """
     return {axis: AxisStatus.of(letter) for axis, letter in letters.items()}

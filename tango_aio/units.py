@@ -116,20 +116,70 @@ DIM_UNITS: dict[int, DimUnit] = {
 
 
 def velocity_unit(dim: int) -> str:
-    """The unit of ``vel`` for an axis in ``dim``: motor rev/s, mm/s in dim 9 (L189,
-    L3452)."""
+    """The unit of ``vel`` for an axis in ``dim``.
+
+    Parameters
+    ----------
+    dim
+        The axis's ``dim``.
+
+    Returns
+    -------
+    str
+        ``"rev/s"`` (motor revolutions), ``"mm/s"`` in dim 9 (L189, L3452).
+    """
     return "mm/s" if dim == DIM_MM_VEL else "rev/s"
 
 
 def mm_per_rev(pitch: float, gear: float) -> float:
-    """Return the axis travel in mm per motor revolution (``pitch / gear``)."""
+    """Return the axis travel in mm per motor revolution (``pitch / gear``).
+
+    Parameters
+    ----------
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+
+    Returns
+    -------
+    float
+        mm per motor revolution.
+
+    Raises
+    ------
+    ValueError
+        ``pitch`` or ``gear`` is not positive.
+    """
     if pitch <= 0.0 or gear <= 0.0:
         raise ValueError(f"pitch and gear must be positive, got {pitch!r} and {gear!r}")
     return pitch / gear
 
 
 def user_per_rev(dim: int, pitch: float, gear: float, usteps: int) -> float:
-    """Return how many user length units (per ``dim``) one motor revolution is."""
+    """Return how many user length units (per ``dim``) one motor revolution is.
+
+    Parameters
+    ----------
+    dim
+        The axis's ``dim`` (0-9).
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+    usteps
+        Microsteps per revolution (the unit of dim 0).
+
+    Returns
+    -------
+    float
+        User units per motor revolution.
+
+    Raises
+    ------
+    ValueError
+        ``dim`` is not 0-9, or ``pitch`` or ``gear`` is not positive.
+    """
     if dim == DIM_USTEPS:
         return float(usteps)
     try:
@@ -140,7 +190,22 @@ def user_per_rev(dim: int, pitch: float, gear: float, usteps: int) -> float:
 
 
 def accel_to_rev(accel_m_s2: float, pitch: float, gear: float) -> float:
-    """Convert an acceleration in m/s² to motor rev/s²."""
+    """Convert an acceleration in m/s² to motor rev/s².
+
+    Parameters
+    ----------
+    accel_m_s2
+        The acceleration, in m/s².
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+
+    Returns
+    -------
+    float
+        The acceleration, in rev/s².
+    """
     return accel_m_s2 * 1000.0 / mm_per_rev(pitch, gear)
 
 
@@ -164,35 +229,112 @@ class UnitScale:
         return user_per_rev(self.dim, self.pitch, self.gear, self.usteps)
 
     def pos_to_user(self, revs: float) -> float:
-        """Convert a position or distance in motor revolutions to user units."""
+        """Convert a position or distance in motor revolutions to user units.
+
+        Parameters
+        ----------
+        revs
+            Motor revolutions.
+
+        Returns
+        -------
+        float
+            The same length, in user units.
+        """
         return revs * self.user_per_rev
 
     def pos_from_user(self, value: float) -> float:
-        """Convert a position or distance in user units to motor revolutions."""
+        """Convert a position or distance in user units to motor revolutions.
+
+        Parameters
+        ----------
+        value
+            A length, in user units.
+
+        Returns
+        -------
+        float
+            The same length, in motor revolutions.
+        """
         return value / self.user_per_rev
 
     def vel_to_user(self, rev_per_s: float) -> float:
-        """Convert rev/s to the user velocity unit (rev/s, or mm/s in dim 9)."""
+        """Convert rev/s to the user velocity unit (rev/s, or mm/s in dim 9).
+
+        Parameters
+        ----------
+        rev_per_s
+            A velocity, in rev/s.
+
+        Returns
+        -------
+        float
+            The same velocity, in the user velocity unit.
+        """
         if self.dim == DIM_MM_VEL:
             return rev_per_s * self.mm_per_rev
         return rev_per_s
 
     def vel_from_user(self, value: float) -> float:
-        """Convert a user velocity (rev/s, or mm/s in dim 9) to rev/s."""
+        """Convert a user velocity (rev/s, or mm/s in dim 9) to rev/s.
+
+        Parameters
+        ----------
+        value
+            A velocity, in the user velocity unit.
+
+        Returns
+        -------
+        float
+            The same velocity, in rev/s.
+        """
         if self.dim == DIM_MM_VEL:
             return value / self.mm_per_rev
         return value
 
     def mm_to_rev(self, mm: float) -> float:
-        """Convert a length (or mm/s velocity) to motor revolutions (or rev/s)."""
+        """Convert a length (or mm/s velocity) to motor revolutions (or rev/s).
+
+        Parameters
+        ----------
+        mm
+            A length in mm (or a velocity in mm/s).
+
+        Returns
+        -------
+        float
+            The same, in motor revolutions (or rev/s).
+        """
         return mm / self.mm_per_rev
 
     def rev_to_mm(self, revs: float) -> float:
-        """Convert motor revolutions (or rev/s) to mm (or mm/s)."""
+        """Convert motor revolutions (or rev/s) to mm (or mm/s).
+
+        Parameters
+        ----------
+        revs
+            Motor revolutions (or rev/s).
+
+        Returns
+        -------
+        float
+            The same, in mm (or mm/s).
+        """
         return revs * self.mm_per_rev
 
     def accel_to_rev(self, accel_m_s2: float) -> float:
-        """Convert an acceleration in m/s² to motor rev/s²."""
+        """Convert an acceleration in m/s² to motor rev/s².
+
+        Parameters
+        ----------
+        accel_m_s2
+            An acceleration, in m/s².
+
+        Returns
+        -------
+        float
+            The same, in rev/s².
+        """
         return accel_to_rev(accel_m_s2, self.pitch, self.gear)
 
 
@@ -235,7 +377,18 @@ class Quantity(Protocol):
         """The number, in the quantity's own unit."""
 
     def to(self, unit: str) -> Quantity:
-        """The same quantity in ``unit``."""
+        """The same quantity in ``unit``.
+
+        Parameters
+        ----------
+        unit
+            The unit to convert to, as pint spells it.
+
+        Returns
+        -------
+        Quantity
+            The converted quantity.
+        """
 
 
 class Measure(enum.IntEnum):
@@ -253,7 +406,23 @@ class Measure(enum.IntEnum):
 
 def split_unit(unit: str) -> tuple[str, Measure]:
     """``"mm/s"`` → ``("mm", Measure.VELOCITY)``: the base unit and what the unit
-    measures. ``ValueError`` for an unknown unit."""
+    measures. ``ValueError`` for an unknown unit.
+
+    Parameters
+    ----------
+    unit
+        A unit such as ``"mm"``, ``"um/s"`` or ``"mm/s2"``.
+
+    Returns
+    -------
+    tuple[str, Measure]
+        The base unit and what the unit measures.
+
+    Raises
+    ------
+    ValueError
+        The unit is not known.
+    """
     text = unit.strip()
     measure = Measure.POSITION
     for suffixes, level in ((_PER_SECOND2, Measure.ACCELERATION),
@@ -272,7 +441,25 @@ def split_unit(unit: str) -> tuple[str, Measure]:
 
 
 def check_unit(unit: str) -> str:
-    """``unit`` if it is a known position unit (a length, ``rev`` or ``ustep``)."""
+    """``unit`` if it is a known position unit (a length, ``rev`` or ``ustep``).
+
+    Parameters
+    ----------
+    unit
+        The unit to check.
+
+    Returns
+    -------
+    str
+        ``unit`` itself.
+
+    Raises
+    ------
+    TypeError
+        ``unit`` is not a string.
+    ValueError
+        ``unit`` is not known, or is a velocity or acceleration unit.
+    """
     if not isinstance(unit, str):
         raise TypeError(f"a unit is a string such as 'mm', got {unit!r}")
     if split_unit(unit)[1] is not Measure.POSITION:
@@ -317,7 +504,29 @@ def plain(value: object, unit: str | None, measure: Measure) -> tuple[float, str
     """``value`` as a plain number and the unit it is in, checked without any controller
     settings: a pint Quantity is converted to mm-based units (or revolutions, for angles)
     and its magnitude taken; ``unit`` must be of the kind ``measure`` asks for.
-    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit."""
+    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit.
+
+    Parameters
+    ----------
+    value
+        A number, or a pint Quantity.
+    unit
+        The unit of a plain number; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+
+    Returns
+    -------
+    tuple[float, str | None]
+        The number and its unit (``None``: the controller's unit).
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number.
+    ValueError
+        The unit (or the Quantity's dimension) is not of the kind ``measure`` asks for.
+    """
     if hasattr(value, "magnitude") and hasattr(value, "to"):
         quantity: Any = value
         suffix = ("", "/s", "/s**2")[measure]
@@ -349,7 +558,24 @@ def to_controller(value: object, unit: str | None, measure: Measure,
     """Convert ``value`` (a number in ``unit``, or a pint Quantity) to the controller's
     unit on an axis with ``scale``: its dim unit (a position), rev/s or mm/s in dim 9 (a
     velocity), m/s² (an acceleration). ``unit=None`` and a plain number: already in the
-    controller's unit."""
+    controller's unit.
+
+    Parameters
+    ----------
+    value
+        A number, or a pint Quantity.
+    unit
+        The unit of a plain number; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The value in the controller's unit.
+    """
     number, given = plain(value, unit, measure)
     if given is None:
         return number
@@ -358,7 +584,24 @@ def to_controller(value: object, unit: str | None, measure: Measure,
 
 def from_controller(value: float, unit: str | None, measure: Measure,
                     scale: UnitScale) -> float:
-    """The inverse of :func:`to_controller` for a plain number (a reading)."""
+    """The inverse of :func:`to_controller` for a plain number (a reading).
+
+    Parameters
+    ----------
+    value
+        A reading, in the controller's unit.
+    unit
+        The unit wanted; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The reading in ``unit``.
+    """
     if unit is None:
         return value
     return float(Fraction(value) / _factor(unit, measure, scale))
