@@ -111,9 +111,17 @@ class TangoError(Exception):
 class InvalidCommandError(TangoError, ValueError):
     """The caller's command is invalid; nothing was sent to the controller.
 
-    ``instruction`` and ``parameter`` name what was wrong (either may be ``None`` when the
-    line could not be attributed). ``number`` is the error number a real controller would
-    set for the same line (1-7), which the emulator uses.
+    Parameters
+    ----------
+    message
+        What was wrong, in words.
+    instruction
+        The instruction it concerns (``None``: the line could not be attributed).
+    parameter
+        The parameter it concerns (``None``: not one parameter).
+    number
+        The error number a real controller would set for the same line (1-7), which the
+        emulator uses.
     """
 
     def __init__(
@@ -155,8 +163,15 @@ class WrongEventLoopError(TangoError, RuntimeError):
 class ConnectError(TangoError):
     """:func:`~tango_aio.connect` could not set up a link (as opposed to
     :class:`ConnectionLostError`, a working link that went away). The message says what
-    to do next; ``__cause__`` holds the operating system's error, if any. ``url`` is what
-    was being opened."""
+    to do next; ``__cause__`` holds the operating system's error, if any.
+
+    Parameters
+    ----------
+    message
+        What went wrong and what to do next.
+    url
+        What was being opened.
+    """
 
     def __init__(self, message: str, url: str = "") -> None:
         super().__init__(message)
@@ -191,8 +206,13 @@ class RequestAbortedError(TangoError):
 class MoveError(TangoError):
     """A move, calibration or range measure ended with an error on at least one axis.
 
-    ``statuses`` maps each present axis (``"x"``, ``"y"``, ...) to its status letter:
-    ``E`` error/aborted, ``S`` limit switch, ``T`` timeout, ``@``/``A``/``D`` success.
+    Parameters
+    ----------
+    message
+        Which axis failed, where it stopped and why.
+    statuses
+        Each present axis (``"x"``, ``"y"``, ...) and its status letter: ``E``
+        error/aborted, ``S`` limit switch, ``T`` timeout, ``@``/``A``/``D`` success.
     """
 
     def __init__(self, message: str, statuses: Mapping[str, str]) -> None:
@@ -211,9 +231,17 @@ class MoveError(TangoError):
 class UploadError(TangoError):
     """An entry of a list upload was rejected by the controller.
 
-    ``index`` is the 0-based index of the first rejected entry, ``number`` the controller's
-    error number; ``__cause__`` is the typed :class:`ControllerError`. The list on the
-    controller then holds the entries before ``index``.
+    ``__cause__`` is the typed :class:`ControllerError`. The list on the controller then
+    holds the entries before ``index``.
+
+    Parameters
+    ----------
+    index
+        The 0-based index of the first rejected entry.
+    number
+        The controller's error number.
+    command
+        The rejected line.
     """
 
     def __init__(self, index: int, number: int, command: str) -> None:
@@ -266,6 +294,13 @@ class ControllerError(TangoError):
     :class:`HardwareFaultError` (70-86, hardware, configuration or firmware faults). Number
     0 (:class:`NoError`) and undocumented numbers (:class:`UnknownControllerError`) belong
     to none of them.
+
+    Parameters
+    ----------
+    number
+        The controller's error number (``None``: the class's own).
+    command
+        The line that caused it (``None``: not known).
     """
 
     number: int = -1
@@ -336,6 +371,13 @@ class InternalControllerError(ControllerError):
     :class:`InternalControllerError`. Whether an error is persistent or the line's own is
     a question of who caused it, not of the number, hence this class stands beside the
     categories rather than inside one.
+
+    Parameters
+    ----------
+    number
+        The controller's error number (``None``: the class's own).
+    command
+        Always ``None`` in the driver: no command caused it.
     """
 
     def __new__(cls, number: int | None = None, command: str | None = None
@@ -602,12 +644,36 @@ def _text_of(number: int, default: str) -> str:
 
 
 def error_class(number: int) -> type[ControllerError]:
-    """Return the :class:`ControllerError` subclass for error number ``number``."""
+    """The class of a controller error number.
+
+    Parameters
+    ----------
+    number
+        The controller's error number.
+
+    Returns
+    -------
+    type[ControllerError]
+        Its own class; :class:`UnknownControllerError` for an undocumented number.
+    """
     return ControllerError._registry.get(number, UnknownControllerError)
 
 
 def controller_error(number: int, command: str | None = None) -> ControllerError:
-    """Build the typed exception for controller error number ``number``."""
+    """Build the typed exception for a controller error number.
+
+    Parameters
+    ----------
+    number
+        The controller's error number.
+    command
+        The line that caused it (``None``: not known).
+
+    Returns
+    -------
+    ControllerError
+        An instance of :func:`error_class` of ``number``.
+    """
     return error_class(number)(number, command)
 
 
@@ -643,7 +709,20 @@ def parse_error_reply(line: str) -> tuple[int | None, str | None]:
     line (``ERROR 5,number outside range``). ``OK...`` gives ``(0, None)``. The number is
     ``None`` when the controller sent ``ERR`` without one.
 
-    Raises :class:`ProtocolError` for anything else.
+    Parameters
+    ----------
+    line
+        The reply line.
+
+    Returns
+    -------
+    tuple[int | None, str | None]
+        The number (``None``: not given) and the text (``None``: not given).
+
+    Raises
+    ------
+    ProtocolError
+        The line is none of those forms.
     """
     stripped = line.strip()
     if stripped.startswith("OK"):

@@ -101,8 +101,20 @@ class MoveTiming:
     settle_ms: float = 0.0
 
     def travel(self, axis: str, distance: float) -> float:
-        """Seconds a single-axis trapezoid move of ``distance`` takes at the slowest
-        plausible speed (vel capped by secvel)."""
+        """How long a single-axis move takes at the slowest plausible speed.
+
+        Parameters
+        ----------
+        axis
+            The axis letter (``"x"`` ... ``"a"``).
+        distance
+            The distance, in the axis's user unit (its ``dim``); the sign is ignored.
+
+        Returns
+        -------
+        float
+            Seconds of a trapezoid move at ``vel`` capped by ``secvel``, with ``accel``.
+        """
         index = AXES.index(axis)
         scale = UnitScale(dim=self.dims[index], pitch=self.pitch[index])
         return travel_time(abs(scale.pos_from_user(distance)),
@@ -112,8 +124,23 @@ class MoveTiming:
 
 
 def travel_time(revs: float, speed: float, accel: float) -> float:
-    """Seconds to travel ``revs`` revolutions with a trapezoid profile
-    (:data:`UNKNOWN_TRAVEL` when the speed or acceleration is unknown)."""
+    """How long a trapezoid move of ``revs`` motor revolutions takes.
+
+    Parameters
+    ----------
+    revs
+        The distance, in motor revolutions (not negative).
+    speed
+        The top speed, in revolutions per second.
+    accel
+        The acceleration, in revolutions per second squared.
+
+    Returns
+    -------
+    float
+        Seconds; :data:`UNKNOWN_TRAVEL` when the speed or acceleration is not a positive
+        finite number.
+    """
     if speed <= 0 or accel <= 0 or not math.isfinite(speed + accel):
         return UNKNOWN_TRAVEL
     ramp = speed / accel
@@ -123,8 +150,21 @@ def travel_time(revs: float, speed: float, accel: float) -> float:
 
 
 def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
-    """The axes a motion line moves: its axis, the leading axes it has values for, or every
-    present axis (``cal``, ``rm``, ``moc`` without an axis)."""
+    """The axes a motion line moves.
+
+    Parameters
+    ----------
+    command
+        The motion line.
+    present
+        The axes the controller has.
+
+    Returns
+    -------
+    tuple[str, ...]
+        Its axis, the leading axes it has values for, or every present axis (``cal``,
+        ``rm``, ``moc`` without an axis).
+    """
     if command.axis is not None:
         return (command.axis,)
     if command.values:
@@ -133,9 +173,21 @@ def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
 
 
 def position_tolerance(text: str) -> float:
-    """How far a position read as ``text`` may be from its target: one and a half units of
-    its last printed digit (the controller prints positions rounded to its ``resolution``,
-    L4080-4100; a ``move_by`` target carries the rounding of the start position too)."""
+    """How far a position read as ``text`` may be from its target.
+
+    The controller prints positions rounded to its ``resolution`` (L4080-4100), and a
+    ``move_by`` target carries the rounding of the start position too.
+
+    Parameters
+    ----------
+    text
+        The position as printed.
+
+    Returns
+    -------
+    float
+        One and a half units of its last printed digit.
+    """
     digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
     return 1.5 * 10.0 ** -digits
 
@@ -174,8 +226,25 @@ def _travel(timing: MoveTiming, distances: Mapping[str, float]) -> float:
 
 def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, float] | None,
                 timeout: float | None = None) -> Budget:
-    """The budget of ``command``, which moves its axes by ``distances`` (``None``: not
-    known, ``cal``, ``rm`` and ``moc``); ``timeout`` (the caller's) replaces the limit."""
+    """The budget of one motion line.
+
+    Parameters
+    ----------
+    timing
+        The settings in force.
+    command
+        The motion line.
+    distances
+        How far it moves each axis, in user units (``None``: not known, ``cal``, ``rm``
+        and ``moc``).
+    timeout
+        The caller's timeout, which replaces the computed limit.
+
+    Returns
+    -------
+    Budget
+        Its ``!delay``, travel, pause and settling, and its limit.
+    """
     delayed = command.name in _DELAYED
     delay = timing.delay_ms / 1000.0 if delayed else 0.0
     settle = timing.settle_ms / 1000.0
@@ -192,9 +261,26 @@ def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, fl
 
 def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[str, str],
                 fallback: float) -> float:
-    """Seconds a move to ``targets`` may still take from the positions printed ``now``
-    (the limit rule of :func:`move_budget` without the delay; ``fallback`` when a position
-    was not read)."""
+    """How long a move may still take from where its axes stand.
+
+    The limit rule of :func:`move_budget` without the delay (the move has started).
+
+    Parameters
+    ----------
+    timing
+        The settings in force.
+    targets
+        The move's absolute targets, per axis.
+    now
+        The positions printed now, per axis.
+    fallback
+        What to give when a position of ``targets`` was not read.
+
+    Returns
+    -------
+    float
+        Seconds from now.
+    """
     if not set(targets) <= set(now):
         return fallback
     travel = _travel(timing, {a: t - float(now[a]) for a, t in targets.items()})
@@ -204,11 +290,30 @@ def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[s
 def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
             tolerance: Mapping[str, float], letters: Mapping[str, str],
             texts: Mapping[str, str]) -> str | None:
-    """``None`` if every moved axis ended well, judged from one state read (the
-    ``letters`` and the positions ``texts`` read right behind them); else what went
-    wrong, in words: which axis, where it stopped, its target and why. An axis ended well
-    when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711) and stands within
-    :func:`position_tolerance` (or its ``tolerance``) of its target."""
+    """Judge one state read of a move whose axes stopped.
+
+    An axis ended well when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711)
+    and stands within :func:`position_tolerance` (or its ``tolerance``) of its target.
+
+    Parameters
+    ----------
+    moved
+        The axes the move moved.
+    targets
+        Their absolute targets (``None``: ``cal``, ``rm``, ``moc`` have none).
+    tolerance
+        A wider tolerance per axis, where one applies.
+    letters
+        The status letters read.
+    texts
+        The positions read right behind them, as printed.
+
+    Returns
+    -------
+    str | None
+        ``None`` if every moved axis ended well; else what went wrong, in words: which
+        axis, where it stopped, its target and why.
+    """
     failed = [a for a in moved if letters.get(a, ABSENT) in FAILED_LETTERS]
     off = []
     for axis, target in (targets or {}).items():
@@ -227,9 +332,7 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
 
 def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
               checked: float, now: float, expected_end: float) -> float | None:
-    """When a failed verdict read at ``now`` may not be the move's end: the time to read
-    the state again, else ``None`` (the verdict stands, the move fails now). ``checked``:
-    when the line's check came back (the controller had taken the line by then).
+    """When a failed verdict may not be the move's end yet.
 
     A move that ends at a limit switch, an error or an abort ends the call at once: the
     state was read after the controller had taken the line, so the moved axes are moving
@@ -242,6 +345,26 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
       target with a letter that does not say it failed (``@``) may still be settling;
       until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
       is disabled, L2711: it does not move at all) is final.
+
+    Parameters
+    ----------
+    budget
+        The move's budget (its ``!delay`` and settling).
+    moved
+        The axes the move moved.
+    letters
+        The status letters of the failed read.
+    checked
+        When the line's check came back (the controller had taken the line by then).
+    now
+        When the state was read.
+    expected_end
+        When the move should have ended.
+
+    Returns
+    -------
+    float | None
+        When to read the state again; ``None``: the verdict stands, the move fails now.
     """
     if budget.delay > 0:
         started_by = checked + budget.delay + POLL_GRACE
@@ -263,12 +386,30 @@ _WHY = {
 
 def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
                   why: str | None = None) -> str:
-    """One axis of a failed move in words: ``"X stopped at its upper limit switch (status
-    S) at 50.05, target 60"``. ``text``: the position as read (``None``: not read);
-    ``why`` overrides what the letter says (e.g. an abort by this program). Which limit
-    switch is told from the direction of travel: an axis that stopped below its target
-    was moving up, towards its upper switch (EE), and the reverse (the manual's letter
-    ``S`` does not say which, L2699)."""
+    """One axis of a failed move in words.
+
+    Which limit switch is told from the direction of travel: an axis that stopped below
+    its target was moving up, towards its upper switch (EE), and the reverse (the
+    manual's letter ``S`` does not say which, L2699).
+
+    Parameters
+    ----------
+    axis
+        The axis letter.
+    letter
+        Its status letter.
+    text
+        Its position as read (``None``: not read).
+    target
+        Its target (``None``: the move has none).
+    why
+        Said instead of what the letter says (e.g. an abort by this program).
+
+    Returns
+    -------
+    str
+        E.g. ``"X stopped at its upper limit switch (EE) (status S), at 50.05, target 60"``.
+    """
     name = axis.upper()
     where = "position not read" if text is None else f"at {text}"
     aim = "" if target is None else f", target {target:g}"
