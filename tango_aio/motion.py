@@ -155,7 +155,19 @@ class MovePlan:
     batch: object | None = None
 
     async def resolved(self) -> MovePlan:
-        """The plan with absolute targets (itself when it has them already)."""
+        """The plan with absolute targets.
+
+        Returns
+        -------
+        MovePlan
+            Itself when it has them already; else a copy with the start (read by
+            :attr:`start`) added to each distance.
+
+        Raises
+        ------
+        ProtocolError
+            The start read did not print a position of every moved axis.
+        """
         if self.start is None or self.targets is None:
             return self
         start = await self.start()
@@ -186,14 +198,36 @@ class MotionPort(Protocol):
     step of a move (the controller keeps the link, the settings and the subscribers)."""
 
     def start(self, command: Command, batch: object | None) -> MoveHandle:
-        """Write a motion line and its check (in ``batch``, see :attr:`MovePlan.batch`);
-        return at once."""
+        """Write a motion line and its check; return at once.
+
+        Parameters
+        ----------
+        command
+            The motion line.
+        batch
+            The protocol batch it joins (see :attr:`MovePlan.batch`), if any.
+
+        Returns
+        -------
+        MoveHandle
+            The line in flight.
+        """
         ...
 
     async def accepted(self, sent: MoveHandle) -> ControllerError | None:
-        """Wait (up to the reply timeout) for the check of ``sent``: the controller's
-        error if it refused the line, else ``None`` (and the settings the line sets are
-        taken over)."""
+        """Wait (up to the reply timeout) for the check of a line.
+
+        Parameters
+        ----------
+        sent
+            The line in flight.
+
+        Returns
+        -------
+        ControllerError | None
+            The controller's error if it refused the line; else ``None``, and the
+            settings the line sets are taken over.
+        """
         ...
 
     async def stop(self) -> None:
@@ -202,14 +236,36 @@ class MotionPort(Protocol):
 
     async def read_state(self, axes: Sequence[str]
                          ) -> tuple[dict[str, str], dict[str, str]]:
-        """The status letters of every present axis and the positions of at least
-        ``axes``, as printed, read back to back (see :meth:`Controller._status_and_positions
-        <tango_aio.controller.Controller._status_and_positions>`). Raises
-        ConnectionLostError at once if the link is gone."""
+        """Read the state: the letters and positions written back to back (see
+        :meth:`Controller._status_and_positions
+        <tango_aio.controller.Controller._status_and_positions>`).
+
+        Parameters
+        ----------
+        axes
+            The axes whose positions are wanted at least.
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letters of every present axis and the positions of at least
+            ``axes``, as printed.
+
+        Raises
+        ------
+        ConnectionLostError
+            At once, when the link is gone.
+        """
         ...
 
     def finished(self, event: MoveFinished) -> None:
-        """A followed move has ended: hand ``event`` to the subscribers."""
+        """A followed move has ended: hand its event to the subscribers.
+
+        Parameters
+        ----------
+        event
+            The move's end.
+        """
         ...
 
 
@@ -234,7 +290,13 @@ class _Job:
 
 
 class Motion:
-    """Runs and follows the moves of one controller (serialised: one at a time)."""
+    """Runs and follows the moves of one controller (serialised: one at a time).
+
+    Parameters
+    ----------
+    port
+        The controller as this class sees it.
+    """
 
     def __init__(self, port: MotionPort) -> None:
         self._port = port
@@ -257,7 +319,13 @@ class Motion:
         self.latest: dict[str, str] | None = None
 
     def saw(self, texts: Mapping[str, str]) -> None:
-        """Record the positions (as printed) of one read of some or all axes."""
+        """Record the positions of one read of some or all axes.
+
+        Parameters
+        ----------
+        texts
+            The positions read, per axis, as printed.
+        """
         self.latest = dict(texts)
         self.positions = {**(self.positions or {}), **texts}
 
@@ -270,21 +338,47 @@ class Motion:
                                        and not self._detached.done())
 
     def follows(self, submission: Submission) -> bool:
-        """Whether ``submission`` is a move this module follows (and confirms): its
-        completion report is then only a hint, and :class:`MoveFinished` is published
-        once the move is confirmed."""
+        """Whether a line is a move this module follows (and confirms).
+
+        Parameters
+        ----------
+        submission
+            The line.
+
+        Returns
+        -------
+        bool
+            Whether it is followed: its completion report is then only a hint, and
+            :class:`MoveFinished` is published once the move is confirmed.
+        """
         return submission in self._followed
 
     def stopped(self, axes: Sequence[str] | None = None) -> None:
-        """The driver stopped ``axes`` (``a x``; ``None``: every axis, ``a`` or Ctrl+C): no
-        move in flight that moves one of them may succeed; wake every move."""
+        """The driver stopped axes: no move in flight that moves one of them may succeed;
+        wake every move.
+
+        Parameters
+        ----------
+        axes
+            The axes stopped (``a x``); ``None``: every axis (``a`` or Ctrl+C).
+        """
         for axis in AXES if axes is None else axes:
             self._stops[axis] += 1
         self.hint()
 
     def epoch(self, axes: Sequence[str]) -> int:
-        """How often the driver stopped any of ``axes`` so far (grows with each stop of
-        one of them, and only then)."""
+        """How often the driver stopped any of some axes so far.
+
+        Parameters
+        ----------
+        axes
+            The axes.
+
+        Returns
+        -------
+        int
+            A count that grows with each stop of one of them, and only then.
+        """
         return sum(self._stops.get(axis, 0) for axis in axes)
 
     def _was_stopped(self, job: _Job) -> bool:
@@ -308,13 +402,38 @@ class Motion:
     async def run(self, command: Command,
                   plan_for: Callable[[Command, Mapping[str, str] | None], Awaitable[MovePlan]],
                   stop_on_cancel: bool) -> dict[str, str]:
-        """Write ``command`` once no other move is in flight, follow it to its end and
-        return the status letters of every present axis.
+        """Write a motion line once no other move is in flight and follow it to its end.
 
         ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
         queued move's timeout and targets are computed from where its axes really start;
         it gets the line and :attr:`positions` (the positions last read, ``None`` before
         the first read).
+
+        Parameters
+        ----------
+        command
+            The motion line.
+        plan_for
+            Makes the line's :class:`MovePlan`.
+        stop_on_cancel
+            Whether cancelling the call stops the axes; else the move goes on detached.
+
+        Returns
+        -------
+        dict[str, str]
+            The status letters of every present axis.
+
+        Raises
+        ------
+        ControllerError
+            The controller refused the line.
+        MoveError
+            A moved axis did not end at its target, or the driver stopped it.
+        ControllerTimeoutError
+            An axis still moved when the budget was spent (the axes are stopped).
+        asyncio.CancelledError
+            The call was cancelled: after the axes were stopped, or with the move left to
+            go on detached (``stop_on_cancel=False``).
         """
         async with self._lock:
             await self._join_detached()
@@ -438,7 +557,13 @@ class Motion:
         """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
         to back: one round trip), read again (up to 3 times) when the read was lost:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
-        (the stream is resynchronised each time, so the next read is in step)."""
+        (the stream is resynchronised each time, so the next read is in step).
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The letters and the positions, as :meth:`MotionPort.read_state` gives them.
+        """
         for _ in range(2):
             with contextlib.suppress(*_LOST_READ):
                 return self._remember(await self._port.read_state(axes))
@@ -451,7 +576,13 @@ class Motion:
 
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
-        then fail (never a success, whatever the letters say)."""
+        then fail (never a success, whatever the letters say).
+
+        Raises
+        ------
+        MoveError
+            Always, with each moved axis in words.
+        """
         texts: Mapping[str, str] = {}
         # After a one-axis stop (``a x``) the line's other axes go on to their targets:
         # wait for them within the move's own budget, at least STOP_WAIT.
@@ -528,7 +659,13 @@ def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:
     for the other axes those of the completion report the move got, when it has one
     letter per present axis (``statusaxis`` keeps e.g. the ``D`` of an earlier ``rm``,
     which says nothing about this move, L2676-2711). A report with fewer letters cannot
-    be assigned to axes and is not used."""
+    be assigned to axes and is not used.
+
+    Returns
+    -------
+    dict[str, str]
+        The letters, per axis.
+    """
     report = job.sent.submission.completion
     if report is None or not report.done() or report.cancelled() \
             or report.exception() is not None:
