@@ -103,6 +103,7 @@ if TYPE_CHECKING:
         UnknownControllerError,
         UploadError,
         WriteProtectedError,
+        WrongEventLoopError,
         WrongParameterCountError,
         XposModuleError,
     )
@@ -216,6 +217,7 @@ __all__ = [
     "UnsolicitedLine",
     "UploadError",
     "WriteProtectedError",
+    "WrongEventLoopError",
     "WrongParameterCountError",
     "XposModuleError",
     "connect",

@@ -64,10 +64,10 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
-from .motion import describe_stop
 from .probe import add_probe_command
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
-from .timing import moved_axes, position_tolerance
+from .timing import describe_stop, moved_axes, position_tolerance
+from .units import DIM_UNITS, velocity_unit
 
 __all__ = ["main"]
 
@@ -251,23 +251,19 @@ async def _info(args: argparse.Namespace) -> int:
         _row(table, "options", ", ".join(sorted(ident.det.options)) or "-")
         _row(table, "serial", await tango.query("?readsn"))
         dims = await tango.get("dim")
-        units = {axis: DIM_UNITS.get(int(dim), f"dim {dim}") for axis, dim in dims.items()}
+        units = {axis: DIM_UNITS[int(dim)].symbol if int(dim) in DIM_UNITS else f"dim {dim}"
+                 for axis, dim in dims.items()}
         positions = await tango.position()
         _row(table, "position", "  ".join(f"{axis}={value:9.4f} {units.get(axis, '')}"
                                           for axis, value in positions.items()))
         _row(table, "status", describe_letters(await tango.status()))
-        velocity = {axis: "mm/s" if int(dim) == 9 else "rev/s" for axis, dim in dims.items()}
+        velocity = {axis: velocity_unit(int(dim)) for axis, dim in dims.items()}
         for name, unit in (("dim", units), ("pitch", "mm/rev"), ("vel", velocity),
                            ("accel", "m/s²"), ("secvel", "mm/s")):
             text = str(await tango.query(f"?{name}"))
             _row(table, name, _with_units(text, unit, name == "dim"))
         console.print(table)
     return 0
-
-
-#: The unit of each ``dim`` (manual L3061-3144; the conventions of tango_aio.units).
-DIM_UNITS = {0: "µsteps", 1: "µm", 2: "mm", 3: "°", 4: "rev", 5: "cm", 6: "m", 7: "inch",
-             8: "mil", 9: "mm"}
 
 
 def _with_units(text: str, unit: str | Mapping[str, str], named: bool) -> str:

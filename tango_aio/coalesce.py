@@ -55,6 +55,7 @@ from .controller import Controller
 from .errors import InvalidCommandError, MoveError, TangoError
 from .instructions import AXES, build_axes
 from .motion import STOP_WAIT
+from .status import AxisStatus
 
 __all__ = ["MoveCoalescer"]
 
@@ -190,9 +191,9 @@ class MoveCoalescer:
                 raise
             if task.cancelled():  # another caller (or aclose) cancelled the batch
                 raise MoveError(f"merged move {batch.targets} {batch.cancel_reason}",
-                                dict.fromkeys(batch.targets, "E")) from None
+                                dict.fromkeys(batch.targets, AxisStatus.ERROR)) from None
             raise  # this caller was cancelled just as the batch ended
-        return letters.get(axis, "@")
+        return letters.get(axis, AxisStatus.READY)
 
     def pending(self, axis: str) -> bool:
         """Whether a move of ``axis`` waits in a batch not yet sent (cancelling its

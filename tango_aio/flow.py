@@ -58,6 +58,11 @@ class CreditWindow:
         The most bytes outstanding.
     chunk
         The most reply-less bytes between two markers (capped to fit ``limit``).
+    reserve
+        The bytes a line written right before a marker may take (the scheduler's
+        separator): a full ``chunk`` of reply-less bytes, that line and the marker must
+        fit in ``limit``, or nothing could ever confirm them, so ``chunk`` is cut down to
+        fit (to 1 byte at least).
 
     Raises
     ------
@@ -65,11 +70,12 @@ class CreditWindow:
         ``limit`` leaves no room for a marker.
     """
 
-    def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK) -> None:
+    def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK,
+                 reserve: int = 0) -> None:
         if limit < len(MARKER) + 1:
             raise ValueError(f"credit limit {limit} is too small")
         self.limit = limit
-        self.chunk = min(chunk, limit - len(MARKER))
+        self.chunk = max(1, min(chunk, limit - len(MARKER) - reserve))
         self._written: deque[_Written] = deque()
         self.outstanding = 0
         #: Reply-less bytes written since the last line that owes a reply.

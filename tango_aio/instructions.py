@@ -50,6 +50,7 @@ from .schema import (
     Shape,
     Signature,
 )
+from .units import DIM_MM_VEL
 
 __all__ = [
     "AXES",
@@ -86,6 +87,7 @@ __all__ = [
     "parse_reply",
     "reply_group",
     "reply_rule",
+    "upper_bound",
 ]
 
 #: Longest command line the controller accepts, CR included (manual L129-131).
@@ -226,7 +228,7 @@ def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int |
         raise _fail(f"{name}: {param.name} must be a number, got {token!r}", name, param.name, 5)
     if param.kind is Kind.FLOAT:
         value = float(token)
-        _check_range(param, value, name, param.hi_dim9 if dim == 9 and param.hi_dim9 else param.hi)
+        _check_range(param, value, name, upper_bound(param, dim))
         return value
     if not _INT_RE.match(token):
         raise _fail(f"{name}: {param.name} must be an integer, got {token!r}", name, param.name, 5)
@@ -989,6 +991,25 @@ def _plain_row(bounds: Sequence[tuple[float, float, float]],
     return True
 
 
+def upper_bound(param: Param, dim: int) -> float | None:
+    """The upper bound of ``param`` for an axis in ``dim``.
+
+    Parameters
+    ----------
+    param
+        A parameter of the catalog.
+    dim
+        The axis's ``dim``.
+
+    Returns
+    -------
+    float | None
+        Its ``hi_dim9`` in dim 9 (velocities in mm/s, L3452), if it has one, else its
+        ``hi`` (``None``: no upper bound).
+    """
+    return param.hi_dim9 if dim == DIM_MM_VEL and param.hi_dim9 else param.hi
+
+
 def _param_at(sig: Signature, index: int, ctx: Context) -> tuple[Param, float | None]:
     """The parameter of the ``index``-th value (no axis letter) and its upper bound."""
     if index < len(sig.lead):
@@ -997,7 +1018,7 @@ def _param_at(sig: Signature, index: int, ctx: Context) -> tuple[Param, float | 
         offset = index - len(sig.lead)
         param = sig.per_axis[offset % len(sig.per_axis)]
         dim = ctx.dims[offset // len(sig.per_axis)]
-    return param, param.hi_dim9 if dim == 9 and param.hi_dim9 else param.hi
+    return param, upper_bound(param, dim)
 
 
 def _checked_number(param: Param, value: float | int, name: str,

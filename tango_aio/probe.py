@@ -53,7 +53,7 @@ from typing import Any
 
 from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
-from .status import MOVING
+from .status import ABSENT, MOVING, AxisStatus
 from .trace import format_record, trace_header
 
 __all__ = [
@@ -495,7 +495,7 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if axes >= 4:
         out["absent_axes"] = _unseen("every axis is present", ("dash", "omit"), exchange)
         present = letters
-    elif len(letters) == 4 and set(letters[axes:]) <= {"-"}:
+    elif len(letters) == 4 and set(letters[axes:]) <= {ABSENT}:
         out["absent_axes"] = _seen("dash", "absent axes show '-'", exchange)
         present = letters[:axes]
     elif len(letters) == axes:
@@ -508,10 +508,10 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if joy == 0 or joy is None:
         out["joystick_letter"] = _unseen("the joystick is off (or ?joy unknown): idle axes "
                                          "show '@' under either value", ("@", "J"), exchange)
-    elif set(present) == {"@"}:
+    elif set(present) == {AxisStatus.READY}:
         out["joystick_letter"] = _seen("@", "idle axes show '@' with the joystick on",
                                        exchange)
-    elif set(present) == {"J"}:
+    elif set(present) == {AxisStatus.JOYSTICK}:
         out["joystick_letter"] = _seen("J", "idle axes show 'J' with the joystick on",
                                        exchange)
     else:
@@ -1099,6 +1099,9 @@ class _Prober:
         self.initial_mode: int | None = None
         self.ack_reads = "no"
         self.echo_all = "no"
+        #: The lines that set back what the run changed, in the order of the changes
+        #: (sent in reverse by :meth:`restore`).
+        self.undo: list[str] = []
 
     # -- exchanges --------------------------------------------------------------------------
 
@@ -1173,16 +1176,15 @@ class _Prober:
     # -- the run ------------------------------------------------------------------------------
 
     async def run(self) -> ProbeResult:
-        restore: list[str] = []
         try:
             await self.start()
-            await self.mode1(restore)
+            await self.mode1()
             await self.mode2()
             await self.mode4()
             if self.options.moves:
-                await self.moves(restore)
+                await self.moves()
         finally:
-            await self.restore(restore)
+            await self.restore()
         for name in SWITCH_NAMES:
             if name not in self.obs:
                 reason = ("seen only with --moves" if name in MOVE_SWITCHES else
@@ -1193,14 +1195,14 @@ class _Prober:
                            self.axes, self.settings, self.extra, self.options, self.url,
                            self.link.trace_text())
 
-    async def restore(self, restore: list[str]) -> None:
+    async def restore(self) -> None:
         """Send the set-back lines (mode 1), then the mode the unit was found in."""
         if self.link._protocol is None or self.link._lost:
             return
         with contextlib.suppress(TangoError, TimeoutError, OSError):
             if self.mode != 1:
                 await self.set_mode(1)
-            for line in reversed(restore):
+            for line in reversed(self.undo):
                 await self.settled(line)
             if self.initial_mode is not None and self.initial_mode != 1:
                 await self.settled(f"!autostatus {self.initial_mode}")
@@ -1236,7 +1238,7 @@ class _Prober:
             self.identity["model"] = parts[0]
             self.identity["firmware"] = parts[1][len("Version "):]
 
-    async def mode1(self, restore: list[str]) -> None:
+    async def mode1(self) -> None:
         """Reads: identity, settings, help, service, ?lim, ?statusaxis."""
         link = self.link
         version1 = await self.ask("?version 1")
@@ -1267,11 +1269,11 @@ class _Prober:
         if extmode.err == 0 and len(extmode.got) == 1 and extmode.got[0].strip() in "01":
             current = int(extmode.got[0])
             other = 1 - current
-            restore.append(f"!extmode {current}")
+            self.undo.append(f"!extmode {current}")
             await self.ask(f"!extmode {other}")
             lim_other = await self.ask("?lim")
             await self.ask(f"!extmode {current}")
-            restore.pop()
+            self.undo.pop()
             pair = (lim, lim_other) if current == 0 else (lim_other, lim)
             self.obs["lim_cr_bug"] = decide_lim_cr_bug(self.axes, pair[0], pair[1])
         else:
@@ -1311,7 +1313,7 @@ class _Prober:
 
     # -- moves ----------------------------------------------------------------------------------
 
-    async def moves(self, restore: list[str]) -> None:
+    async def moves(self) -> None:
         """Small moves of X (see the module text); X returns to where it was."""
         start = await self.ask("?pos x")
         lim = await self.ask("?lim x")
@@ -1323,7 +1325,7 @@ class _Prober:
             raise ProbeError(f"cannot read X's position and limits: {start.got!r} "
                              f"{lim.got!r}") from None
         decimals = len(p0_text.partition(".")[2]) or 4
-        restore.append(f"!moa x {p0_text}")
+        self.undo.append(f"!moa x {p0_text}")
         sign = 1.0 if p0 <= (lo + hi) / 2 else -1.0
         # A first short move measures how far the axis goes in move_time.
         step0 = min(10.0 ** (3 - decimals), (hi - lo) / 100)
@@ -1351,7 +1353,7 @@ class _Prober:
         self.obs["refused_move_report"] = (
             _seen("no", "a refused move sends nothing", refused) if not refused.got else
             _seen("yes", "a refused move reports 'E'", refused)
-            if len(refused.got) == 1 and refused.got[0][:1] == "E"
+            if len(refused.got) == 1 and refused.got[0][:1] == AxisStatus.ERROR
             else _unknown("a refused move answered more than one 'E' report", refused))
         await self.ask("?err")
         # A move during a move; 'a' and Ctrl+C during a move. Each needs the move to
@@ -1374,17 +1376,17 @@ class _Prober:
                     break
                 length = min(length * 2, longest)
         # A pause before the report.
-        await self.pause(sign * step, decimals, wait, restore)
+        await self.pause(sign * step, decimals, wait)
         # !joy 0 during a move.
         if self.joy:
-            restore.append(f"!joy {self.joy}")
+            self.undo.append(f"!joy {self.joy}")
             self.link.take()
             self.link.send(f"!mor x {sign * step:.{decimals}f}", "!joy 0")
             _, lines = await self.wait_report(wait)
             await self.link.quiet(max(self.options.settle, self.options.move_time * 2))
             lines += self.link.take()
             await self.settled(f"!joy {self.joy}")
-            restore.pop()
+            self.undo.pop()
             self.extra["joy0_during_move"] = lines
             await self.move(f"!mor x {-sign * step:.{decimals}f}")
         # A value just below zero (numbers=negzero), when X stands near 0.
@@ -1399,7 +1401,7 @@ class _Prober:
         await self.move_in_mode(2, sign * step, decimals, wait)
         await self.move_in_mode(4, sign * step, decimals, wait)
         await self.back_to(p0_text, p0, decimals, wait)
-        restore.pop()
+        self.undo.pop()
 
     async def move(self, line: str) -> Exchange:
         """A move in mode 1, to its report."""
@@ -1425,7 +1427,7 @@ class _Prober:
 
     def decide_move_letter(self, move: Exchange) -> Observation:
         letter = move.got[-1][:1]
-        if letter in ("@", "J"):
+        if letter in (AxisStatus.READY, AxisStatus.JOYSTICK):
             return _seen(letter, f"a completed move reports {letter!r} with the joystick on",
                          move)
         return _unknown(f"a completed move reports {letter!r}", move)
@@ -1458,7 +1460,7 @@ class _Prober:
         lines = (f"!moa x {first:.{decimals}f}", f"!moa x {second:.{decimals}f}")
         sent = await self.ask(*lines)
         reports = [g for g in sent.got if _REPORT.match(g)]
-        ended = [g for g in reports if g[:1] != "E"]  # 'E': a refused second move's
+        ended = [g for g in reports if g[:1] != AxisStatus.ERROR]  # a refused second move's
         if ended:
             await self.wait_report(wait)
             await self.link.quiet(max(self.options.settle, self.options.move_time))
@@ -1551,7 +1553,7 @@ class _Prober:
                                                        ("no", "yes"), exchange, where)
                 return False
             letter = first[:1] if first else None
-            if letter in ("E", "@"):
+            if letter in (AxisStatus.ERROR, AxisStatus.READY):
                 self.obs["abort_letter"] = _seen(letter, f"the stopped axis reports "
                                                          f"{letter!r}", exchange, where)
             else:
@@ -1588,21 +1590,20 @@ class _Prober:
         self.obs["ctrl_c"] = _seen(value, note, exchange, where, err)
         return True
 
-    async def pause(self, step: float, decimals: int, wait: float,
-                    restore: list[str]) -> None:
+    async def pause(self, step: float, decimals: int, wait: float) -> None:
         """A move with ``pause`` set: how long its report waits (L6845-6899)."""
         before = await self.ask("?pause")
         if before.err != 0 or len(before.got) != 1:
             self.extra["pause"] = {"note": "?pause not available", "lines":
                                    before.transcript()}
             return
-        restore.append(f"!pause {before.got[0].strip()}")
+        self.undo.append(f"!pause {before.got[0].strip()}")
         await self.ask("!pause 200")
         began = time.monotonic()
         move = await self.move(f"!mor x {step:.{decimals}f}")
         took = time.monotonic() - began
         await self.ask(f"!pause {before.got[0].strip()}")
-        restore.pop()
+        self.undo.pop()
         await self.move(f"!mor x {-step:.{decimals}f}")
         self.extra["pause"] = {"pause_ms": 200, "seconds_to_report": round(took, 3),
                                "lines": move.transcript()}

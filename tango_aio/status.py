@@ -13,8 +13,8 @@ import enum
 from collections.abc import Mapping
 from typing import Final
 
-__all__ = ["ABSENT", "ARRIVED_LETTERS", "FAILED_LETTERS", "MOVING", "AxisStatus",
-           "axis_statuses"]
+__all__ = ["ABSENT", "ARRIVED_LETTERS", "CALIBRATED_FLAG", "FAILED_LETTERS", "LETTERS",
+           "MOVING", "AxisStatus", "axis_statuses"]
 
 
 class AxisStatus(enum.StrEnum):
@@ -114,6 +114,14 @@ ARRIVED_LETTERS: Final = frozenset(
 #: The place-holder letter of an axis that is not enabled or not present (L2711); not an
 #: :class:`AxisStatus`, since such an axis is left out of the per-axis dictionaries.
 ABSENT: Final = "-"
+
+#: Every letter a status read or a completion report may hold: the documented letters of
+#: both editions and :data:`ABSENT`.
+LETTERS: Final = frozenset({*(status.value for status in AxisStatus), ABSENT})
+
+#: The character of ``?statuslimit`` (one per axis, characters 0-3) for an axis calibrated
+#: since power-on (L5136-5191); not a ``statusaxis`` letter.
+CALIBRATED_FLAG: Final = "A"
 
 
 def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:

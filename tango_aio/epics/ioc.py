@@ -76,9 +76,9 @@ from ..errors import (
     MoveStoppedError,
     TangoError,
 )
-from ..instructions import AXES, lookup
+from ..instructions import AXES, lookup, upper_bound
 from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
-from ..units import DEFAULT_USTEPS, DIM_MM_VEL
+from ..units import DEFAULT_USTEPS
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
 from .flush import FlushingContext
@@ -167,6 +167,12 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        # RTYP must read "motor" from the first client read on, before any await. caproto
+        # (1.3) has no public synchronous setter for a read-only field: ChannelData.write
+        # is a coroutine, a pvproperty's ``value=`` is overwritten by
+        # records.RecordFieldGroup.__init__ with ``_record_type`` (which must stay
+        # "tango_motor", the registry key), and that __init__ itself sets RTYP and NAME
+        # by writing ``_data["value"]``. So this does what caproto does.
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
@@ -830,7 +836,7 @@ class AxisServer:
     def _vmax_ceiling(self) -> float:
         """The largest VMAX: the `vel` instruction's ceiling (L3452) in EGU/s."""
         spec = lookup("vel").write[0].per_axis[0]
-        top = spec.hi_dim9 if self.units.dim == DIM_MM_VEL and spec.hi_dim9 else spec.hi
+        top = upper_bound(spec, self.units.dim)
         return self.units.velo_from_vel(float(top or 0.0))
 
     def _require_link(self) -> None:

@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 from ..instructions import AXES
+from ..status import CALIBRATED_FLAG
 from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [
@@ -181,7 +182,7 @@ def calibrated(statuslimit: str, axis: str) -> bool:
         Whether the axis was calibrated.
     """
     index = AXES.index(axis)
-    return len(statuslimit) > index and statuslimit[index] == "A"
+    return len(statuslimit) > index and statuslimit[index] == CALIBRATED_FLAG
 
 
 class Msta:
