@@ -37,6 +37,7 @@ most the first :data:`TRACE_LINE` (256) bytes of its line and the line's length.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import functools
 import logging
@@ -175,6 +176,10 @@ class MoveHandle:
         """Stop waiting for the completion report (refused, settled by polling...)."""
         self.protocol.forget_completion(self.submission)
 
+
+#: The step-0 marker numbers of this process's latest detections (see
+#: :meth:`TangoProtocol._fresh_detect_code`); fewer than there are marker numbers.
+_RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
 
 #: Called with each unsolicited event, completion report and dropped line; the second
 #: argument is the submission a completion belongs to (``None`` if unsolicited).
@@ -924,7 +929,7 @@ class TangoProtocol(asyncio.Protocol):
         """
         self.core.help_style = HelpStyle.NONE
         self._detected = {"help_number": "none"}
-        code = self.core.pick_marker_code()
+        code = self._fresh_detect_code()
         if await self._numbered_marker_answers(code, timeout):
             self.core.help_style = HelpStyle.NUMBER
         else:
@@ -943,6 +948,18 @@ class TangoProtocol(asyncio.Protocol):
                 self.core.help_text = (code, answers[-1])
         self._detected = {"help_number": self.core.help_style.value}
         return self.detected
+
+    def _fresh_detect_code(self) -> int:
+        """A marker number for step 0 of :meth:`detect` that no recent step 0 of this
+        process used: a connect abandoned within its step 0 (cancelled, timed out) leaves
+        its replies on the link, and a step 0 with the same number would take them for its
+        own, then hand its own late replies to the next requests (#32 item 5: ``not a
+        version reply: '1'``). The codes cycle through more numbers than are remembered."""
+        code = self.core.pick_marker_code()
+        while code in _RECENT_DETECT_CODES:
+            code = self.core.pick_marker_code()
+        _RECENT_DETECT_CODES.append(code)
+        return code
 
     async def _numbered_marker_answers(self, code: int, timeout: float) -> bool:
         """Step 0 of :meth:`detect`: whether ``ERROR code,`` twice and then a number (the

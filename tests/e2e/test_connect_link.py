@@ -13,7 +13,8 @@ import serial
 from helpers import make_model, opened, serve_pty
 
 import tango_aio
-from tango_aio import ConnectionLostError, Controller
+from tango_aio import ConnectionLostError, Controller, core
+from tango_aio.protocol import TangoProtocol
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import WireConfig
 
@@ -172,3 +173,30 @@ async def test_a_unit_lacking_a_setting_connects_at_once_and_times_moves_without
             assert getattr(timing, field) == 0, name
         await tango.move_to(x=0.2)
         assert (await tango.position())["x"] == pytest.approx(0.2)
+
+
+async def test_a_connect_right_after_one_abandoned_in_its_first_exchange_is_in_step(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first attempt is cancelled right after it wrote detect's step 0, whose replies
+    are still on their way (4800 Bd); every session starts with the same marker number
+    here, so the next attempt's step 0 would take those replies for its own and hand its
+    own late ones to the next requests (``not a version reply: '1'``, seen once in 60
+    cancelled connects) unless it uses another number."""
+    monkeypatch.setattr(core.random, "randrange", lambda n: 0)
+    started = asyncio.Event()
+    real = TangoProtocol._numbered_marker_answers
+
+    async def spy(self: TangoProtocol, code: int, timeout: float) -> bool:
+        started.set()
+        return await real(self, code, timeout)
+
+    monkeypatch.setattr(TangoProtocol, "_numbered_marker_answers", spy)
+    async with await serve_pty(make_model, WireConfig(baud=4800)) as server:
+        first = asyncio.create_task(opened(server.path))
+        await started.wait()
+        for _ in range(3):
+            await asyncio.sleep(0)  # its lines are written
+        first.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await (await first).aclose()
+        await _connect_and_check(server.path)
