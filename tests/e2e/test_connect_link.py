@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import random
 import time
 from typing import Any
 
@@ -13,7 +14,7 @@ import serial
 from helpers import make_model, opened, serve_pty
 
 import tango_aio
-from tango_aio import ConnectionLostError, Controller, core
+from tango_aio import ConnectionLostError, Controller
 from tango_aio.protocol import TangoProtocol
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import WireConfig
@@ -182,7 +183,7 @@ async def test_a_connect_right_after_one_abandoned_in_its_first_exchange_is_in_s
     here, so the next attempt's step 0 would take those replies for its own and hand its
     own late ones to the next requests (``not a version reply: '1'``, seen once in 60
     cancelled connects) unless it uses another number."""
-    monkeypatch.setattr(core.random, "randrange", lambda n: 0)
+    monkeypatch.setattr(random, "randrange", lambda n: 0)  # the core's first number
     started = asyncio.Event()
     real = TangoProtocol._numbered_marker_answers
 
