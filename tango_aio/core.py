@@ -40,6 +40,7 @@ ever raised for bad input; the core stays usable afterwards.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import itertools
 import random
@@ -292,6 +293,13 @@ class _Pending:
     size: int = 0  # bytes in lines
     internal: bool = False
     marker: str | None = None  # expected reply prefix of a resync marker
+    #: A mode-2 move line: the internal ``?err`` written right behind it, whose reply
+    #: stands in for the move's acknowledgement when that comes only at completion
+    #: (:meth:`ProtocolCore._defer_ack`).
+    follow: _Pending | None = None
+    #: On such a follow-up, once the move's acknowledgement proved deferred: the move
+    #: whose verdict this reply's error number is.
+    verdict: Hashable | None = None
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -500,7 +508,15 @@ def wire_size(command: Command, expect: Expectation) -> int:
     """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
     and the internal ``?err`` follow-up of a read whose end only the next line shows."""
     size = len(command.to_bytes())
-    return size + len(_FOLLOW_UP) if expect.rule.continuation is not None else size
+    # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
+    # bytes are reserved whether or not it is written.
+    return size + len(_FOLLOW_UP) if expect.rule.continuation is not None or expect.ack \
+        else size
+
+
+def _is_ok(text: str) -> bool:
+    """Whether an acknowledgement line is ``OK...`` (in any case: switch ``ack_case``)."""
+    return text[:2].upper() == "OK"
 
 
 class ProtocolCore:
@@ -542,6 +558,11 @@ class ProtocolCore:
         #: How many optional lines (``"echo?"``, ``"ack?"``) arrived and were consumed:
         #: what this firmware does where the manual is silent.
         self.tolerated: dict[str, int] = {}
+        #: Mode-2 moves whose OK... proved to come with their completion report (switch
+        #: ``move_ok``), oldest first; and ack lines held until it is known whose they
+        #: are (:meth:`_resolve_held`).
+        self._deferred: deque[Hashable] = deque()
+        self._held: list[str] = []
 
     # -- state ------------------------------------------------------------------------
 
@@ -558,7 +579,8 @@ class ProtocolCore:
     def pending_tags(self) -> list[Hashable]:
         """Tags of requests still owed a reply, oldest first (a request that only
         optional lines may still follow is answered)."""
-        return [p.tag for p in self._pending if not p.internal and not p.settled]
+        return [p.verdict if p.verdict is not None else p.tag for p in self._pending
+                if (not p.internal and not p.settled) or p.verdict is not None]
 
     @property
     def awaiting_completion(self) -> list[Hashable]:
@@ -600,13 +622,34 @@ class ProtocolCore:
         mode = self._autostatus
         self._autostatus = expect.mode_after
         data, template, echo, pattern = self._line_facts(command, expect, mode)
+        pending = None
         if template:
-            self._pending.append(_Pending(tag, deque(template), echo, expect.rule, pattern))
+            # (Checked before this line joins the queue: a move's own follow-up is below.)
+            deferring = expect.ack and self._deferring()
+            pending = _Pending(tag, deque(template), echo, expect.rule, pattern)
+            self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
+        elif pending is not None and expect.ack and (expect.completion is not None
+                                                     or deferring):
+            # Mode 2 (switch move_ok, L2099-2103 do not say when a move's OK... comes):
+            # a move's acknowledgement may come only with its completion report, after
+            # the replies of the lines written behind it. An ``?err`` right behind the
+            # move tells: its reply before any acknowledgement means the OK... is
+            # deferred, and its number is the move's verdict. While such an OK... is
+            # owed, every acknowledged line gets one too, so that the ack lines that
+            # arrive for it are counted up to a line that is not one (_resolve_held).
+            data += self._register_follow_up(mode)
+            if expect.completion is not None:
+                pending.follow = self._pending[-1]
         return data, expect
+
+    def _deferring(self) -> bool:
+        """Whether a move's OK... may still come with its completion report: one proved
+        deferred, or a move line's acknowledgement not yet known."""
+        return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
     def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
         """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
@@ -674,9 +717,12 @@ class ProtocolCore:
         :meth:`end_resync` (:attr:`quiet`).
         """
         for pending in self._pending:
-            if not pending.internal and not pending.settled:
+            if pending.verdict is not None:
+                self._events.append(RequestLost(pending.verdict))
+            elif not pending.internal and not pending.settled:
                 self._events.append(RequestLost(pending.tag))
         self._pending.clear()
+        self._forget_deferred()
         self._desynced = False
         stop = b"\x03" if ctrl_c else b""
         chosen = self._marker()
@@ -697,7 +743,14 @@ class ProtocolCore:
         """Drop every line (completion reports excepted) until :meth:`end_resync`; what is
         still owed is forgotten (only call it when no request waits)."""
         self._pending.clear()
+        self._forget_deferred()
         self._resync_marker = _QUIET
+
+    def _forget_deferred(self) -> None:
+        # After a resync an OK... still owed arrives before the marker's reply (dropped)
+        # or, with no request waiting, as an unsolicited line.
+        self._deferred.clear()
+        self._held.clear()
 
     def pick_marker_code(self) -> int:
         """A marker number for this session (see :data:`_MARKER_CODES`)."""
@@ -791,6 +844,8 @@ class ProtocolCore:
         text = line.strip()
         if self._route_completion(line, text):
             return
+        if self._held and not ACK_PATTERN.accepts(text):
+            self._resolve_held()
         if self._desynced:
             self._events.append(Dropped(line))
             return
@@ -798,6 +853,11 @@ class ProtocolCore:
         # flight when the port was opened), so it is searched, not prefix-matched.
         if self._resync_marker is not None and self._resync_marker not in text:
             self._events.append(Dropped(line))
+            return
+        if self._deferred and _is_ok(text) and ACK_PATTERN.accepts(text) \
+                and self._takes_deferred():
+            self._deferred.popleft()  # a move's OK... that came with its report
+            self.tolerated["ok@completion"] = self.tolerated.get("ok@completion", 0) + 1
             return
         if not self._pending:
             self._events.append(Unsolicited(line))
@@ -868,12 +928,75 @@ class ProtocolCore:
         self._advance(head)
         self._emit(head, Echoed(head.tag, line, done))
 
+    def _takes_deferred(self) -> bool:
+        """Whether an ``OK...`` arriving now can only be a deferred one: no request waits
+        for an acknowledgement at the head (none waits, or the head owes data or an
+        optional line; only ``save``'s data is an ``OK...``)."""
+        if not self._pending:
+            return True
+        head = self._pending[0]
+        item = head.items[0]
+        if item is _Item.ACK:
+            return False
+        return not (item is _Item.DATA and head.pattern is ACK_PATTERN and not head.lines)
+
     def _route_ack(self, head: _Pending, line: str, text: str) -> None:
         if not ACK_PATTERN.accepts(text):
+            if head.follow is not None:
+                self._defer_ack(head, line)
+                return
             self._events.append(Unsolicited(line))
             return
+        if self._deferred:
+            # An OK... of a deferred move may come before this line's acknowledgement
+            # (its move ended first): hold the ack lines until it is known whose each is.
+            self._held.append(line)
+            if not _is_ok(text) or len(self._held) > len(self._deferred):
+                self._resolve_held()
+            return
+        self._acknowledge(head, line, text)
+
+    def _defer_ack(self, head: _Pending, line: str) -> None:
+        """A line that is not an acknowledgement came for a mode-2 move: its OK... comes
+        with its completion report (switch ``move_ok=completion``). The reply of the
+        ``?err`` written behind it (the line now, if nothing was lost) is its verdict."""
+        follow, head.follow = head.follow, None
+        assert follow is not None
+        follow.verdict = head.tag
+        self._deferred.append(head.tag)
+        head.items.popleft()
+        if not head.items:
+            self._pending.remove(head)
+        self._route(line)
+
+    def _resolve_held(self) -> None:
+        """Hand the held ack lines out: the head's own acknowledgement and the OK...s of
+        deferred moves. A deferred one is always ``OK...`` (a refused move is refused at
+        once, with ``ERR``), so an ``ERR`` among them is the head's; among OKs it does
+        not matter which is whose, only how many. A move at the head may have deferred
+        its own: then the deferred moves take the OKs first."""
+        held, self._held = self._held, []
+        head = self._pending[0]
+        pick = next((i for i, line in enumerate(held) if not _is_ok(line.strip())), None)
+        if pick is None:
+            pick = len(self._deferred) if head.follow is not None else 0
+        for index, line in enumerate(held):
+            if index == pick:
+                continue
+            if self._deferred and _is_ok(line.strip()):
+                self._deferred.popleft()
+                self.tolerated["ok@completion"] = self.tolerated.get("ok@completion", 0) + 1
+            else:
+                self._events.append(Unsolicited(line))
+        if pick < len(held):
+            self._acknowledge(head, held[pick], held[pick].strip())
+
+    def _acknowledge(self, head: _Pending, line: str, text: str) -> None:
+        if head.follow is not None:
+            # Acknowledged at once: the ?err behind it is only a read now.
+            head.follow = None
         number = re.search(r"-?\d+", text)
-        code = 0 if text.startswith("OK") else (int(number.group()) if number else None)
+        code = 0 if _is_ok(text) else (int(number.group()) if number else None)
         if code != 0:
             self.forget_completion(head.tag)  # a refused move never completes
         done = head.done_after(_Item.ACK)
@@ -919,6 +1042,17 @@ class ProtocolCore:
         head.lines.clear()
         head.size = 0
         self._advance(head)
+        if head.verdict is not None:
+            # The ?err behind a move whose OK... is deferred: its number is the move's
+            # acknowledgement now (0: accepted, the OK... follows with the report).
+            number = re.search(r"-?\d+", lines[0]) if lines else None
+            code = int(number.group()) if number else None
+            if code != 0:
+                self.forget_completion(head.verdict)
+                with contextlib.suppress(ValueError):
+                    self._deferred.remove(head.verdict)
+            self._events.append(Acknowledged(head.verdict, code, lines[0] if lines else ""))
+            return
         self._emit(head, Replied(head.tag, lines, done))
 
     def _advance(self, head: _Pending) -> None:

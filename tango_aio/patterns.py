@@ -51,7 +51,7 @@ _MANY: Final = 1 << 16
 
 _NUMBER_RE: Final = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
 _STATUS_RE: Final = re.compile(r"[@A-Za-z\-]{1,8}(?:\.[@A-Za-z\-]*)?$")
-_ACK_RE: Final = re.compile(r"(?:OK\.*|ERR(?:\s+-?\d+)?)$")
+_ACK_RE: Final = re.compile(r"(?:OK\.*|ERR(?:\s+-?\d+)?)$", re.IGNORECASE)
 
 
 class ReplyKind(enum.Enum):

@@ -24,6 +24,7 @@ from tango_aio.core import (
     Echoed,
     Event,
     LineAssembler,
+    Mismatched,
     ProtocolCore,
     Replied,
     RequestLost,
@@ -443,7 +444,7 @@ def test_mode2_ack_codes(line: str, code: int | None) -> None:
 
 def test_mode2_move_ack_then_completion() -> None:
     core, _ = setup(2, ("!moa 1 2 3", "m"), ("?pos", "p"))
-    assert feed(core, [stream("OK...", "R", "@@@-.")]) == [
+    assert feed(core, [stream("OK...", "0", "R", "@@@-.")]) == [
         Acknowledged("m", 0, "OK...", True),
         Replied("p", ("R",)),
         Completed("m", XYZ, "@@@-."),
@@ -454,13 +455,81 @@ def test_mode2_move_ack_then_completion() -> None:
 def test_mode2_refused_move_drops_its_completion() -> None:
     core, _ = setup(2, ("!moa 999", "bad"), ("!moa 1", "good"))
     assert core.awaiting_completion == ["bad", "good"]
-    events = feed(core, [stream("ERR 5")])
+    events = feed(core, [stream("ERR 5", "5")])
     assert events == [Acknowledged("bad", 5, "ERR 5", True)]
     assert core.awaiting_completion == ["good"]
-    assert feed(core, [stream("OK...", "@@@-.")]) == [
+    assert feed(core, [stream("OK...", "0", "@@@-.")]) == [
         Acknowledged("good", 0, "OK...", True),
         Completed("good", XYZ, "@@@-."),
     ]
+
+
+# Switch move_ok=completion (#32 item 4): a move's OK... only with its completion report,
+# after the replies of the lines written behind it. No acknowledgement may go to the
+# wrong request (prime rule 1).
+
+_DURING_MOVE = (("!moa 4", "m"), ("!trigp 5 1.0", "t"), ("!vel y 5", "v"), ("?vel", "r"))
+
+
+def test_mode2_move_writes_an_err_behind_it_and_so_does_each_set_while_its_ack_is_owed(
+        ) -> None:
+    _core, written = setup(2, *_DURING_MOVE)
+    assert written == b"!moa 4\r?err\r!trigp 5 1.0\r?err\r!vel y 5\r?err\r?vel\r"
+
+
+def test_mode2_deferred_move_ok_is_not_credited_to_the_lines_behind_it() -> None:
+    core, _ = setup(2, *_DURING_MOVE)
+    events = feed(core, [stream("0", "ERR 5", "5", "OK...", "0", "R", "OK...", "@@@-.")])
+    assert events == [
+        Acknowledged("m", 0, "0", True),  # the ?err behind it: accepted, OK... deferred
+        Acknowledged("t", 5, "ERR 5", True),
+        Acknowledged("v", 0, "OK...", True),
+        Replied("r", ("R",)),
+        Completed("m", XYZ, "@@@-."),
+    ]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+    assert core.tolerated == {"ok@completion": 1}
+
+
+@pytest.mark.parametrize("refused", [False, True])
+@pytest.mark.parametrize("order", ["report_first", "ok_first", "ack_between"])
+def test_mode2_deferred_move_ok_around_a_sets_ack(order: str, refused: bool) -> None:
+    # The move ends while !vel waits for its acknowledgement: its OK... may come before,
+    # after or (not right before its report) around that line's own.
+    core, _ = setup(2, ("!moa 4", "m"), ("!vel y 5", "v"))
+    ack = "ERR 5" if refused else "OK..."
+    lines = {"report_first": ["OK...", "@@@-.", ack, "5" if refused else "0"],
+             "ok_first": [ack, "OK...", "@@@-.", "5" if refused else "0"],
+             "ack_between": ["OK...", ack, "@@@-.", "5" if refused else "0"]}[order]
+    events = feed(core, [stream("0", *lines)])
+    assert Acknowledged("m", 0, "0", True) in events
+    assert Acknowledged("v", 5 if refused else 0, ack, True) in events
+    assert Completed("m", XYZ, "@@@-.") in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+
+
+def test_mode2_deferred_move_refused_by_its_err() -> None:
+    # A move refused at once answers ERR on either firmware; its ?err agrees.
+    core, _ = setup(2, ("!moa 400", "m"), ("!vel y 5", "v"))
+    assert feed(core, [stream("ERR 5", "5", "OK...", "0")]) == [
+        Acknowledged("m", 5, "ERR 5", True), Acknowledged("v", 0, "OK...", True)]
+    assert core.awaiting_completion == []
+
+
+def test_mode2_deferred_move_after_a_deferred_move() -> None:
+    # move_during_move=queue: the second move's OK... is deferred too; the first one's
+    # OK... arriving at its head is not taken for the second's acknowledgement.
+    core, _ = setup(2, ("!moa 4", "m1"), ("!moa 1", "m2"))
+    events = feed(core, [stream("0", "OK...", "@@@-.", "0", "OK...", "@@@-.")])
+    assert events == [Acknowledged("m1", 0, "0", True), Completed("m1", XYZ, "@@@-."),
+                      Acknowledged("m2", 0, "0", True), Completed("m2", XYZ, "@@@-.")]
+
+
+def test_mode2_deferred_move_lost_in_a_resync_is_reported_lost() -> None:
+    core, _ = setup(2, ("!moa 4", "m"))
+    core.resync("marker")
+    assert RequestLost("m") in drain(core)
 
 
 def test_mode2_read_not_acknowledged() -> None:
@@ -965,6 +1034,7 @@ def scenarios(draw: st.DrawFn) -> Scenario:
     commands: list[str] = []
     reads: dict[int, str] = {}
     written = b""
+    acked_move = False  # a mode-2 move was written (its OK... may come at completion)
     for tag in range(count):
         kind = draw(st.sampled_from(_KINDS))
         if kind == "mode":
@@ -1028,6 +1098,12 @@ def scenarios(draw: st.DrawFn) -> Scenario:
             refused = reply != "OK..."
             code = 0 if reply == "OK..." else (5 if reply == "ERR 5" else None)
             lines.append(_Line(reply, [Acknowledged(tag, code, reply, True)], owner=tag))
+            if kind == "move" or acked_move:
+                # The ?err the core writes behind an acknowledged move, and behind every
+                # acknowledged line while a move's acknowledgement is not known yet.
+                written += b"?err\r"
+                lines.append(_Line(str(code or 0), [], owner=tag))
+            acked_move = acked_move or kind == "move"
         if kind == "move" and mode != 0 and not refused:
             report = "" if mode == 3 else draw(st.sampled_from(_COMPLETIONS[command.name]))
             moves.append(_Move(tag, len(lines), report))
