@@ -88,6 +88,7 @@ __all__ = [
     "Replied",
     "RequestLost",
     "Unsolicited",
+    "canonical_case",
     "is_completion_line",
     "owed_pattern",
     "wire_size",
@@ -108,6 +109,29 @@ _LF: Final = 0x0A
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
 _COMPLETION_RE: Final = re.compile(r"^[@MJSADETCU\-]{1,4}\.$")
+
+
+#: The words the driver recognises lines by that some firmware may print in another case
+#: (switches ``ack_case``, ``help_case``): the mode-2 acknowledgements ``OK...`` and
+#: ``ERR n`` (L2099-2103, L2150-2152) and ``help``'s ``ERROR n,text`` (L2915-2919), which
+#: the manual prints in capitals and nowhere says must be.
+_CASED_RE: Final = re.compile(
+    r"\s*(?:(error)(?=\s*-?\d+\s*,)|(ok)(?=\.*\s*$)|(err)(?=(?:\s+-?\d+)?\s*$))",
+    re.IGNORECASE)
+
+
+def canonical_case(line: str) -> str:
+    """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
+    ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
+    range``); every other line as it is."""
+    if line[:1] not in ("o", "O", "e", "E", " ") or line.startswith(("OK", "ERR")):
+        return line
+    match = _CASED_RE.match(line)
+    if match is None:
+        return line
+    group = next(index for index in (1, 2, 3) if match.group(index) is not None)
+    start, end = match.span(group)
+    return line[:start] + line[start:end].upper() + line[end:]
 
 
 def is_completion_line(line: str) -> bool:
@@ -297,6 +321,9 @@ class _Pending:
     #: stands in for the move's acknowledgement when that comes only at completion
     #: (:meth:`ProtocolCore._defer_ack`).
     follow: _Pending | None = None
+    #: A mode-4 move line: its echo may come only with its completion report
+    #: (:meth:`ProtocolCore._route_echo`).
+    defers_echo: bool = False
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
@@ -480,9 +507,21 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
             items.append(_Item.ACK_OPT)
     elif expect.ack:
         items.append(_Item.ACK)
+    elif _acks_itself(command, after):
+        items.append(_Item.ACK_OPT)
     items.extend(trailing)
     items.extend(echo_after)
     return items
+
+
+def _acks_itself(command: Command, after: int) -> bool:
+    """Whether ``command`` is a ``!`` line whose own answer is ``OK...`` (``save``,
+    ``restore``: L1738-1762, L2081) written where mode 2 acknowledges ``!`` lines: that
+    answer may be its acknowledgement, or a second ``OK...`` may follow (switch
+    ``save_ack``; L2081 and L2099-2103 do not say). The core writes an ``?err`` behind it,
+    so that the second is told from the next line's acknowledgement by what follows."""
+    return after == 2 and command.form is Form.SET and command.executes \
+        and command.instruction.exec_reply is Shape.ACK
 
 
 #: Error numbers used for markers: ``?help N`` answers ``ERROR N,...`` (L2899-2919). Only
@@ -510,8 +549,9 @@ def wire_size(command: Command, expect: Expectation) -> int:
     size = len(command.to_bytes())
     # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
     # bytes are reserved whether or not it is written.
-    return size + len(_FOLLOW_UP) if expect.rule.continuation is not None or expect.ack \
-        else size
+    follows = expect.rule.continuation is not None or expect.ack \
+        or command.instruction.exec_reply is Shape.ACK
+    return size + len(_FOLLOW_UP) if follows else size
 
 
 def _is_ok(text: str) -> bool:
@@ -563,6 +603,9 @@ class ProtocolCore:
         #: are (:meth:`_resolve_held`).
         self._deferred: deque[Hashable] = deque()
         self._held: list[str] = []
+        #: Echoes of mode-4 moves that come with their completion report (switch
+        #: ``echo=completion``), oldest first.
+        self._deferred_echoes: deque[ReplyPattern] = deque()
 
     # -- state ------------------------------------------------------------------------
 
@@ -632,8 +675,9 @@ class ProtocolCore:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
-        elif pending is not None and expect.ack and (expect.completion is not None
-                                                     or deferring):
+        elif pending is not None and ((expect.ack and (expect.completion is not None
+                                                       or deferring))
+                                      or _acks_itself(command, expect.mode_after)):
             # Mode 2 (switch move_ok, L2099-2103 do not say when a move's OK... comes):
             # a move's acknowledgement may come only with its completion report, after
             # the replies of the lines written behind it. An ``?err`` right behind the
@@ -644,6 +688,9 @@ class ProtocolCore:
             data += self._register_follow_up(mode)
             if expect.completion is not None:
                 pending.follow = self._pending[-1]
+        if pending is not None and expect.completion is not None \
+                and pending.items[0] is _Item.ECHO:
+            pending.defers_echo = True
         return data, expect
 
     def _deferring(self) -> bool:
@@ -751,6 +798,7 @@ class ProtocolCore:
         # or, with no request waiting, as an unsolicited line.
         self._deferred.clear()
         self._held.clear()
+        self._deferred_echoes.clear()
 
     def pick_marker_code(self) -> int:
         """A marker number for this session (see :data:`_MARKER_CODES`)."""
@@ -826,7 +874,7 @@ class ProtocolCore:
             line = self._assembler.next_line()
             if line is None:
                 return None
-            self._route(line)
+            self._route(canonical_case(line))
         return self._events.popleft()
 
     def events(self, data: bytes = b"") -> list[Event]:
@@ -853,6 +901,8 @@ class ProtocolCore:
         # flight when the port was opened), so it is searched, not prefix-matched.
         if self._resync_marker is not None and self._resync_marker not in text:
             self._events.append(Dropped(line))
+            return
+        if self._deferred_echoes and self._deferred_echo(text):
             return
         if self._deferred and _is_ok(text) and ACK_PATTERN.accepts(text) \
                 and self._takes_deferred():
@@ -920,8 +970,34 @@ class ProtocolCore:
         head = self._pending[0]
         return bool(head.lines) and head.rule.continuation is None
 
+    def _deferred_echo(self, text: str) -> bool:
+        """Consume ``text`` if it is the echo of a move that came with its report, and
+        not the echo the head waits for (the same text: then it does not matter whose)."""
+        if self._pending:
+            head = self._pending[0]
+            if head.items[0] in (_Item.ECHO, _Item.ECHO_OPT) and head.echo is not None \
+                    and head.echo.accepts(text):
+                return False
+        for echo in self._deferred_echoes:
+            if echo.accepts(text):
+                self._deferred_echoes.remove(echo)
+                self.tolerated["echo@completion"] = \
+                    self.tolerated.get("echo@completion", 0) + 1
+                return True
+        return False
+
     def _route_echo(self, head: _Pending, line: str, text: str) -> None:
         if head.echo is not None and not head.echo.accepts(text):
+            if head.defers_echo:
+                # Mode 4 (switch echo=completion; L2117 does not say when the echo
+                # comes): the move's echo comes with its report; the line is the reply of
+                # the ?err written behind it, which is its verdict.
+                self._deferred_echoes.append(head.echo)
+                done = head.done_after(_Item.ECHO)
+                self._advance(head)
+                self._emit(head, Echoed(head.tag, "", done))
+                self._route(line)
+                return
             self._events.append(Unsolicited(line))
             return
         done = head.done_after(_Item.ECHO)

@@ -80,8 +80,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "The echo is the exact text received, or the line re-printed: lower case, "
               "single spaces, numbers re-formatted (`!MOA  1.50` -> `!moa 1.5`), or the "
               "exact text without its leading `!` (`nobang`: `!moa 1` -> `moa 1`; L2117 "
-              "only says \"echoes the instruction\").",
-              unsupported=("nobang",)),
+              "only says \"echoes the instruction\")."),
     # -- mode 2 (acknowledge) ------------------------------------------------------------------
     SwitchDoc("ack_reads", ("no", "before", "after"), "L2099-2103",
               "Mode 2 acknowledges `!` lines only (`no`), or `?` reads too, with `OK...` "
@@ -99,8 +98,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "Mode 2 acknowledgements as the manual prints them, `OK...` and `ERR 5` "
               "(`upper`), or in another case: `ok...`/`err 5` (`lower`), `Ok...`/`Err 5` "
               "(`title`). Replies that are the data of a line (`save`, `?status`) keep "
-              "the manual's case.",
-              unsupported=("lower", "title")),
+              "the manual's case."),
     SwitchDoc("save_ack", ("once", "twice"), "L1738-1762, L2081, L2099-2103",
               "`!save` (and `!restore`) answer `OK...` in every mode (L2081); in mode 2 "
               "that answer is the acknowledgement (`once`), or the line is acknowledged "
@@ -123,8 +121,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
     SwitchDoc("status_tail", ("yes", "no"), "L2662-2725",
               "`?statusaxis` (all axes) ends with `.-` like every example of the manual "
-              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`).",
-              unsupported=("no",)),
+              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`)."),
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
@@ -148,8 +145,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`?help N` answers `ERROR N,text` (`yes`) or the text only (`no`)."),
     SwitchDoc("help_case", ("upper", "lower"), "L2915-2919",
               "`help` answers as the manual prints it, `ERROR 5,number outside range` "
-              "(`upper`), or in lower case: `error 5,number outside range` (`lower`).",
-              unsupported=("lower",)),
+              "(`upper`), or in lower case: `error 5,number outside range` (`lower`)."),
     SwitchDoc("service_end", ("yes", "no"), "L2937-2943",
               "`service` ends with `END_SERVICE_PRINT.` (firmware 1.60C/1.61 on) or "
               "without an end marker (`no`)."),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import pytest
@@ -29,6 +29,7 @@ from tango_aio.core import (
     Replied,
     RequestLost,
     Unsolicited,
+    canonical_case,
     expectation,
     is_completion_line,
 )
@@ -532,6 +533,51 @@ def test_mode2_deferred_move_lost_in_a_resync_is_reported_lost() -> None:
     assert RequestLost("m") in drain(core)
 
 
+@pytest.mark.parametrize(("line", "canonical"), [
+    ("ok...", "OK..."), ("Ok...", "OK..."), ("err 5", "ERR 5"), ("Err", "ERR"),
+    ("error 5,number outside range", "ERROR 5,number outside range"),
+    ("OK...", "OK..."), ("ERROR 0,no error", "ERROR 0,no error"), ("E@@-.", "E@@-."),
+    ("okay", "okay"), ("errata", "errata"), ("Error", "Error"), ("1.0000", "1.0000")])
+def test_canonical_case(line: str, canonical: str) -> None:
+    assert canonical_case(line) == canonical
+
+
+@pytest.mark.parametrize("case", [str.lower, str.capitalize])
+def test_mode2_acknowledgements_in_another_case(case: Callable[[str], str]) -> None:
+    # Switch ack_case (#32): ok.../err 5, Ok.../Err 5 are acknowledgements too.
+    core, _ = setup(2, ("!vel 10", "a"), ("!accel 1.5", "b"))
+    assert feed(core, [stream(case("OK..."), case("ERR 5"))]) == [
+        Acknowledged("a", 0, "OK...", True), Acknowledged("b", 5, "ERR 5", True)]
+
+
+def test_marker_reply_in_lower_case_ends_the_resync() -> None:
+    # Switch help_case=lower (#32): ?help N answers "error N,...".
+    core, _ = setup(1, ("?vel", "v"))
+    data = core.resync("marker")
+    code = data.decode().split()[1].rstrip("\r")
+    events = feed(core, [stream("R", f"error {code},text")])
+    assert events[-1] == Replied("marker", (f"ERROR {code},text",))
+
+
+def test_mode4_move_echo_at_completion() -> None:
+    # Switch echo=completion (#32): a move's echo only with its report, after the ?err
+    # written behind it and the lines behind that.
+    core, _ = setup(4, ("!moa 4", "m"), ("?err", "e"), ("!vel y 5", "v"), ("?vel", "r"))
+    events = feed(core, [stream("0", "!vel y 5", "R", "!moa 4", "@@@-.")])
+    assert events == [
+        Echoed("m", "", True), Replied("e", ("0",)), Echoed("v", "!vel y 5", True),
+        Replied("r", ("R",)), Completed("m", XYZ, "@@@-."),
+    ]
+    assert core.tolerated == {"echo@completion": 1}
+
+
+def test_mode4_move_echo_at_completion_is_not_taken_for_a_sets_echo() -> None:
+    core, _ = setup(4, ("!moa 4", "m"), ("?err", "e"), ("!vel y 5", "v"))
+    events = feed(core, [stream("0", "moa 4", "@@@-.", "vel y 5")])  # echo_text=nobang too
+    assert Echoed("v", "vel y 5", True) in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+
+
 def test_mode2_read_not_acknowledged() -> None:
     core, _ = setup(2, ("?pos", "p"), ("!vel 10", "v"))
     assert feed(core, [stream("1.0 2.0", "OK...")]) == [
@@ -552,13 +598,28 @@ def test_mode2_bare_move_not_acknowledged_but_completes() -> None:
 
 @pytest.mark.parametrize("line", ["save", "!save"])
 def test_mode2_save_answers_once(line: str) -> None:
-    core, _ = setup(2, (line, "s"), ("?pos", "p"))
+    core, written = setup(2, (line, "s"), ("?pos", "p"))
     expect = expectation(parse(line), 2)
     assert not expect.ack  # its own OK.../ERR is the data reply, not acknowledged again
-    assert feed(core, [stream("OK...", "R")]) == [
+    # '!save' may be acknowledged again (switch save_ack): an ?err behind it tells.
+    follow = ["0"] if line == "!save" else []
+    assert written == f"{line}\r".encode() + b"?err\r" * len(follow) + b"?pos\r"
+    assert feed(core, [stream("OK...", *follow, "R")]) == [
         Replied("s", ("OK...",), True),
         Replied("p", ("R",), True),
     ]
+
+
+@pytest.mark.parametrize("second", ["OK...", "ERR 5"])
+def test_mode2_save_acknowledged_twice(second: str) -> None:
+    # Switch save_ack=twice (#32): OK... then the acknowledgement of the line; the next
+    # line's acknowledgement is still its own.
+    core, _ = setup(2, ("!save", "s"), ("!vel 10", "v"))
+    assert feed(core, [stream("OK...", second, "0", "ERR 5")]) == [
+        Replied("s", ("OK...",), True),
+        Acknowledged("v", 5, "ERR 5", True),
+    ]
+    assert core.tolerated == {"ack?": 1}
 
 
 def test_mode2_unexpected_line_where_ack_expected() -> None:
@@ -1055,12 +1116,16 @@ def scenarios(draw: st.DrawFn) -> Scenario:
         # Reply data lines; 'follow' is the internal ?err reply closing a continuation.
         data: list[str] = []
         follow: str | None = None
+        trailing: str | None = None  # an internal ?err's reply that closes nothing
         sealed = False
         if kind == "read":
             data = [f"R{tag}"]
             reads[tag] = data[0]
         elif kind == "save":
             data = [draw(st.sampled_from(["OK...", "ERR", "ERR 5"]))]
+            if mode == 2 and text.startswith("!"):
+                trailing = "0"  # the ?err behind it (switch save_ack)
+                written += b"?err\r"
         elif kind == "multi":
             extra = draw(st.integers(0, 3))
             if command.name == "service":
@@ -1090,6 +1155,8 @@ def scenarios(draw: st.DrawFn) -> Scenario:
             lines.append(entry)
         if follow is not None:
             lines.append(_Line(follow, [Replied(tag, tuple(data), True)], owner=tag))
+        if trailing is not None:
+            lines.append(_Line(trailing, [], owner=tag))
         refused = False
         if ack:
             reply = "OK..."
