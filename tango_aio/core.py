@@ -76,6 +76,7 @@ from .patterns import (
 )
 
 __all__ = [
+    "LOCAL_ECHO",
     "Acknowledged",
     "Completed",
     "Dropped",
@@ -110,6 +111,11 @@ _LF: Final = 0x0A
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
 _COMPLETION_RE: Final = re.compile(r"^[@MJSADETCU\-]{1,4}\.$")
 
+
+#: Why a read answered by its own text fails (:attr:`ProtocolCore.local_echo`).
+LOCAL_ECHO: Final = ("a read came back as itself: the link echoes every byte sent (local "
+                     "echo of a serial adapter or RS-485 converter), which the driver does "
+                     "not support; turn the adapter's echo off")
 
 #: The words the driver recognises lines by that some firmware may print in another case
 #: (switches ``ack_case``, ``help_case``): the mode-2 acknowledgements ``OK...`` and
@@ -324,6 +330,8 @@ class _Pending:
     #: A mode-4 move line: its echo may come only with its completion report
     #: (:meth:`ProtocolCore._route_echo`).
     defers_echo: bool = False
+    #: A read's line as written: no reply is ever the read itself (local echo).
+    sent: str = ""
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
@@ -598,6 +606,9 @@ class ProtocolCore:
         #: How many optional lines (``"echo?"``, ``"ack?"``) arrived and were consumed:
         #: what this firmware does where the manual is silent.
         self.tolerated: dict[str, int] = {}
+        #: Whether a read came back as itself: the link echoes what is sent (see
+        #: :data:`LOCAL_ECHO`).
+        self.local_echo = False
         #: Mode-2 moves whose OK... proved to come with their completion report (switch
         #: ``move_ok``), oldest first; and ack lines held until it is known whose they
         #: are (:meth:`_resolve_held`).
@@ -669,7 +680,8 @@ class ProtocolCore:
         if template:
             # (Checked before this line joins the queue: a move's own follow-up is below.)
             deferring = expect.ack and self._deferring()
-            pending = _Pending(tag, deque(template), echo, expect.rule, pattern)
+            pending = _Pending(tag, deque(template), echo, expect.rule, pattern,
+                               sent=data.decode("latin-1")[:-1] if command.is_read else "")
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
@@ -736,7 +748,7 @@ class ProtocolCore:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
                             self.ack_reads)
         self._pending.append(_Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
-                                      internal=True, pattern=ONE_NUMBER))
+                                      internal=True, pattern=ONE_NUMBER, sent="?err"))
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -1082,6 +1094,16 @@ class ProtocolCore:
     def _route_data(self, head: _Pending, line: str, text: str) -> None:
         if head.marker is not None:
             self._resync_marker = None
+        elif not head.lines and head.sent and text == head.sent:
+            # A read answered by itself where no echo is owed (modes 0-3 echo nothing,
+            # L2060-2117): the link returns the bytes the driver sends, like a serial
+            # adapter or RS-485 converter with local echo (switch local_echo). Their
+            # copies interleave with the controller's replies: not served.
+            self.local_echo = True
+            self._desynced = True
+            tag = None if head.internal else head.tag
+            self._events.append(Mismatched(tag, line, head.pattern, LOCAL_ECHO))
+            return
         elif not head.lines and self.check_replies and not head.pattern.accepts(text):
             # Not this request's reply: its own was lost, or the line is extra. Handing it
             # over would shift every later reply by one request (tango_aio.patterns).

@@ -81,6 +81,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
 import logging
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -89,6 +90,7 @@ from typing import NoReturn, Protocol
 import anyio
 
 from .errors import (
+    ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     MoveError,
@@ -111,6 +113,7 @@ __all__ = [
     "MotionPort",
     "MovePlan",
     "MoveTiming",
+    "annotate",
     "describe_stop",
     "moved_axes",
     "position_tolerance",
@@ -386,6 +389,17 @@ class Motion:
             raise error
         try:
             letters = await self._follow(job)
+        except _LOST_READ as exc:
+            # The state could not be read (#32: a call that raises never leaves the axes
+            # it set moving): stop them and say so, or say that they may still move.
+            stopped = await self._stop_and_wait(job)
+            raise annotate(exc, "axes stopped" if stopped else
+                           f"axes {' '.join(job.plan.moved).upper()} may still move"
+                           ) from exc
+        except ConnectionLostError as exc:
+            job.sent.forget()
+            raise annotate(exc, f"axes {' '.join(job.plan.moved).upper()} may still move"
+                           ) from exc
         except BaseException:
             job.sent.forget()
             raise
@@ -507,14 +521,18 @@ class Motion:
             f"{job.plan.command.line!r} did not complete within {job.plan.limit:.1f} s; "
             "axes stopped")
 
-    async def _stop_and_wait(self, job: _Job) -> None:
-        """Write ``a`` and wait (bounded) until the moved axes stand still."""
+    async def _stop_and_wait(self, job: _Job) -> bool:
+        """Write ``a`` and wait (bounded) until the moved axes stand still; whether they
+        were seen to."""
         with contextlib.suppress(TangoError):
             await self._port.write_stop()
             self.stopped()
+        idle = False
         with contextlib.suppress(TangoError, TimeoutError):
             await self._idle(job, STOP_WAIT)
+            idle = True
         job.sent.forget()
+        return idle
 
     async def _stop_after_cancel(self, job: _Job) -> None:
         """The awaiting task was cancelled: stop the axes and wait for them to stop.
@@ -544,6 +562,18 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
+
+
+def annotate(exc: TangoError, text: str) -> TangoError:
+    """A copy of ``exc`` (a driver error raised by a call that had set axes moving)
+    whose message ends with ``text``: whether they were stopped (#32). A copy, because
+    the same error may be raised to other callers too (a lost link)."""
+    new = copy.copy(exc)
+    if exc.args and isinstance(exc.args[0], str):
+        new.args = (f"{exc.args[0]}; {text}", *exc.args[1:])
+    else:
+        new.add_note(text)
+    return new
 
 
 def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]

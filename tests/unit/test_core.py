@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from tango_aio.core import (
     DEFAULT_MAX_LINE,
+    LOCAL_ECHO,
     Acknowledged,
     Completed,
     Dropped,
@@ -35,6 +36,7 @@ from tango_aio.core import (
 )
 from tango_aio.errors import ProtocolError
 from tango_aio.instructions import Context, parse, parse_reply
+from tango_aio.patterns import reply_pattern
 
 #: Context of a 3-axis controller in extmode 0: ``?lim`` without an axis spans two lines.
 EXT0 = Context(extmode=0, axes=3)
@@ -576,6 +578,23 @@ def test_mode4_move_echo_at_completion_is_not_taken_for_a_sets_echo() -> None:
     events = feed(core, [stream("0", "moa 4", "@@@-.", "vel y 5")])  # echo_text=nobang too
     assert Echoed("v", "vel y 5", True) in events
     assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+
+
+@pytest.mark.parametrize("mode", [0, 1, 2, 3])
+def test_a_read_answered_by_itself_is_local_echo(mode: int) -> None:
+    # Switch local_echo=yes (#32): the adapter returns the read before the controller's
+    # reply. No reply is its own read: a mismatch that names it.
+    core, _ = setup(mode, ("?version", "v"))
+    events = feed(core, [stream("?version", "TANGO-DT, Version 1.71")])
+    assert events[0] == Mismatched("v", "?version", reply_pattern(parse("?version")),
+                                   LOCAL_ECHO)
+    assert core.local_echo
+
+
+def test_a_read_echoed_in_mode_4_is_not_local_echo() -> None:
+    core, _ = setup(4, ("?version", "v"))  # echo_all firmware echoes reads (old L723)
+    assert feed(core, [stream("?version", "V")]) == [Replied("v", ("V",))]
+    assert not core.local_echo
 
 
 def test_mode2_read_not_acknowledged() -> None:
