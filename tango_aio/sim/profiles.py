@@ -68,8 +68,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`!autostatus 1` sent in mode 4 is echoed and `!autostatus 4` sent in mode 1 "
               "is not; `after`: the reverse. `completion`: like `before`, but a move line "
               "that starts a move is echoed only when it completes, just before its "
-              "report (L2117 does not say when the echo comes).",
-              unsupported=("completion",)),
+              "report (L2117 does not say when the echo comes)."),
     SwitchDoc("echo_report", ("yes", "no"), "L2117, L2168",
               "A move in mode 4 also sends its completion report after the echo (`yes`), "
               "or the echo is all it gets (`no`)."),
@@ -102,8 +101,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("save_ack", ("once", "twice"), "L1738-1762, L2081, L2099-2103",
               "`!save` (and `!restore`) answer `OK...` in every mode (L2081); in mode 2 "
               "that answer is the acknowledgement (`once`), or the line is acknowledged "
-              "again after it (`twice`: `OK...` `OK...`).",
-              unsupported=("twice",)),
+              "again after it (`twice`: `OK...` `OK...`)."),
     # -- moves -----------------------------------------------------------------------------------
     SwitchDoc("refused_move_report", ("no", "yes"), "L2705, L6337-6343",
               "A refused move (e.g. outside the limits) only sets the error (`no`), or "
@@ -170,7 +168,8 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("local_echo", ("no", "yes"), "L8-10, L2117",
               "The link returns only the controller's replies (`no`), or, like a serial "
               "adapter or an RS-485 converter with local echo, also every byte the host "
-              "sends, at once (`yes`; the manual knows only mode 4's echo, L2117).",
+              "sends, at once (`yes`; the manual knows only mode 4's echo, L2117). The "
+              "driver refuses `yes` at connect with a `ConnectError` naming local echo.",
               unsupported=("yes",)),
 )
 
