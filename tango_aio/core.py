@@ -33,6 +33,29 @@ Where the manual is silent on whether a line comes at all (a read echoed in mode
 read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
 when the next line fits it, skipped otherwise (:func:`_owed_items`).
 
+Some lines come *late* on some firmware (#32), and the core tells from the stream:
+
+* Mode 2 may acknowledge a move only when it completes, next to its report (switch
+  ``move_ok=completion``; L2099-2103 do not say when). So the core writes an ``?err``
+  behind every mode-2 move: its reply arriving where the move's ``OK...`` is owed shows
+  that the ``OK...`` is deferred, and its number is the move's verdict. While a deferred
+  ``OK...`` may still come, every acknowledged line gets such an ``?err`` too, and the
+  acknowledgement lines that arrive for it are held until a line that is not one: a
+  deferred acknowledgement is always ``OK...`` (a refused move is refused at once), so
+  an ``ERR`` among them is the line's own, and among ``OK...`` only the count matters.
+  No acknowledgement is ever credited to the wrong request.
+* Mode 4 may echo a move line only when it completes (switch ``echo=completion``; L2117):
+  a line that is not its echo where a move's echo is owed (the reply of the ``?err``
+  probe behind it) shows that; the echo is consumed by its text when it comes.
+* ``!save`` may be acknowledged a second time in mode 2 (switch ``save_ack``): an
+  optional acknowledgement, with an ``?err`` behind it so that it cannot be taken for the
+  next line's.
+* ``OK``, ``ERR`` and ``ERROR`` may come in another case (switches ``ack_case``,
+  ``help_case``): :func:`canonical_case` puts them in capitals before routing.
+* A read answered by its own text means the link echoes what is sent (local echo of an
+  adapter; switch ``local_echo``): a :class:`Mismatched` with :data:`LOCAL_ECHO`, and
+  :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
+
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
 ever raised for bad input; the core stays usable afterwards.
