@@ -700,9 +700,11 @@ class ProtocolCore:
         self._autostatus = expect.mode_after
         data, template, echo, pattern = self._line_facts(command, expect, mode)
         pending = None
+        deferring = False
         if template:
             # (Checked before this line joins the queue: a move's own follow-up is below.)
-            deferring = expect.ack and self._deferring()
+            acked = _Item.ACK in template  # a ! line, or a read where reads are acked
+            deferring = acked and self._deferring()
             pending = _Pending(tag, deque(template), echo, expect.rule, pattern,
                                sent=data.decode("latin-1")[:-1] if command.is_read else "")
             self._pending.append(pending)
@@ -710,8 +712,8 @@ class ProtocolCore:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
-        elif pending is not None and ((expect.ack and (expect.completion is not None
-                                                       or deferring))
+        elif pending is not None and ((expect.ack and expect.completion is not None)
+                                      or deferring
                                       or _acks_itself(command, expect.mode_after)):
             # Mode 2 (switch move_ok, L2099-2103 do not say when a move's OK... comes):
             # a move's acknowledgement may come only with its completion report, after

@@ -512,6 +512,44 @@ def test_mode2_deferred_move_ok_around_a_sets_ack(order: str, refused: bool) -> 
     assert core.pending_tags == [] and core.awaiting_completion == []
 
 
+def test_mode2_deferred_move_ok_and_an_acknowledged_read() -> None:
+    # ack_reads=after with move_ok=completion: the read's OK... is told from the move's
+    # by the ?err behind the read, not by waiting for the move's end.
+    core, _ = setup(2, ("!moa 4", "m"))
+    core.ack_reads = "after"
+    data, _ = core.send(parse("?vel x"), "r")
+    assert data == b"?vel x\r?err\r"
+    events = feed(core, [stream("0", "R", "OK...", "0")])
+    assert events == [Acknowledged("m", 0, "0", True), Replied("r", ("R",), False),
+                      Acknowledged("r", 0, "OK...", True)]
+    assert feed(core, [stream("OK...", "@@@-.")]) == [Completed("m", XYZ, "@@@-.")]
+
+
+@given(codes=st.lists(st.sampled_from([0, 5]), min_size=1, max_size=6),
+       where=st.integers(0, 100), before=st.booleans(), cuts=st.lists(st.integers(0, 200)))
+@settings(max_examples=200, deadline=None)
+def test_mode2_deferred_move_ok_anywhere_among_set_acks(
+        codes: list[int], where: int, before: bool, cuts: list[int]) -> None:
+    # The move's OK... and its report (in either order: L2099-2103 say neither) fall
+    # anywhere among the replies of the sets written behind it, in any chunks: every set
+    # gets its own verdict, the move its report, nothing is left over.
+    sets = [(f"!vel y {index + 1}", f"s{index}") for index in range(len(codes))]
+    core, _ = setup(2, ("!moa 4", "m"), *sets)
+    replies: list[str] = []
+    for code in codes:
+        replies += ["OK..." if code == 0 else f"ERR {code}", str(code)]
+    pair = ["OK...", "@@@-."] if before else ["@@@-.", "OK..."]
+    at = where % (len(replies) + 1)
+    data = stream("0", *replies[:at], *pair, *replies[at:])
+    events = feed(core, split_at(data, cuts))
+    acks = {e.tag: e.code for e in events if isinstance(e, Acknowledged)}
+    assert acks == {"m": 0, **{tag: code for (_line, tag), code in zip(sets, codes,
+                                                                       strict=True)}}
+    assert Completed("m", XYZ, "@@@-.") in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+
+
 def test_mode2_deferred_move_refused_by_its_err() -> None:
     # A move refused at once answers ERR on either firmware; its ?err agrees.
     core, _ = setup(2, ("!moa 400", "m"), ("!vel y 5", "v"))
