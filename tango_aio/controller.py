@@ -887,8 +887,8 @@ class Controller:
                 try:
                     await self.stop(*running)
                 except TangoError:
-                    raise annotate(exc, f"axes {named} may still move") from exc
-                raise annotate(exc, f"axes {named} stopped") from exc
+                    raise annotate(exc, f"axes {named} may still move") from exc.__cause__
+                raise annotate(exc, f"axes {named} stopped") from exc.__cause__
             raise
 
     async def wait_idle(self, *, poll_interval: float = 0.05,

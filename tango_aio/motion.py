@@ -395,11 +395,11 @@ class Motion:
             stopped = await self._stop_and_wait(job)
             raise annotate(exc, "axes stopped" if stopped else
                            f"axes {' '.join(job.plan.moved).upper()} may still move"
-                           ) from exc
+                           ) from exc.__cause__
         except ConnectionLostError as exc:
             job.sent.forget()
-            raise annotate(exc, f"axes {' '.join(job.plan.moved).upper()} may still move"
-                           ) from exc
+            axes = " ".join(job.plan.moved).upper()
+            raise annotate(exc, f"axes {axes} may still move") from exc.__cause__
         except BaseException:
             job.sent.forget()
             raise
@@ -568,7 +568,7 @@ def annotate(exc: TangoError, text: str) -> TangoError:
     """A copy of ``exc`` (a driver error raised by a call that had set axes moving)
     whose message ends with ``text``: whether they were stopped (#32). A copy, because
     the same error may be raised to other callers too (a lost link)."""
-    new = copy.copy(exc)
+    new = copy.copy(exc)  # (raise it ``from exc.__cause__``: e.g. a link's reset)
     if exc.args and isinstance(exc.args[0], str):
         new.args = (f"{exc.args[0]}; {text}", *exc.args[1:])
     else:
