@@ -376,14 +376,14 @@ class Motion:
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
-        except _LOST_READ:
+        except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed.
             aborted = self._was_stopped(job)
-            await self._stop_and_wait(job)
+            stopped = await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
-            raise
+            raise _with_stop(exc, job, stopped) from exc.__cause__
         if error is not None:
             job.sent.forget()
             raise error
@@ -393,13 +393,10 @@ class Motion:
             # The state could not be read (#32: a call that raises never leaves the axes
             # it set moving): stop them and say so, or say that they may still move.
             stopped = await self._stop_and_wait(job)
-            raise annotate(exc, "axes stopped" if stopped else
-                           f"axes {' '.join(job.plan.moved).upper()} may still move"
-                           ) from exc.__cause__
+            raise _with_stop(exc, job, stopped) from exc.__cause__
         except ConnectionLostError as exc:
             job.sent.forget()
-            axes = " ".join(job.plan.moved).upper()
-            raise annotate(exc, f"axes {axes} may still move") from exc.__cause__
+            raise _with_stop(exc, job, False) from exc.__cause__
         except BaseException:
             job.sent.forget()
             raise
@@ -574,6 +571,12 @@ def annotate(exc: TangoError, text: str) -> TangoError:
     else:
         new.add_note(text)
     return new
+
+
+def _with_stop(exc: TangoError, job: _Job, stopped: bool) -> TangoError:
+    """``exc`` saying whether the axes of ``job`` were seen to stop after it."""
+    return annotate(exc, "axes stopped" if stopped else
+                    f"axes {' '.join(job.plan.moved).upper()} may still move")
 
 
 def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]
