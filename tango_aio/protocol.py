@@ -69,6 +69,7 @@ from .errors import (
     RequestAbortedError,
     TangoError,
     UnknownControllerError,
+    WrongEventLoopError,
     controller_error,
     parse_error_reply,
 )
@@ -87,10 +88,6 @@ log = logging.getLogger("tango_aio.protocol")
 #: Consecutive unanswered requests after which a link that stays open is declared lost.
 #: Two: a request's own timeout, then the resync marker written after it.
 DEAD_AFTER = 2
-
-
-class WrongEventLoopError(TangoError, RuntimeError):
-    """A connection was used from another event loop than the one it was opened on."""
 
 
 @dataclass(slots=True)

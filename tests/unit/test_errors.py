@@ -252,16 +252,16 @@ def _every_tango_error() -> set[type[TangoError]]:
 
 
 def test_every_tango_error_is_defined_in_errors() -> None:
-    # protocol.py's WrongEventLoopError waits for the protocol's own rework (issue 31).
     elsewhere = {f"{cls.__module__}.{cls.__qualname__}" for cls in _every_tango_error()
                  if cls.__module__ != "tango_aio.errors"}
-    assert elsewhere == {"tango_aio.protocol.WrongEventLoopError"}
+    assert elsewhere == set()
 
 
 def test_the_surfaces_errors_keep_their_old_import_paths() -> None:
-    from tango_aio import bluesky, bulk, probe, reconnect
+    from tango_aio import bluesky, bulk, probe, protocol, reconnect
     from tango_aio.epics import ioc
 
+    assert protocol.WrongEventLoopError is errors.WrongEventLoopError
     assert bulk.UploadError is errors.UploadError
     assert reconnect.IdentityMismatchError is errors.IdentityMismatchError
     assert probe.ProbeError is errors.ProbeError
