@@ -34,16 +34,18 @@ from .bulk import (
     validate_rows,
     validate_trigger_positions,
 )
-from .core import Completed, Dropped, Event, Unsolicited
+from .core import LOCAL_ECHO, Completed, Dropped, Event, Unsolicited
 from .errors import (
     ERROR_DESCRIPTIONS,
     INTERNAL_ERRORS,
+    ConnectError,
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
+    TangoError,
     parse_error_reply,
 )
 from .events import (
@@ -73,7 +75,7 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import STOP_WAIT, Motion, MovePlan
+from .motion import STOP_WAIT, Motion, MovePlan, annotate
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
@@ -250,13 +252,22 @@ class Controller:
         acknowledged in any mode): a previous session may have left any mode behind, and
         how ``!autostatus`` itself is answered depends on it.
         """
-        await self._protocol.resync(timeout=self.reply_timeout)
-        current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
-        if autostatus is not None and autostatus != current:
-            await self.command(f"!autostatus {autostatus}")
-        if identify:
-            self._identity = await self.identify()
-        await self.refresh_settings()
+        try:
+            await self._protocol.resync(timeout=self.reply_timeout)
+            current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
+            if autostatus == 4 and current != 4:
+                # Mode 4 echoes set lines, and with echo_all reads too (old L723), so a
+                # link that echoes every byte (local echo) shows only before it: one read.
+                await self.query("?err")
+            if autostatus is not None and autostatus != current:
+                await self.command(f"!autostatus {autostatus}")
+            if identify:
+                self._identity = await self.identify()
+            await self.refresh_settings()
+        except TangoError as exc:
+            if self._protocol.core.local_echo:
+                raise ConnectError(LOCAL_ECHO) from exc
+            raise
         if self._reconnector is not None:
             self._reconnector.arm()
 
@@ -844,7 +855,21 @@ class Controller:
         axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
-        await self._execute(command, check=True)
+        try:
+            await self._execute(command, check=True)
+        except ControllerError:
+            raise  # refused: the line changed nothing (L2853-2856)
+        except TangoError as exc:
+            # Its answer was lost: the axes may run (#32). Stop them and say so.
+            running = [axis for axis, value in axes.items() if value]
+            if running:
+                named = " ".join(running).upper()
+                try:
+                    await self.stop(*running)
+                except TangoError:
+                    raise annotate(exc, f"axes {named} may still move") from exc.__cause__
+                raise annotate(exc, f"axes {named} stopped") from exc.__cause__
+            raise
 
     async def wait_idle(self, *, poll_interval: float = 0.05,
                         timeout: float | None = None) -> dict[str, str]:
