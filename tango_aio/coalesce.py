@@ -78,6 +78,8 @@ class _Batch:
     task: asyncio.Task[dict[str, str]] | None = None
     #: Why the batch was cancelled, for the callers that did not cancel it.
     cancel_reason: str = ""
+    #: The positions its lines' confirmations read, taken as each line returned.
+    positions: dict[str, str] = field(default_factory=dict)
 
     def close(self) -> None:
         """Stop collecting; the batch runs as soon as the batch before it has ended."""
@@ -123,11 +125,18 @@ class MoveCoalescer:
         return arrived
 
     async def move_to(self, axis: str, target: float,
-                      arrived: Callable[[], None] | None = None) -> str:
+                      arrived: Callable[[], None] | None = None, *,
+                      positions: dict[str, str] | None = None) -> str:
         """Move one axis as part of the next merged move; return its status letter,
         raise the merged move's MoveError/TangoError. A second request for an axis that is
         already in the batch being collected closes that batch and starts the next one.
-        Cancelling one caller stops the merged move (all axes), as Controller.move_to does."""
+        Cancelling one caller stops the merged move (all axes), as Controller.move_to does.
+
+        ``positions``, if given, receives the positions (as printed) that the merged
+        move's own confirmations read behind their reports, once its lines have returned
+        (:attr:`Controller.last_positions <tango_aio.controller.Controller.last_positions>`
+        right after each ``move_to``): a caller that must publish where the axis stands
+        needs no read of its own."""
         try:
             value = self._checked(axis, target)
             batch = self._batch_for(axis)
@@ -147,6 +156,9 @@ class MoveCoalescer:
                 raise MoveError(f"merged move {batch.targets} {batch.cancel_reason}",
                                 dict.fromkeys(batch.targets, "E")) from None
             raise  # this caller was cancelled just as the batch ended
+        finally:
+            if positions is not None:
+                positions.update(batch.positions)
         return letters.get(axis, "@")
 
     def pending(self, axis: str) -> bool:
@@ -231,6 +243,7 @@ class MoveCoalescer:
         for line in _lines(batch.targets):
             axes: dict[str, Any] = line  # only axis letters, never move_to's options
             letters.update(await self.controller.move_to(**axes))
+            batch.positions.update(self.controller.last_positions or {})
         return letters
 
     async def _withdraw(self, batch: _Batch, axis: str) -> None:

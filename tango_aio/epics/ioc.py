@@ -120,6 +120,15 @@ def _finite(pvname: str, field: str, value: float) -> None:
         raise MotorRefusedError(f"{pvname}.{field}: {value!r} is not a usable number")
 
 
+def _number(text: str | None) -> float | None:
+    """``text`` as a finite number, or ``None`` (not given, or not a number)."""
+    try:
+        value = float(text) if text is not None else math.nan
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
 def _log_failure(task: asyncio.Future[Any]) -> None:
     """Done-callback of a background move (Pause, then Go): log how it failed."""
     if not task.cancelled() and task.exception() is not None:
@@ -306,7 +315,13 @@ class AxisServer:
         alarms = {id(c.alarm): c.alarm for c in (self.record, *(fields[name] for name in
                                                                   ALARM_FIELDS))}
         for alarm in alarms.values():
-            await alarm.write(status=status, severity=severity)
+            # Each write posts a monitor on every channel that shares the alarm: clearing
+            # an alarm that is not set (the end of every good move) is skipped, about
+            # 0.3 ms of each put; an alarm is posted again each time it is set (a link
+            # loss re-asserts INVALID to every client, after CONNECTED=0 too).
+            if severity != AlarmSeverity.NO_ALARM or alarm.severity != severity \
+                    or alarm.status != status:
+                await alarm.write(status=status, severity=severity)
 
     @property
     def controller(self) -> Controller:
@@ -447,20 +462,30 @@ class AxisServer:
     # -- motion --------------------------------------------------------------------------
 
     async def move(self, target: float) -> None:
-        """VAL was put: move there (or redefine the position with SET=Set)."""
-        self._require_link()
-        f = self._f
-        self._require_go()
-        _finite(self.record.pvname, "VAL", target)
-        if f.set_use_switch.value == "Set":
-            await self._redefine(target)
-            return
-        dial = target - f.user_offset.value
-        await self._check_limits(dial)
-        await self.record.write(target, verify_value=False)  # VAL shows the newest target
-        await f.dial_desired_value.write(dial, verify_value=False)
-        await self._run(lambda: self.server.coalescer.move_to(self.letter, dial),
-                        positive=dial >= self._dial)
+        """VAL was put: move there (or redefine the position with SET=Set).
+
+        The put announces itself to the coalescer as it starts, so a merged move being
+        collected waits for it (puts to other axes that arrive together join one line)
+        and a lone put waits for no time at all (see :mod:`tango_aio.coalesce`)."""
+        arrived = self.server.coalescer.announce()
+        try:
+            self._require_link()
+            f = self._f
+            self._require_go()
+            _finite(self.record.pvname, "VAL", target)
+            if f.set_use_switch.value == "Set":
+                await self._redefine(target)
+                return
+            dial = target - f.user_offset.value
+            await self._check_limits(dial)
+            await self.record.write(target, verify_value=False)  # VAL: the newest target
+            await f.dial_desired_value.write(dial, verify_value=False)
+            confirmed: dict[str, str] = {}
+            await self._run(lambda: self.server.coalescer.move_to(
+                self.letter, dial, arrived, positions=confirmed),
+                positive=dial >= self._dial, confirmed=confirmed)
+        finally:
+            arrived()  # refused, replaced or failed before it joined: nobody waits for it
 
     def _require_go(self) -> None:
         if self._halted:
@@ -479,10 +504,16 @@ class AxisServer:
                                     f"limits [{low}, {high}]")
 
     async def _run(self, motion: Callable[[], Awaitable[Any]], *,
-                   positive: bool = True) -> None:
+                   positive: bool = True, confirmed: Mapping[str, str] | None = None
+                   ) -> None:
         """Run ``motion`` once it is this request's turn, with DMOV=0; before returning,
         publish RBV, MOVN=0 and DMOV=1 (unless another request follows) and wait until
         those updates are on the wire to every client.
+
+        ``confirmed``: where ``motion`` leaves the positions its move's confirmation read
+        behind the report (the axis read stopped, then its position, nothing written in
+        between); after a successful move RBV comes from there instead of another ``?pos``
+        (a round trip, about 4 ms at 57600 Bd, on the path of every put).
 
         The motion runs in a task of its own, which :meth:`stop` cancels: a move not yet
         sent is withdrawn, a running one is stopped (by the coalescer or the controller).
@@ -501,6 +532,7 @@ class AxisServer:
             raise
         # The turn covers the final publishing too: the next request (or a STOP that
         # waits for its turn) starts after this one's RBV/DMOV are out.
+        arrived_at: str | None = None  # the confirmed position, after a success only
         async with self._turn:
             try:
                 if request != self._request:
@@ -525,9 +557,10 @@ class AxisServer:
                 self._problem = False
                 if self.server.link_up:
                     await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+                arrived_at = (confirmed or {}).get(self.letter)
             finally:
                 self._busy -= 1
-                await self._finish()
+                await self._finish(arrived_at)
 
     async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int) -> None:
         """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
@@ -569,13 +602,16 @@ class AxisServer:
             await self.controller.stop(self.letter)
         await asyncio.wait([task])
 
-    async def _finish(self) -> None:
-        """A request ended: read the position; unless another request follows, publish
-        MOVN=0 and DMOV=1 (only while the link is up: a move that lost its link has not
-        been seen to stand); then wait until every client has those updates."""
+    async def _finish(self, confirmed: str | None = None) -> None:
+        """A request ended: publish the position (``confirmed``, as printed by the read
+        that confirmed its move's arrival, else read now); unless another request follows,
+        publish MOVN=0 and DMOV=1 (only while the link is up: a move that lost its link
+        has not been seen to stand); then wait until every client has those updates."""
         f = self._f
+        dial = _number(confirmed)
         with contextlib.suppress(TangoError):
-            await self._publish_dial(await self.controller.get("pos", axis=self.letter))
+            await self._publish_dial(dial if dial is not None
+                                     else await self.controller.get("pos", axis=self.letter))
         if not self.controller.connected:
             self._standing_unknown = True
             await self.server.link_lost()
@@ -843,7 +879,9 @@ class ControllerServer:
         self._restored = autosave is None
         self.prefix = prefix
         self.poll = poll
-        self.coalescer = MoveCoalescer(controller, window=window)
+        # No fixed wait: VAL puts announce themselves; ``window`` only bounds how long
+        # a merged move waits for announced puts still on their way.
+        self.coalescer = MoveCoalescer(controller, window=window, collect="announced")
         self.group = group if group is not None else ControllerPVs(prefix)
         self.link_up = controller.connected
         self.context: FlushingContext | None = None

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import os
 import random
@@ -184,6 +185,33 @@ async def test_put_with_callback_completes_at_the_target(ca_env: dict[str, str])
         assert msta & Msta.DONE and msta & Msta.DIRECTION and not msta & Msta.MOVING
 
 
+async def test_a_put_publishes_the_position_its_moves_confirmation_read(
+        ca_env: dict[str, str], caplog: pytest.LogCaptureFixture) -> None:
+    # #28 target 4: RBV after a good move comes from the read that confirmed the arrival
+    # (the axis read stopped, then its position): no ?pos of its own behind it.
+    async with connect(INSTANT) as tango:
+        ioc = await build_ioc({"": tango}, "T:", poll=3600)  # one poll, at the start
+        task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+        context = ClientContext()
+        try:
+            client = Client(context, "T:")
+            assert await client.get("X.DMOV") == 1
+            caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
+            caplog.clear()
+            await client.put("X", 3.0)
+            written = [r.getMessage().split(" ", 1)[1] for r in caplog.records
+                       if r.name == "tango_aio.wire" and " -> " in f" {r.getMessage()}"]
+            assert await client.get("X.RBV") == pytest.approx(3.0)
+            assert await client.get("X.DMOV") == 1
+        finally:
+            await context.disconnect()
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    after = written[next(i for i, line in enumerate(written) if "!moa" in line):]
+    assert len([line for line in after if "?pos" in line]) == 1, after
+
+
 async def test_dmov_is_zero_while_moving(ca_env: dict[str, str]) -> None:
     async with one_stage() as (_, _, client):
         move = asyncio.create_task(client.put("X", 8.0))
@@ -320,6 +348,16 @@ async def test_two_axes_put_together_become_one_line(ca_env: dict[str, str]) -> 
         moves = [line for line in lines if line.startswith("!moa")]
         assert moves == ["!moa 1.0 2.0"]
         assert await client.get("Y.RBV") == pytest.approx(2.0)
+
+
+async def test_a_lone_put_waits_for_no_merge_window(ca_env: dict[str, str]) -> None:
+    # A window of an hour: puts announce themselves, so a batch waits only for the puts
+    # on their way, never for time alone (#28 target 4).
+    async with one_stage(window=3600) as (tango, _, client):
+        async with asyncio.timeout(30):
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(1.0)
+        assert await client.get("X.RBV") == pytest.approx(1.0)
 
 
 async def test_controller_pvs(ca_env: dict[str, str]) -> None:
