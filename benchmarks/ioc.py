@@ -97,8 +97,8 @@ class _Client:
 
 
 async def side_by_side(url: str, moves: int, step: float, speed: float, window: float,
-                       poll: float, rounds: int) -> tuple[list[float], list[float],
-                                                          list[float]]:
+                       poll: float, rounds: int, merge: str = "turn"
+                       ) -> tuple[list[float], list[float], list[float]]:
     """Seconds per move: the driver's ``move_to`` on one emulated controller, and a
     ``caput(wait=True)`` from another process through the IOC serving an identical one,
     in ``rounds`` alternating chunks; then as many puts that move nothing (TWV)."""
@@ -112,7 +112,8 @@ async def side_by_side(url: str, moves: int, step: float, speed: float, window: 
         await _fast(own, speed)
         await _fast(served, speed)
         await own.move_to(x=0.0)
-        ioc = await build_ioc({"": served}, "BENCH:", window=window, poll=poll)
+        ioc = await build_ioc({"": served}, "BENCH:", window=window, poll=poll,
+                              merge=merge)
         task = asyncio.create_task(ioc.run(["127.0.0.1"]))
         process = await asyncio.create_subprocess_exec(
             sys.executable, "-c", CLIENT, "BENCH:X", str(step), stdin=asyncio.subprocess.PIPE,
@@ -153,19 +154,21 @@ async def main(argv: list[str] | None = None) -> None:
                              "wire's pace; sim://?baud=0 for no wire time)")
     parser.add_argument("--merge-window", type=float, default=0.02,
                         help="the IOC's --merge-window (default 0.02, the IOC's own)")
+    parser.add_argument("--merge", choices=("turn", "window"), default="turn",
+                        help="the IOC's --merge (default turn, the IOC's own)")
     parser.add_argument("--poll", type=float, default=0.1,
                         help="the IOC's --poll (default 0.1, the IOC's own)")
     args = parser.parse_args(argv)
     driver_times, moved, quick = await side_by_side(
         args.url, args.moves, args.step, args.speed, args.merge_window, args.poll,
-        args.rounds)
+        args.rounds, args.merge)
     driver = statistics.median(driver_times)
     ioc, floor = statistics.median(moved), statistics.median(quick)
     print(f"driver move_to: median {driver * 1e3:.2f} ms; IOC caput(wait=True): median "
           f"{ioc * 1e3:.2f} ms; ratio {ioc / driver:.3f} (target <= 1.1); a caput(wait=True) "
           f"that moves nothing (TWV): median {floor * 1e3:.2f} ms; {args.moves} moves of "
           f"{args.step} mm at {args.speed} mm/s on {args.url} in {args.rounds} alternating "
-          f"rounds, merge window {args.merge_window} s, poll {args.poll} s")
+          f"rounds, merge {args.merge} (window {args.merge_window} s), poll {args.poll} s")
     print(json.dumps({"driver_s": driver, "ioc_s": ioc, "ratio": ioc / driver,
                       "noop_put_s": floor}))
 

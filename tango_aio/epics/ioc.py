@@ -290,6 +290,10 @@ class AxisServer:
         self.group = AxisGroup(f"{server.prefix}{letter.upper()}", axis=self)
         self.record: Any = self.group.motor
         self._busy = 0
+        #: The requests in progress (counted in ``_busy``), by number: set once ended.
+        self._ongoing: dict[int, asyncio.Event] = {}
+        #: Requests ended so far: a poll during which one ended carries older news.
+        self.finished = 0
         self._request = 0
         self._turn = asyncio.Lock()
         self._halted = False  # SPMG is Stop or Pause (set before any await)
@@ -522,12 +526,13 @@ class AxisServer:
         self._request += 1
         request = self._request
         self._busy += 1
+        self._ongoing[request] = asyncio.Event()
         try:
             if f.done_moving_to_value.value != 0:
                 await f.done_moving_to_value.write(0, verify_value=False)
             await self._cancel_running()
         except BaseException:
-            self._busy -= 1
+            self._ended(request)
             await self._finish()
             raise
         # The turn covers the final publishing too: the next request (or a STOP that
@@ -559,8 +564,14 @@ class AxisServer:
                     await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
                 arrived_at = (confirmed or {}).get(self.letter)
             finally:
-                self._busy -= 1
+                self._ended(request)
                 await self._finish(arrived_at)
+
+    def _ended(self, request: int) -> None:
+        self._busy -= 1
+        ended = self._ongoing.pop(request, None)
+        if ended is not None:
+            ended.set()
 
     async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int) -> None:
         """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
@@ -608,6 +619,7 @@ class AxisServer:
         publish MOVN=0 and DMOV=1 (only while the link is up: a move that lost its link
         has not been seen to stand); then wait until every client has those updates."""
         f = self._f
+        self.finished += 1  # a poll in flight read the axis before this request ended
         dial = _number(confirmed)
         with contextlib.suppress(TangoError):
             await self._publish_dial(dial if dial is not None
@@ -631,12 +643,19 @@ class AxisServer:
         one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on.
         """
         self._request += 1  # every waiting request is now stale
+        stopped = self._request
         self._require_link()
         await self._cancel_running()
         # Whatever moves this axis now (a move sent as it was withdrawn, another
         # program's) gets the one-axis stop too; stop() returns once it stands.
         if (await self.controller.status()).get(self.letter) == MOVING:
             await self.controller.stop(self.letter)
+        # Requests made before this stop end without moving; one may still be stopping
+        # the move before it and not yet waiting for its turn. This stop publishes
+        # MOVN=0/DMOV=1 only after all of them (a later request is a new move).
+        for number, ended in list(self._ongoing.items()):
+            if number < stopped:
+                await ended.wait()
         async with self._turn:  # the stopped and the stale requests have ended
             await self._finish()
 
@@ -872,16 +891,23 @@ class ControllerServer:
     """The PVs of one controller: its axes and controller PVs, and the poller."""
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
-                 window: float = 0.02, autosave: Autosave | None = None,
+                 window: float = 0.02, merge: str = "turn",
+                 autosave: Autosave | None = None,
                  group: ControllerPVs | None = None) -> None:
         self.controller = controller
         self.autosave = autosave
         self._restored = autosave is None
         self.prefix = prefix
         self.poll = poll
-        # No fixed wait: VAL puts announce themselves; ``window`` only bounds how long
-        # a merged move waits for announced puts still on their way.
-        self.coalescer = MoveCoalescer(controller, window=window, collect="announced")
+        # merge="turn": no fixed wait. VAL puts announce themselves as they start, and a
+        # merged move waits only for the puts already on their way (those that arrived
+        # together, e.g. in one TCP read), ``window`` bounding that wait; a lone put
+        # waits for nothing. merge="window": every move waits ``window`` seconds for
+        # puts to other axes (a client that writes them one by one, each flushed).
+        if merge not in ("turn", "window"):
+            raise ValueError(f"merge must be 'turn' or 'window', got {merge!r}")
+        self.coalescer = MoveCoalescer(controller, window=window,
+                                       collect="announced" if merge == "turn" else "window")
         self.group = group if group is not None else ControllerPVs(prefix)
         self.link_up = controller.connected
         self.context: FlushingContext | None = None
@@ -973,9 +999,15 @@ class ControllerServer:
                 await axis.assert_invalid()
             return
         await self._set_link(True)
+        seen = [axis.finished for axis in self.axes]
         positions = await c.position()
         letters = await c.status()
-        for axis in self.axes:
+        for axis, finished in zip(self.axes, seen, strict=True):
+            if axis.finished != finished:
+                # A request of this axis ended while the poll read: what it published
+                # (its RBV, MOVN=0, DMOV=1, maybe already sent as a put's completion) is
+                # newer than this poll's letters and position, which may show it moving.
+                continue
             await axis.poll_update(positions.get(axis.letter, 0.0),
                                    letters.get(axis.letter, AxisStatus.READY.value))
         if slow:
@@ -1044,12 +1076,13 @@ class WaitingServer:
 
     def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
                  *, poll: float, window: float, autosave: Autosave | None,
-                 retry: float = 2.0) -> None:
+                 retry: float = 2.0, merge: str = "turn") -> None:
         self.open_controller = open_controller
         self.prefix = prefix
         self.retry = retry
         self.group = ControllerPVs(prefix)
-        self._options = {"poll": poll, "window": window, "autosave": autosave}
+        self._options = {"poll": poll, "window": window, "merge": merge,
+                         "autosave": autosave}
         self.server: ControllerServer | None = None
 
     @property
@@ -1167,7 +1200,7 @@ def _unidentified(controller: Controller) -> bool:
 
 async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     policy: AccessPolicy | None = None, poll: float = 0.1,
-                    window: float = 0.02,
+                    window: float = 0.02, merge: str = "turn",
                     autosave: str | os.PathLike[str] | None = None,
                     waiting: Mapping[str, Callable[[], Awaitable[Controller]]] | None = None,
                     retry: float = 2.0) -> TangoIoc:
@@ -1175,7 +1208,11 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
 
     ``controllers`` maps a name to a connected controller; the name ``""`` gives PVs
     ``<prefix>X``, any other name ``<prefix><name>:X``. ``poll`` is the seconds between
-    position reads, ``window`` the :class:`~tango_aio.coalesce.MoveCoalescer` window.
+    position reads. ``merge``: how puts to different axes of a controller become one
+    ``!moa`` line: ``"turn"`` (default) merges the puts that arrive together (announced
+    as they start, no fixed wait; ``window`` bounds the wait for those on their way),
+    ``"window"`` every put waits ``window`` seconds for others
+    (:class:`~tango_aio.coalesce.MoveCoalescer`'s ``collect``).
     ``autosave``: a file that keeps OFF, the soft limits, VELO and VMAX across restarts
     (:mod:`.autosave`); its values are put back once each controller is connected.
     ``waiting`` maps names (as ``controllers``) to functions that open a controller not
@@ -1189,10 +1226,10 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
         if controller.connected and controller.context.axes and _unidentified(controller):
             await controller.identify()  # connected with identify=False: axes unknown
     servers = [ControllerServer(controller, f"{prefix}{name}:" if name else prefix,
-                                poll=poll, window=window, autosave=saved)
+                                poll=poll, window=window, merge=merge, autosave=saved)
                for name, controller in controllers.items()]
     pending = [WaitingServer(opener, f"{prefix}{name}:" if name else prefix, poll=poll,
-                             window=window, autosave=saved, retry=retry)
+                             window=window, merge=merge, autosave=saved, retry=retry)
                for name, opener in (waiting or {}).items()]
     ioc = TangoIoc(servers, policy or AccessPolicy(), pending)
     await ioc.start()

@@ -146,10 +146,10 @@ class Client:
 @contextlib.asynccontextmanager
 async def serving(controllers: Mapping[str, Controller], *, prefix: str = "T:",
                   policy: AccessPolicy | None = None, host_name: str | None = None,
-                  window: float = 0.02, autosave: Path | None = None,
+                  window: float = 0.02, autosave: Path | None = None, merge: str = "turn",
                   ) -> AsyncIterator[tuple[TangoIoc, Client]]:
     ioc = await build_ioc(controllers, prefix, policy=policy, poll=0.05, window=window,
-                          autosave=autosave)
+                          autosave=autosave, merge=merge)
     task = asyncio.create_task(ioc.run(["127.0.0.1"]))
     context = ClientContext(host_name=host_name)
     try:
@@ -358,6 +358,31 @@ async def test_a_lone_put_waits_for_no_merge_window(ca_env: dict[str, str]) -> N
             await client.put("X", 1.0)
         assert (await tango.position())["x"] == pytest.approx(1.0)
         assert await client.get("X.RBV") == pytest.approx(1.0)
+
+
+async def test_merge_window_joins_puts_written_one_by_one(ca_env: dict[str, str]) -> None:
+    # --merge window: a put to Y made after X's put was sent on its own still joins it.
+    async with one_stage(window=0.5, merge="window") as (tango, _, client):
+        await client.pv("X")
+        await client.pv("Y")
+        lines: list[str] = []
+        submit = tango.protocol.submit
+
+        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+            lines.append(command.line)
+            return submit(command, *args, **kwargs)
+
+        tango.protocol.submit = spy  # type: ignore[method-assign]
+        try:
+            first = asyncio.create_task(client.put("X", 1.0))
+            await client.until("X.DMOV", 0)  # X's put is being served
+            await client.put("Y", 2.0)
+            await first
+        finally:
+            del tango.protocol.submit
+        assert [line for line in lines if line.startswith("!moa")] == ["!moa 1.0 2.0"]
+    with pytest.raises(ValueError, match="merge"):
+        await build_ioc({"": tango}, "T:", merge="sometimes")
 
 
 async def test_controller_pvs(ca_env: dict[str, str]) -> None:
