@@ -13,7 +13,7 @@ import math
 import os
 import random
 import socket
-from collections.abc import AsyncIterator, Iterator, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -329,24 +329,32 @@ async def test_set_mode_redefines_the_position(ca_env: dict[str, str]) -> None:
         assert (await tango.position())["x"] == pytest.approx(3.0)
 
 
+async def _moves_of(tango: Controller, client: Client,
+                    puts: Callable[[], Awaitable[None]]) -> list[str]:
+    """The ``!moa`` lines written to ``tango`` while ``puts`` runs (X and Y connected)."""
+    await client.pv("X")
+    await client.pv("Y")
+    lines: list[str] = []
+    submit = tango.protocol.submit
+
+    def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+        lines.append(command.line)
+        return submit(command, *args, **kwargs)
+
+    tango.protocol.submit = spy  # type: ignore[method-assign]
+    try:
+        await puts()
+    finally:
+        del tango.protocol.submit
+    return [line for line in lines if line.startswith("!moa")]
+
+
 async def test_two_axes_put_together_become_one_line(ca_env: dict[str, str]) -> None:
     async with one_stage(window=0.2) as (tango, _, client):  # wide: a busy CI machine
-        await client.pv("X")
-        await client.pv("Y")
-        lines: list[str] = []
-        submit = tango.protocol.submit
-
-        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
-            lines.append(command.line)
-            return submit(command, *args, **kwargs)
-
-        tango.protocol.submit = spy  # type: ignore[method-assign]
-        try:
+        async def both() -> None:
             await asyncio.gather(client.put("X", 1.0), client.put("Y", 2.0))
-        finally:
-            del tango.protocol.submit
-        moves = [line for line in lines if line.startswith("!moa")]
-        assert moves == ["!moa 1.0 2.0"]
+
+        assert await _moves_of(tango, client, both) == ["!moa 1.0 2.0"]
         assert await client.get("Y.RBV") == pytest.approx(2.0)
 
 
@@ -363,24 +371,13 @@ async def test_a_lone_put_waits_for_no_merge_window(ca_env: dict[str, str]) -> N
 async def test_merge_window_joins_puts_written_one_by_one(ca_env: dict[str, str]) -> None:
     # --merge window: a put to Y made after X's put was sent on its own still joins it.
     async with one_stage(window=0.5, merge="window") as (tango, _, client):
-        await client.pv("X")
-        await client.pv("Y")
-        lines: list[str] = []
-        submit = tango.protocol.submit
-
-        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
-            lines.append(command.line)
-            return submit(command, *args, **kwargs)
-
-        tango.protocol.submit = spy  # type: ignore[method-assign]
-        try:
+        async def one_by_one() -> None:
             first = asyncio.create_task(client.put("X", 1.0))
             await client.until("X.DMOV", 0)  # X's put is being served
             await client.put("Y", 2.0)
             await first
-        finally:
-            del tango.protocol.submit
-        assert [line for line in lines if line.startswith("!moa")] == ["!moa 1.0 2.0"]
+
+        assert await _moves_of(tango, client, one_by_one) == ["!moa 1.0 2.0"]
     with pytest.raises(ValueError, match="merge"):
         await build_ioc({"": tango}, "T:", merge="sometimes")
 
