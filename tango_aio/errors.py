@@ -243,7 +243,8 @@ class MoveOutcomeUnknown(TangoError):
     (:class:`MoveTimeoutUnknownError`, :class:`MoveAbortedUnknownError`,
     :class:`MoveProtocolUnknownError`, :class:`MoveLinkLostUnknownError`), so that
     ``except ControllerTimeoutError`` still catches a timeout. ``command`` is the line
-    (e.g. ``'!mor 0.5'``); ``__cause__`` the original error."""
+    (e.g. ``'!mor 0.5'``); the message is the original error's, with what it means; its
+    ``__cause__`` is the original error's cause (e.g. a link's reset)."""
 
     command: str = ""
 
@@ -277,7 +278,7 @@ def outcome_unknown(error: TangoError, command: str) -> TangoError:
     """``error`` (raised for the motion line ``command`` after it was written) as the
     :class:`MoveOutcomeUnknown` class of its kind, the same message with what it means
     appended; ``error`` itself if it is of none of those kinds or says so already. Raise
-    the result ``from error``.
+    the result ``from error.__cause__``.
 
     Parameters
     ----------
