@@ -45,7 +45,9 @@ from .errors import (
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
+    RequestAbortedError,
     TangoError,
+    outcome_unknown,
     parse_error_reply,
 )
 from .events import (
@@ -78,6 +80,7 @@ from .instructions import (
 from .motion import STOP_WAIT, Motion, MovePlan, annotate
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
+from .restart import RestartWatch, report_suggests_restart, settings_of
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
@@ -193,6 +196,9 @@ class Controller:
         #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
         self.units: str | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        #: Notices a controller that restarted behind the link and recovers (#32 item 5).
+        self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
+        self._restarts.attach(protocol)
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -226,6 +232,7 @@ class Controller:
         (separators, credit markers) are waited for first, for at most
         :data:`CLOSE_SETTLE` seconds."""
         self._closing = True
+        self._restarts.close()
         self._motion.cancel_detached()
         if self._reconnector is not None:
             await self._reconnector.stop()
@@ -376,11 +383,29 @@ class Controller:
             # is 0, its behaviour; delay, pause and ctrt: nothing to wait for).
             try:
                 known = not older or entry.in_older_manual
-                value = await self.get(entry.name) if known else 0
+                value = await self._read_or_absent(entry.name) if known else 0
                 settings.load(entry, value)
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 settings.load(entry, 0)
         self._update_context()
+
+    async def _read_or_absent(self, name: str) -> Any:
+        """Read the global setting ``name``, which a unit may lack (an optional module,
+        a smaller model: no reply at all, error 4, L970): a separator goes right behind
+        the read in the same write, so a missing reply shows at once, as the separator's
+        reply in its place (:class:`ProtocolError`), and not after the reply timeout
+        (#32 item 5)."""
+        command = _read_command(name, None, self.context)
+        (submission,) = self._protocol.submit_together((command,), separate_after=True)
+        response = await self._protocol.wait_reply(submission, self.reply_timeout)
+        return parse_reply(command, response.lines)
+
+    async def _reload_settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Read the cached settings again (after a restart); their values before and
+        after (:func:`~tango_aio.restart.settings_of`)."""
+        before = settings_of(self._settings)
+        await self.refresh_settings()
+        return before, settings_of(self._settings)
 
     def _update_context(self) -> None:
         settings = self._settings
@@ -464,6 +489,12 @@ class Controller:
                     await self._blame(error.number, self._timeout(timeout)):
                 raise
             response = Response()
+        except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
+                ConnectionLostError) as error:
+            if command.instruction.completion is None or not command.executes:
+                raise
+            # A raw move may have run.
+            raise outcome_unknown(error, command.line) from error.__cause__
         self._track(command)
         if command.name == "joy" and not command.is_read:
             self._hdi_off = [float(v) for v in command.values
@@ -1342,6 +1373,8 @@ class Controller:
 
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
         if isinstance(event, Completed):
+            if report_suggests_restart(self._protocol.autostatus, bool(event.letters)):
+                self._restarts.suspect()  # a report the mode in force does not send
             self._publish_completion(event, submission)
             self._motion.hint()
         elif isinstance(event, Unsolicited):
@@ -1401,6 +1434,7 @@ class Controller:
     def _adopt(self, staged: Controller, closer: Closer | None) -> None:
         self._protocol = staged._protocol
         self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        self._restarts.attach(self._protocol)
         self._settings = staged._settings
         self._identity = staged._identity or self._identity
         self._on_close = closer

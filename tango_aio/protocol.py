@@ -37,6 +37,7 @@ most the first :data:`TRACE_LINE` (256) bytes of its line and the line's length.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import functools
 import logging
@@ -75,6 +76,7 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, encode, parse
+from .linktiming import LinkTiming
 from .patterns import ACK_PATTERN, normal_line
 from .scheduler import Line, Run, WriteScheduler
 
@@ -175,6 +177,10 @@ class MoveHandle:
         self.protocol.forget_completion(self.submission)
 
 
+#: The step-0 marker numbers of this process's latest detections (see
+#: :meth:`TangoProtocol._fresh_detect_code`); fewer than there are marker numbers.
+_RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
+
 #: Called with each unsolicited event, completion report and dropped line; the second
 #: argument is the submission a completion belongs to (``None`` if unsolicited).
 EventCallback = Callable[[Event, "Submission | None"], None]
@@ -253,9 +259,20 @@ class TangoProtocol(asyncio.Protocol):
         #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
         self.detect_at_connect = detect
         self._detected: dict[str, str] = {}
-        #: Seconds of silence after the reply of ``help`` that end a resync without a
-        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`).
-        self.quiet_interval = 0.05
+        #: The link's timing: its byte time where the baud rate is known (set by
+        #: ``connect``) and the round trips measured by connect's exchanges.
+        self.link = LinkTiming()
+        #: Seconds without a byte after the reply of ``help`` that end a resync without a
+        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: the
+        #: link's :attr:`~tango_aio.linktiming.LinkTiming.quiet_interval`, grown by every
+        #: round trip measured (#32 item 5).
+        self.quiet_interval = self.link.quiet_interval
+        self._round_trip_from: float | None = None  # an exchange's write, until a byte
+        #: Called when a request or marker got no answer in time, and when
+        #: :meth:`verify_autostatus` restored the driver's mode (found, restored): a
+        #: controller may have restarted behind the link (:mod:`tango_aio.restart`).
+        self.on_unanswered: Callable[[], None] | None = None
+        self.on_restored: Callable[[int, int], None] | None = None
         self._quiet_help = False
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collect: list[str] | None = None
@@ -328,6 +345,10 @@ class TangoProtocol(asyncio.Protocol):
             _fail(submission.completion, error)
         for marker in self._markers.values():
             _fail(marker, error)
+        # An exchange of connect's (detect, a mode exchange) waits on its own future: it
+        # fails now too, not after its reply timeout (#32 item 5).
+        if self._collected is not None:
+            _fail(self._collected, error)
         self._submissions.clear()
         self._markers.clear()
         self.scheduler.drop_queue()
@@ -595,6 +616,8 @@ class TangoProtocol(asyncio.Protocol):
                     "restarted; restoring autostatus %d", actual, expected, expected)
         await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
                                 timeout)
+        if self.on_restored is not None:
+            self.on_restored(actual, expected)
         return True
 
     # -- writing ------------------------------------------------------------------------
@@ -803,6 +826,8 @@ class TangoProtocol(asyncio.Protocol):
         that were in flight together count once (they time out together when one reply is
         lost), so each count is a line written after the previous count. Returns whether
         the link was declared lost."""
+        if self.on_unanswered is not None and self._lost is None:
+            self.on_unanswered()
         if serial <= self._counted_upto:
             return False
         self._counted_upto = self.scheduler.written_lines
@@ -904,7 +929,7 @@ class TangoProtocol(asyncio.Protocol):
         """
         self.core.help_style = HelpStyle.NONE
         self._detected = {"help_number": "none"}
-        code = self.core.pick_marker_code()
+        code = self._fresh_detect_code()
         if await self._numbered_marker_answers(code, timeout):
             self.core.help_style = HelpStyle.NUMBER
         else:
@@ -923,6 +948,18 @@ class TangoProtocol(asyncio.Protocol):
                 self.core.help_text = (code, answers[-1])
         self._detected = {"help_number": self.core.help_style.value}
         return self.detected
+
+    def _fresh_detect_code(self) -> int:
+        """A marker number for step 0 of :meth:`detect` that no recent step 0 of this
+        process used: a connect abandoned within its step 0 (cancelled, timed out) leaves
+        its replies on the link, and a step 0 with the same number would take them for its
+        own, then hand its own late replies to the next requests (#32 item 5: ``not a
+        version reply: '1'``). The codes cycle through more numbers than are remembered."""
+        code = self.core.pick_marker_code()
+        while code in _RECENT_DETECT_CODES:
+            code = self.core.pick_marker_code()
+        _RECENT_DETECT_CODES.append(code)
+        return code
 
     async def _numbered_marker_answers(self, code: int, timeout: float) -> bool:
         """Step 0 of :meth:`detect`: whether ``ERROR code,`` twice and then a number (the
@@ -959,6 +996,7 @@ class TangoProtocol(asyncio.Protocol):
         in_step = False
         try:
             self._write(b"".join(encode(line) for line in lines))
+            self._round_trip_from = self._loop.time()
             self.scheduler.written_lines += len(lines)
             serial = self.scheduler.written_lines
             try:
@@ -976,6 +1014,7 @@ class TangoProtocol(asyncio.Protocol):
             in_step = True
         finally:
             self._collect = self._collected = None
+            self._round_trip_from = None
             self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
@@ -1038,6 +1077,12 @@ class TangoProtocol(asyncio.Protocol):
             self._quiet_timer.cancel()
         self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
 
+    def _measured(self, round_trip: float) -> None:
+        """An exchange's first byte came ``round_trip`` seconds after its write."""
+        self._round_trip_from = None
+        if self.link.observe(round_trip):
+            self.quiet_interval = max(self.quiet_interval, self.link.quiet_interval)
+
     def _end_collection(self) -> None:
         """What :meth:`_exchange` waits for has come (or the link is quiet)."""
         if self._quiet_timer is not None:
@@ -1092,6 +1137,10 @@ class TangoProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         """Called by asyncio with bytes from the controller."""
         self._trace_received(data)
+        if self._round_trip_from is not None:
+            self._measured(self._loop.time() - self._round_trip_from)
+        if self._quiet_timer is not None:
+            self._quiet_from_now()  # quiet means no byte, not no line (a slow link)
         self.core.receive_data(data)
         self._dispatch_pending()
         self._flush()
