@@ -941,8 +941,10 @@ class Controller:
         ControllerTimeoutError
             An axis still moved after ``timeout`` seconds (the axes are stopped).
         InvalidCommandError
-            An axis the controller does not have, or a bad ``timeout``, before anything is
-            written.
+            A target or an axis is refused (an axis the controller does not have, a value
+            out of range), before anything is written.
+        ValueError
+            ``timeout`` is NaN, infinite, zero or negative (before anything is written).
         """
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
