@@ -26,7 +26,8 @@ Devices:
   of the controller's ``?pos`` replies; ``velocity`` in EGU/s, ``max_velocity``,
   ``acceleration_time``, ``motor_egu``, ``motor_done_move``, ``offset``, travel and
   dial limits, limit switches and the rest of the table in ``docs/howto/bluesky.md``.
-  ``set()`` checks the limits (``?lim``), reports progress
+  ``set()`` checks the limits (``?lim``, read again only after a line that may change
+  them: :meth:`~tango_aio.controller.Controller.axis_limits`), reports progress
   (:class:`~ophyd_async.core.WatcherUpdate` from positions polled while the move runs)
   and publishes the confirmed final readback before it completes.
   ``prepare(FlyMotorInfo(...))``/``kickoff()``/``complete()`` fly it as Motor does;
