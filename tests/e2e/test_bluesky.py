@@ -273,13 +273,13 @@ def test_a_step_scan_checks_its_points_without_reading_the_limits_again(
 
     run(stage.x.check_value(0.0))  # the limits known after the fixture's set lines
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
-        RE(bp.list_scan([stage.x], stage.x, [0.5, 1.0]))
+        RE(bp.scan([stage.x], stage.x, 0.5, 1.0, 2))
         short = lim_reads()  # the run's configuration reads them (limit signals)
-        RE(bp.list_scan([stage.x], stage.x, [0.5, 1.0, 1.5, 2.0, 1.5, 1.0]))
+        RE(bp.scan([stage.x], stage.x, 0.5, 3.0, 6))
         assert lim_reads() == 2 * short  # none per point: nothing changed them
         run(stage.controller.set("lim", -1, 1, axis="x"))  # any caller, any path
         with pytest.raises(FailedStatus) as info:
-            RE(bp.list_scan([stage.x], stage.x, [0.5, 1.5]))
+            RE(bp.scan([stage.x], stage.x, 0.5, 1.5, 2))
         assert isinstance(info.value.__cause__, StageLimitsError)
     assert emulated(stage)["x"] == 0.5
 
