@@ -125,3 +125,24 @@ async def test_limits_changed_behind_the_drivers_back_still_fail_the_move(
     assert emulated_position(emu, "x") <= 1.0
     await tango.move_to(x=0.5)  # the next call works
     assert emulated_position(emu, "x") == pytest.approx(0.5)
+
+
+async def test_a_calibration_without_reports_is_seen_at_its_end(
+        emulator: EmulatorFactory) -> None:
+    # Autostatus 0 sends no report at the end of a cal (L2131-2134): calibrate() itself
+    # forgets the limits when it returns, so a read made while it ran is not kept.
+    emu = await emulator(travel=20.0, autostatus=0)
+    await emu.make_fast()
+    tango = emu.tango
+    await tango.set_limits(x=(-4.5, 4.5))
+    await tango.move_to(x=0.5)
+    calibrating = asyncio.ensure_future(tango.calibrate("x"))
+    for _ in range(1000):  # each read goes behind the lines written before it
+        if (await tango.status())["x"] == "M":
+            break
+    assert not calibrating.done()
+    assert await tango.axis_limits("x") == (-4.5, 4.5)  # read while it runs
+    await calibrating
+    known = await tango.axis_limits("x")
+    assert known != (-4.5, 4.5)
+    assert known == pytest.approx(emu.model.motion.limits("x"))
