@@ -94,6 +94,12 @@ log = logging.getLogger("tango_aio")
 #: after the X pair in extmode 0 (L4559-4621), ``?swtyp`` prints its groups without
 #: separating blanks there (L4814-4824).
 AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
+
+#: Motion lines that leave the software limits as they are. The limits change only by
+#: ``!lim``, by ``cal``/``rm``/``vrm`` (unless nosetlimit, L4575-4580), by reloading the
+#: saved parameters (``restore``/``reset``, power-on, L1296) and print in the ``dim``
+#: unit (L4555): every other ``!`` line empties the cache of :meth:`Controller.axis_limits`.
+_LIMIT_NEUTRAL = frozenset({"moa", "mor"})
 #: Seconds :meth:`Controller.aclose` waits at most for the replies to the driver's own
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
@@ -192,6 +198,10 @@ class Controller:
         #: Axes whose remembered position was read after their last move while nothing
         #: could move the stage; emptied by every other ``!`` line.
         self._start_known: set[str] = set()
+        #: The software limits (``?lim``, dim unit) per axis as last read, for
+        #: :meth:`axis_limits`; ``_limits_epoch`` counts what may have changed them.
+        self._limits: dict[str, tuple[float, float]] = {}
+        self._limits_epoch = 0
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
         self._fault = 0
@@ -302,8 +312,7 @@ class Controller:
         TangoError
             A step failed (no answer, a garbled reply, an error the controller reported).
         """
-        self._hdi_off, self._inputs_idle = False, None  # a power cycle turns the HDI on
-        self._start_known.clear()
+        self._forget_power_state()
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
             current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
@@ -467,6 +476,7 @@ class Controller:
             The cached settings before and after.
         """
         before = settings_of(self._settings)
+        self._forget_power_state()
         await self.refresh_settings()
         return before, settings_of(self._settings)
 
@@ -619,10 +629,64 @@ class Controller:
         position is a move_by's start any more until a move confirms it again."""
         self._executed += 1
         self._start_known.clear()
+        if command.name not in _LIMIT_NEUTRAL:
+            self._forget_limits()
         if command.name in ("joy", "reset", "restore"):
             self._hdi_off = False  # until a !joy 0 is accepted
         if command.name in ("joy", "reset", "restore", "snsm", "tvr"):
             self._inputs_idle = None  # read again once the HDI is off
+
+    def _forget_power_state(self) -> None:
+        """What a power cycle may have changed behind the link: the HDI is on again, the
+        saved limits are back, positions may differ; no remembered start or limit
+        survives it (setup, and a restart noticed on a live link)."""
+        self._hdi_off, self._inputs_idle = False, None
+        self._start_known.clear()
+        self._forget_limits()
+
+    def _forget_limits(self) -> None:
+        """Something may have changed the software limits: read them again."""
+        self._limits.clear()
+        self._limits_epoch += 1
+
+    async def axis_limits(self, axis: str, *, cached: bool = True) -> tuple[float, float]:
+        """The software limits of ``axis`` as ``(lower, upper)`` in its dim unit.
+
+        With ``cached``, the limits this Controller read before are returned without a
+        read, as long as nothing could have changed them since: any ``!`` line other than
+        a move (``!lim``, ``cal``, ``rm``, ``vrm``, ``restore``, ``dim``...), the end of a
+        calibration or range measurement, a setup or a reconnect reads them again. A
+        target beyond limits changed behind the driver's back (the stage's own keys) is
+        still no success: the controller refuses it or stops at its limit (L4526-4540),
+        and the confirmation behind the report finds the axis short of its target.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        cached
+            Whether the limits known from an earlier read may be returned (else ``?lim``
+            is read, and kept).
+
+        Returns
+        -------
+        tuple[float, float]
+            The lower and upper limit.
+
+        Raises
+        ------
+        InvalidCommandError
+            ``axis`` is not an axis of this controller.
+        """
+        known = self._limits.get(axis)
+        if cached and known is not None:
+            return known
+        epoch = self._limits_epoch
+        low, high = await self.get("lim", axis=axis)
+        pair = (float(low), float(high))
+        if epoch == self._limits_epoch:  # no line that may change them went out meanwhile
+            self._limits[axis] = pair
+        return pair
 
     async def _inputs_are_idle(self) -> bool:
         """Whether neither input moves the stage by itself: a snapshot event moves it in
@@ -659,6 +723,8 @@ class Controller:
               ) -> MoveHandle:
         """Write a motion line and its check (see :meth:`TangoProtocol.start_move`)."""
         self._check_axes(command)
+        if command.name not in _LIMIT_NEUTRAL:
+            self._forget_limits()  # cal, rm: and again when they end
         return self._protocol.start_move(command, check=check, batch=batch)
 
     async def _error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
@@ -1132,7 +1198,10 @@ class Controller:
     async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
                                stop_on_cancel: bool) -> dict[str, str]:
         with self._motion_call():
-            return await self._per_axis_motion_run(name, axes, timeout, stop_on_cancel)
+            try:
+                return await self._per_axis_motion_run(name, axes, timeout, stop_on_cancel)
+            finally:
+                self._forget_limits()  # cal and rm set limits as they end (L4575-4580)
 
     @contextlib.contextmanager
     def _motion_call(self) -> Iterator[None]:
@@ -2083,6 +2152,8 @@ class Controller:
         if isinstance(event, Completed):
             if report_suggests_restart(self._protocol.autostatus, bool(event.letters)):
                 self._restarts.suspect()  # a report the mode in force does not send
+            if submission is None or submission.command.name not in _LIMIT_NEUTRAL:
+                self._forget_limits()  # the end of a cal or rm sets limits (L4575-4580)
             self._publish_completion(event, submission)
             self._motion.hint()
         elif isinstance(event, Unsolicited):
@@ -2145,6 +2216,7 @@ class Controller:
         self._restarts.attach(self._protocol)
         self._settings = staged._settings
         self._identity = staged._identity or self._identity
+        self._forget_limits()  # the controller may have been power cycled
         self._on_close = closer
 
     def _reconnected(self, attempt: int) -> None:

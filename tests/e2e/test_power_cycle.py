@@ -108,3 +108,21 @@ async def test_a_set_line_unanswered_after_a_restart_claims_no_move(mode: int) -
         with pytest.raises(tango_aio.ControllerTimeoutError) as info:
             await tango.command("!vel x 5")
         assert not isinstance(info.value, MoveOutcomeUnknown)
+
+
+async def test_a_power_cycle_ends_the_move_by_start_rule() -> None:
+    """After a restart the HDI is on again: a ``!joy 0`` sent before it no longer holds,
+    so a move_by reads its start again and honours a hand on the joystick."""
+    async with tango_aio.connect("sim://?baud=0", autostatus=2, reply_timeout=0.5) as tango:
+        fault = faults(tango)
+        events = tango.events()
+        await tango.set("joy", 0)
+        await tango.move_by(x=STEP)
+        await _move_after_cycle(tango, fault)
+        await _restarted(events)
+        await tango.move_by(x=STEP)  # confirmed where it stands, with the HDI on
+        assert fault.model.hdi_deflect(0, 0.25)  # the power-on HDI is on: honoured
+        nudged = await _settled(fault)
+        await tango.move_by(x=STEP)
+        assert await _settled(fault) == pytest.approx(nudged + STEP, abs=1e-3)
+        assert (await tango.position())["x"] == pytest.approx(nudged + STEP, abs=1e-3)
