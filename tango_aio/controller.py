@@ -260,19 +260,22 @@ class Controller:
         settings the driver needs and selects ``autostatus`` (``None``: keep the mode the
         controller is in). The mode in force is read first (reads are neither echoed nor
         acknowledged in any mode): a previous session may have left any mode behind, and
-        how ``!autostatus`` itself is answered depends on it.
+        how ``!autostatus`` itself is answered depends on it. A link that echoes every
+        byte sent (local echo of an adapter) is refused with a
+        :class:`~tango_aio.errors.ConnectError` naming it, whatever mode the controller
+        was left in: before mode 4 is kept or selected, one read runs in a mode that
+        echoes nothing (:meth:`_check_local_echo`).
         """
         self._hdi_off, self._inputs_idle = False, None  # a power cycle turns the HDI on
         self._start_known.clear()
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
             current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
-            if autostatus == 4 and current != 4:
-                # Mode 4 echoes set lines, and with echo_all reads too (old L723), so a
-                # link that echoes every byte (local echo) shows only before it: one read.
-                await self.query("?err")
-            if autostatus is not None and autostatus != current:
-                await self.command(f"!autostatus {autostatus}")
+            wanted = current if autostatus is None else autostatus
+            if wanted == 4:
+                current = await self._check_local_echo(current)
+            if wanted != current:
+                await self.command(f"!autostatus {wanted}")
             if identify:
                 self._identity = await self.identify()
             await self.refresh_settings()
@@ -282,6 +285,34 @@ class Controller:
             raise
         if self._reconnector is not None:
             self._reconnector.arm()
+
+    async def _check_local_echo(self, current: int) -> int:
+        """Before autostatus 4 is kept or selected: one read in a mode that echoes nothing,
+        so that a link echoing every byte sent (local echo of an adapter) shows as the read
+        answered by itself (:data:`~tango_aio.core.LOCAL_ECHO`; setup refuses it).
+
+        Mode 4 cannot tell: it echoes set and move lines (L2117, L2165-2168) and, by the
+        older edition, all input (old L723), so an adapter's copy of a read looks like
+        the controller's echo, and the controller's own echo of a read may be missing
+        or come after its reply (switches ``echo_all``, ``echo``, ``echo_text``). Modes 0-3
+        echo nothing (L2060-2103), so a unit left in mode 4 is taken to mode 1 (the
+        power-on mode, L2062) for the read; the caller selects mode 4 again.
+
+        Parameters
+        ----------
+        current
+            The mode in force.
+
+        Returns
+        -------
+        int
+            The mode in force afterwards (1 if ``current`` was 4).
+        """
+        if current == 4:
+            await self.command("!autostatus 1")
+            current = 1
+        await self.query("?err")
+        return current
 
     # -- connection state and automatic reconnect ----------------------------------------
 
