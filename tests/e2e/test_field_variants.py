@@ -18,7 +18,6 @@ from tango_aio.connection import connect
 from tango_aio.errors import ConnectError, ControllerError, TangoError
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import Firmware
-from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import faults
 
@@ -47,48 +46,39 @@ def left_in(mode: int, profile: str, local_echo: str) -> Callable[[Emit], Contro
     return factory
 
 
-async def connect_through(transport: str, factory: Callable[[Emit], ControllerModel],
-                          wanted: int | None) -> int:
-    """Connect through the pty or the TCP emulator selecting ``wanted``; return the mode
-    in force once connected (on the driver's side and the emulator's)."""
-    config = WireConfig(baud=0)
-    if transport == "pty":
-        server = await serve_pty(factory, config)
-        try:
-            async with asyncio.timeout(30), \
-                    connect(server.path, autostatus=wanted, reply_timeout=1.0) as tango:
-                handler = server.wire.handler
-                assert isinstance(handler, ControllerModel)
-                assert handler.autostatus == tango.autostatus
-                return tango.autostatus
-        finally:
-            server.close()
-            await server.wait_closed()
-    async with await serve_tcp(factory, config=config) as tcp, asyncio.timeout(30), \
-            connect(f"socket://127.0.0.1:{tcp.port}", autostatus=wanted,
-                    reply_timeout=1.0) as tango:
-        handler = tcp.wires[0].handler
-        assert isinstance(handler, ControllerModel)
-        assert handler.autostatus == tango.autostatus
-        return tango.autostatus
+async def connect_through_pty(factory: Callable[[Emit], ControllerModel],
+                              wanted: int | None) -> int:
+    """Connect through the pty emulator selecting ``wanted``; return the mode in force
+    once connected (on the driver's side and the emulator's)."""
+    server = await serve_pty(factory, WireConfig(baud=0))
+    try:
+        async with asyncio.timeout(30), \
+                connect(server.path, autostatus=wanted, reply_timeout=1.0) as tango:
+            handler = server.wire.handler
+            assert isinstance(handler, ControllerModel)
+            assert handler.autostatus == tango.autostatus
+            return tango.autostatus
+    finally:
+        server.close()
+        await server.wait_closed()
 
 
-@pytest.mark.parametrize("transport", ["pty", "tcp"])
 @pytest.mark.parametrize("profile", ["manual", "legacy"])
 @pytest.mark.parametrize("left", [0, 1, 2, 3, 4])
 async def test_local_echo_is_refused_whatever_mode_the_unit_was_left_in(
-        transport: str, profile: str, left: int) -> None:
+        profile: str, left: int) -> None:
     # A unit left in mode 4 used to connect behind a local-echo adapter: mode 4 may echo
     # reads itself (legacy: echo_all, old L723), or not (1.71, L2117), so the adapter's
-    # copy of a read passed for the controller's echo. Checked in every mode for every
-    # mode the caller may select (None: keep the unit's).
-    for wanted in (None, 0, 1, 2, 3, 4):
+    # copy of a read passed for the controller's echo (and in mode 2 under
+    # ack_reads=before for an acknowledgement). Selecting mode 0 or 3 is like 1
+    # (test_local_echo_is_refused_at_connect_in_words); None keeps the unit's mode. The
+    # TCP emulator, under every variant: tests/e2e/test_matrix.py,
+    # test_local_echo_is_refused_at_connect_in_every_mode.
+    for wanted in (None, 1, 2, 4):
         with pytest.raises(ConnectError, match="local echo"):
-            await connect_through(transport, left_in(left, profile, "yes"), wanted)
-    # Without local echo the same unit connects, in the mode asked for.
-    for wanted in (None, 1, 4):
-        mode = await connect_through(transport, left_in(left, profile, "no"), wanted)
-        assert mode == (left if wanted is None else wanted)
+            await connect_through_pty(left_in(left, profile, "yes"), wanted)
+    # Without local echo the same unit connects, in the mode it was left in.
+    assert await connect_through_pty(left_in(left, profile, "no"), None) == left
 
 
 async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
