@@ -104,6 +104,10 @@ _LIMIT_NEUTRAL = frozenset({"moa", "mor"})
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
 CLOSE_SETTLE = 0.25
+#: Autostatus modes in which a read's own text coming back need not show local echo:
+#: mode 4 may echo reads (old L723), mode 2 may acknowledge them before their data
+#: (L2099-2103). Setup checks the link in mode 1 first (:meth:`Controller.setup`).
+_ECHO_BLIND = frozenset({2, 4})
 
 
 @dataclass(frozen=True, slots=True)
@@ -294,9 +298,13 @@ class Controller:
 
         Drains stale input by resynchronising, identifies the controller, reads the
         settings the driver needs and selects ``autostatus`` (``None``: keep the mode the
-        controller is in). The mode in force is read first (reads are neither echoed nor
-        acknowledged in any mode): a previous session may have left any mode behind, and
-        how ``!autostatus`` itself is answered depends on it.
+        controller is in). The mode in force is read first (the way a mode change is
+        confirmed, whatever the mode echoes or acknowledges): a previous session may have
+        left any mode behind, and how ``!autostatus`` itself is answered depends on it.
+        A link that echoes every byte sent (local echo of an adapter) is refused with a
+        :class:`~tango_aio.errors.ConnectError` naming it, whatever mode the controller
+        was left in: before mode 2 or 4 is kept or selected, one read runs in a mode that
+        answers a read with its data alone (:meth:`_check_local_echo`).
 
         Parameters
         ----------
@@ -316,12 +324,11 @@ class Controller:
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
             current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
-            if autostatus == 4 and current != 4:
-                # Mode 4 echoes set lines, and with echo_all reads too (old L723), so a
-                # link that echoes every byte (local echo) shows only before it: one read.
-                await self.query("?err")
-            if autostatus is not None and autostatus != current:
-                await self.command(f"!autostatus {autostatus}")
+            wanted = current if autostatus is None else autostatus
+            if wanted in _ECHO_BLIND:
+                current = await self._check_local_echo(current)
+            if wanted != current:
+                await self.command(f"!autostatus {wanted}")
             if identify:
                 self._identity = await self.identify()
             await self.refresh_settings()
@@ -331,6 +338,38 @@ class Controller:
             raise
         if self._reconnector is not None:
             self._reconnector.arm()
+
+    async def _check_local_echo(self, current: int) -> int:
+        """Before autostatus 2 or 4 is kept or selected (:data:`_ECHO_BLIND`): one read in
+        a mode that answers a read with its data alone, so that a link echoing every byte
+        sent (local echo of an adapter) shows as the read answered by itself
+        (:data:`~tango_aio.core.LOCAL_ECHO`; setup refuses it).
+
+        Modes 2 and 4 cannot tell. Mode 4 echoes set and move lines (L2117, L2165-2168)
+        and, by the older edition, all input (old L723), so an adapter's copy of a read
+        looks like the controller's echo, while the controller's own echo of a read may be
+        missing or come after its reply (switches ``echo_all``, ``echo``, ``echo_text``).
+        Mode 2 may acknowledge reads before their data (switch ``ack_reads``; L2099-2103
+        names ``!`` lines only), and a line where an acknowledgement is owed is passed over.
+        Modes 0, 1 and 3 neither echo nor acknowledge a read (L2060-2113), so a unit in
+        mode 2 or 4 is taken to mode 1 (the power-on mode, L2062) for the read; the caller
+        selects its mode again.
+
+        Parameters
+        ----------
+        current
+            The mode in force.
+
+        Returns
+        -------
+        int
+            The mode in force afterwards (1 if ``current`` was 2 or 4).
+        """
+        if current in _ECHO_BLIND:
+            await self.command("!autostatus 1")
+            current = 1
+        await self.query("?err")
+        return current
 
     # -- connection state and automatic reconnect ----------------------------------------
 

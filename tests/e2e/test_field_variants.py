@@ -9,12 +9,16 @@ among them ``test_traffic_during_a_move``); the core's rules for them are tested
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 import pytest
-from helpers import EmulatorFactory, wait_moving
+from helpers import EmulatorFactory, serve_pty, wait_moving
 
 from tango_aio.connection import connect
 from tango_aio.errors import ConnectError, ControllerError, TangoError
+from tango_aio.sim.model import ControllerModel, SimConfig
+from tango_aio.sim.profiles import Firmware
+from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import faults
 
 pytestmark = pytest.mark.timeout(60)
@@ -28,6 +32,53 @@ async def test_local_echo_is_refused_at_connect_in_words(mode: int) -> None:
         async with asyncio.timeout(30):
             await connect("sim://?baud=0&local_echo=yes", autostatus=mode,
                           reply_timeout=1.0)
+
+
+def left_in(mode: int, profile: str, local_echo: str) -> Callable[[Emit], ControllerModel]:
+    """Handler factory of a controller that an earlier program left in autostatus
+    ``mode``, behind a link with local echo or without."""
+    firmware = Firmware.from_options(profile, local_echo=local_echo)
+
+    def factory(emit: Emit) -> ControllerModel:
+        model = ControllerModel(emit, SimConfig(firmware=firmware))
+        model.set_autostatus(mode)
+        return model
+    return factory
+
+
+async def connect_through_pty(factory: Callable[[Emit], ControllerModel],
+                              wanted: int | None) -> int:
+    """Connect through the pty emulator selecting ``wanted``; return the mode in force
+    once connected (on the driver's side and the emulator's)."""
+    server = await serve_pty(factory, WireConfig(baud=0))
+    try:
+        async with asyncio.timeout(30), \
+                connect(server.path, autostatus=wanted, reply_timeout=1.0) as tango:
+            handler = server.wire.handler
+            assert isinstance(handler, ControllerModel)
+            assert handler.autostatus == tango.autostatus
+            return tango.autostatus
+    finally:
+        server.close()
+        await server.wait_closed()
+
+
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+@pytest.mark.parametrize("left", [0, 1, 2, 3, 4])
+async def test_local_echo_is_refused_whatever_mode_the_unit_was_left_in(
+        profile: str, left: int) -> None:
+    # A unit left in mode 4 used to connect behind a local-echo adapter: mode 4 may echo
+    # reads itself (legacy: echo_all, old L723), or not (1.71, L2117), so the adapter's
+    # copy of a read passed for the controller's echo (and in mode 2 under
+    # ack_reads=before for an acknowledgement). Selecting mode 0 or 3 is like 1
+    # (test_local_echo_is_refused_at_connect_in_words); None keeps the unit's mode. The
+    # TCP emulator, under every variant: tests/e2e/test_matrix.py,
+    # test_local_echo_is_refused_at_connect_in_every_mode.
+    for wanted in (None, 1, 2, 4):
+        with pytest.raises(ConnectError, match="local echo"):
+            await connect_through_pty(left_in(left, profile, "yes"), wanted)
+    # Without local echo the same unit connects, in the mode it was left in.
+    assert await connect_through_pty(left_in(left, profile, "no"), None) == left
 
 
 async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(

@@ -30,7 +30,9 @@ from typing import Any, TypeVar, Unpack
 import pytest
 from helpers import VELS, Axes, Emulated, EmulatorFactory
 
+from tango_aio.connection import connect
 from tango_aio.errors import (
+    ConnectError,
     ControllerError,
     InternalControllerError,
     MoveError,
@@ -38,7 +40,10 @@ from tango_aio.errors import (
 )
 from tango_aio.events import ControllerFault, MoveFinished, Subscription, TangoEvent
 from tango_aio.motion import STOP_WAIT
+from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, variants
+from tango_aio.sim.serve import serve_tcp
+from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import faults
 
 pytestmark = pytest.mark.timeout(120)
@@ -175,6 +180,50 @@ async def test_connect_and_identify(emulator: EmulatorFactory, variant: str,
                                                      "instruction_set=older") else "1.71")
     assert identity.detected.get("per_axis_replies") == "exact"
     assert await bounded(emu.tango.get("pos")) == {"x": 0.0, "y": 0.0, "z": 0.0}
+
+
+async def _connect_left_in(variant: str, baud: int, left: int, local_echo: str,
+                           wanted: int | None) -> None:
+    """Connect through the TCP emulator to a unit of ``variant`` that an earlier program
+    left in autostatus ``left``, selecting ``wanted``; check the mode and a read."""
+    firmware = dict(variants(unsupported=True))[variant].with_(local_echo=local_echo)
+
+    def factory(emit: Emit) -> ControllerModel:
+        model = ControllerModel(emit, SimConfig(firmware=firmware))
+        model.set_autostatus(left)
+        return model
+
+    async with await serve_tcp(factory, config=WireConfig(baud=baud)) as server, \
+            await bounded(connect(f"socket://127.0.0.1:{server.port}", autostatus=wanted,
+                                  reply_timeout=REPLY_TIMEOUT)) as tango:
+        handler = server.wires[0].handler
+        assert isinstance(handler, ControllerModel)
+        assert tango.autostatus == handler.autostatus == (left if wanted is None
+                                                         else wanted)
+        assert await bounded(tango.get("vel")) == {"x": 10.0, "y": 10.0, "z": 10.0}
+
+
+@MATRIX
+async def test_connect_from_any_mode_left_behind(variant: str, baud: int) -> None:
+    # Whatever mode the unit was left in, connect keeps it or selects mode 2 or 4 (which
+    # check the link for local echo in mode 1 first)...
+    for left in range(5):
+        for wanted in (None, 2, 4):
+            await _connect_left_in(variant, baud, left, "no", wanted)
+
+
+@MATRIX
+async def test_local_echo_is_refused_at_connect_in_every_mode(variant: str,
+                                                             baud: int) -> None:
+    # ...and behind a link with local echo (switch local_echo=yes, not served) it is
+    # refused in words, whatever the mode left behind and the mode selected, under every
+    # variant: the mode-4 echo switches (echo, echo_all, echo_text, echo_report) among
+    # them, since mode 4 may echo reads like the adapter does (old L723) or not (L2117),
+    # and ack_reads=before, since mode 2 may acknowledge a read before its data.
+    for left in range(5):
+        for wanted in (None, 1, 2, 4):
+            with pytest.raises(ConnectError, match="local echo"):
+                await _connect_left_in(variant, baud, left, "yes", wanted)
 
 
 @matrix_on("manual")
