@@ -8,7 +8,6 @@ setting handled generically by :class:`~tango_aio.sim.model.ControllerModel`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from ..errors import ERROR_DESCRIPTIONS
 from ..instructions import Command
@@ -16,9 +15,7 @@ from .lists import MAX_TRIGGERS, ListError
 from .motion import MotionConfig
 from .params import format_value
 from .peripherals import Peripherals
-
-if TYPE_CHECKING:
-    from .model import ControllerModel
+from .port import ModelPort
 
 __all__ = ["Handlers", "build_handlers"]
 
@@ -26,15 +23,15 @@ Reply = list[str] | None
 
 
 class Handlers(Peripherals):
-    """The special instructions of one :class:`ControllerModel`.
+    """The special instructions of one emulated controller.
 
     Parameters
     ----------
     model
-        The emulated controller.
+        The emulated controller (a :class:`~tango_aio.sim.model.ControllerModel`).
     """
 
-    def __init__(self, model: ControllerModel) -> None:
+    def __init__(self, model: ModelPort) -> None:
         self.m = model
 
     # -- identity --------------------------------------------------------------------------
@@ -513,7 +510,7 @@ HELP: dict[int, str] = {0: "no error", 5: "number outside range", 29: "servo amp
 OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
-def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:
+def build_handlers(model: ModelPort) -> dict[str, Callable[[Command], Reply]]:
     """Map instruction names to the bound ``i_<name>`` methods.
 
     Parameters

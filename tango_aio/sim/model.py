@@ -64,6 +64,7 @@ from ..instructions import (
     parse,
 )
 from .clock import host_now
+from .handlers import build_handlers
 from .lists import ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
 from .params import ParamStore, format_value, position_digits
@@ -199,7 +200,7 @@ class ControllerModel:
         self.last_job: int | None = None
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
         self.internal_errors: list[str] = []
-        self._handlers = self._build_handlers()
+        self._handlers: dict[str, Handler] = build_handlers(self)
         # The servers run the wire on the running loop's clock (not time.monotonic()
         # under uvloop), so the default start time is that clock's now.
         self._boot(host_now() if now is None else now)
@@ -847,14 +848,7 @@ class ControllerModel:
         self._load_saved()
         self._sync_all()
 
-    # -- handlers --------------------------------------------------------------------------
-
-    def _build_handlers(self) -> dict[str, Handler]:
-        from .handlers import build_handlers
-
-        return build_handlers(self)
-
-    # Helpers used by the handlers module.
+    # -- helpers of the handlers (tango_aio.sim.port.ModelPort) ------------------------------
 
     def present(self, command: Command) -> list[int]:
         """Axis indices a command addresses: its axis letter, else every present axis.

@@ -13,13 +13,9 @@ instead of storing the index as a value.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from ..instructions import Command
 from .params import INDEXED, format_value
-
-if TYPE_CHECKING:
-    from .model import ControllerModel
+from .port import ModelPort
 
 __all__ = ["Peripherals"]
 
@@ -36,7 +32,7 @@ _ANAIN_COUNTS = {15: 512}
 class Peripherals:
     """Reads of unmodelled hardware and indexed settings (mixin of ``Handlers``)."""
 
-    m: ControllerModel
+    m: ModelPort
 
     def _per_axis(self, c: Command, value: str) -> str:
         return " ".join(value for _ in self.m.present(c))
