@@ -91,11 +91,11 @@ class Handlers(Peripherals):
 
     def i_maxpos(self, c: Command) -> Reply:
         mm = (self.m.config.motion or MotionConfig()).maxpos_mm
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(
             i, self.m.motion.units(i).mm_to_rev(mm)))]
 
     def i_lockpos(self, c: Command) -> Reply:
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(i, 0.0))]
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(i, 0.0))]
 
     def i_pci(self, c: Command) -> Reply:
         return ["0"]
@@ -197,14 +197,14 @@ class Handlers(Peripherals):
         return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
 
     def i_calst(self, c: Command) -> Reply:
-        return [self.m.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
+        return [self.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
 
     def i_statuslimit(self, c: Command) -> Reply:
         return [self.m.motion.statuslimit()]
 
     def i_isvel(self, c: Command) -> Reply:
         digits = int(c.values[-1]) if c.values else 3
-        return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+        return [self.axes_text(self.m.present(c), lambda i: format_value(
             self.m.motion.vel_to_user(i, self.m.motion.velocity(i)), digits))]
 
     def i_readsw(self, c: Command) -> Reply:
@@ -230,17 +230,17 @@ class Handlers(Peripherals):
     def i_pos(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c),
-                                     lambda i: self.m.position_text(i, motion.position(i)))]
-        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+            return [self.axes_text(self.m.present(c),
+                                     lambda i: self.position_text(i, motion.position(i)))]
+        for axis, revs in self.to_revs(self.m.axis_map(c)).items():
             motion.set_position(axis, revs)
         return None
 
     def i_posclr(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c),
-                                     lambda i: self.m.position_text(i, motion.position_offset(i)))]
+            return [self.axes_text(self.m.present(c),
+                                     lambda i: self.position_text(i, motion.position_offset(i)))]
         for axis in self.m.present(c):
             motion.clear_position_offset(axis)
         return None
@@ -255,9 +255,9 @@ class Handlers(Peripherals):
     def i_distance(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+            return [self.axes_text(self.m.present(c), lambda i: self.position_text(
                 i, motion.settings(i).distance))]
-        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+        for axis, revs in self.to_revs(self.m.axis_map(c)).items():
             motion.set_distance(axis, revs)
         return None
 
@@ -278,7 +278,7 @@ class Handlers(Peripherals):
     def _read_lim(self, c: Command) -> Reply:
         def pair(axis: int) -> str:
             low, high = self.m.motion.limits(axis)
-            return f"{self.m.position_text(axis, low)} {self.m.position_text(axis, high)}"
+            return f"{self.position_text(axis, low)} {self.position_text(axis, high)}"
 
         indices = self.m.present(c)
         if c.axis is None and len(indices) > 1 and self._lim_cr_bug():
@@ -297,11 +297,11 @@ class Handlers(Peripherals):
     # (switch move_ok=completion).
 
     def i_moa(self, c: Command) -> Reply:
-        self.m.last_job = self.m.motion.move_absolute(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_absolute(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_mor(self, c: Command) -> Reply:
-        self.m.last_job = self.m.motion.move_relative(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_relative(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_m(self, c: Command) -> Reply:
@@ -325,21 +325,21 @@ class Handlers(Peripherals):
         return None
 
     def i_vrm(self, c: Command) -> Reply:
-        self.m.motion.virtual_range_measure(self.m.to_revs(self.m.axis_map(c)))
+        self.m.motion.virtual_range_measure(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_go(self, c: Command) -> Reply:
         if not c.values:
             self.m.motion.go_stop(self.m.present(c) if c.axis else None)
             return None
-        self.m.motion.go(self.m.to_revs(self.m.axis_map(c)))
+        self.m.motion.go(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_speed(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
             digits = int(c.values[-1]) if c.values else 3
-            return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+            return [self.axes_text(self.m.present(c), lambda i: format_value(
                 motion.vel_to_user(i, motion.velocity(i)), digits))]
         motion.speed({axis: motion.vel_from_user(axis, value)
                       for axis, value in self.m.axis_map(c).items()})
@@ -363,7 +363,7 @@ class Handlers(Peripherals):
         self.m.params.put_global("joy", (mode,))
         if mode == 0 and before != 0:
             # Disabling an enabled joystick sends a completion report (manual L7124-7154).
-            self.m.report(self.m.completion_letters())
+            self.m.report(self.completion_letters())
         return None
 
     # -- trigger list ---------------------------------------------------------------------
@@ -389,7 +389,7 @@ class Handlers(Peripherals):
 
     def _trigger_text(self, value: float) -> str:
         axis = self.m.trigger_axis()
-        return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+        return self.position_text(axis, self.m.motion.from_user(axis, value))
 
     def _list_written(self) -> None:
         """The list names the trigger axis and sets trigm 20/21 (L13767-13790)."""
@@ -446,9 +446,9 @@ class Handlers(Peripherals):
     def _row_text(self, row: tuple[float, ...], indices: list[int]) -> str:
         def one(axis: int) -> str:
             value = row[axis] if axis < len(row) else 0.0
-            return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+            return self.position_text(axis, self.m.motion.from_user(axis, value))
 
-        return self.m.axes_text(indices, one)
+        return self.axes_text(indices, one)
 
     def i_snsa(self, c: Command) -> Reply:
         snapshots = self.m.snapshots

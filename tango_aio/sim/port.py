@@ -9,7 +9,6 @@ counting ``TYPE_CHECKING`` imports too.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Protocol
 
@@ -134,52 +133,6 @@ class ModelPort(Protocol):
             The values.
         """
 
-    def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
-        """User-unit positions in motor revolutions.
-
-        Parameters
-        ----------
-        values
-            The positions, by axis index.
-
-        Returns
-        -------
-        dict[int | str, float]
-            The revolutions.
-        """
-
-    def position_text(self, axis: int, revs: float) -> str:
-        """A position as a reply prints it.
-
-        Parameters
-        ----------
-        axis
-            The axis index.
-        revs
-            The position, in revolutions.
-
-        Returns
-        -------
-        str
-            The text.
-        """
-
-    def axes_text(self, indices: Iterable[int], value: Callable[[int], str]) -> str:
-        """Per-axis texts joined.
-
-        Parameters
-        ----------
-        indices
-            The axis indices.
-        value
-            The text of an axis.
-
-        Returns
-        -------
-        str
-            The joined text.
-        """
-
     def joystick_letters(self, letters: str) -> str:
         """Status letters as ``sa`` shows them while the joystick is on.
 
@@ -192,15 +145,6 @@ class ModelPort(Protocol):
         -------
         str
             The letters shown.
-        """
-
-    def completion_letters(self) -> str:
-        """A completion report's letters for ``!joy 0``.
-
-        Returns
-        -------
-        str
-            The letters.
         """
 
     def report(self, letters: str) -> None:
