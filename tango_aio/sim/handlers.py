@@ -8,7 +8,6 @@ setting handled generically by :class:`~tango_aio.sim.model.ControllerModel`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from ..errors import ERROR_DESCRIPTIONS
 from ..instructions import Command
@@ -16,9 +15,7 @@ from .lists import MAX_TRIGGERS, ListError
 from .motion import MotionConfig
 from .params import format_value
 from .peripherals import Peripherals
-
-if TYPE_CHECKING:
-    from .model import ControllerModel
+from .port import ModelPort
 
 __all__ = ["Handlers", "build_handlers"]
 
@@ -26,15 +23,15 @@ Reply = list[str] | None
 
 
 class Handlers(Peripherals):
-    """The special instructions of one :class:`ControllerModel`.
+    """The special instructions of one emulated controller.
 
     Parameters
     ----------
     model
-        The emulated controller.
+        The emulated controller (a :class:`~tango_aio.sim.model.ControllerModel`).
     """
 
-    def __init__(self, model: ControllerModel) -> None:
+    def __init__(self, model: ModelPort) -> None:
         self.m = model
 
     # -- identity --------------------------------------------------------------------------
@@ -94,11 +91,11 @@ class Handlers(Peripherals):
 
     def i_maxpos(self, c: Command) -> Reply:
         mm = (self.m.config.motion or MotionConfig()).maxpos_mm
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(
             i, self.m.motion.units(i).mm_to_rev(mm)))]
 
     def i_lockpos(self, c: Command) -> Reply:
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(i, 0.0))]
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(i, 0.0))]
 
     def i_pci(self, c: Command) -> Reply:
         return ["0"]
@@ -200,14 +197,14 @@ class Handlers(Peripherals):
         return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
 
     def i_calst(self, c: Command) -> Reply:
-        return [self.m.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
+        return [self.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
 
     def i_statuslimit(self, c: Command) -> Reply:
         return [self.m.motion.statuslimit()]
 
     def i_isvel(self, c: Command) -> Reply:
         digits = int(c.values[-1]) if c.values else 3
-        return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+        return [self.axes_text(self.m.present(c), lambda i: format_value(
             self.m.motion.vel_to_user(i, self.m.motion.velocity(i)), digits))]
 
     def i_readsw(self, c: Command) -> Reply:
@@ -233,17 +230,17 @@ class Handlers(Peripherals):
     def i_pos(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c),
-                                     lambda i: self.m.position_text(i, motion.position(i)))]
-        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+            return [self.axes_text(self.m.present(c),
+                                     lambda i: self.position_text(i, motion.position(i)))]
+        for axis, revs in self.to_revs(self.m.axis_map(c)).items():
             motion.set_position(axis, revs)
         return None
 
     def i_posclr(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c),
-                                     lambda i: self.m.position_text(i, motion.position_offset(i)))]
+            return [self.axes_text(self.m.present(c),
+                                     lambda i: self.position_text(i, motion.position_offset(i)))]
         for axis in self.m.present(c):
             motion.clear_position_offset(axis)
         return None
@@ -258,9 +255,9 @@ class Handlers(Peripherals):
     def i_distance(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
-            return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+            return [self.axes_text(self.m.present(c), lambda i: self.position_text(
                 i, motion.settings(i).distance))]
-        for axis, revs in self.m.to_revs(self.m.axis_map(c)).items():
+        for axis, revs in self.to_revs(self.m.axis_map(c)).items():
             motion.set_distance(axis, revs)
         return None
 
@@ -281,7 +278,7 @@ class Handlers(Peripherals):
     def _read_lim(self, c: Command) -> Reply:
         def pair(axis: int) -> str:
             low, high = self.m.motion.limits(axis)
-            return f"{self.m.position_text(axis, low)} {self.m.position_text(axis, high)}"
+            return f"{self.position_text(axis, low)} {self.position_text(axis, high)}"
 
         indices = self.m.present(c)
         if c.axis is None and len(indices) > 1 and self._lim_cr_bug():
@@ -300,11 +297,11 @@ class Handlers(Peripherals):
     # (switch move_ok=completion).
 
     def i_moa(self, c: Command) -> Reply:
-        self.m.last_job = self.m.motion.move_absolute(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_absolute(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_mor(self, c: Command) -> Reply:
-        self.m.last_job = self.m.motion.move_relative(self.m.to_revs(self.m.axis_map(c)))
+        self.m.last_job = self.m.motion.move_relative(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_m(self, c: Command) -> Reply:
@@ -328,21 +325,21 @@ class Handlers(Peripherals):
         return None
 
     def i_vrm(self, c: Command) -> Reply:
-        self.m.motion.virtual_range_measure(self.m.to_revs(self.m.axis_map(c)))
+        self.m.motion.virtual_range_measure(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_go(self, c: Command) -> Reply:
         if not c.values:
             self.m.motion.go_stop(self.m.present(c) if c.axis else None)
             return None
-        self.m.motion.go(self.m.to_revs(self.m.axis_map(c)))
+        self.m.motion.go(self.to_revs(self.m.axis_map(c)))
         return None
 
     def i_speed(self, c: Command) -> Reply:
         motion = self.m.motion
         if c.is_read:
             digits = int(c.values[-1]) if c.values else 3
-            return [self.m.axes_text(self.m.present(c), lambda i: format_value(
+            return [self.axes_text(self.m.present(c), lambda i: format_value(
                 motion.vel_to_user(i, motion.velocity(i)), digits))]
         motion.speed({axis: motion.vel_from_user(axis, value)
                       for axis, value in self.m.axis_map(c).items()})
@@ -366,7 +363,7 @@ class Handlers(Peripherals):
         self.m.params.put_global("joy", (mode,))
         if mode == 0 and before != 0:
             # Disabling an enabled joystick sends a completion report (manual L7124-7154).
-            self.m.report(self.m.completion_letters())
+            self.m.report(self.completion_letters())
         return None
 
     # -- trigger list ---------------------------------------------------------------------
@@ -392,7 +389,7 @@ class Handlers(Peripherals):
 
     def _trigger_text(self, value: float) -> str:
         axis = self.m.trigger_axis()
-        return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+        return self.position_text(axis, self.m.motion.from_user(axis, value))
 
     def _list_written(self) -> None:
         """The list names the trigger axis and sets trigm 20/21 (L13767-13790)."""
@@ -449,9 +446,9 @@ class Handlers(Peripherals):
     def _row_text(self, row: tuple[float, ...], indices: list[int]) -> str:
         def one(axis: int) -> str:
             value = row[axis] if axis < len(row) else 0.0
-            return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+            return self.position_text(axis, self.m.motion.from_user(axis, value))
 
-        return self.m.axes_text(indices, one)
+        return self.axes_text(indices, one)
 
     def i_snsa(self, c: Command) -> Reply:
         snapshots = self.m.snapshots
@@ -513,7 +510,7 @@ HELP: dict[int, str] = {0: "no error", 5: "number outside range", 29: "servo amp
 OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
-def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:
+def build_handlers(model: ModelPort) -> dict[str, Callable[[Command], Reply]]:
     """Map instruction names to the bound ``i_<name>`` methods.
 
     Parameters

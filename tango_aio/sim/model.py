@@ -47,7 +47,7 @@ choice is named first below:
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
@@ -64,9 +64,10 @@ from ..instructions import (
     parse,
 )
 from .clock import host_now
+from .handlers import build_handlers
 from .lists import ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
-from .params import ParamStore, format_value, position_digits
+from .params import ParamStore
 from .profiles import Firmware
 from .state import StateFileError, load_state, save_state
 from .wire import Emit
@@ -199,7 +200,7 @@ class ControllerModel:
         self.last_job: int | None = None
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
         self.internal_errors: list[str] = []
-        self._handlers = self._build_handlers()
+        self._handlers: dict[str, Handler] = build_handlers(self)
         # The servers run the wire on the running loop's clock (not time.monotonic()
         # under uvloop), so the default start time is that clock's now.
         self._boot(host_now() if now is None else now)
@@ -847,14 +848,7 @@ class ControllerModel:
         self._load_saved()
         self._sync_all()
 
-    # -- handlers --------------------------------------------------------------------------
-
-    def _build_handlers(self) -> dict[str, Handler]:
-        from .handlers import build_handlers
-
-        return build_handlers(self)
-
-    # Helpers used by the handlers module.
+    # -- helpers of the handlers (tango_aio.sim.port.ModelPort) ------------------------------
 
     def present(self, command: Command) -> list[int]:
         """Axis indices a command addresses: its axis letter, else every present axis.
@@ -929,67 +923,6 @@ class ControllerModel:
             return False
         revs = self.motion.from_user(axis, distance) - self.motion.from_user(axis, 0.0)
         return self.motion.displace(axis, revs)
-
-    def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
-        """Convert user-unit positions to motor revolutions.
-
-        Parameters
-        ----------
-        values
-            Positions in user units, by axis index.
-
-        Returns
-        -------
-        dict[int | str, float]
-            The same in motor revolutions.
-        """
-        return {axis: self.motion.from_user(axis, value) for axis, value in values.items()}
-
-    def position_text(self, axis: int, revs: float) -> str:
-        """Format a position (revolutions) in the axis' dim units with resolution digits.
-
-        Parameters
-        ----------
-        axis
-            The axis index.
-        revs
-            The position, in revolutions.
-
-        Returns
-        -------
-        str
-            The text.
-        """
-        digits = position_digits(int(self.params.first("resolution")),
-                                 int(self.params.first("dim", axis)))
-        return format_value(self.motion.to_user(axis, revs), digits)
-
-    def axes_text(self, indices: Iterable[int], value: Callable[[int], str]) -> str:
-        """Join per-axis texts.
-
-        Parameters
-        ----------
-        indices
-            The axis indices.
-        value
-            The text of an axis, by index.
-
-        Returns
-        -------
-        str
-            The texts, separated by spaces.
-        """
-        return " ".join(value(index) for index in indices)
-
-    def completion_letters(self) -> str:
-        """A completion report with ``@`` for every present axis (``!joy 0``).
-
-        Returns
-        -------
-        str
-            The letters.
-        """
-        return "".join("@" if i < self.axes else "-" for i in range(len(AXES)))
 
     def report(self, letters: str) -> None:
         """Send a report that is not a move's (``!joy 0``) in the current autostatus mode.

@@ -13,13 +13,11 @@ instead of storing the index as a value.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterable, Mapping
 
-from ..instructions import Command
-from .params import INDEXED, format_value
-
-if TYPE_CHECKING:
-    from .model import ControllerModel
+from ..instructions import AXES, Command
+from .params import INDEXED, format_value, position_digits
+from .port import ModelPort
 
 __all__ = ["Peripherals"]
 
@@ -34,12 +32,76 @@ _ANAIN_COUNTS = {15: 512}
 
 
 class Peripherals:
-    """Reads of unmodelled hardware and indexed settings (mixin of ``Handlers``)."""
+    """Reads of unmodelled hardware and indexed settings, and the helpers every handler
+    uses to read and print positions (mixin of ``Handlers``)."""
 
-    m: ControllerModel
+    m: ModelPort
 
     def _per_axis(self, c: Command, value: str) -> str:
         return " ".join(value for _ in self.m.present(c))
+
+    # -- helpers of every handler ------------------------------------------------------
+
+    def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
+        """Convert user-unit positions to motor revolutions.
+
+        Parameters
+        ----------
+        values
+            Positions in user units, by axis index.
+
+        Returns
+        -------
+        dict[int | str, float]
+            The same in motor revolutions.
+        """
+        return {axis: self.m.motion.from_user(axis, value) for axis, value in values.items()}
+
+    def position_text(self, axis: int, revs: float) -> str:
+        """Format a position (revolutions) in the axis' dim units with resolution digits.
+
+        Parameters
+        ----------
+        axis
+            The axis index.
+        revs
+            The position, in revolutions.
+
+        Returns
+        -------
+        str
+            The text.
+        """
+        digits = position_digits(int(self.m.params.first("resolution")),
+                                 int(self.m.params.first("dim", axis)))
+        return format_value(self.m.motion.to_user(axis, revs), digits)
+
+    def axes_text(self, indices: Iterable[int], value: Callable[[int], str]) -> str:
+        """Join per-axis texts.
+
+        Parameters
+        ----------
+        indices
+            The axis indices.
+        value
+            The text of an axis, by index.
+
+        Returns
+        -------
+        str
+            The texts, separated by spaces.
+        """
+        return " ".join(value(index) for index in indices)
+
+    def completion_letters(self) -> str:
+        """A completion report with ``@`` for every present axis (``!joy 0``).
+
+        Returns
+        -------
+        str
+            The letters.
+        """
+        return "".join("@" if i < self.m.axes else "-" for i in range(len(AXES)))
 
     # -- motor current and lock state -------------------------------------------------
 
@@ -55,7 +117,7 @@ class Peripherals:
                 amps *= params.number("reduction", axis)
             return format_value(amps, 2)
 
-        return [self.m.axes_text(self.m.present(c), current)]
+        return [self.axes_text(self.m.present(c), current)]
 
     def i_lockstate(self, c: Command) -> Reply:
         """16 bits per axis: the ``lock`` bits on axes where ``lockaxis`` is 1 (L4323)."""
@@ -64,7 +126,7 @@ class Peripherals:
         def state(axis: int) -> str:
             return bits if int(self.m.params.first("lockaxis", axis)) else "0" * len(bits)
 
-        return [self.m.axes_text(self.m.present(c), state)]
+        return [self.axes_text(self.m.present(c), state)]
 
     # -- HDI and keys ---------------------------------------------------------------------
 
@@ -207,7 +269,7 @@ class Peripherals:
 
     def _xy_text(self, axis: int, value: float) -> str:
         axis = min(axis, self.m.axes - 1)
-        return self.m.position_text(axis, self.m.motion.from_user(axis, value))
+        return self.position_text(axis, self.m.motion.from_user(axis, value))
 
     # -- encoders and closed loop: none fitted -----------------------------------------
 
@@ -232,7 +294,7 @@ class Peripherals:
 
     def i_ctrdiff(self, c: Command) -> Reply:
         """No position difference, printed as a position (L12396-12443)."""
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(i, 0.0))]
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(i, 0.0))]
 
     def i_mrt(self, c: Command) -> Reply:
         """``n`` lines (10 by default, ``-n`` the same) of sine/cosine pairs, one pair per
@@ -243,7 +305,7 @@ class Peripherals:
 
     def i_calzeropos(self, c: Command) -> Reply:
         """Where the last cal of each axis completed (0 unless calmode 1) (L5970-6007)."""
-        return [self.m.axes_text(self.m.present(c), lambda i: self.m.position_text(
+        return [self.axes_text(self.m.present(c), lambda i: self.position_text(
             i, self.m.cal_zero[i]))]
 
     # -- flagged letters -------------------------------------------------------------------
