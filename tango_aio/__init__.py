@@ -98,6 +98,7 @@ if TYPE_CHECKING:
         UnknownControllerError,
         UploadError,
         WriteProtectedError,
+        WrongEventLoopError,
         WrongParameterCountError,
         XposModuleError,
     )
@@ -204,6 +205,7 @@ __all__ = [
     "UnsolicitedLine",
     "UploadError",
     "WriteProtectedError",
+    "WrongEventLoopError",
     "WrongParameterCountError",
     "XposModuleError",
     "connect",

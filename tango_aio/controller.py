@@ -931,7 +931,7 @@ class Controller:
             return
         self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
         self._motion.stopped(chosen)
-        await self._protocol.stop_axes(True, axes=chosen)
+        await self._protocol.stop_soft(axes=chosen)
         if wait:
             try:
                 async with asyncio.timeout(STOP_WAIT):
@@ -964,16 +964,16 @@ class Controller:
         self._motion.stopped()
         # ``a`` first: it stops the axes at once even on a controller that ignores Ctrl+C,
         # and Ctrl+C behind it still discards whatever is queued in the input buffer.
-        await self._protocol.stop_axes(True)
+        await self._protocol.stop_soft()
         if not soft:
             try:
-                await self._protocol.stop_axes(False, timeout=self.reply_timeout)
+                await self._protocol.stop_hard(timeout=self.reply_timeout)
             except ControllerTimeoutError:
                 # Ctrl+C may have been taken as part of the marker line (a controller that
                 # ignores it): resync again without it.
                 await self._protocol.resync(timeout=self.reply_timeout)
                 await self._protocol.read_autostatus(timeout=self.reply_timeout)
-            await self._protocol.stop_axes(True)  # in case Ctrl+C discarded the first ``a``
+            await self._protocol.stop_soft()  # in case Ctrl+C discarded the first ``a``
             self._motion.stopped()
         if wait:
             try:
@@ -1306,7 +1306,7 @@ class _Port:
         return error
 
     async def write_stop(self) -> None:
-        await self._c.protocol.stop_axes(True)
+        await self._c.protocol.stop_soft()
 
     def check_link(self) -> None:
         self._c.protocol.check()

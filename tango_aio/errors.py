@@ -95,6 +95,7 @@ __all__ = [
     "UnknownControllerError",
     "UploadError",
     "WriteProtectedError",
+    "WrongEventLoopError",
     "WrongParameterCountError",
     "XposModuleError",
     "controller_error",
@@ -144,6 +145,10 @@ class IdentityMismatchError(ConnectionLostError):
 
 class ControllerTimeoutError(TangoError, TimeoutError):
     """The controller did not answer within the allowed time."""
+
+
+class WrongEventLoopError(TangoError, RuntimeError):
+    """A connection was used from another event loop than the one it was opened on."""
 
 
 class ConnectError(TangoError):

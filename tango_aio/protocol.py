@@ -41,7 +41,6 @@ import contextlib
 import functools
 import logging
 import math
-import re
 import time
 from collections.abc import Callable, Collection, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -53,7 +52,6 @@ from .core import (
     Dropped,
     Echoed,
     Event,
-    HelpStyle,
     Mismatched,
     ProtocolCore,
     Replied,
@@ -69,28 +67,21 @@ from .errors import (
     RequestAbortedError,
     TangoError,
     UnknownControllerError,
+    WrongEventLoopError,
     controller_error,
     parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, Form, build, encode, parse
-from .patterns import ACK_PATTERN, normal_line
+from .instructions import Command, Context, Form, build, parse
 from .scheduler import Line, Run, WriteScheduler
+from .session import DEAD_AFTER, Exchange, LinkSession, Outcome, Until
 
-__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
-           "WrongEventLoopError"]
+__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission",
+           "TangoProtocol"]
 
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")
 
-
-#: Consecutive unanswered requests after which a link that stays open is declared lost.
-#: Two: a request's own timeout, then the resync marker written after it.
-DEAD_AFTER = 2
-
-
-class WrongEventLoopError(TangoError, RuntimeError):
-    """A connection was used from another event loop than the one it was opened on."""
 
 
 @dataclass(slots=True)
@@ -183,25 +174,6 @@ class MoveHandle:
 EventCallback = Callable[[Event, "Submission | None"], None]
 
 
-def _nothing_trails_help(lines: list[str]) -> bool:
-    """In a mode exchange (``...``, ``?autostatus``, ``?help``) whose lines so far hold
-    the reply of ``?help``: whether no line of ``?help``'s own can follow its reply, so
-    that the exchange may end without waiting for a quiet link.
-
-    The first number is the mode ``?help`` runs in (``?autostatus``'s reply; later lines
-    wait). Only two modes add lines to a read: mode 2 acknowledges (L2099-2103; reads
-    too, on some firmware: the ``ack_reads`` switch of the emulator) and mode 4 echoes
-    (L2117; "all input instructions", old L717-725), either before or after the reply.
-    Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
-    lines are move reports), and ``help``'s reply is one line in both editions (L2915-
-    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet as before.
-    """
-    for line in lines:
-        if _INTEGER.match(line):
-            return int(line) in (0, 1, 3)
-    return False
-
-
 class TangoProtocol(asyncio.Protocol):
     """Routes the controller's lines to awaiting requests, moves and the event callback."""
 
@@ -227,16 +199,11 @@ class TangoProtocol(asyncio.Protocol):
         if keepalive is not None and not (math.isfinite(keepalive) and keepalive > 0):
             raise ValueError(f"keepalive must be None or a positive number, got {keepalive}")
         self.core = ProtocolCore(autostatus=autostatus, context=context)
+        #: The link's state, resyncs, exchanges, detection and liveness, sans-IO
+        #: (:mod:`tango_aio.session`); this class carries out what it decides.
+        self.session = LinkSession(self.core, dead_after=dead_after, keepalive=keepalive)
         #: Time a resync marker or keepalive read the protocol writes itself may take.
         self.reply_timeout = reply_timeout
-        #: Consecutive unanswered requests (resync markers included) after which a link
-        #: that stays open is declared lost (see :meth:`_unanswered`).
-        self.dead_after = dead_after
-        #: Seconds of silence after which an idle link is probed (``None``: never).
-        self.keepalive = keepalive
-        self._silent = 0  # consecutive unanswered requests
-        self._counted_upto = 0  # lines written when the last unanswered one was counted
-        self._last_reply = 0.0  # loop time of the last reply line routed
         self._keepalive_task: asyncio.Task[None] | None = None
         self._loop = asyncio.get_running_loop()
         #: The write queue, credit markers and separators (:mod:`tango_aio.scheduler`).
@@ -255,20 +222,31 @@ class TangoProtocol(asyncio.Protocol):
         self._connected = self._loop.create_future()
         #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
         self.detect_at_connect = detect
-        self._detected: dict[str, str] = {}
-        #: Seconds of silence after the reply of ``help`` that end a resync without a
-        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`).
-        self.quiet_interval = 0.05
-        self._quiet_help = False
         self._quiet_timer: asyncio.TimerHandle | None = None
-        self._collect: list[str] | None = None
-        self._collect_help = False
-        self._collect_marker: str | None = None
-        self._collect_echoes: set[str] = set()
-        self._marker_run = 0
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
         self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
+
+    @property
+    def dead_after(self) -> int:
+        """Consecutive unanswered requests (resync markers included) after which a link
+        that stays open is declared lost (see :meth:`_unanswered`)."""
+        return self.session.dead_after
+
+    @property
+    def keepalive(self) -> float | None:
+        """Seconds of silence after which an idle link is probed (``None``: never)."""
+        return self.session.keepalive
+
+    @property
+    def quiet_interval(self) -> float:
+        """Seconds of silence after the reply of ``help`` that end a resync without a
+        marker (:attr:`~tango_aio.core.HelpStyle.NONE`)."""
+        return self.session.quiet_interval
+
+    @quiet_interval.setter
+    def quiet_interval(self, seconds: float) -> None:
+        self.session.quiet_interval = seconds
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -285,12 +263,12 @@ class TangoProtocol(asyncio.Protocol):
             raise TypeError(f"{type(transport).__name__} cannot write")
         self._writer = write
         self._transport = transport
-        self._last_reply = self._loop.time()
+        self.session.reply_heard(self._loop.time())
         if not self._connected.done():
             self._connected.set_result(None)
         if self.keepalive is not None and self._keepalive_task is None:
             self._keepalive_task = self._loop.create_task(
-                self._keep_alive(self.keepalive), name="tango_aio keepalive")
+                self._keep_alive(), name="tango_aio keepalive")
         if self._closing:
             # close() ran first (e.g. a cancelled connect(): a serial transport reports
             # connection_made one loop iteration after it was created): do not leak it.
@@ -326,6 +304,7 @@ class TangoProtocol(asyncio.Protocol):
         error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
         error.__cause__ = exc
         self._lost = error
+        self.session.closed()
         for submission in list(self._submissions.values()):
             _fail(submission.reply, error)
             _fail(submission.completion, error)
@@ -451,12 +430,11 @@ class TangoProtocol(asyncio.Protocol):
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
-        :attr:`quiet_interval` (in modes 2 and 4 only: :func:`_nothing_trails_help`).
-        From those lines: the mode in force (adopted), and in mode 2 whether reads are
-        acknowledged, before or after their data (an ``OK...`` between the two replies,
-        or after the last). Echoes (of any of the lines, mode 4)
-        and acknowledgements of ``lines`` are whatever they are: they are dropped."""
-        sent = [*lines, "?autostatus", "?help"]
+        :attr:`quiet_interval` (in modes 2 and 4 only:
+        :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
+        force (adopted) and, in mode 2, how reads are acknowledged from those lines
+        (:meth:`~tango_aio.session.LinkSession.mode_read`)."""
+        sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             try:
                 async with asyncio.timeout(timeout):
@@ -466,22 +444,9 @@ class TangoProtocol(asyncio.Protocol):
                     f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
             if expected is not None:
                 expected.append(self.core.autostatus)  # the driver's, once all is answered
-            received = await self._exchange(sent, timeout, until_help=True)
+            received = await self._exchange(sent, timeout, Until.HELP)
         self._heard()
-        normals = {normal_line(line) for line in sent}
-        kept = [line.strip() for line in received if normal_line(line) not in normals]
-        numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
-        helps = [index for index, line in enumerate(kept) if line.startswith("ERROR")]
-        if not numbers or not helps:
-            raise ProtocolError(f"{sent!r}: no ?autostatus reply among {kept!r}")
-        actual = int(kept[numbers[0]])
-        self.core.autostatus = actual
-        if actual == 2:
-            between = kept[numbers[0] + 1:helps[-1]]
-            after = kept[helps[-1] + 1:]
-            self.core.ack_reads = "after" if any(ACK_PATTERN.accepts(x) for x in after) \
-                else "before" if any(ACK_PATTERN.accepts(x) for x in between) else "no"
-            self._detected["ack_reads"] = self.core.ack_reads
+        actual = self.session.mode_read(sent, received.lines)
         self.scheduler.reproject()
         return actual
 
@@ -540,20 +505,20 @@ class TangoProtocol(asyncio.Protocol):
                 return controller_error(code, line)
         return None
 
-    async def stop_axes(self, soft: bool, *, timeout: float = 5.0,
-                        axes: Sequence[str] = ()) -> None:
-        """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
-        makes the controller discard its input buffer: requests in flight fail with
+    async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
+        """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
+        per axis, stopping only those (L6785-6844). Returns once the lines are queued."""
+        for axis in axes:
+            self.submit(build("a", form=Form.SET, axis=axis))
+        if not axes:
+            self.submit(_SOFT_STOP)
+
+    async def stop_hard(self, *, timeout: float = 5.0) -> None:
+        """Stop every axis with Ctrl+C, which also makes the controller discard its input
+        buffer (L6808-6814): requests in flight fail with
         :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
         the mode in force is read again (a discarded line may have changed it). Returns
-        once ``a`` is queued, or once the stream is in step after Ctrl+C. With ``axes``
-        (``soft`` only), one ``a x`` per axis stops only those (L6785-6844)."""
-        if soft:
-            for axis in axes:
-                self.submit(build("a", form=Form.SET, axis=axis))
-            if not axes:
-                self.submit(_SOFT_STOP)
-            return
+        once the stream is in step."""
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
@@ -565,23 +530,22 @@ class TangoProtocol(asyncio.Protocol):
 
     # -- liveness and the mode -----------------------------------------------------------
 
-    async def _keep_alive(self, interval: float) -> None:
+    async def _keep_alive(self) -> None:
         """While the link is idle, read ``?autostatus`` every ``interval`` seconds without
         a reply: an unanswered probe counts towards declaring the link dead
         (:meth:`_unanswered`), and a mode other than the one in force means the controller
         restarted behind an adapter that stayed up (it restores the mode)."""
+        session = self.session
         while self._lost is None:
-            wait = self._last_reply + interval - self._loop.time()
+            busy = bool(self._submissions or self.scheduler.queued or self._markers
+                        or self.core.pending_tags or self._barrier_lock.locked())
+            wait = session.keepalive_wait(self._loop.time(), busy=busy)
             if wait > 0:
                 await asyncio.sleep(wait)
                 continue
-            if self._submissions or self.scheduler.queued or self._markers \
-                    or self.core.pending_tags or self._barrier_lock.locked():
-                await asyncio.sleep(interval)  # requests in flight have their own deadlines
-                continue
             with contextlib.suppress(TangoError):
                 await self.verify_autostatus(timeout=self.reply_timeout)
-            self._last_reply = max(self._last_reply, self._loop.time() - interval / 2)
+            session.keepalive_probed(self._loop.time())
 
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
         """Read the mode in force (the way a mode change is confirmed, so that whatever
@@ -806,14 +770,10 @@ class TangoProtocol(asyncio.Protocol):
         that were in flight together count once (they time out together when one reply is
         lost), so each count is a line written after the previous count. Returns whether
         the link was declared lost."""
-        if serial <= self._counted_upto:
+        if not self.session.unanswered(serial, self.scheduler.written_lines):
             return False
-        self._counted_upto = self.scheduler.written_lines
-        self._silent += 1
-        if self._silent < self.dead_after or self._lost is not None:
-            return False
-        cause = ConnectionAbortedError(
-            f"{self._silent} requests in a row got no reply: the link is dead ({error})")
+        cause = ConnectionAbortedError(f"{self.session.silent} requests in a row got no "
+                                       f"reply: the link is dead ({error})")
         log.warning("%s", cause)
         self._fail_all(cause)
         if self._transport is not None and not self._transport.is_closing():
@@ -852,7 +812,7 @@ class TangoProtocol(asyncio.Protocol):
         ``connect`` runs :meth:`detect` instead.
         """
         self.check()
-        if self.detect_at_connect and not self._detected and not ctrl_c:
+        if self.detect_at_connect and not self.session.detected and not ctrl_c:
             await self.detect(timeout=timeout)
             return
         tag, marker = self._begin_resync(ctrl_c)
@@ -881,7 +841,7 @@ class TangoProtocol(asyncio.Protocol):
         ``optional_echo`` / ``optional_ack``: how many echoes and acknowledgements arrived
         that the manual does not promise (a read echoed in mode 4 or acknowledged in mode
         2, a mode change echoed or acknowledged) and were tolerated."""
-        found = dict(self._detected)
+        found = dict(self.session.detected)
         for item, count in self.core.tolerated.items():
             found["optional_" + item.rstrip("?")] = str(count)
         return found
@@ -892,7 +852,8 @@ class TangoProtocol(asyncio.Protocol):
 
         0. The quick way, for firmware that answers ``?help N`` with ``ERROR N,...``
            (1.71, L2919): ``help``, ``?help N`` twice and ``?err`` in one write (N a
-           marker number; see :meth:`_numbered_marker_answers`), every line dropped.
+           marker number; see :meth:`~tango_aio.session.LinkSession.numbered_marker_lines`),
+           every line dropped.
            Their replies in a row put the stream in step, and the markers use N. Any
            other answer (the link then quiet for :attr:`quiet_interval`) proves
            nothing: steps 1 and 2 follow.
@@ -905,63 +866,30 @@ class TangoProtocol(asyncio.Protocol):
            the markers use N and wait for that text), or nothing (older firmware, whose
            ``help`` takes no parameter: resyncs wait for quiet).
         """
-        self.core.help_style = HelpStyle.NONE
-        self._detected = {"help_number": "none"}
-        code = self.core.pick_marker_code()
-        if await self._numbered_marker_answers(code, timeout):
-            self.core.help_style = HelpStyle.NUMBER
-        else:
+        code = self.session.begin_detect()
+        lines, marker = self.session.numbered_marker_lines(code)
+        if not self.session.numbered_read(
+                await self._exchange(lines, timeout, Until.MARKER, marker)):
             await self.resync(timeout=timeout)
             code = self.core.pick_marker_code()
-            sent = [f"?help {code}", "?err"]
-            lines = await self._exchange(sent, timeout)
-            normals = {normal_line(line) for line in sent}
-            answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
-                       if not ACK_PATTERN.accepts(line.strip())
-                       and normal_line(line) not in normals]
-            if any(f"ERROR {code}," in line for line in answers):
-                self.core.help_style = HelpStyle.NUMBER
-            elif answers and answers[-1]:
-                self.core.help_style = HelpStyle.TEXT
-                self.core.help_text = (code, answers[-1])
-        self._detected = {"help_number": self.core.help_style.value}
+            sent = self.session.help_lines(code)
+            received = await self._exchange(sent, timeout, Until.NUMBER)
+            self.session.help_read(code, sent, received.lines)
+        self.session.end_detect()
         return self.detected
 
-    async def _numbered_marker_answers(self, code: int, timeout: float) -> bool:
-        """Step 0 of :meth:`detect`: whether ``ERROR code,`` twice and then a number (the
-        replies of ``?help code``, ``?help code`` and ``?err``) came back in a row,
-        echoes and acknowledgements aside. The stream is then in step.
-
-        An earlier session of this driver may still be sending: its markers and
-        separators are ``?help`` with the codes in turn, one code never twice in a row
-        (:meth:`~tango_aio.core.ProtocolCore.pick_marker_code`), so its replies cannot
-        look like this pair. Only its own step 0 with the same code could, had it been
-        cut off within those few lines."""
-        marker = f"ERROR {code},"
-        self._marker_run = 0
-        await self._exchange(["help", f"?help {code}", f"?help {code}", "?err"], timeout,
-                             marker=marker)
-        return self._marker_run == 3
-
-    async def _exchange(self, lines: list[str], timeout: float | None, *,
-                        until_help: bool = False, marker: str | None = None) -> list[str]:
-        """Write ``lines`` with the core dropping every line; return the lines received
-        up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
-        then :attr:`quiet_interval` of silence, unless the mode in force cannot add a line
-        after it: :func:`_nothing_trails_help`; with ``marker``, a line starting with it
-        and then a number, or else :attr:`quiet_interval` of silence after any line).
+    async def _exchange(self, lines: list[str], timeout: float | None, until: Until,
+                        marker: str | None = None) -> Exchange:
+        """Write ``lines`` with the core dropping every line; return what the session
+        collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
         Only call it when nothing is owed."""
-        self.core.drop_all()
-        self._quiet_help = marker is not None  # a marker exchange also ends on quiet
-        collected: list[str] = []
-        self._collect = collected
-        self._collect_help = until_help
-        self._collect_marker = marker
-        self._collect_echoes = {normal_line(line) for line in lines}
+        data = self.session.begin_exchange(lines, until, marker)
+        collected = self.session.exchange
+        assert collected is not None
         self._collected = self._loop.create_future()
         in_step = False
         try:
-            self._write(b"".join(encode(line) for line in lines))
+            self._write(data)
             self.scheduler.written_lines += len(lines)
             serial = self.scheduler.written_lines
             try:
@@ -969,8 +897,8 @@ class TangoProtocol(asyncio.Protocol):
                     await self._collected
             except TimeoutError:
                 error = ControllerTimeoutError(f"no reply to {lines!r} within {timeout} s")
-                self._collect = self._collected = None
-                self.core.end_resync()
+                self._collected = None
+                self.session.exchange_timed_out()
                 if self._unanswered(error, serial):
                     self.check()
                 self._background_resync(timeout if timeout is not None
@@ -978,68 +906,34 @@ class TangoProtocol(asyncio.Protocol):
                 raise error from None
             in_step = True
         finally:
-            self._collect = self._collected = None
+            self._collected = None
             self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
-            if in_step:
-                self.core.end_resync()
-                self.scheduler.in_step()
-            elif self.core.quiet:  # cancelled: its replies may still come
-                self.core.end_resync()
+            if self.session.end_exchange(in_step=in_step):
+                # Cancelled: its replies may still come.
                 self._background_resync(self.reply_timeout)
+            elif in_step:
+                self.scheduler.in_step()
             self._flush()
         return collected
 
     def _on_dropped(self, line: str) -> None:
-        """A line dropped while resynchronising (or collected by :meth:`_exchange`)."""
-        if self._collect is not None:
-            self._collect.append(line)
-            if self._collect_marker is not None:
-                self._marker_line(line)
-            elif self._collect_help:
-                # Sticky: an acknowledgement of ?help itself may follow its reply.
-                self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
-                if self._quiet_help and _nothing_trails_help(self._collect):
-                    self._end_collection()
-                else:
-                    self._quiet_from_now()
-            elif _INTEGER.match(line):
-                self._end_collection()
-            return
-        if not self.core.quiet:
-            return
-        text = line.strip()
-        if text.startswith("ERROR"):
-            self._quiet_help = True
-        elif normal_line(text) != "help" and not ACK_PATTERN.accepts(text):
-            # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
-            # its reply: that reply was not the last line yet.
-            self._quiet_help = False
-        self._quiet_from_now()
-
-    def _marker_line(self, line: str) -> None:
-        """A line collected by a marker exchange (:meth:`_numbered_marker_answers`):
-        count the marker replies in a row, then the number that ends them."""
-        assert self._collect_marker is not None
-        text = line.strip()
-        if normal_line(text) in self._collect_echoes or ACK_PATTERN.accepts(text):
-            pass  # an echo (mode 4) or an acknowledgement (mode 2): not a reply
-        elif text.startswith(self._collect_marker):
-            self._marker_run = min(self._marker_run + 1, 2)
-        elif self._marker_run == 2 and _INTEGER.match(text):
-            self._marker_run = 3
+        """A line dropped while resynchronising (or collected by :meth:`_exchange`): the
+        session says what follows."""
+        outcome = self.session.line_dropped(line, self._loop.time())
+        if outcome is Outcome.WAIT_QUIET:
+            self._quiet_from_now()
+        elif outcome is Outcome.COLLECTED:
             self._end_collection()
-            return
-        else:
-            self._marker_run = 0
-        self._quiet_from_now()
 
     def _quiet_from_now(self) -> None:
-        """(Re)start the wait for :attr:`quiet_interval` of silence (:meth:`_quiet_check`)."""
+        """(Re)arm the session's quiet deadline (:meth:`_quiet_check`)."""
         if self._quiet_timer is not None:
             self._quiet_timer.cancel()
-        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
+        deadline = self.session.quiet_deadline
+        assert deadline is not None
+        self._quiet_timer = self._loop.call_at(deadline, self._quiet_check)
 
     def _end_collection(self) -> None:
         """What :meth:`_exchange` waits for has come (or the link is quiet)."""
@@ -1050,19 +944,17 @@ class TangoProtocol(asyncio.Protocol):
             self._collected.set_result(None)
 
     def _quiet_check(self) -> None:
-        """End a quiet resync once ``help``'s reply was the last line and all is quiet."""
+        """The quiet deadline passed: end the exchange, or the quiet resync."""
         self._quiet_timer = None
-        if not self.core.quiet or not self._quiet_help or self._lost is not None:
-            return
-        if self._collect is not None:
+        outcome = self.session.quiet_elapsed()
+        if outcome is Outcome.COLLECTED:
             self._end_collection()
-            return
-        self.core.end_resync()
-        self.scheduler.in_step()
-        for marker in self._markers.values():
-            if not marker.done():
-                marker.set_result(Response())
-        self._flush()
+        elif outcome is Outcome.IN_STEP:
+            self.scheduler.in_step()
+            for marker in self._markers.values():
+                if not marker.done():
+                    marker.set_result(Response())
+            self._flush()
 
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
@@ -1072,12 +964,11 @@ class TangoProtocol(asyncio.Protocol):
         marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
         if not keep_queue:
             self._drop_queue()
-        data = self.core.resync(tag, ctrl_c=ctrl_c)
+        data = self.session.begin_resync(tag, ctrl_c=ctrl_c)
         # The credit counts the marker's line, not Ctrl+C (the controller drops it).
         self.scheduler.restarted(tag, len(data) - (1 if ctrl_c else 0))
         self._markers[tag] = marker
         self._dispatch_pending()
-        self._quiet_help = False
         self._write(data)
         return tag, marker
 
@@ -1115,7 +1006,7 @@ class TangoProtocol(asyncio.Protocol):
             # Any line at all, even one nobody can use (junk, a garbled reply, a line
             # dropped while resynchronising), shows the link still forwards: only
             # silence counts towards a dead link (:meth:`_unanswered`).
-            self._silent = 0
+            self.session.line_received()
         if isinstance(event, Completed) and self._on_event:
             known = self._submissions.get(event.tag) if event.tag is not None else None
             self._on_event(event, known)
@@ -1141,7 +1032,8 @@ class TangoProtocol(asyncio.Protocol):
                                   event.lines if isinstance(event, Replied) else None,
                                   confirms=not isinstance(event, Echoed)):
             return
-        if event.tag in self._markers and isinstance(event, Replied):
+        if isinstance(event, Replied) and self.session.replied(event.tag) \
+                and event.tag in self._markers:
             # The core only waits for the newest marker; its reply ends older resyncs too.
             for marker in self._markers.values():
                 if not marker.done():
@@ -1167,7 +1059,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _heard(self) -> None:
         """A reply line arrived: the link is alive and answers (the keepalive waits)."""
-        self._last_reply = self._loop.time()
+        self.session.reply_heard(self._loop.time())
 
     def _on_completed(self, event: Completed) -> None:
         self._heard()
@@ -1240,8 +1132,6 @@ class TangoProtocol(asyncio.Protocol):
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
-#: The read of the mode in force.
-_READ_MODE = parse("?autostatus")
 
 
 def _check_framing(command: Command) -> None:
@@ -1286,15 +1176,6 @@ def _traced(line: bytes) -> str:
     if len(line) <= TRACE_LINE:
         return repr(line)
     return f"{line[:TRACE_LINE]!r}... ({len(line)} bytes)"
-
-
-_INTEGER = re.compile(r"\s*-?\d+\s*$")
-
-
-def _consume(future: asyncio.Future[Any]) -> None:
-    """Mark a future's outcome retrieved (nobody awaits it)."""
-    if not future.cancelled():
-        future.exception()
 
 
 async def _until_done(future: asyncio.Future[Any], timeout: float | None,

@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from tango_aio.core import (
     DEFAULT_MAX_LINE,
     Acknowledged,
+    AckReads,
     Completed,
     Dropped,
     Echoed,
@@ -72,7 +73,7 @@ def setup(mode: int, *requests: tuple[str, Hashable],
     Routing tests use symbolic replies (``R_a``), so reply checking is off here; it is
     tested in tests/unit/test_patterns.py."""
     core = ProtocolCore(autostatus=mode, context=context, check_replies=False)
-    core.ack_reads = "no"  # as the protocol finds on firmware 1.71 (L2097-2101)
+    core.ack_reads = AckReads.NO  # as the protocol finds on firmware 1.71 (L2097-2101)
     written = b""
     for line, tag in requests:
         data, _ = core.send(parse(line, context), tag)
@@ -1067,7 +1068,7 @@ def scenarios(draw: st.DrawFn) -> Scenario:
 
 def _start(scenario: Scenario) -> tuple[ProtocolCore, bytes]:
     core = ProtocolCore(autostatus=scenario.mode, context=EXT0, check_replies=False)
-    core.ack_reads = "no"
+    core.ack_reads = AckReads.NO
     written = b""
     for tag, line in enumerate(scenario.commands):
         data, _ = core.send(parse(line, EXT0), tag)

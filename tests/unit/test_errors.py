@@ -252,10 +252,9 @@ def _every_tango_error() -> set[type[TangoError]]:
 
 
 def test_every_tango_error_is_defined_in_errors() -> None:
-    # protocol.py's WrongEventLoopError waits for the protocol's own rework (issue 31).
     elsewhere = {f"{cls.__module__}.{cls.__qualname__}" for cls in _every_tango_error()
                  if cls.__module__ != "tango_aio.errors"}
-    assert elsewhere == {"tango_aio.protocol.WrongEventLoopError"}
+    assert elsewhere == set()
 
 
 def test_the_surfaces_errors_keep_their_old_import_paths() -> None:

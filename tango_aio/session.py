@@ -1,0 +1,472 @@
+"""The link session: what a link decides about its own state. No I/O, no asyncio.
+
+:class:`LinkSession` is the sans-IO half of :class:`~tango_aio.protocol.TangoProtocol`,
+in the way h11's ``Connection`` is of an HTTP client: the protocol feeds it what happened
+(a line dropped by the core, a marker's reply, a deadline reached, a line unanswered, the
+link closed), with the time where time matters (``now``, the event loop's clock), and does
+what it answers (write these bytes, arm this deadline, wake the exchange, the stream is in
+step, the link is dead). It owns:
+
+* **resync and quiet resync**: a resync writes the marker ``?help N`` and the core drops
+  every line up to its unique reply; on firmware without ``?help N``
+  (:attr:`~tango_aio.core.HelpStyle.NONE`) ``help`` is written and the stream is in step
+  once the reply of ``help`` (``ERROR n,text``, L2915-2919, old L805-819) was the last
+  line and the link has been quiet for :attr:`LinkSession.quiet_interval`;
+* **exchanges**: lines written with the core dropping every line, the lines that come
+  back collected up to what ends them (:class:`Until`): the mode exchange
+  (:meth:`LinkSession.mode_lines`, :meth:`LinkSession.mode_read`) and the detection at
+  connect (:meth:`LinkSession.numbered_marker_lines`, :meth:`LinkSession.help_read`);
+* **liveness**: dead-link counting (:meth:`LinkSession.unanswered`) and the keepalive's
+  schedule (:meth:`LinkSession.keepalive_wait`).
+
+Its state is one :class:`LinkState`, changed only through :data:`TRANSITIONS` (an event
+the table does not list raises :class:`SessionStateError`: a bug in the adapter, never the
+controller's doing). A Ctrl+C resync may overtake an exchange that is collecting
+(``stop_hard`` from another task): the exchange keeps collecting what the core drops, and
+the table has the transitions for it.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field
+from typing import Final
+
+from .core import AckReads, HelpStyle, ProtocolCore
+from .errors import ProtocolError
+from .instructions import encode
+from .patterns import ACK_PATTERN, normal_line
+
+__all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "TRANSITIONS", "Exchange", "LinkEvent",
+           "LinkSession", "LinkState", "Outcome", "SessionStateError", "Until",
+           "nothing_trails_help"]
+
+#: Consecutive unanswered requests after which a link that stays open is declared lost.
+#: Two: a request's own timeout, then the resync marker written after it.
+DEAD_AFTER: Final = 2
+#: Seconds of silence after the reply of ``help`` that end a quiet resync.
+QUIET_INTERVAL: Final = 0.05
+
+_INTEGER: Final = re.compile(r"\s*-?\d+\s*$")
+
+
+class LinkState(enum.Enum):
+    """Where the reply stream stands."""
+
+    IN_STEP = "in step"  #: lines are routed to the requests that owe them
+    RESYNC = "resync"  #: a marker is written; the core drops lines up to its reply
+    QUIET_RESYNC = "quiet resync"  #: ``help`` is written; lines dropped until quiet
+    EXCHANGE = "exchange"  #: an exchange's lines are written; the core drops every line
+    LOST = "lost"  #: closed, or declared dead: nothing leaves this state
+
+
+class LinkEvent(enum.Enum):
+    """What changes the :class:`LinkState` (see :data:`TRANSITIONS`)."""
+
+    MARKER_WRITTEN = "marker written"  #: :meth:`LinkSession.begin_resync` with a marker
+    HELP_WRITTEN = "help written"  #: :meth:`LinkSession.begin_resync` without one
+    EXCHANGE_WRITTEN = "exchange written"  #: :meth:`LinkSession.begin_exchange`
+    MARKER_ANSWERED = "marker answered"  #: :meth:`LinkSession.replied` for the marker
+    QUIET = "quiet"  #: :meth:`LinkSession.quiet_elapsed` ended a quiet resync
+    EXCHANGE_ENDED = "exchange ended"  #: :meth:`LinkSession.end_exchange` (or timed out)
+    DEAD = "dead"  #: :meth:`LinkSession.unanswered` declared the link dead
+    CLOSED = "closed"  #: :meth:`LinkSession.closed`
+
+
+_S, _E = LinkState, LinkEvent
+#: Every transition: (state, event) -> next state. Resyncs may start in any live state (a
+#: newer marker supersedes an older one; Ctrl+C may overtake an exchange); the marker's
+#: reply may come after an exchange that was overtaken has ended (the core still owes it);
+#: an exchange overtaken by a resync ends it when it ends in step (as the core does).
+TRANSITIONS: Final[dict[tuple[LinkState, LinkEvent], LinkState]] = {
+    (_S.IN_STEP, _E.MARKER_WRITTEN): _S.RESYNC,
+    (_S.IN_STEP, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
+    (_S.IN_STEP, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
+    (_S.IN_STEP, _E.MARKER_ANSWERED): _S.IN_STEP,
+    (_S.IN_STEP, _E.EXCHANGE_ENDED): _S.IN_STEP,
+    (_S.RESYNC, _E.MARKER_WRITTEN): _S.RESYNC,
+    (_S.RESYNC, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
+    (_S.RESYNC, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
+    (_S.RESYNC, _E.MARKER_ANSWERED): _S.IN_STEP,
+    (_S.RESYNC, _E.EXCHANGE_ENDED): _S.IN_STEP,
+    (_S.QUIET_RESYNC, _E.MARKER_WRITTEN): _S.RESYNC,
+    (_S.QUIET_RESYNC, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
+    (_S.QUIET_RESYNC, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
+    (_S.QUIET_RESYNC, _E.QUIET): _S.IN_STEP,
+    (_S.QUIET_RESYNC, _E.EXCHANGE_ENDED): _S.IN_STEP,
+    (_S.EXCHANGE, _E.MARKER_WRITTEN): _S.RESYNC,
+    (_S.EXCHANGE, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
+    (_S.EXCHANGE, _E.EXCHANGE_ENDED): _S.IN_STEP,
+    **{(state, event): _S.LOST for state in _S if state is not _S.LOST
+       for event in (_E.DEAD, _E.CLOSED)},
+    **{(_S.LOST, event): _S.LOST for event in _E},
+}
+
+
+class SessionStateError(RuntimeError):
+    """An event the transition table does not allow in the current state (the adapter's
+    bug, never the controller's doing)."""
+
+
+class Outcome(enum.Enum):
+    """What the adapter does after a line was dropped or a quiet deadline passed."""
+
+    NONE = "none"  #: nothing
+    WAIT_QUIET = "wait quiet"  #: (re)arm the quiet deadline (:attr:`LinkSession.quiet_deadline`)
+    COLLECTED = "collected"  #: the exchange has what it waits for: wake it
+    IN_STEP = "in step"  #: a quiet resync ended: release the lines it held
+
+
+class Until(enum.Enum):
+    """What ends an exchange's collection."""
+
+    NUMBER = "number"  #: one number (the reply of the last line, ``?err``)
+    HELP = "help"  #: ``help``'s reply, then quiet (unless nothing can trail it)
+    MARKER = "marker"  #: the marker's reply twice and then a number; or quiet
+
+
+@dataclass(slots=True)
+class Exchange:
+    """The lines an exchange collected (:meth:`LinkSession.begin_exchange`)."""
+
+    until: Until
+    marker: str | None = None
+    #: The normal forms of the lines written: their echoes (mode 4) are not replies.
+    echoes: frozenset[str] = frozenset()
+    lines: list[str] = field(default_factory=list)
+    #: Marker replies in a row (at most 2), then 3 once the number followed.
+    run: int = 0
+
+    @property
+    def numbered(self) -> bool:
+        """Whether a marker exchange saw the marker's reply twice and then a number."""
+        return self.run == 3
+
+
+def nothing_trails_help(lines: Sequence[str]) -> bool:
+    """In a mode exchange (``...``, ``?autostatus``, ``?help``) whose lines so far hold
+    the reply of ``?help``: whether no line of ``?help``'s own can follow its reply, so
+    that the exchange may end without waiting for a quiet link.
+
+    The first number is the mode ``?help`` runs in (``?autostatus``'s reply; later lines
+    wait). Only two modes add lines to a read: mode 2 acknowledges (L2099-2103; reads
+    too, on some firmware: the ``ack_reads`` switch of the emulator) and mode 4 echoes
+    (L2117; "all input instructions", old L717-725), either before or after the reply.
+    Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
+    lines are move reports), and ``help``'s reply is one line in both editions (L2915-
+    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet.
+    """
+    for line in lines:
+        if _INTEGER.match(line):
+            return int(line) in (0, 1, 3)
+    return False
+
+
+def _is_help_reply(text: str) -> bool:
+    """Whether ``text`` (stripped) looks like the reply of ``help``: ``ERROR n,text``
+    (L2915-2919, old L805-819)."""
+    return text.startswith("ERROR")
+
+
+class LinkSession:
+    """The link's state, resyncs, exchanges, detection and liveness (see the module).
+
+    ``core`` is the :class:`~tango_aio.core.ProtocolCore` whose resyncs the session starts
+    and ends; ``dead_after`` consecutive unanswered requests with no line in between
+    declare the link dead; ``keepalive`` is the seconds of silence after which an idle
+    link is probed (``None``: never).
+    """
+
+    def __init__(self, core: ProtocolCore, *, dead_after: int = DEAD_AFTER,
+                 keepalive: float | None = None,
+                 quiet_interval: float = QUIET_INTERVAL) -> None:
+        self.core = core
+        #: Consecutive unanswered requests after which a link that stays open is lost.
+        self.dead_after = dead_after
+        #: Seconds of silence after which an idle link is probed (``None``: never).
+        self.keepalive = keepalive
+        #: Seconds of silence after the reply of ``help`` that end a quiet resync.
+        self.quiet_interval = quiet_interval
+        self.state = LinkState.IN_STEP
+        #: The deadline the adapter arms after :attr:`Outcome.WAIT_QUIET`.
+        self.quiet_deadline: float | None = None
+        #: The exchange collecting lines (``None``: none).
+        self.exchange: Exchange | None = None
+        #: What :meth:`detect_lines` and :meth:`mode_read` found out (``help_number``,
+        #: ``ack_reads``).
+        self.detected: dict[str, str] = {}
+        #: Consecutive unanswered requests with no line in between.
+        self.silent = 0
+        #: Loop time of the last reply line (the keepalive waits from there).
+        self.last_reply = 0.0
+        self._counted_upto = 0  # lines written when the last unanswered one was counted
+        self._help_last = False  # whether the reply of help was the last line dropped
+        self._marker: Hashable | None = None  # the tag of the marker the core awaits
+
+    def _go(self, event: LinkEvent) -> None:
+        try:
+            self.state = TRANSITIONS[self.state, event]
+        except KeyError:
+            raise SessionStateError(
+                f"{event.value!r} cannot happen in state {self.state.value!r}") from None
+
+    @property
+    def lost(self) -> bool:
+        """Whether the link is closed or declared dead."""
+        return self.state is LinkState.LOST
+
+    # -- resync -------------------------------------------------------------------------
+
+    def begin_resync(self, tag: Hashable, *, ctrl_c: bool = False) -> bytes:
+        """Start a resync whose marker (if this controller has markers) is registered
+        under ``tag``; return the bytes to write (see
+        :meth:`~tango_aio.core.ProtocolCore.resync`)."""
+        data = self.core.resync(tag, ctrl_c=ctrl_c)
+        quiet = self.core.quiet
+        self._marker = None if quiet else tag
+        self._go(LinkEvent.HELP_WRITTEN if quiet else LinkEvent.MARKER_WRITTEN)
+        self._help_last = False
+        return data
+
+    def replied(self, tag: Hashable) -> bool:
+        """A :class:`~tango_aio.core.Replied` event for ``tag``: whether it is the reply
+        of the marker the core awaited (then the stream is in step)."""
+        if tag is None or tag != self._marker:
+            return False
+        self._marker = None
+        self._go(LinkEvent.MARKER_ANSWERED)
+        return True
+
+    def line_dropped(self, line: str, now: float) -> Outcome:
+        """A line the core dropped (a :class:`~tango_aio.core.Dropped` event) at loop time
+        ``now``: collected by the exchange, or watched by a quiet resync."""
+        exchange = self.exchange
+        if exchange is not None:
+            exchange.lines.append(line)
+            if exchange.until is Until.MARKER:
+                return self._marker_line(exchange, line, now)
+            if exchange.until is Until.HELP:
+                # Sticky: an acknowledgement of ?help itself may follow its reply.
+                self._help_last = self._help_last or _is_help_reply(line.strip())
+                if self._help_last and nothing_trails_help(exchange.lines):
+                    return self._collected()
+                return self._wait_quiet(now)
+            return self._collected() if _INTEGER.match(line) else Outcome.NONE
+        if not self.core.quiet:
+            return Outcome.NONE
+        text = line.strip()
+        if _is_help_reply(text):
+            self._help_last = True
+        elif normal_line(text) != "help" and not ACK_PATTERN.accepts(text):
+            # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
+            # its reply: that reply was not the last line yet.
+            self._help_last = False
+        return self._wait_quiet(now)
+
+    def _marker_line(self, exchange: Exchange, line: str, now: float) -> Outcome:
+        """Count the marker replies in a row, then the number that ends them."""
+        assert exchange.marker is not None
+        text = line.strip()
+        if normal_line(text) in exchange.echoes or ACK_PATTERN.accepts(text):
+            pass  # an echo (mode 4) or an acknowledgement (mode 2): not a reply
+        elif text.startswith(exchange.marker):
+            exchange.run = min(exchange.run + 1, 2)
+        elif exchange.run == 2 and _INTEGER.match(text):
+            exchange.run = 3
+            return self._collected()
+        else:
+            exchange.run = 0
+        return self._wait_quiet(now)
+
+    def _wait_quiet(self, now: float) -> Outcome:
+        self.quiet_deadline = now + self.quiet_interval
+        return Outcome.WAIT_QUIET
+
+    def _collected(self) -> Outcome:
+        self.quiet_deadline = None
+        return Outcome.COLLECTED
+
+    def quiet_elapsed(self) -> Outcome:
+        """The quiet deadline armed last has passed with no line since: the exchange
+        has what it waits for, or the quiet resync ends (the core is in step)."""
+        self.quiet_deadline = None
+        if not self.core.quiet or not self._help_last or self.lost:
+            return Outcome.NONE
+        if self.exchange is not None:
+            return Outcome.COLLECTED
+        self.core.end_resync()
+        self._go(LinkEvent.QUIET)
+        return Outcome.IN_STEP
+
+    # -- exchanges ----------------------------------------------------------------------
+
+    def begin_exchange(self, lines: Sequence[str], until: Until,
+                       marker: str | None = None) -> bytes:
+        """Start collecting what ``lines`` bring back, with the core dropping every line
+        (only when nothing is owed); return the bytes to write. With ``marker``
+        (:attr:`Until.MARKER`), quiet after any line ends the exchange too."""
+        self.core.drop_all()
+        self._marker = None
+        self._go(LinkEvent.EXCHANGE_WRITTEN)
+        self._help_last = until is Until.MARKER
+        self.quiet_deadline = None
+        self.exchange = Exchange(until, marker, frozenset(normal_line(line) for line in lines))
+        return b"".join(encode(line) for line in lines)
+
+    def exchange_timed_out(self) -> None:
+        """The exchange got no answer in time: stop collecting, the core routes again
+        (the adapter counts the line unanswered and resyncs)."""
+        self.exchange = None
+        self.quiet_deadline = None
+        self.core.end_resync()
+        self._go(LinkEvent.EXCHANGE_ENDED)
+
+    def end_exchange(self, *, in_step: bool) -> bool:
+        """The exchange is over (``in_step``: it got what it waited for; else it was
+        cancelled or timed out). Returns whether a resync must follow (its replies may
+        still come)."""
+        self.exchange = None
+        self.quiet_deadline = None
+        if not in_step and not self.core.quiet:
+            return False
+        self.core.end_resync()
+        self._go(LinkEvent.EXCHANGE_ENDED)
+        return not in_step
+
+    # -- the mode -----------------------------------------------------------------------
+
+    @staticmethod
+    def mode_lines(lines: Sequence[str]) -> list[str]:
+        """The lines of a mode exchange: ``lines`` (a mode change, or none), then
+        ``?autostatus`` and ``?help``, whose reply ends it (:attr:`Until.HELP`)."""
+        return [*lines, "?autostatus", "?help"]
+
+    def mode_read(self, sent: Sequence[str], received: Sequence[str]) -> int:
+        """From the lines a mode exchange (``sent``) brought back: the mode in force
+        (adopted by the core), and in mode 2 whether reads are acknowledged, before or
+        after their data (an ``OK...`` between the two replies, or after the last).
+        Echoes (of any of the lines, mode 4) and acknowledgements of the lines are
+        whatever they are: they are left out. Raises :class:`ProtocolError` when the
+        lines hold no reply of ``?autostatus``."""
+        normals = {normal_line(line) for line in sent}
+        kept = [line.strip() for line in received if normal_line(line) not in normals]
+        numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
+        helps = [index for index, line in enumerate(kept) if _is_help_reply(line)]
+        if not numbers or not helps:
+            raise ProtocolError(f"{list(sent)!r}: no ?autostatus reply among {kept!r}")
+        actual = int(kept[numbers[0]])
+        self.core.autostatus = actual
+        if actual == 2:
+            between = kept[numbers[0] + 1:helps[-1]]
+            after = kept[helps[-1] + 1:]
+            acks = AckReads.AFTER if any(map(ACK_PATTERN.accepts, after)) else \
+                AckReads.BEFORE if any(map(ACK_PATTERN.accepts, between)) else AckReads.NO
+            self.core.ack_reads = acks
+            self.detected["ack_reads"] = acks.value
+        return actual
+
+    # -- detection ----------------------------------------------------------------------
+
+    def begin_detect(self) -> int:
+        """Start the detection at connect: markers off until it ends; return the marker
+        number for step 0 (:meth:`numbered_marker_lines`)."""
+        self.core.help_style = HelpStyle.NONE
+        self.detected = {"help_number": "none"}
+        return self.core.pick_marker_code()
+
+    @staticmethod
+    def numbered_marker_lines(code: int) -> tuple[list[str], str]:
+        """Step 0 of the detection: ``help``, ``?help code`` twice and ``?err`` in one
+        write, and the text the marker replies start with (an exchange
+        :attr:`Until.MARKER`; :attr:`Exchange.numbered` tells whether they came in a row).
+
+        An earlier session of this driver may still be sending: its markers and
+        separators are ``?help`` with the codes in turn, one code never twice in a row
+        (:meth:`~tango_aio.core.ProtocolCore.pick_marker_code`), so its replies cannot
+        look like this pair. Only its own step 0 with the same code could, had it been
+        cut off within those few lines."""
+        return ["help", f"?help {code}", f"?help {code}", "?err"], f"ERROR {code},"
+
+    def numbered_read(self, exchange: Exchange) -> bool:
+        """Whether step 0 (``exchange``) found ``?help N`` answering ``ERROR N,...``
+        (firmware 1.71, L2919): then the stream is in step and markers hold a number."""
+        if exchange.numbered:
+            self.core.help_style = HelpStyle.NUMBER
+        return exchange.numbered
+
+    @staticmethod
+    def help_lines(code: int) -> list[str]:
+        """Step 2 of the detection: ``?help code`` then ``?err`` (an exchange
+        :attr:`Until.NUMBER`, read by :meth:`help_read`)."""
+        return [f"?help {code}", "?err"]
+
+    def help_read(self, code: int, sent: Sequence[str], received: Sequence[str]) -> None:
+        """How ``?help code`` answered, from the lines step 2 brought back (the last is
+        the ``?err`` number): ``ERROR code,...`` (firmware 1.71, L2919): markers hold a
+        number; the text alone: the markers use ``code`` and wait for that text; nothing
+        (older firmware, whose ``help`` takes no parameter): resyncs wait for quiet."""
+        normals = {normal_line(line) for line in sent}
+        answers = [line.strip() for line in received[:-1]
+                   if not ACK_PATTERN.accepts(line.strip())
+                   and normal_line(line) not in normals]
+        if any(f"ERROR {code}," in line for line in answers):
+            self.core.help_style = HelpStyle.NUMBER
+        elif answers and answers[-1]:
+            self.core.help_style = HelpStyle.TEXT
+            self.core.help_text = (code, answers[-1])
+
+    def end_detect(self) -> None:
+        """Record what the detection found (:attr:`detected`)."""
+        self.detected = {"help_number": self.core.help_style.value}
+
+    # -- liveness -----------------------------------------------------------------------
+
+    def line_received(self) -> None:
+        """Any line at all arrived (even one nobody can use): the link still forwards,
+        so only silence counts towards a dead link."""
+        self.silent = 0
+
+    def reply_heard(self, now: float) -> None:
+        """A reply line arrived at loop time ``now``: the link answers (the keepalive
+        waits from here)."""
+        self.last_reply = now
+
+    def unanswered(self, serial: int, written: int) -> bool:
+        """Count a request (or marker) that got no reply in time; returns whether the link
+        is now declared dead (:attr:`dead_after` in a row with no line at all in between:
+        a link that stays open but no longer forwards, such as a serial-to-TCP adapter
+        that stopped). ``serial`` numbers the line among those written, ``written`` is how
+        many lines are written now: lines in flight together count once (they time out
+        together when one reply is lost), so each count is a line written after the
+        previous count."""
+        if serial <= self._counted_upto:
+            return False
+        self._counted_upto = written
+        self.silent += 1
+        if self.silent < self.dead_after or self.lost:
+            return False
+        self._go(LinkEvent.DEAD)
+        return True
+
+    def closed(self) -> None:
+        """The link is gone (closed, lost or declared dead)."""
+        self._go(LinkEvent.CLOSED)
+
+    def keepalive_wait(self, now: float, *, busy: bool) -> float:
+        """Seconds from ``now`` until the keepalive probes the link; ``0.0``: probe now.
+        ``busy``: requests are in flight (they have their own deadlines)."""
+        interval = self.keepalive
+        if interval is None:
+            raise ValueError("this session has no keepalive")
+        wait = self.last_reply + interval - now
+        if wait > 0:
+            return wait
+        return interval if busy else 0.0
+
+    def keepalive_probed(self, now: float) -> None:
+        """A keepalive probe ended at ``now`` (answered or not): the next one is due half
+        an interval later at the earliest."""
+        assert self.keepalive is not None
+        self.last_reply = max(self.last_reply, now - self.keepalive / 2)
