@@ -101,7 +101,8 @@ TRANSITIONS: Final[dict[tuple[LinkState, LinkEvent], LinkState]] = {
     (_S.EXCHANGE, _E.EXCHANGE_ENDED): _S.IN_STEP,
     **{(state, event): _S.LOST for state in _S if state is not _S.LOST
        for event in (_E.DEAD, _E.CLOSED)},
-    **{(_S.LOST, event): _S.LOST for event in _E},
+    # Lost is final. (The session reports neither quiet nor a dead link once lost.)
+    **{(_S.LOST, event): _S.LOST for event in _E if event not in (_E.QUIET, _E.DEAD)},
 }
 
 
