@@ -201,7 +201,8 @@ class TangoProtocol(asyncio.Protocol):
         self.core = ProtocolCore(autostatus=autostatus, context=context)
         #: The link's state, resyncs, exchanges, detection and liveness, sans-IO
         #: (:mod:`tango_aio.session`); this class carries out what it decides.
-        self.session = LinkSession(self.core, dead_after=dead_after, keepalive=keepalive)
+        self.session = LinkSession(self.core, dead_after=dead_after, keepalive=keepalive,
+                                   detect=detect)
         #: Time a resync marker or keepalive read the protocol writes itself may take.
         self.reply_timeout = reply_timeout
         self._keepalive_task: asyncio.Task[None] | None = None
@@ -220,8 +221,6 @@ class TangoProtocol(asyncio.Protocol):
         self._peer_eof = False
         self._trace_buffer = b""
         self._connected = self._loop.create_future()
-        #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
-        self.detect_at_connect = detect
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
@@ -421,19 +420,20 @@ class TangoProtocol(asyncio.Protocol):
         mode?), and whether mode 2 acknowledges reads, the manual leaves open
         (L2079-2161): see :meth:`_mode_exchange`. A controller that kept another mode
         raises :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
-        if await self._mode_exchange([command.line], timeout) != mode:
+        if (await self._mode_exchange([command.line], timeout))[1] != mode:
             raise UnknownControllerError(None, command.line)
         return Response()
 
-    async def _mode_exchange(self, lines: list[str], timeout: float | None,
-                             expected: list[int] | None = None) -> int:
+    async def _mode_exchange(self, lines: list[str], timeout: float | None
+                             ) -> tuple[int, int]:
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
         :attr:`quiet_interval` (in modes 2 and 4 only:
         :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
         force (adopted) and, in mode 2, how reads are acknowledged from those lines
-        (:meth:`~tango_aio.session.LinkSession.mode_read`)."""
+        (:meth:`~tango_aio.session.LinkSession.mode_read`). Returns the mode the driver
+        had in force once every line before was answered, and the mode in force."""
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             try:
@@ -442,13 +442,12 @@ class TangoProtocol(asyncio.Protocol):
             except TimeoutError:
                 raise ControllerTimeoutError(
                     f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
-            if expected is not None:
-                expected.append(self.core.autostatus)  # the driver's, once all is answered
+            driver = self.core.autostatus  # the driver's, once all is answered
             received = await self._exchange(sent, timeout, Until.HELP)
         self._heard()
         actual = self.session.mode_read(sent, received.lines)
         self.scheduler.reproject()
-        return actual
+        return driver, actual
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
@@ -526,7 +525,7 @@ class TangoProtocol(asyncio.Protocol):
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
         way a mode change is confirmed (:meth:`_mode_exchange`)."""
-        return await self._mode_exchange([], timeout)
+        return (await self._mode_exchange([], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
 
@@ -553,9 +552,7 @@ class TangoProtocol(asyncio.Protocol):
         driver has in force; if they differ (the controller restarted: power-on mode 1,
         L2062), restore the driver's mode before any later line. Returns whether the mode
         had to be restored."""
-        before: list[int] = []
-        actual = await self._mode_exchange([], timeout, before)
-        expected = before[0]
+        expected, actual = await self._mode_exchange([], timeout)
         if actual == expected:
             return False
         log.warning("the controller is in autostatus %d, the driver had %d in force: it "
@@ -797,8 +794,8 @@ class TangoProtocol(asyncio.Protocol):
             return
         error = ControllerTimeoutError(
             f"controller did not answer the resync marker within {timeout} s")
-        if not self._unanswered(error, serial) and self.core.resyncing \
-                and self._newest_marker() == tag:
+        if not self._unanswered(error, serial) and self.session.resync_again(
+                newest=self._newest_marker() == tag):
             self._background_resync(timeout)
 
     def _newest_marker(self) -> Hashable | None:
@@ -812,7 +809,7 @@ class TangoProtocol(asyncio.Protocol):
         ``connect`` runs :meth:`detect` instead.
         """
         self.check()
-        if self.detect_at_connect and not self.session.detected and not ctrl_c:
+        if self.session.detects_first(ctrl_c=ctrl_c):
             await self.detect(timeout=timeout)
             return
         tag, marker = self._begin_resync(ctrl_c)

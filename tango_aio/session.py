@@ -181,7 +181,7 @@ class LinkSession:
     """
 
     def __init__(self, core: ProtocolCore, *, dead_after: int = DEAD_AFTER,
-                 keepalive: float | None = None,
+                 keepalive: float | None = None, detect: bool = False,
                  quiet_interval: float = QUIET_INTERVAL) -> None:
         self.core = core
         #: Consecutive unanswered requests after which a link that stays open is lost.
@@ -190,6 +190,8 @@ class LinkSession:
         self.keepalive = keepalive
         #: Seconds of silence after the reply of ``help`` that end a quiet resync.
         self.quiet_interval = quiet_interval
+        #: Whether the first resync runs the detection instead (:meth:`detects_first`).
+        self.detect_at_connect = detect
         self.state = LinkState.IN_STEP
         #: The deadline the adapter arms after :attr:`Outcome.WAIT_QUIET`.
         self.quiet_deadline: float | None = None
@@ -230,6 +232,17 @@ class LinkSession:
         self._go(LinkEvent.HELP_WRITTEN if quiet else LinkEvent.MARKER_WRITTEN)
         self._help_last = False
         return data
+
+    def detects_first(self, *, ctrl_c: bool) -> bool:
+        """Whether a resync asked for now runs the detection instead: the first one of a
+        link opened by ``connect``, unless it is a Ctrl+C."""
+        return self.detect_at_connect and not self.detected and not ctrl_c
+
+    def resync_again(self, *, newest: bool) -> bool:
+        """A resync's marker went unanswered in time (and the link is not dead): whether
+        to write a new one, so lines held behind it are not held for ever: when it was
+        the newest resync and the stream is not in step yet."""
+        return newest and self.core.resyncing
 
     def replied(self, tag: Hashable) -> bool:
         """A :class:`~tango_aio.core.Replied` event for ``tag``: whether it is the reply

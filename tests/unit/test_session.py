@@ -453,3 +453,19 @@ def test_no_keepalive_without_an_interval() -> None:
     with pytest.raises(ValueError, match="no keepalive"):
         session.keepalive_wait(0.0, busy=False)
 
+
+
+def test_the_first_resync_of_a_connect_detects_unless_it_is_a_ctrl_c() -> None:
+    session = LinkSession(ProtocolCore(), detect=True)
+    assert session.detects_first(ctrl_c=False) and not session.detects_first(ctrl_c=True)
+    session.begin_detect()
+    assert not session.detects_first(ctrl_c=False)  # once
+    assert not LinkSession(ProtocolCore()).detects_first(ctrl_c=False)
+
+
+def test_an_overdue_marker_is_written_again_only_for_the_newest_resync_under_way() -> None:
+    link = Link()
+    assert not link.session.resync_again(newest=True)  # in step
+    link.resync()
+    assert link.session.resync_again(newest=True)
+    assert not link.session.resync_again(newest=False)
