@@ -26,8 +26,12 @@ confirmed by a reply stay within the credit limit (255 by default), so the contr
 256-byte input buffer never overflows (:mod:`tango_aio.flow`). Runs of reply-less lines
 are confirmed by ``err`` markers the scheduler inserts itself; a marker reporting an error
 marks the lines it covers (:attr:`Submission.chunk_error`). A line is registered with the
-core when it is written, so a queued line can still be withdrawn. The protocol keeps the
-futures, the transport and the tracing.
+core when it is written, so a queued line can still be withdrawn.
+
+What the link decides about itself (resync and quiet resync, the mode exchange, the
+detection at connect, dead-link counting, the keepalive's schedule) is the sans-IO
+:class:`~tango_aio.session.LinkSession`'s; the protocol keeps the futures, the transport,
+the timers and the tracing, and carries out what the session and the scheduler decide.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
 every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
@@ -530,8 +534,9 @@ class TangoProtocol(asyncio.Protocol):
     # -- liveness and the mode -----------------------------------------------------------
 
     async def _keep_alive(self) -> None:
-        """While the link is idle, read ``?autostatus`` every ``interval`` seconds without
-        a reply: an unanswered probe counts towards declaring the link dead
+        """While the link is idle, read ``?autostatus`` after :attr:`keepalive` seconds
+        without a reply (:meth:`~tango_aio.session.LinkSession.keepalive_wait`): an
+        unanswered probe counts towards declaring the link dead
         (:meth:`_unanswered`), and a mode other than the one in force means the controller
         restarted behind an adapter that stayed up (it restores the mode)."""
         session = self.session
