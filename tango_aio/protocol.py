@@ -868,16 +868,19 @@ class TangoProtocol(asyncio.Protocol):
            the markers use N and wait for that text), or nothing (older firmware, whose
            ``help`` takes no parameter: resyncs wait for quiet).
         """
-        code = self.session.begin_detect()
-        lines, marker = self.session.numbered_marker_lines(code)
-        if not self.session.numbered_read(
-                await self._exchange(lines, timeout, Until.MARKER, marker)):
-            await self.resync(timeout=timeout)
-            code = self.core.pick_marker_code()
-            sent = self.session.help_lines(code)
-            received = await self._exchange(sent, timeout, Until.NUMBER)
-            self.session.help_read(code, sent, received.lines)
-        self.session.end_detect()
+        # The barrier lock keeps a keepalive's mode exchange from starting in between (one
+        # exchange at a time: the session refuses a second).
+        async with self._barrier_lock:
+            code = self.session.begin_detect()
+            lines, marker = self.session.numbered_marker_lines(code)
+            if not self.session.numbered_read(
+                    await self._exchange(lines, timeout, Until.MARKER, marker)):
+                await self.resync(timeout=timeout)
+                code = self.core.pick_marker_code()
+                sent = self.session.help_lines(code)
+                received = await self._exchange(sent, timeout, Until.NUMBER)
+                self.session.help_read(code, sent, received.lines)
+            self.session.end_detect()
         return self.detected
 
     async def _exchange(self, lines: list[str], timeout: float | None, until: Until,
