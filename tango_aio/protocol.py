@@ -895,8 +895,7 @@ class TangoProtocol(asyncio.Protocol):
         in_step = False
         try:
             self._write(data)
-            self.scheduler.written_lines += len(lines)
-            serial = self.scheduler.written_lines
+            serial = self.scheduler.exchanged(len(lines))
             try:
                 async with asyncio.timeout(timeout):
                     await self._collected

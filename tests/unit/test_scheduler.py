@@ -450,3 +450,10 @@ def test_lines_owing_replies_or_of_another_instruction_make_no_run_from_bytes() 
     assert scheduler.pack_lines(template, []) is None
     scheduler.core.autostatus = 2  # every ! line is acknowledged
     assert scheduler.pack_lines(template, [b"!trigp -1 1.0\r"]) is None
+
+
+def test_an_exchange_written_outside_the_queue_counts_its_lines() -> None:
+    link = Link()
+    link.submit("?vel x")
+    link.flush()
+    assert link.scheduler.exchanged(3) == 4 == link.scheduler.written_lines
