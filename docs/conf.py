@@ -49,6 +49,10 @@ autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "
 autodoc_default_options = {"members": True, "show-inheritance": True,
                            "ignore-module-all": True}
 autodoc_member_order = "bysource"
+# Docstrings use numpydoc sections only (Parameters, Returns, Raises, Yields; ruff's
+# pydocstyle "numpy" convention and tests/unit/test_docstrings.py keep them so).
+napoleon_numpy_docstring = True
+napoleon_google_docstring = False
 autodoc_typehints = "description"
 # False: tango_aio.sync.connect takes its signature from tango_aio.connect (__signature__),
 # which the source-based default preservation cannot follow.

@@ -43,6 +43,18 @@ def signal_calls(sig: int, callback: Callable[[], None]) -> Iterator[bool]:
     between two bytecodes, possibly inside the loop's own code; the call also wakes a
     loop waiting for I/O). Nothing is installed outside the main thread. The previous
     handler is put back at the end.
+
+    Parameters
+    ----------
+    sig
+        The signal number (``signal.SIGINT``).
+    callback
+        What to run on the loop when the signal arrives.
+
+    Yields
+    ------
+    bool
+        Whether a handler is installed.
     """
     loop = asyncio.get_running_loop()
     previous = signal.getsignal(sig)

@@ -187,6 +187,19 @@ class StageLink:
     (the progress of ``set()``); while idle, nothing is polled: the readbacks follow the
     driver's events (a move, calibration or abort of any caller of the same controller
     ends: one ``?pos``; a position update: published as it is).
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    axes
+        The stage's axis letters (``"xy"``).
+    options
+        Options of :func:`tango_aio.connect`.
+    window
+        The longest wait of the move coalescer for announced sets, in seconds.
+    progress_interval
+        Seconds between two position reads while a move runs.
     """
 
     def __init__(self, url: str, axes: str, options: dict[str, Any], *,
@@ -302,12 +315,28 @@ class StageLink:
     # -- positions and progress -----------------------------------------------------------
 
     def add_publisher(self, axis: str, publish: Callable[[float], None]) -> None:
-        """Call ``publish(position)`` whenever the link reads the position of ``axis``."""
+        """Call ``publish(position)`` whenever the link reads the position of ``axis``.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        publish
+            Called with each position read, in the axis's unit.
+        """
         self._publishers.setdefault(axis, []).append(publish)
 
     def add_done_publisher(self, axis: str, publish: Callable[[int], None]) -> None:
         """Call ``publish(1)`` when a move of ``axis`` ends, ``publish(0)`` when one
-        starts (the motor record's DMOV)."""
+        starts (the motor record's DMOV).
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        publish
+            Called with 1 when a move ends, 0 when one starts.
+        """
         self._done_publishers.setdefault(axis, []).append(publish)
 
     def _publish(self, positions: Mapping[str, float]) -> None:
@@ -325,14 +354,31 @@ class StageLink:
                     publish(done)
 
     def known_position(self, axis: str) -> float | None:
-        """The position of ``axis`` as last read or reported (no read)."""
+        """The position of ``axis`` as last read or reported (no read).
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+
+        Returns
+        -------
+        float or None
+            The latest known position; ``None`` if none was read yet.
+        """
         return self._known.get(axis)
 
     async def positions(self) -> dict[str, float]:
         """Read every position (``?pos``) and publish it to the axes' readbacks. Readers
         that ask while no move of this link runs share one read (``read()`` of a
         two-axis stage reads ``?pos`` once); a read never joins one written before a
-        move started or while one ran."""
+        move started or while one ran.
+
+        Returns
+        -------
+        dict[str, float]
+            The position of each axis, by axis letter.
+        """
         if self._movers:
             return await self._read_positions()
         task = self._idle_read
@@ -346,11 +392,33 @@ class StageLink:
         return positions
 
     async def position(self, axis: str) -> float:
-        """The position of ``axis`` (published to the readbacks as well)."""
+        """The position of ``axis`` (published to the readbacks as well).
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+
+        Returns
+        -------
+        float
+            Its position.
+        """
         return (await self.positions())[axis]
 
     async def read_limits(self, axis: str) -> tuple[float, float]:
-        """Read the software limits of ``axis`` (``?lim``) and keep them."""
+        """Read the software limits of ``axis`` (``?lim``) and keep them.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+
+        Returns
+        -------
+        tuple[float, float]
+            The lower and upper limit.
+        """
         low, high = await self.controller.get("lim", axis=axis)
         self.limits[axis] = (float(low), float(high))
         return self.limits[axis]
@@ -360,7 +428,18 @@ class StageLink:
         """Run a move of this link's devices: while any such block runs, positions are
         polled every ``progress_interval`` and published; on leaving, the positions are
         published once more (the final readback): those the driver read to confirm the
-        arrival if the move succeeded, else read now."""
+        arrival if the move succeeded, else read now.
+
+        Parameters
+        ----------
+        axis
+            The axis the move drives; ``None`` if it may drive any.
+
+        Yields
+        ------
+        Mover
+            The running move, on which a stop records its outcome.
+        """
         mover = Mover(axis)
         self._movers.add(mover)
         self._idle_read = None  # no later reader may join a read written before this
@@ -385,7 +464,13 @@ class StageLink:
 
     def _confirmed_positions(self) -> dict[str, float] | None:
         """The positions the driver read behind the latest move's report (its
-        confirmation), if it has them."""
+        confirmation), if it has them.
+
+        Returns
+        -------
+        dict[str, float] or None
+            The positions by axis letter, or ``None``.
+        """
         controller = self._controller
         texts = None if controller is None else controller.last_positions
         if not texts:
@@ -420,7 +505,13 @@ class StageLink:
 
     def announce(self) -> Callable[[], None]:
         """Announce a move request to the coalescer (see
-        :meth:`~tango_aio.coalesce.MoveCoalescer.announce`); a no-op before connecting."""
+        :meth:`~tango_aio.coalesce.MoveCoalescer.announce`); a no-op before connecting.
+
+        Returns
+        -------
+        Callable[[], None]
+            Ends the announcement (call it once the move was requested, or given up).
+        """
         coalescer = self._coalescer
         return coalescer.announce() if coalescer is not None else _nothing
 
@@ -435,7 +526,15 @@ class StageLink:
         instead of failing, and so does every other move of this link: a line that merged
         ``axis`` with others fails as a whole, and the RunEngine stops all it has set and
         replays the plan from its checkpoint, so no reading follows such a completion. A
-        failing stop wins."""
+        failing stop wins.
+
+        Parameters
+        ----------
+        success
+            Whether the stopped moves count as completed (a pause) rather than failed.
+        axis
+            The axis being stopped; ``None`` for every axis.
+        """
         for mover in self._movers:
             if axis is None or success or mover.axis in (axis, None):
                 mover.stopped = success if mover.stopped is None else \
@@ -444,7 +543,13 @@ class StageLink:
     async def halt(self, axis: str | None = None) -> None:
         """Stop ``axis`` (the manual's one-axis ``a x``, L6785-6844; every axis with
         ``a`` if ``None``) if a move of it by this link runs or it moves; otherwise write
-        nothing. Returns without waiting: see :meth:`wait_still`."""
+        nothing. Returns without waiting: see :meth:`wait_still`.
+
+        Parameters
+        ----------
+        axis
+            The axis to stop; ``None`` for every axis.
+        """
         controller = self._controller
         if controller is None:
             return  # nothing of ours can move
@@ -462,7 +567,18 @@ class StageLink:
     async def wait_still(self, axis: str | None = None) -> None:
         """Wait until ``axis`` (every axis if ``None``) stands still, polling
         ``statusaxis``; raise :class:`~tango_aio.errors.ControllerTimeoutError` if it
-        still moves after ``STOP_WAIT`` seconds."""
+        still moves after ``STOP_WAIT`` seconds.
+
+        Parameters
+        ----------
+        axis
+            The axis to wait for; ``None`` for every axis.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            The axis still moves ``STOP_WAIT`` seconds after the stop.
+        """
         controller = self._controller
         if controller is None:
             return
@@ -519,7 +635,13 @@ class _Backend(SoftSignalBackend[Any]):
 
 def _vel_bounds() -> tuple[float, float]:
     """The upper bound of ``vel``: rev/s in dims 0-8, mm/s in dim 9 (manual L3452-3525,
-    read from the catalog)."""
+    read from the catalog).
+
+    Returns
+    -------
+    tuple[float, float]
+        The bound in rev/s and in mm/s.
+    """
     param = INSTRUCTIONS["vel"].write[0].per_axis[0]
     assert param.hi is not None
     return float(param.hi), float(param.hi_dim9 if param.hi_dim9 is not None else param.hi)
@@ -527,22 +649,72 @@ def _vel_bounds() -> tuple[float, float]:
 
 def egu_velocity(controller_value: float, scale: UnitScale) -> float:
     """A ``vel`` as the controller prints it (rev/s, mm/s in dim 9: L189, L3452) in the
-    axis's position unit per second (EGU/s), through :mod:`tango_aio.units`."""
+    axis's position unit per second (EGU/s), through :mod:`tango_aio.units`.
+
+    Parameters
+    ----------
+    controller_value
+        The velocity as ``?vel`` prints it.
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The velocity in EGU/s.
+    """
     return scale.pos_to_user(scale.vel_from_user(controller_value))
 
 
 def controller_velocity(egu_per_s: float, scale: UnitScale) -> float:
-    """The inverse of :func:`egu_velocity`: EGU/s to what ``!vel`` takes."""
+    """The inverse of :func:`egu_velocity`: EGU/s to what ``!vel`` takes.
+
+    Parameters
+    ----------
+    egu_per_s
+        A velocity in EGU/s.
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The value to write with ``!vel``.
+    """
     return scale.vel_to_user(scale.pos_from_user(egu_per_s))
 
 
 def egu_acceleration(m_per_s2: float, scale: UnitScale) -> float:
-    """An ``accel`` (always m/s², L3298-3329) in EGU/s²."""
+    """An ``accel`` (always m/s², L3298-3329) in EGU/s².
+
+    Parameters
+    ----------
+    m_per_s2
+        The acceleration as ``?accel`` prints it (m/s²).
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The acceleration in EGU/s².
+    """
     return scale.pos_to_user(scale.accel_to_rev(m_per_s2))
 
 
 def max_velocity(scale: UnitScale) -> float:
-    """The highest velocity ``!vel`` accepts, in EGU/s (its catalog bound converted)."""
+    """The highest velocity ``!vel`` accepts, in EGU/s (its catalog bound converted).
+
+    Parameters
+    ----------
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The highest velocity, in EGU/s.
+    """
     rev_per_s, mm_per_s = _vel_bounds()
     if scale.dim == DIM_MM_VEL:
         return mm_per_s
@@ -551,7 +723,25 @@ def max_velocity(scale: UnitScale) -> float:
 
 def run_up_distance(speed: float, acceleration: float) -> float:
     """Distance (EGU) to reach ``speed`` (EGU/s) from rest at ``acceleration`` (EGU/s²):
-    v² / 2a, the linear ramp the controller's ``accel`` describes (L3298)."""
+    v² / 2a, the linear ramp the controller's ``accel`` describes (L3298).
+
+    Parameters
+    ----------
+    speed
+        The speed to reach, in EGU/s.
+    acceleration
+        The ramp's acceleration, in EGU/s² (positive).
+
+    Returns
+    -------
+    float
+        The distance, in EGU.
+
+    Raises
+    ------
+    ValueError
+        ``acceleration`` is not positive.
+    """
     if not acceleration > 0:
         raise ValueError(f"acceleration must be positive, got {acceleration!r}")
     return 0.0 if math.isinf(acceleration) else speed * speed / (2.0 * acceleration)
@@ -559,7 +749,18 @@ def run_up_distance(speed: float, acceleration: float) -> float:
 
 def _switches(reply: str, axis: str) -> tuple[int, int]:
     """(lower, upper) limit-switch state of ``axis`` from a ``?readsw`` reply: 12
-    characters, E0 of X Y Z A, then Ref of X Y Z A, then EE of X Y Z A (L5027-5078)."""
+    characters, E0 of X Y Z A, then Ref of X Y Z A, then EE of X Y Z A (L5027-5078).
+
+    Returns
+    -------
+    tuple[int, int]
+        The lower and the upper switch, 1 if active.
+
+    Raises
+    ------
+    TangoError
+        The reply is not 12 switch states.
+    """
     text = reply.strip()
     if len(text) != 12 or set(text) - {"0", "1"}:
         raise TangoError(f"?readsw replied {reply!r}, not 12 switch states (L5057-5066)")
@@ -640,7 +841,15 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def move_announced(self, new_position: float, timeout: TimeoutCalculator,
                              arrived: Callable[[], None] | None) -> None:
         """:meth:`move`, ending the announcement ``arrived`` of the coalescer once the
-        request has joined a batch."""
+        request has joined a batch.
+
+        Raises
+        ------
+        MoveError
+            The move failed, unless a successful stop or an arrival all the same excuses it.
+        TimeoutError
+            The move ran out of ``timeout``.
+        """
         # The controller bounds each move with its own estimate (Controller.move_to);
         # an explicit set(timeout=...) is applied on top.
         target = float(new_position)
@@ -678,7 +887,13 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         stop was asked for it, the line did not end it at a limit switch or timeout
         (``S``/``T``), a fresh ``?statusaxis`` says it is idle (``@``), and a fresh
         ``?pos`` puts it at the target (within 1.5 units of the printed digit, the
-        driver's own rule). Anything else: False, and the line's error stands."""
+        driver's own rule). Anything else: False, and the line's error stands.
+
+        Returns
+        -------
+        bool
+            Whether the axis arrived.
+        """
         ended_short = (AxisStatus.LIMIT_SWITCH, AxisStatus.TIMEOUT)
         if mover.stopped is not None or error.statuses.get(self.axis) in ended_short:
             return False
@@ -696,7 +911,13 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def _timed_out(self, target: float, limit: float | None) -> NoReturn:
         """Raise the TimeoutError of a move that ran out of ``limit`` seconds (the
         cancelled move has stopped its axes): it names the axis, the target and where
-        the axis stopped."""
+        the axis stopped.
+
+        Raises
+        ------
+        TimeoutError
+            Always.
+        """
         unit = self.link.units.get(self.axis, "")
         try:
             where = f"stopped at {await self.link.position(self.axis)} {unit}"
@@ -761,7 +982,18 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         """The pass's move; False if a stop(success=True) ended it. A number as the
         FlyMotorInfo's ``timeout`` bounds it, as for Motor (the default leaves the bound
         to the driver's own estimate); running out stops the axis and raises a
-        TimeoutError naming the axis, the target and where it stopped."""
+        TimeoutError naming the axis, the target and where it stopped.
+
+        Returns
+        -------
+        bool
+            True if the pass ran to its end.
+
+        Raises
+        ------
+        TimeoutError
+            The pass ran out of its timeout.
+        """
         limit = ctx.info.timeout
         seconds = None if limit is None or isinstance(limit, str) else float(limit)
         timed_out = Mover()
@@ -809,7 +1041,20 @@ async def _pass_move(link: StageLink, axis: str, target: float,
     """Move ``axis`` to ``target`` for a fly pass (through the coalescer, published as a
     move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it. After
     ``limit`` seconds the axis is stopped (``a x``) and TimeoutError raised, with
-    ``timed_out.timed_out`` set."""
+    ``timed_out.timed_out`` set.
+
+    Returns
+    -------
+    bool
+        True if the move ran to its end.
+
+    Raises
+    ------
+    MoveError
+        The move failed and no accepted stop ended it.
+    TimeoutError
+        The move ran out of ``limit``.
+    """
     async with link.moving(axis) as mover:
         try:
             await _until_stopped(link.coalescer.move_to(axis, target, arrived), mover,
@@ -835,7 +1080,20 @@ async def _until_stopped(move: Awaitable[str], mover: Mover, limit: float | None
     sent ``a x``), let the line end by itself (bounded) instead of cancelling it: the
     driver's cancel would stop every axis of the line with ``a``. After ``limit``
     seconds (a set's or a pass's own timeout): mark ``mover`` timed out, ``halt()`` (the
-    axis's one-axis stop), let the line end the same way and raise TimeoutError."""
+    axis's one-axis stop), let the line end the same way and raise TimeoutError.
+
+    Returns
+    -------
+    str
+        The result of ``move``.
+
+    Raises
+    ------
+    CancelledError
+        The await was cancelled (re-raised once the line has ended).
+    TimeoutError
+        ``move`` ran out of ``limit``.
+    """
     task = asyncio.ensure_future(move)
     try:
         done, _ = await asyncio.wait([task], timeout=limit)
@@ -884,7 +1142,17 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
                      StandardFlyable[FlyMotorInfo, _FlyCtx], Pausable):
     """One axis of a :class:`MarzhauserStage` (created by the stage), with the signals
     and methods of ophyd-async's ``epics.motor.Motor`` that the controller can back
-    (the how-to ``docs/howto/bluesky.md`` has the table)."""
+    (the how-to ``docs/howto/bluesky.md`` has the table).
+
+    Parameters
+    ----------
+    link
+        The stage's link.
+    axis
+        The axis letter.
+    name
+        The device name (the stage names its children).
+    """
 
     # What ophyd-async's default_mock_class decorator sets (a plain attribute, so that the
     # docs build, which mocks ophyd_async, still sees the class).
@@ -989,7 +1257,21 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         a single one waits for nothing. The start of the progress reports is the
         position the link knows (published by the latest read or event), so that a step
         costs no read of its own; what completes the status is the controller's
-        confirmed arrival."""
+        confirmed arrival.
+
+        Parameters
+        ----------
+        new_position
+            The target, in the axis's unit (EGU).
+        timeout
+            Seconds the move may take; ``CALCULATE_TIMEOUT`` (the default) leaves the limit to
+            the driver's own move budget.
+
+        Returns
+        -------
+        WatchableAsyncStatus[float]
+            Done when the controller confirms the arrival; it fails with the move's error.
+        """
         arrived = self._link.announce()
         try:
             return self._set(new_position, timeout, arrived)
@@ -1037,7 +1319,13 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         """Stop this axis (only this one where the controller has a one-axis stop) and
         return once it stands still. A running ``set()`` of this axis then fails
         (``success=False``: RuntimeError) or completes (``success=True``, as the
-        RunEngine does on pause); so does a running fly pass (``complete()``)."""
+        RunEngine does on pause); so does a running fly pass (``complete()``).
+
+        Parameters
+        ----------
+        success
+            Whether a running ``set()`` completes (True) or fails (False).
+        """
         self._link.mark_stop(success, self._axis)
         await super().stop(success=success)  # type: ignore[no-untyped-call]
         await self.movable_logic.stop_flying(success)
@@ -1060,21 +1348,50 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
 
     def home(self) -> AsyncStatus[None]:
         """Calibrate (``!cal``, L5259-5342): travel to the lower limit switch and set
-        the origin there. The status fails (MoveError) if the controller reports one."""
+        the origin there. The status fails (MoveError) if the controller reports one.
+
+        Returns
+        -------
+        AsyncStatus[None]
+            Done when the calibration has ended.
+        """
         return AsyncStatus(self._motion("calibrate"))
 
     def measure_range(self) -> AsyncStatus[None]:
         """Range measure (``!rm``, L5343-5424): travel to the upper limit switch and set
-        the upper limit. The status fails (MoveError) if the controller reports one."""
+        the upper limit. The status fails (MoveError) if the controller reports one.
+
+        Returns
+        -------
+        AsyncStatus[None]
+            Done when the range measure has ended.
+        """
         return AsyncStatus(self._motion("measure_range"))
 
     def set_current_position(self, position: float) -> AsyncStatus[None]:
         """Redefine where the axis is (``!pos``, L6900-6952) without moving: the offset
-        changes by the difference (see :attr:`offset`)."""
+        changes by the difference (see :attr:`offset`).
+
+        Parameters
+        ----------
+        position
+            The position the axis's current place gets, in EGU.
+
+        Returns
+        -------
+        AsyncStatus[None]
+            Done when the controller has taken it.
+        """
         return AsyncStatus(self._redefine(float(position)))
 
     def clear_offset(self) -> AsyncStatus[None]:
-        """Remove every ``!pos`` offset of this axis (``!posclr``, L6953-6996)."""
+        """Remove every ``!pos`` offset of this axis (``!posclr``, L6953-6996).
+
+        Returns
+        -------
+        AsyncStatus[None]
+            Done when the controller has taken it.
+        """
         return AsyncStatus(self._clear_offset())
 
     async def _clear_offset(self) -> None:
@@ -1131,7 +1448,13 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         await self._controller_put("vel", controller_velocity(float(value), self._scale))
 
     async def acceleration_egu(self) -> float:
-        """The acceleration in EGU/s² (``accel`` converted)."""
+        """The acceleration in EGU/s² (``accel`` converted).
+
+        Returns
+        -------
+        float
+            The acceleration, in EGU/s².
+        """
         return egu_acceleration(await self._controller_get("accel"), self._scale)
 
     async def _max_velocity(self) -> float:
@@ -1225,7 +1548,17 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
                       timeout: float = DEFAULT_TIMEOUT, force_reconnect: bool = False
                       ) -> None:
         """Connect (the stage has opened the link); take units, precision and the current
-        position as the setpoint, so that ``locate()`` is right from the start."""
+        position as the setpoint, so that ``locate()`` is right from the start.
+
+        Parameters
+        ----------
+        mock
+            Connect to a mock instead (ophyd-async's ``Device.connect``).
+        timeout
+            Seconds the connection may take.
+        force_reconnect
+            Connect again even if connected.
+        """
         if mock:
             for backend in self._backends:
                 backend.detach()
@@ -1248,6 +1581,26 @@ class MarzhauserStage(StandardReadable):
     how often positions are polled while a move runs. ``stage.x``, ``stage.y``... (or
     ``stage.axis("x")``) are the :class:`MarzhauserAxis` children; ``read()`` reads them
     all. Close with ``await stage.aclose()`` (or the :func:`close_stage` plan stub).
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    axes
+        The axis letters, distinct, of ``xyza``.
+    name
+        The device name.
+    window
+        The longest wait for sets announced together, in seconds.
+    progress_interval
+        Seconds between two position reads while a move runs.
+    **connect_options
+        Options of :func:`tango_aio.connect`.
+
+    Raises
+    ------
+    ValueError
+        ``axes`` are not distinct axis letters.
     """
 
     x: MarzhauserAxis
@@ -1282,7 +1635,23 @@ class MarzhauserStage(StandardReadable):
         return self._link.controller
 
     def axis(self, letter: str) -> MarzhauserAxis:
-        """The child axis ``letter``."""
+        """The child axis ``letter``.
+
+        Parameters
+        ----------
+        letter
+            The axis letter (``"x"``...).
+
+        Returns
+        -------
+        MarzhauserAxis
+            The child device of that axis.
+
+        Raises
+        ------
+        MissingAxisError
+            The stage has no such axis.
+        """
         try:
             return self._axes[letter.lower()]
         except KeyError:
@@ -1303,7 +1672,13 @@ class MarzhauserStage(StandardReadable):
 
 def _await_statuses(start: Callable[[], Sequence[Awaitable[Any]]]) -> MsgGenerator[None]:
     """Plan stub: start statuses on the RunEngine's loop, wait for them in turn, and
-    raise the first failure in the plan (``bps.wait_for`` alone swallows it)."""
+    raise the first failure in the plan (``bps.wait_for`` alone swallows it).
+
+    Yields
+    ------
+    Msg
+        The plan's messages.
+    """
     errors: list[BaseException] = []
 
     async def wait() -> None:
@@ -1320,18 +1695,51 @@ def _await_statuses(start: Callable[[], Sequence[Awaitable[Any]]]) -> MsgGenerat
 
 def home(*axes: MarzhauserAxis) -> MsgGenerator[None]:
     """Plan stub: calibrate (``!cal``) each axis in turn (:meth:`MarzhauserAxis.home`);
-    the plan fails with the controller's failure."""
+    the plan fails with the controller's failure.
+
+    Parameters
+    ----------
+    *axes
+        The axes to calibrate, in this order.
+
+    Returns
+    -------
+    MsgGenerator[None]
+        The plan.
+    """
     return _await_statuses(lambda: [axis.home() for axis in axes])
 
 
 def measure_range(*axes: MarzhauserAxis) -> MsgGenerator[None]:
     """Plan stub: range measure (``!rm``) each axis in turn
-    (:meth:`MarzhauserAxis.measure_range`); the plan fails with the controller's failure."""
+    (:meth:`MarzhauserAxis.measure_range`); the plan fails with the controller's failure.
+
+    Parameters
+    ----------
+    *axes
+        The axes to measure, in this order.
+
+    Returns
+    -------
+    MsgGenerator[None]
+        The plan.
+    """
     return _await_statuses(lambda: [axis.measure_range() for axis in axes])
 
 
 def close_stage(stage: MarzhauserStage) -> MsgGenerator[None]:
-    """Plan stub: close the stage's controller on the RunEngine's loop."""
+    """Plan stub: close the stage's controller on the RunEngine's loop.
+
+    Parameters
+    ----------
+    stage
+        The stage whose controller to close.
+
+    Yields
+    ------
+    Msg
+        The plan's messages.
+    """
     yield from bps.wait_for([stage.aclose])
 
 
@@ -1564,6 +1972,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     controller records no capture time, so these events carry the time the driver read
     the snapshot array, and their data keys say so). ``stop()`` stops a running pass (its
     axis alone, ``a x``) and disables the trigger output.
+
+    Parameters
+    ----------
+    stage
+        The stage whose axes fly.
+    name
+        The device name.
     """
 
     def __init__(self, stage: MarzhauserStage, name: str = "flyer") -> None:
@@ -1578,7 +1993,18 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     def prepare(self, value: TriggerScan) -> AsyncStatus[None]:
         """Move to the start of the pass and arm the trigger output (see the class).
         The run-up move is announced at once, so that it merges with sets the RunEngine
-        starts together with it (``fly_raster``: the slow axis's move of the row)."""
+        starts together with it (``fly_raster``: the slow axis's move of the row).
+
+        Parameters
+        ----------
+        value
+            The pass: its axis, start, end and trigger positions.
+
+        Returns
+        -------
+        AsyncStatus[None]
+            Done when the axis stands at the run-up start and the trigger output is armed.
+        """
         logic = self.flyable_logic
         logic.announced()  # an earlier prepare's, if it never moved
         logic.announced = arrived = self._link.announce()
@@ -1589,7 +2015,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     async def stop(self, success: bool = False) -> None:
         """Stop a running pass (its axis alone, ``a x``) and disable the trigger output.
         Its ``complete()`` then fails with MoveError, or with ``success`` returns without
-        data."""
+        data.
+
+        Parameters
+        ----------
+        success
+            Whether a running ``complete()`` returns (True) or fails (False).
+        """
         await self.flyable_logic.stop(success)
 
     async def pause(self) -> None:
@@ -1610,7 +2042,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
         """The streams :meth:`collect` fills (doubly nested: stream -> data keys): the
         trigger count per pass; the trigger positions of each pass (their own stream,
         one event per trigger, joined to detector frames by ``trigger_index``); with
-        snapshots, one event per captured position, one key per axis of the stage."""
+        snapshots, one event per captured position, one key per axis of the stage.
+
+        Returns
+        -------
+        dict[str, dict[str, DataKey]]
+            The data keys of each stream, by stream name.
+        """
         count_key, expected_key, snapshot_keys = self._keys()
         name, url = self.name, self._link.url
         source = f"{url} ?trigcount"
@@ -1655,7 +2093,13 @@ class MarzhauserFlyer(StandardFlyable[TriggerScan, _Pass], Collectable, Stoppabl
     def collect(self) -> Iterator[PartialEvent]:
         """Per completed pass: one event with the trigger count (at the time the count
         was read), one per trigger position (at the time of the upload), and one per
-        snapshot row (at the time the array was read)."""
+        snapshot row (at the time the array was read).
+
+        Yields
+        ------
+        PartialEvent
+            The events of the completed passes, in the order above.
+        """
         count_key, expected_key, snapshot_keys = self._keys()
         name = self.name
         results, self._results[:] = list(self._results), []
@@ -1692,6 +2136,52 @@ def fly_raster(stage: MarzhauserStage, flyer: MarzhauserFlyer,
     last). ``snake`` reverses every other row (the range is set again for each pass,
     L13581). Per row: one event with the slow axis's readback in the ``primary`` stream,
     then the flyer's events. Each row starts at a checkpoint, so a pause re-runs the row.
+
+    Parameters
+    ----------
+    stage
+        The stage whose axes fly.
+    flyer
+        The stage's flyer (the trigger output).
+    fast_start
+        The first trigger position of the fast axis.
+    fast_stop
+        The last trigger position of the fast axis.
+    fast_num
+        Triggers per row (at least 1).
+    slow_start
+        The first row position of the slow axis.
+    slow_stop
+        The last row position of the slow axis.
+    slow_num
+        Number of rows (at least 1).
+    fast
+        The letter of the fast axis.
+    slow
+        The letter of the slow axis.
+    run_up
+        Distance (EGU, positive) before the first and after the last trigger position.
+    snake
+        Reverse every other row.
+    snapshots
+        Capture the positions of every axis at each trigger (the flyer's snapshot stream).
+    md
+        Metadata merged into the start document.
+
+    Yields
+    ------
+    Msg
+        The plan's messages.
+
+    Returns
+    -------
+    str
+        The run's uid (the generator's return value).
+
+    Raises
+    ------
+    ValueError
+        ``fast_num`` or ``slow_num`` is below 1, or ``run_up`` is not positive.
     """
     if fast_num < 1 or slow_num < 1:
         raise ValueError("fast_num and slow_num must be at least 1")

@@ -97,7 +97,13 @@ class ListSpec:
 class Column(Sequence[Sequence[float]]):
     """A list of numbers seen as rows of one value each, without a list per row: an
     upload keeps its rows until each chunk is made, and one object per entry made a
-    64-link upload's full garbage collections long."""
+    64-link upload's full garbage collections long.
+
+    Parameters
+    ----------
+    values
+        The numbers, one per row.
+    """
 
     def __init__(self, values: list[float]) -> None:
         self._values = values
@@ -123,7 +129,18 @@ class Column(Sequence[Sequence[float]]):
 def _positions(values: object, what: str, name: str) -> list[float]:
     """``values`` as floats, refusing what only looks like a sequence of numbers: a string
     (``"123"`` would be the positions 1, 2, 3), booleans, ``None`` and other non-numbers
-    (:func:`~tango_aio.instructions.wire_number` decides what a number is)."""
+    (:func:`~tango_aio.instructions.wire_number` decides what a number is).
+
+    Returns
+    -------
+    list[float]
+        The values as floats.
+
+    Raises
+    ------
+    InvalidCommandError
+        ``values`` is not a sequence of numbers.
+    """
     if isinstance(values, str | bytes | bytearray) or not isinstance(values, Iterable):
         raise InvalidCommandError(f"{name}: {what} must be a sequence of numbers, got "
                                   f"{type(values).__name__} {values!r:.40}",
@@ -142,7 +159,24 @@ def _positions(values: object, what: str, name: str) -> list[float]:
 def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
     """Check a trigger list before anything is sent: at most 10000 finite values, strictly
     increasing or strictly decreasing (manual L13767-13830); a string, booleans or other
-    non-numbers are refused."""
+    non-numbers are refused.
+
+    Parameters
+    ----------
+    positions
+        The trigger positions, in the order the axis passes them.
+
+    Returns
+    -------
+    list[float]
+        The positions as floats.
+
+    Raises
+    ------
+    InvalidCommandError
+        The list is too long, holds a non-number or a non-finite value, or is not strictly
+        monotonic.
+    """
     values = _positions(positions, "the trigger list", "trigp")
     if len(values) > MAX_TRIGGERS:
         raise InvalidCommandError(f"trigp: {len(values)} entries, at most {MAX_TRIGGERS}",
@@ -164,19 +198,68 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
 
 def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     """Build (and so validate against the catalog) every append line before anything is
-    sent; raises :class:`InvalidCommandError` naming the first bad entry."""
+    sent; raises :class:`InvalidCommandError` naming the first bad entry.
+
+    Parameters
+    ----------
+    spec
+        The list (which instruction appends, counts and reads).
+    rows
+        The entries, one sequence of numbers each.
+
+    Returns
+    -------
+    list[Command]
+        The append commands, in order.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
+    """
     return list(_numbered(spec.append(rows)))
 
 
 def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes]:
     """:func:`prepare`, the lines as bytes (CR included) without a :class:`Command` per
-    entry (:func:`~tango_aio.instructions.encode_rows`): the same checks and errors."""
+    entry (:func:`~tango_aio.instructions.encode_rows`): the same checks and errors.
+
+    Parameters
+    ----------
+    spec
+        The list (which instruction appends, counts and reads).
+    rows
+        The entries, one sequence of numbers each.
+
+    Returns
+    -------
+    list[bytes]
+        The append lines, in order.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
+    """
     return list(_numbered(spec.encode(rows)))
 
 
 def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
     """Raise what :func:`prepare` raises for the first bad entry, without making the
-    lines (:func:`~tango_aio.instructions.check_rows`)."""
+    lines (:func:`~tango_aio.instructions.check_rows`).
+
+    Parameters
+    ----------
+    spec
+        The list (which instruction appends, counts and reads).
+    rows
+        The entries, one sequence of numbers each.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is not valid (the first one is named).
+    """
     for _ in _numbered(spec.check(rows)):
         pass
 
@@ -203,7 +286,22 @@ def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float]
                      name: str) -> None:
     """Refuse a non-zero position smaller than half the controller's position resolution
     ``quantum`` (one unit of the last digit it prints, L4080-4100): it would be stored and
-    read back as 0.0."""
+    read back as 0.0.
+
+    Parameters
+    ----------
+    values
+        The entries, one sequence of positions each.
+    quantum
+        The position resolution of each column.
+    name
+        The instruction's name, for the error.
+
+    Raises
+    ------
+    InvalidCommandError
+        An entry is non-zero but below half the resolution.
+    """
     for index, row in enumerate(values):
         for column, value in enumerate(row):
             step = quantum[column] if column < len(quantum) else quantum[-1]
@@ -215,7 +313,17 @@ def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float]
 
 
 class ListTransfer:
-    """Pipelined list uploads and downloads on one protocol."""
+    """Pipelined list uploads and downloads on one protocol.
+
+    Parameters
+    ----------
+    protocol
+        The link's protocol.
+    reply_timeout
+        Seconds to wait for each reply.
+    lock
+        The lock held for a whole transfer; ``None`` for a new one.
+    """
 
     def __init__(self, protocol: TangoProtocol, reply_timeout: float = 5.0,
                  lock: asyncio.Lock | None = None) -> None:
@@ -247,7 +355,20 @@ class ListTransfer:
         start one list-build apart), so
         ``rows`` must not change until the upload has ended (the controller's methods
         pass copies they validated). Otherwise every line is built before the clear, as
-        commands."""
+        commands.
+
+        Parameters
+        ----------
+        spec
+            The list (which instruction appends, counts and reads).
+        clear
+            Writes the line that clears the list, and checks its reply.
+        rows
+            The entries, one sequence of numbers each.
+        progress
+            Called with (entries the list holds, entries in all) after each length check;
+            ``None`` for no reports.
+        """
         total = len(rows)
         first = prepare(spec, rows[:1])
         if first and self._protocol.pack(first) is not None:
@@ -267,7 +388,13 @@ class ListTransfer:
         """The append lines of ``rows`` (checked) cut at the checkpoints, each piece made
         when it is asked for, as one row value (a :class:`~tango_aio.scheduler.Run`: its
         bytes, no Command per entry), or as commands where a mode change since
-        makes its lines owe replies."""
+        makes its lines owe replies.
+
+        Yields
+        ------
+        Run or list[Command]
+            The pieces, in order.
+        """
         for start in range(0, len(rows), CHECKPOINT):
             piece = list(spec.encode(rows[start:start + CHECKPOINT]))
             template = parse(piece[0][:-1].decode("ascii"))
@@ -276,7 +403,13 @@ class ListTransfer:
 
     def _pieces(self, built: list[Command]) -> list[Run | list[Command]]:
         """The commands ``built`` cut at the checkpoints, each piece kept as one
-        :class:`~tango_aio.scheduler.Run` where its lines owe no reply, else as they are."""
+        :class:`~tango_aio.scheduler.Run` where its lines owe no reply, else as they are.
+
+        Returns
+        -------
+        list[Run | list[Command]]
+            The pieces, in order.
+        """
         chunks: list[Run | list[Command]] = []
         for start in range(0, len(built), CHECKPOINT):
             piece = built[start:start + CHECKPOINT]
@@ -345,6 +478,11 @@ class ListTransfer:
         ``commands`` are the lines sent, at least ``count + 1`` of them when there are.
         The reads below are answered only after every line already written was processed,
         so the list no longer changes when it is truncated to the accepted entries.
+
+        Raises
+        ------
+        UploadError
+            Always: naming the first entry that was not taken, and its error.
         """
         if count > len(commands):
             # More entries than this upload sent: something else wrote to the list (uploads
@@ -374,7 +512,18 @@ class ListTransfer:
             raise controller_error(code, command.line)
 
     async def download(self, spec: ListSpec) -> list[list[float]]:
-        """Read the whole list with pipelined reads (not while an upload runs)."""
+        """Read the whole list with pipelined reads (not while an upload runs).
+
+        Parameters
+        ----------
+        spec
+            The list (which instruction counts and reads).
+
+        Returns
+        -------
+        list[list[float]]
+            The entries, in order.
+        """
         async with self.lock:
             return await self._download(spec)
 
@@ -394,7 +543,13 @@ class ListTransfer:
 
 def _commands(sent: list[Run | list[Command]], limit: int) -> list[Command]:
     """The first ``limit`` lines of ``sent`` (or all) as commands (a run's parsed back:
-    only when an upload failed)."""
+    only when an upload failed).
+
+    Returns
+    -------
+    list[Command]
+        The lines as commands.
+    """
     commands: list[Command] = []
     for chunk in sent:
         if len(commands) >= limit:
@@ -413,7 +568,13 @@ def _same(row: Sequence[float], command: Command) -> bool:
 
 
 def trigger_spec() -> ListSpec:
-    """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``)."""
+    """The trigger position list (``!trigp -1 pos``, ``?trigc``, ``?trigp n``).
+
+    Returns
+    -------
+    ListSpec
+        The description of the trigger position list.
+    """
     return ListSpec(
         append=lambda rows: build_rows("trigp", [-1], rows),
         encode=lambda rows: encode_rows("trigp", [-1], rows),
@@ -424,7 +585,13 @@ def trigger_spec() -> ListSpec:
 
 
 def snapshot_spec() -> ListSpec:
-    """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``)."""
+    """The snapshot array (``!snsa -1 x y ...``, ``?snsc``, ``?snsa n``).
+
+    Returns
+    -------
+    ListSpec
+        The description of the snapshot array.
+    """
     return ListSpec(
         append=lambda rows: build_rows("snsa", [-1], rows),
         encode=lambda rows: encode_rows("snsa", [-1], rows),
@@ -435,7 +602,23 @@ def snapshot_spec() -> ListSpec:
 
 
 def check_axis(axis: str) -> str:
-    """Validate an axis letter (a string, one of x y z a in either case)."""
+    """Validate an axis letter (a string, one of x y z a in either case).
+
+    Parameters
+    ----------
+    axis
+        The axis letter.
+
+    Returns
+    -------
+    str
+        The letter, lower case.
+
+    Raises
+    ------
+    InvalidCommandError
+        ``axis`` is not one of x, y, z, a.
+    """
     letter = axis.lower() if isinstance(axis, str) else axis
     if letter not in AXES:
         raise InvalidCommandError(f"{axis!r} is not an axis (x, y, z, a)", parameter="axis",
@@ -446,7 +629,25 @@ def check_axis(axis: str) -> str:
 def validate_rows(rows: Sequence[Sequence[float]], axes: int) -> list[list[float]]:
     """Check snapshot rows: at most 1024, each exactly ``axes`` finite values (a shorter
     row would leave the controller to fill in the missing axes, which the manual does not
-    specify)."""
+    specify).
+
+    Parameters
+    ----------
+    rows
+        The snapshot rows, one position per axis each.
+    axes
+        The number of axes.
+
+    Returns
+    -------
+    list[list[float]]
+        The rows as floats.
+
+    Raises
+    ------
+    InvalidCommandError
+        Too many rows, or a row of the wrong length or with a non-finite value.
+    """
     if len(rows) > MAX_SNAPSHOTS:
         raise InvalidCommandError(f"snsa: {len(rows)} rows, at most {MAX_SNAPSHOTS}",
                                   instruction="snsa", number=5)

@@ -63,10 +63,10 @@ from .events import (
 )
 from .instructions import AXES, Form, Instruction, Signature, lookup, parse, similar_names
 from .instructions import Command as CommandLine
-from .motion import describe_stop
 from .probe import add_probe_command
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
-from .timing import moved_axes, position_tolerance
+from .timing import describe_stop, moved_axes, position_tolerance
+from .units import DIM_UNITS, velocity_unit
 
 __all__ = ["main"]
 
@@ -81,7 +81,13 @@ _CONTROL = re.compile(r"[\x00-\x09\x0b-\x1f\x7f-\x9f]")
 
 def _escaped(text: str) -> str:
     """``text`` with every control character but the line feed written as ``\\xNN``:
-    text from the controller (or a proxy) never reaches the terminal raw."""
+    text from the controller (or a proxy) never reaches the terminal raw.
+
+    Returns
+    -------
+    str
+        The escaped text.
+    """
     return _CONTROL.sub(lambda match: f"\\x{ord(match.group()):02x}", text)
 
 
@@ -111,7 +117,13 @@ async def _follow(motion: Awaitable[_T], poll: Callable[[], Awaitable[None]],
                   interval: float) -> _T:
     """Await ``motion`` while calling ``poll`` every ``interval`` seconds (errors of a
     poll are ignored). If the caller is cancelled (Ctrl+C), ``motion`` is cancelled and
-    awaited first, so that a move stops its axes before the connection closes."""
+    awaited first, so that a move stops its axes before the connection closes.
+
+    Returns
+    -------
+    _T
+        What ``motion`` returned.
+    """
     job = asyncio.ensure_future(motion)
     try:
         while not job.done():
@@ -144,7 +156,7 @@ async def _demo(args: argparse.Namespace) -> int:
     """Identify the controller, calibrate and measure the range of every axis, then run a
     raster scan over a 10 x 10 mm field with a trigger list on X. On a real controller
     (any URL but sim://) every axis, Z/focus included, moves to its limit switches: the
-    demo asks first unless --yes is given."""
+    demo asks first unless --yes is given."""  # noqa: DOC201 - --help text, no sections
     started = time.monotonic()
     async with connect(args.url) as tango:
         ident = tango.identity
@@ -189,7 +201,13 @@ def _show_position(tango: Controller, progress: Progress,
 
 async def _demo_scan(tango: Controller, *, rows: int, points: int) -> int:
     """A raster over the field; X carries a trigger list of ``points`` positions. With one
-    axis, the rows are passes of X back and forth."""
+    axis, the rows are passes of X back and forth.
+
+    Returns
+    -------
+    int
+        The exit status.
+    """
     two_d = tango.context.axes >= 2
     await (tango.move_to(x=0.0, y=0.0) if two_d else tango.move_to(x=0.0))
     step = _FIELD / max(points - 1, 1)
@@ -232,12 +250,13 @@ async def _info(args: argparse.Namespace) -> int:
         _row(table, "options", ", ".join(sorted(ident.det.options)) or "-")
         _row(table, "serial", await tango.query("?readsn"))
         dims = await tango.get("dim")
-        units = {axis: DIM_UNITS.get(int(dim), f"dim {dim}") for axis, dim in dims.items()}
+        units = {axis: DIM_UNITS[int(dim)].symbol if int(dim) in DIM_UNITS else f"dim {dim}"
+                 for axis, dim in dims.items()}
         positions = await tango.position()
         _row(table, "position", "  ".join(f"{axis}={value:9.4f} {units.get(axis, '')}"
                                           for axis, value in positions.items()))
         _row(table, "status", describe_letters(await tango.status()))
-        velocity = {axis: "mm/s" if int(dim) == 9 else "rev/s" for axis, dim in dims.items()}
+        velocity = {axis: velocity_unit(int(dim)) for axis, dim in dims.items()}
         for name, unit in (("dim", units), ("pitch", "mm/rev"), ("vel", velocity),
                            ("accel", "m/s²"), ("secvel", "mm/s")):
             text = str(await tango.query(f"?{name}"))
@@ -246,14 +265,15 @@ async def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-#: The unit of each ``dim`` (manual L3061-3144; the conventions of tango_aio.units).
-DIM_UNITS = {0: "µsteps", 1: "µm", 2: "mm", 3: "°", 4: "rev", 5: "cm", 6: "m", 7: "inch",
-             8: "mil", 9: "mm"}
-
-
 def _with_units(text: str, unit: str | Mapping[str, str], named: bool) -> str:
     """A per-axis reply (``2 2 2``) as ``x=2 mm ...`` (``named``: ``x=2 (mm)``); a reply
-    of another shape as it is, with a single unit behind it."""
+    of another shape as it is, with a single unit behind it.
+
+    Returns
+    -------
+    str
+        The reply with its units.
+    """
     values = text.split()
     units = dict.fromkeys(AXES[: len(values)], unit) if isinstance(unit, str) else dict(unit)
     if len(values) != len(units):
@@ -322,7 +342,18 @@ class _UsageError(ValueError):
 
 def _tcp_address(text: str) -> tuple[str, int]:
     """``HOST:PORT``, ``:PORT`` or ``PORT`` (host 127.0.0.1) or ``[IPv6]:PORT`` as (host,
-    port); a usage error with the reason for anything else."""
+    port); a usage error with the reason for anything else.
+
+    Returns
+    -------
+    tuple[str, int]
+        The host and the port.
+
+    Raises
+    ------
+    _UsageError
+        The text is no such address.
+    """
     host, _, port_text = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
@@ -395,20 +426,53 @@ _KIND_NAMES = {"move": "move", "cal": "calibration", "rm": "range measure"}
 
 
 def describe_letters(statuses: Mapping[str, str]) -> str:
-    """``{"x": "@", "y": "E"}`` → ``"x=@ (ok) y=E (error/aborted)"``."""
+    """``{"x": "@", "y": "E"}`` → ``"x=@ (ok) y=E (error/aborted)"``.
+
+    Parameters
+    ----------
+    statuses
+        The status letter of each axis, by axis letter.
+
+    Returns
+    -------
+    str
+        The letters with their meanings.
+    """
     return " ".join(f"{axis}={letter} ({LETTER_MEANINGS.get(letter, 'unknown')})"
                     for axis, letter in statuses.items())
 
 
 def letters_of_line(line: str) -> dict[str, str]:
     """The per-axis letters of a completion or statusaxis line (``@@E-.``, ``@@@-.-``);
-    absent axes (``-``) are left out."""
+    absent axes (``-``) are left out.
+
+    Parameters
+    ----------
+    line
+        The line, as received.
+
+    Returns
+    -------
+    dict[str, str]
+        The letter of each axis present, by axis letter.
+    """
     head = line.strip().split(".", 1)[0]
     return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != ABSENT}
 
 
 def describe_error(code: int | None) -> str:
-    """An error number in words, from the manual's error table."""
+    """An error number in words, from the manual's error table.
+
+    Parameters
+    ----------
+    code
+        The error number, or ``None`` if the controller gave none.
+
+    Returns
+    -------
+    str
+        The words.
+    """
     if code is None:
         return "error (the controller gave no number)"
     if code == 0:
@@ -417,7 +481,20 @@ def describe_error(code: int | None) -> str:
 
 
 def describe_reply(command: CommandLine, reply: str) -> str:
-    """The reply text, with error numbers, ``ERR n`` and status letters decoded."""
+    """The reply text, with error numbers, ``ERR n`` and status letters decoded.
+
+    Parameters
+    ----------
+    command
+        The line that was sent.
+    reply
+        Its reply, lines separated by LF.
+
+    Returns
+    -------
+    str
+        The reply with what it means.
+    """
     return "\n".join(_describe_reply_line(command, line) for line in reply.split("\n"))
 
 
@@ -436,7 +513,18 @@ def _describe_reply_line(command: CommandLine, line: str) -> str:
 
 
 def describe_line(line: str) -> str:
-    """An unsolicited line from the controller in words."""
+    """An unsolicited line from the controller in words.
+
+    Parameters
+    ----------
+    line
+        The line, as received.
+
+    Returns
+    -------
+    str
+        The words.
+    """
     text = line.strip()
     if is_completion_line(text):
         return f"status report: {describe_letters(letters_of_line(text))}"
@@ -447,7 +535,18 @@ def describe_line(line: str) -> str:
 
 
 def describe_event(event: TangoEvent) -> str | None:
-    """An event of :meth:`Controller.events` in words (``None``: not worth showing)."""
+    """An event of :meth:`Controller.events` in words (``None``: not worth showing).
+
+    Parameters
+    ----------
+    event
+        The event.
+
+    Returns
+    -------
+    str or None
+        The words, or ``None``.
+    """
     if isinstance(event, MoveFinished):
         what = _KIND_NAMES.get(event.kind, event.kind)
         letters = describe_letters(event.statuses) or "no status letters (autostatus 3)"
@@ -470,7 +569,18 @@ def describe_event(event: TangoEvent) -> str | None:
 
 def describe_exception(exc: BaseException) -> str:
     """An error as one line for the user: the message, with a move's status letters in
-    words, and each member of an exception group."""
+    words, and each member of an exception group.
+
+    Parameters
+    ----------
+    exc
+        The error.
+
+    Returns
+    -------
+    str
+        The line.
+    """
     if isinstance(exc, BaseExceptionGroup):
         return "; ".join(dict.fromkeys(describe_exception(e) for e in exc.exceptions))
     text = _escaped(" ".join(str(exc).split()) or type(exc).__name__)
@@ -491,7 +601,18 @@ _FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
 
 
 def describe_instruction(entry: Instruction) -> str:
-    """Help text of one instruction from the catalog (the shell's ``help NAME``)."""
+    """Help text of one instruction from the catalog (the shell's ``help NAME``).
+
+    Parameters
+    ----------
+    entry
+        The instruction.
+
+    Returns
+    -------
+    str
+        The help text.
+    """
     first, *more = _summary_parts(entry.summary)
     lines = [f"{entry.name}: {first}", *(f"  {part}" for part in more)]
     if entry.aliases:
@@ -512,7 +633,13 @@ def describe_instruction(entry: Instruction) -> str:
 @functools.lru_cache(maxsize=1)
 def _summary_split() -> re.Pattern[str]:
     """Where a catalog summary runs two of the manual's example lines together: before a
-    verb that starts summaries (``... 10 10 10 Move Y axis to ...``)."""
+    verb that starts summaries (``... 10 10 10 Move Y axis to ...``).
+
+    Returns
+    -------
+    re.Pattern[str]
+        The pattern.
+    """
     from .instructions import INSTRUCTIONS
 
     verbs = {entry.summary.split()[0] for entry in INSTRUCTIONS.values() if entry.summary}
@@ -594,7 +721,20 @@ class LineReader(Protocol):
     """Where the shell gets its input lines."""
 
     async def read(self) -> str:
-        """The next line; raises EOFError at the end, KeyboardInterrupt for Ctrl+C."""
+        """The next line; raises EOFError at the end, KeyboardInterrupt for Ctrl+C.
+
+        Returns
+        -------
+        str
+            The line.
+
+        Raises
+        ------
+        EOFError
+            At the end of input.
+        KeyboardInterrupt
+            For Ctrl+C.
+        """
         ...
 
 
@@ -643,7 +783,20 @@ def _history_warning(history: Path, exc: OSError) -> None:
 def read_bounded_line(stream: BinaryIO, limit: int) -> tuple[bytes, bool]:
     """The next line, reading at most ``limit + 1`` bytes, and whether it is longer than
     ``limit`` bytes (then it was cut, and the next read continues it). ``b""`` with False
-    at the end of input."""
+    at the end of input.
+
+    Parameters
+    ----------
+    stream
+        The binary input.
+    limit
+        The most bytes a line may have.
+
+    Returns
+    -------
+    tuple[bytes, bool]
+        The line (or its first ``limit`` bytes) and whether it was cut.
+    """
     line = stream.readline(limit + 1)
     return line, len(line) > limit and not line.endswith(b"\n")
 
@@ -660,7 +813,13 @@ class _PipeReader:
 
         def deliver(text: str) -> bool:
             """Hand ``text`` to the loop; False once the loop is closed (the shell has
-            ended while this thread still read: nobody is left to take the line)."""
+            ended while this thread still read: nobody is left to take the line).
+
+            Returns
+            -------
+            bool
+                Whether the loop took the text.
+            """
             try:
                 loop.call_soon_threadsafe(self._lines.put_nowait, text)
             except RuntimeError:
@@ -696,7 +855,13 @@ class _PipeReader:
 
 
 def history_path() -> Path:
-    """The shell's history file: $TANGO_AIO_HISTORY, or ~/.tango_aio_history."""
+    """The shell's history file: $TANGO_AIO_HISTORY, or ~/.tango_aio_history.
+
+    Returns
+    -------
+    Path
+        The file.
+    """
     return Path(os.environ.get("TANGO_AIO_HISTORY") or HISTORY_FILE).expanduser()
 
 
@@ -708,6 +873,15 @@ class Shell:
     report comes, and on leaving: a move still running then is stopped and counts as
     failed) or, for a ``script``, when a line failed (invalid, rejected by the
     controller, an error); else 0.
+
+    Parameters
+    ----------
+    tango
+        The connected controller.
+    reader
+        Where the input lines come from.
+    script
+        The input is piped (a failed line makes the exit status 1).
     """
 
     def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False
@@ -730,7 +904,14 @@ class Shell:
 
     async def run(self) -> int:
         """Read, validate and send lines until ``exit``, ``quit``, end of input or the
-        loss of the connection; stop axes still moving when leaving."""
+        loss of the connection; stop axes still moving when leaving.
+
+        Returns
+        -------
+        int
+            The exit status: 1 if a line of a script or a move failed, or the connection was
+            lost; else 0.
+        """
         async with self.tango.events() as events:
             printer = asyncio.ensure_future(self._print_events(events))
             try:
@@ -783,7 +964,13 @@ class Shell:
 
     async def _read(self) -> str | KeyboardInterrupt:
         """A line, or the reader's KeyboardInterrupt as a value: raised inside a task it
-        would stop the event loop."""
+        would stop the event loop.
+
+        Returns
+        -------
+        str or KeyboardInterrupt
+            The line, or the interrupt.
+        """
         try:
             return await self.reader.read()
         except KeyboardInterrupt as interrupt:
@@ -815,7 +1002,13 @@ class Shell:
     async def execute(self, line: str) -> None:
         """Run one line: a shell command (``help``, ``wait``), or an instruction line,
         validated first; a read is sent with ``query`` and its decoded reply shown,
-        anything else with ``command`` and confirmed (a rejection raises)."""
+        anything else with ``command`` and confirmed (a rejection raises).
+
+        Parameters
+        ----------
+        line
+            The line typed or piped.
+        """
         words = line.split()
         if words[0].lower() == "help" and len(words) <= 2:
             _say(self.help(words[1] if len(words) == 2 else None))
@@ -887,7 +1080,19 @@ class Shell:
 
     @staticmethod
     def help(topic: str | None) -> str:
-        """The shell's help: its commands, an instruction, or an error number."""
+        """The shell's help: its commands, an instruction, or an error number.
+
+        Parameters
+        ----------
+        topic
+            A shell command, an instruction name or an error number; ``None`` for the list of
+            the shell's commands.
+
+        Returns
+        -------
+        str
+            The help text.
+        """
         if topic is None:
             return SHELL_HELP
         if topic.lstrip("-").isdigit():
@@ -950,7 +1155,7 @@ async def _shell(args: argparse.Namespace) -> int:
     still move. Lines piped into the shell run as a script, whose exit status is 1 if any
     line failed; in both modes it is 1 if a move did not end at its target (a move still
     running at the end is stopped and counts as failed). History is kept
-    in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
+    in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""  # noqa: DOC201 - --help text, no sections
     async with connect(args.url) as tango:
         ident = tango.identity
         # On stderr: stdout holds the replies only (a script's).
@@ -976,7 +1181,18 @@ _TARGET = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Zµ/
 
 def _axis_target(token: str) -> tuple[str, float, str | None]:
     """argparse type of ``x=1.5``, ``x=1mm`` or ``y=-500um``: axis, value and unit
-    (``None``: the controller's unit)."""
+    (``None``: the controller's unit).
+
+    Returns
+    -------
+    tuple[str, float, str | None]
+        The axis, the value and its unit.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        The token is no such target.
+    """
     from .units import check_unit
 
     axis, sep, text = token.partition("=")
@@ -1002,7 +1218,18 @@ def _axis_target(token: str) -> tuple[str, float, str | None]:
 def _one_unit(targets: Sequence[tuple[str, float, str | None]]
               ) -> tuple[dict[str, float], str | None]:
     """The targets in one unit: lengths in different units are converted to mm; a unit
-    on some axes and none on others is refused (which unit would the bare ones be?)."""
+    on some axes and none on others is refused (which unit would the bare ones be?).
+
+    Returns
+    -------
+    tuple[dict[str, float], str | None]
+        The target of each axis, and their unit.
+
+    Raises
+    ------
+    _UsageError
+        Units are mixed with bare values, do not convert, or an axis is given twice.
+    """
     from .units import LENGTH_UNITS
 
     units = {unit for _, _, unit in targets}
@@ -1029,7 +1256,7 @@ async def _move(args: argparse.Namespace) -> int:
     """Move axes to absolute positions (x=10 y=5), or by distances with --relative,
     showing the distance covered; prints the final status letters in words. Values are in
     the controller's unit, or carry their own (x=1.5mm, y=-500um; nm um mm cm m in mil
-    rev ustep). Ctrl+C stops the axes."""
+    rev ustep). Ctrl+C stops the axes."""  # noqa: DOC201 - --help text, no sections
     targets, unit = _one_unit(args.targets)
     async with connect(args.url, units=unit) as tango:
         start = await tango.position()
@@ -1067,7 +1294,7 @@ def _monitor_table(url: str, positions: Mapping[str, float],
 
 async def _monitor(args: argparse.Namespace) -> int:
     """Show a live table of the positions and status letters of every axis, refreshed
-    every --interval seconds, until Ctrl+C (exit code 130) or --count refreshes (0)."""
+    every --interval seconds, until Ctrl+C (exit code 130) or --count refreshes (0)."""  # noqa: DOC201 - --help text, no sections
     stop = asyncio.Event()
     async with connect(args.url) as tango:
         with _sigint_calls(stop.set), Live(console=console, auto_refresh=False) as live:
@@ -1090,7 +1317,13 @@ async def _monitor(args: argparse.Namespace) -> int:
 
 async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
     """Port → what probing it found, in a few words: "TANGO model firmware", "no
-    answer", "permission denied (...)", "busy (...)", "not found"."""
+    answer", "permission denied (...)", "busy (...)", "not found".
+
+    Returns
+    -------
+    dict[str, str]
+        What each port answered, by port name.
+    """
     from .discovery import probe_ports
 
     results = await probe_ports(timeout=timeout, ports=ports or None)
@@ -1100,7 +1333,7 @@ async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
 async def _ports(args: argparse.Namespace) -> int:
     """List the serial ports; with --probe, ask each one for ?version to find the TANGO
     controllers (this writes a line to every port probed) and say for each port what it
-    found: TANGO model firmware, no answer, permission denied, busy or not found."""
+    found: TANGO model firmware, no answer, permission denied, busy or not found."""  # noqa: DOC201 - --help text, no sections
     from serial.tools import list_ports
 
     infos = await asyncio.to_thread(list_ports.comports)
@@ -1130,7 +1363,7 @@ _MAX_POSITION_LINES = 10 * MAX_TRIGGERS
 
 async def _upload_trigp(args: argparse.Namespace) -> int:
     """Upload a trigger position list (one position per line; blank lines and lines
-    starting with # are ignored) at wire speed, with a progress bar."""
+    starting with # are ignored) at wire speed, with a progress bar."""  # noqa: DOC201, DOC501 - --help text, no sections
     lines: list[int] = []
     positions = read_positions(args.file, lines)
     if not positions:
@@ -1152,7 +1385,17 @@ async def _upload_trigp(args: argparse.Namespace) -> int:
 @contextlib.contextmanager
 def _by_file_line(path: str, lines: Sequence[int]) -> Iterator[None]:
     """Name a bad or rejected entry by its file line (``positions.txt:7``), as the
-    file's own errors are, not by its index in the list."""
+    file's own errors are, not by its index in the list.
+
+    Raises
+    ------
+    TangoError
+        For an entry the controller rejected.
+    InvalidCommandError
+        For an entry that is not valid.
+    UploadError
+        An upload error that names no entry of the file.
+    """
     from .bulk import UploadError
 
     try:
@@ -1178,6 +1421,23 @@ def read_positions(path: str, lines: list[int] | None = None) -> list[float]:
 
     Reading is bounded: lines of at most 200 bytes, at most 100000 lines and one position
     more than a trigger list holds (so ``/dev/zero`` or a huge file fails at once).
+
+    Parameters
+    ----------
+    path
+        The file.
+    lines
+        A list that receives the file line of each position; ``None`` for none.
+
+    Returns
+    -------
+    list[float]
+        The positions.
+
+    Raises
+    ------
+    ValueError
+        A line is too long or not a number, or there are too many lines or positions.
     """
     values: list[float] = []
     with open(path, "rb") as handle:
@@ -1211,7 +1471,13 @@ def read_positions(path: str, lines: list[int] | None = None) -> list[float]:
 
 def _plain(text: str | None) -> str | None:
     """A docstring for ``--help``: Sphinx roles and literals (````?pos````,
-    ``:func:`x```) as plain words."""
+    ``:func:`x```) as plain words.
+
+    Returns
+    -------
+    str or None
+        The plain text (``None`` for no docstring).
+    """
     if text is None:
         return None
     text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
@@ -1242,7 +1508,18 @@ _delay_type = _number_type(float, "a number of seconds", allow_minimum=True)
 
 def _url_type(text: str) -> str:
     """argparse type of a controller URL: ``SIM://`` and ``SOCKET://`` in any case; a
-    ``sim://`` URL is checked here, so that a bad option is named and nothing opens."""
+    ``sim://`` URL is checked here, so that a bad option is named and nothing opens.
+
+    Returns
+    -------
+    str
+        The URL.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        The ``sim://`` URL's query is not valid.
+    """
     scheme, sep, rest = text.partition("://")
     if sep and scheme.lower() in ("sim", "socket"):
         text = f"{scheme.lower()}://{rest}"
@@ -1256,7 +1533,18 @@ def _url_type(text: str) -> str:
 
 def check_sim_url(url: str) -> None:
     """Raise ValueError, naming the option, if the ``sim://`` URL's query is invalid:
-    an option given twice, an unknown option or a value the emulator refuses."""
+    an option given twice, an unknown option or a value the emulator refuses.
+
+    Parameters
+    ----------
+    url
+        The URL.
+
+    Raises
+    ------
+    ValueError
+        An option is given twice, unknown, or refused.
+    """
     from .sim.inprocess import configs_from_url
 
     pairs = urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query, keep_blank_values=True)
@@ -1436,7 +1724,13 @@ def _run_loop(args: argparse.Namespace) -> int:
     """``asyncio.run(_run(...))``, but a Ctrl+C cannot land while the event loop is being
     built: one that came meanwhile is delivered once it stands, and the loop is closed as
     usual (``asyncio.run`` would leave a half-built loop behind, whose ``__del__`` prints a
-    traceback, and the command's coroutine never awaited)."""
+    traceback, and the command's coroutine never awaited).
+
+    Returns
+    -------
+    int
+        The command's exit status.
+    """
     runner = asyncio.Runner()  # builds nothing yet (entering it as a context would)
     try:
         with _sigint_deferred():
@@ -1482,7 +1776,18 @@ def _sigint_recorded() -> Iterator[None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tango-aio`` command: 0 on success, 1 after an error (printed
-    as one line), 2 for usage errors, 130 after Ctrl+C."""
+    as one line), 2 for usage errors, 130 after Ctrl+C.
+
+    Parameters
+    ----------
+    argv
+        The arguments; ``None`` for the process's own.
+
+    Returns
+    -------
+    int
+        The exit status.
+    """
     debug = False
     try:
         # The module's body has run to its end (class and function definitions, not only

@@ -55,6 +55,7 @@ from .controller import Controller
 from .errors import InvalidCommandError, MoveError, TangoError
 from .instructions import AXES, build_axes
 from .motion import STOP_WAIT
+from .status import AxisStatus
 
 __all__ = ["MoveCoalescer"]
 
@@ -88,7 +89,23 @@ class _Batch:
 
 class MoveCoalescer:
     """Merges moves of different axes of one Controller that arrive within `window`
-    seconds into one `move_to` (one `!moa` line)."""
+    seconds into one `move_to` (one `!moa` line).
+
+    Parameters
+    ----------
+    controller
+        The controller whose moves are merged.
+    window
+        Seconds to collect moves (``collect="window"``), or the longest wait for announced
+        ones (``"announced"``).
+    collect
+        ``"window"`` or ``"announced"`` (see :meth:`announce`).
+
+    Raises
+    ------
+    ValueError
+        ``window`` is not a finite number >= 0, or ``collect`` is unknown.
+    """
 
     def __init__(self, controller: Controller, *, window: float = 0.02,
                  collect: str = "window") -> None:
@@ -109,7 +126,13 @@ class MoveCoalescer:
     def announce(self) -> Callable[[], None]:
         """Announce a request that is on its way (``collect="announced"``): the batch
         being collected waits for it. Returns the function that ends the announcement
-        (call it once the request was made, or given up; later calls do nothing)."""
+        (call it once the request was made, or given up; later calls do nothing).
+
+        Returns
+        -------
+        Callable[[], None]
+            Ends the announcement.
+        """
         self._announced += 1
         done = False
 
@@ -127,7 +150,30 @@ class MoveCoalescer:
         """Move one axis as part of the next merged move; return its status letter,
         raise the merged move's MoveError/TangoError. A second request for an axis that is
         already in the batch being collected closes that batch and starts the next one.
-        Cancelling one caller stops the merged move (all axes), as Controller.move_to does."""
+        Cancelling one caller stops the merged move (all axes), as Controller.move_to does.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        target
+            Its target.
+        arrived
+            Called once the request has joined a batch (or failed before); ends an
+            announcement (:meth:`announce`).
+
+        Returns
+        -------
+        str
+            The axis's status letter after the merged move.
+
+        Raises
+        ------
+        MoveError
+            The merged move failed, or another caller cancelled it.
+        CancelledError
+            This caller was cancelled (its axis withdrawn, or the merged move stopped).
+        """
         try:
             value = self._checked(axis, target)
             batch = self._batch_for(axis)
@@ -145,13 +191,24 @@ class MoveCoalescer:
                 raise
             if task.cancelled():  # another caller (or aclose) cancelled the batch
                 raise MoveError(f"merged move {batch.targets} {batch.cancel_reason}",
-                                dict.fromkeys(batch.targets, "E")) from None
+                                dict.fromkeys(batch.targets, AxisStatus.ERROR)) from None
             raise  # this caller was cancelled just as the batch ended
-        return letters.get(axis, "@")
+        return letters.get(axis, AxisStatus.READY)
 
     def pending(self, axis: str) -> bool:
         """Whether a move of ``axis`` waits in a batch not yet sent (cancelling its
-        caller then only withdraws it; nothing has moved)."""
+        caller then only withdraws it; nothing has moved).
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+
+        Returns
+        -------
+        bool
+            Whether a move of it waits unsent.
+        """
         return any(batch.state is not _State.MOVING and axis in batch.targets
                    for batch in self._batches)
 
@@ -259,6 +316,11 @@ def _lines(targets: dict[str, float]) -> list[dict[str, float]]:
     a gap travels together in one line, and each other axis gets a line of its own (run
     one after another). Filling a gap with the gap axis's current position is avoided: a
     read-back rounded to the reply's decimals would move that axis slightly.
+
+    Returns
+    -------
+    list[dict[str, float]]
+        The targets of each line, in order.
     """
     ordered: list[str] = [axis for axis in AXES if axis in targets]
     prefix = 0

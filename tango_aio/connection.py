@@ -138,7 +138,20 @@ def port_error(url: str, exc: BaseException) -> ConnectError:
     """The :class:`ConnectError` for a failure to open the serial port ``url``, in the
     user's terms with the next step. pyserial repeats the errno in its messages ("[Errno
     2] could not open port ...: [Errno 2] ..."), so only the operating system's words are
-    kept."""
+    kept.
+
+    Parameters
+    ----------
+    url
+        The serial port's name or URL.
+    exc
+        What opening it raised.
+
+    Returns
+    -------
+    ConnectError
+        The error to raise (a subclass where the cause is known).
+    """
     number = getattr(exc, "errno", None)
     if not isinstance(number, int):
         number = next((arg for arg in getattr(exc, "args", ()) if isinstance(arg, int)), None)
@@ -164,7 +177,18 @@ def port_error(url: str, exc: BaseException) -> ConnectError:
 def check_url(url: str) -> None:
     """Raise ValueError for a URL that names a scheme the driver does not open (before
     anything is opened): ``tcp://`` and the like suggest ``socket://``; ``sim:/`` and
-    other almost-URLs are not taken for device paths."""
+    other almost-URLs are not taken for device paths.
+
+    Parameters
+    ----------
+    url
+        The URL or device path given to :func:`connect`.
+
+    Raises
+    ------
+    ValueError
+        The URL names a scheme the driver does not open.
+    """
     match = re.match(r"([A-Za-z][A-Za-z0-9+.-]+):(/*)", url)
     if match is None:
         return
@@ -199,7 +223,13 @@ def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future
 
 def _check_pollable(port: Any) -> None:
     """pyserial-asyncio watches the port's file descriptor on POSIX; URL handlers without
-    one (``loop://``, ``spy://`` of such) would fail later inside the event loop."""
+    one (``loop://``, ``spy://`` of such) would fail later inside the event loop.
+
+    Raises
+    ------
+    OSError
+        The port has no file descriptor.
+    """
     if not POSIX:
         return
     try:
@@ -211,7 +241,18 @@ def _check_pollable(port: Any) -> None:
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:
     """Run ``open_port`` in a thread; if the caller is cancelled meanwhile, the thread
-    still finishes (threads cannot be interrupted), and the port it opened is closed."""
+    still finishes (threads cannot be interrupted), and the port it opened is closed.
+
+    Returns
+    -------
+    Any
+        What ``open_port`` returned (the port).
+
+    Raises
+    ------
+    CancelledError
+        The caller was cancelled (the port, once opened, is closed).
+    """
     task = asyncio.ensure_future(asyncio.to_thread(open_port))
     try:
         return await asyncio.shield(task)
@@ -256,7 +297,13 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
 async def _open_link(url: str, make: ProtocolFactory, options: dict[str, Any]
                      ) -> tuple[TangoProtocol, Closer | None]:
     """Open ``url`` and wait until the protocol is connected; on any failure, including
-    cancellation, close whatever was opened (no leaked port, socket or emulator task)."""
+    cancellation, close whatever was opened (no leaked port, socket or emulator task).
+
+    Returns
+    -------
+    tuple[TangoProtocol, Closer | None]
+        The connected protocol, and what closes the emulator behind a ``sim://`` link.
+    """
     made: list[TangoProtocol] = []
 
     def factory() -> TangoProtocol:
@@ -322,7 +369,13 @@ class ConnectOptions:
         self.policy()  # checks the reconnect options
 
     def policy(self) -> ReconnectPolicy | None:
-        """The reconnect policy, or ``None`` when reconnecting is off."""
+        """The reconnect policy, or ``None`` when reconnecting is off.
+
+        Returns
+        -------
+        ReconnectPolicy or None
+            The policy of the ``reconnect_*`` options.
+        """
         policy = ReconnectPolicy(initial=self.reconnect_initial, maximum=self.reconnect_max,
                                  attempts=self.reconnect_attempts)
         return policy if self.reconnect else None
@@ -357,7 +410,13 @@ async def _connect(url: str, options: ConnectOptions) -> Controller:
 
 def _no_controller(url: str, options: ConnectOptions) -> NoControllerError:
     """Nothing answered while :func:`connect` set the controller up: said in the user's
-    terms (not the lines the driver sent)."""
+    terms (not the lines the driver sent).
+
+    Returns
+    -------
+    NoControllerError
+        The error to raise.
+    """
     where = url if url.startswith(("sim://", "socket://", "rfc2217://")) \
         else f"{url} at {options.baudrate} Bd"
     return NoControllerError(f"no TANGO answered on {where}: is it switched on, is this "
@@ -369,7 +428,15 @@ class Connecting(collections.abc.Coroutine[Any, Any, Controller]):
     """What :func:`connect` returns: await it, use it with ``async with``, or hand it to
     anything that takes a coroutine (``asyncio.run(tango_aio.connect(url))``,
     ``asyncio.create_task``): it is one, created lazily, so a ``Connecting`` that is never
-    awaited opens nothing and warns about nothing."""
+    awaited opens nothing and warns about nothing.
+
+    Parameters
+    ----------
+    url
+        The controller's URL.
+    options
+        The checked options.
+    """
 
     def __init__(self, url: str, options: ConnectOptions) -> None:
         self.url = url
@@ -386,11 +453,35 @@ class Connecting(collections.abc.Coroutine[Any, Any, Controller]):
         return self._started().__await__()
 
     def send(self, value: Any) -> Any:
-        """Coroutine protocol: resume the connection attempt."""
+        """Coroutine protocol: resume the connection attempt.
+
+        Parameters
+        ----------
+        value
+            The value to resume it with.
+
+        Returns
+        -------
+        Any
+            What the attempt yields next.
+        """
         return self._started().send(value)
 
     def throw(self, typ: Any, val: Any = None, tb: Any = None) -> Any:
-        """Coroutine protocol: raise an exception inside the connection attempt."""
+        """Coroutine protocol: raise an exception inside the connection attempt.
+
+        Parameters
+        ----------
+        typ
+            The exception (or its type) to raise inside.
+        val, tb
+            The legacy value and traceback arguments.
+
+        Returns
+        -------
+        Any
+            What the attempt yields next.
+        """
         if val is None and tb is None:
             return self._started().throw(typ)
         return self._started().throw(typ, val, tb)  # pragma: no cover - legacy signature
@@ -430,21 +521,6 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     :class:`~tango_aio.errors.PortBusyError`, :class:`~tango_aio.errors.NoControllerError`
     (nothing answered), or the class itself (e.g. a refused TCP connection).
 
-    Options: ``baudrate`` (57600), ``rtscts`` (False) for serial ports, which are opened
-    exclusively (a second open of the same port fails); ``autostatus`` (1; ``None`` keeps
-    the controller's mode), ``identify`` (True), ``reply_timeout`` (5.0 s: a request
-    unanswered for that long raises ControllerTimeoutError after the stream was
-    resynchronised); ``credit_limit`` (255 bytes written but not yet processed, at most)
-    and ``marker_chunk`` (160 reply-less bytes between ``err`` markers) for flow control;
-    ``dead_after`` (2) consecutive requests without a reply (a request's own timeout, then
-    its resync marker's) declare a link that stays open lost (ConnectionLostError, and a
-    reconnect when enabled), and ``keepalive`` (None; seconds) probes an idle link with
-    ``?autostatus`` so that a dead link, or a controller that restarted behind an adapter
-    that stayed up (its mode is restored), is noticed without traffic of the caller's.
-    ``units`` (``None``: the controller's ``dim`` unit) is the physical unit of positions
-    for the whole connection (``"mm"``, ``"um"``, ...; see :mod:`tango_aio.units`);
-    velocities are then in ``units`` per second, accelerations per second squared.
-
     Automatic reconnect (off by default): ``reconnect=True`` keeps the Controller usable
     across link losses. After a loss it waits ``reconnect_initial`` (0.1 s), opens the same
     URL again, resynchronises, checks that the same model and firmware answer (else it
@@ -455,6 +531,64 @@ def connect(url: str = "sim://", *, baudrate: int = DEFAULT_BAUD, rtscts: bool =
     :meth:`~tango_aio.controller.Controller.aclose`). What was in flight at the loss fails
     with ConnectionLostError and is not retried; calls made while the link is down fail at
     once with ConnectionLostError (``await tango.wait_connected(timeout)`` waits instead).
+
+    Parameters
+    ----------
+    url
+        A serial device (``/dev/ttyUSB0``, ``COM3``), a pyserial URL, ``socket://host:port``
+        or ``sim://`` (see the module).
+    baudrate
+        The baud rate of a serial port (57600). Serial ports are opened exclusively (a
+        second open of the same port fails).
+    rtscts
+        RTS/CTS handshake on a serial port (False).
+    autostatus
+        The autostatus mode to select (1; ``None`` keeps the controller's mode).
+    identify
+        Read the controller's identity when connecting (True).
+    reply_timeout
+        Seconds (5.0): a request unanswered for that long raises ControllerTimeoutError
+        after the stream was resynchronised.
+    credit_limit
+        Flow control: at most this many bytes (255) written but not yet processed.
+    marker_chunk
+        Flow control: at most this many reply-less bytes (160) between ``err`` markers.
+    reconnect
+        Reconnect automatically after a link loss (False), described above.
+    reconnect_initial
+        Seconds to wait before the first attempt (0.1).
+    reconnect_max
+        The longest wait between two attempts, in seconds (5.0).
+    reconnect_attempts
+        The most attempts after a loss (``None``: until the controller is closed).
+    units
+        The physical unit of positions for the whole connection (``"mm"``, ``"um"``, ...;
+        see :mod:`tango_aio.units`; ``None``: the controller's ``dim`` unit); velocities
+        are then in ``units`` per second, accelerations per second squared.
+    dead_after
+        Consecutive requests without a reply (2; a request's own timeout, then its resync
+        marker's) that declare a link that stays open lost (ConnectionLostError, and a
+        reconnect when enabled).
+    keepalive
+        Seconds (``None``: off) after which an idle link is probed with ``?autostatus``, so
+        that a dead link, or a controller that restarted behind an adapter that stayed up
+        (its mode is restored), is noticed without traffic of the caller's.
+
+    Returns
+    -------
+    Connecting
+        Await it for the connected :class:`~tango_aio.controller.Controller`, or use it as
+        an async context manager.
+
+    Raises
+    ------
+    TypeError
+        An unknown option (raised by Python at the call).
+    ValueError
+        An invalid option or URL, before anything is opened.
+    ConnectError
+        When awaited: the link cannot be set up (one of the subclasses above, or the
+        class itself).
     """
     check_url(url)
     options = ConnectOptions(

@@ -10,6 +10,7 @@ from collections.abc import (
     AsyncIterator,
     Awaitable,
     Callable,
+    Coroutine,
     Iterable,
     Iterator,
     Mapping,
@@ -19,7 +20,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from fractions import Fraction
 from types import TracebackType
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from ._checks import check_count, check_timeout
 from .bulk import (
@@ -72,19 +73,13 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import (
-    FAILED_LETTERS,
-    STOP_WAIT,
-    Motion,
-    MovePlan,
-    moved_axes,
-    position_tolerance,
-)
+from .motion import STOP_WAIT, Motion, MovePlan
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
-from .status import AxisStatus, axis_statuses
-from .units import UnitScale, from_controller, plain, to_controller
+from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
+from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
+from .units import Measure, UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
 
@@ -159,13 +154,14 @@ class Controller:
         self._hub = EventHub()
         #: The cached settings (move timing, validation context): tango_aio.state.
         self._settings = DriverState()
-        self._motion = Motion(_Port(self))
+        self._motion = Motion(_Port(self._start_move, self._accepted, self._stop_all,
+                                    self._read_state, self._hub.publish))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
-        #: Whether a confirmation may read the letters with ``sa`` (#28): cleared for
+        #: Whether a confirmation may read the letters with ``sa``: cleared for
         #: good once an ``sa`` went unanswered (a firmware that does not know it).
         self._short_status = True
         self._on_close = on_close
@@ -176,7 +172,9 @@ class Controller:
         self._closing = False
         #: Reconnects after a loss (``reconnect``), armed once setup() has succeeded.
         self._reconnector: Reconnector[Controller] | None = (
-            None if reconnect is None else Reconnector(reconnect, _Relink(self)))
+            None if reconnect is None else Reconnector(reconnect, _Relink(
+                lambda: self.url, self._signature, self._release_link, self._stage,
+                self._adopt, self._reconnected, self._give_up)))
         #: Set (and replaced) whenever the link goes up or down: wakes wait_connected().
         self._link_event = asyncio.Event()
         #: The physical position unit of this connection (``connect(url, units="mm")``);
@@ -568,10 +566,10 @@ class Controller:
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
         ``units``, else the axis' dim unit)."""
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
-        return await self._from_controller(positions, chosen, 0)
+        return await self._from_controller(positions, chosen, Measure.POSITION)
 
     async def status(self) -> dict[str, str]:
         """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
@@ -623,9 +621,9 @@ class Controller:
         speed, or none)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
-            axes = await self._to_controller(axes, unit, 0)
+            axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
-                return await self._move("moa", axes, timeout, stop_on_cancel, relative=False)
+                return await self._move("moa", axes, timeout, stop_on_cancel)
 
     async def move_by(self, /, *, timeout: float | None = None, stop_on_cancel: bool = True,
                       unit: str | None = None, velocity: Speed | None = None,
@@ -634,9 +632,9 @@ class Controller:
         (``velocity`` and ``acceleration`` for this move only, too)."""
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
-            axes = await self._to_controller(axes, unit, 0)
+            axes = await self._to_controller(axes, unit, Measure.POSITION)
             async with self._move_settings(axes, unit, velocity, acceleration):
-                return await self._move("mor", axes, timeout, stop_on_cancel, relative=True)
+                return await self._move("mor", axes, timeout, stop_on_cancel)
 
     @contextlib.asynccontextmanager
     async def _move_settings(self, axes: Mapping[str, Any], unit: str | None,
@@ -644,17 +642,18 @@ class Controller:
                              ) -> AsyncIterator[None]:
         """Set ``vel``/``accel`` of the moved axes for the block, then write back what
         was read before (shielded: also after a failure or a cancellation)."""
-        wanted = [(name, value, power) for name, value, power in
-                  (("vel", velocity, 1), ("accel", acceleration, 2)) if value is not None]
+        wanted = [(name, value, measure) for name, value, measure in
+                  (("vel", velocity, Measure.VELOCITY),
+                   ("accel", acceleration, Measure.ACCELERATION)) if value is not None]
         if not wanted:
             yield
             return
         async with self._move_settings_lock:
             lines: list[Command] = []
-            for name, value, power in wanted:
+            for name, value, measure in wanted:
                 per_axis = _per_moved_axis(name, value, axes)
-                scaled = unit if unit is None else f"{unit}/s{'2' if power == 2 else ''}"
-                converted = await self._to_controller(per_axis, scaled, power)
+                scaled = unit if unit is None else unit + measure.suffix
+                converted = await self._to_controller(per_axis, scaled, measure)
                 lines += [build(name, v, axis=a, context=self.context)
                           for a, v in converted.items()]  # all checked before a byte
             for line in lines:
@@ -677,14 +676,13 @@ class Controller:
             await self._execute(line, check=True)
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
-                    stop_on_cancel: bool, relative: bool) -> dict[str, str]:
+                    stop_on_cancel: bool) -> dict[str, str]:
         lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
         for line, part in zip(lines, _line_groups(axes), strict=True):
             self._check_axes(line, part)
         letters: dict[str, str] = {}
         for line, part in zip(lines, _line_groups(axes), strict=True):
-            letters.update(await self._run_motion(line, timeout, stop_on_cancel, part,
-                                                  relative))
+            letters.update(await self._run_motion(line, timeout, stop_on_cancel, part))
         return letters
 
     async def calibrate(self, *axes: str, timeout: float | None = None,
@@ -727,83 +725,71 @@ class Controller:
         check_timeout(timeout)  # refused before anything is written
         if not axes:
             return await self._run_motion(build(name, form=Form.SET), timeout,
-                                          stop_on_cancel, None, False)
+                                          stop_on_cancel, None)
         letters: dict[str, str] = {}
         for axis in axes:
             command = build(name, form=Form.SET, axis=axis)
-            letters.update(await self._run_motion(command, timeout, stop_on_cancel, None,
-                                                  False))
+            letters.update(await self._run_motion(command, timeout, stop_on_cancel, None))
         return letters
 
     async def _run_motion(self, command: Command, timeout: float | None, stop_on_cancel: bool,
-                          targets: Mapping[str, float] | None, relative: bool
-                          ) -> dict[str, str]:
+                          targets: Mapping[str, float] | None) -> dict[str, str]:
         self._check_axes(command, targets or ())
 
-        async def plan(line: Command) -> MovePlan:
-            return await self._plan(line, targets, relative, timeout)
+        async def plan(line: Command, known: Mapping[str, str] | None) -> MovePlan:
+            return await self._plan(line, targets, timeout, known)
 
         return await self._motion.run(command, plan, stop_on_cancel)
 
     async def _plan(self, command: Command, targets: Mapping[str, float] | None,
-                    relative: bool, timeout: float | None) -> MovePlan:
+                    timeout: float | None, last: Mapping[str, str] | None) -> MovePlan:
         """Targets and timing of a motion line, from where its axes are now (called once
-        the previous move has ended)."""
-        s = self._settings
+        the previous move has ended). ``targets``: the line's values per axis, distances
+        for ``mor`` (relative to the current position, L6365-6376), absolute positions for
+        ``moa``. ``last``: the positions (as printed) the driver read last, if any."""
+        relative = command.name == "mor"
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
-        # delay and pause apply to moa, mor, m and moc only (L6856, L6887).
-        timed = command.name in ("moa", "mor", "m", "moc")
-        delay = s.delay_ms / 1000.0 if timed else 0.0
-        settle = s.settle_ms / 1000.0
-        after = (s.pause_ms / 1000.0 if timed else 0.0) + settle
-        absolute: dict[str, float] | None = None
-        extend: Callable[[Mapping[str, str]], float] | None = None
-        if command.instruction.completion in (Completion.CAL, Completion.RM):
-            travel, limit = 0.0, 150.0  # caltimeout is at most 120 s per axis (L5251)
-        elif targets is None:  # moc: the distance is not known here
-            travel, limit = 0.0, 120.0
+        reports = self.autostatus != 0
+        timeout = check_timeout(timeout)
+        if targets is None:  # cal, rm, moc: the distance is not known here
+            return MovePlan(command, moved, None,
+                            move_budget(self._settings, command, None, timeout),
+                            reports=reports)
+        # A move_to does not read ?pos first (a whole round trip per move). Its distance is
+        # taken from the positions of the driver's latest state read, as a provisional
+        # budget (motion.py "Timeouts"): a stale one only shifts the first poll and is
+        # extended once from the positions read at its end. What is confirmed does not
+        # depend on it: the target is the caller's, and success needs ?statusaxis and ?pos
+        # read after the move (L2662-2721). A move_by reads the start: its target is start
+        # + distance, and a stale start would make the driver confirm the wrong target:
+        # its ?pos is written right before the line, in the same write (the targets are
+        # added once the reply is in, before the move is confirmed), so it costs bytes but
+        # no round trip. Without a known position (the first move of a connection) the
+        # start is read first.
+        known = None if relative else last
+        if relative and last is not None and self._exact_replies():
+            batch = object()
+            return MovePlan(command, moved, dict(targets),
+                            move_budget(self._settings, command, targets, timeout),
+                            start=self._start_reader(batch), batch=batch, reports=reports)
+        if known is None or not set(targets) <= set(known):
+            known = None
+            start = {a: float(t) for a, t in (await self._position_texts()).items()}
         else:
-            # #19: a move_to does not read ?pos first (a whole round trip per move). Its
-            # distance is taken from the positions of the driver's latest state read, as
-            # a provisional budget (motion.py "Timeouts"): a stale one only shifts the
-            # first poll and is extended once from the positions read at its end. What
-            # is confirmed does not depend on it: the target is the caller's, and success
-            # needs ?statusaxis and ?pos read after the move (L2662-2721). A move_by
-            # reads the start: its target is start + distance, and a stale start would
-            # make the driver confirm the wrong target: its ?pos is written right before
-            # the line, in the same write (the targets are added once the reply is in,
-            # before the move is confirmed), so it costs bytes but no round trip. Without
-            # a known position (the first move of a connection) the start is read first.
-            known = None if relative else self._motion.positions
-            if relative and self._motion.positions is not None and self._exact_replies():
-                batch = object()
-                reader = self._start_reader(batch)
-                travel = max((s.travel(a, abs(float(v))) for a, v in targets.items()),
-                             default=0.0)
-                return MovePlan(command, moved, dict(targets), delay + travel + after,
-                                check_timeout(timeout) or delay + 2.0 * travel + 2.0 + after,
-                                start=reader, batch=batch, delay=delay, settle=settle,
-                                reports=self.autostatus != 0)
-            if known is None or not set(targets) <= set(known):
-                known = None
-                start = {a: float(t) for a, t in (await self._position_texts()).items()}
-            else:
-                start = {a: float(known[a]) for a in targets}
-            absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
-            travel = max((s.travel(a, abs(absolute[a] - start[a])) for a in absolute),
-                         default=0.0)
-            limit = 2.0 * travel + 2.0
-            if known is not None and timeout is None:
-                extend = functools.partial(self._rest_budget, absolute, limit + after)
-        return MovePlan(command, moved, absolute, expected=delay + travel + after,
-                        limit=check_timeout(timeout) or delay + limit + after, extend=extend,
-                        delay=delay, settle=settle, reports=self.autostatus != 0)
+            start = {a: float(known[a]) for a in targets}
+        absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
+        budget = move_budget(self._settings, command,
+                             {a: absolute[a] - start[a] for a in absolute}, timeout)
+        extend: Callable[[Mapping[str, str]], float] | None = None
+        if known is not None and timeout is None:
+            extend = functools.partial(self._rest_budget, absolute, budget)
+        return MovePlan(command, moved, absolute, budget, extend=extend, reports=reports)
 
     def _status_command(self) -> Command:
         """The letters read of a move's confirmation: ``sa``, the alias the 1.71 manual
         gives ``?statusaxis`` (L2663: "?statusaxis or statusaxis or sa"), 3 bytes on the
-        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move, #28);
+        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move);
         ``?statusaxis`` where the alias is not known to work: a unit of the older
         edition's family (its section has no alias, old L733), one that left an ``sa``
         unanswered, and modes 2 and 4, whose acknowledgements and echoes the manual
@@ -836,22 +822,17 @@ class Controller:
 
         return start
 
-    def _rest_budget(self, targets: Mapping[str, float], fallback: float,
+    def _rest_budget(self, targets: Mapping[str, float], budget: Budget,
                      now: Mapping[str, str]) -> float:
         """Seconds a move to ``targets`` may still take from the positions printed
-        ``now`` (the budget rule of :meth:`_plan`: twice the travel, 2 s, pause and
-        settling; ``fallback`` when a position was not read)."""
-        s = self._settings
-        if not set(targets) <= set(now):
-            return fallback
-        travel = max(s.travel(a, abs(t - float(now[a]))) for a, t in targets.items())
-        return 2.0 * travel + 2.0 + (s.pause_ms + s.settle_ms) / 1000.0
+        ``now`` (:func:`~tango_aio.timing.rest_budget` with the settings in force)."""
+        return rest_budget(self._settings, targets, now, budget.fallback)
 
     async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
         :meth:`wait_idle`). A later ``go`` overrides the targets mid-move. Targets in
         ``unit`` as for :meth:`move_to`."""
-        axes = await self._to_controller(axes, unit, 0)
+        axes = await self._to_controller(axes, unit, Measure.POSITION)
         command = build_axes("go", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
@@ -860,7 +841,7 @@ class Controller:
         """Run axes at constant speed (rev/s, or mm/s in dim 9; or in ``unit``, e.g.
         ``"mm/s"``, default the connection's ``units`` per second); 0 stops. No completion
         report: use :meth:`wait_idle`."""
-        axes = await self._to_controller(axes, unit, 1)
+        axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
         await self._execute(command, check=True)
@@ -877,7 +858,7 @@ class Controller:
                 await next(iter(self._motion_calls)).wait()
             while True:
                 letters = await self.status()
-                if "M" not in letters.values():
+                if MOVING not in letters.values():
                     return letters
                 await asyncio.sleep(poll_interval)
 
@@ -885,7 +866,7 @@ class Controller:
         """Whether a motion call of this controller is under way or any axis moves
         (``statusaxis`` ``M``): the momentary answer; :meth:`wait_idle` waits."""
         await asyncio.sleep(0)  # a motion task just scheduled takes its first step
-        return bool(self._motion_calls) or "M" in (await self.status()).values()
+        return bool(self._motion_calls) or MOVING in (await self.status()).values()
 
     async def is_calibrated(self, *axes: str) -> bool:
         """Whether ``axes`` (default: every present axis) have been calibrated (``cal``)
@@ -897,7 +878,7 @@ class Controller:
         wanted = [axis.lower() for axis in axes] or list(present)
         self._check_axes(_read_command("statuslimit", None, self.context), wanted)
         flags = str(await self.query("?statuslimit")).strip()
-        return all(flags[AXES.index(axis)] == "A" if len(flags) > AXES.index(axis) else False
+        return all(len(flags) > AXES.index(axis) and flags[AXES.index(axis)] == CALIBRATED_FLAG
                    for axis in wanted)
 
     async def stop(self, *axes: str, wait: bool = True) -> None:
@@ -937,7 +918,7 @@ class Controller:
                 async with asyncio.timeout(STOP_WAIT):
                     while True:
                         letters = await self.status()
-                        if all(letters.get(axis) != "M" for axis in chosen):
+                        if all(letters.get(axis) != MOVING for axis in chosen):
                             return
                         await asyncio.sleep(0.05)
             except TimeoutError:
@@ -1068,43 +1049,43 @@ class Controller:
         return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
                                 int(usteps)) for axis in dims}
 
-    def _unit(self, unit: str | None, power: int) -> str | None:
-        """The caller's unit, else the connection's ``units`` per second ``power``."""
+    def _unit(self, unit: str | None, measure: Measure) -> str | None:
+        """The caller's unit, else the connection's ``units`` made a unit of ``measure``."""
         if unit is not None or self.units is None:
             return unit
-        return self.units + ("", "/s", "/s2")[power]
+        return self.units + measure.suffix
 
     async def _to_controller(self, values: Mapping[str, Any], unit: str | None,
-                             power: int) -> dict[str, Any]:
-        """Per-axis ``values`` in the controller's unit (``power`` 0 position, 1 velocity,
-        2 acceleration; see :func:`tango_aio.units.to_controller`). Without a unit and
+                             measure: Measure) -> dict[str, Any]:
+        """Per-axis ``values`` of ``measure`` in the controller's unit (see
+        :func:`tango_aio.units.to_controller`). Without a unit and
         without pint Quantities nothing is read and they are returned as they are, but
         for Decimal and Fraction as floats (the move-time estimate computes with them)."""
-        chosen = self._unit(unit, power)
+        chosen = self._unit(unit, measure)
         if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
             return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
                     for axis, value in values.items()}
         try:  # checked before anything is read or written
-            given = {axis: plain(value, chosen, power) for axis, value in values.items()}
+            given = {axis: plain(value, chosen, measure) for axis, value in values.items()}
         except (TypeError, ValueError) as exc:
             raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         scales = await self.unit_scales()
-        return {axis: to_controller(number, of, power, scales[axis]) if axis in scales
+        return {axis: to_controller(number, of, measure, scales[axis]) if axis in scales
                 else number for axis, (number, of) in given.items()}
 
-    def _reading_unit(self, unit: str | None, power: int) -> str | None:
+    def _reading_unit(self, unit: str | None, measure: Measure) -> str | None:
         """The unit a reading is converted to (see :meth:`_unit`), checked before
         anything is read."""
-        chosen = self._unit(unit, power)
+        chosen = self._unit(unit, measure)
         if chosen is not None:
             try:
-                plain(0.0, chosen, power)
+                plain(0.0, chosen, measure)
             except ValueError as exc:
                 raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
         return chosen
 
     async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
-                               power: int) -> dict[str, Any]:
+                               measure: Measure) -> dict[str, Any]:
         """Per-axis readings (numbers, or sequences of numbers) converted from the
         controller's unit to ``chosen`` (from :meth:`_reading_unit`)."""
         scales = await self.unit_scales() if chosen is not None else {}
@@ -1112,7 +1093,7 @@ class Controller:
         def convert(axis: str, value: float) -> float:
             if chosen is None:
                 return float(value)
-            return from_controller(float(value), chosen, power, scales[axis])
+            return from_controller(float(value), chosen, measure, scales[axis])
 
         return {axis: tuple(convert(axis, v) for v in value)
                 if isinstance(value, list | tuple) else convert(axis, value)
@@ -1121,35 +1102,37 @@ class Controller:
     async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
         (``"mm/s"``; default: the connection's ``units`` per second)."""
-        chosen = self._reading_unit(unit, 1)
-        return await self._from_controller(await self.get("vel"), chosen, 1)
+        chosen = self._reading_unit(unit, Measure.VELOCITY)
+        return await self._from_controller(await self.get("vel"), chosen, Measure.VELOCITY)
 
     async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
-        await self.set("vel", **await self._to_controller(axes, unit, 1))
+        await self.set("vel", **await self._to_controller(axes, unit, Measure.VELOCITY))
 
     async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
         default: the connection's ``units`` per second squared)."""
-        chosen = self._reading_unit(unit, 2)
-        return await self._from_controller(await self.get("accel"), chosen, 2)
+        chosen = self._reading_unit(unit, Measure.ACCELERATION)
+        return await self._from_controller(await self.get("accel"), chosen, Measure.ACCELERATION)
 
     async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``accel`` per axis, see :meth:`acceleration`."""
-        await self.set("accel", **await self._to_controller(axes, unit, 2))
+        await self.set("accel", **await self._to_controller(axes, unit, Measure.ACCELERATION))
 
     async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
         """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
         ``unit`` (default: the connection's ``units``, else the dim unit)."""
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         pairs = await self.get("lim")
-        return await self._from_controller(pairs, chosen, 0)
+        return await self._from_controller(pairs, chosen, Measure.POSITION)
 
     async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:
         """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``)."""
-        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit, 0)
-        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit, 0)
+        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit,
+                                          Measure.POSITION)
+        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit,
+                                          Measure.POSITION)
         await self.set("lim", axis=None, check=True,
                        **{axis: [lower[axis], upper[axis]] for axis in axes})
 
@@ -1194,12 +1177,12 @@ class Controller:
         it yields only when a position changed, so a paused scan does not flood the
         caller."""
         check_timeout(interval, "interval")
-        chosen = self._reading_unit(unit, 0)
+        chosen = self._reading_unit(unit, Measure.POSITION)
         last: Mapping[str, float] | None = None
         while True:
             letters, texts = await self._status_and_positions()
-            update = PositionUpdate(await self._from_controller(texts, chosen, 0))
-            idle = "M" not in letters.values() and not self._motion.busy
+            update = PositionUpdate(await self._from_controller(texts, chosen, Measure.POSITION))
+            idle = MOVING not in letters.values() and not self._motion.busy
             if not (follow and idle and update.positions == last):
                 self._hub.publish(update)
                 yield update
@@ -1211,7 +1194,7 @@ class Controller:
     async def _status_and_positions(self, *, separate_after: bool = False,
                                     axes: Sequence[str] = ()
                                     ) -> tuple[dict[str, str], dict[str, str]]:
-        """``?statusaxis`` and ``?pos`` of every present axis, written back to back (#19):
+        """``?statusaxis`` and ``?pos`` of every present axis, written back to back:
         one round trip. Their replies (letters, numbers) cannot be taken for each other,
         so the protocol writes no separator between them and neither waits for the other.
         ``separate_after``: a separator follows in the same write (a move's confirmation:
@@ -1219,7 +1202,7 @@ class Controller:
         A reply with another number of values than axes is read again the plain way,
         axis by axis (:meth:`status`, :meth:`_position_texts`).
 
-        ``axes``: the one axis whose position is wanted (a move's confirmation, #28), on
+        ``axes``: the one axis whose position is wanted (a move's confirmation), on
         a unit whose per-axis reads were found to answer one value (identify,
         ``per_axis_replies``): ``?pos x`` instead of ``?pos``, and only that position is
         returned. Its reply is 7 bytes against 21 on a 3-axis unit (about 2.7 ms at
@@ -1284,86 +1267,93 @@ class Controller:
             ok = not (set(letters.values()) & FAILED_LETTERS)
             self._hub.publish(MoveFinished(kind, letters, ok))
 
+    # -- what Motion and the Reconnector see (handed over as _Port and _Relink) -------------
 
-class _Port:
-    """The controller as :class:`~tango_aio.motion.Motion` sees it
-    (:class:`~tango_aio.motion.MotionPort`)."""
+    def _start_move(self, command: Command, batch: object | None) -> MoveHandle:
+        return self._send(command, check=True, batch=batch)
 
-    def __init__(self, controller: Controller) -> None:
-        self._c = controller
-
-    @property
-    def reply_timeout(self) -> float:
-        return self._c.reply_timeout
-
-    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
-        return self._c._send(command, check=True, batch=batch)
-
-    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
-        error = await self._c._error_of(sent, timeout)
+    async def _accepted(self, sent: MoveHandle) -> ControllerError | None:
+        error = await self._error_of(sent, self.reply_timeout)
         if error is None:
-            self._c._track(sent.command)
+            self._track(sent.command)
         return error
 
-    async def write_stop(self) -> None:
-        await self._c.protocol.stop_soft()
+    async def _stop_all(self) -> None:
+        await self._protocol.stop_soft()
 
-    def check_link(self) -> None:
-        self._c.protocol.check()
-
-    async def status(self) -> dict[str, str]:
-        return await self._c.status()
-
-    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
+    async def _read_state(self, axes: Sequence[str]
+                          ) -> tuple[dict[str, str], dict[str, str]]:
+        self._protocol.check()
         # A raster's next move_to follows this read: its ?err probe looks like the
-        # positions, and a separator behind them keeps it off the move's path (#19).
-        return await self._c._status_and_positions(separate_after=True, axes=axes)
+        # positions, and a separator behind them keeps it off the move's path.
+        return await self._status_and_positions(separate_after=True, axes=axes)
 
-    def publish(self, event: object) -> None:
-        self._c._hub.publish(event)  # type: ignore[arg-type]
-
-
-class _Relink:
-    """The controller as its :class:`~tango_aio.reconnect.Reconnector` sees it
-    (:class:`~tango_aio.reconnect.ReconnectPort`)."""
-
-    def __init__(self, controller: Controller) -> None:
-        self._c = controller
-
-    @property
-    def url(self) -> str:
-        return self._c.url
-
-    def signature(self, controller: Controller | None = None) -> Signature | None:
-        identity = (controller or self._c)._identity
+    def _signature(self, controller: Controller | None = None) -> Signature | None:
+        identity = (controller or self)._identity
         return None if identity is None else (identity.model, identity.firmware,
                                               identity.axes)
 
-    async def release_link(self) -> None:
-        closer, self._c._on_close = self._c._on_close, None
+    async def _release_link(self) -> None:
+        closer, self._on_close = self._on_close, None
         if closer is not None:
             await closer()  # e.g. the sim:// emulator of the lost link
 
-    def stage(self, protocol: TangoProtocol, closer: Closer | None) -> Controller:
-        return Controller(protocol, url=self._c.url, reply_timeout=self._c.reply_timeout,
+    def _stage(self, protocol: TangoProtocol, closer: Closer | None) -> Controller:
+        return Controller(protocol, url=self.url, reply_timeout=self.reply_timeout,
                           on_close=closer)
 
-    def adopt(self, staged: Controller, closer: Closer | None) -> None:
-        c = self._c
-        c._protocol = staged._protocol
-        c._protocol.set_callbacks(c._on_protocol_event, c._on_connection_lost)
-        c._settings = staged._settings
-        c._identity = staged._identity or c._identity
-        c._on_close = closer
+    def _adopt(self, staged: Controller, closer: Closer | None) -> None:
+        self._protocol = staged._protocol
+        self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        self._settings = staged._settings
+        self._identity = staged._identity or self._identity
+        self._on_close = closer
 
-    def reconnected(self, attempt: int) -> None:
-        self._c._hub.publish(Reconnected(attempt))
-        self._c._link_changed()
+    def _reconnected(self, attempt: int) -> None:
+        self._hub.publish(Reconnected(attempt))
+        self._link_changed()
 
-    def give_up(self, lost: ConnectionLostError) -> None:
-        self._c._protocol.give_up(lost)
-        self._c._hub.close()
-        self._c._link_changed()
+    def _give_up(self, lost: ConnectionLostError) -> None:
+        self._protocol.give_up(lost)
+        self._hub.close()
+        self._link_changed()
+
+
+@dataclass(frozen=True, slots=True)
+class _Port:
+    """The controller as :class:`~tango_aio.motion.Motion` sees it
+    (:class:`~tango_aio.motion.MotionPort`): the controller's own methods, handed over."""
+
+    start: Callable[[Command, object | None], MoveHandle]
+    accepted: Callable[[MoveHandle], Coroutine[Any, Any, ControllerError | None]]
+    stop: Callable[[], Coroutine[Any, Any, None]]
+    read_state: Callable[[Sequence[str]],
+                         Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]]
+    finished: Callable[[MoveFinished], None]
+
+
+@dataclass(frozen=True, slots=True)
+class _Relink:
+    """The controller as its :class:`~tango_aio.reconnect.Reconnector` sees it
+    (:class:`~tango_aio.reconnect.ReconnectPort`): the controller's own methods, handed
+    over."""
+
+    url_of: Callable[[], str]
+    signature: _SignatureOf
+    release_link: Callable[[], Coroutine[Any, Any, None]]
+    stage: Callable[[TangoProtocol, Closer | None], Controller]
+    adopt: Callable[[Controller, Closer | None], None]
+    reconnected: Callable[[int], None]
+    give_up: Callable[[ConnectionLostError], None]
+
+    @property
+    def url(self) -> str:
+        """The URL that is opened again."""
+        return self.url_of()
+
+
+class _SignatureOf(Protocol):
+    def __call__(self, controller: Controller | None = None) -> Signature | None: ...
 
 
 def _ignore_outcome(future: asyncio.Future[Any]) -> None:
@@ -1435,5 +1425,5 @@ _SHORT_STATUS: Final = _spelled("sa")
 def _read_command(name: str, axis: str | None, context: Context) -> Command:
     """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
     built once per name, axis and context: commands are immutable values, and the
-    per-request path need not validate the same line again (#19)."""
+    per-request path need not validate the same line again."""
     return build(name, form=Form.READ, axis=axis, context=context)

@@ -73,6 +73,7 @@ from .patterns import (
     normal_line,
     reply_pattern,
 )
+from .status import ABSENT, LETTERS
 
 __all__ = [
     "AckReads",
@@ -106,7 +107,7 @@ _CR: Final = 0x0D
 
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
-_COMPLETION_RE: Final = re.compile(r"^[@MJSADETCU\-]{1,4}\.$")
+_COMPLETION_RE: Final = re.compile(f"^[{re.escape(''.join(sorted(LETTERS)))}]{{1,4}}\\.$")
 
 
 def is_completion_line(line: str) -> bool:
@@ -864,7 +865,7 @@ class ProtocolCore:
         if not is_completion_line(text):
             return False
         letters = dict(zip(("x", "y", "z", "a"), text[:-1], strict=False))
-        present = {axis: letter for axis, letter in letters.items() if letter != "-"}
+        present = {axis: letter for axis, letter in letters.items() if letter != ABSENT}
         tag = self._moves.popleft() if self._moves else None
         self._events.append(Completed(tag, present, line))
         return True

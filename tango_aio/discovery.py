@@ -109,6 +109,11 @@ def _probe(port: str, baudrate: int, timeout: float) -> VersionInfo | None:
     Runs in a worker thread. ``?version`` is sent again halfway through, in case a stale
     partial line in the controller's input buffer swallowed the first one. Lines that are
     not a version reply (autostatus reports, noise) are skipped.
+
+    Returns
+    -------
+    VersionInfo or None
+        The version reply, or ``None`` if none came.
     """
     import serial
 
@@ -149,6 +154,20 @@ async def discover(*, timeout: float = 0.5, ports: Iterable[str] | None = None,
     The probe writes a line to every port listed: on a port where another device is
     connected that line reaches it. Do not probe a port that a driver has open; its
     reply stream would be disturbed.
+
+    Parameters
+    ----------
+    timeout
+        Seconds to wait for each port's reply.
+    ports
+        The ports to probe; ``None`` for every serial port listed.
+    baudrate
+        The baud rate to open them at.
+
+    Returns
+    -------
+    list[DiscoveredController]
+        The controllers found, in port order.
     """
     results = await probe_ports(timeout=timeout, ports=ports, baudrate=baudrate)
     for result in results:
@@ -161,7 +180,22 @@ async def probe_ports(*, timeout: float = 0.5, ports: Iterable[str] | None = Non
                       baudrate: int = DEFAULT_BAUD) -> list[PortProbe]:
     """Probe serial ports as :func:`discover` does and return one :class:`PortProbe` per
     port, in port order: what answered, or why nothing did (``no answer``,
-    ``permission denied ...``, ``busy ...``, ``not found``)."""
+    ``permission denied ...``, ``busy ...``, ``not found``).
+
+    Parameters
+    ----------
+    timeout
+        Seconds to wait for each port's reply.
+    ports
+        The ports to probe; ``None`` for every serial port listed.
+    baudrate
+        The baud rate to open them at.
+
+    Returns
+    -------
+    list[PortProbe]
+        One result per port, in port order.
+    """
     if ports is None:
         from serial.tools import list_ports
 

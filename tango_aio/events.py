@@ -138,6 +138,13 @@ class Subscription(BoundedStream[TangoEvent]):
     or iterate directly and call :meth:`aclose` when done. A subscription nobody refers to
     any more (``async for event in tango.events(): return``) is unregistered by itself:
     the hub only holds weak references, so forgetting to close one leaks nothing.
+
+    Parameters
+    ----------
+    hub
+        The hub it subscribes to.
+    maxsize
+        How many events it holds before it drops the oldest.
     """
 
     def __init__(self, hub: EventHub, maxsize: int) -> None:
@@ -186,7 +193,18 @@ class EventHub:
         return len(self._subscribers)
 
     def subscribe(self, maxsize: int = 256) -> Subscription:
-        """A new subscription buffering up to ``maxsize`` events."""
+        """A new subscription buffering up to ``maxsize`` events.
+
+        Parameters
+        ----------
+        maxsize
+            How many events the subscription holds before it drops the oldest.
+
+        Returns
+        -------
+        Subscription
+            The new subscription.
+        """
         subscription = Subscription(self, maxsize)
         if self._closed:
             subscription.end()
@@ -196,7 +214,13 @@ class EventHub:
         return subscription
 
     def publish(self, event: TangoEvent) -> None:
-        """Deliver ``event`` to every subscriber (never blocks)."""
+        """Deliver ``event`` to every subscriber (never blocks).
+
+        Parameters
+        ----------
+        event
+            The event.
+        """
         for subscription in list(self._subscribers.values()):
             subscription.offer(event)
 

@@ -42,7 +42,17 @@ log = logging.getLogger("tango_aio.fdlink")
 #: Bytes taken per read (a 256-byte input buffer on the controller; replies are short).
 READ_SIZE = 4096
 class FdTransport(PortTransport):
-    """An open pyserial port's descriptor as a transport (see the module docstring)."""
+    """An open pyserial port's descriptor as a transport (see the module docstring).
+
+    Parameters
+    ----------
+    loop
+        The event loop.
+    protocol
+        The protocol the received bytes go to.
+    port
+        The open pyserial port.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
@@ -66,9 +76,23 @@ class FdTransport(PortTransport):
             self._loop.add_reader(self._fd, self._read_ready)
 
     def get_write_buffer_size(self) -> int:
+        """The bytes written but not yet handed to the file descriptor.
+
+        Returns
+        -------
+        int
+            Their number.
+        """
         return len(self._buffer)
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
+        """Write ``data`` to the file descriptor, buffering what it does not take now.
+
+        Parameters
+        ----------
+        data
+            The bytes (ignored once the transport is closing).
+        """
         if self._closing or not data:
             return
         if self._buffer:

@@ -92,6 +92,17 @@ class GroupError(ExceptionGroup[Exception]):
     its controller. ``failures`` maps controller name → exception, ``results`` maps the
     name of each member that succeeded to what it returned, and ``cancelled`` names the
     members whose operation was cancelled because of ``fail_fast``.
+
+    Parameters
+    ----------
+    message
+        The message.
+    failures
+        The exception of each failed member, by name.
+    results
+        The result of each member that succeeded, by name.
+    cancelled
+        The members cancelled because of ``fail_fast``.
     """
 
     failures: dict[str, Exception]
@@ -113,7 +124,18 @@ class GroupError(ExceptionGroup[Exception]):
         super().__init__(message, list(failures.values()))
 
     def derive(self, excs: Sequence[Exception]) -> GroupError:  # type: ignore[override]
-        """The sub-group ``except*`` and :meth:`split` build: keeps the names."""
+        """The sub-group ``except*`` and :meth:`split` build: keeps the names.
+
+        Parameters
+        ----------
+        excs
+            The exceptions of the sub-group.
+
+        Returns
+        -------
+        GroupError
+            A group error of those exceptions, with their members' names.
+        """
         kept = {name: exc for name, exc in self.failures.items()
                 if any(exc is other for other in excs)}
         return GroupError(self.message, kept, self.results, self.cancelled)
@@ -146,6 +168,13 @@ class GroupSubscription(BoundedStream[GroupEvent]):
 
     Each member's events are moved over by a small asyncio task owned by the
     subscription (cancelled by :meth:`close`).
+
+    Parameters
+    ----------
+    members
+        The subscription of each member, by name.
+    maxsize
+        How many events it holds before it drops the oldest.
     """
 
     def __init__(self, members: Mapping[str, Subscription], maxsize: int) -> None:
@@ -215,6 +244,18 @@ class ControllerGroup(Mapping[str, Controller]):
     (``group["stage"]``, ``for name in group``, ``group.items()``); controllers are
     available while the group is open. See the module documentation for the failure
     policy shared by all operations.
+
+    Parameters
+    ----------
+    controllers
+        A URL, or ``(url, options)``, by member name.
+    **options
+        Options of :func:`~tango_aio.connect` for every member.
+
+    Raises
+    ------
+    ValueError
+        A member name is not a non-empty string.
     """
 
     def __init__(self, controllers: Mapping[str, ControllerSpec], **options: Any) -> None:
@@ -264,7 +305,18 @@ class ControllerGroup(Mapping[str, Controller]):
         return self._controllers is not None
 
     def url(self, name: str) -> str:
-        """The URL of member ``name``."""
+        """The URL of member ``name``.
+
+        Parameters
+        ----------
+        name
+            The member's name.
+
+        Returns
+        -------
+        str
+            The URL of that member.
+        """
         return self._specs[name][0]
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -274,6 +326,18 @@ class ControllerGroup(Mapping[str, Controller]):
 
         If any fails, the ones that opened are closed again and a :class:`GroupError`
         names the failures. If the open is cancelled, the ones that opened are closed too.
+
+        Returns
+        -------
+        ControllerGroup
+            The group itself, open.
+
+        Raises
+        ------
+        RuntimeError
+            The group is already open.
+        GroupError
+            A member failed to connect.
         """
         if self._controllers is not None:
             raise RuntimeError("the ControllerGroup is already open")
@@ -306,7 +370,13 @@ class ControllerGroup(Mapping[str, Controller]):
     async def aclose(self) -> None:
         """Close every controller concurrently (each within :data:`CLOSE_TIMEOUT`,
         shielded from cancellation). Raises a :class:`GroupError` if any close failed;
-        all were attempted."""
+        all were attempted.
+
+        Raises
+        ------
+        GroupError
+            A member failed to close.
+        """
         controllers, self._controllers = self._controllers, None
         if not controllers:
             return
@@ -335,7 +405,27 @@ class ControllerGroup(Mapping[str, Controller]):
                    names: Iterable[str] | None = None, *,
                    fail_fast: bool = False) -> dict[str, T]:
         """Run ``func(controller)`` for every member (or those in ``names``) concurrently
-        and return name → result, e.g. ``await group.each(lambda c: c.get("vel"))``."""
+        and return name → result, e.g. ``await group.each(lambda c: c.get("vel"))``.
+
+        Parameters
+        ----------
+        func
+            Called with each member controller; its result is awaited.
+        names
+            The members to run it for; ``None`` for all of them.
+        fail_fast
+            Cancel the others at the first failure instead of letting them finish.
+
+        Returns
+        -------
+        dict[str, T]
+            The result of each member, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's call failed.
+        """
         selected = self._select(names)
         return await self._run("each", {name: func for name in selected}, fail_fast)
 
@@ -349,6 +439,27 @@ class ControllerGroup(Mapping[str, Controller]):
         that fails (e.g. :class:`~tango_aio.errors.MoveError`) is reported in a
         :class:`GroupError` after the others have finished. ``timeout`` applies to each
         controller's move (default: computed per controller).
+
+        Parameters
+        ----------
+        targets
+            The target of each axis (axis name to position), by member name.
+        timeout
+            Seconds each member's move may take; ``None`` for the member's own estimate.
+        stop_on_cancel
+            Stop a member's axes when its move is cancelled.
+        fail_fast
+            Cancel (and so stop) the other members' moves at the first failure.
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letters of each member's axes, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's move failed.
         """
         return await self._motion("moa", "move_to", targets, timeout, stop_on_cancel,
                                   fail_fast)
@@ -357,7 +468,29 @@ class ControllerGroup(Mapping[str, Controller]):
                       timeout: float | None = None, stop_on_cancel: bool = True,
                       fail_fast: bool = False) -> dict[str, dict[str, str]]:
         """Move the named controllers by relative distances concurrently; see
-        :meth:`move_to`."""
+        :meth:`move_to`.
+
+        Parameters
+        ----------
+        distances
+            The distance of each axis (axis name to distance), by member name.
+        timeout
+            Seconds each member's move may take; ``None`` for the member's own estimate.
+        stop_on_cancel
+            Stop a member's axes when its move is cancelled.
+        fail_fast
+            Cancel (and so stop) the other members' moves at the first failure.
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letters of each member's axes, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's move failed.
+        """
         return await self._motion("mor", "move_by", distances, timeout, stop_on_cancel,
                                   fail_fast)
 
@@ -365,7 +498,29 @@ class ControllerGroup(Mapping[str, Controller]):
                         timeout: float | None = None, stop_on_cancel: bool = True,
                         fail_fast: bool = False) -> dict[str, dict[str, str]]:
         """Calibrate (``cal``) every axis of every member (or of those in ``names``)
-        concurrently; returns name → status letters."""
+        concurrently; returns name → status letters.
+
+        Parameters
+        ----------
+        names
+            The members to calibrate; ``None`` for all of them.
+        timeout
+            Seconds each member's calibration may take; ``None`` for the member's own estimate.
+        stop_on_cancel
+            Stop a member's axes when its calibration is cancelled.
+        fail_fast
+            Cancel the others at the first failure.
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letters of each member's axes, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's calibration failed.
+        """
         selected = self._select(names)
         return await self._run("calibrate", {
             name: lambda c: c.calibrate(timeout=timeout, stop_on_cancel=stop_on_cancel)
@@ -375,7 +530,30 @@ class ControllerGroup(Mapping[str, Controller]):
                             timeout: float | None = None, stop_on_cancel: bool = True,
                             fail_fast: bool = False) -> dict[str, dict[str, str]]:
         """Range measure (``rm``) on every member (or on those in ``names``)
-        concurrently; returns name → status letters."""
+        concurrently; returns name → status letters.
+
+        Parameters
+        ----------
+        names
+            The members to measure; ``None`` for all of them.
+        timeout
+            Seconds each member's range measure may take; ``None`` for the member's own
+            estimate.
+        stop_on_cancel
+            Stop a member's axes when its range measure is cancelled.
+        fail_fast
+            Cancel the others at the first failure.
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letters of each member's axes, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's range measure failed.
+        """
         selected = self._select(names)
         return await self._run("measure_range", {
             name: lambda c: c.measure_range(timeout=timeout, stop_on_cancel=stop_on_cancel)
@@ -386,7 +564,22 @@ class ControllerGroup(Mapping[str, Controller]):
         """Stop the named axes (``a x``; every axis without axes) of every member (or of
         those in ``names``) in parallel; see :meth:`Controller.stop`. Every member is
         attempted even if some fail; the failures are raised as a :class:`GroupError`
-        afterwards. Moves of other axes go on."""
+        afterwards. Moves of other axes go on.
+
+        Parameters
+        ----------
+        *axes
+            The axis letters to stop; none for every axis.
+        names
+            The members to stop; ``None`` for all of them.
+        wait
+            Return only once the stopped axes stand still.
+
+        Raises
+        ------
+        GroupError
+            A member's stop failed.
+        """
         selected = self._select(names)
         await self._run("stop", {
             name: lambda c: c.stop(*axes, wait=wait) for name in selected}, False)
@@ -399,6 +592,20 @@ class ControllerGroup(Mapping[str, Controller]):
         ``a``. Every member is attempted even if some fail (e.g. a lost connection); the
         failures are raised as a :class:`GroupError` afterwards. Moves being awaited
         raise :class:`~tango_aio.errors.MoveError`.
+
+        Parameters
+        ----------
+        names
+            The members to stop; ``None`` for all of them.
+        soft
+            Send ``a`` instead of Ctrl+C.
+        wait
+            Return only once the axes stand still.
+
+        Raises
+        ------
+        GroupError
+            A member's abort failed.
         """
         selected = self._select(names)
         await self._run("abort", {
@@ -406,17 +613,60 @@ class ControllerGroup(Mapping[str, Controller]):
 
     async def position(self, names: Iterable[str] | None = None
                        ) -> dict[str, dict[str, float]]:
-        """name → axis positions of every member (or of those in ``names``)."""
+        """name → axis positions of every member (or of those in ``names``).
+
+        Parameters
+        ----------
+        names
+            The members to read; ``None`` for all of them.
+
+        Returns
+        -------
+        dict[str, dict[str, float]]
+            The position of each axis, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's read failed.
+        """
         return await self.each(lambda c: c.position(), names)
 
     async def status(self, names: Iterable[str] | None = None) -> dict[str, dict[str, str]]:
-        """name → ``statusaxis`` letters of every member (or of those in ``names``)."""
+        """name → ``statusaxis`` letters of every member (or of those in ``names``).
+
+        Parameters
+        ----------
+        names
+            The members to read; ``None`` for all of them.
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letter of each axis, by member name.
+
+        Raises
+        ------
+        GroupError
+            A member's read failed.
+        """
         return await self.each(lambda c: c.status(), names)
 
     def events(self, maxsize: int = 256) -> GroupSubscription:
         """Subscribe to the merged events of all members, as :class:`GroupEvent`
         ``(name, event)`` pairs; see :class:`GroupSubscription` (bounded buffer of
-        ``maxsize`` events, oldest dropped on overflow)."""
+        ``maxsize`` events, oldest dropped on overflow).
+
+        Parameters
+        ----------
+        maxsize
+            How many events the subscription holds before it drops the oldest.
+
+        Returns
+        -------
+        GroupSubscription
+            The subscription (an async iterator and context manager).
+        """
         members = {name: controller.events(maxsize) for name, controller in self.items()}
         return GroupSubscription(members, maxsize)
 
@@ -463,7 +713,18 @@ class ControllerGroup(Mapping[str, Controller]):
     async def _run(self, op: str, calls: Mapping[str, Callable[[Controller], Awaitable[T]]],
                    fail_fast: bool) -> dict[str, T]:
         """Run ``calls`` concurrently; raise a :class:`GroupError` after all finished if
-        any failed (with ``fail_fast``, at the first failure, cancelling the others)."""
+        any failed (with ``fail_fast``, at the first failure, cancelling the others).
+
+        Returns
+        -------
+        dict[str, T]
+            The result of each call, by member name.
+
+        Raises
+        ------
+        GroupError
+            A call failed.
+        """
         results: dict[str, T] = {}
         failures: dict[str, Exception] = {}
         controllers = {name: self[name] for name in calls}
@@ -503,6 +764,16 @@ async def _cancel_once(awaitable: Awaitable[T],
     short a controller's own reaction to the cancellation: stopping the axes and waiting
     until they stand still. ``orphan`` receives a result that arrived anyway, for which
     the caller is gone (e.g. a controller that finished connecting: it is closed).
+
+    Returns
+    -------
+    T
+        What ``awaitable`` returned.
+
+    Raises
+    ------
+    CancelledError
+        Re-raised once the task's clean-up has ended.
     """
     task: asyncio.Future[T] = asyncio.ensure_future(awaitable)
     try:

@@ -50,6 +50,7 @@ from .schema import (
     Shape,
     Signature,
 )
+from .units import DIM_MM_VEL
 
 __all__ = [
     "AXES",
@@ -86,6 +87,7 @@ __all__ = [
     "parse_reply",
     "reply_group",
     "reply_rule",
+    "upper_bound",
 ]
 
 #: Longest command line the controller accepts, CR included (manual L129-131).
@@ -107,6 +109,23 @@ def format_number(value: float | int | Decimal | Fraction) -> str:
     accepted as labs have them (:func:`wire_number`): numpy scalars, :class:`Decimal`
     (written exactly), :class:`Fraction`. ``TypeError`` for a non-number (``bool``
     included), ``ValueError`` for NaN and infinities.
+
+    Parameters
+    ----------
+    value
+        A real number of any type (:func:`wire_number`).
+
+    Returns
+    -------
+    str
+        Its text on the wire.
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number (a bool is not one).
+    ValueError
+        ``value`` is NaN or infinite.
     """
     number = wire_number(value)
     if isinstance(number, int):
@@ -136,6 +155,21 @@ def wire_number(value: object) -> int | float | Decimal:
     at its own shortest text (``float32(0.1)`` is written ``0.1``, not
     ``0.10000000149011612``). Booleans, strings, sequences and complex numbers are not
     numbers here: ``True`` where a velocity goes is a bug, not ``1``.
+
+    Parameters
+    ----------
+    value
+        What the caller passed.
+
+    Returns
+    -------
+    int, float or Decimal
+        The number.
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number.
     """
     if isinstance(value, bool) or type(value).__name__ == "bool_":  # numpy.bool_ too
         raise TypeError(f"a boolean is not a number on the wire: {value!r}")
@@ -194,7 +228,7 @@ def _parse_value(param: Param, token: str, name: str, dim: int) -> float | int |
         raise _fail(f"{name}: {param.name} must be a number, got {token!r}", name, param.name, 5)
     if param.kind is Kind.FLOAT:
         value = float(token)
-        _check_range(param, value, name, param.hi_dim9 if dim == 9 and param.hi_dim9 else param.hi)
+        _check_range(param, value, name, upper_bound(param, dim))
         return value
     if not _INT_RE.match(token):
         raise _fail(f"{name}: {param.name} must be an integer, got {token!r}", name, param.name, 5)
@@ -220,7 +254,18 @@ _BY_ALIAS: Final[dict[str, Instruction]] = {
 
 def list_capacity(name: str) -> int:
     """How many entries the controller list indexed by instruction ``name`` holds: the
-    upper bound of the index (first lead parameter) of its write form."""
+    upper bound of the index (first lead parameter) of its write form.
+
+    Parameters
+    ----------
+    name
+        The instruction of the list (``"trigp"``, ``"snsa"``).
+
+    Returns
+    -------
+    int
+        The number of entries.
+    """
     index = INSTRUCTIONS[name].write[0].lead[0]
     assert index.name == "index" and index.hi is not None, index
     return int(index.hi)
@@ -237,6 +282,21 @@ def lookup(name: str) -> Instruction:
 
     Raises :class:`InvalidCommandError` for an unknown name, with the closest names
     (``unknown instruction 'mao' (did you mean moa?)``).
+
+    Parameters
+    ----------
+    name
+        An instruction name or alias, in any case.
+
+    Returns
+    -------
+    Instruction
+        The instruction.
+
+    Raises
+    ------
+    InvalidCommandError
+        The name is not known.
     """
     entry = _BY_ALIAS.get(name.lower())
     if entry is None:
@@ -249,7 +309,18 @@ def lookup(name: str) -> Instruction:
 def similar_names(name: str) -> list[str]:
     """Up to three instruction names (or aliases) spelt like ``name``: at most one typing
     mistake away (two for long names; a swap of neighbours counts as one), closest
-    first, then those with the same letters (``mao`` → ``moa``), then alphabetically."""
+    first, then those with the same letters (``mao`` → ``moa``), then alphabetically.
+
+    Parameters
+    ----------
+    name
+        A name that is not known.
+
+    Returns
+    -------
+    list[str]
+        At most three known names.
+    """
     typed = name.lower()
     most = 1 if len(typed) <= 4 else 2
     scored = [(distance, sorted(alias) != sorted(typed), alias) for alias in _BY_ALIAS
@@ -390,6 +461,24 @@ def parse(line: str, context: Context | None = None) -> Command:
 
     This is the parser of both :func:`encode` and the emulator. It raises
     :class:`InvalidCommandError` whose ``code`` is the error number a controller would set.
+
+    Parameters
+    ----------
+    line
+        The command line, without CR.
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    Command
+        The parsed command.
+
+    Raises
+    ------
+    InvalidCommandError
+        The line is not valid.
     """
     ctx = context or DEFAULT_CONTEXT
     _check_line_text(line)
@@ -426,7 +515,13 @@ def _checked_length(command: Command) -> Command:
 def _canonical(token: str, value: float | int | str) -> str:
     """The token as it goes on the wire: words in lower case, integers (counts, modes,
     enumerated choices) in their plain form (``-0`` → ``0``, ``+1`` → ``1``, ``007`` →
-    ``7``). Floats keep their text: its digits are the precision the caller chose."""
+    ``7``). Floats keep their text: its digits are the precision the caller chose.
+
+    Returns
+    -------
+    str
+        The token's wire text.
+    """
     if isinstance(value, int):
         return str(value)
     return token.lower() if token.isalpha() else token
@@ -435,7 +530,26 @@ def _canonical(token: str, value: float | int | str) -> str:
 def encode(line: str, context: Context | None = None) -> bytes:
     """Validate a raw command line such as ``"!vel y 12.5"`` (without CR) and return its
     canonical bytes, CR included. Raises :class:`InvalidCommandError` (a
-    :class:`ValueError`) for bad input, including any CR, LF or Ctrl+C inside ``line``."""
+    :class:`ValueError`) for bad input, including any CR, LF or Ctrl+C inside ``line``.
+
+    Parameters
+    ----------
+    line
+        The command line, without CR.
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    bytes
+        The canonical line, CR included.
+
+    Raises
+    ------
+    InvalidCommandError
+        The line is not valid.
+    """
     # The length limit applies to the canonical bytes that are sent (parse checks it):
     # redundant spaces in ``line`` are collapsed and do not count.
     return parse(line, context).to_bytes()
@@ -463,6 +577,32 @@ def build(
     given without gaps from X, or as a single axis (``build("vel", y=5)`` → ``!vel y 5``).
     Positional ``args`` are the lead values (``build("trigp", -1, 2.5)``), ``form`` is
     ``"!"``, ``"?"`` or ``""``.
+
+    Parameters
+    ----------
+    name
+        The instruction's name or alias.
+    *args
+        The lead values.
+    form
+        ``"!"``, ``"?"`` or ``""`` (or a :class:`Form`).
+    axis
+        A single axis letter to address, for a form that takes one.
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+    **axes
+        The values of each axis, by axis letter (a sequence where an axis takes several).
+
+    Returns
+    -------
+    Command
+        The validated command.
+
+    Raises
+    ------
+    InvalidCommandError
+        A value, an axis or the combination is not valid.
     """
     return _build(name, args, form, axis, context, axes)
 
@@ -506,14 +646,33 @@ def _build(
 def check_axis_word(axis: object, name: str) -> None:
     """Refuse an ``axis=`` argument that is not one axis letter (``x``, ``y``, ``z``,
     ``a``, either case): ``""`` would address every axis, ``"y 5"`` smuggle in a value,
-    ``1`` is no letter at all."""
+    ``1`` is no letter at all.
+
+    Parameters
+    ----------
+    axis
+        The ``axis=`` argument.
+    name
+        The instruction's name, for the error.
+
+    Raises
+    ------
+    InvalidCommandError
+        ``axis`` is not one axis letter.
+    """
     if not isinstance(axis, str) or axis.lower() not in AXES:
         raise _fail(f"{name}: axis must be one of x, y, z, a, got {axis!r}", name, "axis", 1)
 
 
 def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> None:
     """Positional values are the lead (global) parameters only: with per-axis keywords,
-    ``set("vel", 5, x=3)`` would otherwise send ``!vel 5 3`` and set Y to 3."""
+    ``set("vel", 5, x=3)`` would otherwise send ``!vel 5 3`` and set Y to 3.
+
+    Raises
+    ------
+    InvalidCommandError
+        Positional values are mixed with per-axis keywords.
+    """
     most = max((len(sig.lead) for sig in entry.signatures(form)), default=0)
     if len(args) > most:
         raise _fail(f"{entry.name}: positional values {list(args)} cannot be mixed with "
@@ -523,7 +682,13 @@ def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> 
 def _check_words(command: Command, given: Sequence[Value]) -> None:
     """A string value must be one whole token of a word or bit-pattern parameter: where
     a number goes, ``"5"`` is a caller's bug and ``"1 2"`` would smuggle in a second
-    value (``move_to(x="1 2")`` sending ``!moa 1 2`` moves Y)."""
+    value (``move_to(x="1 2")`` sending ``!moa 1 2`` moves Y).
+
+    Raises
+    ------
+    InvalidCommandError
+        A string stands where a number goes.
+    """
     for value, parsed in zip(given, command.values, strict=False):
         if isinstance(value, str) and not isinstance(parsed, str):
             raise _fail(f"{command.name}: {value!r} is a string where a number goes",
@@ -545,6 +710,30 @@ def build_rows(
     checks the numbers of later rows of that length directly (kind and range, no text
     round trip). A row that does not pass is built in full, so the result and every error
     are exactly those of :func:`build`.
+
+    Parameters
+    ----------
+    name
+        The instruction's name (``"trigp"``, ``"snsa"``...).
+    lead
+        The lead values, the same for every row.
+    rows
+        The trailing values of each row.
+    form
+        ``"!"``, ``"?"`` or ``""`` (or a :class:`Form`).
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    Iterator[Command]
+        The command of each row, built as it is asked for.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is built).
     """
     return _rows(name, lead, rows, form, context, _RowPlan.build, _same_command)
 
@@ -560,7 +749,32 @@ def encode_rows(
     """``build(name, *lead, *row).to_bytes()`` for each row, as :func:`build_rows` checks
     them, but without a :class:`Command` per row that passes its plan's checks: a list
     upload keeps its lines as bytes (building was a third of a 64-link upload's
-    CPU). Same bytes and errors as :func:`build` (``tests/unit/test_build_rows.py``)."""
+    CPU). Same bytes and errors as :func:`build` (``tests/unit/test_build_rows.py``).
+
+    Parameters
+    ----------
+    name
+        The instruction's name (``"trigp"``, ``"snsa"``...).
+    lead
+        The lead values, the same for every row.
+    rows
+        The trailing values of each row.
+    form
+        ``"!"``, ``"?"`` or ``""`` (or a :class:`Form`).
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    Iterator[bytes]
+        The line of each row (CR included), made as it is asked for.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is made).
+    """
     return _rows(name, lead, rows, form, context, _RowPlan.encode, Command.to_bytes)
 
 
@@ -578,7 +792,32 @@ def check_rows(
     cannot fail on rows checked here) while the chunks before it are on the wire (so
     that 64 uploads do not start one list-build apart). A row of plain in-range floats written
     without an exponent is checked by its numbers alone (its line cannot be too long:
-    :attr:`_RowPlan.short`); any other row is built in full."""
+    :attr:`_RowPlan.short`); any other row is built in full.
+
+    Parameters
+    ----------
+    name
+        The instruction's name (``"trigp"``, ``"snsa"``...).
+    lead
+        The lead values, the same for every row.
+    rows
+        The trailing values of each row.
+    form
+        ``"!"``, ``"?"`` or ``""`` (or a :class:`Form`).
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    Iterator[bool]
+        ``True`` per row checked.
+
+    Raises
+    ------
+    InvalidCommandError
+        A row is not valid (raised when it is checked).
+    """
     return _rows(name, lead, rows, form, context, _RowPlan.passes, _accepted)
 
 
@@ -599,7 +838,13 @@ def _rows(name: str, lead: Sequence[Value], rows: Iterable[Sequence[float | int]
           full: Callable[[Command], _Made]) -> Iterator[_Made]:
     """What :func:`build_rows`, :func:`encode_rows` and :func:`check_rows` share:
     ``fast`` makes a row from
-    the plan of the first row of its length, ``full`` from a command built in full."""
+    the plan of the first row of its length, ``full`` from a command built in full.
+
+    Yields
+    ------
+    _Made
+        What ``fast`` or ``full`` made of each row.
+    """
     ctx = context or DEFAULT_CONTEXT
     plans: dict[int, _RowPlan | None] = {}
     for row in rows:
@@ -664,7 +909,13 @@ class _RowPlan:
 
     def _checked(self, row: Sequence[float | int]) -> list[float | int] | None:
         """The row's values typed as :func:`build` types them, or ``None`` when the row
-        needs the full path."""
+        needs the full path.
+
+        Returns
+        -------
+        list[float | int] or None
+            The typed values, or ``None``.
+        """
         name = self.template.instruction.name
         try:
             return [_checked_number(param, value, name, hi)
@@ -687,7 +938,13 @@ class _RowPlan:
 
     def encode(self, row: Sequence[float | int]) -> bytes | None:
         """The bytes of the command for ``row`` (CR included), or ``None`` when it needs
-        the full path."""
+        the full path.
+
+        Returns
+        -------
+        bytes or None
+            The bytes, or ``None``.
+        """
         if self.floats and _plain_row(self.bounds, row):
             # What _checked and format_number give for such a row, a third of the time.
             texts = [self.head, *map(repr, row)]
@@ -701,7 +958,13 @@ class _RowPlan:
     def passes(self, row: Sequence[float | int]) -> bool | None:
         """``True`` when ``row`` passes :meth:`encode`'s shortcut with a line that cannot
         be too long (:func:`check_rows`), without making its words; ``None`` when it
-        needs the full check."""
+        needs the full check.
+
+        Returns
+        -------
+        bool or None
+            ``True``, or ``None``.
+        """
         return True if self.short and _plain_row(self.bounds, row) else None
 
 
@@ -710,7 +973,13 @@ def _plain_row(bounds: Sequence[tuple[float, float, float]],
     """Whether every value of ``row`` is a finite ``float`` within its ``bounds`` (what
     :func:`_check_range` allows) whose ``repr()`` has no exponent, so that
     :func:`format_number` writes exactly that ``repr()``: what an upload passes. One call
-    per row, not per value (the hot path of a list upload)."""
+    per row, not per value (the hot path of a list upload).
+
+    Returns
+    -------
+    bool
+        Whether the row is plain.
+    """
     low_plain, high_plain = _PLAIN_FLOATS
     for (lowest, highest, least), value in zip(bounds, row, strict=True):
         # NaN fails the first comparison; an infinity the magnitude test.
@@ -722,6 +991,25 @@ def _plain_row(bounds: Sequence[tuple[float, float, float]],
     return True
 
 
+def upper_bound(param: Param, dim: int) -> float | None:
+    """The upper bound of ``param`` for an axis in ``dim``.
+
+    Parameters
+    ----------
+    param
+        A parameter of the catalog.
+    dim
+        The axis's ``dim``.
+
+    Returns
+    -------
+    float | None
+        Its ``hi_dim9`` in dim 9 (velocities in mm/s, L3452), if it has one, else its
+        ``hi`` (``None``: no upper bound).
+    """
+    return param.hi_dim9 if dim == DIM_MM_VEL and param.hi_dim9 else param.hi
+
+
 def _param_at(sig: Signature, index: int, ctx: Context) -> tuple[Param, float | None]:
     """The parameter of the ``index``-th value (no axis letter) and its upper bound."""
     if index < len(sig.lead):
@@ -730,7 +1018,7 @@ def _param_at(sig: Signature, index: int, ctx: Context) -> tuple[Param, float | 
         offset = index - len(sig.lead)
         param = sig.per_axis[offset % len(sig.per_axis)]
         dim = ctx.dims[offset // len(sig.per_axis)]
-    return param, param.hi_dim9 if dim == 9 and param.hi_dim9 else param.hi
+    return param, upper_bound(param, dim)
 
 
 def _checked_number(param: Param, value: float | int, name: str,
@@ -752,7 +1040,18 @@ def _checked_number(param: Param, value: float | int, name: str,
 
 def _format_value(value: object, name: str | None = None) -> str:
     """The wire text of one value given by the caller (a word, or a number of any real
-    type, see :func:`wire_number`); InvalidCommandError for anything else."""
+    type, see :func:`wire_number`); InvalidCommandError for anything else.
+
+    Returns
+    -------
+    str
+        The wire text.
+
+    Raises
+    ------
+    InvalidCommandError
+        ``value`` is not one word or number.
+    """
     if isinstance(value, str):
         if not value or value.split() != [value]:
             raise _fail(f"{name}: {value!r} is not one value", name, None, 5)
@@ -789,7 +1088,18 @@ def _axis_part(
 def _as_list(entry: Instruction, group: int, value: AxisValues) -> list[Value]:
     """The values of one axis: one value, or a sequence of at most ``group`` values for
     instructions that take several per axis. A list where one number goes is refused
-    (``move_to(x=[1, 2])`` would send ``!moa 1 2``)."""
+    (``move_to(x=[1, 2])`` would send ``!moa 1 2``).
+
+    Returns
+    -------
+    list[Value]
+        The axis's values.
+
+    Raises
+    ------
+    InvalidCommandError
+        A sequence where one value goes, or too many values.
+    """
     if isinstance(value, str) or not isinstance(value, Sequence):
         return [value]
     if group < 2 or len(value) > group:
@@ -804,7 +1114,21 @@ def _as_list(entry: Instruction, group: int, value: AxisValues) -> list[Value]:
 
 
 def reply_rule(command: Command, context: Context | None = None) -> LineRule:
-    """How many lines the read ``command`` replies with (``count=0``: no data reply)."""
+    """How many lines the read ``command`` replies with (``count=0``: no data reply).
+
+    Parameters
+    ----------
+    command
+        The command written.
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    LineRule
+        The rule of its reply.
+    """
     entry = command.instruction
     if not command.is_read:
         return LineRule(count=1 if entry.exec_reply is not Shape.NONE else 0)
@@ -868,7 +1192,18 @@ class DetInfo:
         return frozenset(name for name, bit in DET_FLAGS.items() if self.value & bit)
 
     def has(self, option: str) -> bool:
-        """Whether ``option`` (a :data:`DET_FLAGS` name) is configured."""
+        """Whether ``option`` (a :data:`DET_FLAGS` name) is configured.
+
+        Parameters
+        ----------
+        option
+            A :data:`DET_FLAGS` name.
+
+        Returns
+        -------
+        bool
+            Whether it is configured.
+        """
         return bool(self.value & DET_FLAGS[option])
 
 
@@ -941,6 +1276,23 @@ def parse_reply(command: Command, lines: Sequence[str]) -> object:
     the command named an axis; groups (``?lim``) give tuples. ``?statusaxis`` gives letters,
     ``?version`` a :class:`VersionInfo`, ``?det`` a :class:`DetInfo`, ``?err`` an int,
     ``help`` an ``(int, text)`` pair, acknowledgements ``(code, None)``.
+
+    Parameters
+    ----------
+    command
+        The command written.
+    lines
+        Its reply lines, CR removed.
+
+    Returns
+    -------
+    object
+        The values, as above.
+
+    Raises
+    ------
+    ProtocolError
+        A reply came to a command that owes none.
     """
     entry = command.instruction
     shape = entry.reply if command.is_read else entry.exec_reply
@@ -966,7 +1318,18 @@ def parse_reply(command: Command, lines: Sequence[str]) -> object:
 
 
 def reply_group(command: Command) -> int:
-    """Values per axis in the reply to the read ``command`` (``?lim``: 2)."""
+    """Values per axis in the reply to the read ``command`` (``?lim``: 2).
+
+    Parameters
+    ----------
+    command
+        The read.
+
+    Returns
+    -------
+    int
+        Values per axis.
+    """
     entry = command.instruction
     for value, group in entry.option_groups:
         if command.values and command.values[0] == value:
@@ -1013,5 +1376,23 @@ def build_axes(
     form: Form | str = Form.SET,
     context: Context | None = None,
 ) -> Command:
-    """:func:`build` with the per-axis values given as a mapping (``{"x": 1, "y": 2}``)."""
+    """:func:`build` with the per-axis values given as a mapping (``{"x": 1, "y": 2}``).
+
+    Parameters
+    ----------
+    name
+        The instruction's name or alias.
+    axes
+        The values of each axis, by axis letter.
+    form
+        ``"!"``, ``"?"`` or ``""`` (or a :class:`Form`).
+    context
+        What the driver knows of the controller (dims, axes, extmode); ``None`` for the
+        default context.
+
+    Returns
+    -------
+    Command
+        The validated command.
+    """
     return _build(name, (), form, None, context, axes)

@@ -26,19 +26,20 @@ How a move is followed
    cannot be taken for each other, so neither waits for the other), the position checked
    against the target for ``move_to``/``move_by``. The letters come first: an axis that
    reads stopped stays where it stopped until the position is read right behind them.
-   This read is as short as the unit allows (#28): ``sa`` (the 1.71 alias, L2663) for
+   This read is as short as the unit allows: ``sa`` (the 1.71 alias, L2663) for
    the letters, and ``?pos x`` for a move of one axis X, so that a tile step pays
    ``sa`` and ``?pos x`` (10 bytes out with their CRs, 14 back) instead of
    ``?statusaxis`` and ``?pos`` (17 out, 28 back on three axes); see
    ``Controller._status_and_positions``. A move succeeds only when every
    moved axis reads neither ``M`` nor a failure letter (``E``, ``S``, ``T``, L2689-2711)
-   and stands within :func:`position_tolerance` of its target. An axis that stopped
+   and stands within :func:`~tango_aio.timing.position_tolerance` of its target (the
+   verdict is :func:`tango_aio.timing.verdict`). An axis that stopped
    elsewhere (cut short) or with a failure letter ends the move with :class:`MoveError`
-   at once (a limit switch, an abort, a disabled axis: #26), unless the driver knows a
+   at once (a limit switch, an abort, a disabled axis), unless the driver knows a
    reason why the read may come too early: a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state until the delay is over,
    and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
-   expected end (:func:`_too_early`).
+   expected end (:func:`tango_aio.timing.too_early`).
 4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
    Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
    driver's stops per axis, and a move that saw the count of one of its axes change
@@ -59,7 +60,7 @@ the move as well: an early end is seen within that); the move fails with
 :class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
 moves.
 
-A ``move_to`` does not read the position before it is written (#19: that cost a whole
+A ``move_to`` does not read the position before it is written (that would cost a whole
 round trip per move): its distance, and so its budget, is sized from the positions of
 the driver's latest state read (:attr:`Motion.positions`). Those may be stale (the
 joystick or another program may have moved the stage since), so such a budget is
@@ -99,39 +100,19 @@ from .errors import (
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
-from .status import FAILED_LETTERS, MOVING
-from .timing import MoveTiming, moved_axes, position_tolerance, travel_time
+from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
 
-__all__ = [
-    "FAILED_LETTERS",
-    "POLL_MAX",
-    "POLL_MIN",
-    "STOP_WAIT",
-    "Motion",
-    "MotionPort",
-    "MovePlan",
-    "MoveTiming",
-    "describe_stop",
-    "moved_axes",
-    "position_tolerance",
-    "travel_time",
-]
+__all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan"]
 
 log = logging.getLogger("tango_aio")
 
 #: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
 STOP_WAIT = 10.0
 
-#: Letters of a moved axis that end a move at once (:func:`_too_early`): the failure
-#: letters, and ``-`` for an axis that is disabled (L2711).
-_FINAL = FAILED_LETTERS | {"-"}
-
 #: First and longest interval between two state polls once the expected end has passed.
 POLL_MIN = 0.05
 POLL_MAX = 0.5
-
-#: Extra time after the expected end before the first poll (report latency on the wire).
-POLL_GRACE = 0.05
 
 #: A state read that failed but left the link usable (ConnectionLostError is not one).
 _LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
@@ -148,19 +129,13 @@ class MovePlan:
     moved: tuple[str, ...]
     #: Absolute targets to confirm with ``?pos`` (``None``: cal, rm, moc have none).
     targets: Mapping[str, float] | None
-    #: Seconds from writing the line to its expected end (delay + travel + pause).
-    expected: float
-    #: Seconds from writing the line before the move is given up (timeout).
-    limit: float
+    #: How long the line may take (:func:`~tango_aio.timing.move_budget`): its expected
+    #: end, its limit, its ``!delay`` (until then a stopped axis may be one that has not
+    #: started yet) and its closed-loop settling (until the expected end an axis near its
+    #: target may still be settling).
+    budget: Budget
     #: Position tolerance per moved axis (``targets`` only).
     tolerance: Mapping[str, float] = field(default_factory=dict)
-    #: Seconds the controller holds the move back before it starts (``!delay``,
-    #: L6845-6868), as the driver knows it: until then a stopped axis may be one that
-    #: has not started yet.
-    delay: float = 0.0
-    #: Seconds of closed-loop settling (``ctrt``, L11616-11631): until the expected end,
-    #: an axis near its target may still be settling.
-    settle: float = 0.0
     #: Whether the mode in force sends completion reports (not autostatus 0, L2060-2103):
     #: without them the state is polled every :data:`POLL_MAX` during the move, so that
     #: an early end (a limit switch, an abort) ends the call at once too.
@@ -180,7 +155,19 @@ class MovePlan:
     batch: object | None = None
 
     async def resolved(self) -> MovePlan:
-        """The plan with absolute targets (itself when it has them already)."""
+        """The plan with absolute targets.
+
+        Returns
+        -------
+        MovePlan
+            Itself when it has them already; else a copy with the start (read by
+            :attr:`start`) added to each distance.
+
+        Raises
+        ------
+        ProtocolError
+            The start read did not print a position of every moved axis.
+        """
         if self.start is None or self.targets is None:
             return self
         start = await self.start()
@@ -190,6 +177,16 @@ class MovePlan:
         return replace(self, targets=targets, start=None, batch=None)
 
     @property
+    def expected(self) -> float:
+        """Seconds from writing the line to its expected end (delay + travel + pause)."""
+        return self.budget.expected
+
+    @property
+    def limit(self) -> float:
+        """Seconds from writing the line before the move is given up (timeout)."""
+        return self.budget.limit
+
+    @property
     def kind(self) -> str:
         """``"move"``, ``"cal"`` or ``"rm"`` (for :class:`MoveFinished`)."""
         completion = self.command.instruction.completion
@@ -197,43 +194,78 @@ class MovePlan:
 
 
 class MotionPort(Protocol):
-    """What :class:`Motion` needs from the controller facade."""
+    """What :class:`Motion` needs from the controller facade: five intents, each one
+    step of a move (the controller keeps the link, the settings and the subscribers)."""
 
-    @property
-    def reply_timeout(self) -> float:
-        """Seconds to wait for a reply."""
+    def start(self, command: Command, batch: object | None) -> MoveHandle:
+        """Write a motion line and its check; return at once.
+
+        Parameters
+        ----------
+        command
+            The motion line.
+        batch
+            The protocol batch it joins (see :attr:`MovePlan.batch`), if any.
+
+        Returns
+        -------
+        MoveHandle
+            The line in flight.
+        """
         ...
 
-    def send_checked(self, command: Command, batch: object | None) -> MoveHandle:
-        """Write a motion line and its check (in ``batch``, see :attr:`MovePlan.batch`);
-        return at once."""
+    async def accepted(self, sent: MoveHandle) -> ControllerError | None:
+        """Wait (up to the reply timeout) for the check of a line.
+
+        Parameters
+        ----------
+        sent
+            The line in flight.
+
+        Returns
+        -------
+        ControllerError | None
+            The controller's error if it refused the line; else ``None``, and the
+            settings the line sets are taken over.
+        """
         ...
 
-    async def error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
-        """Wait for the check of ``sent``; the controller's error, if it refused it."""
-        ...
-
-    async def write_stop(self) -> None:
+    async def stop(self) -> None:
         """Write ``a`` (stop every axis, keep queued lines)."""
         ...
 
-    def check_link(self) -> None:
-        """Raise ConnectionLostError if the link is gone."""
+    async def read_state(self, axes: Sequence[str]
+                         ) -> tuple[dict[str, str], dict[str, str]]:
+        """Read the state: the letters and positions written back to back (see
+        :meth:`Controller._status_and_positions
+        <tango_aio.controller.Controller._status_and_positions>`).
+
+        Parameters
+        ----------
+        axes
+            The axes whose positions are wanted at least.
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letters of every present axis and the positions of at least
+            ``axes``, as printed.
+
+        Raises
+        ------
+        ConnectionLostError
+            At once, when the link is gone.
+        """
         ...
 
-    async def status(self) -> dict[str, str]:
-        """``?statusaxis`` of every present axis (letters assigned with certainty)."""
-        ...
+    def finished(self, event: MoveFinished) -> None:
+        """A followed move has ended: hand its event to the subscribers.
 
-    async def state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
-        """``?statusaxis`` of every present axis and the positions of at least ``axes``,
-        written back to back: the letters and the positions as printed by the
-        controller (see :meth:`Controller._status_and_positions
-        <tango_aio.controller.Controller._status_and_positions>`)."""
-        ...
-
-    def publish(self, event: object) -> None:
-        """Hand an event to the subscribers."""
+        Parameters
+        ----------
+        event
+            The move's end.
+        """
         ...
 
 
@@ -258,7 +290,13 @@ class _Job:
 
 
 class Motion:
-    """Runs and follows the moves of one controller (serialised: one at a time)."""
+    """Runs and follows the moves of one controller (serialised: one at a time).
+
+    Parameters
+    ----------
+    port
+        The controller as this class sees it.
+    """
 
     def __init__(self, port: MotionPort) -> None:
         self._port = port
@@ -281,7 +319,13 @@ class Motion:
         self.latest: dict[str, str] | None = None
 
     def saw(self, texts: Mapping[str, str]) -> None:
-        """Record the positions (as printed) of one read of some or all axes."""
+        """Record the positions of one read of some or all axes.
+
+        Parameters
+        ----------
+        texts
+            The positions read, per axis, as printed.
+        """
         self.latest = dict(texts)
         self.positions = {**(self.positions or {}), **texts}
 
@@ -294,21 +338,47 @@ class Motion:
                                        and not self._detached.done())
 
     def follows(self, submission: Submission) -> bool:
-        """Whether ``submission`` is a move this module follows (and confirms): its
-        completion report is then only a hint, and :class:`MoveFinished` is published
-        once the move is confirmed."""
+        """Whether a line is a move this module follows (and confirms).
+
+        Parameters
+        ----------
+        submission
+            The line.
+
+        Returns
+        -------
+        bool
+            Whether it is followed: its completion report is then only a hint, and
+            :class:`MoveFinished` is published once the move is confirmed.
+        """
         return submission in self._followed
 
     def stopped(self, axes: Sequence[str] | None = None) -> None:
-        """The driver stopped ``axes`` (``a x``; ``None``: every axis, ``a`` or Ctrl+C): no
-        move in flight that moves one of them may succeed; wake every move."""
+        """The driver stopped axes: no move in flight that moves one of them may succeed;
+        wake every move.
+
+        Parameters
+        ----------
+        axes
+            The axes stopped (``a x``); ``None``: every axis (``a`` or Ctrl+C).
+        """
         for axis in AXES if axes is None else axes:
             self._stops[axis] += 1
         self.hint()
 
     def epoch(self, axes: Sequence[str]) -> int:
-        """How often the driver stopped any of ``axes`` so far (grows with each stop of
-        one of them, and only then)."""
+        """How often the driver stopped any of some axes so far.
+
+        Parameters
+        ----------
+        axes
+            The axes.
+
+        Returns
+        -------
+        int
+            A count that grows with each stop of one of them, and only then.
+        """
         return sum(self._stops.get(axis, 0) for axis in axes)
 
     def _was_stopped(self, job: _Job) -> bool:
@@ -329,19 +399,47 @@ class Motion:
 
     # -- running a move ------------------------------------------------------------------
 
-    async def run(self, command: Command, plan_for: Callable[[Command], Awaitable[MovePlan]],
+    async def run(self, command: Command,
+                  plan_for: Callable[[Command, Mapping[str, str] | None], Awaitable[MovePlan]],
                   stop_on_cancel: bool) -> dict[str, str]:
-        """Write ``command`` once no other move is in flight, follow it to its end and
-        return the status letters of every present axis.
+        """Write a motion line once no other move is in flight and follow it to its end.
 
         ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
-        queued move's timeout and targets are computed from where its axes really start.
+        queued move's timeout and targets are computed from where its axes really start;
+        it gets the line and :attr:`positions` (the positions last read, ``None`` before
+        the first read).
+
+        Parameters
+        ----------
+        command
+            The motion line.
+        plan_for
+            Makes the line's :class:`MovePlan`.
+        stop_on_cancel
+            Whether cancelling the call stops the axes; else the move goes on detached.
+
+        Returns
+        -------
+        dict[str, str]
+            The status letters of every present axis.
+
+        Raises
+        ------
+        ControllerError
+            The controller refused the line.
+        MoveError
+            A moved axis did not end at its target, or the driver stopped it.
+        ControllerTimeoutError
+            An axis still moved when the budget was spent (the axes are stopped).
+        asyncio.CancelledError
+            The call was cancelled: after the axes were stopped, or with the move left to
+            go on detached (``stop_on_cancel=False``).
         """
         async with self._lock:
             await self._join_detached()
-            plan = await plan_for(command)
+            plan = await plan_for(command, self.positions)
             hints = self._hints
-            job = _Job(plan, self._port.send_checked(command, plan.batch),
+            job = _Job(plan, self._port.start(command, plan.batch),
                        asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
             try:
                 return await self._run(job)
@@ -354,7 +452,7 @@ class Motion:
 
     async def _join_detached(self) -> None:
         """Wait until a detached move has ended. If this wait is cancelled, the detached
-        move stays recorded, so the next move still waits for it (#14 item 3)."""
+        move stays recorded, so the next move still waits for it."""
         while (detached := self._detached) is not None:
             await asyncio.shield(detached)
             if self._detached is detached:
@@ -369,7 +467,7 @@ class Motion:
 
     async def _checked(self, job: _Job) -> dict[str, str]:
         try:
-            error = await self._port.error_of(job.sent, self._port.reply_timeout)
+            error = await self._port.accepted(job.sent)
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
@@ -410,7 +508,6 @@ class Motion:
                     async with asyncio.timeout(delay):
                         await self._wake.wait()
             job.hints = self._hints  # hints from now on come after this state read
-            self._port.check_link()
             try:
                 letters, texts = await self._state(plan.moved)
             except _LOST_READ:
@@ -440,32 +537,37 @@ class Motion:
                     interval = min(interval * 1.5, POLL_MAX)
                 continue
             letters = _with_report(job, letters)
-            verdict = _verdict(plan, letters, texts)
-            if verdict is None:
+            failure = verdict(plan.moved, plan.targets, plan.tolerance, letters, texts)
+            if failure is None:
                 report = job.sent.submission.completion
                 if report is not None and not report.done():
                     log.warning("no completion report for %r; axes at the target, settled "
                                 "by polling ?statusaxis", plan.command.line)
                 self._finished(job, letters, ok=True)
                 return letters
-            wait_until = _too_early(job, letters, now, expected_end)
+            wait_until = too_early(plan.budget, plan.moved, letters, job.checked, now,
+                                   expected_end)
             if wait_until is not None:
                 next_poll = wait_until
                 continue
             self._finished(job, letters, ok=False)
-            raise MoveError(f"{plan.command.line!r} {verdict}", letters)
+            raise MoveError(f"{plan.command.line!r} {failure}", letters)
 
     async def _state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
         """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
         to back: one round trip), read again (up to 3 times) when the read was lost:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
-        (the stream is resynchronised each time, so the next read is in step)."""
+        (the stream is resynchronised each time, so the next read is in step).
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The letters and the positions, as :meth:`MotionPort.read_state` gives them.
+        """
         for _ in range(2):
-            try:
-                return self._remember(await self._port.state(axes))
-            except _LOST_READ:
-                self._port.check_link()
-        return self._remember(await self._port.state(axes))
+            with contextlib.suppress(*_LOST_READ):
+                return self._remember(await self._port.read_state(axes))
+        return self._remember(await self._port.read_state(axes))
 
     def _remember(self, state: tuple[dict[str, str], dict[str, str]]
                   ) -> tuple[dict[str, str], dict[str, str]]:
@@ -474,7 +576,13 @@ class Motion:
 
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
-        then fail (never a success, whatever the letters say)."""
+        then fail (never a success, whatever the letters say).
+
+        Raises
+        ------
+        MoveError
+            Always, with each moved axis in words.
+        """
         texts: Mapping[str, str] = {}
         # After a one-axis stop (``a x``) the line's other axes go on to their targets:
         # wait for them within the move's own budget, at least STOP_WAIT.
@@ -486,11 +594,11 @@ class Motion:
         plan = job.plan
         raise MoveError(
             f"{plan.command.line!r} was aborted: " + "; ".join(
-                describe_stop(a, letters.get(a, "-"), texts.get(a),
+                describe_stop(a, letters.get(a, ABSENT), texts.get(a),
                               None if plan.targets is None else plan.targets.get(a),
                               why="was stopped by this program (a stop, abort or cancel)")
                 for a in plan.moved),
-            {a: ("E" if a in plan.moved and s not in FAILED_LETTERS else s)
+            {a: (AxisStatus.ERROR if a in plan.moved and s not in FAILED_LETTERS else s)
              for a, s in letters.items()})
 
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
@@ -510,7 +618,7 @@ class Motion:
     async def _stop_and_wait(self, job: _Job) -> None:
         """Write ``a`` and wait (bounded) until the moved axes stand still."""
         with contextlib.suppress(TangoError):
-            await self._port.write_stop()
+            await self._port.stop()
             self.stopped()
         with contextlib.suppress(TangoError, TimeoutError):
             await self._idle(job, STOP_WAIT)
@@ -523,12 +631,12 @@ class Motion:
         comes from a level-triggered anyio scope that would otherwise cancel every await of
         this clean-up at once."""
         with contextlib.suppress(TangoError):
-            await self._port.write_stop()
+            await self._port.stop()
             self.stopped()
         try:
             with contextlib.suppress(Exception, asyncio.CancelledError), \
                     anyio.move_on_after(STOP_WAIT, shield=True):
-                if await self._port.error_of(job.sent, self._port.reply_timeout) is None:
+                if await self._port.accepted(job.sent) is None:
                     await self._idle(job, STOP_WAIT)
         finally:
             job.sent.forget()
@@ -543,87 +651,7 @@ class Motion:
             job.sent.forget()
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
-        self._port.publish(MoveFinished(job.plan.kind, dict(letters), ok))
-
-
-def _verdict(plan: MovePlan, letters: Mapping[str, str], texts: Mapping[str, str]
-             ) -> str | None:
-    """``None`` if every moved axis ended well, judged from one state read (the letters
-    and the positions read right behind them); else what went wrong, in words (#26):
-    which axis, where it stopped, its target and why."""
-    failed = [a for a in plan.moved if letters.get(a, "-") in FAILED_LETTERS]
-    off = []
-    for axis, target in (plan.targets or {}).items():
-        text = texts.get(axis)
-        if text is None or abs(float(text) - target) > max(
-                position_tolerance(text), plan.tolerance.get(axis, 0.0)):
-            off.append(axis)
-    if not failed and not off:
-        return None
-    bad = [a for a in plan.moved if a in failed or a in off]
-    return "did not end at its target: " + "; ".join(
-        describe_stop(axis, letters.get(axis, "-"), texts.get(axis),
-                      None if plan.targets is None else plan.targets.get(axis))
-        for axis in bad)
-
-
-#: Why an axis stopped, by the letter it reads (L2693-2711).
-_WHY = {
-    "E": "stopped: its move was aborted or not executed (status E)",
-    "T": "timed out (status T)",
-    "-": "is disabled or absent (status -) and did not move",
-}
-
-
-def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
-                  why: str | None = None) -> str:
-    """One axis of a failed move in words: ``"X stopped at its upper limit switch (status
-    S) at 50.05, target 60"``. ``text``: the position as read (``None``: not read);
-    ``why`` overrides what the letter says (e.g. an abort by this program). Which limit
-    switch is told from the direction of travel: an axis that stopped below its target
-    was moving up, towards its upper switch (EE), and the reverse (the manual's letter
-    ``S`` does not say which, L2699)."""
-    name = axis.upper()
-    where = "position not read" if text is None else f"at {text}"
-    aim = "" if target is None else f", target {target:g}"
-    if why is not None:
-        return f"{name} {why}, {where}{aim}"
-    if letter == "S":
-        side = "a limit switch"
-        if text is not None and target is not None and float(text) != target:
-            side = ("its upper limit switch (EE)" if float(text) < target
-                    else "its lower limit switch (E0)")
-        return f"{name} stopped at {side} (status S), {where}{aim}"
-    reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
-    return f"{name} {reason}, {where}{aim}"
-
-
-def _too_early(job: _Job, letters: Mapping[str, str], now: float, expected_end: float
-               ) -> float | None:
-    """When a failed verdict read at ``now`` may not be the move's end: the time to read
-    the state again, else ``None`` (the verdict stands, the move fails now).
-
-    A move that ends at a limit switch, an error or an abort ends the call at once (#26):
-    the state was read after the controller had taken the line (its check came back),
-    so the moved axes are moving or have ended. Only two things the driver knows of let
-    a stopped axis read like that before the move really ended:
-
-    * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
-      (counted from the check, a bound on when the controller took the line);
-    * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
-      target with a letter that does not say it failed (``@``) may still be settling;
-      until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
-      is disabled, L2711: it does not move at all) is final.
-    """
-    plan = job.plan
-    if plan.delay > 0:
-        started_by = job.checked + plan.delay + POLL_GRACE
-        if now < started_by:
-            return started_by
-    failed = any(letters.get(a, "-") in _FINAL for a in plan.moved)
-    if plan.settle > 0 and not failed and now < expected_end:
-        return expected_end + POLL_GRACE
-    return None
+        self._port.finished(MoveFinished(job.plan.kind, dict(letters), ok))
 
 
 def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:
@@ -631,7 +659,13 @@ def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:
     for the other axes those of the completion report the move got, when it has one
     letter per present axis (``statusaxis`` keeps e.g. the ``D`` of an earlier ``rm``,
     which says nothing about this move, L2676-2711). A report with fewer letters cannot
-    be assigned to axes and is not used."""
+    be assigned to axes and is not used.
+
+    Returns
+    -------
+    dict[str, str]
+        The letters, per axis.
+    """
     report = job.sent.submission.completion
     if report is None or not report.done() or report.cancelled() \
             or report.exception() is not None:

@@ -77,7 +77,18 @@ class ReplyPattern:
     text: str = ""
 
     def accepts(self, line: str) -> bool:
-        """Whether ``line`` (CR removed) can be this reply."""
+        """Whether ``line`` (CR removed) can be this reply.
+
+        Parameters
+        ----------
+        line
+            A received line, CR removed.
+
+        Returns
+        -------
+        bool
+            Whether it fits.
+        """
         kind = self.kind
         if kind is ReplyKind.NUMBERS:
             tokens = line.replace(",", " ").split()
@@ -98,7 +109,18 @@ class ReplyPattern:
         return True
 
     def overlaps(self, other: ReplyPattern) -> bool:
-        """Whether some line fits both patterns (conservatively: ``True`` when unsure)."""
+        """Whether some line fits both patterns (conservatively: ``True`` when unsure).
+
+        Parameters
+        ----------
+        other
+            Another pattern.
+
+        Returns
+        -------
+        bool
+            Whether a line may fit both.
+        """
         # (As sorted() by _ORDER, stable; without its key function: a hot path.)
         a, b = (self, other) if _ORDER[self.kind] <= _ORDER[other.kind] else (other, self)
         if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
@@ -149,7 +171,18 @@ def normal_line(text: str) -> str:
     """The form in which a command line and its mode-4 echo are compared: the echo is
     matched by instruction, not by exact text (some firmware re-formats it, e.g.
     ``!MOA 1.50`` echoed as ``!moa 1.5``). Case, blanks and the way numbers are written
-    do not count; the instruction, axis and values do."""
+    do not count; the instruction, axis and values do.
+
+    Parameters
+    ----------
+    text
+        A command line, or an echo of one.
+
+    Returns
+    -------
+    str
+        Its normal form.
+    """
     return " ".join(_normal_token(token) for token in text.lower().split())
 
 
@@ -163,12 +196,34 @@ def _normal_token(token: str) -> str:
 
 
 def marker_pattern(text: str) -> ReplyPattern:
-    """The reply of a marker: any line that holds ``text``."""
+    """The reply of a marker: any line that holds ``text``.
+
+    Parameters
+    ----------
+    text
+        The marker's text.
+
+    Returns
+    -------
+    ReplyPattern
+        The pattern.
+    """
     return ReplyPattern(ReplyKind.MARKER, text=text)
 
 
 def echo_pattern(command: Command) -> ReplyPattern:
-    """The autostatus-4 echo of ``command``."""
+    """The autostatus-4 echo of ``command``.
+
+    Parameters
+    ----------
+    command
+        The command written.
+
+    Returns
+    -------
+    ReplyPattern
+        The pattern.
+    """
     return ReplyPattern(ReplyKind.ECHO, text=normal_line(command.line))
 
 
@@ -178,6 +233,18 @@ def reply_pattern(command: Command, context: Context | None = None) -> ReplyPatt
 
     Per-axis replies name the axes present, so without an axis letter they hold between one
     and four axes' values (the driver's idea of the axis count may be stale).
+
+    Parameters
+    ----------
+    command
+        The command written.
+    context
+        What the driver knows of the controller; ``None`` if nothing.
+
+    Returns
+    -------
+    ReplyPattern
+        The pattern.
     """
     entry = command.instruction
     shape = entry.reply if command.is_read else entry.exec_reply

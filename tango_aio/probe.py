@@ -53,7 +53,7 @@ from typing import Any
 
 from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
-from .status import MOVING
+from .status import ABSENT, MOVING, AxisStatus
 from .trace import format_record, trace_header
 
 __all__ = [
@@ -121,7 +121,13 @@ class Exchange:
     err: int | None = None
 
     def transcript(self) -> list[str]:
-        """``-> line`` / ``<- line`` texts, and the error the ``?err`` after them showed."""
+        """``-> line`` / ``<- line`` texts, and the error the ``?err`` after them showed.
+
+        Returns
+        -------
+        list[str]
+            The texts, in order.
+        """
         out = [f"-> {line}" for line in self.sent] + [f"<- {line}" for line in self.got]
         if self.err is not None:
             out.append(f"(?err: {self.err})")
@@ -144,7 +150,13 @@ class Observation:
     candidates: list[str] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
-        """The observation as a JSON object."""
+        """The observation as a JSON object.
+
+        Returns
+        -------
+        dict[str, Any]
+            ``value``, ``note`` and ``lines``; ``unknown`` and ``candidates`` when set.
+        """
         out: dict[str, Any] = {"value": self.value, "note": self.note, "lines": self.lines}
         if self.unknown:
             out["unknown"] = True
@@ -171,13 +183,35 @@ def _lines(exchanges: Iterable[Exchange]) -> list[str]:
 
 def is_ack(line: str) -> bool:
     """Whether ``line`` looks like a mode-2 acknowledgement in any case (``OK...``,
-    ``ERR``, ``ERR 5``)."""
+    ``ERR``, ``ERR 5``).
+
+    Parameters
+    ----------
+    line
+        A received line.
+
+    Returns
+    -------
+    bool
+        Whether it is an acknowledgement.
+    """
     return _ACK.match(line) is not None
 
 
 def normalized(line: str) -> str:
     """``line`` re-printed the way ``echo_text=normalized`` describes: lower case, single
-    spaces, numbers without redundant zeros or ``+``."""
+    spaces, numbers without redundant zeros or ``+``.
+
+    Parameters
+    ----------
+    line
+        A line as sent.
+
+    Returns
+    -------
+    str
+        The line re-printed.
+    """
     words = []
     for word in line.lower().split():
         if _NUMBER.match(word):
@@ -190,7 +224,20 @@ def normalized(line: str) -> str:
 
 def echo_form(line: str, sent: str) -> str | None:
     """The ``echo_text`` value under which ``line`` is the echo of ``sent`` (``None``: it
-    is no echo of it)."""
+    is no echo of it).
+
+    Parameters
+    ----------
+    line
+        A received line.
+    sent
+        The line sent.
+
+    Returns
+    -------
+    str or None
+        The ``echo_text`` value, or ``None``.
+    """
     if line == sent:
         return "exact"
     if sent.startswith("!") and line == sent[1:]:
@@ -202,7 +249,18 @@ def echo_form(line: str, sent: str) -> str | None:
 
 def decide_local_echo(first: Exchange) -> Observation:
     """``local_echo`` from the first ``?version`` in mode 1, where the controller echoes
-    nothing (L2117): a copy of the line sent is the link's."""
+    nothing (L2117): a copy of the line sent is the link's.
+
+    Parameters
+    ----------
+    first
+        The exchange of the first ``?version``.
+
+    Returns
+    -------
+    Observation
+        The value of ``local_echo``.
+    """
     sent = first.sent[0]
     if first.got[:1] == [sent]:
         return _seen("yes", "the line sent in mode 1 came back first, the reply after it",
@@ -211,7 +269,20 @@ def decide_local_echo(first: Exchange) -> Observation:
 
 
 def decide_line_end(lf_lines: list[str], exchange: Exchange) -> Observation:
-    """``line_end``: ``crlf`` when the controller sent any LF."""
+    """``line_end``: ``crlf`` when the controller sent any LF.
+
+    Parameters
+    ----------
+    lf_lines
+        The lines that arrived with an LF.
+    exchange
+        An exchange to show as the evidence.
+
+    Returns
+    -------
+    Observation
+        The value of ``line_end``.
+    """
     if lf_lines:
         return Observation("crlf", "replies carry a LF after their CR",
                            [f"<- {line!r}" for line in lf_lines[:3]])
@@ -219,7 +290,20 @@ def decide_line_end(lf_lines: list[str], exchange: Exchange) -> Observation:
 
 
 def decide_version_format(exchange: Exchange, version: str) -> Observation:
-    """``version_format`` from the ``?version`` line (L1063-1107, old L414-426)."""
+    """``version_format`` from the ``?version`` line (L1063-1107, old L414-426).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?version``.
+    version
+        Its answer.
+
+    Returns
+    -------
+    Observation
+        The value of ``version_format``.
+    """
     if _VERSION_NEW.match(version):
         return _seen("new", "a space before the comma ahead of the time", exchange)
     if _VERSION_OLD.match(version):
@@ -229,7 +313,18 @@ def decide_version_format(exchange: Exchange, version: str) -> Observation:
 
 def decide_instruction_set(exchange: Exchange) -> Observation:
     """``instruction_set`` from ``?version 1`` (a value the older edition's ``version``
-    did not take, old L414)."""
+    did not take, old L414).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?version 1``.
+
+    Returns
+    -------
+    Observation
+        The value of ``instruction_set``.
+    """
     if exchange.got and exchange.err == 0:
         return _seen("full", "?version 1 answered", exchange)
     if not exchange.got and exchange.err == 4:
@@ -238,7 +333,18 @@ def decide_instruction_set(exchange: Exchange) -> Observation:
 
 
 def decide_help_number(exchange: Exchange) -> Observation:
-    """``help_number`` from ``?help 5`` (L2915-2919)."""
+    """``help_number`` from ``?help 5`` (L2915-2919).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?help 5``.
+
+    Returns
+    -------
+    Observation
+        The value of ``help_number``.
+    """
     if not exchange.got and exchange.err == 4:
         return _unseen("moot: ?help N is refused with error 4 (help takes no value, as in "
                        "the older edition)", (), exchange)
@@ -252,7 +358,18 @@ def decide_help_number(exchange: Exchange) -> Observation:
 
 
 def decide_help_case(exchange: Exchange) -> Observation:
-    """``help_case`` from ``help`` (L2915-2919)."""
+    """``help_case`` from ``help`` (L2915-2919).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``help``.
+
+    Returns
+    -------
+    Observation
+        The value of ``help_case``.
+    """
     if len(exchange.got) == 1:
         line = exchange.got[0]
         if line.startswith("ERROR ") and "," in line:
@@ -263,7 +380,18 @@ def decide_help_case(exchange: Exchange) -> Observation:
 
 
 def decide_service_end(exchange: Exchange) -> Observation:
-    """``service_end`` from ``service`` (L2937-2943)."""
+    """``service_end`` from ``service`` (L2937-2943).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``service``.
+
+    Returns
+    -------
+    Observation
+        The value of ``service_end``.
+    """
     if exchange.err == 4 and not exchange.got:
         return _unseen("moot: service is refused with error 4", (), exchange)
     if exchange.got and exchange.got[-1] == "END_SERVICE_PRINT.":
@@ -277,7 +405,22 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
                       ) -> Observation:
     """``lim_cr_bug`` from ``?lim`` in extmode 0 and 1 (L2196-2232, L4559-4621): an extra
     CR splits the reply in two. ``extmode1`` is ``None`` when the unit has no extmode,
-    where ``both`` and ``extmode0`` are the same."""
+    where ``both`` and ``extmode0`` are the same.
+
+    Parameters
+    ----------
+    axes
+        The unit's number of axes.
+    extmode0
+        The exchange of ``?lim`` in extmode 0.
+    extmode1
+        The exchange of ``?lim`` in extmode 1, or ``None``.
+
+    Returns
+    -------
+    Observation
+        The value of ``lim_cr_bug``.
+    """
     if axes < 2:
         return _unseen("a 1-axis unit: the extra CR after the X pair cannot show",
                        ("extmode0", "none", "both"), extmode0)
@@ -301,7 +444,18 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
 
 
 def status_letters(line: str) -> tuple[str, bool] | None:
-    """The letters of an all-axes ``?statusaxis`` line and whether it ends with ``.-``."""
+    """The letters of an all-axes ``?statusaxis`` line and whether it ends with ``.-``.
+
+    Parameters
+    ----------
+    line
+        A received line.
+
+    Returns
+    -------
+    tuple[str, bool] or None
+        The letters and whether ``.-`` ended them; ``None`` if it is no such line.
+    """
     if line.endswith(".-"):
         return line[:-2], True
     if "." not in line and 1 <= len(line) <= 4:
@@ -312,7 +466,22 @@ def status_letters(line: str) -> tuple[str, bool] | None:
 def decide_status(exchange: Exchange, axes: int, joy: int | None
                   ) -> dict[str, Observation]:
     """``status_tail``, ``absent_axes`` and ``joystick_letter`` from ``?statusaxis``
-    (L2662-2725) on a unit with ``axes`` axes, the joystick setting ``joy``."""
+    (L2662-2725) on a unit with ``axes`` axes, the joystick setting ``joy``.
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?statusaxis``.
+    axes
+        The unit's number of axes.
+    joy
+        The joystick setting (``?joy``), or ``None`` if it is unknown.
+
+    Returns
+    -------
+    dict[str, Observation]
+        The observation of each of the three switches, by switch name.
+    """
     out: dict[str, Observation] = {}
     parsed = status_letters(exchange.got[0]) if len(exchange.got) == 1 else None
     if parsed is None:
@@ -326,7 +495,7 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if axes >= 4:
         out["absent_axes"] = _unseen("every axis is present", ("dash", "omit"), exchange)
         present = letters
-    elif len(letters) == 4 and set(letters[axes:]) <= {"-"}:
+    elif len(letters) == 4 and set(letters[axes:]) <= {ABSENT}:
         out["absent_axes"] = _seen("dash", "absent axes show '-'", exchange)
         present = letters[:axes]
     elif len(letters) == axes:
@@ -339,10 +508,10 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
     if joy == 0 or joy is None:
         out["joystick_letter"] = _unseen("the joystick is off (or ?joy unknown): idle axes "
                                          "show '@' under either value", ("@", "J"), exchange)
-    elif set(present) == {"@"}:
+    elif set(present) == {AxisStatus.READY}:
         out["joystick_letter"] = _seen("@", "idle axes show '@' with the joystick on",
                                        exchange)
-    elif set(present) == {"J"}:
+    elif set(present) == {AxisStatus.JOYSTICK}:
         out["joystick_letter"] = _seen("J", "idle axes show 'J' with the joystick on",
                                        exchange)
     else:
@@ -353,7 +522,20 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
 def decide_numbers(exchanges: Sequence[Exchange], below_zero: Exchange | None
                    ) -> Observation:
     """``numbers`` (L66-70, L94-96) from numeric reads, and ``below_zero``: a read of a
-    value just below zero (``-0.0000`` or ``0.0000``), when a move made one."""
+    value just below zero (``-0.0000`` or ``0.0000``), when a move made one.
+
+    Parameters
+    ----------
+    exchanges
+        The exchanges of numeric reads.
+    below_zero
+        The read of a value just below zero, or ``None``.
+
+    Returns
+    -------
+    Observation
+        The value of ``numbers``.
+    """
     words = [word for exchange in exchanges for line in exchange.got
              for word in line.replace(",", " ").split()]
     if any(word.startswith("+") for word in words):
@@ -376,7 +558,20 @@ def decide_numbers(exchanges: Sequence[Exchange], below_zero: Exchange | None
 def decide_mode_change_echo(into4: Exchange, back1: Exchange) -> Observation:
     """``echo`` from ``!autostatus 4`` sent in mode 1 and ``!autostatus 1`` sent in mode 4
     (L2117): echoed under the mode before (``before``, ``completion``) or after
-    (``after``) the line."""
+    (``after``) the line.
+
+    Parameters
+    ----------
+    into4
+        The exchange of ``!autostatus 4`` sent in mode 1.
+    back1
+        The exchange of ``!autostatus 1`` sent in mode 4.
+
+    Returns
+    -------
+    Observation
+        The value of ``echo``.
+    """
     echoed_into = [line for line in into4.got if echo_form(line, into4.sent[0])]
     echoed_back = [line for line in back1.got if echo_form(line, back1.sent[0])]
     if into4.got == [] and echoed_back and len(back1.got) == 1:
@@ -389,7 +584,20 @@ def decide_mode_change_echo(into4: Exchange, back1: Exchange) -> Observation:
 
 
 def decide_echo_all(exchange: Exchange, version: str) -> Observation:
-    """``echo_all`` from ``?version`` in mode 4 (L2117, old L723)."""
+    """``echo_all`` from ``?version`` in mode 4 (L2117, old L723).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?version`` in mode 4.
+    version
+        The ``?version`` answer of mode 1.
+
+    Returns
+    -------
+    Observation
+        The value of ``echo_all``.
+    """
     echoes = [line for line in exchange.got if line == exchange.sent[0]]
     rest = [line for line in exchange.got if line != exchange.sent[0]]
     if rest == [version] and not echoes:
@@ -401,7 +609,18 @@ def decide_echo_all(exchange: Exchange, version: str) -> Observation:
 
 
 def decide_echo_text(exchange: Exchange) -> Observation:
-    """``echo_text`` from a set line with a double space sent in mode 4 (L2168)."""
+    """``echo_text`` from a set line with a double space sent in mode 4 (L2168).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of the set line.
+
+    Returns
+    -------
+    Observation
+        The value of ``echo_text``.
+    """
     forms = {echo_form(line, exchange.sent[0]) for line in exchange.got}
     forms.discard(None)
     if len(exchange.got) == 1 and len(forms) == 1:
@@ -414,7 +633,18 @@ def decide_echo_text(exchange: Exchange) -> Observation:
 
 
 def decide_ack_case(exchanges: Sequence[Exchange]) -> Observation:
-    """``ack_case`` from every mode-2 ``OK...`` seen (L2099-2103)."""
+    """``ack_case`` from every mode-2 ``OK...`` seen (L2099-2103).
+
+    Parameters
+    ----------
+    exchanges
+        The exchanges of mode 2.
+
+    Returns
+    -------
+    Observation
+        The value of ``ack_case``.
+    """
     oks = {line for exchange in exchanges for line in exchange.got
            if line.lower() == "ok..."}
     table = {"OK...": "upper", "ok...": "lower", "Ok...": "title"}
@@ -428,7 +658,20 @@ def decide_ack_case(exchanges: Sequence[Exchange]) -> Observation:
 
 def decide_ack_mode_change(into2: Exchange, back1: Exchange) -> Observation:
     """``ack_mode_change`` (L2060-2103): ``!autostatus 2`` sent in mode 1 and
-    ``!autostatus 1`` sent in mode 2, acknowledged per the mode after or before."""
+    ``!autostatus 1`` sent in mode 2, acknowledged per the mode after or before.
+
+    Parameters
+    ----------
+    into2
+        The exchange of ``!autostatus 2`` sent in mode 1.
+    back1
+        The exchange of ``!autostatus 1`` sent in mode 2.
+
+    Returns
+    -------
+    Observation
+        The value of ``ack_mode_change``.
+    """
     into = [line for line in into2.got if is_ack(line)]
     back = [line for line in back1.got if is_ack(line)]
     if len(into) == 1 and not back and len(into2.got) == 1 and not back1.got:
@@ -439,7 +682,20 @@ def decide_ack_mode_change(into2: Exchange, back1: Exchange) -> Observation:
 
 
 def decide_ack_reads(exchange: Exchange, version: str) -> Observation:
-    """``ack_reads`` from ``?version`` in mode 2 (L2099-2103)."""
+    """``ack_reads`` from ``?version`` in mode 2 (L2099-2103).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``?version`` in mode 2.
+    version
+        The ``?version`` answer of mode 1.
+
+    Returns
+    -------
+    Observation
+        The value of ``ack_reads``.
+    """
     got = exchange.got
     if got == [version]:
         return _seen("no", "a read is not acknowledged", exchange)
@@ -451,7 +707,18 @@ def decide_ack_reads(exchange: Exchange, version: str) -> Observation:
 
 
 def decide_err_number(exchange: Exchange) -> Observation:
-    """``err_number`` from a refused set line in mode 2 (L2099, L2150-2152)."""
+    """``err_number`` from a refused set line in mode 2 (L2099, L2150-2152).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of the refused set line.
+
+    Returns
+    -------
+    Observation
+        The value of ``err_number``.
+    """
     if len(exchange.got) == 1:
         line = exchange.got[0]
         if re.match(r"(?i)^err \d+$", line):
@@ -462,7 +729,18 @@ def decide_err_number(exchange: Exchange) -> Observation:
 
 
 def decide_save_ack(exchange: Exchange) -> Observation:
-    """``save_ack`` from ``!save`` in mode 2 (L1738-1762, L2081)."""
+    """``save_ack`` from ``!save`` in mode 2 (L1738-1762, L2081).
+
+    Parameters
+    ----------
+    exchange
+        The exchange of ``!save``.
+
+    Returns
+    -------
+    Observation
+        The value of ``save_ack``.
+    """
     oks = [line for line in exchange.got if line.lower() == "ok..."]
     if len(oks) == len(exchange.got) == 1:
         return _seen("once", "!save answered one OK...", exchange)
@@ -595,7 +873,13 @@ class _Link:
         """Wait until no line arrived for ``settle`` seconds.
 
         A few more loop turns after the silence let bytes already on their way in be read
-        (a busy event loop can run a due timer before the I/O that came meanwhile)."""
+        (a busy event loop can run a due timer before the I/O that came meanwhile).
+
+        Raises
+        ------
+        ConnectionLostError
+            The link was lost meanwhile.
+        """
         while True:
             if self._lost:
                 raise ConnectionLostError("the link to the controller was lost")
@@ -680,7 +964,13 @@ class ProbeResult:
         return {name: obs for name, obs in self.observations.items() if obs.unknown}
 
     def fingerprint(self) -> dict[str, Any]:
-        """The fingerprint, as JSON data."""
+        """The fingerprint, as JSON data.
+
+        Returns
+        -------
+        dict[str, Any]
+            The fingerprint.
+        """
         from . import __version__
 
         return {
@@ -707,7 +997,18 @@ def comparable(fingerprint: dict[str, Any]) -> dict[str, Any]:
     """The parts of a fingerprint that do not depend on timing or on when it was written:
     identity, axes, settings, switch values, and each observation's value and note (not
     its lines, which hold positions a stop reached). Two probes of one unit give equal
-    ones."""
+    ones.
+
+    Parameters
+    ----------
+    fingerprint
+        A fingerprint, as written.
+
+    Returns
+    -------
+    dict[str, Any]
+        Its comparable parts.
+    """
     return {
         "format": fingerprint.get("format"),
         "identity": fingerprint.get("identity"),
@@ -722,7 +1023,20 @@ def comparable(fingerprint: dict[str, Any]) -> dict[str, Any]:
 
 
 def write_fingerprint(result: ProbeResult, path: str | Path) -> Path:
-    """Write ``result``'s fingerprint as JSON to ``path``."""
+    """Write ``result``'s fingerprint as JSON to ``path``.
+
+    Parameters
+    ----------
+    result
+        The probe's result.
+    path
+        The file to write.
+
+    Returns
+    -------
+    Path
+        ``path``, as a :class:`~pathlib.Path`.
+    """
     target = Path(path)
     target.write_text(json.dumps(result.fingerprint(), indent=2) + "\n", encoding="utf-8")
     return target
@@ -733,6 +1047,25 @@ async def probe(url: str, options: ProbeOptions | None = None) -> ProbeResult:
 
     Raises :class:`ProbeError` (or :class:`~tango_aio.errors.ConnectionLostError`) when it
     cannot go on; it restores what it changed on the way out as far as the link allows.
+
+    Parameters
+    ----------
+    url
+        The controller's URL, as for :func:`tango_aio.connect`.
+    options
+        What to probe (moves, ``!save``) and how long to wait; ``None`` for the defaults.
+
+    Returns
+    -------
+    ProbeResult
+        The identity, the settings and an observation per switch.
+
+    Raises
+    ------
+    ProbeError
+        The probe cannot go on.
+    ConnectionLostError
+        The link was lost.
     """
     options = options or ProbeOptions()
     link = _Link(options.reply_timeout)
@@ -766,6 +1099,9 @@ class _Prober:
         self.initial_mode: int | None = None
         self.ack_reads = "no"
         self.echo_all = "no"
+        #: The lines that set back what the run changed, in the order of the changes
+        #: (sent in reverse by :meth:`restore`).
+        self.undo: list[str] = []
 
     # -- exchanges --------------------------------------------------------------------------
 
@@ -784,7 +1120,18 @@ class _Prober:
 
     async def ask(self, *lines: str) -> Exchange:
         """Mode 1: write ``lines``, ``?err`` and ``?version``; the lines before the answer
-        to ``?err`` are theirs (in mode 1 a read answers one line, L2087)."""
+        to ``?err`` are theirs (in mode 1 a read answers one line, L2087).
+
+        Returns
+        -------
+        Exchange
+            The lines sent and their answer.
+
+        Raises
+        ------
+        ProbeError
+            No answer came in time.
+        """
         self.leftovers()
         self.link.send(*lines, "?err", "?version")
         version = self.version
@@ -829,16 +1176,15 @@ class _Prober:
     # -- the run ------------------------------------------------------------------------------
 
     async def run(self) -> ProbeResult:
-        restore: list[str] = []
         try:
             await self.start()
-            await self.mode1(restore)
+            await self.mode1()
             await self.mode2()
             await self.mode4()
             if self.options.moves:
-                await self.moves(restore)
+                await self.moves()
         finally:
-            await self.restore(restore)
+            await self.restore()
         for name in SWITCH_NAMES:
             if name not in self.obs:
                 reason = ("seen only with --moves" if name in MOVE_SWITCHES else
@@ -849,14 +1195,14 @@ class _Prober:
                            self.axes, self.settings, self.extra, self.options, self.url,
                            self.link.trace_text())
 
-    async def restore(self, restore: list[str]) -> None:
+    async def restore(self) -> None:
         """Send the set-back lines (mode 1), then the mode the unit was found in."""
         if self.link._protocol is None or self.link._lost:
             return
         with contextlib.suppress(TangoError, TimeoutError, OSError):
             if self.mode != 1:
                 await self.set_mode(1)
-            for line in reversed(restore):
+            for line in reversed(self.undo):
                 await self.settled(line)
             if self.initial_mode is not None and self.initial_mode != 1:
                 await self.settled(f"!autostatus {self.initial_mode}")
@@ -892,7 +1238,7 @@ class _Prober:
             self.identity["model"] = parts[0]
             self.identity["firmware"] = parts[1][len("Version "):]
 
-    async def mode1(self, restore: list[str]) -> None:
+    async def mode1(self) -> None:
         """Reads: identity, settings, help, service, ?lim, ?statusaxis."""
         link = self.link
         version1 = await self.ask("?version 1")
@@ -923,11 +1269,11 @@ class _Prober:
         if extmode.err == 0 and len(extmode.got) == 1 and extmode.got[0].strip() in "01":
             current = int(extmode.got[0])
             other = 1 - current
-            restore.append(f"!extmode {current}")
+            self.undo.append(f"!extmode {current}")
             await self.ask(f"!extmode {other}")
             lim_other = await self.ask("?lim")
             await self.ask(f"!extmode {current}")
-            restore.pop()
+            self.undo.pop()
             pair = (lim, lim_other) if current == 0 else (lim_other, lim)
             self.obs["lim_cr_bug"] = decide_lim_cr_bug(self.axes, pair[0], pair[1])
         else:
@@ -967,7 +1313,7 @@ class _Prober:
 
     # -- moves ----------------------------------------------------------------------------------
 
-    async def moves(self, restore: list[str]) -> None:
+    async def moves(self) -> None:
         """Small moves of X (see the module text); X returns to where it was."""
         start = await self.ask("?pos x")
         lim = await self.ask("?lim x")
@@ -979,7 +1325,7 @@ class _Prober:
             raise ProbeError(f"cannot read X's position and limits: {start.got!r} "
                              f"{lim.got!r}") from None
         decimals = len(p0_text.partition(".")[2]) or 4
-        restore.append(f"!moa x {p0_text}")
+        self.undo.append(f"!moa x {p0_text}")
         sign = 1.0 if p0 <= (lo + hi) / 2 else -1.0
         # A first short move measures how far the axis goes in move_time.
         step0 = min(10.0 ** (3 - decimals), (hi - lo) / 100)
@@ -1007,7 +1353,7 @@ class _Prober:
         self.obs["refused_move_report"] = (
             _seen("no", "a refused move sends nothing", refused) if not refused.got else
             _seen("yes", "a refused move reports 'E'", refused)
-            if len(refused.got) == 1 and refused.got[0][:1] == "E"
+            if len(refused.got) == 1 and refused.got[0][:1] == AxisStatus.ERROR
             else _unknown("a refused move answered more than one 'E' report", refused))
         await self.ask("?err")
         # A move during a move; 'a' and Ctrl+C during a move. Each needs the move to
@@ -1030,17 +1376,17 @@ class _Prober:
                     break
                 length = min(length * 2, longest)
         # A pause before the report.
-        await self.pause(sign * step, decimals, wait, restore)
+        await self.pause(sign * step, decimals, wait)
         # !joy 0 during a move.
         if self.joy:
-            restore.append(f"!joy {self.joy}")
+            self.undo.append(f"!joy {self.joy}")
             self.link.take()
             self.link.send(f"!mor x {sign * step:.{decimals}f}", "!joy 0")
             _, lines = await self.wait_report(wait)
             await self.link.quiet(max(self.options.settle, self.options.move_time * 2))
             lines += self.link.take()
             await self.settled(f"!joy {self.joy}")
-            restore.pop()
+            self.undo.pop()
             self.extra["joy0_during_move"] = lines
             await self.move(f"!mor x {-sign * step:.{decimals}f}")
         # A value just below zero (numbers=negzero), when X stands near 0.
@@ -1055,7 +1401,7 @@ class _Prober:
         await self.move_in_mode(2, sign * step, decimals, wait)
         await self.move_in_mode(4, sign * step, decimals, wait)
         await self.back_to(p0_text, p0, decimals, wait)
-        restore.pop()
+        self.undo.pop()
 
     async def move(self, line: str) -> Exchange:
         """A move in mode 1, to its report."""
@@ -1081,7 +1427,7 @@ class _Prober:
 
     def decide_move_letter(self, move: Exchange) -> Observation:
         letter = move.got[-1][:1]
-        if letter in ("@", "J"):
+        if letter in (AxisStatus.READY, AxisStatus.JOYSTICK):
             return _seen(letter, f"a completed move reports {letter!r} with the joystick on",
                          move)
         return _unknown(f"a completed move reports {letter!r}", move)
@@ -1103,12 +1449,18 @@ class _Prober:
                      last: bool) -> bool:
         """``move_during_move``: a second move sent while the first runs (L6606). False
         (nothing recorded unless ``last``) when the first had ended before (its report
-        came before the answers to the lines after them)."""
+        came before the answers to the lines after them).
+
+        Returns
+        -------
+        bool
+            Whether the second move was sent during the first.
+        """
         first, second = p0 + step, p0 + 2 * step
         lines = (f"!moa x {first:.{decimals}f}", f"!moa x {second:.{decimals}f}")
         sent = await self.ask(*lines)
         reports = [g for g in sent.got if _REPORT.match(g)]
-        ended = [g for g in reports if g[:1] != "E"]  # 'E': a refused second move's
+        ended = [g for g in reports if g[:1] != AxisStatus.ERROR]  # a refused second move's
         if ended:
             await self.wait_report(wait)
             await self.link.quiet(max(self.options.settle, self.options.move_time))
@@ -1162,7 +1514,13 @@ class _Prober:
                     kind: str, last: bool) -> bool:
         """``a`` (``abort_letter``, ``abort_report``) or Ctrl+C (``ctrl_c``) during a
         move (L6808-6834). False (nothing recorded unless ``last``) when the move had
-        ended before the stop arrived."""
+        ended before the stop arrived.
+
+        Returns
+        -------
+        bool
+            Whether the stop arrived during the move.
+        """
         target = p0 + step
         line = f"!moa x {target:.{decimals}f}"
         self.link.take()
@@ -1195,7 +1553,7 @@ class _Prober:
                                                        ("no", "yes"), exchange, where)
                 return False
             letter = first[:1] if first else None
-            if letter in ("E", "@"):
+            if letter in (AxisStatus.ERROR, AxisStatus.READY):
                 self.obs["abort_letter"] = _seen(letter, f"the stopped axis reports "
                                                          f"{letter!r}", exchange, where)
             else:
@@ -1232,21 +1590,20 @@ class _Prober:
         self.obs["ctrl_c"] = _seen(value, note, exchange, where, err)
         return True
 
-    async def pause(self, step: float, decimals: int, wait: float,
-                    restore: list[str]) -> None:
+    async def pause(self, step: float, decimals: int, wait: float) -> None:
         """A move with ``pause`` set: how long its report waits (L6845-6899)."""
         before = await self.ask("?pause")
         if before.err != 0 or len(before.got) != 1:
             self.extra["pause"] = {"note": "?pause not available", "lines":
                                    before.transcript()}
             return
-        restore.append(f"!pause {before.got[0].strip()}")
+        self.undo.append(f"!pause {before.got[0].strip()}")
         await self.ask("!pause 200")
         began = time.monotonic()
         move = await self.move(f"!mor x {step:.{decimals}f}")
         took = time.monotonic() - began
         await self.ask(f"!pause {before.got[0].strip()}")
-        restore.pop()
+        self.undo.pop()
         await self.move(f"!mor x {-step:.{decimals}f}")
         self.extra["pause"] = {"pause_ms": 200, "seconds_to_report": round(took, 3),
                                "lines": move.transcript()}
@@ -1329,7 +1686,13 @@ class _Prober:
 
 
 def add_probe_command(commands: Any) -> None:
-    """Add ``tango-aio probe`` to the CLI's subcommands."""
+    """Add ``tango-aio probe`` to the CLI's subcommands.
+
+    Parameters
+    ----------
+    commands
+        The CLI's subparsers (``argparse``'s ``add_subparsers()``).
+    """
     parser = commands.add_parser(
         "probe", help="learn what a controller's firmware does, write a fingerprint",
         description="Learn from the wire what this controller does where the manual is "
@@ -1375,7 +1738,18 @@ def _confirm(args: argparse.Namespace) -> bool:
 
 async def _probe_command(args: argparse.Namespace) -> int:
     """``tango-aio probe URL``: writes the fingerprint (0, also when it recorded unknown
-    behaviour, which it asks to send), or fails with the error (1)."""
+    behaviour, which it asks to send), or fails with the error (1).
+
+    Returns
+    -------
+    int
+        The exit status.
+
+    Raises
+    ------
+    ProbeError
+        The probe failed (after the trace so far was written, if asked).
+    """
     asks = (args.moves or args.save) and not args.yes and \
         not args.url.lower().startswith("sim://")
     if asks and not await asyncio.to_thread(_confirm, args):

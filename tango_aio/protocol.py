@@ -80,8 +80,8 @@ from .instructions import Command, Context, Form, build, parse
 from .scheduler import Line, Run, WriteScheduler
 from .session import DEAD_AFTER, Exchange, LinkSession, Outcome, Until
 
-__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission",
-           "TangoProtocol"]
+__all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
+           "WrongEventLoopError"]
 
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")

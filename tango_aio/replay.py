@@ -81,7 +81,13 @@ class Replay:
 
     def check(self) -> None:
         """Raise :class:`ReplayMismatch` if the client's lines differed from the trace or
-        stopped short of its last ``->`` line."""
+        stopped short of its last ``->`` line.
+
+        Raises
+        ------
+        ReplayMismatch
+            The client's lines differed from the trace, or stopped short of it.
+        """
         if self.mismatch is not None:
             raise ReplayMismatch(self.mismatch)
         rest = [r for r in self.records[self._cursor:] if r.direction == "->"]
@@ -122,7 +128,13 @@ class Replay:
 
     def _same_marker(self, expected: bytes, line: bytes) -> bool:
         """Whether ``line`` is the trace's ``?help K`` with the client's number for K
-        (binding K to it the first time, one to one)."""
+        (binding K to it the first time, one to one).
+
+        Returns
+        -------
+        bool
+            Whether the line matches.
+        """
         ours, theirs = _HELP.match(expected), _HELP.match(line)
         if ours is None or theirs is None or ours[1] != theirs[1]:
             return False
@@ -218,7 +230,28 @@ async def replay(trace: str | os.PathLike[str] | Sequence[TraceRecord], *,
     """Play the controller's side of ``trace`` (a file path, the trace's text, or its
     records) on ``socket://127.0.0.1:PORT`` (the yielded :attr:`Replay.url`) for one
     connection; leaving the block checks that the client wrote the trace's lines
-    (:class:`ReplayMismatch` names the first that differs). See the module text."""
+    (:class:`ReplayMismatch` names the first that differs). See the module text.
+
+    Parameters
+    ----------
+    trace
+        A trace file's path, a trace's text, or its records.
+    timing
+        ``"recorded"`` sends each reply after the delay the trace shows; ``"fast"`` sends
+        it at once.
+
+    Yields
+    ------
+    Replay
+        The replay, whose :attr:`Replay.url` the client connects to.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``timing``.
+    ReplayMismatch
+        On leaving the block: the client's lines differed from the trace.
+    """
     if timing not in ("recorded", "fast"):
         raise ValueError(f"timing must be 'recorded' or 'fast', got {timing!r}")
     state = Replay(_records(trace), timing)

@@ -69,8 +69,29 @@ _MARKER: Final = parse(MARKER.decode().rstrip("\r"))
 _MARKER_OWES: Final[ReplyPattern] = ONE_NUMBER
 #: Longest separator line (``?help NN`` and CR; ``?err`` and ``?help`` are shorter).
 _SEPARATOR_SIZE: Final = 9
-#: "No separator fits: wait for the reply" (see WriteScheduler._separator_for).
-_WAIT: Final = object()
+
+
+@dataclass(frozen=True, slots=True)
+class _Separation:
+    """What keeps a line apart from the one owing a reply before it (see
+    WriteScheduler._separator_for)."""
+
+    #: The separator line to write first and what it owes (``None``: none is written).
+    line: tuple[bytes, ReplyPattern] | None = None
+    #: No separator exists: the line waits for the reply it could be taken for instead.
+    wait: bool = False
+
+    @property
+    def needed(self) -> bool:
+        """Whether the line cannot simply follow (a separator or a wait; either way the
+        credit counts a separator's bytes for it)."""
+        return self.line is not None or self.wait
+
+
+#: Nothing needed between the two lines.
+_APART: Final = _Separation()
+#: "No separator fits: wait for the reply".
+_WAIT: Final = _Separation(wait=True)
 #: The batch of credit markers that confirm lines of no batch.
 _MARKERS: Final = object()
 
@@ -158,12 +179,10 @@ class WriteScheduler:
                  marker_chunk: int = DEFAULT_CHUNK, separators: bool = True) -> None:
         self.core = core
         #: The write-credit account (see :mod:`tango_aio.flow`).
-        self.credit = CreditWindow(credit_limit, marker_chunk)
-        # A marker may need a separator before it: both must fit behind a full chunk of
-        # unconfirmed reply-less bytes, or nothing could ever confirm them (a small limit;
-        # found by tests/unit/test_scheduler.py). 160 of 255 by default: unchanged.
-        self.credit.chunk = max(1, min(self.credit.chunk,
-                                       credit_limit - _SEPARATOR_SIZE - len(MARKER)))
+        #: A marker may need a separator before it: both must fit behind a full chunk of
+        #: unconfirmed reply-less bytes (the window's ``reserve``; 160 of 255 by default
+        #: is not cut).
+        self.credit = CreditWindow(credit_limit, marker_chunk, reserve=_SEPARATOR_SIZE)
         #: Look-alike lines: ``True`` writes a separator between two in a row; ``False``
         #: only keeps them from being in flight together (see :mod:`tango_aio.patterns`).
         self.separators = separators
@@ -321,26 +340,27 @@ class WriteScheduler:
             if self._hold_after is not None and head.tag > self._hold_after:
                 break  # behind a mode change
             separator = self._separator_for(head.guard, head.batch)
-            size = head.size + (_SEPARATOR_SIZE if separator else 0)
+            size = head.size + (_SEPARATOR_SIZE if separator.needed else 0)
             if credit.marker_due(head.size, head.confirming) or (
-                    separator and credit.marker_due(size, True)):
+                    separator.needed and credit.marker_due(size, True)):
                 # (The second: the line and its separator would not fit behind the
                 # reply-less bytes even once all else is confirmed; a small limit.)
                 batch = self._marker_batch()
                 separator = self._separator_for(_MARKER_OWES, batch)
                 if not credit.marker_fits() or (
-                        separator is _WAIT and self._must_wait(_MARKER_OWES, batch)) or (
-                        separator and not credit.fits(_SEPARATOR_SIZE + len(MARKER), True)):
+                        separator.wait and self._must_wait(_MARKER_OWES, batch)) or (
+                        separator.needed
+                        and not credit.fits(_SEPARATOR_SIZE + len(MARKER), True)):
                     break
-                if isinstance(separator, tuple):
-                    out += self._separator(separator)
+                if separator.line is not None:
+                    out += self._separator(separator.line)
                 out += self._marker(batch)
                 continue
             if not credit.fits(size, head.confirming) or (
-                    separator is _WAIT and self._must_wait(head.owes, head.batch)):
+                    separator.wait and self._must_wait(head.owes, head.batch)):
                 break
-            if isinstance(separator, tuple):
-                out += self._separator(separator)
+            if separator.line is not None:
+                out += self._separator(separator.line)
             if isinstance(head, Run):
                 out += self._run_line(head)
                 continue
@@ -430,20 +450,21 @@ class WriteScheduler:
         return self._last_batch if tag == self._last_owing else None
 
     def _separator_for(self, owes: ReplyPattern | None, batch: object | None
-                       ) -> tuple[bytes, ReplyPattern] | object | None:
-        """The separator to write before a line owing ``owes`` (``None``: none needed;
-        :data:`_WAIT`: none exists, wait for the reply instead). One is needed when the
+                       ) -> _Separation:
+        """What goes before a line owing ``owes``: nothing (:data:`_APART`), a separator
+        line, or :data:`_WAIT` (none exists, wait for the reply instead). One is needed when the
         last line owed by the line written before looks alike: a line too many (or too
         few) between them would shift a reply onto the wrong request
         (:mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole."""
         last = self._last_owed
         if owes is None or last is None or not last.overlaps(owes):
-            return None
+            return _APART
         if batch is not None and batch is self._last_batch:
-            return None
+            return _APART
         if not self.separators:
             return _WAIT
-        return self.core.separator(last, owes) or _WAIT
+        line = self.core.separator(last, owes)
+        return _WAIT if line is None else _Separation(line)
 
     def _separator(self, separator: tuple[bytes, ReplyPattern]) -> bytes:
         tag = next(self._tags)

@@ -114,7 +114,20 @@ class ModeEffect(enum.Enum):
 
     def mode_after(self, command: Command, mode: int) -> int:
         """The autostatus mode in force after ``command`` (of an instruction with this
-        effect) ran in ``mode``."""
+        effect) ran in ``mode``.
+
+        Parameters
+        ----------
+        command
+            The command that ran.
+        mode
+            The mode it ran in.
+
+        Returns
+        -------
+        int
+            The mode after it.
+        """
         if self is ModeEffect.VALUE:
             if command.form is Form.SET and command.values:
                 return int(command.values[0])
@@ -125,7 +138,18 @@ class ModeEffect(enum.Enum):
 
     def owes_nothing(self, command: Command) -> bool:
         """Whether ``command`` sets the mode itself (``!autostatus n``): its echo and
-        acknowledgement depend on the firmware, so it owes no mandatory line."""
+        acknowledgement depend on the firmware, so it owes no mandatory line.
+
+        Parameters
+        ----------
+        command
+            The command.
+
+        Returns
+        -------
+        bool
+            Whether it owes no mandatory line.
+        """
         return self is ModeEffect.VALUE and command.form is Form.SET
 
 
@@ -263,15 +287,48 @@ class Instruction:
         return bool(self.write and self.write[0].per_axis)
 
     def allows(self, form: Form) -> bool:
-        """Whether the instruction accepts ``form``."""
+        """Whether the instruction accepts ``form``.
+
+        Parameters
+        ----------
+        form
+            The form.
+
+        Returns
+        -------
+        bool
+            Whether it is accepted.
+        """
         return form in self.forms
 
     def signatures(self, form: Form) -> tuple[Signature, ...]:
-        """The grammar alternatives of ``form``; the bare form uses the read or write one."""
+        """The grammar alternatives of ``form``; the bare form uses the read or write one.
+
+        Parameters
+        ----------
+        form
+            The form.
+
+        Returns
+        -------
+        tuple[Signature, ...]
+            The alternatives, in order.
+        """
         return self.read if self.is_read(form) else self.write
 
     def is_read(self, form: Form) -> bool:
-        """Whether ``form`` reads (``?`` or a reading bare form)."""
+        """Whether ``form`` reads (``?`` or a reading bare form).
+
+        Parameters
+        ----------
+        form
+            The form.
+
+        Returns
+        -------
+        bool
+            Whether it reads.
+        """
         return form is Form.READ or (form is Form.BARE and self.bare is Bare.READ)
 
 
@@ -292,7 +349,22 @@ class Context:
 
     @classmethod
     def of(cls, dims: Sequence[int], axes: int = 4, extmode: int = 0) -> Context:
-        """The context for the ``dim`` of X Y Z A given as any sequence of four."""
+        """The context for the ``dim`` of X Y Z A given as any sequence of four.
+
+        Parameters
+        ----------
+        dims
+            The ``dim`` of X, Y, Z and A.
+        axes
+            The number of configured axes.
+        extmode
+            The extended mode.
+
+        Returns
+        -------
+        Context
+            The context.
+        """
         x, y, z, a = dims
         return cls((int(x), int(y), int(z), int(a)), axes, extmode)
 
@@ -341,7 +413,13 @@ class Command:
         return line
 
     def to_bytes(self) -> bytes:
-        """The exact bytes to write, CR included."""
+        """The exact bytes to write, CR included.
+
+        Returns
+        -------
+        bytes
+            The line, CR included.
+        """
         data = self._bytes
         if data is None:
             data = self.line.encode("ascii") + b"\r"  # a non-ASCII token raises here

@@ -46,7 +46,18 @@ class DriverState(MoveTiming):
 
     def observe(self, command: Command) -> bool:
         """Take in a set or executing ``command`` the controller accepted. Returns whether
-        it changed a cached setting (the context may then differ)."""
+        it changed a cached setting (the context may then differ).
+
+        Parameters
+        ----------
+        command
+            The accepted command.
+
+        Returns
+        -------
+        bool
+            Whether a cached setting changed.
+        """
         entry = command.instruction
         if not entry.cached or not command.values or command.is_read:
             return False
@@ -61,7 +72,22 @@ class DriverState(MoveTiming):
     def load(self, entry: Instruction, value: object) -> None:
         """Store the value of the cached setting ``entry`` read back from the controller:
         ``{axis: value}`` for a per-axis setting (axes left out keep their value), one
-        number for a global one."""
+        number for a global one.
+
+        Parameters
+        ----------
+        entry
+            The cached setting's instruction.
+        value
+            ``{axis: value}`` for a per-axis setting, a number for a global one.
+
+        Raises
+        ------
+        ValueError
+            ``entry`` is not a cached setting.
+        TypeError
+            A per-axis setting's value is not a mapping.
+        """
         if not entry.cached:
             raise ValueError(f"{entry.name} is not a cached setting")
         if not entry.per_axis:

@@ -13,8 +13,8 @@ import enum
 from collections.abc import Mapping
 from typing import Final
 
-__all__ = ["ABSENT", "ARRIVED_LETTERS", "FAILED_LETTERS", "MOVING", "AxisStatus",
-           "axis_statuses"]
+__all__ = ["ABSENT", "ARRIVED_LETTERS", "CALIBRATED_FLAG", "FAILED_LETTERS", "LETTERS",
+           "MOVING", "AxisStatus", "axis_statuses"]
 
 
 class AxisStatus(enum.StrEnum):
@@ -60,7 +60,23 @@ class AxisStatus(enum.StrEnum):
     @classmethod
     def of(cls, letter: str) -> AxisStatus:
         """The member for ``letter``; ``ValueError`` for a letter the manuals do not
-        document."""
+        document.
+
+        Parameters
+        ----------
+        letter
+            A status letter (``"@"``, ``"M"``...).
+
+        Returns
+        -------
+        AxisStatus
+            Its member.
+
+        Raises
+        ------
+        ValueError
+            The letter is not documented.
+        """
         try:
             return cls(letter)
         except ValueError:
@@ -99,7 +115,26 @@ ARRIVED_LETTERS: Final = frozenset(
 #: :class:`AxisStatus`, since such an axis is left out of the per-axis dictionaries.
 ABSENT: Final = "-"
 
+#: Every letter a status read or a completion report may hold: the documented letters of
+#: both editions and :data:`ABSENT`.
+LETTERS: Final = frozenset({*(status.value for status in AxisStatus), ABSENT})
+
+#: The character of ``?statuslimit`` (one per axis, characters 0-3) for an axis calibrated
+#: since power-on (L5136-5191); not a ``statusaxis`` letter.
+CALIBRATED_FLAG: Final = "A"
+
 
 def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:
-    """``{"x": "@", "y": "M"}`` → ``{"x": AxisStatus.READY, "y": AxisStatus.MOVING}``."""
+    """``{"x": "@", "y": "M"}`` → ``{"x": AxisStatus.READY, "y": AxisStatus.MOVING}``.
+
+    Parameters
+    ----------
+    letters
+        The status letter of each axis, by axis letter.
+
+    Returns
+    -------
+    dict[str, AxisStatus]
+        The member of each axis, by axis letter.
+    """
     return {axis: AxisStatus.of(letter) for axis, letter in letters.items()}

@@ -40,6 +40,7 @@ import functools
 import inspect
 import os
 import queue
+import re
 import threading
 import time
 import weakref
@@ -113,6 +114,23 @@ class Portal:
 
         On :class:`KeyboardInterrupt` the call is cancelled there, and the interrupt is
         re-raised once its clean-up (e.g. stopping the axes) is done.
+
+        Parameters
+        ----------
+        func
+            The coroutine function to run in the driver's thread.
+        *args, **kwargs
+            Its arguments.
+
+        Returns
+        -------
+        R
+            What ``func`` returned.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            Re-raised after the call has been cancelled and cleaned up.
         """
         finished = threading.Event()
         state = threading.Lock()
@@ -150,7 +168,25 @@ class Portal:
               ) -> concurrent.futures.Future[R]:
         """Start ``func(*args, **kwargs)`` in the driver's thread; return its future. The
         call is recorded until it has finished: Ctrl+C in any blocking call cancels it
-        (:func:`stop_started`), as does Ctrl+C while it is being started."""
+        (:func:`stop_started`), as does Ctrl+C while it is being started.
+
+        Parameters
+        ----------
+        func
+            The coroutine function to start in the driver's thread.
+        *args, **kwargs
+            Its arguments.
+
+        Returns
+        -------
+        concurrent.futures.Future
+            The future of ``func``'s result; cancelling it cancels the call.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            Re-raised after every started call has been stopped.
+        """
         started = _Started(self)
         try:
             return self.portal.start_task_soon(started.wrap(func, *args, **kwargs))
@@ -163,7 +199,18 @@ class Portal:
 
     def iterate(self, source: AsyncIterator[T]) -> Iterator[T]:
         """Iterate an async iterator of the driver's thread from this thread; leaving the
-        loop early (``break``, an exception) closes it there."""
+        loop early (``break``, an exception) closes it there.
+
+        Parameters
+        ----------
+        source
+            An async iterator that belongs to the driver's thread.
+
+        Yields
+        ------
+        T
+            Each item of ``source``, in order.
+        """
         try:
             while True:
                 try:
@@ -207,7 +254,13 @@ class _Started:
     def wrap(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
              ) -> Callable[[], Awaitable[R]]:
         """The task to start: ``func(*args, **kwargs)`` in a cancel scope of its own,
-        not begun at all if it was cancelled before it could begin."""
+        not begun at all if it was cancelled before it could begin.
+
+        Returns
+        -------
+        Callable
+            A coroutine function without arguments, to hand to the portal.
+        """
         async def run() -> R:
             try:
                 with anyio.CancelScope() as scope:
@@ -282,8 +335,32 @@ class _Blocking(Generic[A, P, R]):
 
     def __call__(self, obj: _Wrapper[A], /, *args: P.args, **kwargs: P.kwargs) -> R:
         """Call through the class (``Controller.move_to(tango, x=1)``); this also makes
-        the method callable for introspection (documentation tools)."""
+        the method callable for introspection (documentation tools).
+
+        Returns
+        -------
+        R
+            What the async method returned.
+        """
         return self.__get__(obj, type(obj))(*args, **kwargs)
+
+
+def _without_returns(doc: str | None) -> str:
+    """``doc`` dedented, so that its numpydoc sections still parse after the line put
+    before it, and without its Returns section: a ``start_*`` call returns the future.
+
+    Parameters
+    ----------
+    doc
+        The async method's docstring.
+
+    Returns
+    -------
+    str
+        The text to follow that line.
+    """
+    text = inspect.cleandoc(doc or "")
+    return re.sub(r"(?ms)^Returns\n-+\n.*?(?=^\S[^\n]*\n-+\n|\Z)", "", text).rstrip()
 
 
 class _Starter(Generic[A, P, R]):
@@ -293,7 +370,7 @@ class _Starter(Generic[A, P, R]):
         self._method = method
         self.__doc__ = (f"Start :meth:`{method.__name__}` and return at once a "
                         ":class:`concurrent.futures.Future` of its result (cancelling the "
-                        f"future cancels it).\n\n{method.__doc__ or ''}")
+                        f"future cancels it).\n\n{_without_returns(method.__doc__)}")
 
     @overload
     def __get__(self, obj: None, owner: type[Any]) -> _Starter[A, P, R]: ...
@@ -340,7 +417,15 @@ class _Wrapper(Generic[A]):
 
     def _join_started(self) -> None:
         """Wait for every ``start_*`` call so far; raise the first one's error, if any
-        (a started move that failed must not pass for an idle stage)."""
+        (a started move that failed must not pass for an idle stage).
+
+        Raises
+        ------
+        KeyboardInterrupt
+            Re-raised after the started moves have been stopped.
+        BaseException
+            The first error a started call ended with.
+        """
         started = list(self._started)
         try:
             concurrent.futures.wait(started)
@@ -418,26 +503,71 @@ class Controller(_Wrapper[AsyncController]):
                   timeout: float | None = None) -> dict[str, str]:
         """Wait until every ``start_*`` move of this object has finished (raising the
         first one's error, e.g. :class:`~tango_aio.MoveError`), then until no axis moves
-        (:meth:`tango_aio.Controller.wait_idle`); return the status letters."""
+        (:meth:`tango_aio.Controller.wait_idle`); return the status letters.
+
+        Parameters
+        ----------
+        poll_interval
+            Seconds between two status reads.
+        timeout
+            Seconds to wait for the axes at most; ``None`` waits without limit.
+
+        Returns
+        -------
+        dict[str, str]
+            The status letter of each axis.
+        """
         self._join_started()
         return self._portal.call(self.aio.wait_idle, poll_interval=poll_interval,
                                  timeout=timeout)
 
     def is_busy(self) -> bool:
         """Whether a ``start_*`` move of this object is still running, or
-        :meth:`tango_aio.Controller.is_busy`."""
+        :meth:`tango_aio.Controller.is_busy`.
+
+        Returns
+        -------
+        bool
+            True while a started move runs or an axis moves.
+        """
         if any(not future.done() for future in self._started):
             return True
         return self._portal.call(self.aio.is_busy)
 
     def watch_position(self, interval: float = 0.1, *, follow: bool = False,
                        unit: str | None = None) -> Iterator[PositionUpdate]:
-        """Blocking iterator over :meth:`tango_aio.Controller.watch_position`."""
+        """Blocking iterator over :meth:`tango_aio.Controller.watch_position`.
+
+        Parameters
+        ----------
+        interval
+            Seconds between two position reads.
+        follow
+            Keep reading after the axes have stopped, until the loop is left.
+        unit
+            The unit of the positions (e.g. ``"mm"``); ``None`` for the controller's own.
+
+        Returns
+        -------
+        Iterator[PositionUpdate]
+            The position updates, read in the driver's thread.
+        """
         return self._portal.iterate(self.aio.watch_position(interval, follow=follow,
                                                             unit=unit))
 
     def events(self, maxsize: int = 256) -> Iterator[TangoEvent]:
-        """Blocking iterator over :meth:`tango_aio.Controller.events` (subscribed now)."""
+        """Blocking iterator over :meth:`tango_aio.Controller.events` (subscribed now).
+
+        Parameters
+        ----------
+        maxsize
+            How many events the subscription holds before it drops the oldest.
+
+        Returns
+        -------
+        Iterator[TangoEvent]
+            The controller's events from now on.
+        """
         subscription: Subscription = self._portal.call(_subscribe, self.aio, maxsize)
         return self._portal.iterate(subscription)
 
@@ -445,7 +575,20 @@ class Controller(_Wrapper[AsyncController]):
         """Check move targets without moving (see
         :meth:`tango_aio.Controller.validate_move`); raises
         :class:`~tango_aio.errors.InvalidCommandError`. Runs in the caller's thread: it
-        reads the cached context only."""
+        reads the cached context only.
+
+        Parameters
+        ----------
+        relative
+            Check ``axes`` as distances from the current position, not as targets.
+        **axes
+            Target (or distance) of each axis, by axis name (``x=1.0``).
+
+        Raises
+        ------
+        InvalidCommandError
+            A target is not valid (see :meth:`tango_aio.Controller.validate_move`).
+        """
         self.aio.validate_move(relative=relative, **axes)
 
     @property
@@ -509,7 +652,18 @@ async def _subscribe(controller: AsyncController | AsyncGroup, maxsize: int) -> 
 def _parameters_of(source: Callable[P, object]
                    ) -> Callable[[Callable[..., T]], Callable[P, T]]:
     """Give the decorated function ``source``'s parameters (for type checkers, editors
-    and ``inspect.signature``), keeping its own return type and docstring."""
+    and ``inspect.signature``), keeping its own return type and docstring.
+
+    Parameters
+    ----------
+    source
+        The function whose parameters the decorated function shows.
+
+    Returns
+    -------
+    Callable
+        The decorator.
+    """
     def decorate(func: Callable[..., T]) -> Callable[P, T]:
         own = inspect.signature(func).return_annotation
         func.__signature__ = inspect.signature(source).replace(  # type: ignore[attr-defined]
@@ -525,6 +679,28 @@ def connect(url: str = "sim://", **options: Any) -> Controller:
     Takes exactly the options of :func:`tango_aio.connect` (a misspelt one raises
     :class:`TypeError` before anything is opened). Close it with ``close()``, or use it
     as a context manager (``with tango_aio.sync.connect(url) as tango:``).
+
+    Parameters
+    ----------
+    url
+        Where the controller is (``"sim://"``, ``"/dev/ttyUSB0"``, ``"socket://host:port"``,
+        see :func:`tango_aio.connect`).
+    **options
+        The options of :func:`tango_aio.connect`.
+
+    Returns
+    -------
+    Controller
+        The connected blocking controller, with a driver thread of its own.
+
+    Raises
+    ------
+    TypeError
+        An unknown option.
+    ValueError
+        An invalid option or URL, before anything is opened.
+    ConnectError
+        The link cannot be set up (see :func:`tango_aio.connect`).
     """
     connecting = _connection.connect(url, **options)  # checks the options first
     portal = Portal()
@@ -546,7 +722,15 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
     """Several controllers driven concurrently, blocking: the twin of
     :class:`tango_aio.ControllerGroup` (same arguments and methods). Opened by the
     constructor; close it with ``close()`` or use it as a context manager. Members are
-    blocking :class:`Controller` objects on the group's thread."""
+    blocking :class:`Controller` objects on the group's thread.
+
+    Parameters
+    ----------
+    controllers
+        A URL, or ``(url, options)``, by member name.
+    **options
+        Options of :func:`tango_aio.connect` for every member.
+    """
 
     def __init__(self, controllers: Mapping[str, ControllerSpec], **options: Any) -> None:
         portal = Portal()
@@ -580,7 +764,20 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
                   ) -> dict[str, dict[str, str]]:
         """Wait for every ``start_*`` call of the group (raising the first one's error),
         then :meth:`Controller.wait_idle` of every member (or those in ``names``),
-        concurrently; returns name → letters."""
+        concurrently; returns name → letters.
+
+        Parameters
+        ----------
+        names
+            The members to wait for; ``None`` for all of them.
+        **options
+            The options of :meth:`Controller.wait_idle` (``poll_interval``, ``timeout``).
+
+        Returns
+        -------
+        dict[str, dict[str, str]]
+            The status letters of each member, by member name.
+        """
         self._join_started()
         selected = list(self) if names is None else list(names)
 
@@ -590,7 +787,18 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
         return self._portal.call(wait_all)
 
     def events(self, maxsize: int = 256) -> Iterator[GroupEvent]:
-        """Blocking iterator over :meth:`tango_aio.ControllerGroup.events`."""
+        """Blocking iterator over :meth:`tango_aio.ControllerGroup.events`.
+
+        Parameters
+        ----------
+        maxsize
+            How many events the subscription holds before it drops the oldest.
+
+        Returns
+        -------
+        Iterator[GroupEvent]
+            The members' events from now on, each with its member's name.
+        """
         subscription: GroupSubscription = self._portal.call(_subscribe, self.aio, maxsize)
         return self._portal.iterate(subscription)
 
@@ -610,7 +818,18 @@ class ControllerGroup(_Wrapper[AsyncGroup], Mapping[str, Controller]):
         return id(self)
 
     def url(self, name: str) -> str:
-        """The URL of member ``name``."""
+        """The URL of member ``name``.
+
+        Parameters
+        ----------
+        name
+            The member's name.
+
+        Returns
+        -------
+        str
+            The URL that member was opened with.
+        """
         return self.aio.url(name)
 
     def close(self) -> None:

@@ -86,7 +86,29 @@ _FAST_MOTION = {"secvel": 100, "vel": 100, "accel": 20, "stopaccel": 20}
 def emulator_url(*, profile: str = "manual", axes: int = 3, speed: str = "fast",
                  **switches: str) -> str:
     """The ``sim://`` URL of an emulator with these options (``switches``: single
-    firmware switches of :mod:`tango_aio.sim.profiles`, e.g. ``echo="after"``)."""
+    firmware switches of :mod:`tango_aio.sim.profiles`, e.g. ``echo="after"``).
+
+    Parameters
+    ----------
+    profile
+        The firmware profile of :mod:`tango_aio.sim.profiles`.
+    axes
+        The number of axes (1-4).
+    speed
+        One of :data:`SPEEDS` (see the module text).
+    **switches
+        Single firmware switches, by name.
+
+    Returns
+    -------
+    str
+        The URL, for :func:`tango_aio.connect`.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``speed``, or ``axes`` outside 1-4.
+    """
     if speed not in SPEEDS:
         raise ValueError(f"speed must be one of {SPEEDS}, got {speed!r}")
     if isinstance(axes, bool) or not isinstance(axes, int) or not 1 <= axes <= 4:
@@ -102,6 +124,13 @@ class Faults:
     Each method acts on the link the controller uses at the moment of the call (a
     reconnect opens a new one). Call it from the event loop the controller runs on (for a
     :class:`tango_aio.sync.Controller` use :attr:`EmulatedSync.faults`, which does that).
+
+    Parameters
+    ----------
+    controller
+        The emulated controller.
+    run
+        Runs a call on the controller's event loop; ``None`` to call directly.
     """
 
     def __init__(self, controller: Controller,
@@ -129,7 +158,13 @@ class Faults:
         """Where the emulated axes really are now: axis letter → ``(position in its dim
         unit, velocity in rev/s)``, read from the motion model without advancing it. An
         axis that a move claimed to reach stands still there: velocity ``0.0`` and the
-        position within the display's precision of the target."""
+        position within the display's precision of the target.
+
+        Returns
+        -------
+        dict[str, tuple[float, float]]
+            The position and velocity of each axis, by axis letter.
+        """
         wire = self.wire
         now = wire.clock() if wire.clock is not None else wire.now
         model = self.model
@@ -144,17 +179,37 @@ class Faults:
             self._run(lambda: action(wire))
 
     def drop(self, replies: int = 1) -> None:
-        """Lose the next ``replies`` replies of the controller."""
+        """Lose the next ``replies`` replies of the controller.
+
+        Parameters
+        ----------
+        replies
+            How many replies to lose.
+        """
         self._do(lambda wire: setattr(wire.faults, "drop_replies",
                                       wire.faults.drop_replies + _count(replies)))
 
     def garble(self, replies: int = 1) -> None:
-        """Flip one bit in each of the next ``replies`` replies."""
+        """Flip one bit in each of the next ``replies`` replies.
+
+        Parameters
+        ----------
+        replies
+            How many replies to garble.
+        """
         self._do(lambda wire: setattr(wire.faults, "garble_replies",
                                       wire.faults.garble_replies + _count(replies)))
 
     def delay(self, seconds: float, replies: int = 1) -> None:
-        """Hold the next ``replies`` replies back by ``seconds`` (later output waits)."""
+        """Hold the next ``replies`` replies back by ``seconds`` (later output waits).
+
+        Parameters
+        ----------
+        seconds
+            The delay.
+        replies
+            How many replies to hold back.
+        """
         _seconds(seconds)
 
         def action(wire: Wire) -> None:
@@ -163,19 +218,42 @@ class Faults:
         self._do(action)
 
     def noise(self, data: bytes = b"\x15noise\r") -> None:
-        """Send ``data`` to the driver as if the controller had sent it unasked."""
+        """Send ``data`` to the driver as if the controller had sent it unasked.
+
+        Parameters
+        ----------
+        data
+            The bytes to send (at least one).
+
+        Raises
+        ------
+        ValueError
+            ``data`` is empty.
+        """
         if not data:
             raise ValueError("noise needs at least one byte")
         self._do(lambda wire: wire.emit(bytes(data)))
 
     def stall(self, seconds: float) -> None:
         """Stop the controller's interpreter for ``seconds`` (input still fills the
-        buffer; moves go on)."""
+        buffer; moves go on).
+
+        Parameters
+        ----------
+        seconds
+            How long the interpreter stops.
+        """
         _seconds(seconds)
         self._do(lambda wire: wire.stall(seconds))
 
     def disconnect(self, *, mid_reply: bool = False) -> None:
-        """Cut the link now, or halfway through the next reply."""
+        """Cut the link now, or halfway through the next reply.
+
+        Parameters
+        ----------
+        mid_reply
+            Cut the link halfway through the next reply instead of now.
+        """
         self._do(lambda wire: wire.disconnect(mid_reply=mid_reply))
 
 
@@ -195,7 +273,18 @@ def _count(replies: int) -> int:
 
 def faults(controller: Controller) -> Faults:
     """The fault-injection handle of an emulated controller (``TypeError`` when it is not
-    connected to ``sim://``)."""
+    connected to ``sim://``).
+
+    Parameters
+    ----------
+    controller
+        A controller connected to ``sim://``.
+
+    Returns
+    -------
+    Faults
+        Its fault-injection handle.
+    """
     handle = Faults(controller)
     handle.wire  # noqa: B018 - fails early for a real link
     return handle
@@ -222,7 +311,24 @@ class EmulatedSync:
 async def open_emulated(*, profile: str = "manual", axes: int = 3, speed: str = "fast",
                         **connect_options: Any) -> Emulated:
     """Connect to a fresh emulator with these options (see :func:`emulator_url`);
-    ``connect_options`` go to :func:`tango_aio.connect`. Close ``.tango`` when done."""
+    ``connect_options`` go to :func:`tango_aio.connect`. Close ``.tango`` when done.
+
+    Parameters
+    ----------
+    profile
+        The firmware profile (see :func:`emulator_url`).
+    axes
+        The number of axes (1-4).
+    speed
+        One of :data:`SPEEDS`.
+    **connect_options
+        Options of :func:`tango_aio.connect`.
+
+    Returns
+    -------
+    Emulated
+        The connected controller, its fault handle and its URL.
+    """
     url = emulator_url(profile=profile, axes=axes, speed=speed)
     tango = await connect(url, **connect_options)
     try:
@@ -245,7 +351,13 @@ async def _make_fast(tango: Controller, axes: int) -> None:
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
-    """Command-line and ini options of the fixtures."""
+    """Command-line and ini options of the fixtures.
+
+    Parameters
+    ----------
+    parser
+        pytest's option parser.
+    """
     group = parser.getgroup("tango_aio", "TANGO emulator fixtures (tango_aio.testing)")
     for name, help_text, default in (
             ("profile", "firmware profile of the emulator (tango_aio.sim.profiles)", "manual"),
@@ -256,7 +368,13 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Register the ``tango_emulator`` marker."""
+    """Register the ``tango_emulator`` marker.
+
+    Parameters
+    ----------
+    config
+        pytest's configuration.
+    """
     config.addinivalue_line(
         "markers", "tango_emulator(profile=..., axes=..., speed=...): options of the "
         "tango_emulator fixtures for this test")
@@ -292,7 +410,18 @@ async def tango_emulator_factory(request: pytest.FixtureRequest
                                  ) -> AsyncIterator[Callable[..., Awaitable[Emulated]]]:
     """Factory of emulated controllers: ``await tango_emulator_factory(**options)``;
     every one is closed at teardown. Options default to the marker's, then the command
-    line's (see :mod:`tango_aio.testing`)."""
+    line's (see :mod:`tango_aio.testing`).
+
+    Parameters
+    ----------
+    request
+        pytest's fixture request (for the marker and the options).
+
+    Yields
+    ------
+    Callable[..., Awaitable[Emulated]]
+        The factory: its keyword arguments are those of :func:`open_emulated`.
+    """
     defaults = _options(request)
     opened: list[Emulated] = []
 
@@ -309,7 +438,18 @@ async def tango_emulator_factory(request: pytest.FixtureRequest
 @_async_fixture
 async def tango_emulator(request: pytest.FixtureRequest) -> AsyncIterator[Emulated]:
     """A controller connected to a fresh emulator (``.tango``, ``.faults``), closed at
-    teardown. Options: see :mod:`tango_aio.testing`."""
+    teardown. Options: see :mod:`tango_aio.testing`.
+
+    Parameters
+    ----------
+    request
+        pytest's fixture request (for the marker and the options).
+
+    Yields
+    ------
+    Emulated
+        The connected controller, its fault handle and its URL.
+    """
     emulated = await open_emulated(**_options(request))
     try:
         yield emulated
@@ -319,7 +459,18 @@ async def tango_emulator(request: pytest.FixtureRequest) -> AsyncIterator[Emulat
 
 @pytest.fixture
 def tango_emulator_sync(request: pytest.FixtureRequest) -> Iterator[EmulatedSync]:
-    """Like ``tango_emulator``, with a blocking :class:`tango_aio.sync.Controller`."""
+    """Like ``tango_emulator``, with a blocking :class:`tango_aio.sync.Controller`.
+
+    Parameters
+    ----------
+    request
+        pytest's fixture request (for the marker and the options).
+
+    Yields
+    ------
+    EmulatedSync
+        The connected blocking controller, its fault handle and its URL.
+    """
     options = _options(request)
     url = emulator_url(**options)
     tango = sync_connect(url)

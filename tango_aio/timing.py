@@ -13,11 +13,20 @@ step with every accepted set) and from the geometry of the move:
   acceleration ``accel``. The waits around a move, ``delay`` before it (L6845-6868),
   ``pause`` after it (L6873-6899) and the closed-loop settling ``ctrt`` (L11616-11631),
   are cached with it; the controller adds them to the travel to size a move's budget.
+* :func:`move_budget` sizes one motion line's :class:`Budget`: the expected end (delay,
+  travel, pause and settling) and the limit at which it is given up (twice the travel and
+  :data:`MARGIN`, or the caller's timeout; fixed limits for ``cal``/``rm`` and ``moc``,
+  whose distance is not known); :func:`rest_budget` sizes once more what a move may still
+  take from where its axes stand (a budget sized from stale positions is extended once).
 * :func:`moved_axes` says which axes a motion line moves, so that only those are
   confirmed.
 * :func:`position_tolerance` says how far a printed position may stand from its target
   and still be "at" it: the controller prints positions rounded (L4080-4100), so the
   tolerance follows the printed digits.
+* :func:`verdict` judges one state read (status letters and positions) of a move that
+  stopped: ``None`` if every moved axis ended well, else in words what went wrong
+  (:func:`describe_stop`); :func:`too_early` says when a failed verdict may still be read
+  too early (``!delay``, closed-loop settling) and so does not stand yet.
 
 Everything here is a pure function of its arguments, tested synchronously
 (``tests/unit/test_timing.py``); :mod:`tango_aio.motion` asks it and does the waiting.
@@ -26,16 +35,52 @@ Everything here is a pure function of its arguments, tested synchronously
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-from .instructions import AXES, Command
+from .instructions import AXES, Command, Completion
+from .status import ABSENT, FAILED_LETTERS, AxisStatus
 from .units import UnitScale
 
-__all__ = ["UNKNOWN_TRAVEL", "MoveTiming", "moved_axes", "position_tolerance", "travel_time"]
+__all__ = [
+    "CAL_LIMIT",
+    "MARGIN",
+    "MOC_LIMIT",
+    "POLL_GRACE",
+    "UNKNOWN_TRAVEL",
+    "Budget",
+    "MoveTiming",
+    "describe_stop",
+    "move_budget",
+    "moved_axes",
+    "position_tolerance",
+    "rest_budget",
+    "too_early",
+    "travel_time",
+    "verdict",
+]
 
 #: Seconds :func:`travel_time` gives a move whose speed or acceleration is unknown.
 UNKNOWN_TRAVEL = 60.0
+
+#: Seconds a move's limit adds to twice its travel (report latency, a loaded host).
+MARGIN = 2.0
+
+#: Limit (s) of a ``cal`` or ``rm`` line: ``caltimeout`` is at most 120 s per axis (L5251).
+CAL_LIMIT = 150.0
+
+#: Limit (s) of a ``moc`` line, whose distance the driver does not know.
+MOC_LIMIT = 120.0
+
+#: Extra time after the expected end before the state is read (report latency on the wire).
+POLL_GRACE = 0.05
+
+#: The lines ``!delay`` and ``!pause`` apply to (L6856, L6887).
+_DELAYED = frozenset({"moa", "mor", "m", "moc"})
+
+#: Letters of a moved axis that end a move at once (:func:`too_early`): the failure
+#: letters, and ``-`` for an axis that is disabled (L2711).
+_FINAL = FAILED_LETTERS | {ABSENT}
 
 
 @dataclass(slots=True)
@@ -56,8 +101,20 @@ class MoveTiming:
     settle_ms: float = 0.0
 
     def travel(self, axis: str, distance: float) -> float:
-        """Seconds a single-axis trapezoid move of ``distance`` takes at the slowest
-        plausible speed (vel capped by secvel)."""
+        """How long a single-axis move takes at the slowest plausible speed.
+
+        Parameters
+        ----------
+        axis
+            The axis letter (``"x"`` ... ``"a"``).
+        distance
+            The distance, in the axis's user unit (its ``dim``); the sign is ignored.
+
+        Returns
+        -------
+        float
+            Seconds of a trapezoid move at ``vel`` capped by ``secvel``, with ``accel``.
+        """
         index = AXES.index(axis)
         scale = UnitScale(dim=self.dims[index], pitch=self.pitch[index])
         return travel_time(abs(scale.pos_from_user(distance)),
@@ -67,8 +124,23 @@ class MoveTiming:
 
 
 def travel_time(revs: float, speed: float, accel: float) -> float:
-    """Seconds to travel ``revs`` revolutions with a trapezoid profile
-    (:data:`UNKNOWN_TRAVEL` when the speed or acceleration is unknown)."""
+    """How long a trapezoid move of ``revs`` motor revolutions takes.
+
+    Parameters
+    ----------
+    revs
+        The distance, in motor revolutions (not negative).
+    speed
+        The top speed, in revolutions per second.
+    accel
+        The acceleration, in revolutions per second squared.
+
+    Returns
+    -------
+    float
+        Seconds; :data:`UNKNOWN_TRAVEL` when the speed or acceleration is not a positive
+        finite number.
+    """
     if speed <= 0 or accel <= 0 or not math.isfinite(speed + accel):
         return UNKNOWN_TRAVEL
     ramp = speed / accel
@@ -78,8 +150,21 @@ def travel_time(revs: float, speed: float, accel: float) -> float:
 
 
 def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
-    """The axes a motion line moves: its axis, the leading axes it has values for, or every
-    present axis (``cal``, ``rm``, ``moc`` without an axis)."""
+    """The axes a motion line moves.
+
+    Parameters
+    ----------
+    command
+        The motion line.
+    present
+        The axes the controller has.
+
+    Returns
+    -------
+    tuple[str, ...]
+        Its axis, the leading axes it has values for, or every present axis (``cal``,
+        ``rm``, ``moc`` without an axis).
+    """
     if command.axis is not None:
         return (command.axis,)
     if command.values:
@@ -88,8 +173,253 @@ def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
 
 
 def position_tolerance(text: str) -> float:
-    """How far a position read as ``text`` may be from its target: one and a half units of
-    its last printed digit (the controller prints positions rounded to its ``resolution``,
-    L4080-4100; a ``move_by`` target carries the rounding of the start position too)."""
+    """How far a position read as ``text`` may be from its target.
+
+    The controller prints positions rounded to its ``resolution`` (L4080-4100), and a
+    ``move_by`` target carries the rounding of the start position too.
+
+    Parameters
+    ----------
+    text
+        The position as printed.
+
+    Returns
+    -------
+    float
+        One and a half units of its last printed digit.
+    """
     digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
     return 1.5 * 10.0 ** -digits
+
+
+@dataclass(frozen=True, slots=True)
+class Budget:
+    """How long one motion line may take, in seconds counted from writing it."""
+
+    #: ``!delay`` before the move starts (L6845-6868).
+    delay: float
+    #: The travel itself (the slowest moved axis, trapezoid at the slowest plausible speed).
+    travel: float
+    #: ``!pause`` after the axes arrived (L6873-6899) and closed-loop settling.
+    after: float
+    #: Closed-loop settling (``ctrt``, L11616-11631), part of ``after``.
+    settle: float
+    #: When the move is given up (the caller's timeout, or the computed limit).
+    limit: float
+
+    @property
+    def expected(self) -> float:
+        """When the move should have ended: delay, travel, pause and settling."""
+        return self.delay + self.travel + self.after
+
+    @property
+    def fallback(self) -> float:
+        """What :func:`rest_budget` gives when a position was not read: the limit without
+        the delay (the move has started by then)."""
+        return self.limit - self.delay
+
+
+def _travel(timing: MoveTiming, distances: Mapping[str, float]) -> float:
+    """Seconds the slowest of ``distances`` (per axis, user units) takes."""
+    return max((timing.travel(axis, abs(d)) for axis, d in distances.items()), default=0.0)
+
+
+def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, float] | None,
+                timeout: float | None = None) -> Budget:
+    """The budget of one motion line.
+
+    Parameters
+    ----------
+    timing
+        The settings in force.
+    command
+        The motion line.
+    distances
+        How far it moves each axis, in user units (``None``: not known, ``cal``, ``rm``
+        and ``moc``).
+    timeout
+        The caller's timeout, which replaces the computed limit.
+
+    Returns
+    -------
+    Budget
+        Its ``!delay``, travel, pause and settling, and its limit.
+    """
+    delayed = command.name in _DELAYED
+    delay = timing.delay_ms / 1000.0 if delayed else 0.0
+    settle = timing.settle_ms / 1000.0
+    after = (timing.pause_ms / 1000.0 if delayed else 0.0) + settle
+    if command.instruction.completion in (Completion.CAL, Completion.RM):
+        travel, limit = 0.0, CAL_LIMIT
+    elif distances is None:
+        travel, limit = 0.0, MOC_LIMIT
+    else:
+        travel = _travel(timing, distances)
+        limit = 2.0 * travel + MARGIN
+    return Budget(delay, travel, after, settle, timeout or delay + limit + after)
+
+
+def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[str, str],
+                fallback: float) -> float:
+    """How long a move may still take from where its axes stand.
+
+    The limit rule of :func:`move_budget` without the delay (the move has started).
+
+    Parameters
+    ----------
+    timing
+        The settings in force.
+    targets
+        The move's absolute targets, per axis.
+    now
+        The positions printed now, per axis.
+    fallback
+        What to give when a position of ``targets`` was not read.
+
+    Returns
+    -------
+    float
+        Seconds from now.
+    """
+    if not set(targets) <= set(now):
+        return fallback
+    travel = _travel(timing, {a: t - float(now[a]) for a, t in targets.items()})
+    return 2.0 * travel + MARGIN + (timing.pause_ms + timing.settle_ms) / 1000.0
+
+
+def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
+            tolerance: Mapping[str, float], letters: Mapping[str, str],
+            texts: Mapping[str, str]) -> str | None:
+    """Judge one state read of a move whose axes stopped.
+
+    An axis ended well when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711)
+    and stands within :func:`position_tolerance` (or its ``tolerance``) of its target.
+
+    Parameters
+    ----------
+    moved
+        The axes the move moved.
+    targets
+        Their absolute targets (``None``: ``cal``, ``rm``, ``moc`` have none).
+    tolerance
+        A wider tolerance per axis, where one applies.
+    letters
+        The status letters read.
+    texts
+        The positions read right behind them, as printed.
+
+    Returns
+    -------
+    str | None
+        ``None`` if every moved axis ended well; else what went wrong, in words: which
+        axis, where it stopped, its target and why.
+    """
+    failed = [a for a in moved if letters.get(a, ABSENT) in FAILED_LETTERS]
+    off = []
+    for axis, target in (targets or {}).items():
+        text = texts.get(axis)
+        if text is None or abs(float(text) - target) > max(
+                position_tolerance(text), tolerance.get(axis, 0.0)):
+            off.append(axis)
+    if not failed and not off:
+        return None
+    bad = [a for a in moved if a in failed or a in off]
+    return "did not end at its target: " + "; ".join(
+        describe_stop(axis, letters.get(axis, ABSENT), texts.get(axis),
+                      None if targets is None else targets.get(axis))
+        for axis in bad)
+
+
+def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
+              checked: float, now: float, expected_end: float) -> float | None:
+    """When a failed verdict may not be the move's end yet.
+
+    A move that ends at a limit switch, an error or an abort ends the call at once: the
+    state was read after the controller had taken the line, so the moved axes are moving
+    or have ended. Only two things the driver knows of let a stopped axis read like that
+    before the move really ended:
+
+    * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
+      (counted from the check, a bound on when the controller took the line);
+    * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
+      target with a letter that does not say it failed (``@``) may still be settling;
+      until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
+      is disabled, L2711: it does not move at all) is final.
+
+    Parameters
+    ----------
+    budget
+        The move's budget (its ``!delay`` and settling).
+    moved
+        The axes the move moved.
+    letters
+        The status letters of the failed read.
+    checked
+        When the line's check came back (the controller had taken the line by then).
+    now
+        When the state was read.
+    expected_end
+        When the move should have ended.
+
+    Returns
+    -------
+    float | None
+        When to read the state again; ``None``: the verdict stands, the move fails now.
+    """
+    if budget.delay > 0:
+        started_by = checked + budget.delay + POLL_GRACE
+        if now < started_by:
+            return started_by
+    failed = any(letters.get(a, ABSENT) in _FINAL for a in moved)
+    if budget.settle > 0 and not failed and now < expected_end:
+        return expected_end + POLL_GRACE
+    return None
+
+
+#: Why an axis stopped, by the letter it reads (L2693-2711).
+_WHY = {
+    AxisStatus.ERROR: "stopped: its move was aborted or not executed (status E)",
+    AxisStatus.TIMEOUT: "timed out (status T)",
+    ABSENT: "is disabled or absent (status -) and did not move",
+}
+
+
+def describe_stop(axis: str, letter: str, text: str | None, target: float | None,
+                  why: str | None = None) -> str:
+    """One axis of a failed move in words.
+
+    Which limit switch is told from the direction of travel: an axis that stopped below
+    its target was moving up, towards its upper switch (EE), and the reverse (the
+    manual's letter ``S`` does not say which, L2699).
+
+    Parameters
+    ----------
+    axis
+        The axis letter.
+    letter
+        Its status letter.
+    text
+        Its position as read (``None``: not read).
+    target
+        Its target (``None``: the move has none).
+    why
+        Said instead of what the letter says (e.g. an abort by this program).
+
+    Returns
+    -------
+    str
+        E.g. ``"X stopped at its upper limit switch (EE) (status S), at 50.05, target 60"``.
+    """
+    name = axis.upper()
+    where = "position not read" if text is None else f"at {text}"
+    aim = "" if target is None else f", target {target:g}"
+    if why is not None:
+        return f"{name} {why}, {where}{aim}"
+    if letter == AxisStatus.LIMIT_SWITCH:
+        side = "a limit switch"
+        if text is not None and target is not None and float(text) != target:
+            side = ("its upper limit switch (EE)" if float(text) < target
+                    else "its lower limit switch (E0)")
+        return f"{name} stopped at {side} (status S), {where}{aim}"
+    reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
+    return f"{name} {reason}, {where}{aim}"

@@ -70,19 +70,51 @@ class TraceRecord:
 
 
 def format_record(time: float, direction: Direction, data: bytes) -> str:
-    """One record, as the ``tango_aio.wire`` logger writes it."""
+    """One record, as the ``tango_aio.wire`` logger writes it.
+
+    Parameters
+    ----------
+    time
+        The record's time stamp, in seconds.
+    direction
+        ``"->"`` written by the driver, ``"<-"`` received.
+    data
+        The bytes.
+
+    Returns
+    -------
+    str
+        The record's text.
+    """
     return f"{time:.6f} {direction} {_traced(data)}"
 
 
 def trace_header() -> str:
-    """The comment line a trace file starts with (the project version)."""
+    """The comment line a trace file starts with (the project version).
+
+    Returns
+    -------
+    str
+        The comment line.
+    """
     from . import __version__
 
     return f"# tango_aio wire trace, tango-aio {__version__}"
 
 
 def parse_trace(text: str) -> list[TraceRecord]:
-    """The records of a trace's text, in order."""
+    """The records of a trace's text, in order.
+
+    Parameters
+    ----------
+    text
+        The trace's text (comment lines and other log lines are skipped).
+
+    Returns
+    -------
+    list[TraceRecord]
+        The records.
+    """
     records = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         if line.lstrip().startswith("#"):
@@ -100,7 +132,18 @@ def parse_trace(text: str) -> list[TraceRecord]:
 
 
 def read_trace(path: str | os.PathLike[str]) -> list[TraceRecord]:
-    """The records of a trace file."""
+    """The records of a trace file.
+
+    Parameters
+    ----------
+    path
+        The trace file.
+
+    Returns
+    -------
+    list[TraceRecord]
+        The records.
+    """
     return parse_trace(Path(path).read_text(encoding="utf-8", errors="replace"))
 
 
@@ -113,6 +156,16 @@ def record_trace(path: str | os.PathLike[str]) -> Iterator[Path]:
 
         with record_trace("session.trace"):
             asyncio.run(session())
+
+    Parameters
+    ----------
+    path
+        The trace file to write (replaced if it exists).
+
+    Yields
+    ------
+    Path
+        ``path``, as a :class:`~pathlib.Path`.
     """
     target = Path(path)
     target.write_text(trace_header() + "\n", encoding="utf-8")

@@ -30,6 +30,7 @@ and to distances.
 
 from __future__ import annotations
 
+import enum
 import numbers
 from dataclasses import dataclass
 from fractions import Fraction
@@ -52,6 +53,7 @@ __all__ = [
     "MM_PER_INCH",
     "MOTOR_UNITS",
     "DimUnit",
+    "Measure",
     "Quantity",
     "UnitScale",
     "accel_to_rev",
@@ -62,6 +64,7 @@ __all__ = [
     "split_unit",
     "to_controller",
     "user_per_rev",
+    "velocity_unit",
 ]
 
 DIM_USTEPS = 0
@@ -112,15 +115,71 @@ DIM_UNITS: dict[int, DimUnit] = {
 }
 
 
+def velocity_unit(dim: int) -> str:
+    """The unit of ``vel`` for an axis in ``dim``.
+
+    Parameters
+    ----------
+    dim
+        The axis's ``dim``.
+
+    Returns
+    -------
+    str
+        ``"rev/s"`` (motor revolutions), ``"mm/s"`` in dim 9 (L189, L3452).
+    """
+    return "mm/s" if dim == DIM_MM_VEL else "rev/s"
+
+
 def mm_per_rev(pitch: float, gear: float) -> float:
-    """Return the axis travel in mm per motor revolution (``pitch / gear``)."""
+    """Return the axis travel in mm per motor revolution (``pitch / gear``).
+
+    Parameters
+    ----------
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+
+    Returns
+    -------
+    float
+        mm per motor revolution.
+
+    Raises
+    ------
+    ValueError
+        ``pitch`` or ``gear`` is not positive.
+    """
     if pitch <= 0.0 or gear <= 0.0:
         raise ValueError(f"pitch and gear must be positive, got {pitch!r} and {gear!r}")
     return pitch / gear
 
 
 def user_per_rev(dim: int, pitch: float, gear: float, usteps: int) -> float:
-    """Return how many user length units (per ``dim``) one motor revolution is."""
+    """Return how many user length units (per ``dim``) one motor revolution is.
+
+    Parameters
+    ----------
+    dim
+        The axis's ``dim`` (0-9).
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+    usteps
+        Microsteps per revolution (the unit of dim 0).
+
+    Returns
+    -------
+    float
+        User units per motor revolution.
+
+    Raises
+    ------
+    ValueError
+        ``dim`` is not 0-9, or ``pitch`` or ``gear`` is not positive.
+    """
     if dim == DIM_USTEPS:
         return float(usteps)
     try:
@@ -131,7 +190,22 @@ def user_per_rev(dim: int, pitch: float, gear: float, usteps: int) -> float:
 
 
 def accel_to_rev(accel_m_s2: float, pitch: float, gear: float) -> float:
-    """Convert an acceleration in m/s² to motor rev/s²."""
+    """Convert an acceleration in m/s² to motor rev/s².
+
+    Parameters
+    ----------
+    accel_m_s2
+        The acceleration, in m/s².
+    pitch
+        The spindle pitch, in mm per spindle revolution.
+    gear
+        The gear ratio (motor revolutions per spindle revolution).
+
+    Returns
+    -------
+    float
+        The acceleration, in rev/s².
+    """
     return accel_m_s2 * 1000.0 / mm_per_rev(pitch, gear)
 
 
@@ -155,35 +229,112 @@ class UnitScale:
         return user_per_rev(self.dim, self.pitch, self.gear, self.usteps)
 
     def pos_to_user(self, revs: float) -> float:
-        """Convert a position or distance in motor revolutions to user units."""
+        """Convert a position or distance in motor revolutions to user units.
+
+        Parameters
+        ----------
+        revs
+            Motor revolutions.
+
+        Returns
+        -------
+        float
+            The same length, in user units.
+        """
         return revs * self.user_per_rev
 
     def pos_from_user(self, value: float) -> float:
-        """Convert a position or distance in user units to motor revolutions."""
+        """Convert a position or distance in user units to motor revolutions.
+
+        Parameters
+        ----------
+        value
+            A length, in user units.
+
+        Returns
+        -------
+        float
+            The same length, in motor revolutions.
+        """
         return value / self.user_per_rev
 
     def vel_to_user(self, rev_per_s: float) -> float:
-        """Convert rev/s to the user velocity unit (rev/s, or mm/s in dim 9)."""
+        """Convert rev/s to the user velocity unit (rev/s, or mm/s in dim 9).
+
+        Parameters
+        ----------
+        rev_per_s
+            A velocity, in rev/s.
+
+        Returns
+        -------
+        float
+            The same velocity, in the user velocity unit.
+        """
         if self.dim == DIM_MM_VEL:
             return rev_per_s * self.mm_per_rev
         return rev_per_s
 
     def vel_from_user(self, value: float) -> float:
-        """Convert a user velocity (rev/s, or mm/s in dim 9) to rev/s."""
+        """Convert a user velocity (rev/s, or mm/s in dim 9) to rev/s.
+
+        Parameters
+        ----------
+        value
+            A velocity, in the user velocity unit.
+
+        Returns
+        -------
+        float
+            The same velocity, in rev/s.
+        """
         if self.dim == DIM_MM_VEL:
             return value / self.mm_per_rev
         return value
 
     def mm_to_rev(self, mm: float) -> float:
-        """Convert a length (or mm/s velocity) to motor revolutions (or rev/s)."""
+        """Convert a length (or mm/s velocity) to motor revolutions (or rev/s).
+
+        Parameters
+        ----------
+        mm
+            A length in mm (or a velocity in mm/s).
+
+        Returns
+        -------
+        float
+            The same, in motor revolutions (or rev/s).
+        """
         return mm / self.mm_per_rev
 
     def rev_to_mm(self, revs: float) -> float:
-        """Convert motor revolutions (or rev/s) to mm (or mm/s)."""
+        """Convert motor revolutions (or rev/s) to mm (or mm/s).
+
+        Parameters
+        ----------
+        revs
+            Motor revolutions (or rev/s).
+
+        Returns
+        -------
+        float
+            The same, in mm (or mm/s).
+        """
         return revs * self.mm_per_rev
 
     def accel_to_rev(self, accel_m_s2: float) -> float:
-        """Convert an acceleration in m/s² to motor rev/s²."""
+        """Convert an acceleration in m/s² to motor rev/s².
+
+        Parameters
+        ----------
+        accel_m_s2
+            An acceleration, in m/s².
+
+        Returns
+        -------
+        float
+            The same, in rev/s².
+        """
         return accel_to_rev(accel_m_s2, self.pitch, self.gear)
 
 
@@ -226,33 +377,92 @@ class Quantity(Protocol):
         """The number, in the quantity's own unit."""
 
     def to(self, unit: str) -> Quantity:
-        """The same quantity in ``unit``."""
+        """The same quantity in ``unit``.
+
+        Parameters
+        ----------
+        unit
+            The unit to convert to, as pint spells it.
+
+        Returns
+        -------
+        Quantity
+            The converted quantity.
+        """
 
 
-def split_unit(unit: str) -> tuple[str, int]:
-    """``"mm/s"`` → ``("mm", 1)``: the base unit and the power of seconds it is divided
-    by (0 position, 1 velocity, 2 acceleration). ``ValueError`` for an unknown unit."""
+class Measure(enum.IntEnum):
+    """What a value measures, numbered by the power of seconds its unit is divided by."""
+
+    POSITION = 0
+    VELOCITY = 1
+    ACCELERATION = 2
+
+    @property
+    def suffix(self) -> str:
+        """What a position unit gets to name this measure (``mm`` → ``mm/s2``)."""
+        return ("", "/s", "/s2")[self]
+
+
+def split_unit(unit: str) -> tuple[str, Measure]:
+    """``"mm/s"`` → ``("mm", Measure.VELOCITY)``: the base unit and what the unit
+    measures. ``ValueError`` for an unknown unit.
+
+    Parameters
+    ----------
+    unit
+        A unit such as ``"mm"``, ``"um/s"`` or ``"mm/s2"``.
+
+    Returns
+    -------
+    tuple[str, Measure]
+        The base unit and what the unit measures.
+
+    Raises
+    ------
+    ValueError
+        The unit is not known.
+    """
     text = unit.strip()
-    power = 0
-    for suffixes, level in ((_PER_SECOND2, 2), (_PER_SECOND, 1)):
+    measure = Measure.POSITION
+    for suffixes, level in ((_PER_SECOND2, Measure.ACCELERATION),
+                            (_PER_SECOND, Measure.VELOCITY)):
         for suffix in suffixes:
             if text.endswith(suffix):
-                text, power = text[: -len(suffix)], level
+                text, measure = text[: -len(suffix)], level
                 break
-        if power:
+        if measure:
             break
     if text not in LENGTH_UNITS and text not in MOTOR_UNITS:
         known = ", ".join([*LENGTH_UNITS, *MOTOR_UNITS])
         raise ValueError(f"unknown unit {unit!r}: use one of {known}, optionally with /s "
                          "(velocity) or /s2 (acceleration)")
-    return text, power
+    return text, measure
 
 
 def check_unit(unit: str) -> str:
-    """``unit`` if it is a known position unit (a length, ``rev`` or ``ustep``)."""
+    """``unit`` if it is a known position unit (a length, ``rev`` or ``ustep``).
+
+    Parameters
+    ----------
+    unit
+        The unit to check.
+
+    Returns
+    -------
+    str
+        ``unit`` itself.
+
+    Raises
+    ------
+    TypeError
+        ``unit`` is not a string.
+    ValueError
+        ``unit`` is not known, or is a velocity or acceleration unit.
+    """
     if not isinstance(unit, str):
         raise TypeError(f"a unit is a string such as 'mm', got {unit!r}")
-    if split_unit(unit)[1] != 0:
+    if split_unit(unit)[1] is not Measure.POSITION:
         raise ValueError(f"{unit!r} is not a position unit (give the length, e.g. 'mm')")
     return unit
 
@@ -273,12 +483,12 @@ def _dim_units_per(base: str, scale: UnitScale) -> Fraction:
     return _revs_per(base, scale) * Fraction(scale.user_per_rev)
 
 
-def _factor(unit: str, power: int, scale: UnitScale) -> Fraction:
-    """Controller units per caller unit for a quantity of ``power`` (0, 1, 2)."""
-    base = _kind(unit, power)
-    if power == 0:
+def _factor(unit: str, measure: Measure, scale: UnitScale) -> Fraction:
+    """Controller units per caller unit for a quantity of ``measure``."""
+    base = _kind(unit, measure)
+    if measure is Measure.POSITION:
         return _dim_units_per(base, scale)
-    if power == 1:  # rev/s in dims 0-8, mm/s in dim 9 (L189)
+    if measure is Measure.VELOCITY:  # rev/s in dims 0-8, mm/s in dim 9 (L189)
         revs = _revs_per(base, scale)
         if scale.dim == DIM_MM_VEL:
             return LENGTH_UNITS[base] if base in LENGTH_UNITS else revs * Fraction(
@@ -290,49 +500,108 @@ def _factor(unit: str, power: int, scale: UnitScale) -> Fraction:
     return mm / 1000
 
 
-def plain(value: object, unit: str | None, power: int) -> tuple[float, str | None]:
+def plain(value: object, unit: str | None, measure: Measure) -> tuple[float, str | None]:
     """``value`` as a plain number and the unit it is in, checked without any controller
     settings: a pint Quantity is converted to mm-based units (or revolutions, for angles)
-    and its magnitude taken; ``unit`` must be of the kind ``power`` asks for.
-    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit."""
+    and its magnitude taken; ``unit`` must be of the kind ``measure`` asks for.
+    ``TypeError`` for a non-number, ``ValueError`` for a wrong unit.
+
+    Parameters
+    ----------
+    value
+        A number, or a pint Quantity.
+    unit
+        The unit of a plain number; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+
+    Returns
+    -------
+    tuple[float, str | None]
+        The number and its unit (``None``: the controller's unit).
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number.
+    ValueError
+        The unit (or the Quantity's dimension) is not of the kind ``measure`` asks for.
+    """
     if hasattr(value, "magnitude") and hasattr(value, "to"):
         quantity: Any = value
-        suffix = ("", "/s", "/s**2")[power]
+        suffix = ("", "/s", "/s**2")[measure]
         for ours, pints in (("mm", "mm"), ("rev", "revolution")):
             try:
                 return float(quantity.to(pints + suffix).magnitude), ours + suffix
             except Exception:  # pint's DimensionalityError, without importing pint
                 continue
         raise ValueError(f"{value!r} is not a length or an angle"
-                         + ("" if not power else " per second" * power))
+                         + " per second" * measure)
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"not a number: {value!r}")
     if unit is not None:
-        _kind(unit, power)
+        _kind(unit, measure)
     return float(value), unit
 
 
-def _kind(unit: str, power: int) -> str:
-    """The base of ``unit``; ``ValueError`` unless it is of the kind ``power`` asks for."""
+def _kind(unit: str, measure: Measure) -> str:
+    """The base of ``unit``; ``ValueError`` unless it is of the kind ``measure`` asks for."""
     base, given = split_unit(unit)
-    if given != power:
-        kinds = ("position", "velocity", "acceleration")
-        raise ValueError(f"{unit!r} is a {kinds[given]} unit where a {kinds[power]} goes")
+    if given != measure:
+        raise ValueError(f"{unit!r} is a {given.name.lower()} unit where a "
+                         f"{measure.name.lower()} goes")
     return base
 
 
-def to_controller(value: object, unit: str | None, power: int, scale: UnitScale) -> float:
+def to_controller(value: object, unit: str | None, measure: Measure,
+                  scale: UnitScale) -> float:
     """Convert ``value`` (a number in ``unit``, or a pint Quantity) to the controller's
-    unit on an axis with ``scale``: its dim unit (``power`` 0), rev/s or mm/s in dim 9
-    (1), m/s² (2). ``unit=None`` and a plain number: already in the controller's unit."""
-    number, given = plain(value, unit, power)
+    unit on an axis with ``scale``: its dim unit (a position), rev/s or mm/s in dim 9 (a
+    velocity), m/s² (an acceleration). ``unit=None`` and a plain number: already in the
+    controller's unit.
+
+    Parameters
+    ----------
+    value
+        A number, or a pint Quantity.
+    unit
+        The unit of a plain number; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The value in the controller's unit.
+    """
+    number, given = plain(value, unit, measure)
     if given is None:
         return number
-    return float(Fraction(number) * _factor(given, power, scale))
+    return float(Fraction(number) * _factor(given, measure, scale))
 
 
-def from_controller(value: float, unit: str | None, power: int, scale: UnitScale) -> float:
-    """The inverse of :func:`to_controller` for a plain number (a reading)."""
+def from_controller(value: float, unit: str | None, measure: Measure,
+                    scale: UnitScale) -> float:
+    """The inverse of :func:`to_controller` for a plain number (a reading).
+
+    Parameters
+    ----------
+    value
+        A reading, in the controller's unit.
+    unit
+        The unit wanted; ``None`` for the controller's unit.
+    measure
+        What the value measures (a position, a velocity, an acceleration).
+    scale
+        The axis's unit conversion.
+
+    Returns
+    -------
+    float
+        The reading in ``unit``.
+    """
     if unit is None:
         return value
-    return float(Fraction(value) / _factor(unit, power, scale))
+    return float(Fraction(value) / _factor(unit, measure, scale))

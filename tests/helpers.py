@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.util
 import os
 import re
 import signal
@@ -15,6 +16,8 @@ import threading
 import time
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack, cast
 
 import pytest
@@ -41,6 +44,16 @@ if TYPE_CHECKING:
 
 #: What the pty emulator needs, for skip reasons.
 PTY_EMULATOR = "the pty emulator (os.openpty, termios, tty: tango_aio.sim.ptyserve)"
+
+
+def load_tool(name: str) -> ModuleType:
+    """The script ``tools/<name>.py`` loaded as a module (tools are not a package)."""
+    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def posix_only(what: str) -> None:

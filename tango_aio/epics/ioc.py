@@ -76,9 +76,9 @@ from ..errors import (
     MoveStoppedError,
     TangoError,
 )
-from ..instructions import AXES, lookup
+from ..instructions import AXES, lookup, upper_bound
 from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
-from ..units import DEFAULT_USTEPS, DIM_MM_VEL
+from ..units import DEFAULT_USTEPS
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
 from .flush import FlushingContext
@@ -156,12 +156,23 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
     Registered under its own record type name, so caproto's plain ``motor`` record is left
     alone; RTYP still reads ``motor``. (A field's handler can only be replaced by declaring
     the field again in a subclass.) Fields not in :data:`WRITABLE` refuse writes.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        caproto's arguments of a record's fields.
     """
 
     _record_type = "tango_motor"
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        # RTYP must read "motor" from the first client read on, before any await. caproto
+        # (1.3) has no public synchronous setter for a read-only field: ChannelData.write
+        # is a coroutine, a pvproperty's ``value=`` is overwritten by
+        # records.RecordFieldGroup.__init__ with ``_record_type`` (which must stay
+        # "tango_motor", the registry key), and that __init__ itself sets RTYP and NAME
+        # by writing ``_data["value"]``. So this does what caproto does.
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
@@ -214,7 +225,18 @@ _STOPPED: ContextVar[MoveStoppedError | None] = ContextVar("_STOPPED", default=N
 
 async def _stopped_is_no_fault(put: Awaitable[Any]) -> Any:
     """Await a put handler; a :class:`MoveStoppedError` skips caproto's WRITE/MAJOR alarm
-    (the put still fails: :func:`_guard` answers ECA_PUTFAIL)."""
+    (the put still fails: :func:`_guard` answers ECA_PUTFAIL).
+
+    Returns
+    -------
+    Any
+        What the handler returned.
+
+    Raises
+    ------
+    SkipWrite
+        The handler raised :class:`MoveStoppedError`.
+    """
     try:
         return await put
     except MoveStoppedError as exc:
@@ -228,7 +250,15 @@ async def _put_val(group: AxisGroup, instance: Any, value: float) -> float:
 
 
 class AxisGroup(PVGroup):  # type: ignore[misc]
-    """One motor record (the PV is the group's prefix, e.g. ``P:X``)."""
+    """One motor record (the PV is the group's prefix, e.g. ``P:X``).
+
+    Parameters
+    ----------
+    prefix
+        The record's PV name.
+    axis
+        The axis it drives.
+    """
 
     motor = pvproperty(name="", value=0.0, record="tango_motor", precision=4,
                        doc="TANGO axis", put=_put_val)
@@ -272,6 +302,13 @@ class AxisServer:
     STOP and SPMG Stop/Pause stop the running request and drop the waiting one. Every
     request carries a number (:attr:`_request`); one that is no longer the newest when
     its turn comes fails without moving.
+
+    Parameters
+    ----------
+    server
+        The controller's server.
+    letter
+        The axis letter.
     """
 
     def __init__(self, server: ControllerServer, letter: str) -> None:
@@ -322,7 +359,25 @@ class AxisServer:
     async def put_field(self, field: str, value: Any) -> Any:
         """A client put ``value`` to ``field``: act on it, return the value to store.
 
-        Raises (the put fails, ECA_PUTFAIL) for a value this IOC does not carry out."""
+        Raises (the put fails, ECA_PUTFAIL) for a value this IOC does not carry out.
+
+        Parameters
+        ----------
+        field
+            The motor record field (``"VAL"``, ``"VELO"``...).
+        value
+            The value put.
+
+        Returns
+        -------
+        Any
+            The value the field stores.
+
+        Raises
+        ------
+        TangoError
+            The IOC does not carry the value out (the put fails, ECA_PUTFAIL).
+        """
         stored = await self._put_field(field, value)
         if field in AUTOSAVED:
             self._save_soon()
@@ -348,7 +403,13 @@ class AxisServer:
                       exc)
 
     async def restore(self, saved: Mapping[str, float]) -> None:
-        """Put back the autosaved fields (at start, once the controller is connected)."""
+        """Put back the autosaved fields (at start, once the controller is connected).
+
+        Parameters
+        ----------
+        saved
+            The autosaved value of each field, by field name.
+        """
         f = self._f
         if "DLLM" in saved or "DHLM" in saved:
             low = saved.get("DLLM", f.dial_low_limit.value)
@@ -447,7 +508,13 @@ class AxisServer:
     # -- motion --------------------------------------------------------------------------
 
     async def move(self, target: float) -> None:
-        """VAL was put: move there (or redefine the position with SET=Set)."""
+        """VAL was put: move there (or redefine the position with SET=Set).
+
+        Parameters
+        ----------
+        target
+            The new VAL (user units).
+        """
         self._require_link()
         f = self._f
         self._require_go()
@@ -486,6 +553,13 @@ class AxisServer:
 
         The motion runs in a task of its own, which :meth:`stop` cancels: a move not yet
         sent is withdrawn, a running one is stopped (by the coalescer or the controller).
+
+        Raises
+        ------
+        MoveStoppedError
+            The request was replaced or stopped before it started, or the move was stopped.
+        TangoError
+            The motion failed (the record shows the alarm).
         """
         f = self._f
         self._request += 1
@@ -605,12 +679,24 @@ class AxisServer:
             await self._finish()
 
     async def tweak(self, sign: int) -> None:
-        """TWF/TWR: move VAL by TWV."""
+        """TWF/TWR: move VAL by TWV.
+
+        Parameters
+        ----------
+        sign
+            +1 for TWF, -1 for TWR.
+        """
         f = self._f
         await self.move(self.record.value + sign * abs(f.tweak_step_size.value))
 
     async def home(self, *, forward: bool) -> None:
-        """HOMF: ``rm`` (upper switch); HOMR: ``cal`` (lower switch)."""
+        """HOMF: ``rm`` (upper switch); HOMR: ``cal`` (lower switch).
+
+        Parameters
+        ----------
+        forward
+            True for HOMF, False for HOMR.
+        """
         self._require_link()
         self._require_go()
         run = self.controller.measure_range if forward else self.controller.calibrate
@@ -633,7 +719,25 @@ class AxisServer:
 
     async def set_velocity(self, velo: float, *, vmax: float | None = None) -> float:
         """VELO was put: set ``vel`` (a VELO above VMAX is VMAX, as in the motor record);
-        returns the VELO the controller took."""
+        returns the VELO the controller took.
+
+        Parameters
+        ----------
+        velo
+            The VELO put (EGU/s).
+        vmax
+            The VMAX in force; ``None`` for the field's current value.
+
+        Returns
+        -------
+        float
+            The VELO the controller took.
+
+        Raises
+        ------
+        MotorRefusedError
+            ``velo`` is not positive.
+        """
         self._require_link()
         top = self._f.max_velocity.value if vmax is None else vmax
         if velo <= 0:
@@ -646,7 +750,23 @@ class AxisServer:
         return value
 
     async def set_acceleration_time(self, accl: float) -> float:
-        """ACCL was put: set ``accel`` so VELO is reached in ``accl`` seconds."""
+        """ACCL was put: set ``accel`` so VELO is reached in ``accl`` seconds.
+
+        Parameters
+        ----------
+        accl
+            The ACCL put (seconds).
+
+        Returns
+        -------
+        float
+            The ACCL the controller took.
+
+        Raises
+        ------
+        MotorRefusedError
+            ``accl`` is not a positive number of seconds.
+        """
         self._require_link()
         try:
             accel = self.units.accel_from_accl(self._f.velocity.value, accl)
@@ -658,7 +778,20 @@ class AxisServer:
         return value
 
     async def set_limit(self, *, high: bool, dial: float) -> float:
-        """HLM/LLM/DHLM/DLLM was put: set the controller's soft limits (``!lim``)."""
+        """HLM/LLM/DHLM/DLLM was put: set the controller's soft limits (``!lim``).
+
+        Parameters
+        ----------
+        high
+            True for the high limit, False for the low one.
+        dial
+            The new limit, in dial units.
+
+        Returns
+        -------
+        float
+            The user limit the controller took.
+        """
         self._require_link()
         f = self._f
         low, up = f.dial_low_limit.value, f.dial_high_limit.value
@@ -669,7 +802,18 @@ class AxisServer:
         return limit
 
     async def offset_changed(self, offset: float) -> None:
-        """OFF changed: republish every user value (user = dial + OFF)."""
+        """OFF changed: republish every user value (user = dial + OFF).
+
+        Parameters
+        ----------
+        offset
+            The new OFF.
+
+        Raises
+        ------
+        MotorRefusedError
+            ``offset`` is out of range.
+        """
         f = self._f
         if abs(offset) > MAX_MAGNITUDE:
             raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
@@ -679,14 +823,20 @@ class AxisServer:
         await self._publish_drive_limits(offset)
 
     async def set_enabled(self, enabled: bool) -> None:
-        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919)."""
+        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919).
+
+        Parameters
+        ----------
+        enabled
+            The CNEN put.
+        """
         self._require_link()
         await self.controller.command(f"!axis {self.letter} {1 if enabled else 0}")
 
     def _vmax_ceiling(self) -> float:
         """The largest VMAX: the `vel` instruction's ceiling (L3452) in EGU/s."""
         spec = lookup("vel").write[0].per_axis[0]
-        top = spec.hi_dim9 if self.units.dim == DIM_MM_VEL and spec.hi_dim9 else spec.hi
+        top = upper_bound(spec, self.units.dim)
         return self.units.velo_from_vel(float(top or 0.0))
 
     def _require_link(self) -> None:
@@ -723,7 +873,13 @@ class AxisServer:
 
     async def _optional(self, name: str, default: float, axis: str | None = None) -> Any:
         """Read ``name``; a controller that refuses it (older firmware may lack gear,
-        usteps or resolution) gives ``default``, with a warning."""
+        usteps or resolution) gives ``default``, with a warning.
+
+        Returns
+        -------
+        Any
+            The value read, or ``default``.
+        """
         try:
             return await self.controller.get(name, axis=axis)
         except ControllerError as exc:
@@ -780,7 +936,15 @@ class AxisServer:
 
     async def poll_update(self, dial: float, letter: str) -> None:
         """Publish a polled position and status letter (DMOV=1 once a move that lost
-        its link is seen to stand)."""
+        its link is seen to stand).
+
+        Parameters
+        ----------
+        dial
+            The position read, in dial units.
+        letter
+            The axis's status letter.
+        """
         await self._publish_dial(dial)
         if not self._busy:
             moving = letter == MOVING
@@ -793,7 +957,15 @@ class AxisServer:
         await self._publish_status(moving=letter == MOVING)
 
     async def slow_update(self, readsw: str, statuslimit: str) -> None:
-        """Publish the limit switches and the homed state."""
+        """Publish the limit switches and the homed state.
+
+        Parameters
+        ----------
+        readsw
+            The ``?readsw`` reply.
+        statuslimit
+            The ``?statuslimit`` reply.
+        """
         self._switches = limit_switches(readsw, self.letter)
         self._homed = calibrated(statuslimit, self.letter)
         f = self._f
@@ -815,7 +987,13 @@ class AxisServer:
             await f.motor_status.write(word, verify_value=False)
 
     async def link_changed(self, up: bool) -> None:
-        """The link went down (INVALID/COMM alarm) or came back (settings re-read)."""
+        """The link went down (INVALID/COMM alarm) or came back (settings re-read).
+
+        Parameters
+        ----------
+        up
+            Whether the link is up.
+        """
         if up:
             await self.read_settings()
             await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
@@ -833,7 +1011,24 @@ class AxisServer:
 
 
 class ControllerServer:
-    """The PVs of one controller: its axes and controller PVs, and the poller."""
+    """The PVs of one controller: its axes and controller PVs, and the poller.
+
+    Parameters
+    ----------
+    controller
+        The connected controller.
+    prefix
+        The PV prefix of its PVs.
+    poll
+        Seconds between position reads.
+    window
+        The move coalescer's window, in seconds.
+    autosave
+        The autosave file; ``None`` for none.
+    group
+        The controller PVs, if already served (a waiting controller's); ``None`` for new
+        ones.
+    """
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
                  window: float = 0.02, autosave: Autosave | None = None,
@@ -879,7 +1074,13 @@ class ControllerServer:
         await self._set_link(False)
 
     async def report_error(self, exc: BaseException) -> None:
-        """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``)."""
+        """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``).
+
+        Parameters
+        ----------
+        exc
+            The error.
+        """
         number = exc.number if isinstance(exc, ControllerError) else -1
         await self.group.error.write(number, verify_value=False)
         await self.group.error_text.write(str(exc)[:255], verify_value=False)
@@ -1002,6 +1203,17 @@ class WaitingServer:
     Its controller PVs are served at once (``CONNECTED`` 0, the others INVALID); ``open``
     is tried again every ``retry`` seconds, and once it gives a controller the axes'
     motor records are added and served like those of the others.
+
+    Parameters
+    ----------
+    open_controller
+        Opens the controller.
+    prefix
+        The PV prefix of its PVs.
+    poll, window, autosave
+        As for :class:`ControllerServer`.
+    retry
+        Seconds between two tries.
     """
 
     def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
@@ -1029,7 +1241,13 @@ class WaitingServer:
                                           verify_value=False)
 
     async def connect(self) -> ControllerServer:
-        """Try until the controller answers; return its server (started)."""
+        """Try until the controller answers; return its server (started).
+
+        Returns
+        -------
+        ControllerServer
+            The server of the connected controller.
+        """
         while True:
             try:
                 controller = await self.open_controller()
@@ -1047,7 +1265,17 @@ class WaitingServer:
 
 
 class TangoIoc:
-    """An IOC serving one or more controllers. Build it with :func:`build_ioc`."""
+    """An IOC serving one or more controllers. Build it with :func:`build_ioc`.
+
+    Parameters
+    ----------
+    servers
+        The servers of the connected controllers.
+    policy
+        Who may write.
+    waiting
+        The controllers not reachable yet.
+    """
 
     def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy,
                  waiting: Sequence[WaitingServer] = ()) -> None:
@@ -1090,7 +1318,18 @@ class TangoIoc:
         await server.run()
 
     async def run(self, interfaces: Sequence[str] = ("127.0.0.1",)) -> None:
-        """Serve on ``interfaces`` until cancelled; stops the moves this IOC started."""
+        """Serve on ``interfaces`` until cancelled; stops the moves this IOC started.
+
+        Parameters
+        ----------
+        interfaces
+            The addresses to serve Channel Access on.
+
+        Raises
+        ------
+        RuntimeError
+            The Channel Access server stopped.
+        """
         context = self._context = FlushingContext(self.pvdb, list(interfaces))
         for server in self.servers:
             server.context = context
@@ -1143,6 +1382,30 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
     ``waiting`` maps names (as ``controllers``) to functions that open a controller not
     reachable yet: its controller PVs are served at once with ``CONNECTED`` 0, the
     function is tried every ``retry`` seconds, and its axes are served once it works.
+
+    Parameters
+    ----------
+    controllers
+        Connected controllers, by name.
+    prefix
+        The PV prefix.
+    policy
+        Who may write; ``None`` lets every client write.
+    poll
+        Seconds between position reads.
+    window
+        The move coalescer's window, in seconds.
+    autosave
+        The autosave file; ``None`` for none.
+    waiting
+        Functions that open controllers not reachable yet, by name.
+    retry
+        Seconds between two tries of a ``waiting`` function.
+
+    Returns
+    -------
+    TangoIoc
+        The started IOC; serve it with :meth:`~TangoIoc.run`.
     """
     saved = Autosave(autosave) if autosave is not None else None
     if saved is not None:

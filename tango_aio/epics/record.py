@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 from ..instructions import AXES
+from ..status import CALIBRATED_FLAG
 from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [
@@ -54,12 +55,34 @@ class AxisUnits:
         return EGU_BY_DIM.get(self.dim, "")
 
     def velo_from_vel(self, vel: float) -> float:
-        """VELO (EGU/s) from the controller's ``vel`` (rev/s, or mm/s in dim 9)."""
+        """VELO (EGU/s) from the controller's ``vel`` (rev/s, or mm/s in dim 9).
+
+        Parameters
+        ----------
+        vel
+            The controller's ``vel``.
+
+        Returns
+        -------
+        float
+            VELO, in EGU/s.
+        """
         scale = self.scale
         return scale.pos_to_user(scale.vel_from_user(vel))
 
     def vel_from_velo(self, velo: float) -> float:
-        """The controller's ``vel`` from VELO (EGU/s)."""
+        """The controller's ``vel`` from VELO (EGU/s).
+
+        Parameters
+        ----------
+        velo
+            VELO, in EGU/s.
+
+        Returns
+        -------
+        float
+            The controller's ``vel``.
+        """
         scale = self.scale
         return scale.vel_to_user(scale.pos_from_user(velo))
 
@@ -68,13 +91,44 @@ class AxisUnits:
         return 1000.0 * scale.user_per_rev / scale.mm_per_rev
 
     def accl_from_accel(self, velo: float, accel: float) -> float:
-        """ACCL (seconds to VELO) from VELO (EGU/s) and ``accel`` (m/s²)."""
+        """ACCL (seconds to VELO) from VELO (EGU/s) and ``accel`` (m/s²).
+
+        Parameters
+        ----------
+        velo
+            VELO, in EGU/s.
+        accel
+            The controller's ``accel``, in m/s².
+
+        Returns
+        -------
+        float
+            ACCL, in seconds.
+        """
         if accel <= 0.0:
             return 0.0
         return abs(velo) / (accel * self._egu_per_m())
 
     def accel_from_accl(self, velo: float, accl: float) -> float:
-        """The controller's ``accel`` (m/s²) that reaches VELO (EGU/s) in ACCL seconds."""
+        """The controller's ``accel`` (m/s²) that reaches VELO (EGU/s) in ACCL seconds.
+
+        Parameters
+        ----------
+        velo
+            VELO, in EGU/s.
+        accl
+            ACCL, in seconds (positive).
+
+        Returns
+        -------
+        float
+            The controller's ``accel``, in m/s².
+
+        Raises
+        ------
+        ValueError
+            ``accl`` is not a positive number.
+        """
         if not (math.isfinite(accl) and accl > 0.0):
             raise ValueError(f"ACCL must be a positive number of seconds, got {accl!r}")
         return abs(velo) / accl / self._egu_per_m()
@@ -92,6 +146,18 @@ def limit_switches(readsw: str, axis: str) -> LimitSwitches:
     """Read the E0 (lower) and EE (upper) switch of ``axis`` from a ``?readsw`` reply.
 
     A reply of unexpected length is read as "no switch actuated" (nothing is assumed).
+
+    Parameters
+    ----------
+    readsw
+        The ``?readsw`` reply.
+    axis
+        The axis letter.
+
+    Returns
+    -------
+    LimitSwitches
+        The state of the two switches.
     """
     text = readsw.strip()
     index = AXES.index(axis)
@@ -101,9 +167,22 @@ def limit_switches(readsw: str, axis: str) -> LimitSwitches:
 
 
 def calibrated(statuslimit: str, axis: str) -> bool:
-    """Whether ``?statuslimit`` says ``axis`` was calibrated (``A`` in group 1, L5136)."""
+    """Whether ``?statuslimit`` says ``axis`` was calibrated (``A`` in group 1, L5136).
+
+    Parameters
+    ----------
+    statuslimit
+        The ``?statuslimit`` reply.
+    axis
+        The axis letter.
+
+    Returns
+    -------
+    bool
+        Whether the axis was calibrated.
+    """
     index = AXES.index(axis)
-    return len(statuslimit) > index and statuslimit[index] == "A"
+    return len(statuslimit) > index and statuslimit[index] == CALIBRATED_FLAG
 
 
 class Msta:
@@ -121,7 +200,28 @@ class Msta:
 
 def msta(*, moving: bool, switches: LimitSwitches, problem: bool, comm_error: bool,
          homed: bool, positive: bool) -> int:
-    """The MSTA word of an axis from what the controller reported."""
+    """The MSTA word of an axis from what the controller reported.
+
+    Parameters
+    ----------
+    moving
+        The axis moves (MOVING, else DONE).
+    switches
+        The state of its limit switches.
+    problem
+        Set PROBLEM (a move or command failed).
+    comm_error
+        Set COMM_ERR (the link is down).
+    homed
+        Set HOMED (the axis was calibrated).
+    positive
+        Set DIRECTION (the last move went the positive way).
+
+    Returns
+    -------
+    int
+        The MSTA bits.
+    """
     word = Msta.MOVING if moving else Msta.DONE
     flags = ((positive, Msta.DIRECTION), (switches.high, Msta.PLUS_LS),
              (switches.low, Msta.MINUS_LS), (problem, Msta.PROBLEM),

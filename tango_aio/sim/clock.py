@@ -25,7 +25,13 @@ __all__ = ["EmulatorClock", "ScaledHandler", "check_speed", "host_now", "scaled_
 
 
 def host_now() -> float:
-    """The host's clock: the running event loop's time, else ``time.monotonic()``."""
+    """The host's clock: the running event loop's time, else ``time.monotonic()``.
+
+    Returns
+    -------
+    float
+        The time, in seconds.
+    """
     try:
         return asyncio.get_running_loop().time()
     except RuntimeError:
@@ -33,7 +39,23 @@ def host_now() -> float:
 
 
 def check_speed(speed: float) -> float:
-    """``speed`` as a float if it is a finite number > 0, else a ValueError saying so."""
+    """``speed`` as a float if it is a finite number > 0, else a ValueError saying so.
+
+    Parameters
+    ----------
+    speed
+        The speed factor.
+
+    Returns
+    -------
+    float
+        ``speed`` as a float.
+
+    Raises
+    ------
+    ValueError
+        ``speed`` is not a finite number > 0.
+    """
     value = float(speed)
     if not math.isfinite(value) or value <= 0.0:
         raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
@@ -41,7 +63,15 @@ def check_speed(speed: float) -> float:
 
 
 class EmulatorClock:
-    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``."""
+    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``.
+
+    Parameters
+    ----------
+    speed
+        Emulator seconds per host second (finite, > 0).
+    origin
+        The instant where both clocks agree.
+    """
 
     def __init__(self, speed: float, origin: float) -> None:
         self.speed = check_speed(speed)
@@ -50,7 +80,18 @@ class EmulatorClock:
         """The instant (both clocks) where they agree."""
 
     def to_emulator(self, host: float) -> float:
-        """The emulator time at host time ``host``."""
+        """The emulator time at host time ``host``.
+
+        Parameters
+        ----------
+        host
+            A host time.
+
+        Returns
+        -------
+        float
+            The emulator time then.
+        """
         return self.origin + (host - self.origin) * self.speed
 
     def to_host(self, emulator: float) -> float:
@@ -58,6 +99,16 @@ class EmulatorClock:
 
         Rounded up to the next representable float where needed, so that polling the
         controller at the returned time never finds its deadline still in the future.
+
+        Parameters
+        ----------
+        emulator
+            An emulator time.
+
+        Returns
+        -------
+        float
+            The host time.
         """
         host = self.origin + (emulator - self.origin) / self.speed
         while self.to_emulator(host) < emulator:
@@ -71,6 +122,17 @@ class ScaledHandler:
 
     Build it on the host clock at ``origin`` (default: :func:`host_now` once the logic is
     built, so the logic's own start time is not later than the origin).
+
+    Parameters
+    ----------
+    make_handler
+        Makes the controller logic.
+    emit
+        Where the logic's output goes.
+    speed
+        Emulator seconds per host second.
+    origin
+        The instant where both clocks agree; ``None`` as described above.
     """
 
     def __init__(self, make_handler: HandlerFactory, emit: Emit, speed: float,
@@ -87,38 +149,107 @@ class ScaledHandler:
         """Whether the link echoes every byte sent (the logic's answer)."""
 
     def reboots(self, line: bytes) -> bool:
-        """Whether ``line`` restarts the controller (the logic's answer, if it has one)."""
+        """Whether ``line`` restarts the controller (the logic's answer, if it has one).
+
+        Parameters
+        ----------
+        line
+            A command line.
+
+        Returns
+        -------
+        bool
+            Whether it restarts the controller.
+        """
         ask = getattr(self.handler, "reboots", None)
         return bool(ask(line)) if ask is not None else False
 
     def handle_line(self, line: bytes, now: float) -> None:
-        """Execute one line at emulator time."""
+        """Execute one line at emulator time.
+
+        Parameters
+        ----------
+        line
+            The command line.
+        now
+            The host time.
+        """
         self.handler.handle_line(line, self.clock.to_emulator(now))
 
     def line_too_long(self, head: bytes, now: float) -> None:
-        """Report an over-long line at emulator time."""
+        """Report an over-long line at emulator time.
+
+        Parameters
+        ----------
+        head
+            The line's start.
+        now
+            The host time.
+        """
         self.handler.line_too_long(head, self.clock.to_emulator(now))
 
     def ctrl_c(self, now: float) -> None:
-        """Ctrl+C at emulator time."""
+        """Ctrl+C at emulator time.
+
+        Parameters
+        ----------
+        now
+            The host time.
+        """
         self.handler.ctrl_c(self.clock.to_emulator(now))
 
     def processing_time(self, line: bytes) -> float:
-        """The logic's extra interpreter time (e.g. a reset), in host seconds."""
+        """The logic's extra interpreter time (e.g. a reset), in host seconds.
+
+        Parameters
+        ----------
+        line
+            The command line.
+
+        Returns
+        -------
+        float
+            Host seconds.
+        """
         return self.handler.processing_time(line) / self.clock.speed
 
     def poll(self, now: float) -> None:
-        """Advance the logic to emulator time."""
+        """Advance the logic to emulator time.
+
+        Parameters
+        ----------
+        now
+            The host time.
+        """
         self.handler.poll(self.clock.to_emulator(now))
 
     def next_deadline(self) -> float | None:
-        """The logic's next deadline, in host time."""
+        """The logic's next deadline, in host time.
+
+        Returns
+        -------
+        float or None
+            The deadline, or ``None`` if nothing is pending.
+        """
         deadline = self.handler.next_deadline()
         return None if deadline is None else self.clock.to_host(deadline)
 
 
 def scaled_factory(make_handler: HandlerFactory, speed: float) -> HandlerFactory:
-    """``make_handler`` with its logic on emulator time; unchanged at speed 1."""
+    """``make_handler`` with its logic on emulator time; unchanged at speed 1.
+
+    Parameters
+    ----------
+    make_handler
+        Makes the controller logic.
+    speed
+        How many times as fast as the host's clock the logic runs.
+
+    Returns
+    -------
+    HandlerFactory
+        The factory of the scaled logic.
+    """
     speed = check_speed(speed)
     if speed == 1.0:
         return make_handler

@@ -26,7 +26,13 @@ Reply = list[str] | None
 
 
 class Handlers(Peripherals):
-    """The special instructions of one :class:`ControllerModel`."""
+    """The special instructions of one :class:`ControllerModel`.
+
+    Parameters
+    ----------
+    model
+        The emulated controller.
+    """
 
     def __init__(self, model: ControllerModel) -> None:
         self.m = model
@@ -508,7 +514,18 @@ OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
 def build_handlers(model: ControllerModel) -> dict[str, Callable[[Command], Reply]]:
-    """Map instruction names to the bound ``i_<name>`` methods."""
+    """Map instruction names to the bound ``i_<name>`` methods.
+
+    Parameters
+    ----------
+    model
+        The emulated controller the handlers act on.
+
+    Returns
+    -------
+    dict[str, Callable[[Command], Reply]]
+        The handler of each special instruction, by instruction name.
+    """
     handlers = Handlers(model)
     return {name[2:]: getattr(handlers, name) for name in dir(Handlers)
             if name.startswith("i_")}

@@ -50,7 +50,23 @@ _P = TypeVar("_P", bound=asyncio.Protocol)
 
 
 def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
-    """Parse a ``sim://`` URL into the emulator's and the wire's configuration."""
+    """Parse a ``sim://`` URL into the emulator's and the wire's configuration.
+
+    Parameters
+    ----------
+    url
+        The ``sim://`` URL.
+
+    Returns
+    -------
+    tuple[SimConfig, WireConfig]
+        The two configurations.
+
+    Raises
+    ------
+    ValueError
+        Not a ``sim://`` URL, or an unknown, invalid or conflicting option.
+    """
     parts = urllib.parse.urlsplit(url)
     if parts.scheme != "sim":
         raise ValueError(f"not a sim:// URL: {url!r}")
@@ -92,7 +108,23 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
 
 
 def speed_from_url(url: str) -> float:
-    """The ``speed`` option of a ``sim://`` URL (1 if absent); ValueError if not > 0."""
+    """The ``speed`` option of a ``sim://`` URL (1 if absent); ValueError if not > 0.
+
+    Parameters
+    ----------
+    url
+        The ``sim://`` URL.
+
+    Returns
+    -------
+    float
+        The speed factor.
+
+    Raises
+    ------
+    ValueError
+        The speed is not a finite number > 0.
+    """
     query = dict(urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query))
     text = query.get("speed", "1")
     try:
@@ -107,6 +139,18 @@ async def open_sim(
     """Connect ``protocol_factory()`` to a fresh in-process emulator described by ``url``.
 
     Returns the protocol and a coroutine function that shuts the emulator down.
+
+    Parameters
+    ----------
+    url
+        The ``sim://`` URL.
+    protocol_factory
+        Makes the protocol to connect.
+
+    Returns
+    -------
+    tuple[_P, Callable[[], Awaitable[None]]]
+        The connected protocol, and what shuts the emulator down.
     """
     sim, wire = configs_from_url(url)
     speed = speed_from_url(url)

@@ -75,7 +75,15 @@ __all__ = ["ControllerModel", "Refused", "SimConfig"]
 
 
 class Refused(Exception):
-    """An instruction was not executed; ``code`` is the error number to set."""
+    """An instruction was not executed; ``code`` is the error number to set.
+
+    Parameters
+    ----------
+    code
+        The error number.
+    message
+        What was refused; empty for the error's description.
+    """
 
     def __init__(self, code: int, message: str = "") -> None:
         super().__init__(message or ERROR_DESCRIPTIONS.get(code, "error"))
@@ -160,7 +168,18 @@ class _Session:
 
 
 class ControllerModel:
-    """An emulated TANGO controller (the interpreter behind the wire)."""
+    """An emulated TANGO controller (the interpreter behind the wire).
+
+    Parameters
+    ----------
+    emit
+        Where the replies go.
+    config
+        The emulator's configuration; ``None`` for the default.
+    now
+        The start time; ``None`` for the running loop's clock
+        (:func:`~tango_aio.sim.clock.host_now`).
+    """
 
     def __init__(self, emit: Emit, config: SimConfig | None = None,
                  now: float | None = None) -> None:
@@ -220,6 +239,18 @@ class ControllerModel:
         active, the internal error is returned". So ``?err``, ``?status`` and ``help`` show
         it while the last instruction was fine, an instruction error hides it, ``!err``
         clears it unless ``permanent`` (like 29, L2824-2881), a reset clears it.
+
+        Parameters
+        ----------
+        code
+            The internal error number (20 or more).
+        permanent
+            ``!err`` does not clear it.
+
+        Raises
+        ------
+        ValueError
+            ``code`` is below 20.
         """
         if code < 20:
             raise ValueError(f"internal errors are numbered 20 and above, got {code}")
@@ -238,7 +269,13 @@ class ControllerModel:
         return self.session.autostatus
 
     def context(self) -> Context:
-        """The parser context: dims, axes, extmode."""
+        """The parser context: dims, axes, extmode.
+
+        Returns
+        -------
+        Context
+            The context.
+        """
         groups = self.params.axis_values["dim"]  # what params.first("dim", i) reads
         dims = [int(groups[i][0]) for i in range(len(AXES))]
         return Context.of(dims, self.axes, int(self.params.first("extmode")))
@@ -246,7 +283,15 @@ class ControllerModel:
     # -- LineHandler protocol ----------------------------------------------------------------
 
     def handle_line(self, line: bytes, now: float) -> None:
-        """Execute one command line (no CR)."""
+        """Execute one command line (no CR).
+
+        Parameters
+        ----------
+        line
+            The line.
+        now
+            The time.
+        """
         self.poll(now)
         text = line.decode("latin-1").strip()
         if not text:
@@ -263,7 +308,15 @@ class ControllerModel:
         self._run(command, text)
 
     def line_too_long(self, head: bytes, now: float) -> None:
-        """A line over 255 characters: error 3, nothing executed."""
+        """A line over 255 characters: error 3, nothing executed.
+
+        Parameters
+        ----------
+        head
+            The line's start.
+        now
+            The time.
+        """
         self.poll(now)
         self._rejected(head.decode("latin-1"), 3)
 
@@ -278,7 +331,13 @@ class ControllerModel:
         return self.firmware.ctrl_c != "ignore"
 
     def ctrl_c(self, now: float) -> None:
-        """Ctrl+C stops every axis (the wire already cleared the input buffer)."""
+        """Ctrl+C stops every axis (the wire already cleared the input buffer).
+
+        Parameters
+        ----------
+        now
+            The time.
+        """
         self.poll(now)
         self.motion.emergency_stop()
         if self.firmware.ctrl_c == "stop_report":
@@ -286,7 +345,18 @@ class ControllerModel:
             self._send_stop_report()
 
     def processing_time(self, line: bytes) -> float:
-        """Extra interpreter time: ``reset`` and ``restore -1`` take a second (L1837)."""
+        """Extra interpreter time: ``reset`` and ``restore -1`` take a second (L1837).
+
+        Parameters
+        ----------
+        line
+            The line.
+
+        Returns
+        -------
+        float
+            The seconds.
+        """
         return self.config.reset_time if self.reboots(line) else 0.0
 
     def reboots(self, line: bytes) -> bool:
@@ -295,12 +365,28 @@ class ControllerModel:
         The wire loses the input that arrives while it reboots: "Rebooting from reset will
         take more than 1 second, where the controller is not responding", and the manual's
         resend-``?err`` loop (L1837-1857) only makes sense if input is lost meanwhile.
+
+        Parameters
+        ----------
+        line
+            The line.
+
+        Returns
+        -------
+        bool
+            Whether it restarts the controller.
         """
         words = line.decode("latin-1").lower().lstrip("!?").split()
         return words[:1] == ["reset"] or words[:2] == ["restore", "-1"]
 
     def poll(self, now: float) -> None:
-        """Advance the motion model and report finished moves."""
+        """Advance the motion model and report finished moves.
+
+        Parameters
+        ----------
+        now
+            The time.
+        """
         for event in self.motion.advance(now):
             if isinstance(event, MoveFinished):
                 if event.kind == "cal":
@@ -309,7 +395,13 @@ class ControllerModel:
         self._send_stop_report()
 
     def next_deadline(self) -> float | None:
-        """When the motion model next changes state."""
+        """When the motion model next changes state.
+
+        Returns
+        -------
+        float or None
+            The time, or ``None`` if nothing moves.
+        """
         return self.motion.next_event_time()
 
     # -- execution -------------------------------------------------------------------------
@@ -317,7 +409,13 @@ class ControllerModel:
     def _unknown_to_older(self, command: Command) -> bool:
         """Switch ``instruction_set=older``: instructions the older edition lacks, and
         values for those that took none there (``help N``, ``version 1``; old L414,
-        old L805-819), are unknown to it: error 4 ("invalid instruction")."""
+        old L805-819), are unknown to it: error 4 ("invalid instruction").
+
+        Returns
+        -------
+        bool
+            Whether the older edition does not know the line.
+        """
         if self.firmware.instruction_set != "older":
             return False
         entry = command.instruction
@@ -395,7 +493,13 @@ class ControllerModel:
     def _echoes(self, command: Command, mode: int) -> bool:
         """Mode 4 echoes "the instruction that was sent, in case of set or move
         instruction" (L2117): executing lines, ``!`` or bare (``moa 1``); with
-        ``echo_all`` every line, reads included (old L723: "echoes all input")."""
+        ``echo_all`` every line, reads included (old L723: "echoes all input").
+
+        Returns
+        -------
+        bool
+            Whether the line is echoed.
+        """
         return mode == 4 and (command.executes or self.firmware.echo_all == "yes")
 
     def _echo_text(self, text: str) -> str:
@@ -413,6 +517,11 @@ class ControllerModel:
         nothing, L2154), reads with ``ack_reads``. A line that answers ``OK...`` itself
         (``save``) is not acknowledged twice. A line that changes the mode is judged by
         the mode after it (``ack_mode_change=new``) or before it (``old``).
+
+        Returns
+        -------
+        str or None
+            The acknowledgement, or ``None``.
         """
         mode = after if self.firmware.ack_mode_change == "new" else before
         if mode != 2:
@@ -440,7 +549,13 @@ class ControllerModel:
     def _restyle(self, reply: str, numeric: bool) -> str:
         """Numbers of a data reply per switch ``numbers``: a value that rounds to zero from
         below prints ``0.0000`` (``plain``) or ``-0.0000`` (``negzero``); ``plus`` puts
-        ``+`` before positive values of ``numeric`` replies (not in ``?version`` text)."""
+        ``+`` before positive values of ``numeric`` replies (not in ``?version`` text).
+
+        Returns
+        -------
+        str
+            The reply.
+        """
         style = self.firmware.numbers
         if style == "negzero":
             return reply
@@ -531,14 +646,31 @@ class ControllerModel:
 
     def joystick_letters(self, letters: str) -> str:
         """Switch ``joystick_letter=J``: ``@`` shows as ``J`` while the joystick is
-        enabled (``joy`` not 0; L2697, L2721, L6341)."""
+        enabled (``joy`` not 0; L2697, L2721, L6341).
+
+        Parameters
+        ----------
+        letters
+            The status letters.
+
+        Returns
+        -------
+        str
+            The letters as shown.
+        """
         if self.firmware.joystick_letter == "J" and int(self.params.first("joy")) != 0:
             return letters.replace("@", "J")
         return letters
 
     def stopped_letters(self) -> str:
         """Report letters of the axes as they stand: their last letter (``E``/``@`` after
-        an abort), ``@`` for a disabled axis, ``-`` for an absent one."""
+        an abort), ``@`` for a disabled axis, ``-`` for an absent one.
+
+        Returns
+        -------
+        str
+            The letters.
+        """
         letters = []
         for index in range(len(AXES)):
             if index >= self.axes:
@@ -566,7 +698,13 @@ class ControllerModel:
         return None
 
     def store(self, command: Command) -> None:
-        """Keep the values of a plain set command in the settings store."""
+        """Keep the values of a plain set command in the settings store.
+
+        Parameters
+        ----------
+        command
+            The set command.
+        """
         self._generic_write(command)
 
     def _generic_write(self, command: Command) -> None:
@@ -648,7 +786,13 @@ class ControllerModel:
         (``ctr`` 1-4 and the encoder enabled by ``encmask``, "Preconditions for
         successfully entering closed loop are having ctr and encmask set", L11761-11800),
         else 0. Choice: ``encmask`` counts at once (the manual activates encoders at
-        power on), and the ±twi window is met at once (no deviation is modelled)."""
+        power on), and the ±twi window is met at once (no deviation is modelled).
+
+        Returns
+        -------
+        float
+            The seconds.
+        """
         if int(self.params.first("encmask", index)) != 1 or \
                 int(self.params.first("ctr", index)) == 0:
             return 0.0
@@ -669,6 +813,11 @@ class ControllerModel:
         A failed write is refused with error 73 ("internal error, e.g. eeprom data
         corruption"; the manual names no number for a failed save) and leaves the previous
         file intact.
+
+        Raises
+        ------
+        Refused
+            The file could not be written (error 73).
         """
         path = self.config.state_file
         if path is None:
@@ -704,7 +853,23 @@ class ControllerModel:
     # Helpers used by the handlers module.
 
     def present(self, command: Command) -> list[int]:
-        """Axis indices a command addresses: its axis letter, else every present axis."""
+        """Axis indices a command addresses: its axis letter, else every present axis.
+
+        Parameters
+        ----------
+        command
+            The command.
+
+        Returns
+        -------
+        list[int]
+            The axis indices.
+
+        Raises
+        ------
+        Refused
+            The command's axis is not present (error 1).
+        """
         if command.axis is not None:
             index = AXES.index(command.axis)
             if index >= self.axes:
@@ -713,7 +878,25 @@ class ControllerModel:
         return list(range(self.axes))
 
     def axis_map(self, command: Command, skip_lead: int = 0) -> dict[int, float]:
-        """Per-axis values of a command as ``{axis index: value}`` in user units."""
+        """Per-axis values of a command as ``{axis index: value}`` in user units.
+
+        Parameters
+        ----------
+        command
+            The command.
+        skip_lead
+            Lead values to skip.
+
+        Returns
+        -------
+        dict[int, float]
+            The values, by axis index.
+
+        Raises
+        ------
+        Refused
+            More values than axes (error 1), or an axis not present.
+        """
         values = [float(v) for v in command.values[skip_lead:]]
         if command.axis is not None:
             return {self.present(command)[0]: values[0]} if values else {}
@@ -722,25 +905,74 @@ class ControllerModel:
         return dict(enumerate(values))
 
     def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
-        """Convert user-unit positions to motor revolutions."""
+        """Convert user-unit positions to motor revolutions.
+
+        Parameters
+        ----------
+        values
+            Positions in user units, by axis index.
+
+        Returns
+        -------
+        dict[int | str, float]
+            The same in motor revolutions.
+        """
         return {axis: self.motion.from_user(axis, value) for axis, value in values.items()}
 
     def position_text(self, axis: int, revs: float) -> str:
-        """Format a position (revolutions) in the axis' dim units with resolution digits."""
+        """Format a position (revolutions) in the axis' dim units with resolution digits.
+
+        Parameters
+        ----------
+        axis
+            The axis index.
+        revs
+            The position, in revolutions.
+
+        Returns
+        -------
+        str
+            The text.
+        """
         digits = position_digits(int(self.params.first("resolution")),
                                  int(self.params.first("dim", axis)))
         return format_value(self.motion.to_user(axis, revs), digits)
 
     def axes_text(self, indices: Iterable[int], value: Callable[[int], str]) -> str:
-        """Join per-axis texts."""
+        """Join per-axis texts.
+
+        Parameters
+        ----------
+        indices
+            The axis indices.
+        value
+            The text of an axis, by index.
+
+        Returns
+        -------
+        str
+            The texts, separated by spaces.
+        """
         return " ".join(value(index) for index in indices)
 
     def completion_letters(self) -> str:
-        """A completion report with ``@`` for every present axis (``!joy 0``)."""
+        """A completion report with ``@`` for every present axis (``!joy 0``).
+
+        Returns
+        -------
+        str
+            The letters.
+        """
         return "".join("@" if i < self.axes else "-" for i in range(len(AXES)))
 
     def report(self, letters: str) -> None:
-        """Send a report that is not a move's (``!joy 0``) in the current autostatus mode."""
+        """Send a report that is not a move's (``!joy 0``) in the current autostatus mode.
+
+        Parameters
+        ----------
+        letters
+            The status letters.
+        """
         self._report_completion(letters, move=False)
 
     def owe_stop_report(self) -> None:
@@ -748,7 +980,13 @@ class ControllerModel:
         self.session.stop_report_owed = True
 
     def set_autostatus(self, mode: int) -> None:
-        """Switch the autostatus mode."""
+        """Switch the autostatus mode.
+
+        Parameters
+        ----------
+        mode
+            The new mode.
+        """
         self.session.autostatus = mode
 
     # -- trigger list ----------------------------------------------------------------------
@@ -792,12 +1030,24 @@ class ControllerModel:
             self.motion.clear_triggers()  # the lists module already refused bad orders
 
     def trigger_axis(self) -> int:
-        """Index of the trigger axis (``triga``, or the axis the list was written for)."""
+        """Index of the trigger axis (``triga``, or the axis the list was written for).
+
+        Returns
+        -------
+        int
+            The axis index.
+        """
         letter = self.triggers.axis or str(self.params.first("triga"))
         return min(AXES.index(letter), self.axes - 1)
 
     def trigger_pointer(self) -> int:
-        """``?trigi``: where the armed list is (1-based), else the stored pointer."""
+        """``?trigi``: where the armed list is (1-based), else the stored pointer.
+
+        Returns
+        -------
+        int
+            The pointer.
+        """
         armed = self.motion.trigger_index()
         if self._triggers_dirty or armed == 0:
             return self.triggers.pointer
@@ -809,11 +1059,28 @@ class ControllerModel:
                 self.cal_zero[index] = self.motion.position(index)
 
     def reboot(self, now: float | None = None) -> None:
-        """Restart like a power cycle: settings reload from the state file."""
+        """Restart like a power cycle: settings reload from the state file.
+
+        Parameters
+        ----------
+        now
+            The time; ``None`` for the motion model's.
+        """
         self._boot(self.motion.now if now is None else now)
 
     def form_is_set(self, command: Command) -> bool:
-        """Whether the command was sent with ``!`` (or an executing bare form)."""
+        """Whether the command was sent with ``!`` (or an executing bare form).
+
+        Parameters
+        ----------
+        command
+            The command.
+
+        Returns
+        -------
+        bool
+            Whether it sets or executes.
+        """
         return command.form is Form.SET or command.executes
 
 
@@ -833,7 +1100,13 @@ def _plus(match: re.Match[str]) -> str:
 
 def _reprint(token: str) -> str:
     """A token as a re-formatting firmware prints it: numbers shortest (``1.50`` -> ``1.5``,
-    ``+2.0`` -> ``2``), other words as they are."""
+    ``+2.0`` -> ``2``), other words as they are.
+
+    Returns
+    -------
+    str
+        The token as printed.
+    """
     if not _NUMBER_TOKEN.fullmatch(token):
         return token
     text = format(Decimal(token).normalize(), "f")

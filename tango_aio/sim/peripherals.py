@@ -250,7 +250,18 @@ class Peripherals:
 
     def swtyp_text(self, c: Command) -> str | None:
         """``?swtyp`` without an axis in extmode 0 prints the axis groups without the
-        separating space, ``1 1 11 1 11 1 1`` (L4818-4822); None: the normal reply."""
+        separating space, ``1 1 11 1 11 1 1`` (L4818-4822); None: the normal reply.
+
+        Parameters
+        ----------
+        c
+            The ``?swtyp`` line.
+
+        Returns
+        -------
+        str or None
+            The reply text, or ``None`` for the normal reply.
+        """
         if c.axis is not None or int(self.m.params.first("extmode")) != 0:
             return None
         groups = self.m.params.axis_values["swtyp"][: self.m.axes]

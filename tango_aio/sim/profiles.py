@@ -259,6 +259,23 @@ class Firmware:
 
         Raises ValueError naming the option and its allowed values for an unknown
         profile, switch or value.
+
+        Parameters
+        ----------
+        profile
+            The profile's name.
+        **switches
+            Switch values, by switch name.
+
+        Returns
+        -------
+        Firmware
+            The firmware.
+
+        Raises
+        ------
+        ValueError
+            An unknown profile, switch or value.
         """
         base = PROFILES.get(profile)
         if base is None:
@@ -267,7 +284,23 @@ class Firmware:
         return base.with_(**switches)
 
     def with_(self, **switches: str) -> Firmware:
-        """A copy with ``switches`` overridden (names and values checked)."""
+        """A copy with ``switches`` overridden (names and values checked).
+
+        Parameters
+        ----------
+        **switches
+            Switch values, by switch name.
+
+        Returns
+        -------
+        Firmware
+            The copy.
+
+        Raises
+        ------
+        ValueError
+            An unknown switch or value.
+        """
         for name, value in switches.items():
             if name not in SWITCHES:
                 raise ValueError(f"unknown firmware switch {name!r}; "
@@ -287,6 +320,21 @@ class Firmware:
         ``manual`` value; what it recorded as unknown is not a switch value and is left
         out. Raises ValueError for a file that is not a fingerprint or holds a switch
         name or value the emulator does not know.
+
+        Parameters
+        ----------
+        fingerprint
+            The fingerprint's file, or its JSON data.
+
+        Returns
+        -------
+        Firmware
+            The firmware.
+
+        Raises
+        ------
+        ValueError
+            Not a fingerprint, or an unknown switch name or value.
         """
         if not isinstance(fingerprint, Mapping):
             path = Path(fingerprint)
@@ -310,7 +358,13 @@ class Firmware:
         return cls().with_(**chosen)
 
     def changed(self) -> dict[str, str]:
-        """The switches whose value differs from the ``manual`` profile."""
+        """The switches whose value differs from the ``manual`` profile.
+
+        Returns
+        -------
+        dict[str, str]
+            Their values, by switch name.
+        """
         return {name: getattr(self, name) for name, doc in SWITCHES.items()
                 if getattr(self, name) != doc.default}
 
@@ -340,7 +394,18 @@ def variants(*, unsupported: bool = False) -> list[tuple[str, Firmware]]:
     (named ``switch=value``): the firmwares a client's test matrix runs against.
 
     Values the driver does not serve yet (:attr:`SwitchDoc.unsupported`) are left out
-    unless ``unsupported`` is true (the probe's tests take every value)."""
+    unless ``unsupported`` is true (the probe's tests take every value).
+
+    Parameters
+    ----------
+    unsupported
+        Include the values the driver does not serve yet.
+
+    Returns
+    -------
+    list[tuple[str, Firmware]]
+        The name and the firmware of each variant.
+    """
     out: list[tuple[str, Firmware]] = list(PROFILES.items())
     manual = PROFILES["manual"]
     for name, doc in SWITCHES.items():
@@ -351,7 +416,13 @@ def variants(*, unsupported: bool = False) -> list[tuple[str, Firmware]]:
 
 
 def switch_table() -> str:
-    """The Markdown table of every switch (the README's, checked by a test)."""
+    """The Markdown table of every switch (the README's, checked by a test).
+
+    Returns
+    -------
+    str
+        The table.
+    """
     rows = ["| switch | values (* not served by the driver yet) | `manual` | `legacy` "
             "| manual lines |",
             "|---|---|---|---|---|"]

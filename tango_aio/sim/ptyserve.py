@@ -40,6 +40,11 @@ class PtyServer:
     one session: after a disconnect fault or :meth:`close` the master is closed and the
     host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
     and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`.
+
+    Parameters
+    ----------
+    wire
+        The emulated link.
     """
 
     def __init__(self, wire: Wire) -> None:
@@ -169,5 +174,19 @@ async def serve_pty(factory: HandlerFactory, config: WireConfig | None = None, *
 
     ``speed``: the controller runs that many times as fast as the host's clock
     (:mod:`tango_aio.sim.clock`); the wire keeps its timing.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
+    config
+        The wire's configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+
+    Returns
+    -------
+    PtyServer
+        The running server.
     """
     return PtyServer(Wire(scaled_factory(factory, speed), config))

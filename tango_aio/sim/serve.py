@@ -91,6 +91,15 @@ class WireRunner:
     ``throttle`` (optional) is called with True when more than :data:`INPUT_QUEUE_LIMIT`
     input bytes wait for the line, and with False once they are down to
     :data:`INPUT_QUEUE_RESUME`: the serving layer stops and resumes reading from the host.
+
+    Parameters
+    ----------
+    wire
+        The wire to drive.
+    write
+        Where the wire's output goes.
+    throttle
+        Called to stop (True) and resume (False) reading from the host.
     """
 
     def __init__(self, wire: Wire, write: Callable[[bytes], None],
@@ -107,7 +116,13 @@ class WireRunner:
         wire.clock = self._loop.time
 
     def feed(self, data: bytes) -> None:
-        """Bytes arrived from the host now."""
+        """Bytes arrived from the host now.
+
+        Parameters
+        ----------
+        data
+            The bytes.
+        """
         self.wire.feed(data, self._loop.time())
         self._wake.set()
         if self._throttle is not None and not self.input_paused \
@@ -130,7 +145,13 @@ class WireRunner:
 
     def _next_wakeup(self) -> float | None:
         """The wire's next wake-up, or earlier when paused input will be down to the
-        resume level (the bytes reach the controller one byte time apart)."""
+        resume level (the bytes reach the controller one byte time apart).
+
+        Returns
+        -------
+        float or None
+            The host time, or ``None``.
+        """
         wakeup = self.wire.next_wakeup()
         if not self.input_paused:
             return wakeup
@@ -184,6 +205,11 @@ class SharedController:
     * While no connection is attached, the controller runs on (moves finish, timeouts
       expire); whatever it sends meanwhile is lost, as with no host listening. It is
       advanced to the present when the next connection attaches.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
     """
 
     def __init__(self, factory: HandlerFactory) -> None:
@@ -196,6 +222,18 @@ class SharedController:
 
         Returns the handler for the new wire (use as ``Wire(lambda e: shared.attach(e,
         now))``).
+
+        Parameters
+        ----------
+        emit
+            Where the new wire takes output.
+        now
+            The time of the attach.
+
+        Returns
+        -------
+        LineHandler
+            The handler for the new wire.
         """
         self._target = None
         self.handler.poll(now)
@@ -203,7 +241,13 @@ class SharedController:
         return self.handler
 
     def detach(self, emit: Emit) -> None:
-        """The wire whose :meth:`Wire.emit` is ``emit`` is gone; later output is lost."""
+        """The wire whose :meth:`Wire.emit` is ``emit`` is gone; later output is lost.
+
+        Parameters
+        ----------
+        emit
+            The gone wire's ``emit``.
+        """
         if self._target == emit:
             self._target = None
 
@@ -317,6 +361,17 @@ class TcpServer:
 
     With ``shared=False`` every connection gets a fresh power-on controller, and several
     connections may be open at once.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
+    config
+        The wire configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+    shared
+        One controller for every connection, or a fresh one per connection.
     """
 
     def __init__(self, factory: HandlerFactory, config: WireConfig | None = None, *,
@@ -345,7 +400,13 @@ class TcpServer:
 
     async def next_connection(self) -> Wire:
         """The wire of the oldest accepted connection not yet taken (of the last
-        :data:`CONNECTION_BACKLOG`); waits for the next one if there is none."""
+        :data:`CONNECTION_BACKLOG`); waits for the next one if there is none.
+
+        Returns
+        -------
+        Wire
+            The connection's wire.
+        """
         while not self._new:
             self._arrived.clear()
             await self._arrived.wait()
@@ -355,6 +416,13 @@ class TcpServer:
         """Build the shared controller, bind and start accepting (called by :func:`serve_tcp`).
 
         A factory that cannot build a controller (e.g. a bad state file) raises here.
+
+        Parameters
+        ----------
+        host
+            The address to bind.
+        port
+            The port; 0 for any free one.
         """
         if self._share and self.shared is None:
             self.shared = SharedController(self.factory)
@@ -421,6 +489,26 @@ async def serve_tcp(
     ``shared``: one controller for the server's life (default) or a fresh one per
     connection (:class:`TcpServer`). ``speed``: the controller runs that many times as
     fast as the host's clock (:mod:`tango_aio.sim.clock`); the wire keeps its timing.
+
+    Parameters
+    ----------
+    factory
+        Makes the controller logic.
+    host
+        The address to bind.
+    port
+        The port; 0 for any free one.
+    config
+        The wire's configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+    shared
+        One controller for the server's life, or a fresh one per connection.
+
+    Returns
+    -------
+    TcpServer
+        The running server.
     """
     server = TcpServer(factory, config, speed=speed, shared=shared)
     await server.start(host, port)
@@ -437,6 +525,13 @@ class SimTransport(asyncio.Transport):
     the loop, one call per chunk (so fragmentation is visible). ``close()`` reports
     ``connection_lost(None)``; a disconnect fault reports
     ``connection_lost(ConnectionResetError)``. Extra info: ``"wire"`` and ``"peername"``.
+
+    Parameters
+    ----------
+    protocol
+        The protocol the output goes to.
+    wire
+        The emulated link.
     """
 
     def __init__(self, protocol: asyncio.Protocol, wire: Wire) -> None:
@@ -452,7 +547,13 @@ class SimTransport(asyncio.Transport):
         self._task = self._loop.create_task(self._serve())
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        """Send bytes to the controller (ignored once closing, like asyncio's transports)."""
+        """Send bytes to the controller (ignored once closing, like asyncio's transports).
+
+        Parameters
+        ----------
+        data
+            The bytes.
+        """
         if not self._closing:
             self._runner.feed(bytes(data))
 
@@ -465,7 +566,13 @@ class SimTransport(asyncio.Transport):
         self._lose(None)
 
     def is_closing(self) -> bool:
-        """True once closed or disconnected."""
+        """True once closed or disconnected.
+
+        Returns
+        -------
+        bool
+            Whether it is closed.
+        """
         return self._closing
 
     def pause_reading(self) -> None:
@@ -480,18 +587,42 @@ class SimTransport(asyncio.Transport):
             self._deliver(chunk)
 
     def is_reading(self) -> bool:
-        """False while reading is paused."""
+        """False while reading is paused.
+
+        Returns
+        -------
+        bool
+            Whether it reads.
+        """
         return self._reading
 
     def get_write_buffer_size(self) -> int:
-        """Always 0: writes go straight into the wire's unbounded queue."""
+        """Always 0: writes go straight into the wire's unbounded queue.
+
+        Returns
+        -------
+        int
+            0.
+        """
         return 0
 
     def set_write_buffer_limits(self, high: int | None = None, low: int | None = None) -> None:
-        """Accepted and ignored (the write buffer is always empty)."""
+        """Accepted and ignored (the write buffer is always empty).
+
+        Parameters
+        ----------
+        high, low
+            Ignored.
+        """
 
     def can_write_eof(self) -> bool:
-        """False: a serial line has no EOF."""
+        """False: a serial line has no EOF.
+
+        Returns
+        -------
+        bool
+            False.
+        """
         return False
 
     async def wait_closed(self) -> None:
@@ -537,6 +668,22 @@ async def create_sim_connection(
     ``speed``: the controller runs that many times as fast as the host's clock
     (:mod:`tango_aio.sim.clock`); the wire keeps its timing. Input is not bounded here:
     the bytes come from this process, which holds them anyway.
+
+    Parameters
+    ----------
+    protocol_factory
+        Makes the protocol to connect.
+    handler_factory
+        Makes the controller logic.
+    config
+        The wire's configuration; ``None`` for the default.
+    speed
+        How many times as fast as the host's clock the controller runs.
+
+    Returns
+    -------
+    tuple[SimTransport, _P]
+        The transport and the connected protocol.
     """
     protocol = protocol_factory()
     transport = SimTransport(protocol, Wire(scaled_factory(handler_factory, speed), config))

@@ -87,30 +87,73 @@ class LineHandler(Protocol):
     """
 
     def handle_line(self, line: bytes, now: float) -> None:
-        """Execute one complete command line: no CR, LFs removed, case as received."""
+        """Execute one complete command line: no CR, LFs removed, case as received.
+
+        Parameters
+        ----------
+        line
+            The line.
+        now
+            The time.
+        """
 
     def line_too_long(self, head: bytes, now: float) -> None:
         """A line had more characters than fit in the input buffer; ``head`` is its start.
 
         Called in place of :meth:`handle_line` when the line's CR arrives; the logic should
         not execute it and should set error 3 ("too many characters in command line").
+
+        Parameters
+        ----------
+        head
+            The line's start.
+        now
+            The time.
         """
 
     def ctrl_c(self, now: float) -> None:
-        """0x03 arrived: stop all axes. The wire has already cleared the input buffer."""
+        """0x03 arrived: stop all axes. The wire has already cleared the input buffer.
+
+        Parameters
+        ----------
+        now
+            The time.
+        """
 
     def processing_time(self, line: bytes) -> float:
         """Extra seconds the interpreter is busy with ``line``.
 
         The wire adds this to :attr:`WireConfig.processing_time_per_line`. Return 0.0 for
         ordinary instructions and more for blocking ones (``brakepos``, ``reset``...).
+
+        Parameters
+        ----------
+        line
+            The line.
+
+        Returns
+        -------
+        float
+            The seconds.
         """
 
     def poll(self, now: float) -> None:
-        """Let time-driven logic (moves finishing, autostatus) run up to ``now``."""
+        """Let time-driven logic (moves finishing, autostatus) run up to ``now``.
+
+        Parameters
+        ----------
+        now
+            The time.
+        """
 
     def next_deadline(self) -> float | None:
-        """When :meth:`poll` must next be called, or None if nothing is pending."""
+        """When :meth:`poll` must next be called, or None if nothing is pending.
+
+        Returns
+        -------
+        float or None
+            The time, or ``None``.
+        """
 
 
 HandlerFactory = Callable[[Emit], LineHandler]
@@ -125,6 +168,18 @@ def flip_one_bit(data: bytes, rng: random.Random) -> bytes:
 
     Keeping CRs intact leaves the line structure alone, so the host sees a corrupted line
     rather than two lines; the default garbler models noise that corrupts content only.
+
+    Parameters
+    ----------
+    data
+        The bytes.
+    rng
+        The random source.
+
+    Returns
+    -------
+    bytes
+        The changed bytes.
     """
     candidates = [i for i, byte in enumerate(data) if byte != CR]
     if not candidates:
@@ -251,6 +306,13 @@ class Wire:
     Use :meth:`feed` for bytes from the host, :meth:`poll` (or :meth:`poll_chunks`) for
     bytes to the host, and :meth:`next_deadline` to know when to call :meth:`poll` next.
     ``now`` must not decrease between calls (a smaller value is treated as the last one).
+
+    Parameters
+    ----------
+    make_handler
+        Makes the controller logic, given the wire's ``emit``.
+    config
+        The timing configuration; ``None`` for the default.
     """
 
     def __init__(self, make_handler: HandlerFactory, config: WireConfig | None = None) -> None:
@@ -322,7 +384,15 @@ class Wire:
         return sum(len(seg.data) - seg.pos for seg in self._tx)
 
     def feed(self, data: bytes, now: float) -> None:
-        """The host wrote ``data`` at ``now``; it reaches the controller at the baud rate."""
+        """The host wrote ``data`` at ``now``; it reaches the controller at the baud rate.
+
+        Parameters
+        ----------
+        data
+            The bytes.
+        now
+            The time.
+        """
         self._advance(now)
         if self.closed or not data:
             return
@@ -342,6 +412,16 @@ class Wire:
 
         Each chunk comes from one piece of one reply, so fragmentation is visible to a
         serving layer that writes chunks separately.
+
+        Parameters
+        ----------
+        now
+            The time.
+
+        Returns
+        -------
+        list[bytes]
+            The chunks, in order.
         """
         self._advance(now)
         out: list[bytes] = []
@@ -361,11 +441,28 @@ class Wire:
         return out
 
     def poll(self, now: float) -> bytes:
-        """Advance to ``now`` and return the reply bytes that reached the host by then."""
+        """Advance to ``now`` and return the reply bytes that reached the host by then.
+
+        Parameters
+        ----------
+        now
+            The time.
+
+        Returns
+        -------
+        bytes
+            The bytes.
+        """
         return b"".join(self.poll_chunks(now))
 
     def next_deadline(self) -> float | None:
-        """When :meth:`poll` should next be called, or None if only new input can matter."""
+        """When :meth:`poll` should next be called, or None if only new input can matter.
+
+        Returns
+        -------
+        float or None
+            The time, or ``None``.
+        """
         if self.closed:
             return None
         tx_next = self._tx[0].due_at(self._bt) if self._tx else None
@@ -384,6 +481,11 @@ class Wire:
         handler's deadline, the next input byte that can run the handler (Ctrl+C; while
         the interpreter is idle also CR, and the byte that fills the buffer), and the last
         input byte in flight (so the counters are up to date when input has arrived).
+
+        Returns
+        -------
+        float or None
+            The time, or ``None`` if only new input can matter.
         """
         if self.closed:
             return None
@@ -394,7 +496,13 @@ class Wire:
 
     def _rx_wakeup(self) -> float | None:
         """Due time of the first pending input byte that can run the handler, or of the
-        last pending one."""
+        last pending one.
+
+        Returns
+        -------
+        float or None
+            The time, or ``None`` if no input is pending.
+        """
         if not self._rx:
             return None
         bt = self._bt
@@ -428,6 +536,11 @@ class Wire:
 
         While the interpreter is busy the reply is held until processing ends, so replies
         leave in order and only after the processing time.
+
+        Parameters
+        ----------
+        data
+            The reply.
         """
         if self.closed or not data:
             return
@@ -443,6 +556,13 @@ class Wire:
         Input still fills the buffer and overflows; output the logic emits meanwhile is
         held. Time-driven logic (moves) keeps running, as motion is done by hardware.
         Without ``now`` the time is taken from :attr:`clock`, else the last time seen.
+
+        Parameters
+        ----------
+        seconds
+            How long.
+        now
+            The time; ``None`` as described.
         """
         if now is None and self.clock is not None:
             now = self.clock()
@@ -455,7 +575,13 @@ class Wire:
         self._notify()
 
     def disconnect(self, mid_reply: bool = False) -> None:
-        """Cut the connection now, or (``mid_reply``) halfway through the next reply."""
+        """Cut the connection now, or (``mid_reply``) halfway through the next reply.
+
+        Parameters
+        ----------
+        mid_reply
+            Cut halfway through the next reply instead of now.
+        """
         if mid_reply:
             self.faults.disconnect_mid_reply = True
         else:
@@ -482,6 +608,11 @@ class Wire:
 
         Ties go to the interpreter finishing a line, then the handler, then input bytes,
         so a byte arriving exactly as a line completes finds the freed space.
+
+        Returns
+        -------
+        bool
+            Whether an event ran.
         """
         busy, handler, rx = self._busy_until, self._handler_due(), self._rx_next()
         candidates = [(t, rank) for rank, t in enumerate((busy, handler, rx)) if t is not None]
@@ -511,6 +642,11 @@ class Wire:
 
         A deadline at or before the last poll would make the loop spin; the poll that ends
         every :meth:`_advance` covers it.
+
+        Returns
+        -------
+        float or None
+            The deadline, or ``None``.
         """
         deadline = self._handler_deadline
         if deadline is None or deadline <= self._handler_polled_at:
@@ -550,7 +686,13 @@ class Wire:
 
     def _due_end(self, seg: _Segment, until: float, before: float) -> int:
         """End (exclusive index into ``seg.data``) of the bytes that :meth:`_rx_run` would
-        take one by one now: due by ``until`` and before ``before``. The next byte is due."""
+        take one by one now: due by ``until`` and before ``before``. The next byte is due.
+
+        Returns
+        -------
+        int
+            The end index.
+        """
         bt, start, size, pos = self._bt, seg.start, len(seg.data), seg.pos
 
         def due(index: int) -> bool:  # the very test _rx_run applies to each byte
@@ -572,7 +714,13 @@ class Wire:
         (or count as lost) without running anything: no Ctrl+C, and while the interpreter
         is idle no CR, no byte that fills the buffer and no over-long line being skipped.
         They are taken in one go (:meth:`_take_plain`), which is what makes a busy link
-        cheap to emulate; the result is the same as byte by byte."""
+        cheap to emulate; the result is the same as byte by byte.
+
+        Returns
+        -------
+        int
+            The number of bytes.
+        """
         data, pos = seg.data, seg.pos
         end = self._due_end(seg, until, before)
         stop = data.find(_CTRL_C_BYTE, pos, end) if self._ctrl_c_stops else -1
@@ -608,6 +756,11 @@ class Wire:
 
         Ctrl+C is taken by the receive interrupt before anything is buffered, so it is
         never lost, even with a full buffer (the manual says it bypasses the parser).
+
+        Returns
+        -------
+        bool
+            Whether the handler was called.
         """
         if self._deaf:
             self.lost_bytes += 1
@@ -657,6 +810,11 @@ class Wire:
         * The buffer full without a CR means the line cannot fit: the parser keeps its
           first 255 characters, frees the buffer and skips input up to the next CR, then
           reports the line with :meth:`LineHandler.line_too_long` (error 3).
+
+        Returns
+        -------
+        bool
+            Whether the handler ran.
         """
         ran = False
         while self._busy_until is None and not self.closed:

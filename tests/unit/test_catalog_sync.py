@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import ast
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from helpers import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
-GENERATOR = ROOT / "tools" / "gen_catalog.py"
 CATALOG = ROOT / "tango_aio" / "_catalog.py"
 REFERENCE = ROOT / "reference" / "instructions.json"
 
@@ -18,11 +17,7 @@ REFERENCE = ROOT / "reference" / "instructions.json"
 
 @pytest.fixture(scope="module")
 def generator() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("gen_catalog", GENERATOR)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("gen_catalog")
 
 
 @pytest.fixture(scope="module")

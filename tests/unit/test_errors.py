@@ -258,9 +258,10 @@ def test_every_tango_error_is_defined_in_errors() -> None:
 
 
 def test_the_surfaces_errors_keep_their_old_import_paths() -> None:
-    from tango_aio import bluesky, bulk, probe, reconnect
+    from tango_aio import bluesky, bulk, probe, protocol, reconnect
     from tango_aio.epics import ioc
 
+    assert protocol.WrongEventLoopError is errors.WrongEventLoopError
     assert bulk.UploadError is errors.UploadError
     assert reconnect.IdentityMismatchError is errors.IdentityMismatchError
     assert probe.ProbeError is errors.ProbeError

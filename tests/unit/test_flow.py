@@ -154,3 +154,10 @@ def test_wrote_run_counts_what_line_by_line_writes_count(
             window.wrote(size, tag)
     assert windows[0].wrote_run(ends, first) == _line_by_line(windows[1], ends, first)
     assert _state(windows[0]) == _state(windows[1])
+
+
+def test_a_reserve_cuts_the_chunk_so_a_line_and_the_marker_fit_behind_it() -> None:
+    assert CreditWindow(limit=255, chunk=160, reserve=9).chunk == 160  # fits: not cut
+    assert CreditWindow(limit=40, chunk=160).chunk == 36
+    assert CreditWindow(limit=40, chunk=160, reserve=9).chunk == 27  # 27 + 9 + 4 = 40
+    assert CreditWindow(limit=10, chunk=160, reserve=9).chunk == 1  # never below a byte

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tango_aio import cli, motion
+from tango_aio import cli, motion, timing
 from tango_aio.status import ABSENT, ARRIVED_LETTERS, FAILED_LETTERS, MOVING, AxisStatus
 
 
@@ -16,7 +16,19 @@ def test_the_letter_sets_are_the_manuals() -> None:
 
 
 def test_motion_and_the_shell_use_the_same_letters() -> None:
-    assert motion.FAILED_LETTERS is FAILED_LETTERS
+    assert vars(motion)["FAILED_LETTERS"] is FAILED_LETTERS
+    assert vars(timing)["FAILED_LETTERS"] is FAILED_LETTERS
     assert set(cli.LETTER_MEANINGS) == {*AxisStatus, ABSENT}
     assert cli.describe_letters({"x": "@", "y": "E", "z": "-"}) == (
         "x=@ (ok) y=E (error/aborted) z=- (absent)")
+
+
+def test_a_completion_report_may_hold_every_documented_letter_and_no_other() -> None:
+    from tango_aio.core import is_completion_line
+    from tango_aio.status import LETTERS
+
+    assert {*AxisStatus, ABSENT} == LETTERS
+    for letter in LETTERS:
+        assert is_completion_line(f"{letter}@.") and is_completion_line(f"{letter}.")
+    for other in "BFGKNOPQRVWXYZ0 ":
+        assert not is_completion_line(f"{other}@.")

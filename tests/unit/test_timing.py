@@ -10,11 +10,21 @@ from hypothesis import strategies as st
 
 from tango_aio.instructions import parse
 from tango_aio.timing import (
+    CAL_LIMIT,
+    MARGIN,
+    MOC_LIMIT,
+    POLL_GRACE,
     UNKNOWN_TRAVEL,
+    Budget,
     MoveTiming,
+    describe_stop,
+    move_budget,
     moved_axes,
     position_tolerance,
+    rest_budget,
+    too_early,
     travel_time,
+    verdict,
 )
 
 revs = st.floats(min_value=0.0, max_value=1e6, allow_nan=False)
@@ -82,8 +92,110 @@ def test_the_tolerance_is_one_and_a_half_printed_digits(text: str, tolerance: fl
     assert position_tolerance(text) == pytest.approx(tolerance)
 
 
-def test_the_old_import_paths_still_work() -> None:
-    from tango_aio import motion, state
-    assert motion.MoveTiming is MoveTiming and motion.travel_time is travel_time
-    assert motion.moved_axes is moved_axes and motion.position_tolerance is position_tolerance
+def test_the_driver_state_is_a_move_timing() -> None:
+    from tango_aio import state
     assert issubclass(state.DriverState, MoveTiming)
+
+
+def _waits(delay: float = 0.0, pause: float = 0.0, settle: float = 0.0) -> MoveTiming:
+    return MoveTiming(delay_ms=delay * 1000, pause_ms=pause * 1000, settle_ms=settle * 1000)
+
+
+def test_a_move_budget_is_delay_travel_pause_and_settling() -> None:
+    timing = _waits(delay=0.5, pause=0.25, settle=0.125)
+    travel = timing.travel("y", 30.0)
+    budget = move_budget(timing, parse("!moa 10 -20"), {"x": 10.0, "y": -30.0})
+    assert budget == Budget(delay=0.5, travel=travel, after=0.375, settle=0.125,
+                            limit=0.5 + 2 * travel + MARGIN + 0.375)
+    assert budget.expected == pytest.approx(0.5 + travel + 0.375)
+    assert budget.fallback == pytest.approx(2 * travel + MARGIN + 0.375)
+
+
+def test_the_callers_timeout_replaces_the_limit_only() -> None:
+    timing = _waits(delay=0.5)
+    budget = move_budget(timing, parse("!mor x 5"), {"x": 5.0}, timeout=3.0)
+    assert budget.limit == 3.0
+    assert budget.expected == pytest.approx(0.5 + timing.travel("x", 5.0))
+
+
+def test_delay_and_pause_apply_to_moa_mor_m_and_moc_only() -> None:
+    timing = _waits(delay=1.0, pause=2.0, settle=0.5)
+    for line in ("!moa x 1", "!mor x 1", "!m", "!moc x"):
+        budget = move_budget(timing, parse(line), None)
+        assert (budget.delay, budget.after) == (1.0, 2.5), line
+    for line in ("!cal x", "!rm"):
+        budget = move_budget(timing, parse(line), None)
+        assert (budget.delay, budget.after, budget.settle) == (0.0, 0.5, 0.5), line
+
+
+def test_cal_rm_and_moc_have_fixed_limits() -> None:
+    timing = _waits(pause=1.0)
+    assert move_budget(timing, parse("!cal"), None).limit == CAL_LIMIT
+    assert move_budget(timing, parse("!rm y"), None).limit == CAL_LIMIT
+    assert move_budget(timing, parse("!moc"), None).limit == MOC_LIMIT + 1.0
+    assert move_budget(timing, parse("!moc"), None).travel == 0.0
+
+
+def test_the_rest_of_a_move_is_sized_from_where_its_axes_stand() -> None:
+    timing = _waits(delay=5.0, pause=0.25)
+    rest = rest_budget(timing, {"x": 10.0}, {"x": "4.0", "y": "0"}, fallback=99.0)
+    assert rest == pytest.approx(2 * timing.travel("x", 6.0) + MARGIN + 0.25)
+    assert rest_budget(timing, {"x": 10.0, "y": 1.0}, {"x": "4.0"}, fallback=99.0) == 99.0
+
+
+def test_a_move_at_its_targets_with_good_letters_is_a_success() -> None:
+    assert verdict(("x", "y"), {"x": 10.0, "y": -2.5}, {}, {"x": "@", "y": "@", "z": "S"},
+                   {"x": "10.00", "y": "-2.50"}) is None
+    # cal/rm/moc have no targets: only the letters count.
+    assert verdict(("x",), None, {}, {"x": "A"}, {}) is None
+
+
+@pytest.mark.parametrize(("letters", "texts", "words"), [
+    ({"x": "S", "y": "@"}, {"x": "50.05", "y": "1.0"},
+     "X stopped at its upper limit switch (EE) (status S), at 50.05, target 60"),
+    ({"x": "@", "y": "E"}, {"x": "60.0", "y": "1.0"},
+     "Y stopped: its move was aborted or not executed (status E), at 1.0, target 1"),
+    ({"x": "@", "y": "@"}, {"x": "59.0", "y": "1.0"},
+     "X stopped short of its target (status @), at 59.0, target 60"),
+    ({"x": "@", "y": "@"}, {"y": "1.0"}, "X stopped short of its target (status @), "
+     "position not read, target 60"),
+])
+def test_a_failed_verdict_says_which_axis_and_why(letters: dict[str, str],
+                                                  texts: dict[str, str], words: str) -> None:
+    assert verdict(("x", "y"), {"x": 60.0, "y": 1.0}, {}, letters, texts) == (
+        "did not end at its target: " + words)
+
+
+def test_a_wider_tolerance_of_an_axis_is_used() -> None:
+    letters = {"x": "@"}
+    assert verdict(("x",), {"x": 1.0}, {}, letters, {"x": "1.2"}) is not None
+    assert verdict(("x",), {"x": 1.0}, {"x": 0.25}, letters, {"x": "1.2"}) is None
+
+
+def test_describe_stop_tells_the_switch_from_the_direction_and_takes_a_reason() -> None:
+    assert describe_stop("x", "S", "3", 0.0) == (
+        "X stopped at its lower limit switch (E0) (status S), at 3, target 0")
+    assert describe_stop("z", "S", None, None) == (
+        "Z stopped at a limit switch (status S), position not read")
+    assert describe_stop("y", "T", "1", None) == "Y timed out (status T), at 1"
+    assert describe_stop("y", "@", "1", 2.0, why="was stopped") == (
+        "Y was stopped, at 1, target 2")
+
+
+def test_a_failed_read_during_the_delay_is_read_again_after_it() -> None:
+    budget = Budget(delay=1.0, travel=2.0, after=0.0, settle=0.0, limit=10.0)
+    letters = {"x": "S"}
+    assert too_early(budget, ("x",), letters, checked=5.0, now=5.5,
+                     expected_end=8.0) == 6.0 + POLL_GRACE
+    assert too_early(budget, ("x",), letters, checked=5.0, now=6.1, expected_end=8.0) is None
+
+
+def test_a_settling_axis_is_read_again_at_the_expected_end_unless_its_letter_is_final() -> None:
+    budget = Budget(delay=0.0, travel=2.0, after=0.5, settle=0.5, limit=10.0)
+    assert too_early(budget, ("x",), {"x": "@"}, 0.0, now=1.0,
+                     expected_end=2.5) == 2.5 + POLL_GRACE
+    for final in "EST-":
+        assert too_early(budget, ("x",), {"x": final}, 0.0, 1.0, 2.5) is None, final
+    assert too_early(budget, ("x",), {"x": "@"}, 0.0, now=2.6, expected_end=2.5) is None
+    no_settling = Budget(delay=0.0, travel=2.0, after=0.0, settle=0.0, limit=10.0)
+    assert too_early(no_settling, ("x",), {"x": "@"}, 0.0, 1.0, 2.5) is None

@@ -9,7 +9,14 @@ import logging
 import pytest
 
 import tango_aio
-from tango_aio.units import UnitScale, check_unit, from_controller, split_unit, to_controller
+from tango_aio.units import (
+    Measure,
+    UnitScale,
+    check_unit,
+    from_controller,
+    split_unit,
+    to_controller,
+)
 
 INSTANT = "sim://?baud=0"
 
@@ -20,42 +27,42 @@ INSTANT = "sim://?baud=0"
 ])
 def test_a_length_in_every_dim(dim: int, expected: float) -> None:
     scale = UnitScale(dim=dim, pitch=2.0, gear=1.0)
-    assert to_controller(1.5, "mm", 0, scale) == pytest.approx(expected, rel=1e-12)
-    assert from_controller(expected, "mm", 0, scale) == pytest.approx(1.5, rel=1e-12)
+    assert to_controller(1.5, "mm", Measure.POSITION, scale) == pytest.approx(expected, rel=1e-12)
+    assert from_controller(expected, "mm", Measure.POSITION, scale) == pytest.approx(1.5, rel=1e-12)
 
 
 def test_microsteps_use_pitch_gear_and_usteps() -> None:
     scale = UnitScale(dim=0, pitch=2.0, gear=4.0, usteps=40000)  # 0.5 mm per motor rev
-    assert to_controller(1.0, "mm", 0, scale) == 80000.0
-    assert to_controller(1.0, "rev", 0, scale) == 40000.0
-    assert to_controller(5, "ustep", 0, scale) == 5.0
+    assert to_controller(1.0, "mm", Measure.POSITION, scale) == 80000.0
+    assert to_controller(1.0, "rev", Measure.POSITION, scale) == 40000.0
+    assert to_controller(5, "ustep", Measure.POSITION, scale) == 5.0
 
 
 def test_exact_decimal_results() -> None:
-    assert to_controller(2.3, "mm", 0, UnitScale(dim=1)) == 2300.0
-    assert to_controller(1, "inch", 0, UnitScale(dim=7)) == 1.0
+    assert to_controller(2.3, "mm", Measure.POSITION, UnitScale(dim=1)) == 2300.0
+    assert to_controller(1, "inch", Measure.POSITION, UnitScale(dim=7)) == 1.0
 
 
 def test_velocities_are_converted_with_the_pitch() -> None:
     scale = UnitScale(dim=2, pitch=2.0)  # rev/s on the wire
-    assert to_controller(4.0, "mm/s", 1, scale) == 2.0
-    assert to_controller(3.0, "rev/s", 1, scale) == 3.0
-    assert from_controller(2.0, "um/s", 1, scale) == 4000.0
+    assert to_controller(4.0, "mm/s", Measure.VELOCITY, scale) == 2.0
+    assert to_controller(3.0, "rev/s", Measure.VELOCITY, scale) == 3.0
+    assert from_controller(2.0, "um/s", Measure.VELOCITY, scale) == 4000.0
     mm_vel = UnitScale(dim=9, pitch=2.0)  # mm/s on the wire
-    assert to_controller(4.0, "mm/s", 1, mm_vel) == 4.0
-    assert to_controller(3.0, "rev/s", 1, mm_vel) == 6.0
+    assert to_controller(4.0, "mm/s", Measure.VELOCITY, mm_vel) == 4.0
+    assert to_controller(3.0, "rev/s", Measure.VELOCITY, mm_vel) == 6.0
 
 
 def test_accelerations_are_m_per_s2() -> None:
     scale = UnitScale(dim=1, pitch=2.0)
-    assert to_controller(500, "mm/s2", 2, scale) == 0.5
-    assert to_controller(1, "rev/s^2", 2, scale) == 0.002
-    assert from_controller(0.1, "mm/s²", 2, scale) == pytest.approx(100.0)
+    assert to_controller(500, "mm/s2", Measure.ACCELERATION, scale) == 0.5
+    assert to_controller(1, "rev/s^2", Measure.ACCELERATION, scale) == 0.002
+    assert from_controller(0.1, "mm/s²", Measure.ACCELERATION, scale) == pytest.approx(100.0)
 
 
 def test_unit_names() -> None:
-    assert split_unit("um/s") == ("um", 1)
-    assert split_unit("mm/s**2") == ("mm", 2)
+    assert split_unit("um/s") == ("um", Measure.VELOCITY)
+    assert split_unit("mm/s**2") == ("mm", Measure.ACCELERATION)
     assert check_unit("µm") == "µm"
     for bad in ("furlong", "mm/h", ""):
         with pytest.raises(ValueError, match="unknown unit"):
@@ -63,8 +70,8 @@ def test_unit_names() -> None:
     with pytest.raises(ValueError, match="not a position unit"):
         check_unit("mm/s")
     with pytest.raises(ValueError, match="velocity unit where a position goes"):
-        to_controller(1.0, "mm/s", 0, UnitScale())
-    assert to_controller(1, "um", 0, UnitScale()) == 0.001
+        to_controller(1.0, "mm/s", Measure.POSITION, UnitScale())
+    assert to_controller(1, "um", Measure.POSITION, UnitScale()) == 0.001
 
 
 async def test_moves_in_mm_whatever_dim_and_pitch() -> None:
@@ -203,3 +210,14 @@ def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
     # The user-per-mm factors are the inverse of the mm-per-unit table, bit for bit.
     assert [user_per_rev(dim, 1.0, 1.0, 40000) for dim in (1, 3, 5, 6, 7, 8)] == [
         1000.0, 360.0, 0.1, 0.001, 1.0 / 25.4, 1000.0 / 25.4]
+
+
+def test_the_velocity_unit_follows_the_dim() -> None:
+    from tango_aio.instructions import lookup, upper_bound
+    from tango_aio.units import DIM_MM_VEL, velocity_unit
+
+    assert [velocity_unit(dim) for dim in (0, 2, 8, DIM_MM_VEL)] == [
+        "rev/s", "rev/s", "rev/s", "mm/s"]
+    vel = lookup("vel").write[0].per_axis[0]
+    assert vel.hi_dim9 is not None and vel.hi_dim9 != vel.hi
+    assert upper_bound(vel, DIM_MM_VEL) == vel.hi_dim9 and upper_bound(vel, 2) == vel.hi
