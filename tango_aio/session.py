@@ -158,6 +158,16 @@ def nothing_trails_help(lines: Sequence[str]) -> bool:
     Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
     lines are move reports), and ``help``'s reply is one line in both editions (L2915-
     2919, old L805-819). In modes 2 and 4 the exchange waits for quiet.
+
+    Parameters
+    ----------
+    lines
+        The lines the exchange collected so far.
+
+    Returns
+    -------
+    bool
+        Whether the mode in force (the first number) is 0, 1 or 3.
     """
     for line in lines:
         if _INTEGER.match(line):
@@ -166,18 +176,32 @@ def nothing_trails_help(lines: Sequence[str]) -> bool:
 
 
 def _is_help_reply(text: str) -> bool:
-    """Whether ``text`` (stripped) looks like the reply of ``help``: ``ERROR n,text``
-    (L2915-2919, old L805-819)."""
+    """Whether ``text`` (stripped) looks like the reply of ``help``.
+
+    Returns
+    -------
+    bool
+        Whether it is ``ERROR n,text`` (L2915-2919, old L805-819).
+    """
     return text.startswith("ERROR")
 
 
 class LinkSession:
     """The link's state, resyncs, exchanges, detection and liveness (see the module).
 
-    ``core`` is the :class:`~tango_aio.core.ProtocolCore` whose resyncs the session starts
-    and ends; ``dead_after`` consecutive unanswered requests with no line in between
-    declare the link dead; ``keepalive`` is the seconds of silence after which an idle
-    link is probed (``None``: never).
+    Parameters
+    ----------
+    core
+        The core whose resyncs the session starts and ends.
+    dead_after
+        Consecutive unanswered requests, with no line in between, that declare the link
+        dead.
+    keepalive
+        Seconds of silence after which an idle link is probed (``None``: never).
+    detect
+        Whether the first resync runs the detection instead (set by ``connect``).
+    quiet_interval
+        Seconds of silence after the reply of ``help`` that end a quiet resync.
     """
 
     def __init__(self, core: ProtocolCore, *, dead_after: int = DEAD_AFTER,
@@ -197,7 +221,7 @@ class LinkSession:
         self.quiet_deadline: float | None = None
         #: The exchange collecting lines (``None``: none).
         self.exchange: Exchange | None = None
-        #: What :meth:`detect_lines` and :meth:`mode_read` found out (``help_number``,
+        #: What :meth:`end_detect` and :meth:`mode_read` found out (``help_number``,
         #: ``ack_reads``).
         self.detected: dict[str, str] = {}
         #: Consecutive unanswered requests with no line in between.
@@ -225,7 +249,21 @@ class LinkSession:
     def begin_resync(self, tag: Hashable, *, ctrl_c: bool = False) -> bytes:
         """Start a resync whose marker (if this controller has markers) is registered
         under ``tag``; return the bytes to write (see
-        :meth:`~tango_aio.core.ProtocolCore.resync`)."""
+        :meth:`~tango_aio.core.ProtocolCore.resync`).
+
+        Parameters
+        ----------
+        tag
+            The tag the marker's reply is reported under.
+        ctrl_c
+            Whether Ctrl+C goes first (it stops all axes and empties the controller's input
+            buffer, L6808-6814).
+
+        Returns
+        -------
+        bytes
+            The bytes to write: ``?help N`` (or ``help``), behind 0x03 with ``ctrl_c``.
+        """
         data = self.core.resync(tag, ctrl_c=ctrl_c)
         quiet = self.core.quiet
         self._marker = None if quiet else tag
@@ -235,18 +273,51 @@ class LinkSession:
 
     def detects_first(self, *, ctrl_c: bool) -> bool:
         """Whether a resync asked for now runs the detection instead: the first one of a
-        link opened by ``connect``, unless it is a Ctrl+C."""
+        link opened by ``connect``, unless it is a Ctrl+C.
+
+        Parameters
+        ----------
+        ctrl_c
+            Whether the resync asked for starts with Ctrl+C.
+
+        Returns
+        -------
+        bool
+            Whether to run the detection instead.
+        """
         return self.detect_at_connect and not self.detected and not ctrl_c
 
     def resync_again(self, *, newest: bool) -> bool:
         """A resync's marker went unanswered in time (and the link is not dead): whether
         to write a new one, so lines held behind it are not held for ever: when it was
-        the newest resync and the stream is not in step yet."""
+        the newest resync and the stream is not in step yet.
+
+        Parameters
+        ----------
+        newest
+            Whether the overdue marker is the newest resync's.
+
+        Returns
+        -------
+        bool
+            Whether to write a new marker.
+        """
         return newest and self.core.resyncing
 
     def replied(self, tag: Hashable) -> bool:
         """A :class:`~tango_aio.core.Replied` event for ``tag``: whether it is the reply
-        of the marker the core awaited (then the stream is in step)."""
+        of the marker the core awaited (then the stream is in step).
+
+        Parameters
+        ----------
+        tag
+            The tag of the :class:`~tango_aio.core.Replied` event.
+
+        Returns
+        -------
+        bool
+            Whether it was the marker's reply.
+        """
         if tag is None or tag != self._marker:
             return False
         self._marker = None
@@ -255,7 +326,21 @@ class LinkSession:
 
     def line_dropped(self, line: str, now: float) -> Outcome:
         """A line the core dropped (a :class:`~tango_aio.core.Dropped` event) at loop time
-        ``now``: collected by the exchange, or watched by a quiet resync."""
+        ``now``: collected by the exchange, or watched by a quiet resync.
+
+        Parameters
+        ----------
+        line
+            The line, as the core reported it.
+        now
+            The loop time it arrived at.
+
+        Returns
+        -------
+        Outcome
+            What the adapter does next: nothing, (re)arm the quiet deadline, or wake the
+            exchange.
+        """
         exchange = self.exchange
         if exchange is not None:
             exchange.lines.append(line)
@@ -304,7 +389,15 @@ class LinkSession:
 
     def quiet_elapsed(self) -> Outcome:
         """The quiet deadline armed last has passed with no line since: the exchange
-        has what it waits for, or the quiet resync ends (the core is in step)."""
+        has what it waits for, or the quiet resync ends (the core is in step).
+
+        Returns
+        -------
+        Outcome
+            :attr:`Outcome.COLLECTED` (wake the exchange), :attr:`Outcome.IN_STEP` (the quiet
+            resync ended: release what it held) or :attr:`Outcome.NONE` (``help``'s reply was
+            not the last line, or the link is lost).
+        """
         self.quiet_deadline = None
         if not self.core.quiet or not self._help_last or self.lost:
             return Outcome.NONE
@@ -320,7 +413,22 @@ class LinkSession:
                        marker: str | None = None) -> bytes:
         """Start collecting what ``lines`` bring back, with the core dropping every line
         (only when nothing is owed); return the bytes to write. With ``marker``
-        (:attr:`Until.MARKER`), quiet after any line ends the exchange too."""
+        (:attr:`Until.MARKER`), quiet after any line ends the exchange too.
+
+        Parameters
+        ----------
+        lines
+            The lines to write.
+        until
+            What ends the collection.
+        marker
+            The text the marker replies start with (:attr:`Until.MARKER` only).
+
+        Returns
+        -------
+        bytes
+            The bytes to write.
+        """
         self.core.drop_all()
         self._marker = None
         self._go(LinkEvent.EXCHANGE_WRITTEN)
@@ -340,7 +448,18 @@ class LinkSession:
     def end_exchange(self, *, in_step: bool) -> bool:
         """The exchange is over (``in_step``: it got what it waited for; else it was
         cancelled or timed out). Returns whether a resync must follow (its replies may
-        still come)."""
+        still come).
+
+        Parameters
+        ----------
+        in_step
+            Whether the exchange got what it waited for.
+
+        Returns
+        -------
+        bool
+            Whether a resync must follow.
+        """
         self.exchange = None
         self.quiet_deadline = None
         if not in_step and not self.core.quiet:
@@ -354,7 +473,18 @@ class LinkSession:
     @staticmethod
     def mode_lines(lines: Sequence[str]) -> list[str]:
         """The lines of a mode exchange: ``lines`` (a mode change, or none), then
-        ``?autostatus`` and ``?help``, whose reply ends it (:attr:`Until.HELP`)."""
+        ``?autostatus`` and ``?help``, whose reply ends it (:attr:`Until.HELP`).
+
+        Parameters
+        ----------
+        lines
+            The lines before the read (``!autostatus n``, or none).
+
+        Returns
+        -------
+        list[str]
+            The lines to write.
+        """
         return [*lines, "?autostatus", "?help"]
 
     def mode_read(self, sent: Sequence[str], received: Sequence[str]) -> int:
@@ -363,7 +493,25 @@ class LinkSession:
         after their data (an ``OK...`` between the two replies, or after the last).
         Echoes (of any of the lines, mode 4) and acknowledgements of the lines are
         whatever they are: they are left out. Raises :class:`ProtocolError` when the
-        lines hold no reply of ``?autostatus``."""
+        lines hold no reply of ``?autostatus``.
+
+        Parameters
+        ----------
+        sent
+            The lines the exchange wrote (:meth:`mode_lines`).
+        received
+            The lines it collected.
+
+        Returns
+        -------
+        int
+            The mode in force.
+
+        Raises
+        ------
+        ProtocolError
+            When no reply of ``?autostatus`` (or of ``?help``) is among the lines.
+        """
         normals = {normal_line(line) for line in sent}
         kept = [line.strip() for line in received if normal_line(line) not in normals]
         numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
@@ -385,7 +533,13 @@ class LinkSession:
 
     def begin_detect(self) -> int:
         """Start the detection at connect: markers off until it ends; return the marker
-        number for step 0 (:meth:`numbered_marker_lines`)."""
+        number for step 0 (:meth:`numbered_marker_lines`).
+
+        Returns
+        -------
+        int
+            The marker number for step 0.
+        """
         self.core.help_style = HelpStyle.NONE
         self.detected = {"help_number": "none"}
         return self.core.pick_marker_code()
@@ -400,12 +554,34 @@ class LinkSession:
         separators are ``?help`` with the codes in turn, one code never twice in a row
         (:meth:`~tango_aio.core.ProtocolCore.pick_marker_code`), so its replies cannot
         look like this pair. Only its own step 0 with the same code could, had it been
-        cut off within those few lines."""
+        cut off within those few lines.
+
+        Parameters
+        ----------
+        code
+            The marker number (from :meth:`begin_detect`).
+
+        Returns
+        -------
+        tuple[list[str], str]
+            The lines to write, and the text their marker replies start with.
+        """
         return ["help", f"?help {code}", f"?help {code}", "?err"], f"ERROR {code},"
 
     def numbered_read(self, exchange: Exchange) -> bool:
         """Whether step 0 (``exchange``) found ``?help N`` answering ``ERROR N,...``
-        (firmware 1.71, L2919): then the stream is in step and markers hold a number."""
+        (firmware 1.71, L2919): then the stream is in step and markers hold a number.
+
+        Parameters
+        ----------
+        exchange
+            Step 0's exchange, once collected.
+
+        Returns
+        -------
+        bool
+            Whether the marker's reply came twice in a row and then a number.
+        """
         if exchange.numbered:
             self.core.help_style = HelpStyle.NUMBER
         return exchange.numbered
@@ -413,14 +589,35 @@ class LinkSession:
     @staticmethod
     def help_lines(code: int) -> list[str]:
         """Step 2 of the detection: ``?help code`` then ``?err`` (an exchange
-        :attr:`Until.NUMBER`, read by :meth:`help_read`)."""
+        :attr:`Until.NUMBER`, read by :meth:`help_read`).
+
+        Parameters
+        ----------
+        code
+            The marker number to ask about.
+
+        Returns
+        -------
+        list[str]
+            The lines to write.
+        """
         return [f"?help {code}", "?err"]
 
     def help_read(self, code: int, sent: Sequence[str], received: Sequence[str]) -> None:
         """How ``?help code`` answered, from the lines step 2 brought back (the last is
         the ``?err`` number): ``ERROR code,...`` (firmware 1.71, L2919): markers hold a
         number; the text alone: the markers use ``code`` and wait for that text; nothing
-        (older firmware, whose ``help`` takes no parameter): resyncs wait for quiet."""
+        (older firmware, whose ``help`` takes no parameter): resyncs wait for quiet.
+
+        Parameters
+        ----------
+        code
+            The marker number asked about.
+        sent
+            The lines written (:meth:`help_lines`).
+        received
+            The lines collected, the ``?err`` number last.
+        """
         normals = {normal_line(line) for line in sent}
         answers = [line.strip() for line in received[:-1]
                    if not ACK_PATTERN.accepts(line.strip())
@@ -444,7 +641,13 @@ class LinkSession:
 
     def reply_heard(self, now: float) -> None:
         """A reply line arrived at loop time ``now``: the link answers (the keepalive
-        waits from here)."""
+        waits from here).
+
+        Parameters
+        ----------
+        now
+            The loop time the reply arrived at.
+        """
         self.last_reply = now
 
     def unanswered(self, serial: int, written: int) -> bool:
@@ -454,7 +657,20 @@ class LinkSession:
         that stopped). ``serial`` numbers the line among those written, ``written`` is how
         many lines are written now: lines in flight together count once (they time out
         together when one reply is lost), so each count is a line written after the
-        previous count."""
+        previous count.
+
+        Parameters
+        ----------
+        serial
+            The serial of the unanswered line (the scheduler's count of lines written).
+        written
+            The lines written so far.
+
+        Returns
+        -------
+        bool
+            Whether the link is now declared dead.
+        """
         if serial <= self._counted_upto:
             return False
         self._counted_upto = written
@@ -470,7 +686,25 @@ class LinkSession:
 
     def keepalive_wait(self, now: float, *, busy: bool) -> float:
         """Seconds from ``now`` until the keepalive probes the link; ``0.0``: probe now.
-        ``busy``: requests are in flight (they have their own deadlines)."""
+        ``busy``: requests are in flight (they have their own deadlines).
+
+        Parameters
+        ----------
+        now
+            The loop time.
+        busy
+            Whether requests are in flight.
+
+        Returns
+        -------
+        float
+            Seconds to wait before asking again; ``0.0``: probe now.
+
+        Raises
+        ------
+        ValueError
+            When the session has no keepalive.
+        """
         interval = self.keepalive
         if interval is None:
             raise ValueError("this session has no keepalive")
@@ -481,6 +715,12 @@ class LinkSession:
 
     def keepalive_probed(self, now: float) -> None:
         """A keepalive probe ended at ``now`` (answered or not): the next one is due half
-        an interval later at the earliest."""
+        an interval later at the earliest.
+
+        Parameters
+        ----------
+        now
+            The loop time the probe ended at.
+        """
         assert self.keepalive is not None
         self.last_reply = max(self.last_reply, now - self.keepalive / 2)
