@@ -11,11 +11,12 @@ its default kinematics). On the same pty, in one run, side by side:
   limit check reads ``?lim``, then ``trigger_and_read`` of the axis), the run's open and
   close included and spread over the points.
 
-The points alternate between two positions ``step`` apart: tiny steps (0.01 mm, the wire
+Both are measured in ``--rounds`` alternating chunks (each Bluesky chunk one run). The
+points alternate between two positions ``step`` apart: tiny steps (0.01 mm, the wire
 is all there is) and tile steps (1 mm, as in a tiled microscope scan). Reported in ms per
 point and as Bluesky / driver (target ≤ 1.2). Usage::
 
-    python -m benchmarks.bluesky [--points 100]
+    python -m benchmarks.bluesky [--points 100] [--rounds 4]
 """
 
 from __future__ import annotations
@@ -80,9 +81,14 @@ def bluesky_points(path: str, points: int, step: float,
         with init_devices():
             stage = MarzhauserStage(path, axes="x")
         engine(bp.list_scan([], stage.x, [0.0]))
-        start = time.perf_counter()
-        engine(bp.list_scan([stage.x], stage.x, targets(points, step)))
-        seconds = time.perf_counter() - start
+        events: list[float] = []
+        token = engine.subscribe(lambda name, doc: events.append(time.perf_counter()),
+                                 "event")
+        engine(bp.list_scan([stage.x], stage.x, targets(points + 1, step)))
+        engine.unsubscribe(token)
+        # From the first point's event to the last one's: whole points (set, read, the
+        # event), the run's open and close left out.
+        seconds = events[-1] - events[0]
         call_in_bluesky_event_loop(stage.aclose(), timeout=30)
     finally:
         loop.call_soon_threadsafe(loop.stop)
@@ -91,16 +97,28 @@ def bluesky_points(path: str, points: int, step: float,
     return PointCost(f"bp.list_scan point, {step:g} mm steps", points, seconds)
 
 
-def run(points: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None
-        ) -> list[tuple[PointCost, PointCost]]:
-    """(Bluesky, driver) per step size, measured one after the other on one emulator."""
+def run(points: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None = None,
+        rounds: int = 4) -> list[tuple[PointCost, PointCost]]:
+    """(Bluesky, driver) per step size on one emulator, in ``rounds`` alternating chunks
+    of ``points / rounds`` points each (so that both see the same load of a shared
+    machine; each Bluesky chunk is a run of its own, timed from its first event to its last)."""
     pairs = []
+    chunk = max(1, points // rounds)
     with emulator_pty() as path, asyncio.Runner(loop_factory=loop_factory) as runner:
         for step in (TINY, TILE):
-            driver = runner.run(driver_points(path, points, step))
-            scan = bluesky_points(path, points, step, loop_factory)
+            driver = scan = None
+            for _ in range(rounds):
+                driver = _add(driver, runner.run(driver_points(path, chunk, step)))
+                scan = _add(scan, bluesky_points(path, chunk, step, loop_factory))
+            assert scan is not None and driver is not None
             pairs.append((scan, driver))
     return pairs
+
+
+def _add(total: PointCost | None, part: PointCost) -> PointCost:
+    if total is None:
+        return part
+    return PointCost(total.name, total.points + part.points, total.seconds + part.seconds)
 
 
 def table(pairs: list[tuple[PointCost, PointCost]]) -> str:
@@ -117,9 +135,11 @@ def table(pairs: list[tuple[PointCost, PointCost]]) -> str:
 def main() -> None:
     """Run the benchmark and print its table."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--points", type=int, default=100, help="points per scan")
+    parser.add_argument("--points", type=int, default=100, help="points per step size")
+    parser.add_argument("--rounds", type=int, default=4,
+                        help="alternating chunks of driver and Bluesky points (default 4)")
     args = parser.parse_args()
-    print(table(run(args.points)))
+    print(table(run(args.points, rounds=args.rounds)))
 
 
 if __name__ == "__main__":

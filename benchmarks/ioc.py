@@ -1,13 +1,16 @@
 """Cost of a move through the EPICS IOC beside the driver's own ``move_to`` (#28 target 4).
 
-The same short move (X between 0 and ``--step`` mm, fast motion) is made ``--moves`` times
-by the driver's ``move_to`` on one emulated controller, then ``--moves`` times by pyepics'
-``caput(P:X, target, wait=True)`` in another process, through the IOC (with the put
-ordering of #26: the put completes once RBV/DMOV/MOVN are on the wire) serving a second,
-identical emulated controller in this process, on loopback. Reported: the median time
-of one move for each, and their ratio (target: at most 1.1). Usage::
+The same move (X between 0 and ``--step`` mm at ``--speed`` mm/s) is made by the driver's
+``move_to`` on one emulated controller and by pyepics' ``caput(P:X, target, wait=True)``
+in another process, through the IOC (with the put ordering of #26: the put completes
+once RBV/DMOV/MOVN are on the wire) serving a second, identical emulated controller in
+this process, on loopback: ``--rounds`` alternating chunks of each, so that both see the
+same load of a shared machine. Reported: the median time of one move for each, their
+ratio (target: at most 1.1), and the median of as many puts that move nothing (TWV), the
+client's and the server's own floor. Usage::
 
-    python -m benchmarks.ioc [--moves 100] [--step 0.01] [--url 'sim://?baud=0']
+    python -m benchmarks.ioc [--moves 100] [--step 0.01] [--speed 100] [--rounds 10]
+                             [--url sim://?baud=57600] [--poll 0.1] [--merge-window 0.02]
 """
 
 from __future__ import annotations
@@ -21,28 +24,33 @@ import socket
 import statistics
 import sys
 import time
+from typing import Any
 
 import tango_aio
 
-#: The client: ``moves`` puts with callback, each timed, medians printed as JSON.
+#: The client: for each line ``N`` on stdin, ``N`` puts with callback, each timed, the
+#: seconds printed as one JSON line; for ``-N``, ``N`` puts that move nothing (TWV).
 CLIENT = """
 import json, sys, time, warnings
 warnings.simplefilter("ignore")
 import epics
-pv, moves, step = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+pv, step = sys.argv[1], float(sys.argv[2])
 assert epics.PV(pv).wait_for_connection(30)
 epics.caput(pv, 0.0, wait=True, timeout=60)
-times = []
-for i in range(moves):
-    start = time.perf_counter()
-    epics.caput(pv, step if i % 2 == 0 else 0.0, wait=True, timeout=60)
-    times.append(time.perf_counter() - start)
-quick = []
-for i in range(moves):  # a put that moves nothing: the client's and server's own cost
-    start = time.perf_counter()
-    epics.caput(pv + ".TWV", 0.5 + (i % 2), wait=True, timeout=60)
-    quick.append(time.perf_counter() - start)
-print(json.dumps([times, quick]))
+print("ready", flush=True)
+done = 0
+for line in sys.stdin:
+    count = int(line)
+    times = []
+    for i in range(abs(count)):
+        start = time.perf_counter()
+        if count > 0:
+            epics.caput(pv, step if done % 2 == 0 else 0.0, wait=True, timeout=60)
+            done += 1
+        else:  # a put that moves nothing: the client's and server's own cost
+            epics.caput(pv + ".TWV", 0.5 + (i % 2), wait=True, timeout=60)
+        times.append(time.perf_counter() - start)
+    print(json.dumps(times), flush=True)
 """
 
 
@@ -61,48 +69,78 @@ def _loopback(port: int) -> None:
         "EPICS_CAS_SERVER_PORT": str(port)})
 
 
-async def _fast(tango: tango_aio.Controller) -> None:
-    for name, value in (("vel", 100), ("accel", 20), ("stopaccel", 20)):
+async def _fast(tango: tango_aio.Controller, speed: float) -> None:
+    for name, value in (("secvel", max(speed, 10.0)), ("vel", speed), ("accel", 20),
+                        ("stopaccel", 20)):
         await tango.set(name, value, axis="x")
 
 
-async def driver_moves(url: str, moves: int, step: float) -> list[float]:
-    """Seconds per ``move_to`` of the driver, alternating 0 and ``step``."""
-    async with tango_aio.connect(url) as tango:
-        await _fast(tango)
-        await tango.move_to(x=0.0)
-        times = []
-        for i in range(moves):
-            start = time.perf_counter()
-            await tango.move_to(x=step if i % 2 == 0 else 0.0)
-            times.append(time.perf_counter() - start)
-        return times
+class _Client:
+    """The pyepics client process, doing chunks of puts on request."""
+
+    def __init__(self, process: asyncio.subprocess.Process) -> None:
+        self.process = process
+
+    async def line(self) -> str:
+        assert self.process.stdout is not None
+        out = await self.process.stdout.readline()
+        if not out:
+            assert self.process.stderr is not None
+            raise RuntimeError((await self.process.stderr.read()).decode())
+        return out.decode()
+
+    async def puts(self, count: int) -> list[float]:
+        """``count`` timed puts (negative: that many puts to TWV)."""
+        assert self.process.stdin is not None
+        self.process.stdin.write(f"{count}\n".encode())
+        await self.process.stdin.drain()
+        return list(json.loads(await self.line()))
 
 
-async def ioc_moves(url: str, moves: int, step: float, window: float,
-                    poll: float = 0.1) -> tuple[list[float], list[float]]:
-    """Seconds per ``caput(wait=True)`` through the IOC, from another process: of the
-    moves, and of as many puts that move nothing (TWV), the client's own floor."""
+async def side_by_side(url: str, moves: int, step: float, speed: float, window: float,
+                       poll: float, rounds: int, merge: str = "turn"
+                       ) -> tuple[list[float], list[float], list[float]]:
+    """Seconds per move: the driver's ``move_to`` on one emulated controller, and a
+    ``caput(wait=True)`` from another process through the IOC serving an identical one,
+    in ``rounds`` alternating chunks; then as many puts that move nothing (TWV)."""
     from tango_aio.epics.ioc import build_ioc
 
     _loopback(_free_port())
-    async with tango_aio.connect(url) as tango:
-        await _fast(tango)
-        ioc = await build_ioc({"": tango}, "BENCH:", window=window, poll=poll)
+    chunk = max(1, moves // rounds)
+    driver_times: list[float] = []
+    ioc_times: list[float] = []
+    async with tango_aio.connect(url) as own, tango_aio.connect(url) as served:
+        await _fast(own, speed)
+        await _fast(served, speed)
+        await own.move_to(x=0.0)
+        # (merge passed only when not the default: the benchmark also runs an older
+        # tango_aio, whose build_ioc has no merge, for side-by-side figures)
+        options: dict[str, Any] = {} if merge == "turn" else {"merge": merge}
+        ioc = await build_ioc({"": served}, "BENCH:", window=window, poll=poll, **options)
         task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-c", CLIENT, "BENCH:X", str(step), stdin=asyncio.subprocess.PIPE,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        client = _Client(process)
         try:
-            process = await asyncio.create_subprocess_exec(
-                sys.executable, "-c", CLIENT, "BENCH:X", str(moves), str(step),
-                stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
-            out, err = await process.communicate()
-            if process.returncode != 0:
-                raise RuntimeError(err.decode())
-            moved, quick = json.loads(out.decode().strip().splitlines()[-1])
-            return list(moved), list(quick)
+            if (await client.line()).strip() != "ready":
+                raise RuntimeError("the client did not start")
+            for _ in range(rounds):
+                for _ in range(chunk):
+                    start = time.perf_counter()
+                    await own.move_to(x=step if len(driver_times) % 2 == 0 else 0.0)
+                    driver_times.append(time.perf_counter() - start)
+                ioc_times += await client.puts(chunk)
+            quick = await client.puts(-moves)
         finally:
+            if process.stdin is not None:
+                process.stdin.close()
+            with contextlib.suppress(ProcessLookupError):
+                await asyncio.wait_for(process.wait(), 30)
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+    return driver_times, ioc_times, quick
 
 
 async def main(argv: list[str] | None = None) -> None:
@@ -110,18 +148,30 @@ async def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--moves", type=int, default=100)
     parser.add_argument("--step", type=float, default=0.01)
-    parser.add_argument("--url", default="sim://?baud=0")
+    parser.add_argument("--speed", type=float, default=100.0,
+                        help="X's vel in mm/s (default 100; --step 1 --speed 40: a tile step)")
+    parser.add_argument("--rounds", type=int, default=10,
+                        help="alternating chunks of driver and IOC moves (default 10)")
+    parser.add_argument("--url", default="sim://?baud=57600",
+                        help="the emulated controllers (default sim://?baud=57600, the "
+                             "wire's pace; sim://?baud=0 for no wire time)")
     parser.add_argument("--merge-window", type=float, default=0.02,
                         help="the IOC's --merge-window (default 0.02, the IOC's own)")
+    parser.add_argument("--merge", choices=("turn", "window"), default="turn",
+                        help="the IOC's --merge (default turn, the IOC's own)")
+    parser.add_argument("--poll", type=float, default=0.1,
+                        help="the IOC's --poll (default 0.1, the IOC's own)")
     args = parser.parse_args(argv)
-    driver = statistics.median(await driver_moves(args.url, args.moves, args.step))
-    moved, quick = await ioc_moves(args.url, args.moves, args.step, args.merge_window)
+    driver_times, moved, quick = await side_by_side(
+        args.url, args.moves, args.step, args.speed, args.merge_window, args.poll,
+        args.rounds, args.merge)
+    driver = statistics.median(driver_times)
     ioc, floor = statistics.median(moved), statistics.median(quick)
     print(f"driver move_to: median {driver * 1e3:.2f} ms; IOC caput(wait=True): median "
-          f"{ioc * 1e3:.2f} ms; ratio {ioc / driver:.2f} (target <= 1.1); a caput(wait=True) "
-          f"that moves nothing (TWV): median {floor * 1e3:.2f} ms; "
-          f"{args.moves} moves of {args.step} mm on {args.url}, merge window "
-          f"{args.merge_window} s")
+          f"{ioc * 1e3:.2f} ms; ratio {ioc / driver:.3f} (target <= 1.1); a caput(wait=True) "
+          f"that moves nothing (TWV): median {floor * 1e3:.2f} ms; {args.moves} moves of "
+          f"{args.step} mm at {args.speed} mm/s on {args.url} in {args.rounds} alternating "
+          f"rounds, merge {args.merge} (window {args.merge_window} s), poll {args.poll} s")
     print(json.dumps({"driver_s": driver, "ioc_s": ioc, "ratio": ioc / driver,
                       "noop_put_s": floor}))
 

@@ -131,9 +131,15 @@ def _read_line(port: serial.Serial) -> str:
     return raw[:-1].decode("latin-1")
 
 
-async def driver_moves(path: str, moves: int, relative: bool, step: float = STEP) -> Rate:
-    """``move_to`` / ``move_by`` through the driver, steps of ``step`` mm."""
+async def driver_moves(path: str, moves: int, relative: bool, step: float = STEP,
+                       hdi_off: bool = False) -> Rate:
+    """``move_to`` / ``move_by`` through the driver, steps of ``step`` mm. ``hdi_off``:
+    ``!joy 0`` first (and ``!joy 2`` after), so that a ``move_by`` may start from the
+    position its previous move's confirmation read (#28 target 2)."""
     async with tango_aio.connect(path) as tango:
+        if hdi_off:
+            await tango.set("joy", 0)
+            await tango.move_by(x=0.0)  # its confirmation reads the first start
         start = time.perf_counter()
         for index in range(moves):
             if relative:
@@ -141,7 +147,10 @@ async def driver_moves(path: str, moves: int, relative: bool, step: float = STEP
             else:
                 await tango.move_to(x=step if index % 2 == 0 else 0.0)
         seconds = time.perf_counter() - start
-    return Rate("driver move_by" if relative else "driver move_to", moves, seconds)
+        if hdi_off:
+            await tango.set("joy", 2)
+    name = "driver move_by" if relative else "driver move_to"
+    return Rate(f"{name}, HDI off" if hdi_off else name, moves, seconds)
 
 
 def absolute(index: int, step: float = STEP) -> str:
@@ -178,6 +187,8 @@ def run(moves: int, loop_factory: Callable[[], asyncio.AbstractEventLoop] | None
             (runner.run(driver_moves(path, moves, relative=False, step=step)),
              raw_moves(path, moves, moa, check=True)),
             (runner.run(driver_moves(path, moves, relative=True, step=step)),
+             raw_moves(path, moves, mor, check=False)),
+            (runner.run(driver_moves(path, moves, relative=True, step=step, hdi_off=True)),
              raw_moves(path, moves, mor, check=False)),
         ]
         if confirmed:

@@ -79,6 +79,8 @@ class _Batch:
     task: asyncio.Task[dict[str, str]] | None = None
     #: Why the batch was cancelled, for the callers that did not cancel it.
     cancel_reason: str = ""
+    #: The positions its lines' confirmations read, taken as each line returned.
+    positions: dict[str, str] = field(default_factory=dict)
 
     def close(self) -> None:
         """Stop collecting; the batch runs as soon as the batch before it has ended."""
@@ -146,7 +148,8 @@ class MoveCoalescer:
         return arrived
 
     async def move_to(self, axis: str, target: float,
-                      arrived: Callable[[], None] | None = None) -> str:
+                      arrived: Callable[[], None] | None = None, *,
+                      positions: dict[str, str] | None = None) -> str:
         """Move one axis as part of the next merged move; return its status letter,
         raise the merged move's MoveError/TangoError. A second request for an axis that is
         already in the batch being collected closes that batch and starts the next one.
@@ -161,6 +164,12 @@ class MoveCoalescer:
         arrived
             Called once the request has joined a batch (or failed before); ends an
             announcement (:meth:`announce`).
+        positions
+            If given, receives the positions (as printed) that the merged move's own
+            confirmations read behind their reports, once its lines have returned
+            (:attr:`Controller.last_positions <tango_aio.controller.Controller.last_positions>`
+            right after each ``move_to``): a caller that must publish where the axis
+            stands needs no read of its own.
 
         Returns
         -------
@@ -193,6 +202,9 @@ class MoveCoalescer:
                 raise MoveError(f"merged move {batch.targets} {batch.cancel_reason}",
                                 dict.fromkeys(batch.targets, AxisStatus.ERROR)) from None
             raise  # this caller was cancelled just as the batch ended
+        finally:
+            if positions is not None:
+                positions.update(batch.positions)
         return letters.get(axis, AxisStatus.READY)
 
     def pending(self, axis: str) -> bool:
@@ -288,6 +300,7 @@ class MoveCoalescer:
         for line in _lines(batch.targets):
             axes: dict[str, Any] = line  # only axis letters, never move_to's options
             letters.update(await self.controller.move_to(**axes))
+            batch.positions.update(self.controller.last_positions or {})
         return letters
 
     async def _withdraw(self, batch: _Batch, axis: str) -> None:

@@ -34,16 +34,18 @@ from .bulk import (
     validate_rows,
     validate_trigger_positions,
 )
-from .core import Completed, Dropped, Event, Unsolicited
+from .core import LOCAL_ECHO, Completed, Dropped, Event, Unsolicited
 from .errors import (
     ERROR_DESCRIPTIONS,
     INTERNAL_ERRORS,
+    ConnectError,
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
+    TangoError,
     parse_error_reply,
 )
 from .events import (
@@ -73,7 +75,7 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import STOP_WAIT, Motion, MovePlan
+from .motion import STOP_WAIT, Motion, MovePlan, annotate
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .state import CACHED_SETTINGS, DriverState
@@ -164,6 +166,16 @@ class Controller:
         #: Whether a confirmation may read the letters with ``sa``: cleared for
         #: good once an ``sa`` went unanswered (a firmware that does not know it).
         self._short_status = True
+        # A move_by's start without a read: see _still() and _plan().
+        #: ``!joy 0`` was accepted on this link (the HDI is off, L7101-7144).
+        self._hdi_off = False
+        #: ``?snsm`` read 0 and ``?tvr`` 0 for every axis since (None: not read yet).
+        self._inputs_idle: bool | None = None
+        #: ``!`` lines written through this Controller (not counting moves).
+        self._executed = 0
+        #: Axes whose remembered position was read after their last move while nothing
+        #: could move the stage; emptied by every other ``!`` line.
+        self._start_known: set[str] = set()
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
         self._fault = 0
@@ -250,13 +262,24 @@ class Controller:
         acknowledged in any mode): a previous session may have left any mode behind, and
         how ``!autostatus`` itself is answered depends on it.
         """
-        await self._protocol.resync(timeout=self.reply_timeout)
-        current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
-        if autostatus is not None and autostatus != current:
-            await self.command(f"!autostatus {autostatus}")
-        if identify:
-            self._identity = await self.identify()
-        await self.refresh_settings()
+        self._hdi_off, self._inputs_idle = False, None  # a power cycle turns the HDI on
+        self._start_known.clear()
+        try:
+            await self._protocol.resync(timeout=self.reply_timeout)
+            current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
+            if autostatus == 4 and current != 4:
+                # Mode 4 echoes set lines, and with echo_all reads too (old L723), so a
+                # link that echoes every byte (local echo) shows only before it: one read.
+                await self.query("?err")
+            if autostatus is not None and autostatus != current:
+                await self.command(f"!autostatus {autostatus}")
+            if identify:
+                self._identity = await self.identify()
+            await self.refresh_settings()
+        except TangoError as exc:
+            if self._protocol.core.local_echo:
+                raise ConnectError(LOCAL_ECHO) from exc
+            raise
         if self._reconnector is not None:
             self._reconnector.arm()
 
@@ -431,6 +454,8 @@ class Controller:
                        timeout: float | None = None) -> Response:
         """Write ``command`` (checked, see :meth:`TangoProtocol.execute`) and wait."""
         self._check_axes(command)
+        if not command.is_read:
+            self._forget_start(command)
         try:
             response = await self._protocol.execute(command, timeout=self._timeout(timeout),
                                                     check=check)
@@ -440,7 +465,43 @@ class Controller:
                 raise
             response = Response()
         self._track(command)
+        if command.name == "joy" and not command.is_read:
+            self._hdi_off = [float(v) for v in command.values
+                             if isinstance(v, int | float)] == [0.0]
+        if self._hdi_off and self._inputs_idle is None and not command.is_read \
+                and command.name in ("joy", "snsm", "tvr"):
+            self._inputs_idle = await self._inputs_are_idle()
         return response
+
+    def _forget_start(self, command: Command) -> None:
+        """A ``!`` line other than a move: any of them may move the stage or change what
+        ``?pos`` prints (``go``, ``speed``, ``pos``, ``cal``, a list...), so no remembered
+        position is a move_by's start any more until a move confirms it again."""
+        self._executed += 1
+        self._start_known.clear()
+        if command.name in ("joy", "reset", "restore"):
+            self._hdi_off = False  # until a !joy 0 is accepted
+        if command.name in ("joy", "reset", "restore", "snsm", "tvr"):
+            self._inputs_idle = None  # read again once the HDI is off
+
+    async def _inputs_are_idle(self) -> bool:
+        """Whether neither input moves the stage by itself: a snapshot event moves it in
+        snapshot modes other than 0 (L14520-14530; snsm 0 only captures, L900), and the
+        pulse/direction input drives an axis in tvr modes other than 0 (L9914-9930)."""
+        try:
+            snsm = await self.get("snsm")
+            tvr = await self.get("tvr")
+        except (ControllerError, ControllerTimeoutError, ProtocolError):  # not known
+            return False
+        modes = tvr.values() if isinstance(tvr, dict) else [tvr]
+        return snsm == 0 and all(mode == 0 for mode in modes)
+
+    def _still(self) -> bool:
+        """Whether nothing but this driver's own lines can move the stage: the HDI was
+        disabled on this link (``!joy 0``; while it is on, a joystick deflection moves
+        the axes, L6318-6323, and cannot be stopped by ``a``, L6826) and neither the
+        snapshot input nor the pulse/direction input moves it (:meth:`_inputs_are_idle`)."""
+        return self._hdi_off and self._inputs_idle is True
 
     def _send(self, command: Command, *, check: bool, batch: object | None = None
               ) -> MoveHandle:
@@ -739,7 +800,14 @@ class Controller:
         async def plan(line: Command, known: Mapping[str, str] | None) -> MovePlan:
             return await self._plan(line, targets, timeout, known)
 
-        return await self._motion.run(command, plan, stop_on_cancel)
+        moved = moved_axes(command, AXES[: self.context.axes])
+        executed = self._executed
+        letters = await self._motion.run(command, plan, stop_on_cancel)
+        if command.name in ("moa", "mor") and self._still() and executed == self._executed:
+            # Confirmed where they stand (read after the report), and no other line was
+            # written through this Controller meanwhile: the next move_by's start.
+            self._start_known.update(moved)
+        return letters
 
     async def _plan(self, command: Command, targets: Mapping[str, float] | None,
                     timeout: float | None, last: Mapping[str, str] | None) -> MovePlan:
@@ -750,6 +818,8 @@ class Controller:
         relative = command.name == "mor"
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
+        remembered = set(self._start_known)
+        self._start_known.difference_update(moved)  # until this move is confirmed
         reports = self.autostatus != 0
         timeout = check_timeout(timeout)
         if targets is None:  # cal, rm, moc: the distance is not known here
@@ -767,8 +837,20 @@ class Controller:
         # added once the reply is in, before the move is confirmed), so it costs bytes but
         # no round trip. Without a known position (the first move of a connection) the
         # start is read first.
-        known = None if relative else last
-        if relative and last is not None and self._exact_replies():
+        #
+        # A move_by takes the remembered position as its start only while nothing else
+        # can have moved the stage since it was read: the HDI is off (``!joy 0`` on this
+        # link: a joystick moves the axes, L6318-6323, and its motion cannot be stopped
+        # by ``a``, L6826), the snapshot and pulse/direction inputs move nothing
+        # (L14520-14530, L9914-9930), the position was read by the confirmation of this
+        # link's last move of that axis after the HDI was turned off, and no other ``!``
+        # line went out since (_start_known). Anything else (the HDI on or unknown, a line
+        # that may move or redefine) reads it; another program on the same link is
+        # impossible: the driver owns the link.
+        known = last
+        if relative and not set(targets) <= remembered:
+            known = None
+        if relative and known is None and last is not None and self._exact_replies():
             batch = object()
             return MovePlan(command, moved, dict(targets),
                             move_budget(self._settings, command, targets, timeout),
@@ -844,7 +926,21 @@ class Controller:
         axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
-        await self._execute(command, check=True)
+        try:
+            await self._execute(command, check=True)
+        except ControllerError:
+            raise  # refused: the line changed nothing (L2853-2856)
+        except TangoError as exc:
+            # Its answer was lost: the axes may run (#32). Stop them and say so.
+            running = [axis for axis, value in axes.items() if value]
+            if running:
+                named = " ".join(running).upper()
+                try:
+                    await self.stop(*running)
+                except TangoError:
+                    raise annotate(exc, f"axes {named} may still move") from exc.__cause__
+                raise annotate(exc, f"axes {named} stopped") from exc.__cause__
+            raise
 
     async def wait_idle(self, *, poll_interval: float = 0.05,
                         timeout: float | None = None) -> dict[str, str]:

@@ -33,6 +33,29 @@ Where the manual is silent on whether a line comes at all (a read echoed in mode
 read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
 when the next line fits it, skipped otherwise (:func:`_owed_items`).
 
+Some lines come *late* on some firmware (#32), and the core tells from the stream:
+
+* Mode 2 may acknowledge a move only when it completes, next to its report (switch
+  ``move_ok=completion``; L2099-2103 do not say when). So the core writes an ``?err``
+  behind every mode-2 move: its reply arriving where the move's ``OK...`` is owed shows
+  that the ``OK...`` is deferred, and its number is the move's verdict. While a deferred
+  ``OK...`` may still come, every acknowledged line gets such an ``?err`` too, and the
+  acknowledgement lines that arrive for it are held until a line that is not one: a
+  deferred acknowledgement is always ``OK...`` (a refused move is refused at once), so
+  an ``ERR`` among them is the line's own, and among ``OK...`` only the count matters.
+  No acknowledgement is ever credited to the wrong request.
+* Mode 4 may echo a move line only when it completes (switch ``echo=completion``; L2117):
+  a line that is not its echo where a move's echo is owed (the reply of the ``?err``
+  probe behind it) shows that; the echo is consumed by its text when it comes.
+* ``!save`` may be acknowledged a second time in mode 2 (switch ``save_ack``): an
+  optional acknowledgement, with an ``?err`` behind it so that it cannot be taken for the
+  next line's.
+* ``OK``, ``ERR`` and ``ERROR`` may come in another case (switches ``ack_case``,
+  ``help_case``): :func:`canonical_case` puts them in capitals before routing.
+* A read answered by its own text means the link echoes what is sent (local echo of an
+  adapter; switch ``local_echo``): a :class:`Mismatched` with :data:`LOCAL_ECHO`, and
+  :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
+
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
 ever raised for bad input; the core stays usable afterwards.
@@ -40,6 +63,7 @@ ever raised for bad input; the core stays usable afterwards.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import itertools
 import random
@@ -76,6 +100,7 @@ from .patterns import (
 from .status import ABSENT, LETTERS
 
 __all__ = [
+    "LOCAL_ECHO",
     "AckReads",
     "Acknowledged",
     "Completed",
@@ -89,6 +114,7 @@ __all__ = [
     "Replied",
     "RequestLost",
     "Unsolicited",
+    "canonical_case",
     "is_completion_line",
     "owed_pattern",
     "wire_size",
@@ -108,6 +134,34 @@ _CR: Final = 0x0D
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
 _COMPLETION_RE: Final = re.compile(f"^[{re.escape(''.join(sorted(LETTERS)))}]{{1,4}}\\.$")
+
+
+#: Why a read answered by its own text fails (:attr:`ProtocolCore.local_echo`).
+LOCAL_ECHO: Final = ("a read came back as itself: the link echoes every byte sent (local "
+                     "echo of a serial adapter or RS-485 converter), which the driver does "
+                     "not support; turn the adapter's echo off")
+
+#: The words the driver recognises lines by that some firmware may print in another case
+#: (switches ``ack_case``, ``help_case``): the mode-2 acknowledgements ``OK...`` and
+#: ``ERR n`` (L2099-2103, L2150-2152) and ``help``'s ``ERROR n,text`` (L2915-2919), which
+#: the manual prints in capitals and nowhere says must be.
+_CASED_RE: Final = re.compile(
+    r"\s*(?:(error)(?=\s*-?\d+\s*,)|(ok)(?=\.*\s*$)|(err)(?=(?:\s+-?\d+)?\s*$))",
+    re.IGNORECASE)
+
+
+def canonical_case(line: str) -> str:
+    """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
+    ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
+    range``); every other line as it is."""
+    if line[:1] not in ("o", "O", "e", "E", " ") or line.startswith(("OK", "ERR")):
+        return line
+    match = _CASED_RE.match(line)
+    if match is None:
+        return line
+    group = next(index for index in (1, 2, 3) if match.group(index) is not None)
+    start, end = match.span(group)
+    return line[:start] + line[start:end].upper() + line[end:]
 
 
 def is_completion_line(line: str) -> bool:
@@ -293,6 +347,18 @@ class _Pending:
     size: int = 0  # bytes in lines
     internal: bool = False
     marker: str | None = None  # expected reply prefix of a resync marker
+    #: A mode-2 move line: the internal ``?err`` written right behind it, whose reply
+    #: stands in for the move's acknowledgement when that comes only at completion
+    #: (:meth:`ProtocolCore._defer_ack`).
+    follow: _Pending | None = None
+    #: A mode-4 move line: its echo may come only with its completion report
+    #: (:meth:`ProtocolCore._route_echo`).
+    defers_echo: bool = False
+    #: A read's line as written: no reply is ever the read itself (local echo).
+    sent: str = ""
+    #: On such a follow-up, once the move's acknowledgement proved deferred: the move
+    #: whose verdict this reply's error number is.
+    verdict: Hashable | None = None
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -483,9 +549,21 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
             items.append(_Item.ACK_OPT)
     elif expect.ack:
         items.append(_Item.ACK)
+    elif _acks_itself(command, after):
+        items.append(_Item.ACK_OPT)
     items.extend(trailing)
     items.extend(echo_after)
     return items
+
+
+def _acks_itself(command: Command, after: int) -> bool:
+    """Whether ``command`` is a ``!`` line whose own answer is ``OK...`` (``save``,
+    ``restore``: L1738-1762, L2081) written where mode 2 acknowledges ``!`` lines: that
+    answer may be its acknowledgement, or a second ``OK...`` may follow (switch
+    ``save_ack``; L2081 and L2099-2103 do not say). The core writes an ``?err`` behind it,
+    so that the second is told from the next line's acknowledgement by what follows."""
+    return after == 2 and command.form is Form.SET and command.executes \
+        and command.instruction.exec_reply is Shape.ACK
 
 
 #: Error numbers used for markers: ``?help N`` answers ``ERROR N,...`` (L2899-2919). Only
@@ -517,7 +595,16 @@ def wire_size(command: Command, expect: Expectation) -> int:
     """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
     and the internal ``?err`` follow-up of a read whose end only the next line shows."""
     size = len(command.to_bytes())
-    return size + len(_FOLLOW_UP) if expect.rule.continuation is not None else size
+    # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
+    # bytes are reserved whether or not it is written.
+    follows = expect.rule.continuation is not None or expect.ack \
+        or command.instruction.exec_reply is Shape.ACK
+    return size + len(_FOLLOW_UP) if follows else size
+
+
+def _is_ok(text: str) -> bool:
+    """Whether an acknowledgement line is ``OK...`` (in any case: switch ``ack_case``)."""
+    return text[:2].upper() == "OK"
 
 
 class ProtocolCore:
@@ -560,6 +647,17 @@ class ProtocolCore:
         #: How many optional lines (``"echo?"``, ``"ack?"``) arrived and were consumed:
         #: what this firmware does where the manual is silent.
         self.tolerated: dict[str, int] = {}
+        #: Whether a read came back as itself: the link echoes what is sent (see
+        #: :data:`LOCAL_ECHO`).
+        self.local_echo = False
+        #: Mode-2 moves whose OK... proved to come with their completion report (switch
+        #: ``move_ok``), oldest first; and ack lines held until it is known whose they
+        #: are (:meth:`_resolve_held`).
+        self._deferred: deque[Hashable] = deque()
+        self._held: list[str] = []
+        #: Echoes of mode-4 moves that come with their completion report (switch
+        #: ``echo=completion``), oldest first.
+        self._deferred_echoes: deque[ReplyPattern] = deque()
 
     # -- state ------------------------------------------------------------------------
 
@@ -576,7 +674,8 @@ class ProtocolCore:
     def pending_tags(self) -> list[Hashable]:
         """Tags of requests still owed a reply, oldest first (a request that only
         optional lines may still follow is answered)."""
-        return [p.tag for p in self._pending if not p.internal and not p.settled]
+        return [p.verdict if p.verdict is not None else p.tag for p in self._pending
+                if (not p.internal and not p.settled) or p.verdict is not None]
 
     @property
     def awaiting_completion(self) -> list[Hashable]:
@@ -618,13 +717,41 @@ class ProtocolCore:
         mode = self._autostatus
         self._autostatus = expect.mode_after
         data, template, echo, pattern = self._line_facts(command, expect, mode)
+        pending = None
+        deferring = False
         if template:
-            self._pending.append(_Pending(tag, deque(template), echo, expect.rule, pattern))
+            # (Checked before this line joins the queue: a move's own follow-up is below.)
+            acked = _Item.ACK in template  # a ! line, or a read where reads are acked
+            deferring = acked and self._deferring()
+            pending = _Pending(tag, deque(template), echo, expect.rule, pattern,
+                               sent=data.decode("latin-1")[:-1] if command.is_read else "")
+            self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
+        elif pending is not None and ((expect.ack and expect.completion is not None)
+                                      or deferring
+                                      or _acks_itself(command, expect.mode_after)):
+            # Mode 2 (switch move_ok, L2099-2103 do not say when a move's OK... comes):
+            # a move's acknowledgement may come only with its completion report, after
+            # the replies of the lines written behind it. An ``?err`` right behind the
+            # move tells: its reply before any acknowledgement means the OK... is
+            # deferred, and its number is the move's verdict. While such an OK... is
+            # owed, every acknowledged line gets one too, so that the ack lines that
+            # arrive for it are counted up to a line that is not one (_resolve_held).
+            data += self._register_follow_up(mode)
+            if expect.completion is not None:
+                pending.follow = self._pending[-1]
+        if pending is not None and expect.completion is not None \
+                and pending.items[0] is _Item.ECHO:
+            pending.defers_echo = True
         return data, expect
+
+    def _deferring(self) -> bool:
+        """Whether a move's OK... may still come with its completion report: one proved
+        deferred, or a move line's acknowledgement not yet known."""
+        return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
     def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
         """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
@@ -664,7 +791,7 @@ class ProtocolCore:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
                             self.ack_reads)
         self._pending.append(_Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
-                                      internal=True, pattern=ONE_NUMBER))
+                                      internal=True, pattern=ONE_NUMBER, sent="?err"))
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -692,9 +819,12 @@ class ProtocolCore:
         :meth:`end_resync` (:attr:`quiet`).
         """
         for pending in self._pending:
-            if not pending.internal and not pending.settled:
+            if pending.verdict is not None:
+                self._events.append(RequestLost(pending.verdict))
+            elif not pending.internal and not pending.settled:
                 self._events.append(RequestLost(pending.tag))
         self._pending.clear()
+        self._forget_deferred()
         self._desynced = False
         stop = b"\x03" if ctrl_c else b""
         chosen = self._marker()
@@ -715,7 +845,15 @@ class ProtocolCore:
         """Drop every line (completion reports excepted) until :meth:`end_resync`; what is
         still owed is forgotten (only call it when no request waits)."""
         self._pending.clear()
+        self._forget_deferred()
         self._resync = _Resync.QUIET
+
+    def _forget_deferred(self) -> None:
+        # After a resync an OK... still owed arrives before the marker's reply (dropped)
+        # or, with no request waiting, as an unsolicited line.
+        self._deferred.clear()
+        self._held.clear()
+        self._deferred_echoes.clear()
 
     def pick_marker_code(self) -> int:
         """A marker number for this session (see :data:`_MARKER_CODES`)."""
@@ -791,7 +929,7 @@ class ProtocolCore:
             line = self._assembler.next_line()
             if line is None:
                 return None
-            self._route(line)
+            self._route(canonical_case(line))
         return self._events.popleft()
 
     def events(self, data: bytes = b"") -> list[Event]:
@@ -809,6 +947,8 @@ class ProtocolCore:
         text = line.strip()
         if self._route_completion(line, text):
             return
+        if self._held and not ACK_PATTERN.accepts(text):
+            self._resolve_held()
         if self._desynced:
             self._events.append(Dropped(line))
             return
@@ -818,6 +958,13 @@ class ProtocolCore:
         if resync is not _Resync.NONE and (
                 resync is _Resync.QUIET or self._resync_marker not in text):
             self._events.append(Dropped(line))
+            return
+        if self._deferred_echoes and self._deferred_echo(text):
+            return
+        if self._deferred and _is_ok(text) and ACK_PATTERN.accepts(text) \
+                and self._takes_deferred():
+            self._deferred.popleft()  # a move's OK... that came with its report
+            self.tolerated["ok@completion"] = self.tolerated.get("ok@completion", 0) + 1
             return
         if not self._pending:
             self._events.append(Unsolicited(line))
@@ -880,20 +1027,109 @@ class ProtocolCore:
         head = self._pending[0]
         return bool(head.lines) and head.rule.continuation is None
 
+    def _deferred_echo(self, text: str) -> bool:
+        """Consume ``text`` if it is the echo of a move that came with its report, and
+        not the echo the head waits for (the same text: then it does not matter whose)."""
+        if self._pending:
+            head = self._pending[0]
+            if head.items[0] in (_Item.ECHO, _Item.ECHO_OPT) and head.echo is not None \
+                    and head.echo.accepts(text):
+                return False
+        for echo in self._deferred_echoes:
+            if echo.accepts(text):
+                self._deferred_echoes.remove(echo)
+                self.tolerated["echo@completion"] = \
+                    self.tolerated.get("echo@completion", 0) + 1
+                return True
+        return False
+
     def _route_echo(self, head: _Pending, line: str, text: str) -> None:
         if head.echo is not None and not head.echo.accepts(text):
+            if head.defers_echo:
+                # Mode 4 (switch echo=completion; L2117 does not say when the echo
+                # comes): the move's echo comes with its report; the line is the reply of
+                # the ?err written behind it, which is its verdict.
+                self._deferred_echoes.append(head.echo)
+                done = head.done_after(_Item.ECHO)
+                self._advance(head)
+                self._emit(head, Echoed(head.tag, "", done))
+                self._route(line)
+                return
             self._events.append(Unsolicited(line))
             return
         done = head.done_after(_Item.ECHO)
         self._advance(head)
         self._emit(head, Echoed(head.tag, line, done))
 
+    def _takes_deferred(self) -> bool:
+        """Whether an ``OK...`` arriving now can only be a deferred one: no request waits
+        for an acknowledgement at the head (none waits, or the head owes data or an
+        optional line; only ``save``'s data is an ``OK...``)."""
+        if not self._pending:
+            return True
+        head = self._pending[0]
+        item = head.items[0]
+        if item is _Item.ACK:
+            return False
+        return not (item is _Item.DATA and head.pattern is ACK_PATTERN and not head.lines)
+
     def _route_ack(self, head: _Pending, line: str, text: str) -> None:
         if not ACK_PATTERN.accepts(text):
+            if head.follow is not None:
+                self._defer_ack(head, line)
+                return
             self._events.append(Unsolicited(line))
             return
+        if self._deferred:
+            # An OK... of a deferred move may come before this line's acknowledgement
+            # (its move ended first): hold the ack lines until it is known whose each is.
+            self._held.append(line)
+            if not _is_ok(text) or len(self._held) > len(self._deferred):
+                self._resolve_held()
+            return
+        self._acknowledge(head, line, text)
+
+    def _defer_ack(self, head: _Pending, line: str) -> None:
+        """A line that is not an acknowledgement came for a mode-2 move: its OK... comes
+        with its completion report (switch ``move_ok=completion``). The reply of the
+        ``?err`` written behind it (the line now, if nothing was lost) is its verdict."""
+        follow, head.follow = head.follow, None
+        assert follow is not None
+        follow.verdict = head.tag
+        self._deferred.append(head.tag)
+        head.items.popleft()
+        if not head.items:
+            self._pending.remove(head)
+        self._route(line)
+
+    def _resolve_held(self) -> None:
+        """Hand the held ack lines out: the head's own acknowledgement and the OK...s of
+        deferred moves. A deferred one is always ``OK...`` (a refused move is refused at
+        once, with ``ERR``), so an ``ERR`` among them is the head's; among OKs it does
+        not matter which is whose, only how many. A move at the head may have deferred
+        its own: then the deferred moves take the OKs first."""
+        held, self._held = self._held, []
+        head = self._pending[0]
+        pick = next((i for i, line in enumerate(held) if not _is_ok(line.strip())), None)
+        if pick is None:
+            pick = len(self._deferred) if head.follow is not None else 0
+        for index, line in enumerate(held):
+            if index == pick:
+                continue
+            if self._deferred and _is_ok(line.strip()):
+                self._deferred.popleft()
+                self.tolerated["ok@completion"] = self.tolerated.get("ok@completion", 0) + 1
+            else:
+                self._events.append(Unsolicited(line))
+        if pick < len(held):
+            self._acknowledge(head, held[pick], held[pick].strip())
+
+    def _acknowledge(self, head: _Pending, line: str, text: str) -> None:
+        if head.follow is not None:
+            # Acknowledged at once: the ?err behind it is only a read now.
+            head.follow = None
         number = re.search(r"-?\d+", text)
-        code = 0 if text.startswith("OK") else (int(number.group()) if number else None)
+        code = 0 if _is_ok(text) else (int(number.group()) if number else None)
         if code != 0:
             self.forget_completion(head.tag)  # a refused move never completes
         done = head.done_after(_Item.ACK)
@@ -903,6 +1139,16 @@ class ProtocolCore:
     def _route_data(self, head: _Pending, line: str, text: str) -> None:
         if head.marker is not None:
             self._resync = _Resync.NONE
+        elif not head.lines and head.sent and text == head.sent:
+            # A read answered by itself where no echo is owed (modes 0-3 echo nothing,
+            # L2060-2117): the link returns the bytes the driver sends, like a serial
+            # adapter or RS-485 converter with local echo (switch local_echo). Their
+            # copies interleave with the controller's replies: not served.
+            self.local_echo = True
+            self._desynced = True
+            tag = None if head.internal else head.tag
+            self._events.append(Mismatched(tag, line, head.pattern, LOCAL_ECHO))
+            return
         elif not head.lines and self.check_replies and not head.pattern.accepts(text):
             # Not this request's reply: its own was lost, or the line is extra. Handing it
             # over would shift every later reply by one request (tango_aio.patterns).
@@ -939,6 +1185,17 @@ class ProtocolCore:
         head.lines.clear()
         head.size = 0
         self._advance(head)
+        if head.verdict is not None:
+            # The ?err behind a move whose OK... is deferred: its number is the move's
+            # acknowledgement now (0: accepted, the OK... follows with the report).
+            number = re.search(r"-?\d+", lines[0]) if lines else None
+            code = int(number.group()) if number else None
+            if code != 0:
+                self.forget_completion(head.verdict)
+                with contextlib.suppress(ValueError):
+                    self._deferred.remove(head.verdict)
+            self._events.append(Acknowledged(head.verdict, code, lines[0] if lines else ""))
+            return
         self._emit(head, Replied(head.tag, lines, done))
 
     def _advance(self, head: _Pending) -> None:

@@ -82,6 +82,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
 import logging
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -90,6 +91,7 @@ from typing import NoReturn, Protocol
 import anyio
 
 from .errors import (
+    ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
     MoveError,
@@ -103,7 +105,8 @@ from .protocol import MoveHandle, Submission
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
 from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
 
-__all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan"]
+__all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
+           "annotate"]
 
 log = logging.getLogger("tango_aio")
 
@@ -471,19 +474,27 @@ class Motion:
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
-        except _LOST_READ:
+        except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed.
             aborted = self._was_stopped(job)
-            await self._stop_and_wait(job)
+            stopped = await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
-            raise
+            raise _with_stop(exc, job, stopped) from exc.__cause__
         if error is not None:
             job.sent.forget()
             raise error
         try:
             letters = await self._follow(job)
+        except _LOST_READ as exc:
+            # The state could not be read (#32: a call that raises never leaves the axes
+            # it set moving): stop them and say so, or say that they may still move.
+            stopped = await self._stop_and_wait(job)
+            raise _with_stop(exc, job, stopped) from exc.__cause__
+        except ConnectionLostError as exc:
+            job.sent.forget()
+            raise _with_stop(exc, job, False) from exc.__cause__
         except BaseException:
             job.sent.forget()
             raise
@@ -615,14 +626,23 @@ class Motion:
             f"{job.plan.command.line!r} did not complete within {job.plan.limit:.1f} s; "
             "axes stopped")
 
-    async def _stop_and_wait(self, job: _Job) -> None:
-        """Write ``a`` and wait (bounded) until the moved axes stand still."""
+    async def _stop_and_wait(self, job: _Job) -> bool:
+        """Write ``a`` and wait (bounded) until the moved axes stand still.
+
+        Returns
+        -------
+        bool
+            Whether they were seen to stand still.
+        """
         with contextlib.suppress(TangoError):
             await self._port.stop()
             self.stopped()
+        idle = False
         with contextlib.suppress(TangoError, TimeoutError):
             await self._idle(job, STOP_WAIT)
+            idle = True
         job.sent.forget()
+        return idle
 
     async def _stop_after_cancel(self, job: _Job) -> None:
         """The awaiting task was cancelled: stop the axes and wait for them to stop.
@@ -652,6 +672,40 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.finished(MoveFinished(job.plan.kind, dict(letters), ok))
+
+
+def annotate(exc: TangoError, text: str) -> TangoError:
+    """``exc`` (a driver error raised by a call that had set axes moving) saying whether
+    they were stopped (#32).
+
+    Parameters
+    ----------
+    exc
+        The error the call raises.
+    text
+        What became of the axes (``"axes stopped"``, ``"axes X may still move"``).
+
+    Returns
+    -------
+    TangoError
+        A copy of ``exc`` whose message ends with ``text``; a copy, because the same
+        error may be raised to other callers too (a lost link). Raise it ``from
+        exc.__cause__`` (e.g. a link's reset).
+    """
+    new = copy.copy(exc)
+    if exc.args and isinstance(exc.args[0], str):
+        new.args = (f"{exc.args[0]}; {text}", *exc.args[1:])
+    else:
+        new.add_note(text)
+    return new
+
+
+def _with_stop(exc: TangoError, job: _Job, stopped: bool) -> TangoError:
+    """``exc`` saying whether the axes of ``job`` were seen to stop after it."""
+    return annotate(exc, "axes stopped" if stopped else
+                    f"axes {' '.join(job.plan.moved).upper()} may still move")
+
+
 
 
 def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:

@@ -103,7 +103,7 @@ class ReplyPattern:
         if kind is ReplyKind.ACK:
             return _ACK_RE.match(line.strip()) is not None
         if kind is ReplyKind.ECHO:
-            return normal_line(line) == self.text
+            return _unbanged(normal_line(line)) == _unbanged(self.text)
         if kind is ReplyKind.MARKER:
             return self.text in line
         return True
@@ -131,7 +131,7 @@ class ReplyPattern:
             return (a.kind is b.kind and a.text == b.text) or ReplyKind.HELP in (a.kind, b.kind)
         if a.kind is b.kind:
             if a.kind is ReplyKind.ECHO:
-                return a.text == b.text
+                return _unbanged(a.text) == _unbanged(b.text)
             return a.low <= b.high and b.low <= a.high
         if a.kind is ReplyKind.NUMBERS and b.kind is ReplyKind.WORDS:
             return a.low <= b.high and b.low <= a.high
@@ -184,6 +184,20 @@ def normal_line(text: str) -> str:
         Its normal form.
     """
     return " ".join(_normal_token(token) for token in text.lower().split())
+
+
+def _unbanged(text: str) -> str:
+    """An echo without its leading ``!``: L2117 says only that mode 4 "echoes the
+    instruction", and some firmware may print it without the prefix (switch
+    ``echo_text=nobang``: ``!moa 1`` echoed as ``moa 1``). The bare form executes the
+    same instruction (L2154), so the two echoes stand for the same line.
+
+    Returns
+    -------
+    str
+        ``text`` without a leading ``!``.
+    """
+    return text[1:] if text.startswith("!") else text
 
 
 def _normal_token(token: str) -> str:

@@ -119,9 +119,14 @@ def add_ioc_command(commands: Any) -> None:
                      help="only clients reporting this user name may write (repeatable)")
     ioc.add_argument("--poll", type=float, default=0.1,
                      help="seconds between position reads (default 0.1)")
+    ioc.add_argument("--merge", choices=("turn", "window"), default="turn",
+                     help="puts to other axes become one move: 'turn' (default) those "
+                          "that arrive together, with no fixed wait; 'window' those "
+                          "within --merge-window seconds, a wait every put pays")
     ioc.add_argument("--merge-window", type=float, default=0.02,
-                     help="puts to other axes within this many seconds become one move "
-                          "(default 0.02)")
+                     help="with --merge window: seconds a move waits for puts to other "
+                          "axes; with --merge turn: the longest wait for puts already on "
+                          "their way (default 0.02)")
     ioc.add_argument("--autosave", metavar="FILE",
                      help="keep OFF, the soft limits, VELO and VMAX of every record in "
                           "FILE (JSON) and put them back when the IOC starts")
@@ -228,7 +233,8 @@ async def _serve(args: argparse.Namespace, controllers: dict[str, str],
                       "answers", file=sys.stderr, flush=True)
                 waiting[name] = functools.partial(_open, url)
         ioc = await build_ioc(connected, args.prefix, policy=policy, poll=args.poll,
-                              window=args.merge_window, autosave=args.autosave,
+                              window=args.merge_window, merge=args.merge,
+                              autosave=args.autosave,
                               waiting=waiting)
         records = [axis.record.pvname for server in ioc.servers for axis in server.axes]
         print(f"serving motor records {', '.join(records) or '(none yet)'} on "

@@ -904,6 +904,28 @@ class ControllerModel:
             raise Refused(1, "more values than axes")
         return dict(enumerate(values))
 
+    def hdi_deflect(self, axis: int, distance: float) -> bool:
+        """A joystick deflection moving standing axis ``axis`` (0 = X) by ``distance``
+        (its dim unit), honoured only while the HDI is enabled (``joy`` not 0,
+        L7101-7144).
+
+        Parameters
+        ----------
+        axis
+            The axis index (0 = X).
+        distance
+            How far, in the axis's dim unit.
+
+        Returns
+        -------
+        bool
+            Whether the axis moved.
+        """
+        if int(self.params.first("joy")) == 0:
+            return False
+        revs = self.motion.from_user(axis, distance) - self.motion.from_user(axis, 0.0)
+        return self.motion.displace(axis, revs)
+
     def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
         """Convert user-unit positions to motor revolutions.
 

@@ -1207,6 +1207,28 @@ class MotionModel:
         ax = self._axis(axis)
         ax.offset = value - (self._phys(ax) - ax.origin)
 
+    def displace(self, axis: AxisRef, revs: float) -> bool:
+        """Move a standing axis by ``revs`` at once, as a hand on the HDI would (joystick,
+        handwheel).
+
+        Parameters
+        ----------
+        axis
+            The axis.
+        revs
+            How far, in motor revolutions.
+
+        Returns
+        -------
+        bool
+            ``False`` (nothing moved) if the axis is moving.
+        """
+        ax = self._axis(axis)
+        if ax.mode != "idle":
+            return False
+        ax.traj = Trajectory.rest(self._time, self._phys(ax) + revs)
+        return True
+
     def clear_position_offset(self, axis: AxisRef) -> None:
         """``!posclr``: remove the ``!pos`` offset.
 

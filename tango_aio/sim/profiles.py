@@ -68,8 +68,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`!autostatus 1` sent in mode 4 is echoed and `!autostatus 4` sent in mode 1 "
               "is not; `after`: the reverse. `completion`: like `before`, but a move line "
               "that starts a move is echoed only when it completes, just before its "
-              "report (L2117 does not say when the echo comes).",
-              unsupported=("completion",)),
+              "report (L2117 does not say when the echo comes)."),
     SwitchDoc("echo_report", ("yes", "no"), "L2117, L2168",
               "A move in mode 4 also sends its completion report after the echo (`yes`), "
               "or the echo is all it gets (`no`)."),
@@ -80,8 +79,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "The echo is the exact text received, or the line re-printed: lower case, "
               "single spaces, numbers re-formatted (`!MOA  1.50` -> `!moa 1.5`), or the "
               "exact text without its leading `!` (`nobang`: `!moa 1` -> `moa 1`; L2117 "
-              "only says \"echoes the instruction\").",
-              unsupported=("nobang",)),
+              "only says \"echoes the instruction\")."),
     # -- mode 2 (acknowledge) ------------------------------------------------------------------
     SwitchDoc("ack_reads", ("no", "before", "after"), "L2099-2103",
               "Mode 2 acknowledges `!` lines only (`no`), or `?` reads too, with `OK...` "
@@ -99,13 +97,11 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "Mode 2 acknowledgements as the manual prints them, `OK...` and `ERR 5` "
               "(`upper`), or in another case: `ok...`/`err 5` (`lower`), `Ok...`/`Err 5` "
               "(`title`). Replies that are the data of a line (`save`, `?status`) keep "
-              "the manual's case.",
-              unsupported=("lower", "title")),
+              "the manual's case."),
     SwitchDoc("save_ack", ("once", "twice"), "L1738-1762, L2081, L2099-2103",
               "`!save` (and `!restore`) answer `OK...` in every mode (L2081); in mode 2 "
               "that answer is the acknowledgement (`once`), or the line is acknowledged "
-              "again after it (`twice`: `OK...` `OK...`).",
-              unsupported=("twice",)),
+              "again after it (`twice`: `OK...` `OK...`)."),
     # -- moves -----------------------------------------------------------------------------------
     SwitchDoc("refused_move_report", ("no", "yes"), "L2705, L6337-6343",
               "A refused move (e.g. outside the limits) only sets the error (`no`), or "
@@ -123,8 +119,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
     SwitchDoc("status_tail", ("yes", "no"), "L2662-2725",
               "`?statusaxis` (all axes) ends with `.-` like every example of the manual "
-              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`).",
-              unsupported=("no",)),
+              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`)."),
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
@@ -148,8 +143,7 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`?help N` answers `ERROR N,text` (`yes`) or the text only (`no`)."),
     SwitchDoc("help_case", ("upper", "lower"), "L2915-2919",
               "`help` answers as the manual prints it, `ERROR 5,number outside range` "
-              "(`upper`), or in lower case: `error 5,number outside range` (`lower`).",
-              unsupported=("lower",)),
+              "(`upper`), or in lower case: `error 5,number outside range` (`lower`)."),
     SwitchDoc("service_end", ("yes", "no"), "L2937-2943",
               "`service` ends with `END_SERVICE_PRINT.` (firmware 1.60C/1.61 on) or "
               "without an end marker (`no`)."),
@@ -174,7 +168,8 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("local_echo", ("no", "yes"), "L8-10, L2117",
               "The link returns only the controller's replies (`no`), or, like a serial "
               "adapter or an RS-485 converter with local echo, also every byte the host "
-              "sends, at once (`yes`; the manual knows only mode 4's echo, L2117).",
+              "sends, at once (`yes`; the manual knows only mode 4's echo, L2117). The "
+              "driver refuses `yes` at connect with a `ConnectError` naming local echo.",
               unsupported=("yes",)),
 )
 

@@ -57,6 +57,19 @@ async def test_concurrent_requests_become_one_line(
     assert emulated_position(emu, "y") == pytest.approx(-2)
 
 
+async def test_callers_get_the_positions_the_confirmation_read(
+        emu: Emulated, coalescer: MoveCoalescer) -> None:
+    x: dict[str, str] = {}
+    y: dict[str, str] = {}
+    await asyncio.gather(coalescer.move_to("x", 1.5, positions=x),
+                         coalescer.move_to("y", -2, positions=y))
+    assert x == y == emu.tango.last_positions
+    assert float(x["x"]) == pytest.approx(1.5) and float(x["y"]) == pytest.approx(-2)
+    moved: dict[str, str] = {}
+    await coalescer.move_to("z", 0.25, positions=moved)  # a line of its own
+    assert float(moved["z"]) == pytest.approx(0.25)
+
+
 async def test_requests_in_separate_windows_are_separate_moves(
         emu: Emulated, coalescer: MoveCoalescer, moves: Callable[[], list[str]]) -> None:
     assert await coalescer.move_to("x", 1) == "@"

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import os
 import random
 import socket
-from collections.abc import AsyncIterator, Iterator, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -145,10 +146,10 @@ class Client:
 @contextlib.asynccontextmanager
 async def serving(controllers: Mapping[str, Controller], *, prefix: str = "T:",
                   policy: AccessPolicy | None = None, host_name: str | None = None,
-                  window: float = 0.02, autosave: Path | None = None,
+                  window: float = 0.02, autosave: Path | None = None, merge: str = "turn",
                   ) -> AsyncIterator[tuple[TangoIoc, Client]]:
     ioc = await build_ioc(controllers, prefix, policy=policy, poll=0.05, window=window,
-                          autosave=autosave)
+                          autosave=autosave, merge=merge)
     task = asyncio.create_task(ioc.run(["127.0.0.1"]))
     context = ClientContext(host_name=host_name)
     try:
@@ -182,6 +183,33 @@ async def test_put_with_callback_completes_at_the_target(ca_env: dict[str, str])
         assert await client.get("X.RTYP") == "motor"
         msta = await client.get("X.MSTA")
         assert msta & Msta.DONE and msta & Msta.DIRECTION and not msta & Msta.MOVING
+
+
+async def test_a_put_publishes_the_position_its_moves_confirmation_read(
+        ca_env: dict[str, str], caplog: pytest.LogCaptureFixture) -> None:
+    # #28 target 4: RBV after a good move comes from the read that confirmed the arrival
+    # (the axis read stopped, then its position): no ?pos of its own behind it.
+    async with connect(INSTANT) as tango:
+        ioc = await build_ioc({"": tango}, "T:", poll=3600)  # one poll, at the start
+        task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+        context = ClientContext()
+        try:
+            client = Client(context, "T:")
+            assert await client.get("X.DMOV") == 1
+            caplog.set_level(logging.DEBUG, logger="tango_aio.wire")
+            caplog.clear()
+            await client.put("X", 3.0)
+            written = [r.getMessage().split(" ", 1)[1] for r in caplog.records
+                       if r.name == "tango_aio.wire" and " -> " in f" {r.getMessage()}"]
+            assert await client.get("X.RBV") == pytest.approx(3.0)
+            assert await client.get("X.DMOV") == 1
+        finally:
+            await context.disconnect()
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    after = written[next(i for i, line in enumerate(written) if "!moa" in line):]
+    assert len([line for line in after if "?pos" in line]) == 1, after
 
 
 async def test_dmov_is_zero_while_moving(ca_env: dict[str, str]) -> None:
@@ -301,25 +329,57 @@ async def test_set_mode_redefines_the_position(ca_env: dict[str, str]) -> None:
         assert (await tango.position())["x"] == pytest.approx(3.0)
 
 
+async def _moves_of(tango: Controller, client: Client,
+                    puts: Callable[[], Awaitable[None]]) -> list[str]:
+    """The ``!moa`` lines written to ``tango`` while ``puts`` runs (X and Y connected)."""
+    await client.pv("X")
+    await client.pv("Y")
+    lines: list[str] = []
+    submit = tango.protocol.submit
+
+    def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+        lines.append(command.line)
+        return submit(command, *args, **kwargs)
+
+    tango.protocol.submit = spy  # type: ignore[method-assign]
+    try:
+        await puts()
+    finally:
+        del tango.protocol.submit
+    return [line for line in lines if line.startswith("!moa")]
+
+
 async def test_two_axes_put_together_become_one_line(ca_env: dict[str, str]) -> None:
     async with one_stage(window=0.2) as (tango, _, client):  # wide: a busy CI machine
-        await client.pv("X")
-        await client.pv("Y")
-        lines: list[str] = []
-        submit = tango.protocol.submit
-
-        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
-            lines.append(command.line)
-            return submit(command, *args, **kwargs)
-
-        tango.protocol.submit = spy  # type: ignore[method-assign]
-        try:
+        async def both() -> None:
             await asyncio.gather(client.put("X", 1.0), client.put("Y", 2.0))
-        finally:
-            del tango.protocol.submit
-        moves = [line for line in lines if line.startswith("!moa")]
-        assert moves == ["!moa 1.0 2.0"]
+
+        assert await _moves_of(tango, client, both) == ["!moa 1.0 2.0"]
         assert await client.get("Y.RBV") == pytest.approx(2.0)
+
+
+async def test_a_lone_put_waits_for_no_merge_window(ca_env: dict[str, str]) -> None:
+    # A window of an hour: puts announce themselves, so a batch waits only for the puts
+    # on their way, never for time alone (#28 target 4).
+    async with one_stage(window=3600) as (tango, _, client):
+        async with asyncio.timeout(30):
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(1.0)
+        assert await client.get("X.RBV") == pytest.approx(1.0)
+
+
+async def test_merge_window_joins_puts_written_one_by_one(ca_env: dict[str, str]) -> None:
+    # --merge window: a put to Y made after X's put was sent on its own still joins it.
+    async with one_stage(window=0.5, merge="window") as (tango, _, client):
+        async def one_by_one() -> None:
+            first = asyncio.create_task(client.put("X", 1.0))
+            await client.until("X.DMOV", 0)  # X's put is being served
+            await client.put("Y", 2.0)
+            await first
+
+        assert await _moves_of(tango, client, one_by_one) == ["!moa 1.0 2.0"]
+    with pytest.raises(ValueError, match="merge"):
+        await build_ioc({"": tango}, "T:", merge="sometimes")
 
 
 async def test_controller_pvs(ca_env: dict[str, str]) -> None:

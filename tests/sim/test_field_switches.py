@@ -1,8 +1,9 @@
 """The switches for the variants of issue #32's table (the emulator side): each value
 changes what the emulator sends as its documentation says.
 
-The driver does not serve these values yet (``SwitchDoc.unsupported``), so they are not in
-the firmware matrix; ``tests/e2e/test_firmware_probe.py`` checks that the probe recognises each.
+The driver serves every value but local echo (``SwitchDoc.unsupported``), which it refuses
+at connect; the others are in the firmware matrix. ``tests/e2e/test_firmware_probe.py``
+checks that the probe recognises each.
 """
 
 from __future__ import annotations
@@ -25,15 +26,18 @@ def sim(**switches: str) -> Sim:
 
 
 def test_every_unsupported_value_is_a_value_of_its_switch() -> None:
+    # #32 item 4: the driver serves every value of the issue's table but local echo,
+    # which it refuses at connect (tests/e2e/test_field_variants.py).
     marked = {(name, value) for name, doc in SWITCHES.items() for value in doc.unsupported}
-    assert marked == {("echo", "completion"), ("echo_text", "nobang"),
-                      ("ack_case", "lower"), ("ack_case", "title"), ("save_ack", "twice"),
-                      ("status_tail", "no"), ("help_case", "lower"), ("local_echo", "yes")}
+    assert marked == {("local_echo", "yes")}
     for name, value in marked:
         assert value in SWITCHES[name].values[1:]
     names = [name for name, _ in variants()]
-    assert "echo=completion" not in names
-    assert "echo=completion" in [name for name, _ in variants(unsupported=True)]
+    assert "local_echo=yes" not in names
+    assert "local_echo=yes" in [name for name, _ in variants(unsupported=True)]
+    for served in ("echo=completion", "echo_text=nobang", "ack_case=lower", "ack_case=title",
+                   "save_ack=twice", "status_tail=no", "help_case=lower"):
+        assert served in names
 
 
 @pytest.mark.parametrize("echo", ["before", "completion"])

@@ -561,7 +561,13 @@ def _status(firmware: Firmware, letters: str) -> str:
     letters = letters.replace("@", firmware.joystick_letter)
     if firmware.absent_axes == "omit":
         letters = letters.replace("-", "")
-    return letters + ".-"
+    return letters + (".-" if firmware.status_tail == "yes" else "")
+
+
+def _ack(firmware: Firmware, text: str) -> str:
+    """A mode-2 acknowledgement in the case of switch ``ack_case``."""
+    return {"upper": text, "lower": text.lower(), "title": text.capitalize()}[
+        firmware.ack_case]
 
 
 @pytest.mark.parametrize("firmware", [f for _, f in VARIANTS], ids=VARIANT_IDS)
@@ -583,17 +589,18 @@ def test_a_common_session_under_every_variant(firmware: Firmware) -> None:
     assert lines(s.send("!mor y 1.5") + s.settle()) == []
     assert lines(s.send("?pos y", "?err")) == [_number(firmware, "0.5000"), "0"]
     # Mode 2: set lines acknowledged, errors numbered per err_number.
+    ok = _ack(firmware, "OK...")
     ack = lines(s.send("!autostatus 2"))
-    assert ack == (["OK..."] if firmware.ack_mode_change == "new" else [])
-    refused = "ERR 5" if firmware.err_number == "yes" else "ERR"
+    assert ack == ([ok] if firmware.ack_mode_change == "new" else [])
+    refused = _ack(firmware, "ERR 5" if firmware.err_number == "yes" else "ERR")
     assert lines(s.send("!vel -1")) == [refused]
     moved = lines(s.send("!moa 0 0") + s.settle())
-    assert moved == ["OK...", _report(firmware, "@@--", 2)]
+    assert moved == [ok, _report(firmware, "@@--", 2)]
     assert lines(s.send("?pos")) == (["0.0000 0.0000"] if firmware.ack_reads == "no" else
-                                     ["OK...", "0.0000 0.0000"] if firmware.ack_reads == "before"
-                                     else ["0.0000 0.0000", "OK..."])
+                                     [ok, "0.0000 0.0000"] if firmware.ack_reads == "before"
+                                     else ["0.0000 0.0000", ok])
     left = lines(s.send("!autostatus 1"))
-    assert left == ([] if firmware.ack_mode_change == "new" else ["OK..."])
+    assert left == ([] if firmware.ack_mode_change == "new" else [ok])
     assert s.model.internal_errors == []
 
 

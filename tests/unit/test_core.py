@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import pytest
@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from tango_aio.core import (
     DEFAULT_MAX_LINE,
+    LOCAL_ECHO,
     Acknowledged,
     AckReads,
     Completed,
@@ -25,15 +26,18 @@ from tango_aio.core import (
     Echoed,
     Event,
     LineAssembler,
+    Mismatched,
     ProtocolCore,
     Replied,
     RequestLost,
     Unsolicited,
+    canonical_case,
     expectation,
     is_completion_line,
 )
 from tango_aio.errors import ProtocolError
 from tango_aio.instructions import Context, parse, parse_reply
+from tango_aio.patterns import reply_pattern
 
 #: Context of a 3-axis controller in extmode 0: ``?lim`` without an axis spans two lines.
 EXT0 = Context(extmode=0, axes=3)
@@ -444,7 +448,7 @@ def test_mode2_ack_codes(line: str, code: int | None) -> None:
 
 def test_mode2_move_ack_then_completion() -> None:
     core, _ = setup(2, ("!moa 1 2 3", "m"), ("?pos", "p"))
-    assert feed(core, [stream("OK...", "R", "@@@-.")]) == [
+    assert feed(core, [stream("OK...", "0", "R", "@@@-.")]) == [
         Acknowledged("m", 0, "OK...", True),
         Replied("p", ("R",)),
         Completed("m", XYZ, "@@@-."),
@@ -455,13 +459,181 @@ def test_mode2_move_ack_then_completion() -> None:
 def test_mode2_refused_move_drops_its_completion() -> None:
     core, _ = setup(2, ("!moa 999", "bad"), ("!moa 1", "good"))
     assert core.awaiting_completion == ["bad", "good"]
-    events = feed(core, [stream("ERR 5")])
+    events = feed(core, [stream("ERR 5", "5")])
     assert events == [Acknowledged("bad", 5, "ERR 5", True)]
     assert core.awaiting_completion == ["good"]
-    assert feed(core, [stream("OK...", "@@@-.")]) == [
+    assert feed(core, [stream("OK...", "0", "@@@-.")]) == [
         Acknowledged("good", 0, "OK...", True),
         Completed("good", XYZ, "@@@-."),
     ]
+
+
+# Switch move_ok=completion (#32 item 4): a move's OK... only with its completion report,
+# after the replies of the lines written behind it. No acknowledgement may go to the
+# wrong request (prime rule 1).
+
+_DURING_MOVE = (("!moa 4", "m"), ("!trigp 5 1.0", "t"), ("!vel y 5", "v"), ("?vel", "r"))
+
+
+def test_mode2_move_writes_an_err_behind_it_and_so_does_each_set_while_its_ack_is_owed(
+        ) -> None:
+    _core, written = setup(2, *_DURING_MOVE)
+    assert written == b"!moa 4\r?err\r!trigp 5 1.0\r?err\r!vel y 5\r?err\r?vel\r"
+
+
+def test_mode2_deferred_move_ok_is_not_credited_to_the_lines_behind_it() -> None:
+    core, _ = setup(2, *_DURING_MOVE)
+    events = feed(core, [stream("0", "ERR 5", "5", "OK...", "0", "R", "OK...", "@@@-.")])
+    assert events == [
+        Acknowledged("m", 0, "0", True),  # the ?err behind it: accepted, OK... deferred
+        Acknowledged("t", 5, "ERR 5", True),
+        Acknowledged("v", 0, "OK...", True),
+        Replied("r", ("R",)),
+        Completed("m", XYZ, "@@@-."),
+    ]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+    assert core.tolerated == {"ok@completion": 1}
+
+
+@pytest.mark.parametrize("refused", [False, True])
+@pytest.mark.parametrize("order", ["report_first", "ok_first", "ack_between"])
+def test_mode2_deferred_move_ok_around_a_sets_ack(order: str, refused: bool) -> None:
+    # The move ends while !vel waits for its acknowledgement: its OK... may come before,
+    # after or (not right before its report) around that line's own.
+    core, _ = setup(2, ("!moa 4", "m"), ("!vel y 5", "v"))
+    ack = "ERR 5" if refused else "OK..."
+    lines = {"report_first": ["OK...", "@@@-.", ack, "5" if refused else "0"],
+             "ok_first": [ack, "OK...", "@@@-.", "5" if refused else "0"],
+             "ack_between": ["OK...", ack, "@@@-.", "5" if refused else "0"]}[order]
+    events = feed(core, [stream("0", *lines)])
+    assert Acknowledged("m", 0, "0", True) in events
+    assert Acknowledged("v", 5 if refused else 0, ack, True) in events
+    assert Completed("m", XYZ, "@@@-.") in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+
+
+def test_mode2_deferred_move_ok_and_an_acknowledged_read() -> None:
+    # ack_reads=after with move_ok=completion: the read's OK... is told from the move's
+    # by the ?err behind the read, not by waiting for the move's end.
+    core, _ = setup(2, ("!moa 4", "m"))
+    core.ack_reads = AckReads.AFTER
+    data, _ = core.send(parse("?vel x"), "r")
+    assert data == b"?vel x\r?err\r"
+    events = feed(core, [stream("0", "R", "OK...", "0")])
+    assert events == [Acknowledged("m", 0, "0", True), Replied("r", ("R",), False),
+                      Acknowledged("r", 0, "OK...", True)]
+    assert feed(core, [stream("OK...", "@@@-.")]) == [Completed("m", XYZ, "@@@-.")]
+
+
+@given(codes=st.lists(st.sampled_from([0, 5]), min_size=1, max_size=6),
+       where=st.integers(0, 100), before=st.booleans(), cuts=st.lists(st.integers(0, 200)))
+@settings(max_examples=200, deadline=None)
+def test_mode2_deferred_move_ok_anywhere_among_set_acks(
+        codes: list[int], where: int, before: bool, cuts: list[int]) -> None:
+    # The move's OK... and its report (in either order: L2099-2103 say neither) fall
+    # anywhere among the replies of the sets written behind it, in any chunks: every set
+    # gets its own verdict, the move its report, nothing is left over.
+    sets = [(f"!vel y {index + 1}", f"s{index}") for index in range(len(codes))]
+    core, _ = setup(2, ("!moa 4", "m"), *sets)
+    replies: list[str] = []
+    for code in codes:
+        replies += ["OK..." if code == 0 else f"ERR {code}", str(code)]
+    pair = ["OK...", "@@@-."] if before else ["@@@-.", "OK..."]
+    at = where % (len(replies) + 1)
+    data = stream("0", *replies[:at], *pair, *replies[at:])
+    events = feed(core, split_at(data, cuts))
+    acks = {e.tag: e.code for e in events if isinstance(e, Acknowledged)}
+    assert acks == {"m": 0, **{tag: code for (_line, tag), code in zip(sets, codes,
+                                                                       strict=True)}}
+    assert Completed("m", XYZ, "@@@-.") in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+    assert core.pending_tags == [] and core.awaiting_completion == []
+
+
+def test_mode2_deferred_move_refused_by_its_err() -> None:
+    # A move refused at once answers ERR on either firmware; its ?err agrees.
+    core, _ = setup(2, ("!moa 400", "m"), ("!vel y 5", "v"))
+    assert feed(core, [stream("ERR 5", "5", "OK...", "0")]) == [
+        Acknowledged("m", 5, "ERR 5", True), Acknowledged("v", 0, "OK...", True)]
+    assert core.awaiting_completion == []
+
+
+def test_mode2_deferred_move_after_a_deferred_move() -> None:
+    # move_during_move=queue: the second move's OK... is deferred too; the first one's
+    # OK... arriving at its head is not taken for the second's acknowledgement.
+    core, _ = setup(2, ("!moa 4", "m1"), ("!moa 1", "m2"))
+    events = feed(core, [stream("0", "OK...", "@@@-.", "0", "OK...", "@@@-.")])
+    assert events == [Acknowledged("m1", 0, "0", True), Completed("m1", XYZ, "@@@-."),
+                      Acknowledged("m2", 0, "0", True), Completed("m2", XYZ, "@@@-.")]
+
+
+def test_mode2_deferred_move_lost_in_a_resync_is_reported_lost() -> None:
+    core, _ = setup(2, ("!moa 4", "m"))
+    core.resync("marker")
+    assert RequestLost("m") in drain(core)
+
+
+@pytest.mark.parametrize(("line", "canonical"), [
+    ("ok...", "OK..."), ("Ok...", "OK..."), ("err 5", "ERR 5"), ("Err", "ERR"),
+    ("error 5,number outside range", "ERROR 5,number outside range"),
+    ("OK...", "OK..."), ("ERROR 0,no error", "ERROR 0,no error"), ("E@@-.", "E@@-."),
+    ("okay", "okay"), ("errata", "errata"), ("Error", "Error"), ("1.0000", "1.0000")])
+def test_canonical_case(line: str, canonical: str) -> None:
+    assert canonical_case(line) == canonical
+
+
+@pytest.mark.parametrize("case", [str.lower, str.capitalize])
+def test_mode2_acknowledgements_in_another_case(case: Callable[[str], str]) -> None:
+    # Switch ack_case (#32): ok.../err 5, Ok.../Err 5 are acknowledgements too.
+    core, _ = setup(2, ("!vel 10", "a"), ("!accel 1.5", "b"))
+    assert feed(core, [stream(case("OK..."), case("ERR 5"))]) == [
+        Acknowledged("a", 0, "OK...", True), Acknowledged("b", 5, "ERR 5", True)]
+
+
+def test_marker_reply_in_lower_case_ends_the_resync() -> None:
+    # Switch help_case=lower (#32): ?help N answers "error N,...".
+    core, _ = setup(1, ("?vel", "v"))
+    data = core.resync("marker")
+    code = data.decode().split()[1].rstrip("\r")
+    events = feed(core, [stream("R", f"error {code},text")])
+    assert events[-1] == Replied("marker", (f"ERROR {code},text",))
+
+
+def test_mode4_move_echo_at_completion() -> None:
+    # Switch echo=completion (#32): a move's echo only with its report, after the ?err
+    # written behind it and the lines behind that.
+    core, _ = setup(4, ("!moa 4", "m"), ("?err", "e"), ("!vel y 5", "v"), ("?vel", "r"))
+    events = feed(core, [stream("0", "!vel y 5", "R", "!moa 4", "@@@-.")])
+    assert events == [
+        Echoed("m", "", True), Replied("e", ("0",)), Echoed("v", "!vel y 5", True),
+        Replied("r", ("R",)), Completed("m", XYZ, "@@@-."),
+    ]
+    assert core.tolerated == {"echo@completion": 1}
+
+
+def test_mode4_move_echo_at_completion_is_not_taken_for_a_sets_echo() -> None:
+    core, _ = setup(4, ("!moa 4", "m"), ("?err", "e"), ("!vel y 5", "v"))
+    events = feed(core, [stream("0", "moa 4", "@@@-.", "vel y 5")])  # echo_text=nobang too
+    assert Echoed("v", "vel y 5", True) in events
+    assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
+
+
+@pytest.mark.parametrize("mode", [0, 1, 2, 3])
+def test_a_read_answered_by_itself_is_local_echo(mode: int) -> None:
+    # Switch local_echo=yes (#32): the adapter returns the read before the controller's
+    # reply. No reply is its own read: a mismatch that names it.
+    core, _ = setup(mode, ("?version", "v"))
+    events = feed(core, [stream("?version", "TANGO-DT, Version 1.71")])
+    assert events[0] == Mismatched("v", "?version", reply_pattern(parse("?version")),
+                                   LOCAL_ECHO)
+    assert core.local_echo
+
+
+def test_a_read_echoed_in_mode_4_is_not_local_echo() -> None:
+    core, _ = setup(4, ("?version", "v"))  # echo_all firmware echoes reads (old L723)
+    assert feed(core, [stream("?version", "V")]) == [Replied("v", ("V",))]
+    assert not core.local_echo
 
 
 def test_mode2_read_not_acknowledged() -> None:
@@ -484,13 +656,28 @@ def test_mode2_bare_move_not_acknowledged_but_completes() -> None:
 
 @pytest.mark.parametrize("line", ["save", "!save"])
 def test_mode2_save_answers_once(line: str) -> None:
-    core, _ = setup(2, (line, "s"), ("?pos", "p"))
+    core, written = setup(2, (line, "s"), ("?pos", "p"))
     expect = expectation(parse(line), 2)
     assert not expect.ack  # its own OK.../ERR is the data reply, not acknowledged again
-    assert feed(core, [stream("OK...", "R")]) == [
+    # '!save' may be acknowledged again (switch save_ack): an ?err behind it tells.
+    follow = ["0"] if line == "!save" else []
+    assert written == f"{line}\r".encode() + b"?err\r" * len(follow) + b"?pos\r"
+    assert feed(core, [stream("OK...", *follow, "R")]) == [
         Replied("s", ("OK...",), True),
         Replied("p", ("R",), True),
     ]
+
+
+@pytest.mark.parametrize("second", ["OK...", "ERR 5"])
+def test_mode2_save_acknowledged_twice(second: str) -> None:
+    # Switch save_ack=twice (#32): OK... then the acknowledgement of the line; the next
+    # line's acknowledgement is still its own.
+    core, _ = setup(2, ("!save", "s"), ("!vel 10", "v"))
+    assert feed(core, [stream("OK...", second, "0", "ERR 5")]) == [
+        Replied("s", ("OK...",), True),
+        Acknowledged("v", 5, "ERR 5", True),
+    ]
+    assert core.tolerated == {"ack?": 1}
 
 
 def test_mode2_unexpected_line_where_ack_expected() -> None:
@@ -966,6 +1153,7 @@ def scenarios(draw: st.DrawFn) -> Scenario:
     commands: list[str] = []
     reads: dict[int, str] = {}
     written = b""
+    acked_move = False  # a mode-2 move was written (its OK... may come at completion)
     for tag in range(count):
         kind = draw(st.sampled_from(_KINDS))
         if kind == "mode":
@@ -986,12 +1174,16 @@ def scenarios(draw: st.DrawFn) -> Scenario:
         # Reply data lines; 'follow' is the internal ?err reply closing a continuation.
         data: list[str] = []
         follow: str | None = None
+        trailing: str | None = None  # an internal ?err's reply that closes nothing
         sealed = False
         if kind == "read":
             data = [f"R{tag}"]
             reads[tag] = data[0]
         elif kind == "save":
             data = [draw(st.sampled_from(["OK...", "ERR", "ERR 5"]))]
+            if mode == 2 and text.startswith("!"):
+                trailing = "0"  # the ?err behind it (switch save_ack)
+                written += b"?err\r"
         elif kind == "multi":
             extra = draw(st.integers(0, 3))
             if command.name == "service":
@@ -1021,6 +1213,8 @@ def scenarios(draw: st.DrawFn) -> Scenario:
             lines.append(entry)
         if follow is not None:
             lines.append(_Line(follow, [Replied(tag, tuple(data), True)], owner=tag))
+        if trailing is not None:
+            lines.append(_Line(trailing, [], owner=tag))
         refused = False
         if ack:
             reply = "OK..."
@@ -1029,6 +1223,12 @@ def scenarios(draw: st.DrawFn) -> Scenario:
             refused = reply != "OK..."
             code = 0 if reply == "OK..." else (5 if reply == "ERR 5" else None)
             lines.append(_Line(reply, [Acknowledged(tag, code, reply, True)], owner=tag))
+            if kind == "move" or acked_move:
+                # The ?err the core writes behind an acknowledged move, and behind every
+                # acknowledged line while a move's acknowledgement is not known yet.
+                written += b"?err\r"
+                lines.append(_Line(str(code or 0), [], owner=tag))
+            acked_move = acked_move or kind == "move"
         if kind == "move" and mode != 0 and not refused:
             report = "" if mode == 3 else draw(st.sampled_from(_COMPLETIONS[command.name]))
             moves.append(_Move(tag, len(lines), report))

@@ -77,6 +77,15 @@ def test_accepts(line: str, good: list[str], bad: list[str]) -> None:
     assert [text for text in bad if got.accepts(text)] == []
 
 
+def test_echo_without_its_bang_is_the_echo_of_the_line() -> None:
+    # Switch echo_text=nobang (#32): "!moa x 1" echoed as "moa x 1" (L2117).
+    echo = echo_pattern(parse("!moa x 1"))
+    assert echo.accepts("moa x 1") and echo.accepts("!moa x 1")
+    assert not echo.accepts("moa x 2") and not echo.accepts("mor x 1")
+    assert echo.overlaps(echo_pattern(parse("moa x 1")))
+    assert not echo.overlaps(echo_pattern(parse("!moa x 2")))
+
+
 def test_echo_pattern_is_case_and_space_insensitive() -> None:
     echo = echo_pattern(parse("!moa x 1"))
     assert echo.accepts("!MOA  x 1") and echo.accepts(" !moa x 1 ")
