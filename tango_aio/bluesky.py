@@ -26,7 +26,8 @@ Devices:
   of the controller's ``?pos`` replies; ``velocity`` in EGU/s, ``max_velocity``,
   ``acceleration_time``, ``motor_egu``, ``motor_done_move``, ``offset``, travel and
   dial limits, limit switches and the rest of the table in ``docs/howto/bluesky.md``.
-  ``set()`` checks the limits (``?lim``), reports progress
+  ``set()`` checks the limits (``?lim``, read again only after a line that may change
+  them: :meth:`~tango_aio.controller.Controller.axis_limits`), reports progress
   (:class:`~ophyd_async.core.WatcherUpdate` from positions polled while the move runs)
   and publishes the confirmed final readback before it completes.
   ``prepare(FlyMotorInfo(...))``/``kickoff()``/``complete()`` fly it as Motor does;
@@ -307,8 +308,7 @@ class StageLink:
             self.precision[axis] = len(word.partition(".")[2])
             self.scales[axis] = scales[axis]
             # Axis by axis: '?lim' of all axes is misformatted by some firmware (L4561).
-            low, high = await controller.get("lim", axis=axis)
-            self.limits[axis] = (float(low), float(high))
+            self.limits[axis] = await controller.axis_limits(axis, cached=False)
             with contextlib.suppress(ValueError):
                 self._known[axis] = float(word)
 
@@ -406,21 +406,24 @@ class StageLink:
         """
         return (await self.positions())[axis]
 
-    async def read_limits(self, axis: str) -> tuple[float, float]:
+    async def read_limits(self, axis: str, *, cached: bool = False) -> tuple[float, float]:
         """Read the software limits of ``axis`` (``?lim``) and keep them.
 
         Parameters
         ----------
         axis
             The axis letter.
+        cached
+            Whether the limits the controller read before may be taken without a read,
+            as long as no line that may change them went out since
+            (:meth:`~tango_aio.controller.Controller.axis_limits`).
 
         Returns
         -------
         tuple[float, float]
             The lower and upper limit.
         """
-        low, high = await self.controller.get("lim", axis=axis)
-        self.limits[axis] = (float(low), float(high))
+        self.limits[axis] = await self.controller.axis_limits(axis, cached=cached)
         return self.limits[axis]
 
     @contextlib.asynccontextmanager
@@ -823,9 +826,12 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
                                    instruction="moa", parameter="position", number=5)
         if self.mocked:
             return
-        # Read every time: another client may have changed them, and the controller
-        # does not refuse a target outside them, it stops the axis there (L4526-4540).
-        low, high = await self.link.read_limits(self.axis)
+        # The controller does not refuse a target outside them, it stops the axis there
+        # (L4526-4540). Known without a read while no line that may change them went
+        # out through this controller, from any of its callers (Controller.axis_limits);
+        # limits changed behind the driver's back still fail the move, as its
+        # confirmation finds the axis short of its target.
+        low, high = await self.link.read_limits(self.axis, cached=True)
         if not low <= target <= high:
             raise StageLimitsError(
                 f"{self.name}: target {target} outside the limits [{low}, {high}] "

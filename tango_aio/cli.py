@@ -53,6 +53,7 @@ from .errors import (
 )
 from .events import (
     ConnectionLost,
+    ControllerRestarted,
     MoveAborted,
     MoveFinished,
     Reconnected,
@@ -564,6 +565,11 @@ def describe_event(event: TangoEvent) -> str | None:
         return f"connection lost: {event.cause or 'closed'}"
     if isinstance(event, Reconnected):
         return f"reconnected (attempt {event.attempt})"
+    if isinstance(event, ControllerRestarted):
+        changed = ", ".join(event.settings) or "none changed"
+        return (f"the controller restarted (it was in autostatus {event.found}): "
+                f"autostatus {event.autostatus} selected again, settings read again "
+                f"({changed}); positions restart at 0")
     return None
 
 

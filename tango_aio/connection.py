@@ -41,6 +41,7 @@ from .errors import (
 )
 from .fdlink import FdTransport
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
+from .linktiming import byte_time
 from .protocol import DEAD_AFTER, TangoProtocol
 from .reconnect import Closer, Reconnect, ReconnectPolicy
 from .units import check_unit
@@ -241,7 +242,10 @@ def _check_pollable(port: Any) -> None:
 
 async def _in_thread(open_port: Callable[[], Any]) -> Any:
     """Run ``open_port`` in a thread; if the caller is cancelled meanwhile, the thread
-    still finishes (threads cannot be interrupted), and the port it opened is closed.
+    still finishes (threads cannot be interrupted), and the port it opened is closed
+    before the cancellation goes on: a connect() to the same port right after must not
+    find it locked (#32 item 5). Cancelled again while it waits, it leaves the closing to
+    the thread's end.
 
     Returns
     -------
@@ -251,13 +255,15 @@ async def _in_thread(open_port: Callable[[], Any]) -> Any:
     Raises
     ------
     CancelledError
-        The caller was cancelled (the port, once opened, is closed).
+        The caller was cancelled (the port, once opened, is closed first).
     """
     task = asyncio.ensure_future(asyncio.to_thread(open_port))
     try:
         return await asyncio.shield(task)
     except asyncio.CancelledError:
-        task.add_done_callback(_close_opened)
+        task.add_done_callback(_close_opened)  # runs before asyncio.wait's own callback
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.wait([task])
         raise
 
 
@@ -383,10 +389,13 @@ class ConnectOptions:
 
 async def _connect(url: str, options: ConnectOptions) -> Controller:
     def factory() -> TangoProtocol:
-        return TangoProtocol(credit_limit=options.credit_limit,
-                             marker_chunk=options.marker_chunk,
-                             reply_timeout=options.reply_timeout, detect=True,
-                             dead_after=options.dead_after, keepalive=options.keepalive)
+        protocol = TangoProtocol(credit_limit=options.credit_limit,
+                                 marker_chunk=options.marker_chunk,
+                                 reply_timeout=options.reply_timeout, detect=True,
+                                 dead_after=options.dead_after, keepalive=options.keepalive)
+        if not url.startswith(("sim://", "socket://")):  # a serial port opened at baudrate
+            protocol.session.baud_known(byte_time(options.baudrate))
+        return protocol
 
     policy = options.policy()
     opener = functools.partial(_open_link, url, factory,

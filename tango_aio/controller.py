@@ -45,7 +45,9 @@ from .errors import (
     InternalControllerError,
     InvalidCommandError,
     ProtocolError,
+    RequestAbortedError,
     TangoError,
+    outcome_unknown,
     parse_error_reply,
 )
 from .events import (
@@ -78,6 +80,7 @@ from .instructions import (
 from .motion import STOP_WAIT, Motion, MovePlan, annotate
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
+from .restart import RestartWatch, report_suggests_restart, settings_of
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
@@ -91,6 +94,12 @@ log = logging.getLogger("tango_aio")
 #: after the X pair in extmode 0 (L4559-4621), ``?swtyp`` prints its groups without
 #: separating blanks there (L4814-4824).
 AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
+
+#: Motion lines that leave the software limits as they are. The limits change only by
+#: ``!lim``, by ``cal``/``rm``/``vrm`` (unless nosetlimit, L4575-4580), by reloading the
+#: saved parameters (``restore``/``reset``, power-on, L1296) and print in the ``dim``
+#: unit (L4555): every other ``!`` line empties the cache of :meth:`Controller.axis_limits`.
+_LIMIT_NEUTRAL = frozenset({"moa", "mor"})
 #: Seconds :meth:`Controller.aclose` waits at most for the replies to the driver's own
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
@@ -139,6 +148,19 @@ class Controller:
     :meth:`wait_connected` waits for the link. ``reconnect`` (what ``connect`` passes) says
     how to open the link again; it takes effect once :meth:`setup` has succeeded, and the
     controller's :class:`~tango_aio.reconnect.Reconnector` does the work.
+
+    Parameters
+    ----------
+    protocol
+        The connected protocol the controller drives.
+    url
+        The URL the link was opened with (opened again by a reconnect).
+    reply_timeout
+        Seconds a request waits for its reply unless a call says otherwise.
+    on_close
+        Awaited by :meth:`aclose` once the link is closed (e.g. closes the port).
+    reconnect
+        How to open the link again after a loss; ``None``: no automatic reconnect.
     """
 
     def __init__(
@@ -176,6 +198,10 @@ class Controller:
         #: Axes whose remembered position was read after their last move while nothing
         #: could move the stage; emptied by every other ``!`` line.
         self._start_known: set[str] = set()
+        #: The software limits (``?lim``, dim unit) per axis as last read, for
+        #: :meth:`axis_limits`; ``_limits_epoch`` counts what may have changed them.
+        self._limits: dict[str, tuple[float, float]] = {}
+        self._limits_epoch = 0
         self._on_close = on_close
         #: The persistent internal error (>= 20) last seen in ``?err``, 0 if none.
         self._fault = 0
@@ -193,6 +219,9 @@ class Controller:
         #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
         self.units: str | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        #: Notices a controller that restarted behind the link and recovers (#32 item 5).
+        self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
+        self._restarts.attach(protocol)
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -204,7 +233,13 @@ class Controller:
     @property
     def identity(self) -> Identity:
         """The identity read when connecting. Raises :class:`RuntimeError` if
-        identification was skipped (``connect(url, identify=False)``)."""
+        identification was skipped (``connect(url, identify=False)``).
+
+        Raises
+        ------
+        RuntimeError
+            The controller was not identified.
+        """
         if self._identity is None:
             raise RuntimeError("the controller was not identified: connect(identify=False) "
                                "skips it (identify() reads the identity)")
@@ -226,6 +261,7 @@ class Controller:
         (separators, credit markers) are waited for first, for at most
         :data:`CLOSE_SETTLE` seconds."""
         self._closing = True
+        self._restarts.close()
         self._motion.cancel_detached()
         if self._reconnector is not None:
             await self._reconnector.stop()
@@ -261,9 +297,22 @@ class Controller:
         controller is in). The mode in force is read first (reads are neither echoed nor
         acknowledged in any mode): a previous session may have left any mode behind, and
         how ``!autostatus`` itself is answered depends on it.
+
+        Parameters
+        ----------
+        autostatus
+            The autostatus mode to select; ``None`` keeps the mode in force.
+        identify
+            Read the identity (:meth:`identify`); ``False`` skips it.
+
+        Raises
+        ------
+        ConnectError
+            A step failed on a link that echoes every byte back (local echo).
+        TangoError
+            A step failed (no answer, a garbled reply, an error the controller reported).
         """
-        self._hdi_off, self._inputs_idle = False, None  # a power cycle turns the HDI on
-        self._start_known.clear()
+        self._forget_power_state()
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
             current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
@@ -308,6 +357,18 @@ class Controller:
         no automatic reconnect, reconnecting gave up (``__cause__`` says why, e.g.
         :class:`~tango_aio.reconnect.IdentityMismatchError`), or :meth:`aclose` was
         called; :class:`TimeoutError` after ``timeout`` seconds.
+
+        Parameters
+        ----------
+        timeout
+            Seconds to wait at most; ``None``: no limit.
+
+        Raises
+        ------
+        ConnectionLostError
+            The link will not come back.
+        TimeoutError
+            It did not come back within ``timeout`` seconds.
         """
         async with asyncio.timeout(check_timeout(timeout, zero=True)):
             while not self.connected:
@@ -332,7 +393,13 @@ class Controller:
 
     async def identify(self) -> Identity:
         """Read ``?version`` and ``?det`` (model, firmware, number of axes) and record
-        which firmware family and behaviours were detected (:class:`Identity`)."""
+        which firmware family and behaviours were detected (:class:`Identity`).
+
+        Returns
+        -------
+        Identity
+            The controller's model, firmware and axes, and what the driver detected.
+        """
         command = build("version", form=Form.READ)
         raw = await self._request(command)
         version = parse_reply(command, raw.lines)
@@ -376,11 +443,42 @@ class Controller:
             # is 0, its behaviour; delay, pause and ctrt: nothing to wait for).
             try:
                 known = not older or entry.in_older_manual
-                value = await self.get(entry.name) if known else 0
+                value = await self._read_or_absent(entry.name) if known else 0
                 settings.load(entry, value)
             except (ControllerError, ProtocolError, ValueError, TypeError):
                 settings.load(entry, 0)
         self._update_context()
+
+    async def _read_or_absent(self, name: str) -> Any:
+        """Read the global setting ``name``, which a unit may lack (an optional module,
+        a smaller model: no reply at all, error 4, L970): a separator goes right behind
+        the read in the same write, so a missing reply shows at once, as the separator's
+        reply in its place (:class:`ProtocolError`), and not after the reply timeout
+        (#32 item 5).
+
+        Returns
+        -------
+        Any
+            The parsed reply.
+        """
+        command = _read_command(name, None, self.context)
+        (submission,) = self._protocol.submit_together((command,), separate_after=True)
+        response = await self._protocol.wait_reply(submission, self.reply_timeout)
+        return parse_reply(command, response.lines)
+
+    async def _reload_settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Read the cached settings again (after a restart); their values before and
+        after (:func:`~tango_aio.restart.settings_of`).
+
+        Returns
+        -------
+        tuple[dict[str, Any], dict[str, Any]]
+            The cached settings before and after.
+        """
+        before = settings_of(self._settings)
+        self._forget_power_state()
+        await self.refresh_settings()
+        return before, settings_of(self._settings)
 
     def _update_context(self) -> None:
         settings = self._settings
@@ -389,7 +487,25 @@ class Controller:
 
     async def query(self, line: str, timeout: float | None = None) -> str:
         """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
-        ``"\\n"``). Raises :class:`InvalidCommandError` for a line that does not read."""
+        ``"\\n"``). Raises :class:`InvalidCommandError` for a line that does not read.
+
+        Parameters
+        ----------
+        line
+            The read line (``?`` form, or an alias that reads).
+        timeout
+            Seconds to wait for the reply; ``None``: the connection's ``reply_timeout``.
+
+        Returns
+        -------
+        str
+            The reply's lines, joined by ``"\\n"``.
+
+        Raises
+        ------
+        InvalidCommandError
+            The line is not valid, or does not read.
+        """
         command = parse(line, self.context)
         if not command.is_read:
             raise InvalidCommandError(f"{command.line!r} does not read; use command()",
@@ -404,6 +520,22 @@ class Controller:
         With ``check`` (the default) the controller's error state is read right after the
         line (``?err``, or the acknowledgement in autostatus 2) and a non-zero error
         raises the typed :class:`~tango_aio.errors.ControllerError`.
+
+        Parameters
+        ----------
+        line
+            The set or execute line (``!`` form).
+        check
+            Read the controller's error state after the line.
+        timeout
+            Seconds to wait for the answer; ``None``: the connection's ``reply_timeout``.
+
+        Raises
+        ------
+        InvalidCommandError
+            The line is not valid, or is a read.
+        ControllerError
+            With ``check``: the controller reported an error for the line.
         """
         command = parse(line, self.context)
         if command.is_read:
@@ -428,6 +560,18 @@ class Controller:
         that needs the scales read from the controller). Reads the cached context only, so
         it is safe to call from any task; used by
         :class:`~tango_aio.group.ControllerGroup` to check every member first.
+
+        Parameters
+        ----------
+        relative
+            The values are distances (:meth:`move_by`), not positions (:meth:`move_to`).
+        **axes
+            The target (or distance) of each axis, in the controller's unit.
+
+        Raises
+        ------
+        InvalidCommandError
+            The move would be refused by :meth:`move_to` (or :meth:`move_by`).
         """
         name = "mor" if relative else "moa"
         for part in _line_groups(axes):
@@ -464,6 +608,12 @@ class Controller:
                     await self._blame(error.number, self._timeout(timeout)):
                 raise
             response = Response()
+        except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
+                ConnectionLostError) as error:
+            if command.instruction.completion is None or not command.executes:
+                raise
+            # A raw move may have run.
+            raise outcome_unknown(error, command.line) from error.__cause__
         self._track(command)
         if command.name == "joy" and not command.is_read:
             self._hdi_off = [float(v) for v in command.values
@@ -479,15 +629,75 @@ class Controller:
         position is a move_by's start any more until a move confirms it again."""
         self._executed += 1
         self._start_known.clear()
+        if command.name not in _LIMIT_NEUTRAL:
+            self._forget_limits()
         if command.name in ("joy", "reset", "restore"):
             self._hdi_off = False  # until a !joy 0 is accepted
         if command.name in ("joy", "reset", "restore", "snsm", "tvr"):
             self._inputs_idle = None  # read again once the HDI is off
 
+    def _forget_power_state(self) -> None:
+        """What a power cycle may have changed behind the link: the HDI is on again, the
+        saved limits are back, positions may differ; no remembered start or limit
+        survives it (setup, and a restart noticed on a live link)."""
+        self._hdi_off, self._inputs_idle = False, None
+        self._start_known.clear()
+        self._forget_limits()
+
+    def _forget_limits(self) -> None:
+        """Something may have changed the software limits: read them again."""
+        self._limits.clear()
+        self._limits_epoch += 1
+
+    async def axis_limits(self, axis: str, *, cached: bool = True) -> tuple[float, float]:
+        """The software limits of ``axis`` as ``(lower, upper)`` in its dim unit.
+
+        With ``cached``, the limits this Controller read before are returned without a
+        read, as long as nothing could have changed them since: any ``!`` line other than
+        a move (``!lim``, ``cal``, ``rm``, ``vrm``, ``restore``, ``dim``...), the end of a
+        calibration or range measurement, a setup or a reconnect reads them again. A
+        target beyond limits changed behind the driver's back (the stage's own keys) is
+        still no success: the controller refuses it or stops at its limit (L4526-4540),
+        and the confirmation behind the report finds the axis short of its target.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        cached
+            Whether the limits known from an earlier read may be returned (else ``?lim``
+            is read, and kept).
+
+        Returns
+        -------
+        tuple[float, float]
+            The lower and upper limit.
+
+        Raises
+        ------
+        InvalidCommandError
+            ``axis`` is not an axis of this controller.
+        """
+        known = self._limits.get(axis)
+        if cached and known is not None:
+            return known
+        epoch = self._limits_epoch
+        low, high = await self.get("lim", axis=axis)
+        pair = (float(low), float(high))
+        if epoch == self._limits_epoch:  # no line that may change them went out meanwhile
+            self._limits[axis] = pair
+        return pair
+
     async def _inputs_are_idle(self) -> bool:
         """Whether neither input moves the stage by itself: a snapshot event moves it in
         snapshot modes other than 0 (L14520-14530; snsm 0 only captures, L900), and the
-        pulse/direction input drives an axis in tvr modes other than 0 (L9914-9930)."""
+        pulse/direction input drives an axis in tvr modes other than 0 (L9914-9930).
+
+        Returns
+        -------
+        bool
+            ``True`` if both are off; ``False`` if one is on or cannot be read.
+        """
         try:
             snsm = await self.get("snsm")
             tvr = await self.get("tvr")
@@ -500,13 +710,21 @@ class Controller:
         """Whether nothing but this driver's own lines can move the stage: the HDI was
         disabled on this link (``!joy 0``; while it is on, a joystick deflection moves
         the axes, L6318-6323, and cannot be stopped by ``a``, L6826) and neither the
-        snapshot input nor the pulse/direction input moves it (:meth:`_inputs_are_idle`)."""
+        snapshot input nor the pulse/direction input moves it (:meth:`_inputs_are_idle`).
+
+        Returns
+        -------
+        bool
+            ``True`` if nothing else can move the stage.
+        """
         return self._hdi_off and self._inputs_idle is True
 
     def _send(self, command: Command, *, check: bool, batch: object | None = None
               ) -> MoveHandle:
         """Write a motion line and its check (see :meth:`TangoProtocol.start_move`)."""
         self._check_axes(command)
+        if command.name not in _LIMIT_NEUTRAL:
+            self._forget_limits()  # cal, rm: and again when they end
         return self._protocol.start_move(command, check=check, batch=batch)
 
     async def _error_of(self, sent: MoveHandle, timeout: float) -> ControllerError | None:
@@ -514,7 +732,13 @@ class Controller:
 
         A number of 20 and above may be a persistent internal error rather than the
         line's own (L2853-2867: "if the previously executed instruction returned no error,
-        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`."""
+        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`.
+
+        Returns
+        -------
+        ControllerError | None
+            The line's error, ``None`` if it was accepted.
+        """
         error = await sent.error(timeout)
         if error is not None and error.number >= INTERNAL_ERRORS \
                 and not await self._blame(error.number, timeout):
@@ -531,6 +755,11 @@ class Controller:
         was the line's own, the same number a persistent internal condition. That one is
         not the line's fault: it is published as a :class:`ControllerFault` event (once
         per change) and the line counts as accepted.
+
+        Returns
+        -------
+        bool
+            ``True`` if the error is the line's own.
         """
         again = await self._internal_error(timeout)
         if again != code:
@@ -567,7 +796,13 @@ class Controller:
     async def check_fault(self) -> None:
         """Raise :class:`~tango_aio.errors.InternalControllerError` if the controller is
         in a persistent internal error state (an error number >= 20 that ``?err`` reports
-        after an instruction that itself was fine, L2853-2867); else return."""
+        after an instruction that itself was fine, L2853-2867); else return.
+
+        Raises
+        ------
+        InternalControllerError
+            The controller reports a persistent internal error.
+        """
         code = await self._internal_error()
         self._fault_seen(code)
         if code >= INTERNAL_ERRORS:
@@ -590,6 +825,22 @@ class Controller:
         the manual recommends (L4559, L4814); any other per-axis reply with fewer or more
         values than axes is read again axis by axis, so that no value is credited to the
         wrong axis (a unit that leaves disabled axes out).
+
+        Parameters
+        ----------
+        name
+            The instruction (``"vel"``, ``"pos"``, an alias...).
+        *args
+            Extra read arguments (an index).
+        axis
+            Read one axis (``"x"``); ``None``: every axis the reply holds.
+        timeout
+            Seconds to wait for the reply; ``None``: the connection's ``reply_timeout``.
+
+        Returns
+        -------
+        Any
+            The parsed reply: a value by axis, a scalar or the instruction's reply type.
         """
         if axis is not None:
             check_axis_word(axis, name)  # "" or "y 5" would read something else
@@ -611,7 +862,28 @@ class Controller:
     async def set(self, name: str, /, *args: Value, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
-        ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
+        ``set("autostatus", 1)``. Checks the error state like :meth:`command`.
+
+        Parameters
+        ----------
+        name
+            The instruction (``"vel"``, ``"autostatus"``...).
+        *args
+            The values, for a global setting or for ``axis``.
+        axis
+            The one axis ``args`` set; ``None``: a global setting or ``axes``.
+        check
+            Read the controller's error state after the line.
+        **axes
+            The value of each axis (``x=10``).
+
+        Raises
+        ------
+        InvalidCommandError
+            The line is not valid for the instruction or this controller.
+        ControllerError
+            With ``check``: the controller refused the value.
+        """
         command = build(name, *args, form=Form.SET, axis=axis, context=self.context, **axes)
         self._check_axes(command, axes)
         await self._execute(command, check=check)
@@ -626,21 +898,45 @@ class Controller:
 
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
-        ``units``, else the axis' dim unit)."""
+        ``units``, else the axis' dim unit).
+
+        Parameters
+        ----------
+        unit
+            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
+            ``units``, else the controller's dim unit.
+
+        Returns
+        -------
+        dict[str, float]
+            The position of each present axis.
+        """
         chosen = self._reading_unit(unit, Measure.POSITION)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
         return await self._from_controller(positions, chosen, Measure.POSITION)
 
     async def status(self) -> dict[str, str]:
-        """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
+        """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...).
+
+        Returns
+        -------
+        dict[str, str]
+            The status letter of each present axis.
+        """
         letters = await self.get("statusaxis")
         assert isinstance(letters, dict)
         return dict(letters)
 
     async def _position_texts(self) -> dict[str, str]:
         """``?pos`` as printed (the number of digits gives the resolution), one text per
-        present axis; read axis by axis when the reply has another number of values."""
+        present axis; read axis by axis when the reply has another number of values.
+
+        Returns
+        -------
+        dict[str, str]
+            The position of each present axis, as printed.
+        """
         present = AXES[: self.context.axes]
         response = await self._request(_read_command("pos", None, self.context))
         texts = " ".join(response.lines).split()
@@ -679,7 +975,43 @@ class Controller:
         cancelled). Moves of this controller that pass their own ``velocity`` or
         ``acceleration`` run one after the other; a move without them that runs at the
         same time moves at the speed in force (so either give every concurrent move its
-        speed, or none)."""
+        speed, or none).
+
+        Parameters
+        ----------
+        timeout
+            Seconds the move may take from when its line is written; ``None``: computed
+            from the distance, the speed and the settings.
+        stop_on_cancel
+            Stop the moved axes when the awaiting task is cancelled.
+        unit
+            The unit of the values and of ``velocity``/``acceleration``; ``None``: the
+            connection's ``units``, else the controller's dim unit.
+        velocity
+            The ``vel`` for this move only: one number for every moved axis, or by axis.
+        acceleration
+            The ``accel`` for this move only: one number for every moved axis, or by axis.
+        **axes
+            The target position of each axis (``x=10``).
+
+        Returns
+        -------
+        dict[str, str]
+            The status letter of each moved axis (``@`` once it stands still).
+
+        Raises
+        ------
+        MoveError
+            A moved axis reported E, S or T, stopped short of its target, or was stopped
+            by :meth:`stop` or :meth:`abort`.
+        ControllerTimeoutError
+            An axis still moved after ``timeout`` seconds (the axes are stopped).
+        InvalidCommandError
+            A target or an axis is refused (an axis the controller does not have, a value
+            out of range), before anything is written.
+        ValueError
+            ``timeout`` is NaN, infinite, zero or negative (before anything is written).
+        """
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
             axes = await self._to_controller(axes, unit, Measure.POSITION)
@@ -690,7 +1022,37 @@ class Controller:
                       unit: str | None = None, velocity: Speed | None = None,
                       acceleration: Speed | None = None, **axes: float) -> dict[str, str]:
         """Move by relative distances (``move_by(x=-1.5)``) and wait; see :meth:`move_to`
-        (``velocity`` and ``acceleration`` for this move only, too)."""
+        (``velocity`` and ``acceleration`` for this move only, too).
+
+        Parameters
+        ----------
+        timeout
+            The move's time limit in seconds, as for :meth:`move_to`.
+        stop_on_cancel
+            Whether cancelling the call stops the moved axes.
+        unit
+            The unit of the distances (and of the speeds), as for :meth:`move_to`.
+        velocity
+            This move's ``vel`` (a number, or a mapping by axis).
+        acceleration
+            This move's ``accel`` (a number, or a mapping by axis).
+        **axes
+            The distance of each axis (``x=-1.5``).
+
+        Returns
+        -------
+        dict[str, str]
+            Each moved axis's status letter once all stand still.
+
+        Raises
+        ------
+        MoveError
+            As for :meth:`move_to`; the target is the start plus the distance.
+        ControllerTimeoutError
+            Still moving after ``timeout`` seconds (the axes are stopped).
+        InvalidCommandError
+            A distance or an axis is refused before anything is written.
+        """
         check_timeout(timeout)  # refused before anything is read or written
         with self._motion_call():
             axes = await self._to_controller(axes, unit, Measure.POSITION)
@@ -749,24 +1111,97 @@ class Controller:
     async def calibrate(self, *axes: str, timeout: float | None = None,
                         stop_on_cancel: bool = True) -> dict[str, str]:
         """Calibrate (``cal``): travel to the lower limit switch and set the origin.
-        Without arguments all enabled axes calibrate together."""
+        Without arguments all enabled axes calibrate together.
+
+        Parameters
+        ----------
+        *axes
+            The axes to calibrate (``"x"``...), one after the other; none: every enabled
+            axis together.
+        timeout
+            Seconds the motion may take from when its line is written; ``None``: computed
+            from the settings.
+        stop_on_cancel
+            Stop the axes when the awaiting task is cancelled.
+
+        Returns
+        -------
+        dict[str, str]
+            The status letter of each axis (``@`` once it stands still).
+
+        Raises
+        ------
+        MoveError
+            An axis reported E, S or T, or was stopped by :meth:`stop` or :meth:`abort`.
+        ControllerTimeoutError
+            An axis still moved after ``timeout`` seconds (the axes are stopped).
+        """
         return await self._per_axis_motion("cal", axes, timeout, stop_on_cancel)
 
     async def measure_range(self, *axes: str, timeout: float | None = None,
                             stop_on_cancel: bool = True) -> dict[str, str]:
         """Range measure (``rm``): travel to the upper limit switch and set the upper
-        limit."""
+        limit.
+
+        Parameters
+        ----------
+        *axes
+            The axes to measure, one after the other; none: all enabled axes at once.
+        timeout
+            Seconds allowed from when the line is written (``None``: estimated from the
+            settings).
+        stop_on_cancel
+            Whether cancelling the call stops the travelling axes.
+
+        Returns
+        -------
+        dict[str, str]
+            The final status letter of every measured axis.
+
+        Raises
+        ------
+        MoveError
+            As for :meth:`calibrate`.
+        ControllerTimeoutError
+            As for :meth:`calibrate`.
+        """
         return await self._per_axis_motion("rm", axes, timeout, stop_on_cancel)
 
     async def move_to_center(self, *axes: str, timeout: float | None = None,
                              stop_on_cancel: bool = True) -> dict[str, str]:
-        """Move to the centre of the measured range (``moc``)."""
+        """Move to the centre of the measured range (``moc``).
+
+        Parameters
+        ----------
+        *axes
+            The axes to centre, one after the other; none: all enabled axes at once.
+        timeout
+            Seconds allowed for each line from when it is written (``None``: estimated
+            from the settings).
+        stop_on_cancel
+            Whether cancelling the call stops the axes on their way.
+
+        Returns
+        -------
+        dict[str, str]
+            The final status letter of every centred axis.
+
+        Raises
+        ------
+        MoveError
+            An axis did not reach the centre (see :meth:`calibrate`).
+        ControllerTimeoutError
+            An axis was still under way after ``timeout`` seconds (it is stopped).
+        """
         return await self._per_axis_motion("moc", axes, timeout, stop_on_cancel)
 
     async def _per_axis_motion(self, name: str, axes: tuple[str, ...], timeout: float | None,
                                stop_on_cancel: bool) -> dict[str, str]:
         with self._motion_call():
-            return await self._per_axis_motion_run(name, axes, timeout, stop_on_cancel)
+            try:
+                return await self._per_axis_motion_run(name, axes, timeout, stop_on_cancel)
+            finally:
+                self._forget_limits()  # cal and rm set limits as they end (L4575-4580)
 
     @contextlib.contextmanager
     def _motion_call(self) -> Iterator[None]:
@@ -814,7 +1249,13 @@ class Controller:
         """Targets and timing of a motion line, from where its axes are now (called once
         the previous move has ended). ``targets``: the line's values per axis, distances
         for ``mor`` (relative to the current position, L6365-6376), absolute positions for
-        ``moa``. ``last``: the positions (as printed) the driver read last, if any."""
+        ``moa``. ``last``: the positions (as printed) the driver read last, if any.
+
+        Returns
+        -------
+        MovePlan
+            The line's moved axes, targets and time budget.
+        """
         relative = command.name == "mor"
         present = AXES[: self.context.axes]
         moved = moved_axes(command, present)
@@ -875,7 +1316,13 @@ class Controller:
         ``?statusaxis`` where the alias is not known to work: a unit of the older
         edition's family (its section has no alias, old L733), one that left an ``sa``
         unanswered, and modes 2 and 4, whose acknowledgements and echoes the manual
-        describes for ``!`` lines and reads but not for a bare alias (L2099-2117)."""
+        describes for ``!`` lines and reads but not for a bare alias (L2099-2117).
+
+        Returns
+        -------
+        Command
+            ``sa`` or ``?statusaxis``.
+        """
         identity = self._identity
         if self._short_status and identity is not None and identity.family == "1.71" \
                 and self._protocol.autostatus in (0, 1, 3):
@@ -889,7 +1336,13 @@ class Controller:
 
     def _start_reader(self, batch: object) -> Callable[[], Awaitable[dict[str, str]]]:
         """Write ``?pos`` now (in ``batch``); return what reads its reply, one text per
-        present axis (awaitable again after a cancelled wait)."""
+        present axis (awaitable again after a cancelled wait).
+
+        Returns
+        -------
+        Callable[[], Awaitable[dict[str, str]]]
+            What reads the positions (empty if the reply had another number of values).
+        """
         present = AXES[: self.context.axes]
         submission = self._protocol.submit(_read_command("pos", None, self.context),
                                            batch=batch)
@@ -907,13 +1360,35 @@ class Controller:
     def _rest_budget(self, targets: Mapping[str, float], budget: Budget,
                      now: Mapping[str, str]) -> float:
         """Seconds a move to ``targets`` may still take from the positions printed
-        ``now`` (:func:`~tango_aio.timing.rest_budget` with the settings in force)."""
+        ``now`` (:func:`~tango_aio.timing.rest_budget` with the settings in force).
+
+        Returns
+        -------
+        float
+            The seconds left.
+        """
         return rest_budget(self._settings, targets, now, budget.fallback)
 
     async def go(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Start ``go`` moves to absolute targets (no completion report; use
         :meth:`wait_idle`). A later ``go`` overrides the targets mid-move. Targets in
-        ``unit`` as for :meth:`move_to`."""
+        ``unit`` as for :meth:`move_to`.
+
+        Parameters
+        ----------
+        unit
+            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
+            ``units``, else the controller's dim unit.
+        **axes
+            The target position of each axis.
+
+        Raises
+        ------
+        InvalidCommandError
+            A target or an axis is not valid, before anything is written.
+        ControllerError
+            The controller refused the line.
+        """
         axes = await self._to_controller(axes, unit, Measure.POSITION)
         command = build_axes("go", axes, context=self.context)
         self._check_axes(command, axes)
@@ -922,7 +1397,26 @@ class Controller:
     async def speed(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Run axes at constant speed (rev/s, or mm/s in dim 9; or in ``unit``, e.g.
         ``"mm/s"``, default the connection's ``units`` per second); 0 stops. No completion
-        report: use :meth:`wait_idle`."""
+        report: use :meth:`wait_idle`.
+
+        Parameters
+        ----------
+        unit
+            The unit of the speeds (``"mm/s"``); ``None``: the connection's ``units`` per
+            second, else rev/s (mm/s in dim 9).
+        **axes
+            The speed of each axis (0 stops it).
+
+        Raises
+        ------
+        InvalidCommandError
+            A speed or an axis is not valid, before anything is written.
+        ControllerError
+            The controller refused the line (nothing changed).
+        TangoError
+            The line's answer was lost; its note says whether the running axes were
+            stopped.
+        """  # noqa: DOC501 - `raise annotate(exc, ...)` raises exc, a TangoError
         axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)
@@ -947,7 +1441,25 @@ class Controller:
         """Wait until no motion call of this controller is under way (one started a moment
         ago, e.g. with ``asyncio.ensure_future(tango.move_to(...))``, included, though its
         line is not written yet), then poll ``statusaxis`` until no axis is moving; return
-        the letters."""
+        the letters.
+
+        Parameters
+        ----------
+        poll_interval
+            Seconds between two ``statusaxis`` reads.
+        timeout
+            Seconds to wait at most; ``None``: no limit.
+
+        Returns
+        -------
+        dict[str, str]
+            The status letter of each present axis.
+
+        Raises
+        ------
+        TimeoutError
+            Still busy after ``timeout`` seconds.
+        """
         async with asyncio.timeout(check_timeout(timeout)):
             await asyncio.sleep(0)  # a motion task just scheduled takes its first step
             while self._motion_calls:
@@ -960,14 +1472,36 @@ class Controller:
 
     async def is_busy(self) -> bool:
         """Whether a motion call of this controller is under way or any axis moves
-        (``statusaxis`` ``M``): the momentary answer; :meth:`wait_idle` waits."""
+        (``statusaxis`` ``M``): the momentary answer; :meth:`wait_idle` waits.
+
+        Returns
+        -------
+        bool
+            ``True`` if a motion call is under way or an axis moves.
+        """
         await asyncio.sleep(0)  # a motion task just scheduled takes its first step
         return bool(self._motion_calls) or MOVING in (await self.status()).values()
 
     async def is_calibrated(self, *axes: str) -> bool:
         """Whether ``axes`` (default: every present axis) have been calibrated (``cal``)
         since power-on, from ``?statuslimit`` (its characters 0-3 are ``A`` for a
-        calibrated X, Y, Z, A; L5136-5191)."""
+        calibrated X, Y, Z, A; L5136-5191).
+
+        Parameters
+        ----------
+        *axes
+            The axes to check (``"x"``...); none: every present axis.
+
+        Returns
+        -------
+        bool
+            ``True`` if every one of them is calibrated.
+
+        Raises
+        ------
+        InvalidCommandError
+            An axis the controller does not have.
+        """
         present = AXES[: self.context.axes]
         for axis in axes:
             check_axis_word(axis, "statuslimit")
@@ -989,6 +1523,21 @@ class Controller:
         With ``wait``, returns once the stopped axes stand still; raises
         :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
         :data:`~tango_aio.motion.STOP_WAIT` seconds.
+
+        Parameters
+        ----------
+        *axes
+            The axes to stop (``"x"``...); none: every axis.
+        wait
+            Return only once the stopped axes stand still.
+
+        Raises
+        ------
+        InvalidCommandError
+            An axis the controller does not have (nothing is written).
+        ControllerTimeoutError
+            With ``wait``: an axis still moved :data:`~tango_aio.motion.STOP_WAIT` seconds
+            after the stop.
         """
         present = AXES[: self.context.axes]
         chosen: list[str] = []
@@ -1036,6 +1585,19 @@ class Controller:
         returns once the axes have stopped; raises
         :class:`~tango_aio.errors.ControllerTimeoutError` if they still move after
         :data:`~tango_aio.motion.STOP_WAIT` seconds.
+
+        Parameters
+        ----------
+        soft
+            Write ``a`` only, without Ctrl+C (queued lines are kept).
+        wait
+            Return only once every axis stands still.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            With ``wait``: an axis still moved :data:`~tango_aio.motion.STOP_WAIT` seconds
+            after the abort.
         """
         self._hub.publish(MoveAborted(ctrl_c=not soft))
         self._motion.stopped()
@@ -1066,7 +1628,13 @@ class Controller:
 
     async def _resolution(self) -> list[float]:
         """Per present axis, one unit of the last digit ``?pos`` prints (the position
-        resolution, L4080-4100)."""
+        resolution, L4080-4100).
+
+        Returns
+        -------
+        list[float]
+            The resolution of each present axis, X first.
+        """
         texts = await self._position_texts()
         return [position_tolerance(text) / 1.5 for text in texts.values()]
 
@@ -1084,6 +1652,22 @@ class Controller:
         rejects raises :class:`~tango_aio.bulk.UploadError` with its index and error code.
         Cancelling stops sending and leaves the driver in sync (the list then holds what
         was sent so far).
+
+        Parameters
+        ----------
+        positions
+            The trigger positions, in the controller's dim unit.
+        axis
+            The axis whose list is replaced.
+        progress
+            Called as ``progress(done, total)`` at each checkpoint.
+
+        Raises
+        ------
+        InvalidCommandError
+            An entry or the axis is not valid (the list is left untouched).
+        UploadError
+            The controller rejected an entry.
         """
         letter = check_axis(axis)
         values = validate_trigger_positions(positions)
@@ -1095,7 +1679,13 @@ class Controller:
             trigger_spec(), lambda: self.command(f"!trigp {letter} 0"), rows, progress)
 
     async def read_trigger_positions(self) -> list[float]:
-        """Read the whole trigger position list with pipelined ``?trigp n`` reads."""
+        """Read the whole trigger position list with pipelined ``?trigp n`` reads.
+
+        Returns
+        -------
+        list[float]
+            The trigger positions, in list order.
+        """
         rows = await self._transfer().download(trigger_spec())
         return [row[0] for row in rows]
 
@@ -1107,7 +1697,27 @@ class Controller:
         magnitude exceeds :data:`MAX_TRIGGER_POSITION` (no stage travels that far in any
         ``dim`` unit) or a non-zero one below the position resolution (it would be stored
         as 0.0) is refused before anything is written, as is an axis the controller does
-        not have."""
+        not have.
+
+        Parameters
+        ----------
+        start
+            The first trigger position.
+        end
+            The last trigger position.
+        count
+            The number of positions, both ends included.
+        axis
+            The axis (``"x"``...); ``None``: the axis set before (``!triga`` or an earlier
+            ``!trigr``, L13686-13688).
+
+        Raises
+        ------
+        InvalidCommandError
+            A value or the axis is not valid, before anything is written.
+        ControllerError
+            The controller refused the line.
+        """
         command = build("trigr", start, end, count, axis=axis, context=self.context)
         self._check_axes(command)
         for value in (start, end):
@@ -1123,7 +1733,22 @@ class Controller:
     async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
                                         progress: Progress | None = None) -> None:
         """Replace the snapshot array with ``rows`` (at most 1024 rows, each with one
-        position per axis, X first), like :meth:`upload_trigger_positions`."""
+        position per axis, X first), like :meth:`upload_trigger_positions`.
+
+        Parameters
+        ----------
+        rows
+            The snapshot rows: one position per axis, X first.
+        progress
+            Called as ``progress(done, total)`` at each checkpoint.
+
+        Raises
+        ------
+        InvalidCommandError
+            A row is not valid (the array is left untouched).
+        UploadError
+            The controller rejected an entry.
+        """
         axes = self._identity.axes if self._identity else self.context.axes
         values = validate_rows(rows, axes)
         check_resolution(values, await self._resolution(), "snsa")
@@ -1132,14 +1757,26 @@ class Controller:
 
     async def read_snapshot_positions(self) -> list[list[float]]:
         """Read every snapshot entry (``?snsc`` of them) with pipelined ``?snsa n`` reads;
-        each row holds the positions of the present axes."""
+        each row holds the positions of the present axes.
+
+        Returns
+        -------
+        list[list[float]]
+            The snapshot rows, in array order.
+        """
         return await self._transfer().download(snapshot_spec())
 
     # -- physical units and typed settings ------------------------------------------------
 
     async def unit_scales(self) -> dict[str, UnitScale]:
         """The unit conversion of every present axis: its ``dim``, ``pitch``, ``gear`` and
-        the global ``usteps``, read now (four pipelined reads)."""
+        the global ``usteps``, read now (four pipelined reads).
+
+        Returns
+        -------
+        dict[str, UnitScale]
+            The unit scale of each present axis.
+        """
         dims, pitch, gear, usteps = await asyncio.gather(
             self.get("dim"), self.get("pitch"), self.get("gear"), self.get("usteps"))
         return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
@@ -1156,7 +1793,18 @@ class Controller:
         """Per-axis ``values`` of ``measure`` in the controller's unit (see
         :func:`tango_aio.units.to_controller`). Without a unit and
         without pint Quantities nothing is read and they are returned as they are, but
-        for Decimal and Fraction as floats (the move-time estimate computes with them)."""
+        for Decimal and Fraction as floats (the move-time estimate computes with them).
+
+        Returns
+        -------
+        dict[str, Any]
+            The values by axis, in the controller's unit.
+
+        Raises
+        ------
+        InvalidCommandError
+            A value or the unit is not valid.
+        """
         chosen = self._unit(unit, measure)
         if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
             return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
@@ -1171,7 +1819,18 @@ class Controller:
 
     def _reading_unit(self, unit: str | None, measure: Measure) -> str | None:
         """The unit a reading is converted to (see :meth:`_unit`), checked before
-        anything is read."""
+        anything is read.
+
+        Returns
+        -------
+        str | None
+            The unit; ``None``: the controller's unit.
+
+        Raises
+        ------
+        InvalidCommandError
+            The unit is not one of ``measure``.
+        """
         chosen = self._unit(unit, measure)
         if chosen is not None:
             try:
@@ -1183,7 +1842,13 @@ class Controller:
     async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
                                measure: Measure) -> dict[str, Any]:
         """Per-axis readings (numbers, or sequences of numbers) converted from the
-        controller's unit to ``chosen`` (from :meth:`_reading_unit`)."""
+        controller's unit to ``chosen`` (from :meth:`_reading_unit`).
+
+        Returns
+        -------
+        dict[str, Any]
+            The readings by axis, in ``chosen``.
+        """
         scales = await self.unit_scales() if chosen is not None else {}
 
         def convert(axis: str, value: float) -> float:
@@ -1197,34 +1862,109 @@ class Controller:
 
     async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
-        (``"mm/s"``; default: the connection's ``units`` per second)."""
+        (``"mm/s"``; default: the connection's ``units`` per second).
+
+        Parameters
+        ----------
+        unit
+            The unit of the speeds (``"mm/s"``); ``None``: the connection's ``units`` per
+            second, else rev/s (mm/s in dim 9).
+
+        Returns
+        -------
+        dict[str, float]
+            The velocity of each present axis.
+
+        Raises
+        ------
+        InvalidCommandError
+            ``unit`` is not a unit of velocity.
+        """
         chosen = self._reading_unit(unit, Measure.VELOCITY)
         return await self._from_controller(await self.get("vel"), chosen, Measure.VELOCITY)
 
     async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
-        """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`."""
+        """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`.
+
+        Parameters
+        ----------
+        unit
+            The unit of the speeds, as for :meth:`velocity`.
+        **axes
+            The velocity of each axis.
+        """
         await self.set("vel", **await self._to_controller(axes, unit, Measure.VELOCITY))
 
     async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
         """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
-        default: the connection's ``units`` per second squared)."""
+        default: the connection's ``units`` per second squared).
+
+        Parameters
+        ----------
+        unit
+            The unit of the accelerations (``"mm/s2"``); ``None``: the connection's ``units``
+            per second squared, else m/s².
+
+        Returns
+        -------
+        dict[str, float]
+            The acceleration of each present axis.
+
+        Raises
+        ------
+        InvalidCommandError
+            ``unit`` is not a unit of acceleration.
+        """
         chosen = self._reading_unit(unit, Measure.ACCELERATION)
         return await self._from_controller(await self.get("accel"), chosen, Measure.ACCELERATION)
 
     async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
-        """Set ``accel`` per axis, see :meth:`acceleration`."""
+        """Set ``accel`` per axis, see :meth:`acceleration`.
+
+        Parameters
+        ----------
+        unit
+            The unit of the accelerations, as for :meth:`acceleration`.
+        **axes
+            The acceleration of each axis.
+        """
         await self.set("accel", **await self._to_controller(axes, unit, Measure.ACCELERATION))
 
     async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
         """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
-        ``unit`` (default: the connection's ``units``, else the dim unit)."""
+        ``unit`` (default: the connection's ``units``, else the dim unit).
+
+        Parameters
+        ----------
+        unit
+            The unit of the limits, as for :meth:`position`.
+
+        Returns
+        -------
+        dict[str, tuple[float, float]]
+            The ``(lower, upper)`` limits of each present axis.
+
+        Raises
+        ------
+        InvalidCommandError
+            ``unit`` is not a unit of length.
+        """
         chosen = self._reading_unit(unit, Measure.POSITION)
         pairs = await self.get("lim")
         return await self._from_controller(pairs, chosen, Measure.POSITION)
 
     async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:
-        """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``)."""
+        """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``).
+
+        Parameters
+        ----------
+        unit
+            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
+            ``units``, else the controller's dim unit.
+        **axes
+            The ``(lower, upper)`` limits of each axis.
+        """
         lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit,
                                           Measure.POSITION)
         upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit,
@@ -1233,33 +1973,79 @@ class Controller:
                        **{axis: [lower[axis], upper[axis]] for axis in axes})
 
     async def trigger_count(self) -> int:
-        """The number of trigger events generated so far (``?trigcount``)."""
+        """The number of trigger events generated so far (``?trigcount``).
+
+        Returns
+        -------
+        int
+            The trigger counter.
+        """
         return int(await self.get("trigcount"))
 
     async def set_trigger_count(self, count: int = 0) -> None:
-        """Set (usually reset) the trigger event counter (``!trigcount``)."""
+        """Set (usually reset) the trigger event counter (``!trigcount``).
+
+        Parameters
+        ----------
+        count
+            The new value of the counter.
+        """
         await self.set("trigcount", count)
 
     async def trigger_enabled(self) -> bool:
-        """Whether the trigger output is switched on (``?trig``)."""
+        """Whether the trigger output is switched on (``?trig``).
+
+        Returns
+        -------
+        bool
+            ``True`` if the trigger output is on.
+        """
         return bool(await self.get("trig"))
 
     async def set_trigger_enabled(self, enabled: bool) -> None:
         """Switch the trigger output on or off (``!trig 1`` / ``!trig 0``); the trigger
-        setup must be complete before switching it on."""
+        setup must be complete before switching it on.
+
+        Parameters
+        ----------
+        enabled
+            ``True`` switches the output on, ``False`` off.
+
+        Raises
+        ------
+        TypeError
+            ``enabled`` is not a bool.
+        """
         if not isinstance(enabled, bool):
             raise TypeError(f"enabled must be True or False, got {enabled!r}")
         await self.set("trig", int(enabled))
 
     async def axis_status(self) -> dict[str, AxisStatus]:
-        """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members."""
+        """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members.
+
+        Returns
+        -------
+        dict[str, AxisStatus]
+            The status of each present axis.
+        """
         return axis_statuses(await self.status())
 
     # -- events ---------------------------------------------------------------------------
 
     def events(self, maxsize: int = 256) -> Subscription:
         """Subscribe to the controller's events (an async iterator). When the buffer is
-        full the oldest events are dropped (counted in ``Subscription.dropped``)."""
+        full the oldest events are dropped (counted in ``Subscription.dropped``).
+
+        Parameters
+        ----------
+        maxsize
+            The size of the buffer (in events).
+
+        Returns
+        -------
+        Subscription
+            An async iterator of the events from now on; close it when done.
+        """
         return self._hub.subscribe(check_count(maxsize, "maxsize"))
 
     async def watch_position(self, interval: float = 0.1, *, follow: bool = False,
@@ -1271,7 +2057,23 @@ class Controller:
         ``follow=True`` follows a whole scan: it goes on through the idle moments between
         moves, until the caller stops iterating (``break``) or cancels; while all is idle
         it yields only when a position changed, so a paused scan does not flood the
-        caller."""
+        caller.
+
+        Parameters
+        ----------
+        interval
+            Seconds between two reads.
+        follow
+            Go on through idle moments until the caller stops.
+        unit
+            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
+            ``units``, else the controller's dim unit.
+
+        Yields
+        ------
+        PositionUpdate
+            The positions of the present axes.
+        """
         check_timeout(interval, "interval")
         chosen = self._reading_unit(unit, Measure.POSITION)
         last: Mapping[str, float] | None = None
@@ -1304,7 +2106,13 @@ class Controller:
         returned. Its reply is 7 bytes against 21 on a 3-axis unit (about 2.7 ms at
         57600 Bd, on the path of every move). The letters are still read first, for every
         axis: an axis that reads stopped cannot move again before the position read right
-        behind it (no line is written in between), so the position is where it stopped."""
+        behind it (no line is written in between), so the position is where it stopped.
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letter and the position (as printed) of each axis read.
+        """
         context = self.context
         present = AXES[: context.axes]
         status = self._status_command() if axes else \
@@ -1342,6 +2150,10 @@ class Controller:
 
     def _on_protocol_event(self, event: Event, submission: Submission | None) -> None:
         if isinstance(event, Completed):
+            if report_suggests_restart(self._protocol.autostatus, bool(event.letters)):
+                self._restarts.suspect()  # a report the mode in force does not send
+            if submission is None or submission.command.name not in _LIMIT_NEUTRAL:
+                self._forget_limits()  # the end of a cal or rm sets limits (L4575-4580)
             self._publish_completion(event, submission)
             self._motion.hint()
         elif isinstance(event, Unsolicited):
@@ -1401,8 +2213,10 @@ class Controller:
     def _adopt(self, staged: Controller, closer: Closer | None) -> None:
         self._protocol = staged._protocol
         self._protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
+        self._restarts.attach(self._protocol)
         self._settings = staged._settings
         self._identity = staged._identity or self._identity
+        self._forget_limits()  # the controller may have been power cycled
         self._on_close = closer
 
     def _reconnected(self, attempt: int) -> None:
@@ -1469,6 +2283,11 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
     other set is moved axis by axis, one line after the other, each followed to its end
     (the controller's behaviour for a second move line while axes run is not documented,
     so moves never overlap).
+
+    Returns
+    -------
+    list[dict[str, float]]
+        The values of each line's axes, one mapping per line, in writing order.
     """
     order = [axis for axis in AXES if axis in axes]
     unknown = set(axes) - set(AXES)
@@ -1521,5 +2340,11 @@ _SHORT_STATUS: Final = _spelled("sa")
 def _read_command(name: str, axis: str | None, context: Context) -> Command:
     """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
     built once per name, axis and context: commands are immutable values, and the
-    per-request path need not validate the same line again."""
+    per-request path need not validate the same line again.
+
+    Returns
+    -------
+    Command
+        The read line.
+    """
     return build(name, form=Form.READ, axis=axis, context=context)

@@ -13,6 +13,9 @@ who failed:
   :class:`HardwareFaultError` (70-86). Unknown numbers map to
   :class:`UnknownControllerError`.
 * :class:`MoveError`: a move ended, but not at its target (per-axis status letters).
+* :class:`MoveOutcomeUnknown`: a motion call failed after its line was written and the
+  controller may have executed it (a timeout, a lost answer or link); read the position
+  before repeating the move.
 * :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
 * :class:`ConnectionLostError`: a working link went away; the cause is chained
   (:class:`IdentityMismatchError`: a different controller answered after a reconnect).
@@ -71,9 +74,14 @@ __all__ = [
     "MissingPrefixError",
     "MotorRefusedError",
     "MotorSupplyOverloadError",
+    "MoveAbortedUnknownError",
     "MoveError",
+    "MoveLinkLostUnknownError",
     "MoveNotAllowedError",
+    "MoveOutcomeUnknown",
+    "MoveProtocolUnknownError",
     "MoveStoppedError",
+    "MoveTimeoutUnknownError",
     "MultiAxisMoveForbiddenError",
     "NoControllerError",
     "NoError",
@@ -100,6 +108,7 @@ __all__ = [
     "XposModuleError",
     "controller_error",
     "error_class",
+    "outcome_unknown",
     "parse_error_reply",
 ]
 
@@ -223,6 +232,75 @@ class MoveError(TangoError):
         # BaseException pickles as ``cls(*self.args)``, which lacks ``statuses``; the
         # instance dict (``statuses``, ``__notes__``...) is restored as the state.
         return type(self), (str(self), self.statuses), self.__dict__
+
+
+class MoveOutcomeUnknown(TangoError):
+    """A motion call failed after its line was written, and the controller may have
+    executed it: the stage may have moved (#32 item 5). Do not retry blindly: read the
+    position first. The driver stopped the axes the line addressed where it could.
+
+    Never raised as such: the error raised is also the class that says what went wrong
+    (:class:`MoveTimeoutUnknownError`, :class:`MoveAbortedUnknownError`,
+    :class:`MoveProtocolUnknownError`, :class:`MoveLinkLostUnknownError`), so that
+    ``except ControllerTimeoutError`` still catches a timeout. ``command`` is the line
+    (e.g. ``'!mor 0.5'``); the message is the original error's, with what it means; its
+    ``__cause__`` is the original error's cause (e.g. a link's reset)."""
+
+    command: str = ""
+
+
+class MoveTimeoutUnknownError(MoveOutcomeUnknown, ControllerTimeoutError):
+    """A motion line's answer did not come in time; it may have been executed (a
+    controller that restarted behind the link answers in another mode)."""
+
+
+class MoveAbortedUnknownError(MoveOutcomeUnknown, RequestAbortedError):
+    """A motion line's answer was lost in a resync; the line may have been executed."""
+
+
+class MoveProtocolUnknownError(MoveOutcomeUnknown, ProtocolError):
+    """A motion line's answer made no sense; the line may have been executed."""
+
+
+class MoveLinkLostUnknownError(MoveOutcomeUnknown, ConnectionLostError):
+    """The link went away after a motion line was written; it may have been executed."""
+
+
+_OUTCOME_UNKNOWN: tuple[tuple[type[TangoError], type[MoveOutcomeUnknown]], ...] = (
+    (ControllerTimeoutError, MoveTimeoutUnknownError),
+    (RequestAbortedError, MoveAbortedUnknownError),
+    (ProtocolError, MoveProtocolUnknownError),
+    (ConnectionLostError, MoveLinkLostUnknownError),
+)
+
+
+def outcome_unknown(error: TangoError, command: str) -> TangoError:
+    """``error`` (raised for the motion line ``command`` after it was written) as the
+    :class:`MoveOutcomeUnknown` class of its kind, the same message with what it means
+    appended; ``error`` itself if it is of none of those kinds or says so already. Raise
+    the result ``from error.__cause__``.
+
+    Parameters
+    ----------
+    error
+        What the motion call raised.
+    command
+        The motion line.
+
+    Returns
+    -------
+    TangoError
+        The error to raise.
+    """
+    if isinstance(error, MoveOutcomeUnknown):
+        return error
+    for kind, unknown in _OUTCOME_UNKNOWN:
+        if isinstance(error, kind):
+            wrapped = unknown(f"{error} (the controller may have executed {command!r}: "
+                              f"read the position before repeating the move)")
+            wrapped.command = command
+            return wrapped
+    return error
 
 
 # -- the errors of one surface (each module re-exports its own) --------------------------

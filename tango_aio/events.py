@@ -26,6 +26,7 @@ from .stream import BoundedStream
 __all__ = [
     "ConnectionLost",
     "ControllerFault",
+    "ControllerRestarted",
     "EventHub",
     "MoveAborted",
     "MoveFinished",
@@ -118,9 +119,27 @@ class ControllerFault:
     time: float = field(default_factory=_now)
 
 
+@dataclass(frozen=True, slots=True)
+class ControllerRestarted:
+    """The controller restarted behind a link that stayed up (a power cycle, a reset),
+    and the driver recovered (#32 item 5): it found the controller in autostatus
+    ``found`` (1 at power-on, L2069) instead of the mode it had set, ``autostatus``, which
+    it selected again; it read its cached settings again, and ``settings`` maps each
+    that the restart changed to its ``(before, after)`` values (a restart reloads the
+    saved settings: what was set and not saved is gone). Position counters restart at 0,
+    calibration is lost: a move that failed meanwhile may have run
+    (:class:`~tango_aio.errors.MoveOutcomeUnknown`)."""
+
+    found: int
+    autostatus: int
+    settings: Mapping[str, tuple[object, object]]
+    time: float = field(default_factory=_now)
+
+
 TangoEvent = (
     MoveFinished
     | ControllerFault
+    | ControllerRestarted
     | MoveAborted
     | StatusReport
     | UnsolicitedLine

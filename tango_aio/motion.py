@@ -98,6 +98,7 @@ from .errors import (
     ProtocolError,
     RequestAbortedError,
     TangoError,
+    outcome_unknown,
 )
 from .events import MoveFinished
 from .instructions import AXES, Command, Completion
@@ -476,12 +477,16 @@ class Motion:
                 job.plan = await job.plan.resolved()
         except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
-            # move may or may not run. Stop it and fail: success is never assumed.
+            # move may or may not run. Stop it and fail: success is never assumed, and
+            # the error says the line may have run (#32 item 5: no blind retry).
             aborted = self._was_stopped(job)
             stopped = await self._stop_and_wait(job)
             if aborted:
                 await self._aborted(job, {})
-            raise _with_stop(exc, job, stopped) from exc.__cause__
+            raise outcome_unknown(_with_stop(exc, job, stopped),
+                                  job.sent.command.line) from exc.__cause__
+        except ConnectionLostError as exc:
+            raise outcome_unknown(exc, job.sent.command.line) from exc.__cause__
         if error is not None:
             job.sent.forget()
             raise error

@@ -77,6 +77,7 @@ from .errors import (
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, parse
+from .linktiming import LinkTiming
 from .scheduler import Line, Run, WriteScheduler
 from .session import DEAD_AFTER, Exchange, LinkSession, Outcome, Until
 
@@ -225,6 +226,11 @@ class TangoProtocol(asyncio.Protocol):
         self._peer_eof = False
         self._trace_buffer = b""
         self._connected = self._loop.create_future()
+        #: Called when a request or marker got no answer in time, and when
+        #: :meth:`verify_autostatus` restored the driver's mode (found, restored): a
+        #: controller may have restarted behind the link (:mod:`tango_aio.restart`).
+        self.on_unanswered: Callable[[], None] | None = None
+        self.on_restored: Callable[[int, int], None] | None = None
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
@@ -243,13 +249,21 @@ class TangoProtocol(asyncio.Protocol):
 
     @property
     def quiet_interval(self) -> float:
-        """Seconds of silence after the reply of ``help`` that end a resync without a
-        marker (:attr:`~tango_aio.core.HelpStyle.NONE`)."""
+        """Seconds without a byte after the reply of ``help`` that end a resync without a
+        marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: grown by
+        the link's timing (:attr:`link`, #32 item 5)."""
         return self.session.quiet_interval
 
     @quiet_interval.setter
     def quiet_interval(self, seconds: float) -> None:
         self.session.quiet_interval = seconds
+
+    @property
+    def link(self) -> LinkTiming:
+        """The link's timing: its byte time where the baud rate is known and the longest
+        round trip connect's exchanges measured (the session's
+        :attr:`~tango_aio.session.LinkSession.timing`)."""
+        return self.session.timing
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -313,6 +327,10 @@ class TangoProtocol(asyncio.Protocol):
             _fail(submission.completion, error)
         for marker in self._markers.values():
             _fail(marker, error)
+        # An exchange of connect's (detect, a mode exchange) waits on its own future: it
+        # fails now too, not after its reply timeout (#32 item 5).
+        if self._collected is not None:
+            _fail(self._collected, error)
         self._submissions.clear()
         self._markers.clear()
         self.scheduler.drop_queue()
@@ -564,6 +582,8 @@ class TangoProtocol(asyncio.Protocol):
                     "restarted; restoring autostatus %d", actual, expected, expected)
         await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
                                 timeout)
+        if self.on_restored is not None:
+            self.on_restored(actual, expected)
         return True
 
     # -- writing ------------------------------------------------------------------------
@@ -772,6 +792,8 @@ class TangoProtocol(asyncio.Protocol):
         that were in flight together count once (they time out together when one reply is
         lost), so each count is a line written after the previous count. Returns whether
         the link was declared lost."""
+        if self.on_unanswered is not None and self._lost is None:
+            self.on_unanswered()
         if not self.session.unanswered(serial, self.scheduler.written_lines):
             return False
         cause = ConnectionAbortedError(f"{self.session.silent} requests in a row got no "
@@ -854,8 +876,10 @@ class TangoProtocol(asyncio.Protocol):
 
         0. The quick way, for firmware that answers ``?help N`` with ``ERROR N,...``
            (1.71, L2919): ``help``, ``?help N`` twice and ``?err`` in one write (N a
-           marker number; see :meth:`~tango_aio.session.LinkSession.numbered_marker_lines`),
-           every line dropped.
+           marker number no recent step 0 of this process used:
+           :meth:`~tango_aio.session.LinkSession.begin_detect`; see
+           :meth:`~tango_aio.session.LinkSession.numbered_marker_lines`), every line
+           dropped.
            Their replies in a row put the stream in step, and the markers use N. Any
            other answer (the link then quiet for :attr:`quiet_interval`) proves
            nothing: steps 1 and 2 follow.
@@ -888,7 +912,7 @@ class TangoProtocol(asyncio.Protocol):
         """Write ``lines`` with the core dropping every line; return what the session
         collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
         Only call it when nothing is owed."""
-        data = self.session.begin_exchange(lines, until, marker)
+        data = self.session.begin_exchange(lines, until, marker, now=self._loop.time())
         collected = self.session.exchange
         assert collected is not None
         self._collected = self._loop.create_future()
@@ -990,6 +1014,8 @@ class TangoProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         """Called by asyncio with bytes from the controller."""
         self._trace_received(data)
+        if self.session.bytes_received(self._loop.time()) is Outcome.WAIT_QUIET:
+            self._quiet_from_now()
         self.core.receive_data(data)
         self._dispatch_pending()
         self._flush()

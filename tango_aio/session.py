@@ -17,7 +17,11 @@ step, the link is dead). It owns:
   (:meth:`LinkSession.mode_lines`, :meth:`LinkSession.mode_read`) and the detection at
   connect (:meth:`LinkSession.numbered_marker_lines`, :meth:`LinkSession.help_read`);
 * **liveness**: dead-link counting (:meth:`LinkSession.unanswered`) and the keepalive's
-  schedule (:meth:`LinkSession.keepalive_wait`).
+  schedule (:meth:`LinkSession.keepalive_wait`);
+* **link timing**: the quiet interval grows with the link's byte time
+  (:meth:`LinkSession.baud_known`) and the round trips of its exchanges, measured from the
+  times the adapter passes in (:meth:`LinkSession.bytes_received`); quiet means no byte,
+  not no line (:mod:`tango_aio.linktiming`).
 
 Its state is one :class:`LinkState`, changed only through :data:`TRANSITIONS` (an event
 the table does not list raises :class:`SessionStateError`: a bug in the adapter, never the
@@ -28,6 +32,7 @@ the table has the transitions for it.
 
 from __future__ import annotations
 
+import collections
 import enum
 import re
 from collections.abc import Hashable, Sequence
@@ -37,6 +42,7 @@ from typing import Final
 from .core import AckReads, HelpStyle, ProtocolCore
 from .errors import ProtocolError
 from .instructions import encode
+from .linktiming import MIN_QUIET, LinkTiming
 from .patterns import ACK_PATTERN, normal_line
 
 __all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "TRANSITIONS", "Exchange", "LinkEvent",
@@ -46,8 +52,15 @@ __all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "TRANSITIONS", "Exchange", "LinkEvent
 #: Consecutive unanswered requests after which a link that stays open is declared lost.
 #: Two: a request's own timeout, then the resync marker written after it.
 DEAD_AFTER: Final = 2
-#: Seconds of silence after the reply of ``help`` that end a quiet resync.
-QUIET_INTERVAL: Final = 0.05
+#: Seconds of silence after the reply of ``help`` that end a quiet resync, before the
+#: link's timing is known (:data:`~tango_aio.linktiming.MIN_QUIET`).
+QUIET_INTERVAL: Final = MIN_QUIET
+#: The step-0 marker numbers of this process's latest detections
+#: (:meth:`LinkSession.begin_detect`); fewer than there are marker numbers. Process-wide,
+#: not per session: the detection it guards against is another session's, one abandoned
+#: (cancelled, timed out) within its step 0 on the same port, whose replies are still on
+#: the link when the next connect of this process starts; that session is gone by then.
+_RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
 
 _INTEGER: Final = re.compile(r"\s*-?\d+\s*$")
 
@@ -201,7 +214,8 @@ class LinkSession:
     detect
         Whether the first resync runs the detection instead (set by ``connect``).
     quiet_interval
-        Seconds of silence after the reply of ``help`` that end a quiet resync.
+        Seconds of silence after the reply of ``help`` that end a quiet resync (grown by
+        what :attr:`timing` learns, never shrunk by it).
     """
 
     def __init__(self, core: ProtocolCore, *, dead_after: int = DEAD_AFTER,
@@ -212,8 +226,13 @@ class LinkSession:
         self.dead_after = dead_after
         #: Seconds of silence after which an idle link is probed (``None``: never).
         self.keepalive = keepalive
-        #: Seconds of silence after the reply of ``help`` that end a quiet resync.
+        #: Seconds without a byte after the reply of ``help`` that end a quiet resync
+        #: and connect's exchanges (grown by :meth:`baud_known` and measured round trips).
         self.quiet_interval = quiet_interval
+        #: The link's byte time (where the baud rate is known) and the longest round trip
+        #: measured by an exchange (:class:`~tango_aio.linktiming.LinkTiming`).
+        self.timing = LinkTiming()
+        self._sent_at: float | None = None  # an exchange's write, until its first byte
         #: Whether the first resync runs the detection instead (:meth:`detects_first`).
         self.detect_at_connect = detect
         self.state = LinkState.IN_STEP
@@ -407,13 +426,55 @@ class LinkSession:
         self._go(LinkEvent.QUIET)
         return Outcome.IN_STEP
 
+    # -- link timing --------------------------------------------------------------------
+
+    def baud_known(self, byte_seconds: float) -> None:
+        """The link runs at a known baud rate (a serial port the driver opened): its
+        quiet interval spans :data:`~tango_aio.linktiming.QUIET_BYTES` byte times at least.
+
+        Parameters
+        ----------
+        byte_seconds
+            Seconds one byte takes on the line
+            (:func:`~tango_aio.linktiming.byte_time`).
+        """
+        self.timing.byte_seconds = byte_seconds
+        self.quiet_interval = max(self.quiet_interval, self.timing.quiet_interval)
+
+    def bytes_received(self, now: float) -> Outcome:
+        """Bytes arrived at loop time ``now`` (before the core splits them into lines).
+        The first after an exchange's write measures the link's round trip, which may
+        lengthen the quiet interval; and a quiet deadline already armed starts again, since
+        quiet means no byte, not no line (on a slow link a line takes longer than the
+        interval: #32 item 5).
+
+        Parameters
+        ----------
+        now
+            The loop time the bytes arrived at.
+
+        Returns
+        -------
+        Outcome
+            :attr:`Outcome.WAIT_QUIET` (re-arm the quiet deadline) or :attr:`Outcome.NONE`.
+        """
+        if self._sent_at is not None:
+            if self.timing.observe(now - self._sent_at):
+                self.quiet_interval = max(self.quiet_interval, self.timing.quiet_interval)
+            self._sent_at = None
+        if self.quiet_deadline is None:
+            return Outcome.NONE
+        return self._wait_quiet(now)
+
     # -- exchanges ----------------------------------------------------------------------
 
     def begin_exchange(self, lines: Sequence[str], until: Until,
-                       marker: str | None = None) -> bytes:
+                       marker: str | None = None, *, now: float | None = None) -> bytes:
         """Start collecting what ``lines`` bring back, with the core dropping every line
         (only when nothing is owed); return the bytes to write. With ``marker``
-        (:attr:`Until.MARKER`), quiet after any line ends the exchange too.
+        (:attr:`Until.MARKER`), quiet after any line ends the exchange too. With ``now``
+        (the loop time of the write), the first byte back measures the link's round trip
+        (:meth:`bytes_received`).
 
         Parameters
         ----------
@@ -423,6 +484,8 @@ class LinkSession:
             What ends the collection.
         marker
             The text the marker replies start with (:attr:`Until.MARKER` only).
+        now
+            The loop time the lines are written at (``None``: measure nothing).
 
         Returns
         -------
@@ -434,6 +497,7 @@ class LinkSession:
         self._go(LinkEvent.EXCHANGE_WRITTEN)
         self._help_last = until is Until.MARKER
         self.quiet_deadline = None
+        self._sent_at = now
         self.exchange = Exchange(until, marker, frozenset(normal_line(line) for line in lines))
         return b"".join(encode(line) for line in lines)
 
@@ -442,6 +506,7 @@ class LinkSession:
         (the adapter counts the line unanswered and resyncs)."""
         self.exchange = None
         self.quiet_deadline = None
+        self._sent_at = None
         self.core.end_resync()
         self._go(LinkEvent.EXCHANGE_ENDED)
 
@@ -462,6 +527,7 @@ class LinkSession:
         """
         self.exchange = None
         self.quiet_deadline = None
+        self._sent_at = None
         if not in_step and not self.core.quiet:
             return False
         self.core.end_resync()
@@ -531,18 +597,35 @@ class LinkSession:
 
     # -- detection ----------------------------------------------------------------------
 
-    def begin_detect(self) -> int:
+    def begin_detect(self, recent: collections.deque[int] | None = None) -> int:
         """Start the detection at connect: markers off until it ends; return the marker
-        number for step 0 (:meth:`numbered_marker_lines`).
+        number for step 0 (:meth:`numbered_marker_lines`), one that no recent step 0 of
+        this process used: a connect abandoned within its step 0 (cancelled, timed out)
+        leaves its replies on the link, and a step 0 with the same number would take them
+        for its own, then hand its own late replies to the next requests (#32 item 5:
+        ``not a version reply: '1'``). The core's codes cycle through more numbers than
+        ``recent`` holds.
+
+        Parameters
+        ----------
+        recent
+            The step-0 numbers used lately, the number chosen appended (``None``: this
+            process's, :data:`_RECENT_DETECT_CODES`).
 
         Returns
         -------
         int
             The marker number for step 0.
         """
+        if recent is None:
+            recent = _RECENT_DETECT_CODES
         self.core.help_style = HelpStyle.NONE
         self.detected = {"help_number": "none"}
-        return self.core.pick_marker_code()
+        code = self.core.pick_marker_code()
+        while code in recent:
+            code = self.core.pick_marker_code()
+        recent.append(code)
+        return code
 
     @staticmethod
     def numbered_marker_lines(code: int) -> tuple[list[str], str]:

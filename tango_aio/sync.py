@@ -486,6 +486,7 @@ class Controller(_Wrapper[AsyncController]):
     acceleration = _Blocking(AsyncController.acceleration)
     set_acceleration = _Blocking(AsyncController.set_acceleration)
     limits = _Blocking(AsyncController.limits)
+    axis_limits = _Blocking(AsyncController.axis_limits)
     set_limits = _Blocking(AsyncController.set_limits)
     trigger_count = _Blocking(AsyncController.trigger_count)
     set_trigger_count = _Blocking(AsyncController.set_trigger_count)

@@ -246,6 +246,20 @@ class Faults:
         _seconds(seconds)
         self._do(lambda wire: wire.stall(seconds))
 
+    def power_cycle(self, off: float = 0.2) -> None:
+        """Switch the controller off now and on again ``off`` seconds later, behind a
+        link that stays up (:meth:`tango_aio.sim.wire.Wire.power_cycle`): what it held and
+        what arrives meanwhile is lost, and it restarts as at power-on (autostatus 1,
+        settings from its state file, position counters 0).
+
+        Parameters
+        ----------
+        off
+            Seconds the controller stays off (input arriving meanwhile is lost).
+        """
+        off = _seconds(off)
+        self._do(lambda wire: wire.power_cycle(off))
+
     def disconnect(self, *, mid_reply: bool = False) -> None:
         """Cut the link now, or halfway through the next reply.
 

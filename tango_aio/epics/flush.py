@@ -32,6 +32,14 @@ from caproto.asyncio.server import Context, VirtualCircuit
 __all__ = ["FlushingContext"]
 
 
+#: Seconds a circuit that has caught up with its updates waits for more before it sends
+#: what it collected (caproto's own wait is its high-load timeout, 10 ms, doubled after
+#: every batch sent that way). A put's VAL and DMOV=0 were held for the whole of a short
+#: move and then sent on the put's own path, by its flush; now they go out while the move
+#: runs. A flush sends at once whatever is held; a flood is still batched.
+HOLD = 0.001
+
+
 class _Marker:
     """A flush request travelling through the subscription queues."""
 
@@ -96,7 +104,14 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
         # (or with nothing collected): markers taken before are then flushed.
         self._release()
         while True:
-            item = await super().get_from_sub_queue(timeout)
+            if timeout is None:  # nothing collected: wait for the next update
+                item = await self.subscription_queue.get()
+            elif not self.subscription_queue.empty():
+                item = self.subscription_queue.get_nowait()
+            else:  # caught up: wait HOLD for more, then the loop sends what it collected
+                item = await super().get_from_sub_queue(min(timeout, HOLD))
+                if item is None:
+                    return None
             if not isinstance(item, _CircuitMarker):
                 return item
             if timeout is None:  # the loop has nothing collected: all before is sent

@@ -253,9 +253,11 @@ async def _stopped_is_no_fault(put: Awaitable[Any]) -> Any:
         raise SkipWrite from exc
 
 
-async def _put_val(group: AxisGroup, instance: Any, value: float) -> float:
-    await _stopped_is_no_fault(group.axis.move(float(value)))
-    return value
+async def _put_val(group: AxisGroup, instance: Any, value: float) -> Any:
+    published = await _stopped_is_no_fault(group.axis.move(float(value)))
+    # A move published VAL as it started; writing it again now would post the same value
+    # to every VAL monitor once more, on the put's own path (its response waits for it).
+    return SkipWrite if published else value
 
 
 class AxisGroup(PVGroup):  # type: ignore[misc]
@@ -526,7 +528,7 @@ class AxisServer:
 
     # -- motion --------------------------------------------------------------------------
 
-    async def move(self, target: float) -> None:
+    async def move(self, target: float) -> bool:
         """VAL was put: move there (or redefine the position with SET=Set).
 
         The put announces itself to the coalescer as it starts, so a merged move being
@@ -537,6 +539,11 @@ class AxisServer:
         ----------
         target
             The new VAL (user units).
+
+        Returns
+        -------
+        bool
+            Whether VAL was published (a move, as it started); False for SET=Set.
         """
         arrived = self.server.coalescer.announce()
         try:
@@ -546,7 +553,7 @@ class AxisServer:
             _finite(self.record.pvname, "VAL", target)
             if f.set_use_switch.value == "Set":
                 await self._redefine(target)
-                return
+                return False
             dial = target - f.user_offset.value
             await self._check_limits(dial)
             await self.record.write(target, verify_value=False)  # VAL: the newest target
@@ -555,6 +562,7 @@ class AxisServer:
             await self._run(lambda: self.server.coalescer.move_to(
                 self.letter, dial, arrived, positions=confirmed),
                 positive=dial >= self._dial, confirmed=confirmed)
+            return True
         finally:
             arrived()  # refused, replaced or failed before it joined: nobody waits for it
 

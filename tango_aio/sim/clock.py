@@ -164,6 +164,18 @@ class ScaledHandler:
         ask = getattr(self.handler, "reboots", None)
         return bool(ask(line)) if ask is not None else False
 
+    def reboot(self, now: float) -> None:
+        """Restart the logic as at power-on (if it can), at emulator time.
+
+        Parameters
+        ----------
+        now
+            The wire's (host) time of the restart.
+        """
+        restart = getattr(self.handler, "reboot", None)
+        if restart is not None:
+            restart(self.clock.to_emulator(now))
+
     def handle_line(self, line: bytes, now: float) -> None:
         """Execute one line at emulator time.
 

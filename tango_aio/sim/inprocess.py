@@ -16,6 +16,7 @@ seed           random seed for fragmentation and faults                   none
 model          the ``?version`` controller type                           TANGO-DT
 firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
+lacks          instructions it lacks (``ctrt,pause``): no reply, error 4  none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
 fingerprint    switch values of a ``tango-aio probe`` fingerprint file    none
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
@@ -72,7 +73,7 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         raise ValueError(f"not a sim:// URL: {url!r}")
     query = dict(urllib.parse.parse_qsl(parts.query, strict_parsing=False))
     known = {"axes", "baud", "latency", "processing", "stall_every", "stall", "fragment",
-             "seed", "model", "firmware", "state", "profile", "fingerprint", "speed",
+             "seed", "model", "firmware", "state", "profile", "fingerprint", "speed", "lacks",
              *SWITCHES}
     unknown = set(query) - known
     if unknown:
@@ -93,6 +94,8 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         firmware=firmware,
         version=query.get("firmware", "1.71"),
         state_file=Path(query["state"]) if "state" in query else None,
+        lacks=frozenset(name.strip().lower() for name in query.get("lacks", "").split(",")
+                        if name.strip()),
     )
     baud = int(query.get("baud", 57600))
     wire = WireConfig(

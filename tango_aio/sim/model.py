@@ -115,6 +115,10 @@ class SimConfig:
     #: Extra interpreter time of blocking instructions, in seconds.
     reset_time: float = 1.0
     motion: MotionConfig | None = None
+    #: Instructions this unit lacks (an optional module, a smaller model): like any
+    #: instruction it does not know, each answers nothing and sets error 4 ("invalid
+    #: instruction", L970); the manual does not list which units lack which.
+    lacks: frozenset[str] = frozenset()
 
     @property
     def det(self) -> int:
@@ -302,7 +306,7 @@ class ControllerModel:
         except InvalidCommandError as exc:
             self._rejected(text, exc.number)
             return
-        if self._unknown_to_older(command):
+        if self._unknown_to_older(command) or command.instruction.name in self.config.lacks:
             self._rejected(text, 4)
             return
         self._run(command, text)

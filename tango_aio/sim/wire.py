@@ -574,6 +574,60 @@ class Wire:
             self._busy_until = self._now + seconds
         self._notify()
 
+    def power_cycle(self, off: float, now: float | None = None) -> None:
+        """The controller loses its power now and answers again ``off`` seconds later,
+        behind a link that stays up (a USB adapter powered by the host, a serial-to-TCP
+        adapter): the connection is not cut.
+
+        What the controller held is lost: the line it was processing, its input buffer,
+        the output it had not sent yet (reply bytes that had not reached the host by now;
+        their latency is the link's, but cutting at arrival keeps this simple), and every
+        byte that arrives while it is off (counted in :attr:`lost_bytes`). The logic
+        restarts as at power-on through its optional ``reboot(now)`` (the emulator's:
+        settings from the state file, autostatus 1 (L2069), counters 0; the manual says
+        nothing of a power cycle behind a live link: it is what a restart does, L1837-1857).
+        Without ``now`` the time is taken from :attr:`clock`, else the last time seen.
+
+        Parameters
+        ----------
+        off
+            Seconds the controller stays off.
+        now
+            When the power goes off.
+
+        Raises
+        ------
+        ValueError
+            ``off`` is negative or not finite.
+        """
+        if not (math.isfinite(off) and off >= 0.0):
+            raise ValueError(f"off must be a finite number of seconds >= 0, got {off!r}")
+        if now is None and self.clock is not None:
+            now = self.clock()
+        if now is not None:
+            self._advance(now)
+        if self.closed:
+            return
+        kept: deque[_Segment] = deque()
+        for seg in self._tx:  # what reached the host by now stays; the rest is lost
+            sent = seg.pos + seg.due_count(self._now, self._bt)
+            if seg.close or sent > seg.pos:
+                kept.append(seg if seg.close else _Segment(seg.start, seg.data[:sent], seg.pos))
+        self._tx = kept
+        self._tx_free_at = self._now
+        self.lost_bytes += len(self._buffer)
+        self._buffer.clear()
+        self._discard_head = None
+        self._held.clear()
+        self._busy_len = 0
+        self._busy_until = self._now + off
+        self._deaf = True  # until _finish_line: the interpreter is back
+        reboot: Callable[[float], None] | None = getattr(self.handler, "reboot", None)
+        if reboot is not None:
+            reboot(self._now)
+        self._handler_deadline = self.handler.next_deadline()
+        self._notify()
+
     def disconnect(self, mid_reply: bool = False) -> None:
         """Cut the connection now, or (``mid_reply``) halfway through the next reply.
 

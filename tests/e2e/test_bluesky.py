@@ -265,6 +265,25 @@ def test_limits_are_checked_before_anything_moves(
     assert emulated(stage)["x"] == 5.0
 
 
+def test_a_step_scan_checks_its_points_without_reading_the_limits_again(
+        RE: RunEngine, stage: MarzhauserStage, caplog: pytest.LogCaptureFixture) -> None:
+    def lim_reads() -> int:
+        return sum(1 for r in caplog.records if r.name == "tango_aio.wire"
+                   and " -> " in r.getMessage() and "?lim" in r.getMessage())
+
+    run(stage.x.check_value(0.0))  # the limits known after the fixture's set lines
+    with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
+        RE(bp.scan([stage.x], stage.x, 0.5, 1.0, 2))
+        short = lim_reads()  # the run's configuration reads them (limit signals)
+        RE(bp.scan([stage.x], stage.x, 0.5, 3.0, 6))
+        assert lim_reads() == 2 * short  # none per point: nothing changed them
+        run(stage.controller.set("lim", -1, 1, axis="x"))  # any caller, any path
+        with pytest.raises(FailedStatus) as info:
+            RE(bp.scan([stage.x], stage.x, 0.5, 1.5, 2))
+        assert isinstance(info.value.__cause__, StageLimitsError)
+    assert emulated(stage)["x"] == 0.5
+
+
 def test_set_reports_progress_and_publishes_the_final_readback(
         RE: RunEngine, stage: MarzhauserStage) -> None:
     run(_fast(stage, velocity=4))  # 1 mm at 4 mm/s: several polls

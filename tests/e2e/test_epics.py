@@ -593,6 +593,32 @@ async def test_idle_readbacks_are_not_resent(ca_env: dict[str, str]) -> None:
         assert updates == [pytest.approx(0.5)]  # the initial value only
 
 
+async def test_a_put_posts_val_once(ca_env: dict[str, str]) -> None:
+    # #28 target 4: VAL is posted as the move starts; caproto's write of the put's value
+    # after the handler would post the same value again, on the put's own path.
+    async with one_stage() as (_, _, client):
+        pv = await client.pv("X")
+        updates: list[float] = []
+        subscription = pv.subscribe(data_type=ChannelType.DOUBLE)
+
+        def update(_: Any, reply: Any) -> None:
+            updates.append(reply.data[0])
+
+        token = subscription.add_callback(update)  # held weakly: ``update`` stays in scope
+        await client.until("X", 0.0)
+        await client.put("X", 0.5)
+        await client.put("X", 1.5)
+        await client.put("X.DESC", "after")  # a round trip: every update has come
+        await subscription.remove_callback(token)
+        assert updates == [0.0, pytest.approx(0.5), pytest.approx(1.5)]
+        assert await client.get("X") == pytest.approx(1.5)
+        assert await client.get("X.RBV") == pytest.approx(1.5)
+        await client.put("X.SET", 1)  # Set: VAL redefines the position, nothing moves
+        await client.put("X", 4.0)
+        assert await client.get("X") == pytest.approx(4.0)
+        assert await client.get("X.RBV") == pytest.approx(4.0)
+
+
 async def test_an_unidentified_controller_is_served(ca_env: dict[str, str]) -> None:
     async with connect(INSTANT, identify=False) as tango:
         ioc = await build_ioc({"": tango}, "T:")

@@ -8,6 +8,7 @@ split at every point hypothesis picks on the way back.
 
 from __future__ import annotations
 
+import collections
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 
@@ -17,7 +18,9 @@ from hypothesis import strategies as st
 
 from tango_aio.core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
 from tango_aio.errors import ProtocolError
+from tango_aio.linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
 from tango_aio.session import (
+    QUIET_INTERVAL,
     TRANSITIONS,
     LinkEvent,
     LinkSession,
@@ -469,3 +472,66 @@ def test_an_overdue_marker_is_written_again_only_for_the_newest_resync_under_way
     link.resync()
     assert link.session.resync_again(newest=True)
     assert not link.session.resync_again(newest=False)
+
+
+# -- link timing (tango_aio.linktiming) and the step-0 marker number ------------------------
+
+def test_the_first_byte_after_an_exchange_measures_the_round_trip() -> None:
+    """Three round trips at least (the link may deliver in bursts): a 0.4 s round trip
+    makes the quiet interval 1.2 s; later bytes of the same exchange measure nothing."""
+    link = Link()
+    link.session.begin_exchange(["?err"], Until.NUMBER, now=10.0)
+    assert link.session.bytes_received(10.4) is Outcome.NONE  # no quiet deadline armed
+    assert link.session.timing.round_trip == pytest.approx(0.4)
+    assert link.session.quiet_interval == pytest.approx(1.2)
+    assert link.session.bytes_received(30.0) is Outcome.NONE
+    assert link.session.timing.round_trip == pytest.approx(0.4)
+
+
+def test_an_exchange_over_before_its_first_byte_measures_nothing() -> None:
+    link = Link()
+    link.session.begin_exchange(["?err"], Until.NUMBER, now=0.0)
+    link.session.exchange_timed_out()
+    link.session.bytes_received(5.0)  # a late reply: not the link's round trip
+    link.exchange()  # and one written without a time
+    link.session.bytes_received(9.0)
+    assert link.session.timing.round_trip == 0.0
+    assert link.session.quiet_interval == QUIET_INTERVAL
+
+
+def test_a_quiet_deadline_starts_again_at_every_byte_not_every_line() -> None:
+    """At 1200 Bd a line takes longer on the wire than the quiet interval: bytes of a line
+    still arriving keep the link from counting as quiet (#32 item 5)."""
+    link = Link()
+    link.resync(HelpStyle.NONE)
+    link.feed(b"ERROR 3,help text\r", now=1.0)
+    assert link.outcomes == [Outcome.WAIT_QUIET]
+    interval = link.session.quiet_interval
+    assert link.session.quiet_deadline == 1.0 + interval
+    assert link.session.bytes_received(1.0 + interval / 2) is Outcome.WAIT_QUIET
+    assert link.session.quiet_deadline == 1.0 + interval / 2 + interval
+    assert link.session.quiet_elapsed() is Outcome.IN_STEP
+    assert link.session.bytes_received(9.0) is Outcome.NONE  # nothing armed: nothing to do
+    assert link.session.quiet_deadline is None
+
+
+def test_a_known_baud_rate_lengthens_the_quiet_interval_and_nothing_shortens_it() -> None:
+    link = Link()
+    link.session.baud_known(byte_time(1200))
+    assert link.session.quiet_interval == pytest.approx(QUIET_BYTES * BITS_PER_BYTE / 1200)
+    longer = Link()
+    longer.session.quiet_interval = 3600.0  # set by the caller: timing never shortens it
+    longer.session.baud_known(byte_time(1200))
+    longer.session.begin_exchange(["?err"], Until.NUMBER, now=0.0)
+    longer.session.bytes_received(0.5)
+    assert longer.session.quiet_interval == 3600.0
+
+
+def test_step_0_avoids_the_numbers_recent_detections_used() -> None:
+    """Sessions that would start at the same marker number (same seed) pick different
+    step-0 numbers: an abandoned step 0's replies cannot pass for the next one's."""
+    recent: collections.deque[int] = collections.deque(maxlen=4)
+    codes = [Link().session.begin_detect(recent) for _ in range(4)]
+    assert len(set(codes)) == 4 and list(recent) == codes
+    first = ProtocolCore(marker_seed=0).pick_marker_code()
+    assert codes[0] == first  # without recent ones, the core's own choice
