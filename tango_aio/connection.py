@@ -394,8 +394,7 @@ async def _connect(url: str, options: ConnectOptions) -> Controller:
                                  reply_timeout=options.reply_timeout, detect=True,
                                  dead_after=options.dead_after, keepalive=options.keepalive)
         if not url.startswith(("sim://", "socket://")):  # a serial port opened at baudrate
-            protocol.link.byte_seconds = byte_time(options.baudrate)
-            protocol.quiet_interval = protocol.link.quiet_interval
+            protocol.session.baud_known(byte_time(options.baudrate))
         return protocol
 
     policy = options.policy()

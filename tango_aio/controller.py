@@ -1596,7 +1596,7 @@ class Controller:
             return
         self._hub.publish(MoveAborted(ctrl_c=False, axes=tuple(chosen)))
         self._motion.stopped(chosen)
-        await self._protocol.stop_axes(True, axes=chosen)
+        await self._protocol.stop_soft(axes=chosen)
         if wait:
             try:
                 async with asyncio.timeout(STOP_WAIT):
@@ -1642,16 +1642,16 @@ class Controller:
         self._motion.stopped()
         # ``a`` first: it stops the axes at once even on a controller that ignores Ctrl+C,
         # and Ctrl+C behind it still discards whatever is queued in the input buffer.
-        await self._protocol.stop_axes(True)
+        await self._protocol.stop_soft()
         if not soft:
             try:
-                await self._protocol.stop_axes(False, timeout=self.reply_timeout)
+                await self._protocol.stop_hard(timeout=self.reply_timeout)
             except ControllerTimeoutError:
                 # Ctrl+C may have been taken as part of the marker line (a controller that
                 # ignores it): resync again without it.
                 await self._protocol.resync(timeout=self.reply_timeout)
                 await self._protocol.read_autostatus(timeout=self.reply_timeout)
-            await self._protocol.stop_axes(True)  # in case Ctrl+C discarded the first ``a``
+            await self._protocol.stop_soft()  # in case Ctrl+C discarded the first ``a``
             self._motion.stopped()
         if wait:
             try:
@@ -2226,7 +2226,7 @@ class Controller:
         return error
 
     async def _stop_all(self) -> None:
-        await self._protocol.stop_axes(True)
+        await self._protocol.stop_soft()
 
     async def _read_state(self, axes: Sequence[str]
                           ) -> tuple[dict[str, str], dict[str, str]]:

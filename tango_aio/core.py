@@ -101,6 +101,7 @@ from .status import ABSENT, LETTERS
 
 __all__ = [
     "LOCAL_ECHO",
+    "AckReads",
     "Acknowledged",
     "Completed",
     "Dropped",
@@ -129,7 +130,6 @@ MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
 
 _CR: Final = 0x0D
-_LF: Final = 0x0A
 
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
@@ -413,8 +413,8 @@ def _has_data(rule: LineRule) -> bool:
 def expectation(command: Command, mode: int, context: Context | None = None) -> Expectation:
     """What ``command`` owes when it reaches the controller in autostatus ``mode``.
 
-    Decisions where the manual is silent (protocol_notes §5, open points), shared with the
-    emulator so that both sides agree by construction:
+    Decisions where the manual is silent (protocol_notes §5, open points); the emulator
+    offers each of them as a firmware switch (``sim/profiles.py``), read on its own:
 
     * Mode 4 echoes every executing line (``!`` or an executing bare form such as
       ``moa``). Reads may be echoed too: optional (see :func:`_owed_items`).
@@ -459,7 +459,7 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
 
 #: What a read line owes, by (line, mode, ack_reads), with the instruction and the
 #: expectation it was computed for (see :meth:`ProtocolCore._line_facts`).
-_LINE_FACTS: dict[tuple[str, int, str | None], tuple[
+_LINE_FACTS: dict[tuple[str, int, AckReads | None], tuple[
     Instruction, Expectation, tuple[bytes, tuple[_Item, ...], ReplyPattern | None,
                                     ReplyPattern]]] = {}
 #: Distinct read lines kept at most (reads with many values are forgotten, not hoarded).
@@ -478,15 +478,25 @@ def _echo_of(line: str) -> ReplyPattern:
     return ReplyPattern(ReplyKind.ECHO, text=normal_line(line))
 
 
-def _read_acks(ack_reads: str | None) -> tuple[list[_Item], list[_Item]]:
+class AckReads(enum.Enum):
+    """Whether reads are acknowledged in autostatus 2, and where (the manual names only
+    lines "with a leading !", L2097-2101): found when mode 2 is entered
+    (:meth:`tango_aio.session.LinkSession.mode_read`)."""
+
+    NO = "no"  #: a read's reply comes alone
+    BEFORE = "before"  #: ``OK...`` before the read's data
+    AFTER = "after"  #: ``OK...`` after the read's data
+
+
+def _read_acks(ack_reads: AckReads | None) -> tuple[list[_Item], list[_Item]]:
     """The acknowledgements a read owes in mode 2, before and after its data."""
     if ack_reads is None:
         return [_Item.ACK_OPT], [_Item.ACK_OPT]
-    return ([_Item.ACK] if ack_reads == "before" else []), \
-        ([_Item.ACK] if ack_reads == "after" else [])
+    return ([_Item.ACK] if ack_reads is AckReads.BEFORE else []), \
+        ([_Item.ACK] if ack_reads is AckReads.AFTER else [])
 
 
-def _read_items(mode: int, ack_reads: str | None) -> deque[_Item]:
+def _read_items(mode: int, ack_reads: AckReads | None) -> deque[_Item]:
     """What a one-line read of the core's own (marker, separator) owes in ``mode``."""
     if mode == 2:
         before, after = _read_acks(ack_reads)
@@ -495,7 +505,7 @@ def _read_items(mode: int, ack_reads: str | None) -> deque[_Item]:
 
 
 def _owed_items(command: Command, expect: Expectation, mode: int,
-                ack_reads: str | None = None) -> deque[_Item]:
+                ack_reads: AckReads | None = None) -> deque[_Item]:
     """The lines ``command`` owes when written in autostatus ``mode``, in order, with the
     ones the manual leaves open as optional items (#13 section 3, the emulator's switches):
 
@@ -507,8 +517,8 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
       its data (``echo=before|after``).
     * Mode 2 acknowledges lines "with a leading !" (L2097-2101); whether reads are
       acknowledged too, before or after their data, is not said (``ack_reads``): the
-      protocol finds out when it enters mode 2 (``ack_reads`` is then ``"no"``,
-      ``"before"`` or ``"after"``); until then both are optional. (Optional acks after a
+      protocol finds out when it enters mode 2 (``ack_reads`` is then an
+      :class:`AckReads`); until then both are optional. (Optional acks after a
       read cannot be told from the next ``!`` line's: hence the detection.)
     * Whether ``!autostatus n`` is acknowledged per the old or the new mode is not said
       (``ack_mode_change``): a line entering or leaving mode 2 may or may not be.
@@ -561,8 +571,14 @@ def _acks_itself(command: Command, after: int) -> bool:
 #: current error state, so a marker number the state is likely to hold (0, the instruction
 #: errors 1-13, a persistent internal error such as 29) could end a resync early.
 _MARKER_CODES: Final = tuple(code for code in sorted(ERROR_DESCRIPTIONS) if code >= 70)
-#: Stands for "no marker: a quiet resync" (a line never holds a CR).
-_QUIET: Final = "\r"
+
+
+class _Resync(enum.Enum):
+    """What the core drops lines until."""
+
+    NONE = "in step"  #: nothing: lines are routed
+    MARKER = "marker"  #: the reply of the resync marker (``_resync_marker``)
+    QUIET = "quiet"  #: :meth:`ProtocolCore.end_resync` (a quiet resync, an exchange)
 
 
 class HelpStyle(enum.Enum):
@@ -609,14 +625,15 @@ class ProtocolCore:
         self._events: deque[Event] = deque()
         self._autostatus = autostatus
         self.context = context or Context()
-        self._resync_marker: str | None = None
+        self._resync = _Resync.NONE
+        self._resync_marker = ""  # the text of the marker's reply (in _Resync.MARKER)
         #: How markers are made (see :class:`HelpStyle`); ``help_text`` is the reply of
         #: ``?help <code>`` learned at connect for :attr:`HelpStyle.TEXT`.
         self.help_style = HelpStyle.NUMBER
         self.help_text: tuple[int, str] | None = None
-        #: Whether reads are acknowledged in mode 2: ``"no"``, ``"before"`` or ``"after"``
-        #: their data (``None``: not known yet; both optional).
-        self.ack_reads: str | None = None
+        #: Whether reads are acknowledged in mode 2, before or after their data
+        #: (``None``: not known yet; both optional).
+        self.ack_reads: AckReads | None = None
         # Each session starts at a random marker number, so that the reply to a marker an
         # earlier program (or session) left on the line is unlikely to be taken for ours
         # (``marker_seed`` fixes it, for reproducible tests).
@@ -668,7 +685,7 @@ class ProtocolCore:
     @property
     def resyncing(self) -> bool:
         """Whether lines are being dropped until the resync marker's reply."""
-        return self._resync_marker is not None
+        return self._resync is not _Resync.NONE
 
     @property
     def tail(self) -> tuple[Hashable, ReplyPattern] | None:
@@ -814,11 +831,11 @@ class ProtocolCore:
         if chosen is None:
             # No unique reply to wait for: drop every line; the protocol ends the resync
             # when the reply of ``help`` (ERROR n,text) was the last line and the link
-            # has been quiet since (see TangoProtocol).
-            self._resync_marker = _QUIET
+            # has been quiet since (see tango_aio.session).
+            self._resync = _Resync.QUIET
             return stop + b"help\r"
         code, text = chosen
-        self._resync_marker = text
+        self._resync, self._resync_marker = _Resync.MARKER, text
         line = f"?help {code}"
         self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
                                       _echo_of(line), marker=text))
@@ -829,7 +846,7 @@ class ProtocolCore:
         still owed is forgotten (only call it when no request waits)."""
         self._pending.clear()
         self._forget_deferred()
-        self._resync_marker = _QUIET
+        self._resync = _Resync.QUIET
 
     def _forget_deferred(self) -> None:
         # After a resync an OK... still owed arrives before the marker's reply (dropped)
@@ -846,11 +863,11 @@ class ProtocolCore:
     def quiet(self) -> bool:
         """Whether a resync without a marker is under way (end it with
         :meth:`end_resync`)."""
-        return self._resync_marker == _QUIET
+        return self._resync is _Resync.QUIET
 
     def end_resync(self) -> None:
         """End a quiet resync: the stream is in step."""
-        self._resync_marker = None
+        self._resync = _Resync.NONE
         self._desynced = False
 
     def _marker(self) -> tuple[int, str] | None:
@@ -937,7 +954,9 @@ class ProtocolCore:
             return
         # The marker may follow stale bytes on the same line (a partial line that was in
         # flight when the port was opened), so it is searched, not prefix-matched.
-        if self._resync_marker is not None and self._resync_marker not in text:
+        resync = self._resync
+        if resync is not _Resync.NONE and (
+                resync is _Resync.QUIET or self._resync_marker not in text):
             self._events.append(Dropped(line))
             return
         if self._deferred_echoes and self._deferred_echo(text):
@@ -951,7 +970,7 @@ class ProtocolCore:
             self._events.append(Unsolicited(line))
             return
         head = self._pending[0]
-        if self._resync_marker is not None:
+        if resync is _Resync.MARKER:
             # The marker's reply: an acknowledgement or echo it owed before it was lost.
             while head.items[0] is not _Item.DATA:
                 head.items.popleft()
@@ -1119,7 +1138,7 @@ class ProtocolCore:
 
     def _route_data(self, head: _Pending, line: str, text: str) -> None:
         if head.marker is not None:
-            self._resync_marker = None
+            self._resync = _Resync.NONE
         elif not head.lines and head.sent and text == head.sent:
             # A read answered by itself where no echo is owed (modes 0-3 echo nothing,
             # L2060-2117): the link returns the bytes the driver sends, like a serial

@@ -26,8 +26,12 @@ confirmed by a reply stay within the credit limit (255 by default), so the contr
 256-byte input buffer never overflows (:mod:`tango_aio.flow`). Runs of reply-less lines
 are confirmed by ``err`` markers the scheduler inserts itself; a marker reporting an error
 marks the lines it covers (:attr:`Submission.chunk_error`). A line is registered with the
-core when it is written, so a queued line can still be withdrawn. The protocol keeps the
-futures, the transport and the tracing.
+core when it is written, so a queued line can still be withdrawn.
+
+What the link decides about itself (resync and quiet resync, the mode exchange, the
+detection at connect, dead-link counting, the keepalive's schedule) is the sans-IO
+:class:`~tango_aio.session.LinkSession`'s; the protocol keeps the futures, the transport,
+the timers and the tracing, and carries out what the session and the scheduler decide.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
 every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
@@ -37,12 +41,10 @@ most the first :data:`TRACE_LINE` (256) bytes of its line and the line's length.
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import functools
 import logging
 import math
-import re
 import time
 from collections.abc import Callable, Collection, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -54,7 +56,6 @@ from .core import (
     Dropped,
     Echoed,
     Event,
-    HelpStyle,
     Mismatched,
     ProtocolCore,
     Replied,
@@ -75,10 +76,10 @@ from .errors import (
     parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, Form, build, encode, parse
+from .instructions import Command, Context, Form, build, parse
 from .linktiming import LinkTiming
-from .patterns import ACK_PATTERN, normal_line
 from .scheduler import Line, Run, WriteScheduler
+from .session import DEAD_AFTER, Exchange, LinkSession, Outcome, Until
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -86,10 +87,6 @@ __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol"
 wire_log = logging.getLogger("tango_aio.wire")
 log = logging.getLogger("tango_aio.protocol")
 
-
-#: Consecutive unanswered requests after which a link that stays open is declared lost.
-#: Two: a request's own timeout, then the resync marker written after it.
-DEAD_AFTER = 2
 
 
 @dataclass(slots=True)
@@ -177,32 +174,9 @@ class MoveHandle:
         self.protocol.forget_completion(self.submission)
 
 
-#: The step-0 marker numbers of this process's latest detections (see
-#: :meth:`TangoProtocol._fresh_detect_code`); fewer than there are marker numbers.
-_RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
-
 #: Called with each unsolicited event, completion report and dropped line; the second
 #: argument is the submission a completion belongs to (``None`` if unsolicited).
 EventCallback = Callable[[Event, "Submission | None"], None]
-
-
-def _nothing_trails_help(lines: list[str]) -> bool:
-    """In a mode exchange (``...``, ``?autostatus``, ``?help``) whose lines so far hold
-    the reply of ``?help``: whether no line of ``?help``'s own can follow its reply, so
-    that the exchange may end without waiting for a quiet link.
-
-    The first number is the mode ``?help`` runs in (``?autostatus``'s reply; later lines
-    wait). Only two modes add lines to a read: mode 2 acknowledges (L2099-2103; reads
-    too, on some firmware: the ``ack_reads`` switch of the emulator) and mode 4 echoes
-    (L2117; "all input instructions", old L717-725), either before or after the reply.
-    Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
-    lines are move reports), and ``help``'s reply is one line in both editions (L2915-
-    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet as before.
-    """
-    for line in lines:
-        if _INTEGER.match(line):
-            return int(line) in (0, 1, 3)
-    return False
 
 
 class TangoProtocol(asyncio.Protocol):
@@ -230,16 +204,12 @@ class TangoProtocol(asyncio.Protocol):
         if keepalive is not None and not (math.isfinite(keepalive) and keepalive > 0):
             raise ValueError(f"keepalive must be None or a positive number, got {keepalive}")
         self.core = ProtocolCore(autostatus=autostatus, context=context)
+        #: The link's state, resyncs, exchanges, detection and liveness, sans-IO
+        #: (:mod:`tango_aio.session`); this class carries out what it decides.
+        self.session = LinkSession(self.core, dead_after=dead_after, keepalive=keepalive,
+                                   detect=detect)
         #: Time a resync marker or keepalive read the protocol writes itself may take.
         self.reply_timeout = reply_timeout
-        #: Consecutive unanswered requests (resync markers included) after which a link
-        #: that stays open is declared lost (see :meth:`_unanswered`).
-        self.dead_after = dead_after
-        #: Seconds of silence after which an idle link is probed (``None``: never).
-        self.keepalive = keepalive
-        self._silent = 0  # consecutive unanswered requests
-        self._counted_upto = 0  # lines written when the last unanswered one was counted
-        self._last_reply = 0.0  # loop time of the last reply line routed
         self._keepalive_task: asyncio.Task[None] | None = None
         self._loop = asyncio.get_running_loop()
         #: The write queue, credit markers and separators (:mod:`tango_aio.scheduler`).
@@ -256,33 +226,44 @@ class TangoProtocol(asyncio.Protocol):
         self._peer_eof = False
         self._trace_buffer = b""
         self._connected = self._loop.create_future()
-        #: Whether the first :meth:`resync` runs :meth:`detect` (set by ``connect``).
-        self.detect_at_connect = detect
-        self._detected: dict[str, str] = {}
-        #: The link's timing: its byte time where the baud rate is known (set by
-        #: ``connect``) and the round trips measured by connect's exchanges.
-        self.link = LinkTiming()
-        #: Seconds without a byte after the reply of ``help`` that end a resync without a
-        #: marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: the
-        #: link's :attr:`~tango_aio.linktiming.LinkTiming.quiet_interval`, grown by every
-        #: round trip measured (#32 item 5).
-        self.quiet_interval = self.link.quiet_interval
-        self._round_trip_from: float | None = None  # an exchange's write, until a byte
         #: Called when a request or marker got no answer in time, and when
         #: :meth:`verify_autostatus` restored the driver's mode (found, restored): a
         #: controller may have restarted behind the link (:mod:`tango_aio.restart`).
         self.on_unanswered: Callable[[], None] | None = None
         self.on_restored: Callable[[int, int], None] | None = None
-        self._quiet_help = False
         self._quiet_timer: asyncio.TimerHandle | None = None
-        self._collect: list[str] | None = None
-        self._collect_help = False
-        self._collect_marker: str | None = None
-        self._collect_echoes: set[str] = set()
-        self._marker_run = 0
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
         self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
+
+    @property
+    def dead_after(self) -> int:
+        """Consecutive unanswered requests (resync markers included) after which a link
+        that stays open is declared lost (see :meth:`_unanswered`)."""
+        return self.session.dead_after
+
+    @property
+    def keepalive(self) -> float | None:
+        """Seconds of silence after which an idle link is probed (``None``: never)."""
+        return self.session.keepalive
+
+    @property
+    def quiet_interval(self) -> float:
+        """Seconds without a byte after the reply of ``help`` that end a resync without a
+        marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: grown by
+        the link's timing (:attr:`link`, #32 item 5)."""
+        return self.session.quiet_interval
+
+    @quiet_interval.setter
+    def quiet_interval(self, seconds: float) -> None:
+        self.session.quiet_interval = seconds
+
+    @property
+    def link(self) -> LinkTiming:
+        """The link's timing: its byte time where the baud rate is known and the longest
+        round trip connect's exchanges measured (the session's
+        :attr:`~tango_aio.session.LinkSession.timing`)."""
+        return self.session.timing
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
@@ -299,12 +280,12 @@ class TangoProtocol(asyncio.Protocol):
             raise TypeError(f"{type(transport).__name__} cannot write")
         self._writer = write
         self._transport = transport
-        self._last_reply = self._loop.time()
+        self.session.reply_heard(self._loop.time())
         if not self._connected.done():
             self._connected.set_result(None)
         if self.keepalive is not None and self._keepalive_task is None:
             self._keepalive_task = self._loop.create_task(
-                self._keep_alive(self.keepalive), name="tango_aio keepalive")
+                self._keep_alive(), name="tango_aio keepalive")
         if self._closing:
             # close() ran first (e.g. a cancelled connect(): a serial transport reports
             # connection_made one loop iteration after it was created): do not leak it.
@@ -340,6 +321,7 @@ class TangoProtocol(asyncio.Protocol):
         error = ConnectionLostError(f"connection to the controller lost: {exc or 'closed'}")
         error.__cause__ = exc
         self._lost = error
+        self.session.closed()
         for submission in list(self._submissions.values()):
             _fail(submission.reply, error)
             _fail(submission.completion, error)
@@ -460,21 +442,21 @@ class TangoProtocol(asyncio.Protocol):
         mode?), and whether mode 2 acknowledges reads, the manual leaves open
         (L2079-2161): see :meth:`_mode_exchange`. A controller that kept another mode
         raises :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
-        if await self._mode_exchange([command.line], timeout) != mode:
+        if (await self._mode_exchange([command.line], timeout))[1] != mode:
             raise UnknownControllerError(None, command.line)
         return Response()
 
-    async def _mode_exchange(self, lines: list[str], timeout: float | None,
-                             expected: list[int] | None = None) -> int:
+    async def _mode_exchange(self, lines: list[str], timeout: float | None
+                             ) -> tuple[int, int]:
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
-        :attr:`quiet_interval` (in modes 2 and 4 only: :func:`_nothing_trails_help`).
-        From those lines: the mode in force (adopted), and in mode 2 whether reads are
-        acknowledged, before or after their data (an ``OK...`` between the two replies,
-        or after the last). Echoes (of any of the lines, mode 4)
-        and acknowledgements of ``lines`` are whatever they are: they are dropped."""
-        sent = [*lines, "?autostatus", "?help"]
+        :attr:`quiet_interval` (in modes 2 and 4 only:
+        :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
+        force (adopted) and, in mode 2, how reads are acknowledged from those lines
+        (:meth:`~tango_aio.session.LinkSession.mode_read`). Returns the mode the driver
+        had in force once every line before was answered, and the mode in force."""
+        sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             try:
                 async with asyncio.timeout(timeout):
@@ -482,26 +464,12 @@ class TangoProtocol(asyncio.Protocol):
             except TimeoutError:
                 raise ControllerTimeoutError(
                     f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
-            if expected is not None:
-                expected.append(self.core.autostatus)  # the driver's, once all is answered
-            received = await self._exchange(sent, timeout, until_help=True)
+            driver = self.core.autostatus  # the driver's, once all is answered
+            received = await self._exchange(sent, timeout, Until.HELP)
         self._heard()
-        normals = {normal_line(line) for line in sent}
-        kept = [line.strip() for line in received if normal_line(line) not in normals]
-        numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
-        helps = [index for index, line in enumerate(kept) if line.startswith("ERROR")]
-        if not numbers or not helps:
-            raise ProtocolError(f"{sent!r}: no ?autostatus reply among {kept!r}")
-        actual = int(kept[numbers[0]])
-        self.core.autostatus = actual
-        if actual == 2:
-            between = kept[numbers[0] + 1:helps[-1]]
-            after = kept[helps[-1] + 1:]
-            self.core.ack_reads = "after" if any(ACK_PATTERN.accepts(x) for x in after) \
-                else "before" if any(ACK_PATTERN.accepts(x) for x in between) else "no"
-            self._detected["ack_reads"] = self.core.ack_reads
+        actual = self.session.mode_read(sent, received.lines)
         self.scheduler.reproject()
-        return actual
+        return driver, actual
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
@@ -558,20 +526,20 @@ class TangoProtocol(asyncio.Protocol):
                 return controller_error(code, line)
         return None
 
-    async def stop_axes(self, soft: bool, *, timeout: float = 5.0,
-                        axes: Sequence[str] = ()) -> None:
-        """Stop every axis: ``a`` (``soft``; queued lines stay) or Ctrl+C, which also
-        makes the controller discard its input buffer: requests in flight fail with
+    async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
+        """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
+        per axis, stopping only those (L6785-6844). Returns once the lines are queued."""
+        for axis in axes:
+            self.submit(build("a", form=Form.SET, axis=axis))
+        if not axes:
+            self.submit(_SOFT_STOP)
+
+    async def stop_hard(self, *, timeout: float = 5.0) -> None:
+        """Stop every axis with Ctrl+C, which also makes the controller discard its input
+        buffer (L6808-6814): requests in flight fail with
         :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
         the mode in force is read again (a discarded line may have changed it). Returns
-        once ``a`` is queued, or once the stream is in step after Ctrl+C. With ``axes``
-        (``soft`` only), one ``a x`` per axis stops only those (L6785-6844)."""
-        if soft:
-            for axis in axes:
-                self.submit(build("a", form=Form.SET, axis=axis))
-            if not axes:
-                self.submit(_SOFT_STOP)
-            return
+        once the stream is in step."""
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
@@ -579,27 +547,27 @@ class TangoProtocol(asyncio.Protocol):
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
         way a mode change is confirmed (:meth:`_mode_exchange`)."""
-        return await self._mode_exchange([], timeout)
+        return (await self._mode_exchange([], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
 
-    async def _keep_alive(self, interval: float) -> None:
-        """While the link is idle, read ``?autostatus`` every ``interval`` seconds without
-        a reply: an unanswered probe counts towards declaring the link dead
+    async def _keep_alive(self) -> None:
+        """While the link is idle, read ``?autostatus`` after :attr:`keepalive` seconds
+        without a reply (:meth:`~tango_aio.session.LinkSession.keepalive_wait`): an
+        unanswered probe counts towards declaring the link dead
         (:meth:`_unanswered`), and a mode other than the one in force means the controller
         restarted behind an adapter that stayed up (it restores the mode)."""
+        session = self.session
         while self._lost is None:
-            wait = self._last_reply + interval - self._loop.time()
+            busy = bool(self._submissions or self.scheduler.queued or self._markers
+                        or self.core.pending_tags or self._barrier_lock.locked())
+            wait = session.keepalive_wait(self._loop.time(), busy=busy)
             if wait > 0:
                 await asyncio.sleep(wait)
                 continue
-            if self._submissions or self.scheduler.queued or self._markers \
-                    or self.core.pending_tags or self._barrier_lock.locked():
-                await asyncio.sleep(interval)  # requests in flight have their own deadlines
-                continue
             with contextlib.suppress(TangoError):
                 await self.verify_autostatus(timeout=self.reply_timeout)
-            self._last_reply = max(self._last_reply, self._loop.time() - interval / 2)
+            session.keepalive_probed(self._loop.time())
 
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
         """Read the mode in force (the way a mode change is confirmed, so that whatever
@@ -607,9 +575,7 @@ class TangoProtocol(asyncio.Protocol):
         driver has in force; if they differ (the controller restarted: power-on mode 1,
         L2062), restore the driver's mode before any later line. Returns whether the mode
         had to be restored."""
-        before: list[int] = []
-        actual = await self._mode_exchange([], timeout, before)
-        expected = before[0]
+        expected, actual = await self._mode_exchange([], timeout)
         if actual == expected:
             return False
         log.warning("the controller is in autostatus %d, the driver had %d in force: it "
@@ -828,14 +794,10 @@ class TangoProtocol(asyncio.Protocol):
         the link was declared lost."""
         if self.on_unanswered is not None and self._lost is None:
             self.on_unanswered()
-        if serial <= self._counted_upto:
+        if not self.session.unanswered(serial, self.scheduler.written_lines):
             return False
-        self._counted_upto = self.scheduler.written_lines
-        self._silent += 1
-        if self._silent < self.dead_after or self._lost is not None:
-            return False
-        cause = ConnectionAbortedError(
-            f"{self._silent} requests in a row got no reply: the link is dead ({error})")
+        cause = ConnectionAbortedError(f"{self.session.silent} requests in a row got no "
+                                       f"reply: the link is dead ({error})")
         log.warning("%s", cause)
         self._fail_all(cause)
         if self._transport is not None and not self._transport.is_closing():
@@ -859,8 +821,8 @@ class TangoProtocol(asyncio.Protocol):
             return
         error = ControllerTimeoutError(
             f"controller did not answer the resync marker within {timeout} s")
-        if not self._unanswered(error, serial) and self.core.resyncing \
-                and self._newest_marker() == tag:
+        if not self._unanswered(error, serial) and self.session.resync_again(
+                newest=self._newest_marker() == tag):
             self._background_resync(timeout)
 
     def _newest_marker(self) -> Hashable | None:
@@ -874,7 +836,7 @@ class TangoProtocol(asyncio.Protocol):
         ``connect`` runs :meth:`detect` instead.
         """
         self.check()
-        if self.detect_at_connect and not self._detected and not ctrl_c:
+        if self.session.detects_first(ctrl_c=ctrl_c):
             await self.detect(timeout=timeout)
             return
         tag, marker = self._begin_resync(ctrl_c)
@@ -903,7 +865,7 @@ class TangoProtocol(asyncio.Protocol):
         ``optional_echo`` / ``optional_ack``: how many echoes and acknowledgements arrived
         that the manual does not promise (a read echoed in mode 4 or acknowledged in mode
         2, a mode change echoed or acknowledged) and were tolerated."""
-        found = dict(self._detected)
+        found = dict(self.session.detected)
         for item, count in self.core.tolerated.items():
             found["optional_" + item.rstrip("?")] = str(count)
         return found
@@ -914,7 +876,10 @@ class TangoProtocol(asyncio.Protocol):
 
         0. The quick way, for firmware that answers ``?help N`` with ``ERROR N,...``
            (1.71, L2919): ``help``, ``?help N`` twice and ``?err`` in one write (N a
-           marker number; see :meth:`_numbered_marker_answers`), every line dropped.
+           marker number no recent step 0 of this process used:
+           :meth:`~tango_aio.session.LinkSession.begin_detect`; see
+           :meth:`~tango_aio.session.LinkSession.numbered_marker_lines`), every line
+           dropped.
            Their replies in a row put the stream in step, and the markers use N. Any
            other answer (the link then quiet for :attr:`quiet_interval`) proves
            nothing: steps 1 and 2 follow.
@@ -927,85 +892,41 @@ class TangoProtocol(asyncio.Protocol):
            the markers use N and wait for that text), or nothing (older firmware, whose
            ``help`` takes no parameter: resyncs wait for quiet).
         """
-        self.core.help_style = HelpStyle.NONE
-        self._detected = {"help_number": "none"}
-        code = self._fresh_detect_code()
-        if await self._numbered_marker_answers(code, timeout):
-            self.core.help_style = HelpStyle.NUMBER
-        else:
-            await self.resync(timeout=timeout)
-            code = self.core.pick_marker_code()
-            sent = [f"?help {code}", "?err"]
-            lines = await self._exchange(sent, timeout)
-            normals = {normal_line(line) for line in sent}
-            answers = [line.strip() for line in lines[:-1]  # the last: the ?err number
-                       if not ACK_PATTERN.accepts(line.strip())
-                       and normal_line(line) not in normals]
-            if any(f"ERROR {code}," in line for line in answers):
-                self.core.help_style = HelpStyle.NUMBER
-            elif answers and answers[-1]:
-                self.core.help_style = HelpStyle.TEXT
-                self.core.help_text = (code, answers[-1])
-        self._detected = {"help_number": self.core.help_style.value}
+        # The barrier lock keeps a keepalive's mode exchange from starting in between (one
+        # exchange at a time: the session refuses a second).
+        async with self._barrier_lock:
+            code = self.session.begin_detect()
+            lines, marker = self.session.numbered_marker_lines(code)
+            if not self.session.numbered_read(
+                    await self._exchange(lines, timeout, Until.MARKER, marker)):
+                await self.resync(timeout=timeout)
+                code = self.core.pick_marker_code()
+                sent = self.session.help_lines(code)
+                received = await self._exchange(sent, timeout, Until.NUMBER)
+                self.session.help_read(code, sent, received.lines)
+            self.session.end_detect()
         return self.detected
 
-    def _fresh_detect_code(self) -> int:
-        """A marker number for step 0 of :meth:`detect` that no recent step 0 of this
-        process used: a connect abandoned within its step 0 (cancelled, timed out) leaves
-        its replies on the link, and a step 0 with the same number would take them for its
-        own, then hand its own late replies to the next requests (#32 item 5: ``not a
-        version reply: '1'``). The codes cycle through more numbers than are remembered."""
-        code = self.core.pick_marker_code()
-        while code in _RECENT_DETECT_CODES:
-            code = self.core.pick_marker_code()
-        _RECENT_DETECT_CODES.append(code)
-        return code
-
-    async def _numbered_marker_answers(self, code: int, timeout: float) -> bool:
-        """Step 0 of :meth:`detect`: whether ``ERROR code,`` twice and then a number (the
-        replies of ``?help code``, ``?help code`` and ``?err``) came back in a row,
-        echoes and acknowledgements aside. The stream is then in step.
-
-        An earlier session of this driver may still be sending: its markers and
-        separators are ``?help`` with the codes in turn, one code never twice in a row
-        (:meth:`~tango_aio.core.ProtocolCore.pick_marker_code`), so its replies cannot
-        look like this pair. Only its own step 0 with the same code could, had it been
-        cut off within those few lines."""
-        marker = f"ERROR {code},"
-        self._marker_run = 0
-        await self._exchange(["help", f"?help {code}", f"?help {code}", "?err"], timeout,
-                             marker=marker)
-        return self._marker_run == 3
-
-    async def _exchange(self, lines: list[str], timeout: float | None, *,
-                        until_help: bool = False, marker: str | None = None) -> list[str]:
-        """Write ``lines`` with the core dropping every line; return the lines received
-        up to the reply of the last (one number; with ``until_help``, ``ERROR n,text`` and
-        then :attr:`quiet_interval` of silence, unless the mode in force cannot add a line
-        after it: :func:`_nothing_trails_help`; with ``marker``, a line starting with it
-        and then a number, or else :attr:`quiet_interval` of silence after any line).
+    async def _exchange(self, lines: list[str], timeout: float | None, until: Until,
+                        marker: str | None = None) -> Exchange:
+        """Write ``lines`` with the core dropping every line; return what the session
+        collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
         Only call it when nothing is owed."""
-        self.core.drop_all()
-        self._quiet_help = marker is not None  # a marker exchange also ends on quiet
-        collected: list[str] = []
-        self._collect = collected
-        self._collect_help = until_help
-        self._collect_marker = marker
-        self._collect_echoes = {normal_line(line) for line in lines}
+        data = self.session.begin_exchange(lines, until, marker, now=self._loop.time())
+        collected = self.session.exchange
+        assert collected is not None
         self._collected = self._loop.create_future()
         in_step = False
         try:
-            self._write(b"".join(encode(line) for line in lines))
-            self._round_trip_from = self._loop.time()
-            self.scheduler.written_lines += len(lines)
-            serial = self.scheduler.written_lines
+            self._write(data)
+            serial = self.scheduler.exchanged(len(lines))
             try:
                 async with asyncio.timeout(timeout):
                     await self._collected
             except TimeoutError:
                 error = ControllerTimeoutError(f"no reply to {lines!r} within {timeout} s")
-                self._collect = self._collected = None
-                self.core.end_resync()
+                self._collected = None
+                self.session.exchange_timed_out()
                 if self._unanswered(error, serial):
                     self.check()
                 self._background_resync(timeout if timeout is not None
@@ -1013,75 +934,34 @@ class TangoProtocol(asyncio.Protocol):
                 raise error from None
             in_step = True
         finally:
-            self._collect = self._collected = None
-            self._round_trip_from = None
+            self._collected = None
             self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
-            if in_step:
-                self.core.end_resync()
-                self.scheduler.in_step()
-            elif self.core.quiet:  # cancelled: its replies may still come
-                self.core.end_resync()
+            if self.session.end_exchange(in_step=in_step):
+                # Cancelled: its replies may still come.
                 self._background_resync(self.reply_timeout)
+            elif in_step:
+                self.scheduler.in_step()
             self._flush()
         return collected
 
     def _on_dropped(self, line: str) -> None:
-        """A line dropped while resynchronising (or collected by :meth:`_exchange`)."""
-        if self._collect is not None:
-            self._collect.append(line)
-            if self._collect_marker is not None:
-                self._marker_line(line)
-            elif self._collect_help:
-                # Sticky: an acknowledgement of ?help itself may follow its reply.
-                self._quiet_help = self._quiet_help or line.strip().startswith("ERROR")
-                if self._quiet_help and _nothing_trails_help(self._collect):
-                    self._end_collection()
-                else:
-                    self._quiet_from_now()
-            elif _INTEGER.match(line):
-                self._end_collection()
-            return
-        if not self.core.quiet:
-            return
-        text = line.strip()
-        if text.startswith("ERROR"):
-            self._quiet_help = True
-        elif normal_line(text) != "help" and not ACK_PATTERN.accepts(text):
-            # Anything but help's own echo (mode 4) or an acknowledgement (mode 2) after
-            # its reply: that reply was not the last line yet.
-            self._quiet_help = False
-        self._quiet_from_now()
-
-    def _marker_line(self, line: str) -> None:
-        """A line collected by a marker exchange (:meth:`_numbered_marker_answers`):
-        count the marker replies in a row, then the number that ends them."""
-        assert self._collect_marker is not None
-        text = line.strip()
-        if normal_line(text) in self._collect_echoes or ACK_PATTERN.accepts(text):
-            pass  # an echo (mode 4) or an acknowledgement (mode 2): not a reply
-        elif text.startswith(self._collect_marker):
-            self._marker_run = min(self._marker_run + 1, 2)
-        elif self._marker_run == 2 and _INTEGER.match(text):
-            self._marker_run = 3
+        """A line dropped while resynchronising (or collected by :meth:`_exchange`): the
+        session says what follows."""
+        outcome = self.session.line_dropped(line, self._loop.time())
+        if outcome is Outcome.WAIT_QUIET:
+            self._quiet_from_now()
+        elif outcome is Outcome.COLLECTED:
             self._end_collection()
-            return
-        else:
-            self._marker_run = 0
-        self._quiet_from_now()
 
     def _quiet_from_now(self) -> None:
-        """(Re)start the wait for :attr:`quiet_interval` of silence (:meth:`_quiet_check`)."""
+        """(Re)arm the session's quiet deadline (:meth:`_quiet_check`)."""
         if self._quiet_timer is not None:
             self._quiet_timer.cancel()
-        self._quiet_timer = self._loop.call_later(self.quiet_interval, self._quiet_check)
-
-    def _measured(self, round_trip: float) -> None:
-        """An exchange's first byte came ``round_trip`` seconds after its write."""
-        self._round_trip_from = None
-        if self.link.observe(round_trip):
-            self.quiet_interval = max(self.quiet_interval, self.link.quiet_interval)
+        deadline = self.session.quiet_deadline
+        assert deadline is not None
+        self._quiet_timer = self._loop.call_at(deadline, self._quiet_check)
 
     def _end_collection(self) -> None:
         """What :meth:`_exchange` waits for has come (or the link is quiet)."""
@@ -1092,19 +972,17 @@ class TangoProtocol(asyncio.Protocol):
             self._collected.set_result(None)
 
     def _quiet_check(self) -> None:
-        """End a quiet resync once ``help``'s reply was the last line and all is quiet."""
+        """The quiet deadline passed: end the exchange, or the quiet resync."""
         self._quiet_timer = None
-        if not self.core.quiet or not self._quiet_help or self._lost is not None:
-            return
-        if self._collect is not None:
+        outcome = self.session.quiet_elapsed()
+        if outcome is Outcome.COLLECTED:
             self._end_collection()
-            return
-        self.core.end_resync()
-        self.scheduler.in_step()
-        for marker in self._markers.values():
-            if not marker.done():
-                marker.set_result(Response())
-        self._flush()
+        elif outcome is Outcome.IN_STEP:
+            self.scheduler.in_step()
+            for marker in self._markers.values():
+                if not marker.done():
+                    marker.set_result(Response())
+            self._flush()
 
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
@@ -1114,12 +992,11 @@ class TangoProtocol(asyncio.Protocol):
         marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
         if not keep_queue:
             self._drop_queue()
-        data = self.core.resync(tag, ctrl_c=ctrl_c)
+        data = self.session.begin_resync(tag, ctrl_c=ctrl_c)
         # The credit counts the marker's line, not Ctrl+C (the controller drops it).
         self.scheduler.restarted(tag, len(data) - (1 if ctrl_c else 0))
         self._markers[tag] = marker
         self._dispatch_pending()
-        self._quiet_help = False
         self._write(data)
         return tag, marker
 
@@ -1137,10 +1014,8 @@ class TangoProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         """Called by asyncio with bytes from the controller."""
         self._trace_received(data)
-        if self._round_trip_from is not None:
-            self._measured(self._loop.time() - self._round_trip_from)
-        if self._quiet_timer is not None:
-            self._quiet_from_now()  # quiet means no byte, not no line (a slow link)
+        if self.session.bytes_received(self._loop.time()) is Outcome.WAIT_QUIET:
+            self._quiet_from_now()
         self.core.receive_data(data)
         self._dispatch_pending()
         self._flush()
@@ -1161,7 +1036,7 @@ class TangoProtocol(asyncio.Protocol):
             # Any line at all, even one nobody can use (junk, a garbled reply, a line
             # dropped while resynchronising), shows the link still forwards: only
             # silence counts towards a dead link (:meth:`_unanswered`).
-            self._silent = 0
+            self.session.line_received()
         if isinstance(event, Completed) and self._on_event:
             known = self._submissions.get(event.tag) if event.tag is not None else None
             self._on_event(event, known)
@@ -1187,7 +1062,8 @@ class TangoProtocol(asyncio.Protocol):
                                   event.lines if isinstance(event, Replied) else None,
                                   confirms=not isinstance(event, Echoed)):
             return
-        if event.tag in self._markers and isinstance(event, Replied):
+        if isinstance(event, Replied) and self.session.replied(event.tag) \
+                and event.tag in self._markers:
             # The core only waits for the newest marker; its reply ends older resyncs too.
             for marker in self._markers.values():
                 if not marker.done():
@@ -1213,7 +1089,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _heard(self) -> None:
         """A reply line arrived: the link is alive and answers (the keepalive waits)."""
-        self._last_reply = self._loop.time()
+        self.session.reply_heard(self._loop.time())
 
     def _on_completed(self, event: Completed) -> None:
         self._heard()
@@ -1286,8 +1162,6 @@ class TangoProtocol(asyncio.Protocol):
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
-#: The read of the mode in force.
-_READ_MODE = parse("?autostatus")
 
 
 def _check_framing(command: Command) -> None:
@@ -1332,15 +1206,6 @@ def _traced(line: bytes) -> str:
     if len(line) <= TRACE_LINE:
         return repr(line)
     return f"{line[:TRACE_LINE]!r}... ({len(line)} bytes)"
-
-
-_INTEGER = re.compile(r"\s*-?\d+\s*$")
-
-
-def _consume(future: asyncio.Future[Any]) -> None:
-    """Mark a future's outcome retrieved (nobody awaits it)."""
-    if not future.cancelled():
-        future.exception()
 
 
 async def _until_done(future: asyncio.Future[Any], timeout: float | None,

@@ -746,6 +746,24 @@ class WriteScheduler:
         self.written_lines += 1
         self.credit.wrote(size, tag)
 
+    def exchanged(self, count: int) -> int:
+        """The caller wrote ``count`` lines of an exchange of its own, outside the queue
+        and the credit (:meth:`TangoProtocol._exchange
+        <tango_aio.protocol.TangoProtocol._exchange>`).
+
+        Parameters
+        ----------
+        count
+            The lines written.
+
+        Returns
+        -------
+        int
+            The serial of the last (the count of lines written so far).
+        """
+        self.written_lines += count
+        return self.written_lines
+
     def in_step(self) -> None:
         """The stream is in step and nothing is in flight (a quiet resync or an exchange
         ended): all credit is free."""

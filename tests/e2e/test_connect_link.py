@@ -4,6 +4,7 @@ fails at once with ConnectionLostError, and a cancelled connect releases its por
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import random
 import time
@@ -15,7 +16,7 @@ from helpers import make_model, opened, serve_pty
 
 import tango_aio
 from tango_aio import ConnectionLostError, Controller
-from tango_aio.protocol import TangoProtocol
+from tango_aio.session import LinkSession
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import WireConfig
 
@@ -185,13 +186,13 @@ async def test_a_connect_right_after_one_abandoned_in_its_first_exchange_is_in_s
     cancelled connects) unless it uses another number."""
     monkeypatch.setattr(random, "randrange", lambda n: 0)  # the core's first number
     started = asyncio.Event()
-    real = TangoProtocol._numbered_marker_answers
+    real = LinkSession.begin_detect
 
-    async def spy(self: TangoProtocol, code: int, timeout: float) -> bool:
-        started.set()
-        return await real(self, code, timeout)
+    def spy(self: LinkSession, recent: collections.deque[int] | None = None) -> int:
+        started.set()  # step 0's lines are written next
+        return real(self, recent)
 
-    monkeypatch.setattr(TangoProtocol, "_numbered_marker_answers", spy)
+    monkeypatch.setattr(LinkSession, "begin_detect", spy)
     async with await serve_pty(make_model, WireConfig(baud=4800)) as server:
         first = asyncio.create_task(opened(server.path))
         await started.wait()

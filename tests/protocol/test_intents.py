@@ -51,10 +51,10 @@ async def test_stop_axes_hard_keeps_the_mode_known() -> None:
     async with connect(INSTANT, autostatus=2) as tango:
         link = tango.protocol
         link.start_move(parse("!moa x 5"))
-        await link.stop_axes(False, timeout=2.0)
+        await link.stop_hard(timeout=2.0)
         assert link.autostatus == 2
         assert await link.read_autostatus(timeout=2.0) == 2
-        await link.stop_axes(True)
+        await link.stop_soft()
         letters = await tango.wait_idle(timeout=5.0)
         assert "M" not in letters.values()
 

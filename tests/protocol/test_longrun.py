@@ -15,10 +15,10 @@ from helpers import INSTANT, ConnectOptions, FakeLink
 from tango_aio import connect
 from tango_aio.controller import Controller
 from tango_aio.core import Mismatched, ProtocolCore
-from tango_aio.errors import ProtocolError
+from tango_aio.errors import ProtocolError, WrongEventLoopError
 from tango_aio.events import EventHub, StatusReport
 from tango_aio.instructions import parse
-from tango_aio.protocol import TRACE_LINE, WrongEventLoopError
+from tango_aio.protocol import TRACE_LINE
 
 pytestmark = pytest.mark.timeout(30)
 

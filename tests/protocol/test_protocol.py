@@ -16,7 +16,7 @@ import pytest
 from helpers import FakeLink
 
 from tango_aio.controller import Controller
-from tango_aio.core import Completed, Dropped, Unsolicited
+from tango_aio.core import AckReads, Completed, Dropped, Unsolicited
 from tango_aio.errors import (
     CommandRejectedError,
     ConnectionLostError,
@@ -667,7 +667,7 @@ async def test_a_mode_read_waits_for_quiet_where_a_line_can_trail_helps_reply(
     link.feed(b"OK...\r" if mode == 2 else b"?help\r")
     assert await asyncio.wait_for(read, 5.0) == mode
     if mode == 2:
-        assert link.protocol.core.ack_reads == "after"
+        assert link.protocol.core.ack_reads is AckReads.AFTER
 
 
 # -- Detecting how ?help N answers (TangoProtocol.detect) --------------------------------

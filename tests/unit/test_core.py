@@ -20,6 +20,7 @@ from tango_aio.core import (
     DEFAULT_MAX_LINE,
     LOCAL_ECHO,
     Acknowledged,
+    AckReads,
     Completed,
     Dropped,
     Echoed,
@@ -76,7 +77,7 @@ def setup(mode: int, *requests: tuple[str, Hashable],
     Routing tests use symbolic replies (``R_a``), so reply checking is off here; it is
     tested in tests/unit/test_patterns.py."""
     core = ProtocolCore(autostatus=mode, context=context, check_replies=False)
-    core.ack_reads = "no"  # as the protocol finds on firmware 1.71 (L2097-2101)
+    core.ack_reads = AckReads.NO  # as the protocol finds on firmware 1.71 (L2097-2101)
     written = b""
     for line, tag in requests:
         data, _ = core.send(parse(line, context), tag)
@@ -516,7 +517,7 @@ def test_mode2_deferred_move_ok_and_an_acknowledged_read() -> None:
     # ack_reads=after with move_ok=completion: the read's OK... is told from the move's
     # by the ?err behind the read, not by waiting for the move's end.
     core, _ = setup(2, ("!moa 4", "m"))
-    core.ack_reads = "after"
+    core.ack_reads = AckReads.AFTER
     data, _ = core.send(parse("?vel x"), "r")
     assert data == b"?vel x\r?err\r"
     events = feed(core, [stream("0", "R", "OK...", "0")])
@@ -1267,7 +1268,7 @@ def scenarios(draw: st.DrawFn) -> Scenario:
 
 def _start(scenario: Scenario) -> tuple[ProtocolCore, bytes]:
     core = ProtocolCore(autostatus=scenario.mode, context=EXT0, check_replies=False)
-    core.ack_reads = "no"
+    core.ack_reads = AckReads.NO
     written = b""
     for tag, line in enumerate(scenario.commands):
         data, _ = core.send(parse(line, EXT0), tag)

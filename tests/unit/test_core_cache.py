@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import tango_aio.core as core_module
-from tango_aio.core import ProtocolCore, expectation, owed_pattern
+from tango_aio.core import AckReads, ProtocolCore, expectation, owed_pattern
 from tango_aio.instructions import parse
 
 LINES = ["?pos", "?pos x", "?vel", "?vel x", "?err", "?statusaxis", "?dim", "?lim x",
@@ -33,10 +33,10 @@ def _registered(core: ProtocolCore) -> list[tuple[object, ...]]:
 
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from(LINES), st.sampled_from([0, 1, 2, 3, 4]),
-                          st.sampled_from([None, "no", "before", "after"]), st.booleans()),
+                          st.sampled_from([None, *AckReads]), st.booleans()),
                 min_size=1, max_size=20))
 def test_cached_and_plain_paths_register_the_same(
-        steps: list[tuple[str, int, str | None, bool]]) -> None:
+        steps: list[tuple[str, int, AckReads | None, bool]]) -> None:
     cached, plain = ProtocolCore(marker_seed=0), ProtocolCore(marker_seed=0)
     with pytest.MonkeyPatch.context() as patch:
         for tag, (text, mode, ack_reads, known) in enumerate(steps):
@@ -60,9 +60,9 @@ def test_a_read_is_computed_once_per_mode() -> None:
 
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from(LINES), st.sampled_from([0, 1, 2, 3, 4]),
-                          st.sampled_from([None, "no", "before", "after"])),
+                          st.sampled_from([None, *AckReads])),
                 min_size=1, max_size=20))
-def test_owed_is_owed_pattern(steps: list[tuple[str, int, str | None]]) -> None:
+def test_owed_is_owed_pattern(steps: list[tuple[str, int, AckReads | None]]) -> None:
     core = ProtocolCore()
     for text, mode, ack_reads in steps:
         command = parse(text)

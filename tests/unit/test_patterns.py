@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tango_aio.core import (
+    AckReads,
     Completed,
     Dropped,
     Mismatched,
@@ -204,7 +205,7 @@ def test_tail_names_the_last_line_owed() -> None:
     # Whether reads are acknowledged in mode 2 is not known yet: the last line it may owe
     # is an acknowledgement.
     assert core.tail == ("v", ACK_PATTERN)
-    core.ack_reads = "no"
+    core.ack_reads = AckReads.NO
     core.send(parse("?vel x"), "v")
     assert core.tail == ("v", pattern("?vel x"))
     core.send(parse("!vel x 5"), "s")

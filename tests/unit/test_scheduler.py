@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import Acknowledged, Echoed, ProtocolCore, Replied, wire_size
+from tango_aio.core import Acknowledged, AckReads, Echoed, ProtocolCore, Replied, wire_size
 from tango_aio.flow import MARKER
 from tango_aio.instructions import Command, build_rows, encode_rows, parse
 from tango_aio.patterns import ONE_NUMBER, ReplyKind, ReplyPattern, marker_pattern
@@ -393,7 +393,7 @@ def test_a_run_owing_replies_in_the_mode_in_force_goes_line_by_line() -> None:
                                parse("!trigp -1 2.0")])
     assert run is not None
     link.core.autostatus = 2  # adopted from the controller after the run was packed
-    link.core.ack_reads = "no"  # as the protocol finds out when mode 2 is entered
+    link.core.ack_reads = AckReads.NO  # as the protocol finds out when mode 2 is entered
     link.model.set_autostatus(2)
     link.scheduler.submit(run)
     link.drain()
@@ -450,3 +450,10 @@ def test_lines_owing_replies_or_of_another_instruction_make_no_run_from_bytes() 
     assert scheduler.pack_lines(template, []) is None
     scheduler.core.autostatus = 2  # every ! line is acknowledged
     assert scheduler.pack_lines(template, [b"!trigp -1 1.0\r"]) is None
+
+
+def test_an_exchange_written_outside_the_queue_counts_its_lines() -> None:
+    link = Link()
+    link.submit("?vel x")
+    link.flush()
+    assert link.scheduler.exchanged(3) == 4 == link.scheduler.written_lines
