@@ -702,9 +702,13 @@ class LinkSession:
             The lines collected, the ``?err`` number last.
         """
         normals = {normal_line(line) for line in sent}
-        answers = [line.strip() for line in received[:-1]
-                   if not ACK_PATTERN.accepts(line.strip())
-                   and normal_line(line) not in normals]
+        kept = [line.strip() for line in received
+                if not ACK_PATTERN.accepts(line.strip()) and normal_line(line) not in normals]
+        # The ?err number is the last line that is neither an echo nor an acknowledgement,
+        # not the last line received: in mode 4 the echo of a line may come after its
+        # reply (L2117 does not say when; a unit may echo reads too, old L723), so the
+        # exchange can end with the echo of ``?err`` itself.
+        answers = kept[:-1]
         if any(f"ERROR {code}," in line for line in answers):
             self.core.help_style = HelpStyle.NUMBER
         elif answers and answers[-1]:

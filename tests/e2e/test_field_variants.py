@@ -81,6 +81,26 @@ async def test_local_echo_is_refused_whatever_mode_the_unit_was_left_in(
     assert await connect_through_pty(left_in(left, profile, "no"), None) == left
 
 
+@pytest.mark.parametrize("profile", ["manual", "legacy"])
+@pytest.mark.parametrize("echo", ["before", "after", "completion"])
+async def test_a_unit_left_in_mode_4_connects_whatever_its_echo_order(
+        profile: str, echo: str) -> None:
+    # Connect detects how ``?help N`` answers while the unit may still be in mode 4; with
+    # the echo of a read after its reply (echo=after; legacy echoes reads, old L723) the
+    # ``?err`` behind ``?help N`` ends with its own echo, and the ``?err`` number once
+    # passed for help's text: every later marker then waited for that number.
+    firmware = Firmware.from_options(profile, echo=echo)
+
+    def factory(emit: Emit) -> ControllerModel:
+        model = ControllerModel(emit, SimConfig(firmware=firmware))
+        model.set_autostatus(4)
+        return model
+
+    for wanted in (None, 1, 4):
+        assert await connect_through_pty(factory, wanted) == (4 if wanted is None
+                                                              else wanted)
+
+
 async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
         emulator: EmulatorFactory) -> None:
     # Autostatus 0 polls the state during the move; every poll's reply is lost, so the
