@@ -35,4 +35,5 @@ def test_every_emulator_module_is_in_the_page() -> None:
 
 
 def test_the_page_is_one_page() -> None:
-    assert len(PAGE.read_text(encoding="utf-8").splitlines()) < 130
+    # A short read: the diagram, the module table, the rules, a reply and a move walked.
+    assert len(PAGE.read_text(encoding="utf-8").splitlines()) < 145
