@@ -12,8 +12,16 @@ controller executes it. So the driver reads the mode in force
   modes 0, 1 and 3 a restart leaves every request answered);
 * a completion report the mode in force does not send (:func:`report_suggests_restart`:
   any in mode 0, one with letters in mode 3, which sends a bare CR, L2107-2110);
-* the keepalive's periodic read (``connect(keepalive=...)``), which also finds a restart
-  in mode 1, where the mode itself cannot tell.
+* the keepalive's periodic read of the mode (``connect(keepalive=...)``).
+
+In autostatus 1, the power-on mode itself, a restart leaves nothing this read can tell
+apart: the mode is the one the driver set, every line is answered as before. What the
+restart changed is then not noticed: the settings the session set and did not save are
+back at their saved values in the driver's cache only after :meth:`refresh_settings
+<tango_aio.controller.Controller.refresh_settings>`, and the positions restart at 0. No move
+succeeds falsely for it: each is confirmed by reading the position and status after its
+report (a ``move_by`` whose remembered start the restart changed fails: the axis does
+not stand at the target it was given).
 
 A mode other than the one the driver set means the controller restarted: the protocol
 selects the driver's mode again and calls its ``on_restored``; the watch then reads the
