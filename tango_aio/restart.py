@@ -16,8 +16,8 @@ controller executes it. So the driver reads the mode in force
 
 In autostatus 1, the power-on mode itself, a restart leaves nothing this read can tell
 apart: the mode is the one the driver set, every line is answered as before. What the
-restart changed is then not noticed: the settings the session set and did not save are
-back at their saved values in the driver's cache only after :meth:`refresh_settings
+restart changed is then not noticed: the controller is back at its saved settings while
+the driver's cache keeps the values the session set, until :meth:`refresh_settings
 <tango_aio.controller.Controller.refresh_settings>`, and the positions restart at 0. No move
 succeeds falsely for it: each is confirmed by reading the position and status after its
 report (a ``move_by`` whose remembered start the restart changed fails: the axis does
