@@ -33,7 +33,7 @@ Where the manual is silent on whether a line comes at all (a read echoed in mode
 read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
 when the next line fits it, skipped otherwise (:func:`_owed_items`).
 
-Some lines come *late* on some firmware (#32), and the core tells from the stream:
+Some lines come *late* on some firmware, and the core tells from the stream:
 
 * Mode 2 may acknowledge a move only when it completes, next to its report (switch
   ``move_ok=completion``; L2099-2103 do not say when). So the core writes an ``?err``
@@ -124,7 +124,7 @@ __all__ = [
 #: far shorter; ``service`` output is the longest.
 DEFAULT_MAX_LINE: Final = 1024
 #: Most lines and bytes one multi-line reply (``service``, ``detext``) may hold before the
-#: request fails (#14 item 9: a reply whose end never comes must not grow for ever). The
+#: request fails (a reply whose end never comes must not grow for ever). The
 #: manual's ``service`` print is a few dozen lines (L2929-2943).
 MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
@@ -595,7 +595,7 @@ def _read_items(mode: int, ack_reads: AckReads | None) -> deque[_Item]:
 def _owed_items(command: Command, expect: Expectation, mode: int,
                 ack_reads: AckReads | None = None) -> deque[_Item]:
     """The lines ``command`` owes when written in autostatus ``mode``, in order, with the
-    ones the manual leaves open as optional items (#13 section 3, the emulator's switches):
+    ones the manual leaves open as optional items (each one a switch of the emulator's):
 
     * Mode 4 echoes "the instruction that was sent, in case of set or move instruction"
       (L2089-2095); the older edition "echoes all input instructions including
@@ -681,7 +681,8 @@ class _Resync(enum.Enum):
 
 
 class HelpStyle(enum.Enum):
-    """How this controller answers ``?help N`` (detected at connect, #13 section 3)."""
+    """How this controller answers ``?help N`` (detected at connect: the editions differ,
+    L2919, old L805-819)."""
 
     NUMBER = "yes"  #: ``ERROR N,text`` (L2919): markers hold a number of the session's
     TEXT = "no"  #: the text alone: markers use one number whose text was learned
@@ -1095,7 +1096,7 @@ class ProtocolCore:
         owed before it and the first owed after it), with its reply's pattern; register it
         with :meth:`separate`. Written between the two, it turns a line too many (or too
         few) between them into a :class:`Mismatched` instead of a reply shifted onto the
-        next request (#14 item 1, :mod:`tango_aio.patterns`).
+        next request (:mod:`tango_aio.patterns`).
 
         Only reads that leave the error state alone qualify: "each instruction
         overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
@@ -1255,8 +1256,8 @@ class ProtocolCore:
     def _route_completion(self, line: str, text: str) -> bool:
         # Only a truly empty line is the bare CR of autostatus 3. A line of blanks is not:
         # a one-bit error turns the '0' of '?err' into ' ', and taking that for a
-        # completion left the probe waiting, so it took the *next* request's reply
-        # (tests/test_faults.py::test_garbled_zero_to_blank_stays_with_its_caller).
+        # completion would leave the probe waiting, to take the *next* request's reply
+        # (tests/e2e/test_faults.py::test_garbled_zero_to_blank_stays_with_its_caller).
         if line == "":
             # Autostatus 3 reports completion with a bare CR (manual L2107-2113, L2161);
             # inside a multi-line reply an empty line is data. It is accepted as a

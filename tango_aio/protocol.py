@@ -113,7 +113,7 @@ class Submission(Line):
     completion: asyncio.Future[Completed] | None = None
     response: Response = field(default_factory=Response)
     #: The future a :meth:`TangoProtocol.wait_reply` sleeps on, woken in the same loop
-    #: turn as ``reply`` is resolved (a done-callback would take one more, #19).
+    #: turn as ``reply`` is resolved (a done-callback would take one more turn).
     waiter: asyncio.Future[None] | None = None
 
 
@@ -329,7 +329,8 @@ class TangoProtocol(asyncio.Protocol):
     def quiet_interval(self) -> float:
         """Seconds without a byte after the reply of ``help`` that end a resync without a
         marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: grown by
-        the link's timing (:attr:`link`, #32 item 5)."""
+        the link's timing (:attr:`link`), so that a slow link's next reply is not
+        taken for silence."""
         return self.session.quiet_interval
 
     @quiet_interval.setter
@@ -436,7 +437,7 @@ class TangoProtocol(asyncio.Protocol):
         for marker in self._markers.values():
             _fail(marker, error)
         # An exchange of connect's (detect, a mode exchange) waits on its own future: it
-        # fails now too, not after its reply timeout (#32 item 5).
+        # fails here too, at once, not after its reply timeout.
         if self._collected is not None:
             _fail(self._collected, error)
         self._submissions.clear()
@@ -836,7 +837,7 @@ class TangoProtocol(asyncio.Protocol):
     # -- writing ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
-        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass (#19);
+        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass;
         # every transport asyncio hands to a stream protocol has write().
         write = self._writer
         if write is None:
@@ -1652,8 +1653,8 @@ def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
 
 
-#: Bytes of one line a wire-log record shows at most (#14 item 9: one 1 MB line was one
-#: 1 MB record); the rest is counted, not shown.
+#: Bytes of one line a wire-log record shows at most, so that a long line (or one whose
+#: CR never comes) cannot make a record of any size; the rest is counted, not shown.
 TRACE_LINE = 256
 
 
@@ -1670,11 +1671,11 @@ async def _until_done(future: asyncio.Future[Any], timeout: float | None,
     passed, whichever comes first; cancelling the wait leaves ``future`` alone (it may
     have other waiters).
 
-    What ``asyncio.timeout`` around ``asyncio.shield`` did, with one helper future, one
-    callback and one timer instead of a shield's future and two callbacks and a timeout
-    context: the per-request path of every read (#19). The protocol wakes the helper
-    itself when it resolves the reply (:attr:`Submission.waiter`), in the same loop turn;
-    the callback covers every other way the reply ends (failed, cancelled)."""
+    The effect of ``asyncio.timeout`` around ``asyncio.shield``, with one helper future,
+    one callback and one timer instead of a shield's future and two callbacks and a
+    timeout context: this is the per-request path of every read. The protocol wakes the
+    helper itself when it resolves the reply (:attr:`Submission.waiter`), in the same
+    loop turn; the callback covers every other way the reply ends (failed, cancelled)."""
     loop = future.get_loop()
     waiter = loop.create_future()
 
