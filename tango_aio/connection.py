@@ -244,8 +244,8 @@ async def _in_thread(open_port: Callable[[], Any]) -> Any:
     """Run ``open_port`` in a thread; if the caller is cancelled meanwhile, the thread
     still finishes (threads cannot be interrupted), and the port it opened is closed
     before the cancellation goes on: a connect() to the same port right after must not
-    find it locked (#32 item 5). Cancelled again while it waits, it leaves the closing to
-    the thread's end.
+    find it locked. Cancelled again while it waits, it leaves the closing to the thread's
+    end.
 
     Returns
     -------

@@ -223,7 +223,8 @@ class Controller:
         #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
         self.units: str | None = None
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
-        #: Notices a controller that restarted behind the link and recovers (#32 item 5).
+        #: Notices a controller that restarted behind the link and recovers
+        #: (:mod:`tango_aio.restart`).
         self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
         self._restarts.attach(protocol)
 
@@ -492,8 +493,7 @@ class Controller:
         """Read the global setting ``name``, which a unit may lack (an optional module,
         a smaller model: no reply at all, error 4, L970): a separator goes right behind
         the read in the same write, so a missing reply shows at once, as the separator's
-        reply in its place (:class:`ProtocolError`), and not after the reply timeout
-        (#32 item 5).
+        reply in its place (:class:`ProtocolError`), and not after the reply timeout.
 
         Returns
         -------
@@ -1464,7 +1464,8 @@ class Controller:
         except ControllerError:
             raise  # refused: the line changed nothing (L2853-2856)
         except TangoError as exc:
-            # Its answer was lost: the axes may run (#32). Stop them and say so.
+            # Its answer was lost: the axes may run. A call that raises never leaves
+            # axes it set moving: stop them and say so.
             running = [axis for axis, value in axes.items() if value]
             if running:
                 named = " ".join(running).upper()

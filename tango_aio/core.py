@@ -33,7 +33,7 @@ Where the manual is silent on whether a line comes at all (a read echoed in mode
 read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
 when the next line fits it, skipped otherwise (:func:`_owed_items`).
 
-Some lines come *late* on some firmware (#32), and the core tells from the stream:
+Some lines come *late* on some firmware, and the core tells from the stream:
 
 * Mode 2 may acknowledge a move only when it completes, next to its report (switch
   ``move_ok=completion``; L2099-2103 do not say when). So the core writes an ``?err``
@@ -124,7 +124,7 @@ __all__ = [
 #: far shorter; ``service`` output is the longest.
 DEFAULT_MAX_LINE: Final = 1024
 #: Most lines and bytes one multi-line reply (``service``, ``detext``) may hold before the
-#: request fails (#14 item 9: a reply whose end never comes must not grow for ever). The
+#: request fails (a reply whose end never comes must not grow for ever). The
 #: manual's ``service`` print is a few dozen lines (L2929-2943).
 MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
@@ -153,7 +153,18 @@ _CASED_RE: Final = re.compile(
 def canonical_case(line: str) -> str:
     """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
     ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
-    range``); every other line as it is."""
+    range``); every other line as it is.
+
+    Parameters
+    ----------
+    line
+        A line received, without its CR.
+
+    Returns
+    -------
+    str
+        The line, its ``OK``, ``ERR`` or ``ERROR`` in capitals.
+    """
     if line[:1] not in ("o", "O", "e", "E", " ") or line.startswith(("OK", "ERR")):
         return line
     match = _CASED_RE.match(line)
@@ -165,7 +176,18 @@ def canonical_case(line: str) -> str:
 
 
 def is_completion_line(line: str) -> bool:
-    """Whether ``line`` is an autostatus completion report such as ``@@@-.``."""
+    """Whether ``line`` is an autostatus completion report such as ``@@@-.``.
+
+    Parameters
+    ----------
+    line
+        A line received, stripped.
+
+    Returns
+    -------
+    bool
+        Whether it is one status letter per axis then ``.`` (L2087-2089, L6337-6343).
+    """
     return bool(_COMPLETION_RE.match(line))
 
 
@@ -177,6 +199,11 @@ class LineAssembler:
     is scanned once (the CR search resumes where the previous one stopped). LF bytes are
     dropped, so a terminal server that turns CR into CR LF does no harm; the controller
     itself never sends LF (manual L82). Bytes are decoded as Latin-1, one char per byte.
+
+    Parameters
+    ----------
+    max_line
+        Longest line, in bytes, the buffer holds.
     """
 
     def __init__(self, max_line: int = DEFAULT_MAX_LINE) -> None:
@@ -191,13 +218,28 @@ class LineAssembler:
         return len(self._buffer)
 
     def feed(self, data: bytes) -> None:
-        """Add received bytes; collect the lines with :meth:`next_line`."""
+        """Add received bytes; collect the lines with :meth:`next_line`.
+
+        Parameters
+        ----------
+        data
+            Bytes as they were read, any fragment of the stream.
+        """
         self._buffer += data
 
     def next_line(self) -> str | None:
         """Return the next complete line (without CR), or ``None`` if there is none yet.
 
-        Raises :class:`ProtocolError` when a line exceeds the limit.
+        Returns
+        -------
+        str or None
+            The line, LF bytes removed; ``None`` until its CR has arrived.
+
+        Raises
+        ------
+        ProtocolError
+            A line exceeds the limit (its bytes are discarded up to the next CR; the next
+            call carries on).
         """
         end = self._buffer.find(_CR, self._scanned)
         if end < 0:
@@ -226,7 +268,23 @@ class LineAssembler:
         raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
 
     def lines(self, data: bytes) -> list[str]:
-        """Feed ``data`` and return every complete line (raises on an over-long line)."""
+        """Feed ``data`` and return every complete line (raises on an over-long line).
+
+        Parameters
+        ----------
+        data
+            Bytes as they were read.
+
+        Returns
+        -------
+        list of str
+            The lines ``data`` completed, in order.
+
+        Raises
+        ------
+        ProtocolError
+            A line exceeds the limit.
+        """
         self.feed(data)
         out: list[str] = []
         while (line := self.next_line()) is not None:
@@ -382,7 +440,22 @@ def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
 
 def owed_pattern(command: Command, expect: Expectation,
                  context: Context | None = None) -> ReplyPattern | None:
-    """The pattern of the first line ``command`` owes (``None``: it owes no line)."""
+    """The pattern of the first line ``command`` owes (``None``: it owes no line).
+
+    Parameters
+    ----------
+    command
+        The line.
+    expect
+        What it owes (:func:`expectation`).
+    context
+        Controller state that shapes the reply (dims, axes, extmode).
+
+    Returns
+    -------
+    ReplyPattern or None
+        The pattern of its echo, else of its data, else of its acknowledgement.
+    """
     if expect.echo:
         return echo_pattern(command)
     if _has_data(expect.rule):
@@ -425,6 +498,21 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
       second time in mode 2.
     * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
       the echo first and the report when the move ends, as in mode 1.
+
+    Parameters
+    ----------
+    command
+        The line.
+    mode
+        The autostatus mode in force when the line reaches the controller.
+    context
+        Controller state that shapes the reply (dims, axes, extmode).
+
+    Returns
+    -------
+    Expectation
+        The echo, data, acknowledgement and completion report it owes, and the mode in
+        force after it.
     """
     entry = command.instruction
     # Most lines owe what their instruction, form and the mode say, whatever their values:
@@ -507,7 +595,7 @@ def _read_items(mode: int, ack_reads: AckReads | None) -> deque[_Item]:
 def _owed_items(command: Command, expect: Expectation, mode: int,
                 ack_reads: AckReads | None = None) -> deque[_Item]:
     """The lines ``command`` owes when written in autostatus ``mode``, in order, with the
-    ones the manual leaves open as optional items (#13 section 3, the emulator's switches):
+    ones the manual leaves open as optional items (each one a switch of the emulator's):
 
     * Mode 4 echoes "the instruction that was sent, in case of set or move instruction"
       (L2089-2095); the older edition "echoes all input instructions including
@@ -525,6 +613,11 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
 
     A mode change is then a barrier: :meth:`TangoProtocol.execute
     <tango_aio.protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it.
+
+    Returns
+    -------
+    deque of _Item
+        The items owed, in the order they come.
     """
     items: deque[_Item] = deque()
     setter = command.name == "autostatus" and command.form is Form.SET
@@ -561,7 +654,13 @@ def _acks_itself(command: Command, after: int) -> bool:
     ``restore``: L1738-1762, L2081) written where mode 2 acknowledges ``!`` lines: that
     answer may be its acknowledgement, or a second ``OK...`` may follow (switch
     ``save_ack``; L2081 and L2099-2103 do not say). The core writes an ``?err`` behind it,
-    so that the second is told from the next line's acknowledgement by what follows."""
+    so that the second is told from the next line's acknowledgement by what follows.
+
+    Returns
+    -------
+    bool
+        Whether it is such a line, written where mode ``after`` is in force.
+    """
     return after == 2 and command.form is Form.SET and command.executes \
         and command.instruction.exec_reply is Shape.ACK
 
@@ -582,7 +681,8 @@ class _Resync(enum.Enum):
 
 
 class HelpStyle(enum.Enum):
-    """How this controller answers ``?help N`` (detected at connect, #13 section 3)."""
+    """How this controller answers ``?help N`` (detected at connect: the editions differ,
+    L2919, old L805-819)."""
 
     NUMBER = "yes"  #: ``ERROR N,text`` (L2919): markers hold a number of the session's
     TEXT = "no"  #: the text alone: markers use one number whose text was learned
@@ -593,7 +693,20 @@ _FOLLOW_UP_COMMAND: Final = parse("?err")
 
 def wire_size(command: Command, expect: Expectation) -> int:
     """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
-    and the internal ``?err`` follow-up of a read whose end only the next line shows."""
+    and the internal ``?err`` follow-up of a read whose end only the next line shows.
+
+    Parameters
+    ----------
+    command
+        The line to be written.
+    expect
+        What it owes in the mode it will be written in.
+
+    Returns
+    -------
+    int
+        The bytes, the follow-up's included wherever one may be written.
+    """
     size = len(command.to_bytes())
     # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
     # bytes are reserved whether or not it is written.
@@ -612,6 +725,22 @@ class ProtocolCore:
 
     Call :meth:`send` for every command line written (it returns the bytes to write) and
     :meth:`receive_data` with every chunk read; then drain :meth:`next_event`.
+
+    Parameters
+    ----------
+    autostatus
+        The autostatus mode in force when the first line reaches the controller.
+    context
+        Controller state that shapes replies (dims, axes, extmode).
+    max_line
+        Longest line, in bytes, the assembler buffers.
+    check_replies
+        Whether each data reply is checked against its instruction's pattern.
+    max_reply_lines, max_reply_bytes
+        Most lines and bytes one multi-line reply may hold before its request fails.
+    marker_seed
+        Index of the first marker number (``None``: a random one; fixed for reproducible
+        tests).
     """
 
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
@@ -708,6 +837,21 @@ class ProtocolCore:
         internal ``?err`` whose reply closes it; its bytes are included. ``known`` is an
         expectation the caller already computed and the mode it computed it for: it is
         used when that is the mode in force (and the reply does not depend on the context).
+
+        Parameters
+        ----------
+        command
+            The line.
+        tag
+            The tag its events are reported under.
+        known
+            The mode and the expectation the caller computed for it, if any.
+
+        Returns
+        -------
+        tuple of (bytes, Expectation)
+            The bytes to write (the line and any internal ``?err`` behind it) and what the
+            line owes.
         """
         if known is not None and known[0] == self._autostatus \
                 and command.instruction.lines is None:  # else it depends on the context
@@ -750,12 +894,33 @@ class ProtocolCore:
 
     def _deferring(self) -> bool:
         """Whether a move's OK... may still come with its completion report: one proved
-        deferred, or a move line's acknowledgement not yet known."""
+        deferred, or a move line's acknowledgement not yet known.
+
+        Returns
+        -------
+        bool
+            Whether an acknowledged line gets an ``?err`` behind it.
+        """
         return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
     def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
         """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
-        what :meth:`send` registers)."""
+        what :meth:`send` registers).
+
+        Parameters
+        ----------
+        command
+            The line.
+        expect
+            What it owes in ``mode`` (:func:`expectation`).
+        mode
+            The autostatus mode in force when it is written.
+
+        Returns
+        -------
+        ReplyPattern or None
+            The pattern of the first line it owes (``None``: it owes no line).
+        """
         if expect.echo:
             return echo_pattern(command)
         if _has_data(expect.rule):
@@ -767,7 +932,14 @@ class ProtocolCore:
         """What a line written in ``mode`` owes: its bytes, the items owed, its echo's
         and its data's pattern. Pure for a given line text, instruction, expectation, mode
         and :attr:`ack_reads` when the reply does not depend on the context: those of
-        reads (the per-request path) are cached (tests/unit/test_core_cache.py)."""
+        reads (the per-request path) are cached (tests/unit/test_core_cache.py).
+
+        Returns
+        -------
+        tuple
+            The line's bytes, the items it owes, its echo's pattern (``None``: no echo)
+            and its data's pattern.
+        """
         entry = command.instruction
         cacheable = command.is_read and entry.lines is None
         if cacheable:
@@ -795,7 +967,18 @@ class ProtocolCore:
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
-        """Stop waiting for the completion report of ``tag`` (e.g. the move was refused)."""
+        """Stop waiting for the completion report of ``tag`` (e.g. the move was refused).
+
+        Parameters
+        ----------
+        tag
+            The move's tag.
+
+        Returns
+        -------
+        bool
+            Whether the move was waiting for one.
+        """
         try:
             self._moves.remove(tag)
         except ValueError:
@@ -803,7 +986,13 @@ class ProtocolCore:
         return True
 
     def drop_completions(self) -> list[Hashable]:
-        """Stop waiting for every completion report; return the tags that were waiting."""
+        """Stop waiting for every completion report; return the tags that were waiting.
+
+        Returns
+        -------
+        list
+            The tags of the moves that were waiting, oldest first.
+        """
         tags = list(self._moves)
         self._moves.clear()
         return tags
@@ -817,6 +1006,19 @@ class ProtocolCore:
         registered under ``tag``; its :class:`Replied` event ends the resync. Without
         markers (:attr:`HelpStyle.NONE`) ``help`` is written and every line dropped until
         :meth:`end_resync` (:attr:`quiet`).
+
+        Parameters
+        ----------
+        tag
+            The tag the marker's :class:`Replied` event is reported under.
+        ctrl_c
+            Whether 0x03 goes first.
+
+        Returns
+        -------
+        bytes
+            The bytes to write: the marker ``?help N`` (or ``help``), behind 0x03 with
+            ``ctrl_c``.
         """
         for pending in self._pending:
             if pending.verdict is not None:
@@ -856,7 +1058,13 @@ class ProtocolCore:
         self._deferred_echoes.clear()
 
     def pick_marker_code(self) -> int:
-        """A marker number for this session (see :data:`_MARKER_CODES`)."""
+        """A marker number for this session (see :data:`_MARKER_CODES`).
+
+        Returns
+        -------
+        int
+            The next of this session's marker numbers.
+        """
         return self._next_marker_code()
 
     @property
@@ -888,7 +1096,7 @@ class ProtocolCore:
         owed before it and the first owed after it), with its reply's pattern; register it
         with :meth:`separate`. Written between the two, it turns a line too many (or too
         few) between them into a :class:`Mismatched` instead of a reply shifted onto the
-        next request (#14 item 1, :mod:`tango_aio.patterns`).
+        next request (:mod:`tango_aio.patterns`).
 
         Only reads that leave the error state alone qualify: "each instruction
         overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
@@ -897,6 +1105,16 @@ class ProtocolCore:
         L2882-2919), else ``?help N``, whose reply holds a number of this session's (or
         the text learned for it) and looks like nothing else. ``None`` when none fits and
         this controller has no ``?help N``: the next line then waits for the reply.
+
+        Parameters
+        ----------
+        *neighbours
+            The patterns of the lines owed right before and right after it.
+
+        Returns
+        -------
+        tuple of (bytes, ReplyPattern) or None
+            The separator's bytes and its reply's pattern; ``None`` when none fits.
         """
         for line, fits in _SEPARATORS:
             if not any(fits.overlaps(other) for other in neighbours):
@@ -907,7 +1125,20 @@ class ProtocolCore:
         return encode(f"?help {marker[0]}"), marker_pattern(marker[1])
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
-        """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes."""
+        """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.
+
+        Parameters
+        ----------
+        tag
+            The tag its reply is reported under.
+        separator
+            Its bytes and its reply's pattern, from :meth:`separator`.
+
+        Returns
+        -------
+        bytes
+            The bytes to write.
+        """
         data, pattern = separator
         self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
                                       _echo_of(data.decode()), pattern=pattern))
@@ -916,14 +1147,27 @@ class ProtocolCore:
     # -- receiving ------------------------------------------------------------------------
 
     def receive_data(self, data: bytes) -> None:
-        """Feed bytes read from the controller."""
+        """Feed bytes read from the controller.
+
+        Parameters
+        ----------
+        data
+            Bytes as they were read, any fragment of the stream.
+        """
         self._assembler.feed(data)
 
     def next_event(self) -> Event | None:
         """Return the next event, or ``None`` when more bytes are needed.
 
-        Raises :class:`ProtocolError` for an over-long line (then carries on with the
-        next line on the following call).
+        Returns
+        -------
+        Event or None
+            The next event; ``None`` when more bytes are needed.
+
+        Raises
+        ------
+        ProtocolError
+            A line is over-long (the following call carries on with the next line).
         """
         while not self._events:
             line = self._assembler.next_line()
@@ -934,7 +1178,23 @@ class ProtocolCore:
 
     def events(self, data: bytes = b"") -> list[Event]:
         """Feed ``data`` and return every event it completes (raises on an over-long
-        line; use :meth:`next_event` to carry on past one)."""
+        line; use :meth:`next_event` to carry on past one).
+
+        Parameters
+        ----------
+        data
+            Bytes read from the controller (empty: only the lines already buffered).
+
+        Returns
+        -------
+        list of Event
+            The events ``data`` completes, in order.
+
+        Raises
+        ------
+        ProtocolError
+            A line is over-long.
+        """
         self.receive_data(data)
         out: list[Event] = []
         while (event := self.next_event()) is not None:
@@ -996,8 +1256,8 @@ class ProtocolCore:
     def _route_completion(self, line: str, text: str) -> bool:
         # Only a truly empty line is the bare CR of autostatus 3. A line of blanks is not:
         # a one-bit error turns the '0' of '?err' into ' ', and taking that for a
-        # completion left the probe waiting, so it took the *next* request's reply
-        # (tests/test_faults.py::test_garbled_zero_to_blank_stays_with_its_caller).
+        # completion would leave the probe waiting, to take the *next* request's reply
+        # (tests/e2e/test_faults.py::test_garbled_zero_to_blank_stays_with_its_caller).
         if line == "":
             # Autostatus 3 reports completion with a bare CR (manual L2107-2113, L2161);
             # inside a multi-line reply an empty line is data. It is accepted as a
@@ -1029,7 +1289,13 @@ class ProtocolCore:
 
     def _deferred_echo(self, text: str) -> bool:
         """Consume ``text`` if it is the echo of a move that came with its report, and
-        not the echo the head waits for (the same text: then it does not matter whose)."""
+        not the echo the head waits for (the same text: then it does not matter whose).
+
+        Returns
+        -------
+        bool
+            Whether ``text`` was consumed.
+        """
         if self._pending:
             head = self._pending[0]
             if head.items[0] in (_Item.ECHO, _Item.ECHO_OPT) and head.echo is not None \
@@ -1064,7 +1330,13 @@ class ProtocolCore:
     def _takes_deferred(self) -> bool:
         """Whether an ``OK...`` arriving now can only be a deferred one: no request waits
         for an acknowledgement at the head (none waits, or the head owes data or an
-        optional line; only ``save``'s data is an ``OK...``)."""
+        optional line; only ``save``'s data is an ``OK...``).
+
+        Returns
+        -------
+        bool
+            Whether the ``OK...`` is a deferred move's.
+        """
         if not self._pending:
             return True
         head = self._pending[0]

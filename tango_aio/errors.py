@@ -236,8 +236,8 @@ class MoveError(TangoError):
 
 class MoveOutcomeUnknown(TangoError):
     """A motion call failed after its line was written, and the controller may have
-    executed it: the stage may have moved (#32 item 5). Do not retry blindly: read the
-    position first. The driver stopped the axes the line addressed where it could.
+    executed it: the stage may have moved. Do not retry blindly: read the position first.
+    The driver stopped the axes the line addressed where it could.
 
     Never raised as such: the error raised is also the class that says what went wrong
     (:class:`MoveTimeoutUnknownError`, :class:`MoveAbortedUnknownError`,

@@ -122,7 +122,7 @@ class ControllerFault:
 @dataclass(frozen=True, slots=True)
 class ControllerRestarted:
     """The controller restarted behind a link that stayed up (a power cycle, a reset),
-    and the driver recovered (#32 item 5): it found the controller in autostatus
+    and the driver recovered: it found the controller in autostatus
     ``found`` (1 at power-on, L2069) instead of the mode it had set, ``autostatus``, which
     it selected again; it read its cached settings again, and ``settings`` maps each
     that the restart changed to its ``(before, after)`` values (a restart reloads the

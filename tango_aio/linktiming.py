@@ -8,8 +8,8 @@ the line that looks like the last reply. How long "a while" must be depends on t
 * its speed: the controller answers a line only once the whole line has reached it
   (CR-terminated lines, L28-30), so the gap between two replies can be as long as the next
   command line takes on the wire; at 1200 Bd 8N2 (L8-10: 11 bits per byte) one byte takes
-  9.2 ms, a 14-byte line 128 ms. A fixed 0.05 s (the driver's old value) ended exchanges
-  early below 9600 Bd and handed later replies to the wrong request (#32 item 5);
+  9.2 ms, a 14-byte line 128 ms. A fixed 0.05 s would end exchanges early below
+  9600 Bd and hand later replies to the wrong request;
 * its latency and the way it delivers (a USB adapter's latency timer, a terminal server's
   packets): bytes come in bursts, so the gap between bursts can be a round trip long.
 
@@ -35,7 +35,8 @@ __all__ = ["BITS_PER_BYTE", "MAX_QUIET", "MIN_QUIET", "QUIET_BYTES", "QUIET_ROUN
 #: Bit times per byte on the TANGO's line: 8 data bits, no parity, 2 stop bits, plus the
 #: start bit (L8-10).
 BITS_PER_BYTE = 11
-#: The shortest quiet interval, for fast links (the driver's value before #32).
+#: The shortest quiet interval, for fast links whose byte time and round trip are far
+#: below it.
 MIN_QUIET = 0.05
 #: Byte times a quiet interval spans at least: longer than any line the driver writes in
 #: an exchange (``!autostatus 4``, ``?help 12345``: at most 14 bytes), with room for the

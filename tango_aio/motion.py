@@ -478,7 +478,8 @@ class Motion:
         except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed, and
-            # the error says the line may have run (#32 item 5: no blind retry).
+            # the error says the line may have run (so that the caller does not retry
+            # blindly).
             aborted = self._was_stopped(job)
             stopped = await self._stop_and_wait(job)
             if aborted:
@@ -493,7 +494,7 @@ class Motion:
         try:
             letters = await self._follow(job)
         except _LOST_READ as exc:
-            # The state could not be read (#32: a call that raises never leaves the axes
+            # The state could not be read (a call that raises never leaves the axes
             # it set moving): stop them and say so, or say that they may still move.
             stopped = await self._stop_and_wait(job)
             raise _with_stop(exc, job, stopped) from exc.__cause__
@@ -681,7 +682,7 @@ class Motion:
 
 def annotate(exc: TangoError, text: str) -> TangoError:
     """``exc`` (a driver error raised by a call that had set axes moving) saying whether
-    they were stopped (#32).
+    they were stopped.
 
     Parameters
     ----------

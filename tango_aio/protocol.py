@@ -113,7 +113,7 @@ class Submission(Line):
     completion: asyncio.Future[Completed] | None = None
     response: Response = field(default_factory=Response)
     #: The future a :meth:`TangoProtocol.wait_reply` sleeps on, woken in the same loop
-    #: turn as ``reply`` is resolved (a done-callback would take one more, #19).
+    #: turn as ``reply`` is resolved (a done-callback would take one more turn).
     waiter: asyncio.Future[None] | None = None
 
 
@@ -140,12 +140,45 @@ class MoveHandle:
 
     async def error(self, timeout: float | None) -> ControllerError | None:
         """Wait for the line's check; the controller's error, ``None`` if it was accepted
-        (or unchecked). Raises ControllerTimeoutError/RequestAbortedError/
-        ConnectionLostError when the check itself is lost."""
+        (or unchecked).
+
+        Parameters
+        ----------
+        timeout
+            Seconds the check's reply may take (``None``: no limit).
+
+        Returns
+        -------
+        ControllerError or None
+            The error the controller reported for the line; ``None`` if it was accepted
+            (or unchecked).
+
+        Raises
+        ------
+        ControllerTimeoutError
+            The check got no reply within ``timeout`` seconds.
+        RequestAbortedError
+            The check was lost to a resync.
+        ConnectionLostError
+            The link is gone.
+        """
         return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
 
     async def confirm(self, timeout: float | None) -> None:
-        """Like :meth:`error`, but raise the controller's error (and forget the report)."""
+        """Like :meth:`error`, but raise the controller's error (and forget the report).
+
+        Parameters
+        ----------
+        timeout
+            Seconds the check's reply may take (``None``: no limit).
+
+        Raises
+        ------
+        ControllerError
+            The controller reported an error for the line.
+        ControllerTimeoutError, RequestAbortedError, ConnectionLostError
+            The check itself was lost (see :meth:`error`).
+        """
         error = await self.error(timeout)
         if error is not None:
             self.forget()
@@ -153,7 +186,18 @@ class MoveHandle:
 
     async def report(self) -> Completed:
         """Wait for the completion report (only when :attr:`expects_report`); cancelling
-        the wait leaves the report awaited."""
+        the wait leaves the report awaited.
+
+        Returns
+        -------
+        Completed
+            The completion report.
+
+        Raises
+        ------
+        RuntimeError
+            The line expects no completion report.
+        """
         completion = self.submission.completion
         if completion is None:
             raise RuntimeError(f"{self.command.line!r} expects no completion report")
@@ -180,7 +224,41 @@ EventCallback = Callable[[Event, "Submission | None"], None]
 
 
 class TangoProtocol(asyncio.Protocol):
-    """Routes the controller's lines to awaiting requests, moves and the event callback."""
+    """Routes the controller's lines to awaiting requests, moves and the event callback.
+
+    Parameters
+    ----------
+    autostatus
+        The autostatus mode in force when the first line reaches the controller.
+    context
+        Controller state that shapes replies and validates lines (dims, axes, extmode).
+    on_event
+        Called with each unsolicited event, completion report and dropped line.
+    on_lost
+        Called once when the link is lost, with the transport's error.
+    credit_limit
+        Bytes written but not yet confirmed by a reply, at most (:mod:`tango_aio.flow`).
+    marker_chunk
+        Bytes of reply-less lines one credit marker confirms at most.
+    reply_timeout
+        Seconds a resync marker or keepalive read the protocol writes itself may take.
+    dead_after
+        Consecutive unanswered requests, with no line in between, that declare the link
+        dead (at least 2).
+    keepalive
+        Seconds of silence after which an idle link is probed (``None``: never).
+    separators
+        Whether a separator is written between two requests whose replies look alike
+        (:attr:`separators`).
+    detect
+        Whether the first resync runs :meth:`detect` instead (set by ``connect``).
+
+    Raises
+    ------
+    ValueError
+        ``reply_timeout`` or ``keepalive`` is not a positive number, or ``dead_after`` is
+        less than 2.
+    """
 
     def __init__(
         self,
@@ -251,7 +329,8 @@ class TangoProtocol(asyncio.Protocol):
     def quiet_interval(self) -> float:
         """Seconds without a byte after the reply of ``help`` that end a resync without a
         marker (:attr:`~tango_aio.core.HelpStyle.NONE`) and connect's exchanges: grown by
-        the link's timing (:attr:`link`, #32 item 5)."""
+        the link's timing (:attr:`link`), so that a slow link's next reply is not
+        taken for silence."""
         return self.session.quiet_interval
 
     @quiet_interval.setter
@@ -267,14 +346,33 @@ class TangoProtocol(asyncio.Protocol):
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
-        """Set where unsolicited events and the connection loss are reported."""
+        """Set where unsolicited events and the connection loss are reported.
+
+        Parameters
+        ----------
+        on_event
+            Called with each unsolicited event, completion report and dropped line.
+        on_lost
+            Called once when the link is lost, with the transport's error.
+        """
         self._on_event = on_event
         self._on_lost = on_lost
 
     # -- connection ------------------------------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Called by asyncio when the link is up."""
+        """Called by asyncio when the link is up.
+
+        Parameters
+        ----------
+        transport
+            The link's transport.
+
+        Raises
+        ------
+        TypeError
+            The transport has no ``write``.
+        """
         write = getattr(transport, "write", None)
         if not callable(write):
             raise TypeError(f"{type(transport).__name__} cannot write")
@@ -296,7 +394,13 @@ class TangoProtocol(asyncio.Protocol):
         await self._connected
 
     def eof_received(self) -> bool | None:
-        """Called by asyncio when the other end closed a stream (TCP): close as well."""
+        """Called by asyncio when the other end closed a stream (TCP): close as well.
+
+        Returns
+        -------
+        None
+            The transport closes itself.
+        """
         self._peer_eof = True
         return None
 
@@ -305,6 +409,11 @@ class TangoProtocol(asyncio.Protocol):
 
         The error's ``__cause__`` is ``exc``; when the other end closed the link without
         an error, a :class:`ConnectionResetError` saying so stands in for it.
+
+        Parameters
+        ----------
+        exc
+            The transport's error (``None``: closed without one).
         """
         if self._keepalive_task is not None:
             self._keepalive_task.cancel()
@@ -328,7 +437,7 @@ class TangoProtocol(asyncio.Protocol):
         for marker in self._markers.values():
             _fail(marker, error)
         # An exchange of connect's (detect, a mode exchange) waits on its own future: it
-        # fails now too, not after its reply timeout (#32 item 5).
+        # fails here too, at once, not after its reply timeout.
         if self._collected is not None:
             _fail(self._collected, error)
         self._submissions.clear()
@@ -357,8 +466,14 @@ class TangoProtocol(asyncio.Protocol):
         """Wait up to ``timeout`` seconds while the only lines in flight are the driver's
         own (separators, credit markers), so that whoever opens the port next does not
         read their replies (:meth:`Controller.aclose`; a move's confirmation leaves a
-        separator behind it, #19). Returns at once when the link is gone, a resync runs,
-        or a caller's request is in flight (closing fails that one anyway)."""
+        separator behind it). Returns at once when the link is gone, a resync runs, or a
+        caller's request is in flight (closing fails that one anyway).
+
+        Parameters
+        ----------
+        timeout
+            Seconds to wait at most.
+        """
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
         owns = self.scheduler.owns
@@ -370,7 +485,13 @@ class TangoProtocol(asyncio.Protocol):
 
     def give_up(self, error: ConnectionLostError) -> None:
         """Record why a lost link will not come back: later calls raise ``error``'s class
-        with its message and cause (used when an automatic reconnect gives up)."""
+        with its message and cause (used when an automatic reconnect gives up).
+
+        Parameters
+        ----------
+        error
+            Why the link will not come back.
+        """
         if self._lost is not None:
             self._lost = error
 
@@ -378,7 +499,15 @@ class TangoProtocol(asyncio.Protocol):
         """Raise the connection error if the link is gone; raise
         :class:`WrongEventLoopError` when called from another event loop than the one the
         link was opened on (its callbacks run there; a future made here would never be
-        resolved)."""
+        resolved).
+
+        Raises
+        ------
+        WrongEventLoopError
+            Called from another event loop than the link's.
+        ConnectionLostError
+            The link is gone, or was never made.
+        """
         try:
             running = asyncio.get_running_loop()
         except RuntimeError:
@@ -417,7 +546,25 @@ class TangoProtocol(asyncio.Protocol):
         return tuple(self.core.awaiting_completion)
 
     async def query(self, command: Command, *, timeout: float | None) -> Response:
-        """Write the read ``command`` and return its reply lines."""
+        """Write the read ``command`` and return its reply lines.
+
+        Parameters
+        ----------
+        command
+            The read.
+        timeout
+            Seconds the reply may take (``None``: no limit).
+
+        Returns
+        -------
+        Response
+            The reply, its data lines in :attr:`Response.lines`.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            No reply within ``timeout`` seconds (the stream is resynchronised).
+        """
         return await self.request(command, timeout)
 
     async def execute(self, command: Command, *, timeout: float | None,
@@ -428,6 +575,29 @@ class TangoProtocol(asyncio.Protocol):
         acknowledgement, else an ``?err`` probe written back to back with the line) and an
         error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
         a completion report go through :meth:`start_move` instead.
+
+        Parameters
+        ----------
+        command
+            The set/execute line.
+        timeout
+            Seconds its confirmation may take (``None``: no limit).
+        check
+            Whether the controller's verdict is read and an error raised.
+
+        Returns
+        -------
+        Response
+            What the line got back (empty for a mode change).
+
+        Raises
+        ------
+        UnknownControllerError
+            A mode change left the controller in another mode (that mode is adopted).
+        ControllerError
+            With ``check``: the controller reported an error for the line.
+        ControllerTimeoutError
+            The confirmation got no reply within ``timeout`` seconds.
         """
         if command.name == "autostatus" and command.form is Form.SET and command.values:
             return await self._change_mode(command, int(command.values[0]), timeout)
@@ -437,11 +607,23 @@ class TangoProtocol(asyncio.Protocol):
 
     async def _change_mode(self, command: Command, mode: int, timeout: float | None
                            ) -> Response:
-        """A mode change is a barrier (#13 section 3). Whether ``!autostatus n`` is echoed
-        (mode 4 echoes before or after executing?) or acknowledged (per the old or the new
-        mode?), and whether mode 2 acknowledges reads, the manual leaves open
-        (L2079-2161): see :meth:`_mode_exchange`. A controller that kept another mode
-        raises :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
+        """A mode change is a barrier: every line before it is answered before it is
+        written. Whether ``!autostatus n`` is echoed (mode 4 echoes before or after
+        executing?) or acknowledged (per the old or the new mode?), and whether mode 2
+        acknowledges reads, the manual leaves open (L2079-2161): see
+        :meth:`_mode_exchange`. A controller that kept another mode raises
+        :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted.
+
+        Returns
+        -------
+        Response
+            An empty response.
+
+        Raises
+        ------
+        UnknownControllerError
+            The controller kept another mode.
+        """
         if (await self._mode_exchange([command.line], timeout))[1] != mode:
             raise UnknownControllerError(None, command.line)
         return Response()
@@ -454,8 +636,19 @@ class TangoProtocol(asyncio.Protocol):
         :attr:`quiet_interval` (in modes 2 and 4 only:
         :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
         force (adopted) and, in mode 2, how reads are acknowledged from those lines
-        (:meth:`~tango_aio.session.LinkSession.mode_read`). Returns the mode the driver
-        had in force once every line before was answered, and the mode in force."""
+        (:meth:`~tango_aio.session.LinkSession.mode_read`).
+
+        Returns
+        -------
+        tuple of (int, int)
+            The mode the driver had in force once every line before was answered, and the
+            mode in force.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            The lines before got no reply within ``timeout`` seconds.
+        """
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             try:
@@ -473,7 +666,13 @@ class TangoProtocol(asyncio.Protocol):
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
-        and answered (polled: mode changes are rare)."""
+        and answered (polled: mode changes are rare).
+
+        Raises
+        ------
+        RequestAbortedError
+            Ctrl+C discarded the queued lines: the mode change is not sent.
+        """
         hold = self.scheduler.hold()
         dropped = self._queue_drops
         try:
@@ -495,7 +694,23 @@ class TangoProtocol(asyncio.Protocol):
         :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`. ``batch``: the line
         and its check join the batch of the line submitted right before them (see
         :meth:`submit`; the caller treats the lines as one, e.g. a ``move_by`` whose start
-        ``?pos`` fails is stopped and fails)."""
+        ``?pos`` fails is stopped and fails).
+
+        Parameters
+        ----------
+        command
+            The motion line.
+        check
+            Whether the controller's verdict is read (the autostatus-2 acknowledgement,
+            else an ``?err`` probe written back to back with the line).
+        batch
+            The batch the line and its check join, if any.
+
+        Returns
+        -------
+        MoveHandle
+            The line's handle.
+        """
         return self._send_checked(command, check, batch)
 
     def _send_checked(self, command: Command, check: bool,
@@ -528,7 +743,13 @@ class TangoProtocol(asyncio.Protocol):
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
-        per axis, stopping only those (L6785-6844). Returns once the lines are queued."""
+        per axis, stopping only those (L6785-6844). Returns once the lines are queued.
+
+        Parameters
+        ----------
+        axes
+            The axes to stop (empty: every axis).
+        """
         for axis in axes:
             self.submit(build("a", form=Form.SET, axis=axis))
         if not axes:
@@ -539,14 +760,31 @@ class TangoProtocol(asyncio.Protocol):
         buffer (L6808-6814): requests in flight fail with
         :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
         the mode in force is read again (a discarded line may have changed it). Returns
-        once the stream is in step."""
+        once the stream is in step.
+
+        Parameters
+        ----------
+        timeout
+            Seconds the resync and the read of the mode may take, each.
+        """
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
     async def read_autostatus(self, *, timeout: float | None) -> int:
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
-        way a mode change is confirmed (:meth:`_mode_exchange`)."""
+        way a mode change is confirmed (:meth:`_mode_exchange`).
+
+        Parameters
+        ----------
+        timeout
+            Seconds the exchange may take (``None``: no limit).
+
+        Returns
+        -------
+        int
+            The mode in force.
+        """
         return (await self._mode_exchange([], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
@@ -573,8 +811,18 @@ class TangoProtocol(asyncio.Protocol):
         """Read the mode in force (the way a mode change is confirmed, so that whatever
         the controller's mode, its reply is understood) and compare it with the mode the
         driver has in force; if they differ (the controller restarted: power-on mode 1,
-        L2062), restore the driver's mode before any later line. Returns whether the mode
-        had to be restored."""
+        L2062), restore the driver's mode before any later line.
+
+        Parameters
+        ----------
+        timeout
+            Seconds each exchange may take (``None``: no limit).
+
+        Returns
+        -------
+        bool
+            Whether the mode had to be restored.
+        """
         expected, actual = await self._mode_exchange([], timeout)
         if actual == expected:
             return False
@@ -589,7 +837,7 @@ class TangoProtocol(asyncio.Protocol):
     # -- writing ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
-        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass (#19);
+        # Duck-typed: uvloop's TCP transport is no asyncio.WriteTransport subclass;
         # every transport asyncio hands to a stream protocol has write().
         write = self._writer
         if write is None:
@@ -621,6 +869,28 @@ class TangoProtocol(asyncio.Protocol):
         enough credit; lines are always written in submission order. A line whose reply
         could be taken for the reply of the line written before it gets a separator
         first, unless both belong to the same ``batch`` (see :mod:`tango_aio.patterns`).
+
+        Parameters
+        ----------
+        command
+            The line.
+        batch
+            Lines of one batch get no separator between them (``None``: no batch).
+        hold
+            Whether to leave the writing to the caller's next flush (lines that belong
+            together are queued first).
+
+        Returns
+        -------
+        Submission
+            The line's submission.
+
+        Raises
+        ------
+        ConnectionLostError
+            The link is gone.
+        InvalidCommandError
+            The line holds a control or non-ASCII character.
         """
         self.check()
         _check_framing(command)
@@ -643,9 +913,22 @@ class TangoProtocol(asyncio.Protocol):
     def submit_together(self, commands: Sequence[Command], *,
                         separate_after: bool = False) -> list[Submission]:
         """:meth:`submit` each of ``commands`` and write them in one write where the
-        credit allows (e.g. reads whose replies cannot be taken for each other, #19).
-        ``separate_after``: a separator follows the last one in the same write (see
-        :attr:`~tango_aio.scheduler.Line.separate_after`)."""
+        credit allows (e.g. reads whose replies cannot be taken for each other: one write
+        instead of one per line).
+
+        Parameters
+        ----------
+        commands
+            The lines, in order.
+        separate_after
+            Whether a separator follows the last one in the same write (see
+            :attr:`~tango_aio.scheduler.Line.separate_after`).
+
+        Returns
+        -------
+        list of Submission
+            Their submissions, in order.
+        """
         submissions = [self.submit(command, hold=True) for command in commands]
         if submissions:
             submissions[-1].separate_after = separate_after
@@ -678,6 +961,16 @@ class TangoProtocol(asyncio.Protocol):
         """Take lines that are still queued out of the queue; return how many were.
 
         Their futures are cancelled. Lines already written are not affected.
+
+        Parameters
+        ----------
+        submissions
+            The lines (submissions or runs) to take back.
+
+        Returns
+        -------
+        int
+            How many were still queued.
         """
         removed = self.scheduler.withdraw(submissions)
         for submission in removed:
@@ -691,7 +984,25 @@ class TangoProtocol(asyncio.Protocol):
              ) -> Run | None:
         """Reply-less lines (list entries) as one record to :meth:`submit_run`: one bytes
         blob, not one object per line (:class:`~tango_aio.scheduler.Run`); ``None`` when
-        a line would owe something in the mode in force (then :meth:`submit` each)."""
+        a line would owe something in the mode in force (then :meth:`submit` each).
+
+        Parameters
+        ----------
+        commands
+            The lines, in order.
+        batch
+            The batch the lines belong to, if any.
+
+        Returns
+        -------
+        Run or None
+            The run; ``None`` when a line owes something.
+
+        Raises
+        ------
+        InvalidCommandError
+            A line holds a control or non-ASCII character.
+        """
         for command in commands:
             _check_framing(command)
         return self.scheduler.pack(commands, batch)
@@ -700,7 +1011,28 @@ class TangoProtocol(asyncio.Protocol):
                    batch: object | None = None) -> Run | None:
         """:meth:`pack` for list entries given as bytes, each a line of ``template``'s
         instruction and form (:func:`~tango_aio.instructions.encode_rows`), framing
-        checked on the whole blob (:meth:`~tango_aio.scheduler.WriteScheduler.pack_lines`)."""
+        checked on the whole blob (:meth:`~tango_aio.scheduler.WriteScheduler.pack_lines`).
+
+        Parameters
+        ----------
+        template
+            A line of the entries' instruction and form.
+        lines
+            The encoded lines, each CR-terminated.
+        batch
+            As for :meth:`pack`.
+
+        Returns
+        -------
+        Run or None
+            As for :meth:`pack`.
+
+        Raises
+        ------
+        InvalidCommandError
+            A line holds a control or non-ASCII character, or the blob is not one line
+            per entry.
+        """
         _check_framing(template)
         run = self.scheduler.pack_lines(template, lines, batch)
         if run is not None:
@@ -714,7 +1046,23 @@ class TangoProtocol(asyncio.Protocol):
     def submit_run(self, run: Run) -> Run:
         """Queue a run from :meth:`pack`. On the wire the same bytes, credit markers and
         separators as one :meth:`submit` per line; :meth:`withdraw` takes back the lines
-        of the run not yet written."""
+        of the run not yet written.
+
+        Parameters
+        ----------
+        run
+            The run, from :meth:`pack` or :meth:`pack_lines`.
+
+        Returns
+        -------
+        Run
+            The same run.
+
+        Raises
+        ------
+        ConnectionLostError
+            The link is gone.
+        """
         self.check()
         if self.scheduler.submit(run):
             self._flush()
@@ -744,6 +1092,23 @@ class TangoProtocol(asyncio.Protocol):
         """Write ``command`` and wait for its reply (an empty Response if it owes none).
 
         On timeout the stream is resynchronised and :class:`ControllerTimeoutError` raised.
+
+        Parameters
+        ----------
+        command
+            The line.
+        timeout
+            Seconds the reply may take (``None``: no limit).
+
+        Returns
+        -------
+        Response
+            The reply (empty if the line owes none).
+
+        Raises
+        ------
+        ControllerTimeoutError
+            No reply within ``timeout`` seconds.
         """
         submission = self.submit(command)
         if submission.reply is None:
@@ -759,7 +1124,26 @@ class TangoProtocol(asyncio.Protocol):
         stream is in step. The timeout counts towards declaring a dead link lost
         (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
         the timeout as its cause.
-        """
+
+        Parameters
+        ----------
+        submission
+            The submission whose reply is awaited (it owes one).
+        timeout
+            Seconds from now the reply may take (``None``: no limit).
+
+        Returns
+        -------
+        Response
+            Its echo, data lines and acknowledgement.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            No reply within ``timeout`` seconds.
+        ConnectionLostError
+            The link is gone, or this timeout declared it dead.
+        """  # noqa: DOC501 - the bare TimeoutError is caught below and becomes the above
         reply = submission.reply
         assert reply is not None
         try:
@@ -790,8 +1174,13 @@ class TangoProtocol(asyncio.Protocol):
         open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
         power-cycled behind one). ``serial`` numbers the line among those written: lines
         that were in flight together count once (they time out together when one reply is
-        lost), so each count is a line written after the previous count. Returns whether
-        the link was declared lost."""
+        lost), so each count is a line written after the previous count.
+
+        Returns
+        -------
+        bool
+            Whether the link was declared lost.
+        """
         if self.on_unanswered is not None and self._lost is None:
             self.on_unanswered()
         if not self.session.unanswered(serial, self.scheduler.written_lines):
@@ -834,6 +1223,21 @@ class TangoProtocol(asyncio.Protocol):
         Every pending request fails with :class:`RequestAbortedError`; the call returns
         when the marker's reply has arrived. The first resync of a link opened by
         ``connect`` runs :meth:`detect` instead.
+
+        Parameters
+        ----------
+        ctrl_c
+            Whether Ctrl+C goes first (it stops all axes and empties the controller's input
+            buffer, L6808-6814).
+        timeout
+            Seconds the marker's reply may take.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            The marker got no reply within ``timeout`` seconds.
+        ConnectionLostError
+            The link is gone, or this timeout declared it dead.
         """
         self.check()
         if self.session.detects_first(ctrl_c=ctrl_c):
@@ -859,7 +1263,7 @@ class TangoProtocol(asyncio.Protocol):
 
     @property
     def detected(self) -> dict[str, str]:
-        """What the driver found out about this controller (#13): ``help_number``
+        """What the driver found out about this controller: ``help_number``
         (``"yes"``: ``?help N`` answers ``ERROR N,text``; ``"no"``: the text only;
         ``"none"``: not at all), found by :meth:`detect` at connect; and, once seen,
         ``optional_echo`` / ``optional_ack``: how many echoes and acknowledgements arrived
@@ -872,7 +1276,8 @@ class TangoProtocol(asyncio.Protocol):
 
     async def detect(self, *, timeout: float) -> dict[str, str]:
         """Bring the stream in step without relying on a unique reply, then find out how
-        ``?help N`` answers, and make the markers accordingly (#13 section 3).
+        ``?help N`` answers (the manual's editions differ: L2919, old L805-819), and make
+        the markers accordingly.
 
         0. The quick way, for firmware that answers ``?help N`` with ``ERROR N,...``
            (1.71, L2919): ``help``, ``?help N`` twice and ``?err`` in one write (N a
@@ -891,6 +1296,16 @@ class TangoProtocol(asyncio.Protocol):
            ``ERROR N,...`` (firmware 1.71, L2919), the text alone (some firmware: then
            the markers use N and wait for that text), or nothing (older firmware, whose
            ``help`` takes no parameter: resyncs wait for quiet).
+
+        Parameters
+        ----------
+        timeout
+            Seconds each exchange may take.
+
+        Returns
+        -------
+        dict of str to str
+            What the driver found out (:attr:`detected`).
         """
         # The barrier lock keeps a keepalive's mode exchange from starting in between (one
         # exchange at a time: the session refuses a second).
@@ -911,7 +1326,13 @@ class TangoProtocol(asyncio.Protocol):
                         marker: str | None = None) -> Exchange:
         """Write ``lines`` with the core dropping every line; return what the session
         collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
-        Only call it when nothing is owed."""
+        Only call it when nothing is owed.
+
+        Returns
+        -------
+        Exchange
+            The lines collected.
+        """
         data = self.session.begin_exchange(lines, until, marker, now=self._loop.time())
         collected = self.session.exchange
         assert collected is not None
@@ -987,7 +1408,13 @@ class TangoProtocol(asyncio.Protocol):
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
         """Write the resync marker (see :meth:`resync`); return its tag and future. Lines
-        still queued are dropped, or with ``keep_queue`` written after the marker."""
+        still queued are dropped, or with ``keep_queue`` written after the marker.
+
+        Returns
+        -------
+        tuple
+            The marker's tag and the future its reply resolves.
+        """
         tag = self.scheduler.next_tag()
         marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
         if not keep_queue:
@@ -1001,7 +1428,13 @@ class TangoProtocol(asyncio.Protocol):
         return tag, marker
 
     def forget_completion(self, submission: Submission) -> None:
-        """Stop waiting for ``submission``'s completion (e.g. the move was refused)."""
+        """Stop waiting for ``submission``'s completion (e.g. the move was refused).
+
+        Parameters
+        ----------
+        submission
+            The move's submission.
+        """
         for tag, known in list(self._submissions.items()):
             if known is submission:
                 self.core.forget_completion(tag)
@@ -1012,7 +1445,13 @@ class TangoProtocol(asyncio.Protocol):
     # -- receiving ------------------------------------------------------------------------
 
     def data_received(self, data: bytes) -> None:
-        """Called by asyncio with bytes from the controller."""
+        """Called by asyncio with bytes from the controller.
+
+        Parameters
+        ----------
+        data
+            Bytes as they were read, any fragment of the stream.
+        """
         self._trace_received(data)
         if self.session.bytes_received(self._loop.time()) is Outcome.WAIT_QUIET:
             self._quiet_from_now()
@@ -1145,8 +1584,15 @@ class TangoProtocol(asyncio.Protocol):
 
     def fail_completions(self, error: BaseException,
                          only: Collection[Hashable] | None = None) -> None:
-        """Fail every move still waiting for its completion report (or those of ``only``,
-        a list of tags from ``core.awaiting_completion``)."""
+        """Fail every move still waiting for its completion report (or those of ``only``).
+
+        Parameters
+        ----------
+        error
+            The error their futures fail with.
+        only
+            Tags of the moves to fail (from :attr:`moves_awaiting`); ``None``: every move.
+        """
         if only is None:
             tags = self.core.drop_completions()
         else:
@@ -1170,6 +1616,11 @@ def _check_framing(command: Command) -> None:
     :func:`~tango_aio.instructions.parse` already rejects these; this guards
     :class:`Command` objects built by hand (defence in depth: CR would end the line early
     and smuggle in a second command, 0x03 would abort every axis).
+
+    Raises
+    ------
+    InvalidCommandError
+        The line holds a control or non-ASCII character.
     """
     line = command.line
     if not _well_framed(line):
@@ -1180,7 +1631,13 @@ def _check_framing(command: Command) -> None:
 
 def _well_framed(text: str) -> bool:
     """Whether ``text`` is printable ASCII: CR, LF and 0x03 are not printable, so one
-    test covers all three."""
+    test covers all three.
+
+    Returns
+    -------
+    bool
+        Whether it is.
+    """
     return text.isascii() and text.isprintable()
 
 
@@ -1196,8 +1653,8 @@ def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
 
 
-#: Bytes of one line a wire-log record shows at most (#14 item 9: one 1 MB line was one
-#: 1 MB record); the rest is counted, not shown.
+#: Bytes of one line a wire-log record shows at most, so that a long line (or one whose
+#: CR never comes) cannot make a record of any size; the rest is counted, not shown.
 TRACE_LINE = 256
 
 
@@ -1214,11 +1671,11 @@ async def _until_done(future: asyncio.Future[Any], timeout: float | None,
     passed, whichever comes first; cancelling the wait leaves ``future`` alone (it may
     have other waiters).
 
-    What ``asyncio.timeout`` around ``asyncio.shield`` did, with one helper future, one
-    callback and one timer instead of a shield's future and two callbacks and a timeout
-    context: the per-request path of every read (#19). The protocol wakes the helper
-    itself when it resolves the reply (:attr:`Submission.waiter`), in the same loop turn;
-    the callback covers every other way the reply ends (failed, cancelled)."""
+    The effect of ``asyncio.timeout`` around ``asyncio.shield``, with one helper future,
+    one callback and one timer instead of a shield's future and two callbacks and a
+    timeout context: this is the per-request path of every read. The protocol wakes the
+    helper itself when it resolves the reply (:attr:`Submission.waiter`), in the same
+    loop turn; the callback covers every other way the reply ends (failed, cancelled)."""
     loop = future.get_loop()
     waiter = loop.create_future()
 

@@ -1,4 +1,4 @@
-"""A controller that restarted behind a live link: noticed and recovered from (#32 item 5).
+"""A controller that restarted behind a live link: noticed and recovered from.
 
 A TANGO that loses its power, or is reset, behind an adapter that stays up (a USB adapter
 powered by the host, a serial-to-TCP adapter) leaves the link open. It comes back in

@@ -446,7 +446,7 @@ class LinkSession:
         The first after an exchange's write measures the link's round trip, which may
         lengthen the quiet interval; and a quiet deadline already armed starts again, since
         quiet means no byte, not no line (on a slow link a line takes longer than the
-        interval: #32 item 5).
+        interval).
 
         Parameters
         ----------
@@ -602,9 +602,9 @@ class LinkSession:
         number for step 0 (:meth:`numbered_marker_lines`), one that no recent step 0 of
         this process used: a connect abandoned within its step 0 (cancelled, timed out)
         leaves its replies on the link, and a step 0 with the same number would take them
-        for its own, then hand its own late replies to the next requests (#32 item 5:
-        ``not a version reply: '1'``). The core's codes cycle through more numbers than
-        ``recent`` holds.
+        for its own, then hand its own late replies to the next requests (a connect
+        then fails with ``not a version reply: '1'``). The core's codes cycle through
+        more numbers than ``recent`` holds.
 
         Parameters
         ----------

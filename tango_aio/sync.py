@@ -451,7 +451,7 @@ class Controller(_Wrapper[AsyncController]):
     other ``start_*`` methods return a :class:`concurrent.futures.Future` at once.
     """
 
-    # -- the blocking methods, one per async method (tests/test_sync.py checks that none
+    # -- the blocking methods, one per async method (tests/e2e/test_sync.py checks that none
     # -- is missing)
     setup = _Blocking(AsyncController.setup)
     wait_connected = _Blocking(AsyncController.wait_connected)
