@@ -545,15 +545,15 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     return result
 
 
-#: What a read line owes, by (line, mode, ack_reads), with the instruction and the
-#: expectation it was computed for (see :meth:`ProtocolCore._line_facts`).
-_LINE_FACTS: dict[tuple[str, int, AckReads | None], tuple[
-    Instruction, Expectation, tuple[bytes, tuple[_Item, ...], ReplyPattern | None,
-                                    ReplyPattern]]] = {}
-#: Distinct read lines kept at most (reads with many values are forgotten, not hoarded).
+#: What a read line owes: its bytes, the items owed, its echo's and its data's pattern.
+_Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern]
+#: Distinct read lines a core keeps at most (reads with many values are forgotten, not
+#: hoarded).
 _LINE_FACTS_MAX: Final = 1024
 #: Cached expectations by (instruction name, form, mode), with the instruction they were
-#: computed for (a hand-made Instruction of the same name does not share them).
+#: computed for (a hand-made Instruction of the same name does not share them). A memo of
+#: the pure function :func:`expectation`, whose result depends on its key alone, so every
+#: core may share it (what depends on a core's state is cached per core: _line_facts).
 _EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 
 
@@ -783,6 +783,10 @@ class ProtocolCore:
         #: ``move_ok``), oldest first; and ack lines held until it is known whose they
         #: are (:meth:`_resolve_held`).
         self._deferred: deque[Hashable] = deque()
+        #: What each read line owes, by (line, mode, ack_reads), with the instruction and
+        #: the expectation it was computed for (:meth:`_line_facts`); this core's own.
+        self._facts: dict[tuple[str, int, AckReads | None],
+                          tuple[Instruction, Expectation, _Facts]] = {}
         self._held: list[str] = []
         #: Echoes of mode-4 moves that come with their completion report (switch
         #: ``echo=completion``), oldest first.
@@ -928,7 +932,7 @@ class ProtocolCore:
         return ACK_PATTERN if expect.ack else None
 
     def _line_facts(self, command: Command, expect: Expectation, mode: int
-                     ) -> tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern]:
+                     ) -> _Facts:
         """What a line written in ``mode`` owes: its bytes, the items owed, its echo's
         and its data's pattern. Pure for a given line text, instruction, expectation, mode
         and :attr:`ack_reads` when the reply does not depend on the context: those of
@@ -944,7 +948,7 @@ class ProtocolCore:
         cacheable = command.is_read and entry.lines is None
         if cacheable:
             key = (command.line, mode, self.ack_reads)
-            hit = _LINE_FACTS.get(key)
+            hit = self._facts.get(key)
             if hit is not None and hit[0] is entry and hit[1] is expect:
                 return hit[2]
         items = _owed_items(command, expect, mode, self.ack_reads)
@@ -954,9 +958,9 @@ class ProtocolCore:
             else ACK_PATTERN
         facts = (command.to_bytes(), tuple(items), echo, pattern)
         if cacheable:
-            if len(_LINE_FACTS) >= _LINE_FACTS_MAX:
-                _LINE_FACTS.clear()
-            _LINE_FACTS[key] = (entry, expect, facts)
+            if len(self._facts) >= _LINE_FACTS_MAX:
+                self._facts.clear()
+            self._facts[key] = (entry, expect, facts)
         return facts
 
     def _register_follow_up(self, mode: int) -> bytes:

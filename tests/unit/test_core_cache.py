@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import tango_aio.core as core_module
 from tango_aio.core import AckReads, ProtocolCore, expectation, owed_pattern
 from tango_aio.instructions import parse
 
@@ -39,11 +38,11 @@ def test_cached_and_plain_paths_register_the_same(
         steps: list[tuple[str, int, AckReads | None, bool]]) -> None:
     cached, plain = ProtocolCore(marker_seed=0), ProtocolCore(marker_seed=0)
     with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(plain, "_facts", _NoCache())
         for tag, (text, mode, ack_reads, known) in enumerate(steps):
             command = parse(text)
             results = []
-            for core, store in ((cached, core_module._LINE_FACTS), (plain, _NoCache())):
-                patch.setattr(core_module, "_LINE_FACTS", store)
+            for core in (cached, plain):
                 core.autostatus, core.ack_reads = mode, ack_reads
                 hint = (mode, expectation(command, mode, core.context)) if known else None
                 results.append((core.send(command, tag, hint), _registered(core)))
@@ -52,10 +51,16 @@ def test_cached_and_plain_paths_register_the_same(
 
 def test_a_read_is_computed_once_per_mode() -> None:
     core = ProtocolCore()
-    core_module._LINE_FACTS.clear()
     for _ in range(3):
         core.send(parse("?pos"), object())
-    assert len([key for key in core_module._LINE_FACTS if key[0] == "?pos"]) == 1
+    assert len([key for key in core._facts if key[0] == "?pos"]) == 1
+
+
+def test_each_core_keeps_its_own_facts() -> None:
+    one, other = ProtocolCore(), ProtocolCore()
+    one.send(parse("?pos"), object())
+    assert any(key[0] == "?pos" for key in one._facts)
+    assert not other._facts
 
 
 @settings(max_examples=200, deadline=None)
