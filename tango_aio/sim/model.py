@@ -1027,21 +1027,6 @@ class ControllerModel:
         """
         self._boot(self.motion.now if now is None else now)
 
-    def form_is_set(self, command: Command) -> bool:
-        """Whether the command was sent with ``!`` (or an executing bare form).
-
-        Parameters
-        ----------
-        command
-            The command.
-
-        Returns
-        -------
-        bool
-            Whether it sets or executes.
-        """
-        return command.form is Form.SET or command.executes
-
 
 #: Reply shapes whose values are numbers (switch ``numbers`` applies to them).
 _NUMERIC = frozenset({Shape.FLOAT, Shape.AXES_FLOAT, Shape.NUMBERS})

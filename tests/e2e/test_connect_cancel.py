@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import time
 from typing import Any
 
 import pytest
@@ -84,29 +83,6 @@ async def test_serial_ports_are_opened_exclusively() -> None:
         with pytest.raises(PortBusyError, match="busy") as info:
             await connect(server.path)
         assert isinstance(info.value.__cause__, serial.SerialException)
-
-
-async def test_a_connect_cancelled_while_the_port_opens_closes_the_port(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    real = serial.serial_for_url
-    ports: list[Any] = []
-
-    def slow_open(*args: Any, **kwargs: Any) -> Any:
-        time.sleep(0.2)  # runs in the opening thread
-        ports.append(real(*args, **kwargs))
-        return ports[-1]
-
-    async with await serve_pty(make_model) as server:
-        monkeypatch.setattr(serial, "serial_for_url", slow_open)
-        task = asyncio.create_task(opened(server.path))
-        await asyncio.sleep(0.05)
-        task.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await task
-        await wait_until(lambda: bool(ports) and not ports[0].is_open)
-        monkeypatch.setattr(serial, "serial_for_url", real)
-        async with connect(server.path) as tango:  # the lock was released
-            assert tango.connected
 
 
 async def test_a_connect_cancelled_before_connection_made_closes_the_serial_port(

@@ -88,6 +88,9 @@ async def test_a_connect_cancelled_while_the_port_opens_has_closed_it_when_it_re
         with pytest.raises(asyncio.CancelledError):
             await task
         assert len(ports) == 1 and not ports[0].is_open  # closed before connect returned
+        monkeypatch.setattr(serial, "serial_for_url", real)
+        async with tango_aio.connect(server.path) as tango:  # the lock was released
+            assert tango.connected
 
 
 async def _cancel_and_reopen(path: str, ticks: int) -> None:
