@@ -101,6 +101,13 @@ async def test_a_unit_left_in_mode_4_connects_whatever_its_echo_order(
                                                               else wanted)
 
 
+# Slow tier (stock loop): how many of the six dropped replies the resync markers take
+# depends on the loop's timing, and under uvloop on a loaded machine the third read
+# sometimes comes back (the move is then rightly followed to its target), so the test
+# does not test what it says there. A larger drop leaves a long resync behind, after
+# which the very next call can still time out (found this session, open: see the
+# closing note of session 9).
+@pytest.mark.slow
 async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
         emulator: EmulatorFactory) -> None:
     # Autostatus 0 polls the state during the move; every poll's reply is lost, so the

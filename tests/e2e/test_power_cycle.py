@@ -88,7 +88,8 @@ async def test_the_driver_recovers_from_twenty_power_cycles(mode: int) -> None:
 async def test_a_raw_move_line_that_ran_is_never_reported_failed_without_saying_so(
         mode: int) -> None:
     """``command("!mor ...")`` right after a restart: it returns (the line was seen
-    accepted) or raises a MoveOutcomeUnknown error; either way the stage moved."""
+    accepted, and the stage moved) or raises a MoveOutcomeUnknown error (it may have
+    run; on the stock loop it always does, as the line arrives after the power-on)."""
     async with tango_aio.connect("sim://?baud=0", autostatus=mode,
                                  reply_timeout=0.5) as tango:
         fault = faults(tango)
@@ -96,8 +97,11 @@ async def test_a_raw_move_line_that_ran_is_never_reported_failed_without_saying_
         try:
             await tango.command("!mor 0.5")
         except TangoError as exc:
+            # Whether it ran or not (a line that arrives while the unit is still off is
+            # lost: under uvloop it may), a failure must not deny that it may have run.
             assert isinstance(exc, MoveOutcomeUnknown), exc
-        assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)  # it did run
+        else:  # returned: it was accepted, so it ran
+            assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)
 
 
 @pytest.mark.parametrize("mode", [2, 4])
