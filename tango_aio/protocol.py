@@ -1130,7 +1130,9 @@ class TangoProtocol(asyncio.Protocol):
         submission
             The submission whose reply is awaited (it owes one).
         timeout
-            Seconds from now the reply may take (``None``: no limit).
+            Seconds from now the reply may take (``None``: no limit); a line that was
+            still queued when the wait began and went out during it gets them once more,
+            from then.
 
         Returns
         -------
@@ -1146,8 +1148,16 @@ class TangoProtocol(asyncio.Protocol):
         """  # noqa: DOC501 - the bare TimeoutError is caught below and becomes the above
         reply = submission.reply
         assert reply is not None
+        queued = not submission.written
         try:
             if not reply.done():
+                await _until_done(reply, timeout, submission)
+            if not reply.done() and queued and submission.written:
+                # The line waited in the queue (behind a resync, for credit) and went out
+                # only during the wait: the controller has had less than ``timeout`` to
+                # answer it. Its reply gets the time once more, from now (at most twice
+                # ``timeout`` in all), instead of being declared lost moments after its
+                # write, which would resync the stream under the lines written with it.
                 await _until_done(reply, timeout, submission)
             if reply.done():
                 return reply.result()

@@ -11,10 +11,12 @@ import asyncio
 import logging
 import random
 from collections.abc import Awaitable, Callable
+from typing import Any
 
 import pytest
 from helpers import FakeLink
 
+import tango_aio.protocol as protocol_module
 from tango_aio.controller import Controller
 from tango_aio.core import AckReads, Completed, Dropped, Unsolicited
 from tango_aio.errors import (
@@ -391,6 +393,54 @@ async def test_timeout_holds_requests_queued_behind_until_resynced(
     await link.wait_written(b"?vel y\r")
     link.feed(b"12.250\r")
     assert (await behind).lines == ("12.250",)
+
+
+async def test_a_line_written_late_in_its_wait_gets_its_time_again(
+        fake_link: LinkFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A line held behind a resync goes out when the marker is answered; if its caller's
+    timeout then runs out before the controller could answer, the reply still gets the
+    time again from then, instead of the line being declared lost a moment after its
+    write (which started another resync and dropped the replies of lines written with
+    it). The first wait's expiry is simulated, so no clock decides the test."""
+    real = protocol_module._until_done
+    expire, again = asyncio.Event(), asyncio.Event()
+    waits: list[str] = []
+
+    async def until_done(future: asyncio.Future[object], timeout: float | None,
+                         submission: Submission) -> None:
+        line = submission.command.line
+        waits.append(line)
+        if line == "?vel y" and waits.count(line) == 2:
+            again.set()
+        if line == "?vel y" and waits.count(line) == 1:
+            done: asyncio.Future[Any] = asyncio.ensure_future(asyncio.shield(future))
+            expiry: asyncio.Future[Any] = asyncio.ensure_future(expire.wait())
+            await asyncio.wait({done, expiry}, return_when=asyncio.FIRST_COMPLETED)
+            for task in (done, expiry):
+                task.cancel()
+            return
+        await real(future, timeout, submission)
+
+    link = fake_link()
+    first = asyncio.create_task(link.protocol.request(parse("?vel x"), timeout=0.05))
+    with pytest.raises(ControllerTimeoutError):
+        await first
+    monkeypatch.setattr(protocol_module, "_until_done", until_done)
+    behind = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
+    await asyncio.sleep(0)
+    assert b"?vel y" not in link.transport.sent  # held behind the marker
+    link.answer_marker()
+    await link.wait_written(b"?vel y\r")
+    markers = len(link.marker_codes())
+    expire.set()  # the caller's time runs out just after the write
+    waiting_again = asyncio.ensure_future(again.wait())
+    async with asyncio.timeout(2.0):
+        await asyncio.wait({waiting_again, behind}, return_when=asyncio.FIRST_COMPLETED)
+    waiting_again.cancel()
+    link.feed(b"12.250\r")
+    assert (await behind).lines == ("12.250",)
+    assert len(link.marker_codes()) == markers  # no new resync
+    assert waits.count("?vel y") == 2
 
 
 async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFactory) -> None:
