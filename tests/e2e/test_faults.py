@@ -107,8 +107,13 @@ def _report_counts() -> Iterator[None]:
 
 async def open_emu(url: str, *, mode: int = 1, travel: float | None = None,
                    reply_timeout: float = 2.0) -> Emulated:
-    """Connect to a fresh emulator and give every (parameter, axis) a distinct value."""
-    tango = await connect(url, autostatus=mode, reply_timeout=reply_timeout)
+    """Connect to a fresh emulator and give every (parameter, axis) a distinct value.
+
+    ``reply_timeout`` holds from then on: connecting (several exchanges) keeps the default,
+    so that a short timeout meant for the faults does not fail the connect itself on a
+    loaded machine."""
+    tango = await connect(url, autostatus=mode)
+    tango.reply_timeout = tango.protocol.reply_timeout = reply_timeout
     emu = Emulated(tango)
     try:
         if travel is not None:
