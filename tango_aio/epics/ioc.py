@@ -1082,18 +1082,8 @@ class ControllerServer:
         The connected controller.
     prefix
         The PV prefix of its PVs.
-    poll
-        Seconds between position reads.
-    window
-        The longest wait of a merged move for puts to other axes, in seconds
-        (``merge="window"``: the wait every move pays).
-    merge
-        How puts to different axes become one ``!moa`` line: ``"turn"`` merges
-        the puts that arrive together (announced as they start, no fixed wait),
-        ``"window"`` makes every put wait ``window`` seconds for others
-        (:class:`~tango_aio.coalesce.MoveCoalescer`'s ``collect``).
-    autosave
-        The autosave file; ``None`` for none.
+    poll, window, merge, autosave
+        As for :func:`build_ioc`.
     group
         The controller PVs, if already served (a waiting controller's); ``None`` for new
         ones.
