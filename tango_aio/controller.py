@@ -100,6 +100,10 @@ AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
 #: saved parameters (``restore``/``reset``, power-on, L1296) and print in the ``dim``
 #: unit (L4555): every other ``!`` line empties the cache of :meth:`Controller.axis_limits`.
 _LIMIT_NEUTRAL = frozenset({"moa", "mor"})
+#: ``!`` lines after which the HDI is on again (until a ``!joy 0`` is accepted).
+_HDI_ON_AGAIN = frozenset({"joy", "reset", "restore"})
+#: ``!`` lines after which whether the inputs are idle is read again.
+_INPUT_CHANGES = _HDI_ON_AGAIN | {"snsm", "tvr"}
 #: Seconds :meth:`Controller.aclose` waits at most for the replies to the driver's own
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
@@ -667,12 +671,14 @@ class Controller:
         ``?pos`` prints (``go``, ``speed``, ``pos``, ``cal``, a list...), so no remembered
         position is a move_by's start any more until a move confirms it again."""
         self._executed += 1
-        self._start_known.clear()
-        if command.name not in _LIMIT_NEUTRAL:
+        if self._start_known:
+            self._start_known.clear()
+        name = command.name
+        if name not in _LIMIT_NEUTRAL:
             self._forget_limits()
-        if command.name in ("joy", "reset", "restore"):
-            self._hdi_off = False  # until a !joy 0 is accepted
-        if command.name in ("joy", "reset", "restore", "snsm", "tvr"):
+        if name in _INPUT_CHANGES:
+            if name in _HDI_ON_AGAIN:
+                self._hdi_off = False  # until a !joy 0 is accepted
             self._inputs_idle = None  # read again once the HDI is off
 
     def _forget_power_state(self) -> None:

@@ -150,6 +150,10 @@ _CASED_RE: Final = re.compile(
     re.IGNORECASE)
 
 
+#: The first characters of a line :func:`canonical_case` may change.
+_CASED_LEADS: Final = frozenset("oOeE ")
+
+
 def canonical_case(line: str) -> str:
     """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
     ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
@@ -165,7 +169,7 @@ def canonical_case(line: str) -> str:
     str
         The line, its ``OK``, ``ERR`` or ``ERROR`` in capitals.
     """
-    if line[:1] not in ("o", "O", "e", "E", " ") or line.startswith(("OK", "ERR")):
+    if line[:1] not in _CASED_LEADS or line.startswith(("OK", "ERR")):
         return line
     match = _CASED_RE.match(line)
     if match is None:
@@ -382,6 +386,13 @@ Event = (Replied | Acknowledged | Echoed | Completed | Unsolicited | Dropped | R
 
 
 class _Item(enum.Enum):
+    """An item of a reply owed by a line."""
+
+    # Hashed by identity, in C: Enum's own __hash__ is a Python function, and these
+    # members are dict keys and set members on the per-line path. Members are
+    # singletons compared by identity, so the two agree.
+    __hash__ = object.__hash__
+
     ECHO = "echo"
     DATA = "data"
     ACK = "ack"
@@ -872,7 +883,7 @@ class ProtocolCore:
             acked = _Item.ACK in template  # a ! line, or a read where reads are acked
             deferring = acked and self._deferring()
             pending = _Pending(tag, deque(template), echo, expect.rule, pattern,
-                               sent=data.decode("latin-1")[:-1] if command.is_read else "")
+                               sent=command.line if command.is_read else "")
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
@@ -880,7 +891,8 @@ class ProtocolCore:
             data += self._register_follow_up(mode)
         elif pending is not None and ((expect.ack and expect.completion is not None)
                                       or deferring
-                                      or _acks_itself(command, expect.mode_after)):
+                                      or (expect.mode_after == 2
+                                          and _acks_itself(command, 2))):
             # Mode 2 (switch move_ok, L2099-2103 do not say when a move's OK... comes):
             # a move's acknowledgement may come only with its completion report, after
             # the replies of the lines written behind it. An ``?err`` right behind the
@@ -1177,7 +1189,8 @@ class ProtocolCore:
             line = self._assembler.next_line()
             if line is None:
                 return None
-            self._route(canonical_case(line))
+            # (The test canonical_case starts with, made here: most lines are numbers.)
+            self._route(canonical_case(line) if line[:1] in _CASED_LEADS else line)
         return self._events.popleft()
 
     def events(self, data: bytes = b"") -> list[Event]:

@@ -57,6 +57,11 @@ _ACK_RE: Final = re.compile(r"(?:OK\.*|ERR(?:\s+-?\d+)?)$")
 class ReplyKind(enum.Enum):
     """The families of reply lines."""
 
+    # Hashed by identity, in C: Enum's own __hash__ is a Python function, and these
+    # members are dict keys and set members on the per-line path. Members are
+    # singletons compared by identity, so the two agree.
+    __hash__ = object.__hash__
+
     NUMBERS = "numbers"  #: ``low``..``high`` numbers separated by blanks or commas
     WORDS = "words"  #: ``low``..``high`` blank-separated words of any kind
     STATUS = "status"  #: status letters (``@@@-.-`` or one letter)

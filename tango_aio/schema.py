@@ -47,6 +47,11 @@ AXES: Final = ("x", "y", "z", "a")
 class Form(enum.Enum):
     """How an instruction is prefixed on the wire."""
 
+    # Hashed by identity, in C: Enum's own __hash__ is a Python function, and these
+    # members are dict keys and set members on the per-line path. Members are
+    # singletons compared by identity, so the two agree.
+    __hash__ = object.__hash__
+
     SET = "!"
     READ = "?"
     BARE = ""
@@ -80,6 +85,11 @@ class Kind(enum.Enum):
 
 class Shape(enum.Enum):
     """Shape of a reply, which selects the reply parser."""
+
+    # Hashed by identity, in C: Enum's own __hash__ is a Python function, and these
+    # members are dict keys and set members on the per-line path. Members are
+    # singletons compared by identity, so the two agree.
+    __hash__ = object.__hash__
 
     NONE = "none"  #: no reply
     INT = "int"  #: one integer
@@ -386,16 +396,16 @@ class Command:
     # scaling benchmark (benchmarks/scaling.py).
     _line: str | None = field(default=None, init=False, repr=False, compare=False)
     _bytes: bytes | None = field(default=None, init=False, repr=False, compare=False)
+    #: The instruction's canonical name.
+    name: str = field(init=False, repr=False, compare=False)
+    #: Whether this command reads (and so expects a data reply). Both are fields, set once
+    #: here, not properties: every layer asks for them several times per line.
+    is_read: bool = field(init=False, repr=False, compare=False)
 
-    @property
-    def name(self) -> str:
-        """The instruction's canonical name."""
-        return self.instruction.name
-
-    @property
-    def is_read(self) -> bool:
-        """Whether this command reads (and so expects a data reply)."""
-        return self.instruction.is_read(self.form)
+    def __post_init__(self) -> None:
+        instruction = self.instruction
+        object.__setattr__(self, "name", instruction.name)
+        object.__setattr__(self, "is_read", instruction.is_read(self.form))
 
     @property
     def executes(self) -> bool:

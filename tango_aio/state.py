@@ -28,6 +28,8 @@ __all__ = ["CACHED_SETTINGS", "DriverState"]
 
 #: The instructions whose settings the driver caches, in catalog (manual) order.
 CACHED_SETTINGS: Final = tuple(entry for entry in INSTRUCTIONS.values() if entry.cached)
+#: The cached settings :class:`~tango_aio.schema.Context` is made of (besides the axes).
+_CONTEXT_SETTINGS: Final = frozenset({"dim", "extmode"})
 
 
 @dataclass(slots=True)
@@ -46,7 +48,8 @@ class DriverState(MoveTiming):
 
     def observe(self, command: Command) -> bool:
         """Take in a set or executing ``command`` the controller accepted. Returns whether
-        it changed a cached setting (the context may then differ).
+        it changed a setting the validation context is made of (:attr:`context`: ``dim``
+        or ``extmode``), so that the caller builds the context again only then.
 
         Parameters
         ----------
@@ -56,18 +59,18 @@ class DriverState(MoveTiming):
         Returns
         -------
         bool
-            Whether a cached setting changed.
+            Whether a setting of the context changed.
         """
         entry = command.instruction
         if not entry.cached or not command.values or command.is_read:
             return False
         if not entry.per_axis:
             self._put(entry, command.values[0])
-            return True
-        # '!vel y 5' sets Y; '!vel 5 6' sets X and Y (values in X Y Z A order).
-        start = AXES.index(command.axis) if command.axis else 0
-        self._put_axes(entry, dict(zip(AXES[start:], command.values, strict=False)))
-        return True
+        else:
+            # '!vel y 5' sets Y; '!vel 5 6' sets X and Y (values in X Y Z A order).
+            start = AXES.index(command.axis) if command.axis else 0
+            self._put_axes(entry, dict(zip(AXES[start:], command.values, strict=False)))
+        return entry.name in _CONTEXT_SETTINGS
 
     def load(self, entry: Instruction, value: object) -> None:
         """Store the value of the cached setting ``entry`` read back from the controller:
