@@ -8,10 +8,12 @@ everything unsolicited to an event callback.
 Cancellation never desynchronises the stream: a cancelled request keeps its place in the
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
 different: its reply may be lost for good. Its caller gets
-:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout, and the protocol
-resynchronises in the background (see the core's theory of operation): requests still in
-flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still queued wait
-until the marker is answered. When resyncs overlap, the reply to the newest marker ends
+:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout (a line that went out
+only during the wait gets the time once more from then; one never written is withdrawn
+and counts nothing: :meth:`~tango_aio.session.LinkSession.reply_overdue`), and the
+protocol resynchronises in the background (see the core's theory of operation): requests
+still in flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still
+queued wait until the marker is answered. When resyncs overlap, the reply to the newest marker ends
 all of them. Lines that get no reply ``dead_after`` times in a row, with no line at all
 arriving in between (a link that stays open but no longer forwards), declare the link lost;
 a link that still delivers lines, even garbled ones, is slow or noisy, not dead.
