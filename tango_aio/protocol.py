@@ -79,15 +79,7 @@ from .errors import (
     parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import (
-    Command,
-    Context,
-    Form,
-    build,
-    check_framing,
-    check_rows_framing,
-    parse,
-)
+from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
 from .scheduler import Line, Run, WriteScheduler
 from .session import (

@@ -28,6 +28,7 @@ from tango_aio.errors import (
     OutOfRangeError,
     ProtocolError,
     RequestAbortedError,
+    UnknownControllerError,
 )
 from tango_aio.instructions import parse
 from tango_aio.protocol import Submission
@@ -718,6 +719,39 @@ async def test_a_mode_read_waits_for_quiet_where_a_line_can_trail_helps_reply(
     assert await asyncio.wait_for(read, 5.0) == mode
     if mode == 2:
         assert link.protocol.core.ack_reads is AckReads.AFTER
+
+
+async def test_a_mode_change_the_controller_did_not_make_fails_and_its_mode_is_adopted(
+        fake_link: LinkFactory) -> None:
+    """The session's verdict (``ModeVerdict.KEPT_ANOTHER``) carried out: the read behind
+    ``!autostatus 2`` found mode 1 still in force."""
+    link = fake_link()
+    change = asyncio.create_task(
+        link.protocol.execute(parse("!autostatus 2"), timeout=5.0))
+    await link.wait_written(b"?help\r")
+    assert link.transport.writes[-1] == b"!autostatus 2\r?autostatus\r?help\r"
+    link.feed(b"1\rERROR 0,no error\r")
+    with pytest.raises(UnknownControllerError):
+        await asyncio.wait_for(change, 5.0)
+    assert link.protocol.autostatus == 1
+    link.protocol.submit(parse("?err"))  # the next line goes out at once
+    assert link.transport.writes[-1] == b"?err\r"
+
+
+async def test_a_read_that_finds_another_mode_restores_the_drivers(
+        fake_link: LinkFactory) -> None:
+    """The session's verdict (``ModeVerdict.RESTARTED``) carried out: the driver's mode 0
+    is selected again and the owner told what was found."""
+    link = fake_link(autostatus=0)
+    restored: list[tuple[int, int]] = []
+    link.protocol.on_restored = lambda found, mode: restored.append((found, mode))
+    verify = asyncio.create_task(link.protocol.verify_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    link.feed(b"1\rERROR 0,no error\r")  # a restart: power-on mode 1 (L2062)
+    await link.wait_written(b"!autostatus 0\r?autostatus\r?help\r")
+    link.feed(b"0\rERROR 0,no error\r")
+    assert await asyncio.wait_for(verify, 5.0) is True
+    assert restored == [(1, 0)] and link.protocol.autostatus == 0
 
 
 # -- Detecting how ?help N answers (TangoProtocol.detect) --------------------------------
