@@ -444,6 +444,24 @@ async def test_a_line_written_late_in_its_wait_gets_its_time_again(
     assert waits.count("?vel y") == 2
 
 
+async def test_an_overdue_background_marker_is_written_again_until_answered(
+        fake_link: LinkFactory) -> None:
+    """The session's ``Silence.MARKER_AGAIN`` carried out: the background resync's marker
+    got no reply in time and the link lives on, so a new marker follows (the line held
+    behind them is not held for ever), and the newest one's reply ends the resync."""
+    link = fake_link(dead_after=10)
+    with pytest.raises(ControllerTimeoutError):
+        await link.protocol.request(parse("?vel x"), timeout=0.05)
+    behind = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
+    await link.wait_written(b"?help ", 2)
+    assert link.protocol.core.resyncing and b"?vel y" not in link.transport.sent
+    link.answer_marker()
+    await link.wait_written(b"?vel y\r")
+    link.feed(b"12.250\r")
+    assert (await behind).lines == ("12.250",)
+    assert link.protocol.is_connected
+
+
 async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFactory) -> None:
     link = fake_link()
     tasks = [asyncio.create_task(link.protocol.request(parse(line), timeout=0.05))
@@ -752,6 +770,26 @@ async def test_a_read_that_finds_another_mode_restores_the_drivers(
     link.feed(b"0\rERROR 0,no error\r")
     assert await asyncio.wait_for(verify, 5.0) is True
     assert restored == [(1, 0)] and link.protocol.autostatus == 0
+
+
+async def test_a_mode_change_waiting_for_the_lines_before_it_is_not_sent_after_ctrl_c(
+        fake_link: LinkFactory) -> None:
+    """The session's ``Barrier.ABORTED`` carried out: Ctrl+C discarded a line the change
+    was to follow, so the change is not written."""
+    link = fake_link()
+    link.protocol.submit(parse("?pos"))
+    queued = link.protocol.submit(parse("?pos"))  # a look-alike: held until the first
+    assert not queued.written
+    change = asyncio.create_task(link.protocol.execute(parse("!autostatus 2"), timeout=5.0))
+    for _ in range(20):
+        await asyncio.sleep(0)
+    assert not change.done()
+    resync = asyncio.create_task(link.protocol.resync(ctrl_c=True, timeout=5.0))
+    with pytest.raises(RequestAbortedError, match="mode change was not sent"):
+        await asyncio.wait_for(change, 5.0)
+    link.answer_marker()
+    await asyncio.wait_for(resync, 5.0)
+    assert b"autostatus" not in link.transport.sent
 
 
 # -- Detecting how ?help N answers (TangoProtocol.detect) --------------------------------
