@@ -78,7 +78,9 @@ __all__ = [
     "build",
     "build_axes",
     "build_rows",
+    "check_framing",
     "check_rows",
+    "check_rows_framing",
     "encode",
     "encode_rows",
     "format_number",
@@ -358,6 +360,57 @@ def _check_line_text(line: str) -> None:
         raise _fail("the command line contains non-ASCII characters", None, None, 4)
     if not line.isprintable():
         raise _fail("the command line contains control characters", None, None, 4)
+
+
+def check_framing(command: Command) -> None:
+    """Refuse a line that would frame more than one line, or Ctrl+C, on the wire.
+
+    :func:`parse` already rejects these; this guards :class:`Command` objects built by
+    hand (defence in depth: CR would end the line early and smuggle in a second command,
+    0x03 would abort every axis).
+
+    Parameters
+    ----------
+    command
+        The line about to be written.
+
+    Raises
+    ------
+    InvalidCommandError
+        The line holds a control or non-ASCII character.
+    """
+    line = command.line
+    # Printable ASCII: CR, LF and 0x03 are not printable, so one test covers all three.
+    if not (line.isascii() and line.isprintable()):
+        raise _fail(f"control or non-ASCII character inside the command line {line!r}",
+                    command.name)
+
+
+def check_rows_framing(template: Command, blob: bytes, count: int) -> None:
+    """Refuse list entries given as bytes (:func:`encode_rows`) unless they are ``count``
+    lines of printable ASCII, each ended by CR (the same defence as
+    :func:`check_framing`, on the whole blob).
+
+    Parameters
+    ----------
+    template
+        A line of the entries' instruction and form.
+    blob
+        The entries' bytes.
+    count
+        How many lines they are.
+
+    Raises
+    ------
+    InvalidCommandError
+        A line holds a control or non-ASCII character, or the blob is not ``count``
+        CR-ended lines.
+    """
+    text = blob.decode("latin-1")
+    lines = text.replace("\r", "")
+    if text.count("\r") != count or not text.endswith("\r") \
+            or not (lines.isascii() and lines.isprintable()):
+        raise _fail("control or non-ASCII character inside a list line", template.name)
 
 
 def _split_form(line: str) -> tuple[Form, Instruction, list[str]]:

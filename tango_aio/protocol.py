@@ -8,10 +8,12 @@ everything unsolicited to an event callback.
 Cancellation never desynchronises the stream: a cancelled request keeps its place in the
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
 different: its reply may be lost for good. Its caller gets
-:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout, and the protocol
-resynchronises in the background (see the core's theory of operation): requests still in
-flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still queued wait
-until the marker is answered. When resyncs overlap, the reply to the newest marker ends
+:class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout (a line that went out
+only during the wait gets the time once more from then; one never written is withdrawn
+and counts nothing: :meth:`~tango_aio.session.LinkSession.reply_overdue`), and the
+protocol resynchronises in the background (see the core's theory of operation): requests
+still in flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still
+queued wait until the marker is answered. When resyncs overlap, the reply to the newest marker ends
 all of them. Lines that get no reply ``dead_after`` times in a row, with no line at all
 arriving in between (a link that stays open but no longer forwards), declare the link lost;
 a link that still delivers lines, even garbled ones, is slow or noisy, not dead.
@@ -28,10 +30,12 @@ are confirmed by ``err`` markers the scheduler inserts itself; a marker reportin
 marks the lines it covers (:attr:`Submission.chunk_error`). A line is registered with the
 core when it is written, so a queued line can still be withdrawn.
 
-What the link decides about itself (resync and quiet resync, the mode exchange, the
-detection at connect, dead-link counting, the keepalive's schedule) is the sans-IO
-:class:`~tango_aio.session.LinkSession`'s; the protocol keeps the futures, the transport,
-the timers and the tracing, and carries out what the session and the scheduler decide.
+What the link decides about itself (resync and quiet resync, the mode exchange and the
+verdict on it, the detection at connect, what an overdue reply or marker calls for,
+dead-link counting, the keepalive's schedule) is the sans-IO
+:class:`~tango_aio.session.LinkSession`'s, and whether a line is well framed is
+:mod:`~tango_aio.instructions`'; the protocol keeps the futures, the transport, the timers
+and the tracing, and carries out what the session and the scheduler decide.
 
 Wire tracing: the ``tango_aio.wire`` logger at DEBUG logs every line written (``->``) and
 every line received (``<-``), CR removed, with a monotonic timestamp; a record shows at
@@ -66,7 +70,6 @@ from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
-    InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
     TangoError,
@@ -76,10 +79,20 @@ from .errors import (
     parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
-from .instructions import Command, Context, Form, build, parse
+from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
 from .scheduler import Line, Run, WriteScheduler
-from .session import DEAD_AFTER, Exchange, LinkSession, Outcome, Until
+from .session import (
+    DEAD_AFTER,
+    Barrier,
+    Exchange,
+    LinkSession,
+    ModeVerdict,
+    Outcome,
+    Overdue,
+    Silence,
+    Until,
+)
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -624,7 +637,8 @@ class TangoProtocol(asyncio.Protocol):
         UnknownControllerError
             The controller kept another mode.
         """
-        if (await self._mode_exchange([command.line], timeout))[1] != mode:
+        _, actual = await self._mode_exchange([command.line], timeout)
+        if self.session.mode_changed(mode, actual) is ModeVerdict.KEPT_ANOTHER:
             raise UnknownControllerError(None, command.line)
         return Response()
 
@@ -676,10 +690,11 @@ class TangoProtocol(asyncio.Protocol):
         hold = self.scheduler.hold()
         dropped = self._queue_drops
         try:
-            while self.core.pending_tags or self.core.resyncing or \
-                    self.scheduler.queued_up_to(hold):
+            while (barrier := self.session.barrier(
+                    queued_before=self.scheduler.queued_up_to(hold),
+                    queue_dropped=self._queue_drops != dropped)) is not Barrier.CLEAR:
                 self.check()
-                if self._queue_drops != dropped:  # Ctrl+C discarded what was queued
+                if barrier is Barrier.ABORTED:
                     raise RequestAbortedError(
                         "the mode change was not sent: the stream was resynchronised")
                 await asyncio.sleep(0.002)
@@ -824,7 +839,7 @@ class TangoProtocol(asyncio.Protocol):
             Whether the mode had to be restored.
         """
         expected, actual = await self._mode_exchange([], timeout)
-        if actual == expected:
+        if self.session.mode_verified(expected, actual) is ModeVerdict.IN_FORCE:
             return False
         log.warning("the controller is in autostatus %d, the driver had %d in force: it "
                     "restarted; restoring autostatus %d", actual, expected, expected)
@@ -893,7 +908,7 @@ class TangoProtocol(asyncio.Protocol):
             The line holds a control or non-ASCII character.
         """
         self.check()
-        _check_framing(command)
+        check_framing(command)
         tag, mode, expect = self.scheduler.plan(command)
         loop = self._loop
         submission = Submission(
@@ -1004,7 +1019,7 @@ class TangoProtocol(asyncio.Protocol):
             A line holds a control or non-ASCII character.
         """
         for command in commands:
-            _check_framing(command)
+            check_framing(command)
         return self.scheduler.pack(commands, batch)
 
     def pack_lines(self, template: Command, lines: Sequence[bytes], *,
@@ -1033,14 +1048,10 @@ class TangoProtocol(asyncio.Protocol):
             A line holds a control or non-ASCII character, or the blob is not one line
             per entry.
         """
-        _check_framing(template)
+        check_framing(template)
         run = self.scheduler.pack_lines(template, lines, batch)
         if run is not None:
-            text = run.blob.decode("latin-1")
-            if text.count("\r") != len(run) or not text.endswith("\r") \
-                    or not _well_framed(text.replace("\r", "")):
-                raise InvalidCommandError("control or non-ASCII character inside a list "
-                                          "line", instruction=template.name, number=4)
+            check_rows_framing(template, run.blob, len(run))
         return run
 
     def submit_run(self, run: Run) -> Run:
@@ -1145,63 +1156,84 @@ class TangoProtocol(asyncio.Protocol):
             No reply within ``timeout`` seconds.
         ConnectionLostError
             The link is gone, or this timeout declared it dead.
-        """  # noqa: DOC501 - the bare TimeoutError is caught below and becomes the above
+        """
         reply = submission.reply
         assert reply is not None
         queued = not submission.written
-        try:
+        if not reply.done():
+            await _until_done(reply, timeout, submission)
             if not reply.done():
-                await _until_done(reply, timeout, submission)
-            if not reply.done() and queued and submission.written:
-                # The line waited in the queue (behind a resync, for credit) and went out
-                # only during the wait: the controller has had less than ``timeout`` to
-                # answer it. Its reply gets the time once more, from now (at most twice
-                # ``timeout`` in all), instead of being declared lost moments after its
-                # write, which would resync the stream under the lines written with it.
-                await _until_done(reply, timeout, submission)
+                return await self._reply_overdue(submission, reply, queued, timeout)
+        return reply.result()
+
+    async def _reply_overdue(self, submission: Submission, reply: asyncio.Future[Response],
+                             queued: bool, timeout: float | None) -> Response:
+        """``submission``'s reply did not come within ``timeout``: do what the session
+        says (:meth:`~tango_aio.session.LinkSession.reply_overdue`), waiting once more if
+        it says so.
+
+        Returns
+        -------
+        Response
+            The reply, when it came during a second wait.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            No reply in time.
+        ConnectionLostError
+            The link is gone, or this timeout declared it dead.
+        """
+        waits = 1
+        while (overdue := self.session.reply_overdue(
+                queued=queued, written=submission.written, waits=waits)) \
+                is Overdue.WAIT_AGAIN:
+            await _until_done(reply, timeout, submission)
             if reply.done():
                 return reply.result()
-            raise TimeoutError
-        except TimeoutError:
+            waits += 1
+        self.check()
+        error = ControllerTimeoutError(
+            f"no reply to {submission.command.line!r} within {timeout} s")
+        if overdue is Overdue.WITHDRAW:
+            self.withdraw([submission])
+            raise error
+        if self._unanswered(error, submission.serial) is Silence.DEAD:
             self.check()
-            if reply.done() and not reply.cancelled() and reply.exception() is None:
-                return reply.result()  # answered at the very deadline
-            error = ControllerTimeoutError(
-                f"no reply to {submission.command.line!r} within {timeout} s")
-            if not submission.written:
-                # Held behind a resync that has not ended: never sent, nothing to count
-                # (the resync marker has its own deadline).
-                self.withdraw([submission])
-                raise error from None
-            if self._unanswered(error, submission.serial):
-                self.check()
-            self._background_resync(timeout if timeout is not None else self.reply_timeout)
-            raise error from None
+        self._background_resync(timeout if timeout is not None else self.reply_timeout)
+        raise error
 
-    def _unanswered(self, error: TangoError, serial: int) -> bool:
+    def _unanswered(self, error: TangoError, serial: int, marker: Hashable | None = None
+                    ) -> Silence:
         """Count a request (or marker) that got no reply in time; declare the link lost
         after :attr:`dead_after` in a row with no line at all in between (a link that stays
         open but no longer forwards: a serial-to-TCP adapter that stopped, a controller
         power-cycled behind one). ``serial`` numbers the line among those written: lines
         that were in flight together count once (they time out together when one reply is
-        lost), so each count is a line written after the previous count.
+        lost), so each count is a line written after the previous count. ``marker``: the
+        tag of an overdue resync marker (the session may ask for a new one).
 
         Returns
         -------
-        bool
-            Whether the link was declared lost.
+        Silence
+            What the session concluded (:attr:`~tango_aio.session.Silence.DEAD`: the link
+            was declared lost).
         """
         if self.on_unanswered is not None and self._lost is None:
             self.on_unanswered()
-        if not self.session.unanswered(serial, self.scheduler.written_lines):
-            return False
+        written = self.scheduler.written_lines
+        silence = self.session.unanswered(serial, written) if marker is None else \
+            self.session.marker_overdue(serial, written,
+                                        newest=self._newest_marker() == marker)
+        if silence is not Silence.DEAD:
+            return silence
         cause = ConnectionAbortedError(f"{self.session.silent} requests in a row got no "
                                        f"reply: the link is dead ({error})")
         log.warning("%s", cause)
         self._fail_all(cause)
         if self._transport is not None and not self._transport.is_closing():
             self._transport.close()
-        return True
+        return silence
 
     def _background_resync(self, timeout: float) -> None:
         """Resync without anybody awaiting it: lines still queued wait for its end; if its
@@ -1220,8 +1252,7 @@ class TangoProtocol(asyncio.Protocol):
             return
         error = ControllerTimeoutError(
             f"controller did not answer the resync marker within {timeout} s")
-        if not self._unanswered(error, serial) and self.session.resync_again(
-                newest=self._newest_marker() == tag):
+        if self._unanswered(error, serial, tag) is Silence.MARKER_AGAIN:
             self._background_resync(timeout)
 
     def _newest_marker(self) -> Hashable | None:
@@ -1263,7 +1294,7 @@ class TangoProtocol(asyncio.Protocol):
             error = ControllerTimeoutError(
                 f"controller did not answer within {timeout} s the query sent to realign "
                 f"its replies (resync marker)")
-            if self._unanswered(error, serial):
+            if self._unanswered(error, serial) is Silence.DEAD:
                 self.check()
             raise error from None
         finally:
@@ -1358,7 +1389,7 @@ class TangoProtocol(asyncio.Protocol):
                 error = ControllerTimeoutError(f"no reply to {lines!r} within {timeout} s")
                 self._collected = None
                 self.session.exchange_timed_out()
-                if self._unanswered(error, serial):
+                if self._unanswered(error, serial) is Silence.DEAD:
                     self.check()
                 self._background_resync(timeout if timeout is not None
                                         else self.reply_timeout)
@@ -1369,10 +1400,10 @@ class TangoProtocol(asyncio.Protocol):
             self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
-            if self.session.end_exchange(in_step=in_step):
-                # Cancelled: its replies may still come.
+            ended = self.session.end_exchange(in_step=in_step)
+            if ended is Outcome.RESYNC:
                 self._background_resync(self.reply_timeout)
-            elif in_step:
+            elif ended is Outcome.IN_STEP:
                 self.scheduler.in_step()
             self._flush()
         return collected
@@ -1618,37 +1649,6 @@ class TangoProtocol(asyncio.Protocol):
 _PROBE = parse("?err")
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
-
-
-def _check_framing(command: Command) -> None:
-    """Refuse a line that would frame more than one line, or Ctrl+C, on the wire.
-
-    :func:`~tango_aio.instructions.parse` already rejects these; this guards
-    :class:`Command` objects built by hand (defence in depth: CR would end the line early
-    and smuggle in a second command, 0x03 would abort every axis).
-
-    Raises
-    ------
-    InvalidCommandError
-        The line holds a control or non-ASCII character.
-    """
-    line = command.line
-    if not _well_framed(line):
-        raise InvalidCommandError(
-            f"control or non-ASCII character inside the command line {line!r}",
-            instruction=command.name, number=4)
-
-
-def _well_framed(text: str) -> bool:
-    """Whether ``text`` is printable ASCII: CR, LF and 0x03 are not printable, so one
-    test covers all three.
-
-    Returns
-    -------
-    bool
-        Whether it is.
-    """
-    return text.isascii() and text.isprintable()
 
 
 def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:

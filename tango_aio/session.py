@@ -4,8 +4,8 @@
 in the way h11's ``Connection`` is of an HTTP client: the protocol feeds it what happened
 (a line dropped by the core, a marker's reply, a deadline reached, a line unanswered, the
 link closed), with the time where time matters (``now``, the event loop's clock), and does
-what it answers (write these bytes, arm this deadline, wake the exchange, the stream is in
-step, the link is dead). It owns:
+what it answers, an enum for each kind of answer (write these bytes, arm this deadline,
+wake the exchange, the stream is in step, wait once more, the link is dead). It owns:
 
 * **resync and quiet resync**: a resync writes the marker ``?help N`` and the core drops
   every line up to its unique reply; on firmware without ``?help N``
@@ -16,8 +16,15 @@ step, the link is dead). It owns:
   back collected up to what ends them (:class:`Until`): the mode exchange
   (:meth:`LinkSession.mode_lines`, :meth:`LinkSession.mode_read`) and the detection at
   connect (:meth:`LinkSession.numbered_marker_lines`, :meth:`LinkSession.help_read`);
-* **liveness**: dead-link counting (:meth:`LinkSession.unanswered`) and the keepalive's
-  schedule (:meth:`LinkSession.keepalive_wait`);
+* **the mode**: when a mode change may go (:meth:`LinkSession.barrier`), and the verdict
+  on what its exchange read back: the change failed (:meth:`LinkSession.mode_changed`),
+  or the controller restarted and the driver's mode is restored
+  (:meth:`LinkSession.mode_verified`), as :class:`ModeVerdict`;
+* **liveness**: what an overdue reply calls for (wait once more, withdraw the line, or
+  count it: :meth:`LinkSession.reply_overdue`, :class:`Overdue`), dead-link counting and
+  a new marker for an overdue one (:meth:`LinkSession.unanswered`,
+  :meth:`LinkSession.marker_overdue`, :class:`Silence`), and the keepalive's schedule
+  (:meth:`LinkSession.keepalive_wait`);
 * **link timing**: the quiet interval grows with the link's byte time
   (:meth:`LinkSession.baud_known`) and the round trips of its exchanges, measured from the
   times the adapter passes in (:meth:`LinkSession.bytes_received`); quiet means no byte,
@@ -45,9 +52,9 @@ from .instructions import encode
 from .linktiming import MIN_QUIET, LinkTiming
 from .patterns import ACK_PATTERN, normal_line
 
-__all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "TRANSITIONS", "Exchange", "LinkEvent",
-           "LinkSession", "LinkState", "Outcome", "SessionStateError", "Until",
-           "nothing_trails_help"]
+__all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "REPLY_WAITS", "TRANSITIONS", "Barrier",
+           "Exchange", "LinkEvent", "LinkSession", "LinkState", "ModeVerdict", "Outcome",
+           "Overdue", "SessionStateError", "Silence", "Until", "nothing_trails_help"]
 
 #: Consecutive unanswered requests after which a link that stays open is declared lost.
 #: Two: a request's own timeout, then the resync marker written after it.
@@ -125,12 +132,65 @@ class SessionStateError(RuntimeError):
 
 
 class Outcome(enum.Enum):
-    """What the adapter does after a line was dropped or a quiet deadline passed."""
+    """What the adapter does after a line was dropped, a quiet deadline passed or an
+    exchange ended."""
 
     NONE = "none"  #: nothing
     WAIT_QUIET = "wait quiet"  #: (re)arm the quiet deadline (:attr:`LinkSession.quiet_deadline`)
     COLLECTED = "collected"  #: the exchange has what it waits for: wake it
-    IN_STEP = "in step"  #: a quiet resync ended: release the lines it held
+    IN_STEP = "in step"  #: a quiet resync (or an exchange) ended: release the lines it held
+    #: An exchange ended without what it waited for: its replies may still come, resync.
+    RESYNC = "resync"
+
+
+class ModeVerdict(enum.Enum):
+    """What a mode exchange's reading means (:meth:`LinkSession.mode_changed`,
+    :meth:`LinkSession.mode_verified`)."""
+
+    IN_FORCE = "in force"  #: the mode asked for (or the driver's) is in force
+    #: A mode change left the controller in another mode (adopted): the change failed.
+    KEPT_ANOTHER = "kept another"
+    #: A read found another mode than the driver's: the controller restarted (power-on
+    #: mode 1, L2062); the driver's mode is selected again.
+    RESTARTED = "restarted"
+
+
+class Overdue(enum.Enum):
+    """What the adapter does with a line whose reply did not come in time
+    (:meth:`LinkSession.reply_overdue`)."""
+
+    #: It went out during the wait (queued when the wait began): its reply gets the time
+    #: once more, from now.
+    WAIT_AGAIN = "wait again"
+    WITHDRAW = "withdraw"  #: never written: take it back out of the queue, count nothing
+    #: Written and unanswered: count it (:meth:`LinkSession.unanswered`), then resync in the
+    #: background (its reply may be lost for good).
+    UNANSWERED = "unanswered"
+
+
+class Silence(enum.Enum):
+    """What a line (or marker) left unanswered means for the link
+    (:meth:`LinkSession.unanswered`, :meth:`LinkSession.marker_overdue`)."""
+
+    ALIVE = "alive"  #: counted (or counted already, with the lines in flight with it)
+    DEAD = "dead"  #: the link is now declared dead
+    #: An overdue marker of the newest resync, the stream not in step yet: write a new
+    #: one, so the lines held behind it are not held for ever.
+    MARKER_AGAIN = "marker again"
+
+
+class Barrier(enum.Enum):
+    """Where a barrier (a mode change) stands (:meth:`LinkSession.barrier`)."""
+
+    WAIT = "wait"  #: lines before it are still unwritten or unanswered, or a resync runs
+    CLEAR = "clear"  #: every line before it is written and answered: go
+    #: Ctrl+C discarded the queued lines: the barrier's line is not sent.
+    ABORTED = "aborted"
+
+
+#: Times a line's reply gets its timeout at most: once, and once more from its write when
+#: it was still queued as the wait began (:meth:`LinkSession.reply_overdue`).
+REPLY_WAITS: Final = 2
 
 
 class Until(enum.Enum):
@@ -306,22 +366,31 @@ class LinkSession:
         """
         return self.detect_at_connect and not self.detected and not ctrl_c
 
-    def resync_again(self, *, newest: bool) -> bool:
-        """A resync's marker went unanswered in time (and the link is not dead): whether
-        to write a new one, so lines held behind it are not held for ever: when it was
-        the newest resync and the stream is not in step yet.
+    def marker_overdue(self, serial: int, written: int, *, newest: bool) -> Silence:
+        """A resync's marker got no reply in time: count it unanswered (:meth:`unanswered`);
+        if the link lives on, a new marker follows when the overdue one was the newest
+        resync's and the stream is not in step yet, so lines held behind it are not held
+        for ever.
 
         Parameters
         ----------
+        serial
+            The serial of the marker's line (the scheduler's count of lines written).
+        written
+            The lines written so far.
         newest
             Whether the overdue marker is the newest resync's.
 
         Returns
         -------
-        bool
-            Whether to write a new marker.
+        Silence
+            :attr:`Silence.DEAD`, :attr:`Silence.MARKER_AGAIN` (write a new marker) or
+            :attr:`Silence.ALIVE` (nothing more to do).
         """
-        return newest and self.core.resyncing
+        silence = self.unanswered(serial, written)
+        if silence is Silence.ALIVE and newest and self.core.resyncing:
+            return Silence.MARKER_AGAIN
+        return silence
 
     def replied(self, tag: Hashable) -> bool:
         """A :class:`~tango_aio.core.Replied` event for ``tag``: whether it is the reply
@@ -510,10 +579,9 @@ class LinkSession:
         self.core.end_resync()
         self._go(LinkEvent.EXCHANGE_ENDED)
 
-    def end_exchange(self, *, in_step: bool) -> bool:
+    def end_exchange(self, *, in_step: bool) -> Outcome:
         """The exchange is over (``in_step``: it got what it waited for; else it was
-        cancelled or timed out). Returns whether a resync must follow (its replies may
-        still come).
+        cancelled or timed out).
 
         Parameters
         ----------
@@ -522,17 +590,20 @@ class LinkSession:
 
         Returns
         -------
-        bool
-            Whether a resync must follow.
+        Outcome
+            :attr:`Outcome.IN_STEP` (it got what it waited for: release the lines held),
+            :attr:`Outcome.RESYNC` (cancelled: its replies may still come) or
+            :attr:`Outcome.NONE` (timed out, ended by :meth:`exchange_timed_out`, or
+            overtaken by a marker resync that is still under way).
         """
         self.exchange = None
         self.quiet_deadline = None
         self._sent_at = None
         if not in_step and not self.core.quiet:
-            return False
+            return Outcome.NONE
         self.core.end_resync()
         self._go(LinkEvent.EXCHANGE_ENDED)
-        return not in_step
+        return Outcome.IN_STEP if in_step else Outcome.RESYNC
 
     # -- the mode -----------------------------------------------------------------------
 
@@ -594,6 +665,70 @@ class LinkSession:
             self.core.ack_reads = acks
             self.detected["ack_reads"] = acks.value
         return actual
+
+    def barrier(self, *, queued_before: bool, queue_dropped: bool) -> Barrier:
+        """Where a barrier (a mode change, written once every line before it is answered)
+        stands: lines before it still owed (by the core) or queued (``queued_before``), or
+        a resync under way, hold it; Ctrl+C discarding the queue meanwhile
+        (``queue_dropped``) aborts it, since a line it was meant to follow is gone.
+
+        Parameters
+        ----------
+        queued_before
+            Whether lines submitted before the barrier are still queued.
+        queue_dropped
+            Whether the write queue was dropped since the barrier began to wait.
+
+        Returns
+        -------
+        Barrier
+            :attr:`Barrier.CLEAR`, :attr:`Barrier.ABORTED` or :attr:`Barrier.WAIT`.
+        """
+        if not (self.core.pending_tags or self.core.resyncing or queued_before):
+            return Barrier.CLEAR
+        return Barrier.ABORTED if queue_dropped else Barrier.WAIT
+
+    @staticmethod
+    def mode_changed(asked: int, actual: int) -> ModeVerdict:
+        """The verdict on a mode change (``!autostatus asked``) from the mode its exchange
+        read back (:meth:`mode_read`, which adopted it).
+
+        Parameters
+        ----------
+        asked
+            The mode the change selects.
+        actual
+            The mode in force after it.
+
+        Returns
+        -------
+        ModeVerdict
+            :attr:`ModeVerdict.IN_FORCE`, or :attr:`ModeVerdict.KEPT_ANOTHER` (the change
+            failed: the controller kept another mode, now the driver's).
+        """
+        return ModeVerdict.IN_FORCE if actual == asked else ModeVerdict.KEPT_ANOTHER
+
+    @staticmethod
+    def mode_verified(driver: int, actual: int) -> ModeVerdict:
+        """The verdict on a read of the mode in force (:meth:`mode_read`) against the mode
+        the driver had in force once every line before was answered: another mode means
+        the controller restarted behind the link (power-on mode 1, L2062), and the driver's
+        mode (``driver``) is selected again before any later line.
+
+        Parameters
+        ----------
+        driver
+            The driver's mode before the read.
+        actual
+            The mode the read found.
+
+        Returns
+        -------
+        ModeVerdict
+            :attr:`ModeVerdict.IN_FORCE`, or :attr:`ModeVerdict.RESTARTED` (restore
+            ``driver``).
+        """
+        return ModeVerdict.IN_FORCE if actual == driver else ModeVerdict.RESTARTED
 
     # -- detection ----------------------------------------------------------------------
 
@@ -737,7 +872,38 @@ class LinkSession:
         """
         self.last_reply = now
 
-    def unanswered(self, serial: int, written: int) -> bool:
+    def reply_overdue(self, *, queued: bool, written: bool, waits: int) -> Overdue:
+        """A request's reply did not come within its timeout: wait once more, withdraw it,
+        or count it unanswered. A line still queued when the wait began (behind a resync,
+        for credit) and written during it has had less than the timeout to be answered:
+        its reply gets the time once more from then (at most :data:`REPLY_WAITS` timeouts
+        in all), instead of being declared lost moments after its write, which would
+        resync the stream under the lines written with it. A line never written was held
+        behind a resync that has not ended: nothing went out, nothing is counted (the
+        resync's marker has its own deadline).
+
+        Parameters
+        ----------
+        queued
+            Whether the line was still queued when the wait began.
+        written
+            Whether it is written now.
+        waits
+            How many timeouts its reply has had.
+
+        Returns
+        -------
+        Overdue
+            :attr:`Overdue.WAIT_AGAIN`, :attr:`Overdue.WITHDRAW` or
+            :attr:`Overdue.UNANSWERED`.
+        """
+        if not written:
+            return Overdue.WITHDRAW
+        if queued and waits < REPLY_WAITS:
+            return Overdue.WAIT_AGAIN
+        return Overdue.UNANSWERED
+
+    def unanswered(self, serial: int, written: int) -> Silence:
         """Count a request (or marker) that got no reply in time; returns whether the link
         is now declared dead (:attr:`dead_after` in a row with no line at all in between:
         a link that stays open but no longer forwards, such as a serial-to-TCP adapter
@@ -755,17 +921,18 @@ class LinkSession:
 
         Returns
         -------
-        bool
-            Whether the link is now declared dead.
+        Silence
+            :attr:`Silence.DEAD` when the link is now declared dead, else
+            :attr:`Silence.ALIVE`.
         """
         if serial <= self._counted_upto:
-            return False
+            return Silence.ALIVE
         self._counted_upto = written
         self.silent += 1
         if self.silent < self.dead_after or self.lost:
-            return False
+            return Silence.ALIVE
         self._go(LinkEvent.DEAD)
-        return True
+        return Silence.DEAD
 
     def closed(self) -> None:
         """The link is gone (closed, lost or declared dead)."""

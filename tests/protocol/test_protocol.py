@@ -28,6 +28,7 @@ from tango_aio.errors import (
     OutOfRangeError,
     ProtocolError,
     RequestAbortedError,
+    UnknownControllerError,
 )
 from tango_aio.instructions import parse
 from tango_aio.protocol import Submission
@@ -443,6 +444,24 @@ async def test_a_line_written_late_in_its_wait_gets_its_time_again(
     assert waits.count("?vel y") == 2
 
 
+async def test_an_overdue_background_marker_is_written_again_until_answered(
+        fake_link: LinkFactory) -> None:
+    """The session's ``Silence.MARKER_AGAIN`` carried out: the background resync's marker
+    got no reply in time and the link lives on, so a new marker follows (the line held
+    behind them is not held for ever), and the newest one's reply ends the resync."""
+    link = fake_link(dead_after=10)
+    with pytest.raises(ControllerTimeoutError):
+        await link.protocol.request(parse("?vel x"), timeout=0.05)
+    behind = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
+    await link.wait_written(b"?help ", 2)
+    assert link.protocol.core.resyncing and b"?vel y" not in link.transport.sent
+    link.answer_marker()
+    await link.wait_written(b"?vel y\r")
+    link.feed(b"12.250\r")
+    assert (await behind).lines == ("12.250",)
+    assert link.protocol.is_connected
+
+
 async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFactory) -> None:
     link = fake_link()
     tasks = [asyncio.create_task(link.protocol.request(parse(line), timeout=0.05))
@@ -718,6 +737,59 @@ async def test_a_mode_read_waits_for_quiet_where_a_line_can_trail_helps_reply(
     assert await asyncio.wait_for(read, 5.0) == mode
     if mode == 2:
         assert link.protocol.core.ack_reads is AckReads.AFTER
+
+
+async def test_a_mode_change_the_controller_did_not_make_fails_and_its_mode_is_adopted(
+        fake_link: LinkFactory) -> None:
+    """The session's verdict (``ModeVerdict.KEPT_ANOTHER``) carried out: the read behind
+    ``!autostatus 2`` found mode 1 still in force."""
+    link = fake_link()
+    change = asyncio.create_task(
+        link.protocol.execute(parse("!autostatus 2"), timeout=5.0))
+    await link.wait_written(b"?help\r")
+    assert link.transport.writes[-1] == b"!autostatus 2\r?autostatus\r?help\r"
+    link.feed(b"1\rERROR 0,no error\r")
+    with pytest.raises(UnknownControllerError):
+        await asyncio.wait_for(change, 5.0)
+    assert link.protocol.autostatus == 1
+    link.protocol.submit(parse("?err"))  # the next line goes out at once
+    assert link.transport.writes[-1] == b"?err\r"
+
+
+async def test_a_read_that_finds_another_mode_restores_the_drivers(
+        fake_link: LinkFactory) -> None:
+    """The session's verdict (``ModeVerdict.RESTARTED``) carried out: the driver's mode 0
+    is selected again and the owner told what was found."""
+    link = fake_link(autostatus=0)
+    restored: list[tuple[int, int]] = []
+    link.protocol.on_restored = lambda found, mode: restored.append((found, mode))
+    verify = asyncio.create_task(link.protocol.verify_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    link.feed(b"1\rERROR 0,no error\r")  # a restart: power-on mode 1 (L2062)
+    await link.wait_written(b"!autostatus 0\r?autostatus\r?help\r")
+    link.feed(b"0\rERROR 0,no error\r")
+    assert await asyncio.wait_for(verify, 5.0) is True
+    assert restored == [(1, 0)] and link.protocol.autostatus == 0
+
+
+async def test_a_mode_change_waiting_for_the_lines_before_it_is_not_sent_after_ctrl_c(
+        fake_link: LinkFactory) -> None:
+    """The session's ``Barrier.ABORTED`` carried out: Ctrl+C discarded a line the change
+    was to follow, so the change is not written."""
+    link = fake_link()
+    link.protocol.submit(parse("?pos"))
+    queued = link.protocol.submit(parse("?pos"))  # a look-alike: held until the first
+    assert not queued.written
+    change = asyncio.create_task(link.protocol.execute(parse("!autostatus 2"), timeout=5.0))
+    for _ in range(20):
+        await asyncio.sleep(0)
+    assert not change.done()
+    resync = asyncio.create_task(link.protocol.resync(ctrl_c=True, timeout=5.0))
+    with pytest.raises(RequestAbortedError, match="mode change was not sent"):
+        await asyncio.wait_for(change, 5.0)
+    link.answer_marker()
+    await asyncio.wait_for(resync, 5.0)
+    assert b"autostatus" not in link.transport.sent
 
 
 # -- Detecting how ?help N answers (TangoProtocol.detect) --------------------------------

@@ -7,6 +7,7 @@ documented reply must parse, except the explicit lists of known-bad examples bel
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -39,6 +40,8 @@ from tango_aio.instructions import (
     Signature,
     VersionInfo,
     build,
+    check_framing,
+    check_rows_framing,
     encode,
     format_number,
     lookup,
@@ -736,6 +739,35 @@ def test_control_characters_in_build_values() -> None:
         build("anain", "c\r!moa 10", 1, form="?")
     with pytest.raises(InvalidCommandError):
         build("vel", x="1\r")
+
+
+@pytest.mark.parametrize("token", ["10\r!moa x 5", "10\x03", "10\n", "1\u0660", "10\x00"])
+def test_a_command_built_by_hand_with_framing_characters_is_refused(token: str) -> None:
+    # parse and build refuse these; a Command made without them is checked before writing.
+    good = parse("!vel x 10")
+    check_framing(good)
+    bad = dataclasses.replace(good, tokens=(token,))
+    with pytest.raises(InvalidCommandError, match="control or non-ASCII") as caught:
+        check_framing(bad)
+    assert caught.value.number == 4
+
+
+@pytest.mark.parametrize(("blob", "count", "ok"), [
+    (b"!trigp -1 1.0\r!trigp -1 2.0\r", 2, True),
+    (b"!trigp -1 1.0\r!trigp -1 2.0\r", 1, False),  # one line more than entries
+    (b"!trigp -1 1.0\r!trigp -1 2.0", 2, False),  # the last CR missing
+    (b"!trigp -1 1.0\r!trigp -1 2.0\x03\r", 2, False),
+    (b"!trigp -1 1.0\r!trigp -1 2.0\n\r", 2, False),
+    (b"!trigp -1 1.0\r!trigp -1 2.0\xe9\r", 2, False),
+])
+def test_list_entries_as_bytes_are_checked_for_framing(blob: bytes, count: int,
+                                                        ok: bool) -> None:
+    template = parse("!trigp -1 1.0")
+    if ok:
+        check_rows_framing(template, blob, count)
+        return
+    with pytest.raises(InvalidCommandError, match="list line"):
+        check_rows_framing(template, blob, count)
 
 
 @pytest.mark.parametrize("line", ["go 10.1 –0.5 0", "!vel 1０", "!vél 10", "!vel 10 µ"])

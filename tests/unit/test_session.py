@@ -18,15 +18,21 @@ from hypothesis import strategies as st
 
 from tango_aio.core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
 from tango_aio.errors import ProtocolError
+from tango_aio.instructions import parse
 from tango_aio.linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
 from tango_aio.session import (
     QUIET_INTERVAL,
+    REPLY_WAITS,
     TRANSITIONS,
+    Barrier,
     LinkEvent,
     LinkSession,
     LinkState,
+    ModeVerdict,
     Outcome,
+    Overdue,
     SessionStateError,
+    Silence,
     Until,
     nothing_trails_help,
 )
@@ -148,8 +154,8 @@ def _fire(link: Link, event: LinkEvent) -> None:
     elif event is E.EXCHANGE_ENDED:
         session.end_exchange(in_step=True)
     elif event is E.DEAD:
-        assert not session.unanswered(1, 1)
-        assert session.unanswered(2, 2)
+        assert session.unanswered(1, 1) is Silence.ALIVE
+        assert session.unanswered(2, 2) is Silence.DEAD
     else:
         session.closed()
 
@@ -296,7 +302,7 @@ def test_a_mode_read_ends_at_helps_reply_where_nothing_trails_it(
     exchange = link.session.exchange
     assert exchange is not None
     assert link.session.mode_read(sent, exchange.lines) == mode == link.core.autostatus
-    assert link.session.end_exchange(in_step=True) is False
+    assert link.session.end_exchange(in_step=True) is Outcome.IN_STEP
     assert link.session.state is S.IN_STEP and not link.core.resyncing
 
 
@@ -402,14 +408,14 @@ def test_an_exchange_that_timed_out_routes_again() -> None:
     assert link.session.exchange is None
     # The adapter then resyncs; ending the exchange after that leaves a marker resync alone
     link.resync()
-    assert link.session.end_exchange(in_step=False) is False
+    assert link.session.end_exchange(in_step=False) is Outcome.NONE
     assert link.state() is S.RESYNC
 
 
 def test_a_cancelled_exchange_asks_for_a_resync() -> None:
     link = Link()
     link.exchange()
-    assert link.session.end_exchange(in_step=False) is True
+    assert link.session.end_exchange(in_step=False) is Outcome.RESYNC
     assert link.session.state is S.IN_STEP and not link.core.resyncing
 
 
@@ -426,13 +432,13 @@ def test_an_exchange_overtaken_by_ctrl_c_keeps_collecting_what_the_core_drops() 
 
 def test_lines_in_flight_together_count_once_and_any_line_resets_the_count() -> None:
     session = Link().session
-    assert not session.unanswered(3, 5)  # lines 1-5 in flight: counted once
-    assert not session.unanswered(4, 5) and not session.unanswered(5, 5)
+    assert session.unanswered(3, 5) is Silence.ALIVE  # lines 1-5 in flight: counted once
+    assert session.unanswered(4, 5) is session.unanswered(5, 5) is Silence.ALIVE
     assert session.silent == 1
     session.line_received()
-    assert not session.unanswered(6, 6) and session.silent == 1
-    assert session.unanswered(7, 7) and session.lost
-    assert not session.unanswered(8, 8)  # dead once
+    assert session.unanswered(6, 6) is Silence.ALIVE and session.silent == 1
+    assert session.unanswered(7, 7) is Silence.DEAD and session.lost
+    assert session.unanswered(8, 8) is Silence.ALIVE  # dead once
 
 
 @pytest.mark.parametrize(("now", "busy", "wait"), [
@@ -471,10 +477,80 @@ def test_the_first_resync_of_a_connect_detects_unless_it_is_a_ctrl_c() -> None:
 
 def test_an_overdue_marker_is_written_again_only_for_the_newest_resync_under_way() -> None:
     link = Link()
-    assert not link.session.resync_again(newest=True)  # in step
+    link.session.dead_after = 10
+    assert link.session.marker_overdue(1, 1, newest=True) is Silence.ALIVE  # in step
     link.resync()
-    assert link.session.resync_again(newest=True)
-    assert not link.session.resync_again(newest=False)
+    assert link.session.marker_overdue(2, 2, newest=True) is Silence.MARKER_AGAIN
+    assert link.session.marker_overdue(3, 3, newest=False) is Silence.ALIVE
+    assert link.session.silent == 3  # each counted
+
+
+def test_an_overdue_marker_that_declares_the_link_dead_is_not_written_again() -> None:
+    link = Link()
+    link.resync()
+    assert link.session.marker_overdue(1, 1, newest=True) is Silence.MARKER_AGAIN
+    assert link.session.marker_overdue(2, 2, newest=True) is Silence.DEAD
+    assert link.state() is S.LOST
+    # Markers in flight with one already counted count once: a new one only.
+    link = Link()
+    link.resync()
+    assert link.session.marker_overdue(4, 5, newest=True) is Silence.MARKER_AGAIN
+    assert link.session.marker_overdue(5, 5, newest=True) is Silence.MARKER_AGAIN
+    assert link.session.silent == 1
+
+
+@pytest.mark.parametrize(("queued", "written", "waits", "overdue"), [
+    # Written before the wait began: counted at its first timeout.
+    (False, True, 1, Overdue.UNANSWERED),
+    # Queued when the wait began, written during it: once more, then counted.
+    (True, True, 1, Overdue.WAIT_AGAIN),
+    (True, True, REPLY_WAITS, Overdue.UNANSWERED),
+    # Still queued (held behind a resync): taken back, never counted.
+    (True, False, 1, Overdue.WITHDRAW),
+    (True, False, REPLY_WAITS, Overdue.WITHDRAW),
+])
+def test_an_overdue_reply_waits_again_once_is_withdrawn_or_counted(
+        queued: bool, written: bool, waits: int, overdue: Overdue) -> None:
+    session = Link().session
+    assert session.reply_overdue(queued=queued, written=written, waits=waits) is overdue
+    assert session.silent == 0 and session.state is S.IN_STEP  # it decides, counts nothing
+
+
+# -- the mode ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("asked", "actual", "verdict"), [
+    (2, 2, ModeVerdict.IN_FORCE), (2, 1, ModeVerdict.KEPT_ANOTHER),
+    (0, 4, ModeVerdict.KEPT_ANOTHER)])
+def test_a_mode_change_failed_when_the_controller_kept_another_mode(
+        asked: int, actual: int, verdict: ModeVerdict) -> None:
+    assert LinkSession.mode_changed(asked, actual) is verdict
+
+
+@pytest.mark.parametrize(("driver", "actual", "verdict"), [
+    (2, 2, ModeVerdict.IN_FORCE), (2, 1, ModeVerdict.RESTARTED),
+    (1, 1, ModeVerdict.IN_FORCE), (4, 1, ModeVerdict.RESTARTED)])
+def test_another_mode_found_in_force_means_the_controller_restarted(
+        driver: int, actual: int, verdict: ModeVerdict) -> None:
+    assert LinkSession.mode_verified(driver, actual) is verdict
+
+
+def test_a_mode_change_waits_until_every_line_before_is_answered() -> None:
+    link = Link()
+    session = link.session
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+    # Ctrl+C dropped the queue, but nothing the change follows is left: it goes.
+    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.CLEAR
+    assert session.barrier(queued_before=True, queue_dropped=False) is Barrier.WAIT
+    assert session.barrier(queued_before=True, queue_dropped=True) is Barrier.ABORTED
+    link.core.send(parse("?pos x"), tag="pos")  # written, its reply owed
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    link.feed(b"12.5\r")
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+    link.resync()  # a resync under way holds it too
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.ABORTED
+    link.feed(link.marker_reply())
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
 
 
 # -- link timing (tango_aio.linktiming) and the step-0 marker number ------------------------
