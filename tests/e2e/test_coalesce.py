@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import AsyncIterator, Callable
+from typing import Any
 
 import pytest
 from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
@@ -240,7 +241,8 @@ async def test_an_announcement_given_up_releases_the_batch(emu: Emulated) -> Non
 
 
 async def test_a_caller_resumes_in_the_loop_turn_after_its_line_returned(
-        emu: Emulated, moves: Callable[[], list[str]]) -> None:
+        emu: Emulated, moves: Callable[[], list[str]],
+        monkeypatch: pytest.MonkeyPatch) -> None:
     # #28 target 4: the batch settles its callers in the step its last line returned in,
     # not through the task's end and a shield (two more loop turns on every IOC put).
     merger = MoveCoalescer(emu.tango, collect="announced")
@@ -255,12 +257,12 @@ async def test_a_caller_resumes_in_the_loop_turn_after_its_line_returned(
     spinner: list[asyncio.Task[None]] = []
     original = emu.tango.move_to
 
-    async def move_to(**axes: float) -> dict[str, str]:
+    async def move_to(**axes: Any) -> dict[str, str]:
         letters = await original(**axes)
         spinner.append(asyncio.create_task(spin()))  # counts turns from here
         return letters
 
-    emu.tango.move_to = move_to  # type: ignore[method-assign]
+    monkeypatch.setattr(emu.tango, "move_to", move_to)
     try:
         assert await merger.move_to("x", 1.0) == "@"
         seen = turns
