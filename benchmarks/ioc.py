@@ -7,10 +7,15 @@ once RBV/DMOV/MOVN are on the wire) serving a second, identical emulated control
 this process, on loopback: ``--rounds`` alternating chunks of each, so that both see the
 same load of a shared machine. Reported: the median time of one move for each, their
 ratio (target: at most 1.1), and the median of as many puts that move nothing (TWV), the
-client's and the server's own floor. Usage::
+client's and the server's own floor. With ``--emulator process`` each of
+the two emulated controllers runs in a process of its own (``tango-aio sim --tcp``, with
+the ``--url``'s options), reached over TCP on 127.0.0.1 by both the driver and the IOC: the
+emulators' timers then no longer share the event loop with the driver and the IOC, as a
+real controller's do not. Usage::
 
     python -m benchmarks.ioc [--moves 100] [--step 0.01] [--speed 100] [--rounds 10]
                              [--url sim://?baud=57600] [--poll 0.1] [--merge-window 0.02]
+                             [--emulator inprocess|process]
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ import socket
 import statistics
 import sys
 import time
+import urllib.parse
+from collections.abc import AsyncIterator
 from typing import Any
 
 import tango_aio
@@ -69,6 +76,44 @@ def _loopback(port: int) -> None:
         "EPICS_CAS_SERVER_PORT": str(port)})
 
 
+#: The ``sim://`` options that ``tango-aio sim`` takes as options of its own.
+SIM_OPTIONS = ("axes", "baud", "latency", "processing", "speed", "profile", "fingerprint")
+
+
+def sim_command(url: str) -> list[str]:
+    """The ``tango-aio sim --tcp`` command line serving the emulator of a ``sim://`` URL
+    on a free loopback port (the other options become ``--switch``es)."""
+    query = urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query)
+    command = [sys.executable, "-m", "tango_aio", "sim", "--tcp", "127.0.0.1:0"]
+    for name, value in query:
+        command += [f"--{name}", value] if name in SIM_OPTIONS else ["--switch",
+                                                                     f"{name}={value}"]
+    return command
+
+
+@contextlib.asynccontextmanager
+async def emulator(url: str, where: str) -> AsyncIterator[str]:
+    """The URL to connect to: ``url`` itself (``inprocess``), or the ``socket://`` URL of
+    a ``tango-aio sim --tcp`` process serving it (``process``), ended on leaving."""
+    if where == "inprocess":
+        yield url
+        return
+    process = await asyncio.create_subprocess_exec(
+        *sim_command(url), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    try:
+        assert process.stdout is not None
+        first = (await asyncio.wait_for(process.stdout.readline(), 30)).decode().strip()
+        if not first.startswith("socket://"):
+            assert process.stderr is not None
+            raise RuntimeError(f"tango-aio sim did not start: {first!r} "
+                               f"{(await process.stderr.read()).decode()}")
+        yield first
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            process.terminate()
+        await process.wait()
+
+
 async def _fast(tango: tango_aio.Controller, speed: float) -> None:
     for name, value in (("secvel", max(speed, 10.0)), ("vel", speed), ("accel", 20),
                         ("stopaccel", 20)):
@@ -98,18 +143,22 @@ class _Client:
 
 
 async def side_by_side(url: str, moves: int, step: float, speed: float, window: float,
-                       poll: float, rounds: int, merge: str = "turn"
+                       poll: float, rounds: int, merge: str = "turn",
+                       where: str = "inprocess"
                        ) -> tuple[list[float], list[float], list[float]]:
     """Seconds per move: the driver's ``move_to`` on one emulated controller, and a
     ``caput(wait=True)`` from another process through the IOC serving an identical one,
-    in ``rounds`` alternating chunks; then as many puts that move nothing (TWV)."""
+    in ``rounds`` alternating chunks; then as many puts that move nothing (TWV). The
+    emulators run ``where``: ``inprocess`` (``sim://``) or ``process`` (each in a
+    ``tango-aio sim --tcp`` process of its own)."""
     from tango_aio.epics.ioc import build_ioc
 
     _loopback(_free_port())
     chunk = max(1, moves // rounds)
     driver_times: list[float] = []
     ioc_times: list[float] = []
-    async with tango_aio.connect(url) as own, tango_aio.connect(url) as served:
+    async with emulator(url, where) as own_url, emulator(url, where) as served_url, \
+            tango_aio.connect(own_url) as own, tango_aio.connect(served_url) as served:
         await _fast(own, speed)
         await _fast(served, speed)
         await own.move_to(x=0.0)
@@ -161,19 +210,24 @@ async def main(argv: list[str] | None = None) -> None:
                         help="the IOC's --merge (default turn, the IOC's own)")
     parser.add_argument("--poll", type=float, default=0.1,
                         help="the IOC's --poll (default 0.1, the IOC's own)")
+    parser.add_argument("--emulator", choices=("inprocess", "process"), default="inprocess",
+                        help="where the two emulators run: in this process (default, "
+                             "sharing its event loop) or each in a tango-aio sim --tcp "
+                             "process of its own, over TCP on 127.0.0.1")
     args = parser.parse_args(argv)
     driver_times, moved, quick = await side_by_side(
         args.url, args.moves, args.step, args.speed, args.merge_window, args.poll,
-        args.rounds, args.merge)
+        args.rounds, args.merge, args.emulator)
     driver = statistics.median(driver_times)
     ioc, floor = statistics.median(moved), statistics.median(quick)
     print(f"driver move_to: median {driver * 1e3:.2f} ms; IOC caput(wait=True): median "
           f"{ioc * 1e3:.2f} ms; ratio {ioc / driver:.3f} (target <= 1.1); a caput(wait=True) "
           f"that moves nothing (TWV): median {floor * 1e3:.2f} ms; {args.moves} moves of "
           f"{args.step} mm at {args.speed} mm/s on {args.url} in {args.rounds} alternating "
-          f"rounds, merge {args.merge} (window {args.merge_window} s), poll {args.poll} s")
+          f"rounds, merge {args.merge} (window {args.merge_window} s), poll {args.poll} s, "
+          f"emulators {args.emulator}")
     print(json.dumps({"driver_s": driver, "ioc_s": ioc, "ratio": ioc / driver,
-                      "noop_put_s": floor}))
+                      "noop_put_s": floor, "emulator": args.emulator}))
 
 
 if __name__ == "__main__":

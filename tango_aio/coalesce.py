@@ -81,6 +81,30 @@ class _Batch:
     cancel_reason: str = ""
     #: The positions its lines' confirmations read, taken as each line returned.
     positions: dict[str, str] = field(default_factory=dict)
+    #: One future per caller, given the batch's outcome: on success in the batch's own
+    #: last step (the caller resumes one loop turn after the last line returned, not
+    #: three: task done -> shield -> caller), otherwise by the task's done-callback.
+    waiters: list[asyncio.Future[dict[str, str]]] = field(default_factory=list)
+
+    def settle(self, task: asyncio.Task[dict[str, str]] | None = None,
+               letters: dict[str, str] | None = None) -> None:
+        """Give every caller still waiting the batch's outcome: ``letters``, or the
+        ended ``task``'s result, exception, or (cancelled) a MoveError with status E."""
+        outcome: BaseException | None = None
+        if letters is None and task is not None:
+            if task.cancelled():
+                outcome = MoveError(f"merged move {self.targets} {self.cancel_reason}",
+                                    dict.fromkeys(self.targets, AxisStatus.ERROR))
+            else:
+                outcome = task.exception()
+                letters = None if outcome is not None else task.result()
+        for waiter in self.waiters:
+            if waiter.done():  # its caller was cancelled, or it was settled already
+                continue
+            if outcome is not None:
+                waiter.set_exception(outcome)
+            else:
+                waiter.set_result(letters or {})
 
     def close(self) -> None:
         """Stop collecting; the batch runs as soon as the batch before it has ended."""
@@ -192,16 +216,18 @@ class MoveCoalescer:
                 arrived()  # it has joined (or failed): no batch waits for it any more
         task = batch.task
         assert task is not None
+        # A future of this caller's own (cancelling it withdraws this caller alone): the
+        # batch settles it (another caller's cancellation: a MoveError with status E).
+        waiter: asyncio.Future[dict[str, str]] = asyncio.get_running_loop().create_future()
+        batch.waiters.append(waiter)
         try:
-            letters = await asyncio.shield(task)
+            letters = await waiter
         except asyncio.CancelledError:
             if not task.done():
                 await self._withdraw(batch, axis)
-                raise
-            if task.cancelled():  # another caller (or aclose) cancelled the batch
-                raise MoveError(f"merged move {batch.targets} {batch.cancel_reason}",
-                                dict.fromkeys(batch.targets, AxisStatus.ERROR)) from None
-            raise  # this caller was cancelled just as the batch ended
+            elif waiter.done() and not waiter.cancelled():
+                waiter.exception()  # cancelled just as the batch ended: its outcome is moot
+            raise
         finally:
             if positions is not None:
                 positions.update(batch.positions)
@@ -274,8 +300,7 @@ class MoveCoalescer:
         self._batches.discard(batch)
         if self._collecting is batch:
             self._collecting = None
-        if not task.cancelled():
-            task.exception()  # its callers were told; no "exception never retrieved"
+        batch.settle(task)  # (retrieves its exception: no "exception never retrieved")
 
     async def _run(self, batch: _Batch,
                    previous: asyncio.Task[dict[str, str]] | None) -> dict[str, str]:
@@ -301,6 +326,7 @@ class MoveCoalescer:
             axes: dict[str, Any] = line  # only axis letters, never move_to's options
             letters.update(await self.controller.move_to(**axes))
             batch.positions.update(self.controller.last_positions or {})
+        batch.settle(letters=letters)  # now, in this step: the callers resume next turn
         return letters
 
     async def _withdraw(self, batch: _Batch, axis: str) -> None:

@@ -14,6 +14,12 @@ So a put handler that publishes RBV, DMOV and MOVN and then awaits ``flush()`` r
 only when those updates are out to every subscribed client, and the put response
 follows them on the same TCP stream.
 
+A flush with nothing to flush returns at once, without a marker: when the server's queue
+is empty and no update is being handed on, and every circuit waits for its next update
+with nothing collected and nothing queued (it has sent all it was given). Updates of
+fields no client subscribes to are never queued, so a put whose client monitors only VAL
+(pyepics' ``caput``) does not wait three loop turns for a marker.
+
 The circuits also send each open channel's access rights again when the client reports
 another host or user name (caproto decides them only when a channel is created; writes
 are checked with the names of the moment either way).
@@ -87,7 +93,19 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._released: list[_Marker] = []
+        self._idle = False  # waiting for the next update, with nothing collected
         self._no_delay()
+
+    def flushed(self) -> bool:
+        """Whether everything queued to this circuit was sent: its loop waits for the next
+        update with nothing collected, and nothing is queued or awaits release.
+
+        Returns
+        -------
+        bool
+            True if a flush marker would be released without anything to send.
+        """
+        return self._idle and self.subscription_queue.empty() and not self._released
 
     def _no_delay(self) -> None:
         """Send small writes at once (TCP_NODELAY): a put response written right after a
@@ -105,12 +123,21 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
         self._release()
         while True:
             if timeout is None:  # nothing collected: wait for the next update
-                item = await self.subscription_queue.get()
+                self._idle = True
+                try:
+                    item = await self.subscription_queue.get()
+                finally:
+                    self._idle = False
             elif not self.subscription_queue.empty():
                 item = self.subscription_queue.get_nowait()
             else:  # caught up: wait HOLD for more, then the loop sends what it collected
-                item = await super().get_from_sub_queue(min(timeout, HOLD))
-                if item is None:
+                # (asyncio.timeout, not caproto's wait_for: that runs the get in a task of
+                # its own, three loop turns from a put to this loop instead of one; an
+                # item put as the wait times out stays in the queue for the next call)
+                try:
+                    async with asyncio.timeout(min(timeout, HOLD)):
+                        item = await self.subscription_queue.get()
+                except TimeoutError:
                     return None
             if not isinstance(item, _CircuitMarker):
                 return item
@@ -137,20 +164,43 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
 
 class FlushingContext(Context):  # type: ignore[misc]
     """caproto's asyncio server :class:`~caproto.asyncio.server.Context` with
-    :meth:`flush`."""
+    :meth:`flush`.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        caproto's arguments of a server context (the PV database, the interfaces).
+    """
 
     CircuitClass = _FlushingCircuit
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._handing_on = 0  # updates taken from the queue, not yet in every circuit's
+
+    def _flushed(self) -> bool:
+        """Whether every update published so far was written to every client's socket."""
+        if self._handing_on or not self.subscription_queue.empty():
+            return False
+        return all(circuit.flushed() for circuit in self.circuits
+                   if isinstance(circuit, _FlushingCircuit) and circuit.connected)
+
     async def flush(self) -> None:
         """Return once every monitor update published before this call was written to
-        the socket of every connected client."""
+        the socket of every connected client (at once if nothing is on its way)."""
+        if self._flushed():
+            return
         marker = _Marker()
         await self.subscription_queue.put((marker, None, None, 0, None))
         await marker.done
 
     async def _subscription_queue_iteration(self, sub_specs: Any, *args: Any) -> None:
         if not isinstance(sub_specs, _Marker):
-            await super()._subscription_queue_iteration(sub_specs, *args)
+            self._handing_on += 1
+            try:
+                await super()._subscription_queue_iteration(sub_specs, *args)
+            finally:
+                self._handing_on -= 1
             return
         marker = sub_specs
         circuits = [c for c in self.circuits

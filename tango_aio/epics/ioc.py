@@ -129,6 +129,43 @@ def _number(text: str | None) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def _start_motion(motion: Callable[[], Awaitable[Any]]
+                 ) -> tuple[asyncio.Task[Any], asyncio.Future[None]]:
+    """Run ``motion`` in a task; return it and a future set once it has ended.
+
+    The future is set in the motion's own last step, so whoever awaits it resumes one loop
+    turn after the motion ended (awaiting the task through ``asyncio.wait`` takes two: the
+    done-callback's turn, then the waiter's), and finds the task done. A task cancelled
+    before its first step never runs the motion; its done-callback sets the future then.
+    Cancelling the future's waiter leaves the task alone.
+
+    Parameters
+    ----------
+    motion
+        Makes the coroutine to run.
+
+    Returns
+    -------
+    tuple[asyncio.Task[Any], asyncio.Future[None]]
+        The task, and the future set once it has ended.
+    """
+    ended: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+    def settle(_: object = None) -> None:
+        if not ended.done():
+            ended.set_result(None)
+
+    async def run() -> Any:
+        try:
+            return await motion()
+        finally:
+            settle()
+
+    task = asyncio.ensure_future(run())
+    task.add_done_callback(settle)
+    return task, ended
+
+
 def _log_failure(task: asyncio.Future[Any]) -> None:
     """Done-callback of a background move (Pause, then Go): log how it failed."""
     if not task.cancelled() and task.exception() is not None:
@@ -661,9 +698,10 @@ class AxisServer:
         if f.motor_is_moving.value != 1:
             await f.motor_is_moving.write(1, verify_value=False)
         await self._publish_status()
-        task = self._motion = asyncio.ensure_future(motion())
+        task, ended = _start_motion(motion)
+        self._motion = task
         try:
-            await asyncio.wait([task])
+            await ended  # set in the motion's last step: one loop turn, not two
         except asyncio.CancelledError:  # the IOC shuts down: stop the move
             task.cancel()
             await asyncio.wait([task])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import AsyncIterator, Callable
+from typing import Any
 
 import pytest
 from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
@@ -237,3 +238,37 @@ async def test_an_announcement_given_up_releases_the_batch(emu: Emulated) -> Non
             MoveCoalescer(emu.tango, collect="sometimes")
     finally:
         await merger.aclose()
+
+
+async def test_a_caller_resumes_in_the_loop_turn_after_its_line_returned(
+        emu: Emulated, moves: Callable[[], list[str]],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # #28 target 4: the batch settles its callers in the step its last line returned in,
+    # not through the task's end and a shield (two more loop turns on every IOC put).
+    merger = MoveCoalescer(emu.tango, collect="announced")
+    turns = 0
+
+    async def spin() -> None:
+        nonlocal turns
+        while True:
+            await asyncio.sleep(0)
+            turns += 1
+
+    spinner: list[asyncio.Task[None]] = []
+    original = emu.tango.move_to
+
+    async def move_to(**axes: Any) -> dict[str, str]:
+        letters = await original(**axes)
+        spinner.append(asyncio.create_task(spin()))  # counts turns from here
+        return letters
+
+    monkeypatch.setattr(emu.tango, "move_to", move_to)
+    try:
+        assert await merger.move_to("x", 1.0) == "@"
+        seen = turns
+    finally:
+        for task in spinner:
+            task.cancel()
+        await merger.aclose()
+    assert moves() == ["!moa 1"]
+    assert seen == 0  # before: 1 (the batch task's end, then the shield's callback)

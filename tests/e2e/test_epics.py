@@ -35,7 +35,7 @@ from helpers import INSTANT, EmulatorFactory, make_model
 from tango_aio.connection import connect
 from tango_aio.controller import Controller
 from tango_aio.epics.access import AccessPolicy
-from tango_aio.epics.ioc import TangoIoc, build_ioc
+from tango_aio.epics.ioc import TangoIoc, _start_motion, build_ioc
 from tango_aio.epics.record import Msta
 from tango_aio.sim.serve import serve_tcp
 
@@ -707,3 +707,80 @@ async def test_a_controller_down_at_start_is_served_once_it_comes(
         if server is not None:
             server.close()
             await server.wait_closed()
+
+
+async def test_a_motion_task_settles_its_waiter_in_its_last_step() -> None:
+    # #28 target 4: the put handler resumes one loop turn after its motion ended, and
+    # finds it done; a motion cancelled before it ran still settles; cancelling the
+    # waiter leaves the motion alone.
+    async def motion() -> str:
+        await asyncio.sleep(0)
+        return "moved"
+
+    task, ended = _start_motion(motion)
+    await ended
+    assert task.done() and task.result() == "moved"
+
+    ran: list[bool] = []
+
+    async def never() -> None:
+        ran.append(True)
+
+    task, ended = _start_motion(never)
+    task.cancel()  # before its first step: the motion never runs
+    await ended
+    assert task.cancelled() and ran == []
+
+    gate = asyncio.Event()
+
+    async def gated() -> str:
+        await gate.wait()
+        return "done"
+
+    task, ended = _start_motion(gated)
+
+    async def wait() -> None:
+        await ended
+
+    waiter = asyncio.create_task(wait())
+    await asyncio.sleep(0)
+    waiter.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await waiter
+    gate.set()
+    assert await task == "done"
+
+
+async def test_a_flush_waits_only_for_updates_on_their_way(ca_env: dict[str, str]) -> None:
+    # #28 target 4: a put whose final updates no client subscribes to (pyepics' caput
+    # monitors VAL only) does not wait for a marker through the queues; one whose
+    # updates are queued still waits until they were sent.
+    async with one_stage() as (_, ioc, client):
+        dmov = await client.pv("X.DMOV")
+        seen: asyncio.Queue[int] = asyncio.Queue()
+        subscription = dmov.subscribe()
+
+        def update(_: Any, response: Any) -> None:
+            seen.put_nowait(int(response.data[0]))
+
+        token = subscription.add_callback(update)  # held weakly: ``update`` stays in scope
+        async with asyncio.timeout(10):
+            assert await seen.get() == 1  # the subscription's first update
+        context = ioc.servers[0].context
+        assert context is not None
+        async with asyncio.timeout(10):
+            while not context._flushed():  # noqa: ASYNC110 - the circuit's loop settles
+                await asyncio.sleep(0.01)
+        idle = asyncio.create_task(context.flush())
+        await asyncio.sleep(0)
+        assert idle.done()  # returned in its first step: nothing was on its way
+        record = ioc.servers[0].axes[0].record
+        await record.fields["DMOV"].write(0, verify_value=False)  # one update queued
+        queued = asyncio.create_task(context.flush())
+        await asyncio.sleep(0)
+        assert not queued.done()  # it waits until the update was sent
+        async with asyncio.timeout(10):
+            await queued
+            assert await seen.get() == 0
+        await record.fields["DMOV"].write(1, verify_value=False)
+        await subscription.remove_callback(token)
