@@ -556,6 +556,10 @@ def print_cycle(cycles: list[dict[str, float]]) -> None:
           f" / p95 {late[int(len(late) * 0.95)] * 1e3:.1f} ms; slack median "
           f"{slack[len(slack) // 2] * 1e3:.1f} ms; ran dry in {sum(d > 0 for d in dry)} cycles, "
           f"{sum(dry) * 1e3:.0f} ms in all", file=sys.stderr)
+    worst = sorted(done, key=lambda c: c["busy_until"] - c["next_write"])[:6]
+    print("link 0, the longest dry spells (ms after the start: reply, dry ms): " + ", ".join(
+        f"{c['reply'] * 1e3:.0f}: {(c['next_write'] - c['busy_until']) * 1e3:.1f}"
+        for c in worst if c["next_write"] > c["busy_until"]), file=sys.stderr)
 
 
 async def _loop_lag(lags: list[float], period: float = 0.005) -> None:

@@ -267,9 +267,9 @@ def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
 _Line = TypeVar("_Line")
 
 
-def _numbered(lines: Iterator[_Line]) -> Iterator[_Line]:
-    """``lines``; an invalid entry raises :class:`InvalidCommandError` naming its index."""
-    index = 0
+def _numbered(lines: Iterator[_Line], first: int = 0) -> Iterator[_Line]:
+    """``lines`` (from entry ``first``); a bad one raises naming its index."""
+    index = first
     while True:
         try:
             line = next(lines)
@@ -344,18 +344,23 @@ class ListTransfer:
 
     async def replace(self, spec: ListSpec, clear: Callable[[], Awaitable[None]],
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
-        """Validate every line of ``rows``, then (holding :attr:`lock`) await ``clear``
-        (the checked clearing line) and append the rows.
+        """Holding :attr:`lock`, check every entry of ``rows``, then await ``clear`` (the
+        checked clearing line) and append the rows.
 
-        Where the entries owe no reply in the mode in force (modes 0, 1, 3), they are
-        only checked before the clear (:func:`~tango_aio.instructions.check_rows`, whose
-        rows :func:`~tango_aio.instructions.encode_rows` cannot fail on); each chunk's
-        lines are made as bytes when it is queued, while the chunks before it are on the
-        wire (building every list before the first byte made 64 uploads in one process
-        start one list-build apart), so
-        ``rows`` must not change until the upload has ended (the controller's methods
-        pass copies they validated). Otherwise every line is built before the clear, as
-        commands.
+        Every entry is checked before the clear, holding :attr:`lock`
+        (:func:`check_entries`, in slices of
+        :data:`CHECKPOINT` rows with a turn of the event loop between: with many
+        controllers on one loop the checks of all uploads starting together made one
+        loop turn of about 150 ms, in which the links already streaming ran dry and the
+        replies the others' starts waited for were not read; ``benchmarks/scaling.py
+        --trace``). Each chunk's lines are then made when it is queued, while the
+        chunks before it are on the wire (:func:`~tango_aio.instructions.encode_rows`,
+        which cannot fail on rows checked so), as one
+        :class:`~tango_aio.scheduler.Run` where they owe no reply (modes 0, 1, 3), or
+        as commands where they do (mode 2: building every line before the first byte
+        made 64 uploads in one process start one list-build apart and their full
+        garbage collections long). So ``rows`` must not change until the upload has
+        ended (the controller's methods pass copies they validated).
 
         Parameters
         ----------
@@ -368,54 +373,52 @@ class ListTransfer:
         progress
             Called with (entries the list holds, entries in all) after each length check;
             ``None`` for no reports.
+
+        Raises
+        ------
+        InvalidCommandError
+            An entry is not valid (the first one is named; nothing was written).
         """
         total = len(rows)
-        first = prepare(spec, rows[:1])
-        if first and self._protocol.pack(first) is not None:
-            check_entries(spec, rows)
-            chunks: Iterable[Run | list[Command]] = self._encoded(spec, rows)
-        else:
-            chunks = self._pieces(prepare(spec, rows))
-            # Not kept through the upload: one list per entry (the caller's rows) made a
-            # 64-link upload's full garbage collections scan 200 000 objects.
-            del rows
         async with self.lock:
+            # Checked holding the lock: uploads called one after the other still replace
+            # the list in that order (the checks of a longer list take more turns).
+            for start in range(0, total, CHECKPOINT):
+                for _ in _numbered(spec.check(rows[start:start + CHECKPOINT]), start):
+                    pass
+                if start + CHECKPOINT < total:
+                    await asyncio.sleep(0)
+            chunks = self._encoded(spec, rows)
             await clear()
             await self._upload(spec, chunks, total, progress)
 
     def _encoded(self, spec: ListSpec, rows: Sequence[Sequence[float]]
                  ) -> Iterator[Run | list[Command]]:
         """The append lines of ``rows`` (checked) cut at the checkpoints, each piece made
-        when it is asked for, as one row value (a :class:`~tango_aio.scheduler.Run`: its
-        bytes, no Command per entry), or as commands where a mode change since
-        makes its lines owe replies.
+        when it is asked for: as one row value (a :class:`~tango_aio.scheduler.Run`: its
+        bytes, no Command per entry) where its lines owe no reply in the mode they will be
+        written in, else as the commands :func:`prepare` builds (mode 2, or a mode change
+        since the upload began).
 
         Yields
         ------
         Run or list[Command]
             The pieces, in order.
         """
+        runs = True  # whether the last piece went as a run
         for start in range(0, len(rows), CHECKPOINT):
-            piece = list(spec.encode(rows[start:start + CHECKPOINT]))
-            template = parse(piece[0][:-1].decode("ascii"))
-            yield self._protocol.pack_lines(template, piece) or [
-                parse(line[:-1].decode("ascii")) for line in piece]
-
-    def _pieces(self, built: list[Command]) -> list[Run | list[Command]]:
-        """The commands ``built`` cut at the checkpoints, each piece kept as one
-        :class:`~tango_aio.scheduler.Run` where its lines owe no reply, else as they are.
-
-        Returns
-        -------
-        list[Run | list[Command]]
-            The pieces, in order.
-        """
-        chunks: list[Run | list[Command]] = []
-        for start in range(0, len(built), CHECKPOINT):
-            piece = built[start:start + CHECKPOINT]
-            chunks.append(self._protocol.pack(piece) or piece)
-        built.clear()
-        return chunks
+            part = rows[start:start + CHECKPOINT]
+            if runs:
+                piece = list(spec.encode(part))
+                template = parse(piece[0][:-1].decode("ascii"))
+                run = self._protocol.pack_lines(template, piece)
+                if run is not None:
+                    yield run
+                    continue
+            built = list(spec.append(part))
+            run = self._protocol.pack(built)
+            runs = run is not None
+            yield built if run is None else run
 
     async def _upload(self, spec: ListSpec, chunks: Iterable[Run | list[Command]],
                       total: int, progress: Progress | None) -> None:
