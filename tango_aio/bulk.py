@@ -267,9 +267,9 @@ def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
 _Line = TypeVar("_Line")
 
 
-def _numbered(lines: Iterator[_Line], first: int = 0) -> Iterator[_Line]:
-    """``lines`` (from entry ``first``); a bad one raises naming its index."""
-    index = first
+def _numbered(lines: Iterator[_Line]) -> Iterator[_Line]:
+    """``lines``; an invalid entry raises :class:`InvalidCommandError` naming its index."""
+    index = 0
     while True:
         try:
             line = next(lines)
@@ -344,23 +344,20 @@ class ListTransfer:
 
     async def replace(self, spec: ListSpec, clear: Callable[[], Awaitable[None]],
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
-        """Holding :attr:`lock`, check every entry of ``rows``, then await ``clear`` (the
+        """Check every entry of ``rows``, then (holding :attr:`lock`) await ``clear`` (the
         checked clearing line) and append the rows.
 
-        Every entry is checked before the clear, holding :attr:`lock`
-        (:func:`check_entries`, in slices of
-        :data:`CHECKPOINT` rows with a turn of the event loop between: with many
-        controllers on one loop the checks of all uploads starting together made one
-        loop turn of about 150 ms, in which the links already streaming ran dry and the
-        replies the others' starts waited for were not read; ``benchmarks/scaling.py
-        --trace``). Each chunk's lines are then made when it is queued, while the
-        chunks before it are on the wire (:func:`~tango_aio.instructions.encode_rows`,
-        which cannot fail on rows checked so), as one
-        :class:`~tango_aio.scheduler.Run` where they owe no reply (modes 0, 1, 3), or
-        as commands where they do (mode 2: building every line before the first byte
-        made 64 uploads in one process start one list-build apart and their full
-        garbage collections long). So ``rows`` must not change until the upload has
-        ended (the controller's methods pass copies they validated).
+        Every entry is checked before the clear (:func:`check_entries`, in one go: checks
+        cut into slices with loop turns between made 64 uploads starting together start
+        later, each link's check spread over every link's turns; ``benchmarks/scaling.py
+        --trace``, BENCHMARKS.md). Each chunk's lines are then made when it is queued,
+        while the chunks before it are on the wire
+        (:func:`~tango_aio.instructions.encode_rows`, which cannot fail on rows checked
+        so), as one :class:`~tango_aio.scheduler.Run` where they owe no reply (modes 0,
+        1, 3), or as commands where they do (mode 2: building all of them before the
+        clear made 8 uploads in one process start 60-140 ms later). So ``rows`` must not
+        change until the upload has ended (the controller's methods pass copies they
+        validated).
 
         Parameters
         ----------
@@ -380,15 +377,9 @@ class ListTransfer:
             An entry is not valid (the first one is named; nothing was written).
         """
         total = len(rows)
+        check_entries(spec, rows)
+        chunks = self._encoded(spec, rows)
         async with self.lock:
-            # Checked holding the lock: uploads called one after the other still replace
-            # the list in that order (the checks of a longer list take more turns).
-            for start in range(0, total, CHECKPOINT):
-                for _ in _numbered(spec.check(rows[start:start + CHECKPOINT]), start):
-                    pass
-                if start + CHECKPOINT < total:
-                    await asyncio.sleep(0)
-            chunks = self._encoded(spec, rows)
             await clear()
             await self._upload(spec, chunks, total, progress)
 

@@ -12,7 +12,7 @@ import pytest
 from helpers import EmulatorFactory
 
 from tango_aio import InvalidCommandError, TangoError
-from tango_aio.bulk import CHECKPOINT, Column, UploadError, trigger_spec
+from tango_aio.bulk import Column, UploadError, trigger_spec
 from tango_aio.instructions import Command, parse
 from tango_aio.sim.lists import ListError
 
@@ -228,37 +228,6 @@ async def test_marker_errors_are_attributed_to_the_lines_they_cover(
     await emu.tango.query("?trigc")
     assert [s.chunk_error for s in submissions] == [None, None, 5, None]
     assert await emu.tango.read_trigger_positions() == [1.0, 2.0, 3.0]
-
-
-async def test_the_entry_check_leaves_the_loop_turns(emulator: EmulatorFactory) -> None:
-    """#28 target 5: the entries are checked in slices of CHECKPOINT rows with a loop
-    turn between, so uploads starting together on one loop (64 links) do not make one
-    long loop turn in which the links already streaming run dry."""
-    emu = await emulator()
-    turns = 0
-    at_clear: list[int] = []
-
-    async def ticker() -> None:
-        nonlocal turns
-        while True:
-            turns += 1
-            await asyncio.sleep(0)
-
-    async def clear() -> None:
-        at_clear.append(turns)
-        await emu.tango.command("!trigp x 0")
-
-    values = ramp(1000)
-    task = asyncio.create_task(ticker())
-    await asyncio.sleep(0)
-    start = turns
-    try:
-        await emu.tango._transfer().replace(trigger_spec(), clear, Column(values), None)
-    finally:
-        task.cancel()
-    # 1000 rows: five slices, four turns between them (the old check took none).
-    assert at_clear[0] - start >= 1000 // CHECKPOINT - 1
-    assert await emu.tango.read_trigger_positions() == values
 
 
 async def test_mode_2_builds_each_chunk_when_it_is_queued(emulator: EmulatorFactory) -> None:
