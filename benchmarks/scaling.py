@@ -52,10 +52,11 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 
 import tango_aio
+from tango_aio.flow import DEFAULT_CHUNK
 from tango_aio.instructions import build
 
 BAUD = 57600
@@ -139,13 +140,18 @@ class LeanLink:
         take = min(int(self.allowance), waiting)
         if take == 0:
             return
-        self.allowance -= take
+        # Took all there was: the wire ran idle for the rest of the tick, and what it
+        # could have carried then is not carried later (kept, it let the stand-in take a
+        # later burst faster than the wire: above 1.0 of the bound under uvloop).
+        self.allowance = 0.0 if take == waiting else self.allowance - take
         *lines, self.partial = (self.partial + os.read(self.master, take)).split(b"\r")
         for line in lines:
             self.lines += 1
             if line.startswith(b"!trigp -1 "):
                 try:
                     self.model.triggers.write(-1, float(line[10:]))
+                    if self.model.autostatus == 2:  # the acknowledgement (L2099-2103)
+                        self._emit(b"OK...\r")
                     continue
                 except Exception:  # the full emulator then sets the error
                     pass
@@ -256,6 +262,11 @@ class Result:
     gc_gen2_count: int = 0
     #: Event-loop lag, 95th percentile (s).
     loop_lag_p95: float = 0.0
+    #: The autostatus mode of the links.
+    autostatus: int = 1
+    #: With ``trace``: the modelled wires' figures (WireLog.analyse), mean over the links
+    #: and the worst link's, keyed ``mean_...`` / ``max_...``.
+    wire: dict[str, float] | None = None
 
     @property
     def throughput(self) -> float:
@@ -331,6 +342,114 @@ class GcPauses:
         self.counts[generation] += 1
 
 
+class WireLog:
+    """Every write and read of one link, stamped with ``time.perf_counter()``, to model
+    its host -> controller wire afterwards (:meth:`analyse`). Installed on the link's
+    protocol object (its ``_write`` and ``data_received``), so nothing else changes."""
+
+    def __init__(self, protocol: object) -> None:
+        self.events: list[tuple[float, bool, bytes]] = []
+        events = self.events
+        write = protocol._write  # type: ignore[attr-defined]
+        receive = protocol.data_received  # type: ignore[attr-defined]
+
+        def traced_write(data: bytes) -> None:
+            events.append((time.perf_counter(), True, data))
+            write(data)
+
+        def traced_receive(data: bytes) -> None:
+            events.append((time.perf_counter(), False, data))
+            receive(data)
+
+        protocol._write = traced_write  # type: ignore[attr-defined]
+        protocol.data_received = traced_receive  # type: ignore[attr-defined]
+
+    def analyse(self, t0: float, autostatus: int) -> dict[str, float]:
+        """Model the host -> controller wire as a FIFO at LINK_BYTES_PER_S fed by the
+        writes after ``t0`` and split its idle time: ``start`` (from ``t0`` to the first
+        ``!trigp -1`` line), ``gaps`` (between the first and the last such line: the link
+        ran dry), ``tail`` (after the last one, up to the last reply). Also the bytes by
+        kind (payload, markers, other), and per credit marker the delay from its modelled
+        arrival at the controller to its reply's arrival at the driver (``answer``), and
+        from that reply to the driver's next write (``react``), median and p95 in s."""
+        finish = t0
+        idle = {"start": 0.0, "gaps": 0.0, "tail": 0.0}
+        kinds = {"payload": 0, "marker": 0, "other": 0}
+        first = last = None
+        owing: list[tuple[bytes, float]] = []  # lines owing a reply, their modelled arrival
+        partial = b""
+        answers: list[float] = []
+        reacts: list[float] = []
+        reply_at: float | None = None
+        end = t0
+        #: Per credit marker: written, modelled arrival, reply, next write (s after t0).
+        cycles: dict[float, dict[str, float]] = {}
+        self.cycles: list[dict[str, float]] = []
+        pending_cycle: dict[str, float] | None = None
+        for stamp, written, data in self.events:
+            if stamp < t0:
+                continue
+            if not written:
+                *lines, partial = (partial + data).split(b"\r")
+                for _line in lines:
+                    if owing:
+                        line, arrived = owing.pop(0)
+                        if line == b"err" or (autostatus == 2 and line.startswith(b"!trigp")):
+                            answers.append(stamp - arrived)
+                            reply_at = stamp
+                            cycle = cycles.get(arrived)
+                            if cycle is not None:
+                                cycle["reply"] = stamp - t0
+                                cycle["busy_until"] = finish - t0
+                                pending_cycle = cycle
+                end = stamp
+                continue
+            if reply_at is not None:
+                reacts.append(stamp - reply_at)
+                reply_at = None
+            if pending_cycle is not None:
+                pending_cycle["next_write"] = stamp - t0
+                pending_cycle["next_bytes"] = len(data)
+                pending_cycle = None
+            gap = max(0.0, stamp - finish)
+            phase = "start" if first is None else "gaps"
+            start = max(finish, stamp)
+            for line in data.split(b"\r")[:-1]:
+                size = len(line) + 1
+                start += size / LINK_BYTES_PER_S
+                if line.startswith(b"!trigp -1 "):
+                    kinds["payload"] += size
+                    first = stamp if first is None else first
+                    last = stamp
+                    if autostatus == 2:
+                        owing.append((line, start))
+                elif line == b"err":
+                    kinds["marker"] += size
+                    owing.append((line, start))
+                    cycle = {"written": stamp - t0, "write_bytes": len(data),
+                             "arrives": start - t0}
+                    cycles[start] = cycle
+                    self.cycles.append(cycle)
+                else:
+                    kinds["other"] += size
+                    if not line.startswith(b"!") or autostatus == 2:
+                        owing.append((line, start))
+            idle[phase] += gap
+            finish = start
+        idle["tail"] = max(0.0, end - finish)
+        answers.sort()
+        reacts.sort()
+
+        def pick(values: list[float], q: float) -> float:
+            return values[min(len(values) - 1, int(len(values) * q))] if values else math.nan
+
+        return {**idle, **{k: float(v) for k, v in kinds.items()},
+                "first_payload": (first or t0) - t0, "last_payload": (last or t0) - t0,
+                "end": end - t0, "answer_median": pick(answers, 0.5),
+                "answer_p95": pick(answers, 0.95), "react_median": pick(reacts, 0.5),
+                "react_p95": pick(reacts, 0.95), "markers": float(len(answers))}
+
+
 def positions(count: int) -> list[float]:
     """A monotonic trigger list with 4-decimal positions (as in benchmarks/upload.py)."""
     return [round(0.0123 + index * 0.0137, 4) for index in range(count)]
@@ -339,17 +458,22 @@ def positions(count: int) -> list[float]:
 async def run(count: int, entries: int, per_process: int,
               profile: cProfile.Profile | None, profile_dir: str | None = None,
               lean: bool = False, marker_chunk: int | None = None,
-              collector: str = "on") -> Result:
+              collector: str = "on", autostatus: int = 1, trace: bool = False) -> Result:
     """Upload to ``count`` links at once; ``collector`` is what the garbage collector does
     during the upload: ``on`` (as always), ``off`` (``gc.disable()``) or ``freeze``
     (``gc.freeze()`` first: what exists before the upload is never scanned again), so
-    that what a change of the driver's allocations would buy can be measured."""
+    that what a change of the driver's allocations would buy can be measured.
+    ``autostatus`` is the links' mode (2: every ``!trigp`` acknowledged, no credit
+    markers); ``trace`` logs every link's writes and reads (:class:`WireLog`), prints one
+    credit cycle of the first link and where each link's wire stood idle."""
     emulators = Emulators(count, per_process, profile_dir, lean)
-    options = {} if marker_chunk is None else {"marker_chunk": marker_chunk}
+    chunk = DEFAULT_CHUNK if marker_chunk is None else marker_chunk
     try:
         controllers = await asyncio.gather(*(tango_aio.connect(path, reply_timeout=30.0,
-                                                               **options)
+                                                               autostatus=autostatus,
+                                                               marker_chunk=chunk)
                                              for path in emulators.paths))
+        logs = [WireLog(tango.protocol) for tango in controllers] if trace else []
         try:
             values = positions(entries)
             payload = sum(len(build("trigp", -1, v).to_bytes()) for v in values)
@@ -391,14 +515,57 @@ async def run(count: int, entries: int, per_process: int,
         finally:
             await asyncio.gather(*(tango.aclose() for tango in controllers))
         wire_seconds = payload / LINK_BYTES_PER_S
+        wire = None
+        if logs:
+            figures = [log.analyse(t0, autostatus) for log in logs]
+            wire = {f"{how}_{key}": fold(f[key] for f in figures)
+                    for key in figures[0] for how, fold in (("mean", _mean), ("max", max))}
+            print_cycle(logs[0].cycles)
+        busy, idle, steal = (value / seconds for value in machine or [math.nan] * 3)
         return Result(count, len(emulators.procs), seconds, payload * count,
                       int(after["lost"]), cpu, after["cpu"] - before["cpu"],
-                      wire_seconds / max(link_seconds),
-                      *(value / seconds for value in machine or [math.nan] * 3),
-                      pauses.longest[2], max(pauses.longest), pauses.counts[2],
-                      lags[int(len(lags) * 0.95)])
+                      wire_seconds / max(link_seconds), busy, idle, steal,
+                      gc_pause_gen2=pauses.longest[2], gc_pause_any=max(pauses.longest),
+                      gc_gen2_count=pauses.counts[2],
+                      loop_lag_p95=lags[int(len(lags) * 0.95)], autostatus=autostatus,
+                      wire=wire)
     finally:
         emulators.close()
+
+
+def _mean(values: Iterable[float]) -> float:
+    items = list(values)
+    return sum(items) / len(items)
+
+
+def print_cycle(cycles: list[dict[str, float]]) -> None:
+    """Print the credit cycle in the middle of one link's upload (ms after the start):
+    the write that carried the marker, the marker's modelled arrival at the controller,
+    its reply at the driver, until when the wire had bytes to carry, the next write."""
+    done = [c for c in cycles if "next_write" in c]
+    if not done:
+        return
+    c = done[len(done) // 2]
+    print(f"one credit cycle (link 0, marker {len(done) // 2 + 1} of {len(done)}): "
+          f"write of {c['write_bytes']:.0f} B ending in the marker at "
+          f"{c['written'] * 1e3:.1f} ms; marker reaches the controller (modelled wire) "
+          f"{c['arrives'] * 1e3:.1f} ms; its reply at the driver {c['reply'] * 1e3:.1f} ms "
+          f"(+{(c['reply'] - c['arrives']) * 1e3:.1f}); the wire has bytes until "
+          f"{c['busy_until'] * 1e3:.1f} ms (slack {(c['busy_until'] - c['arrives']) * 1e3:.1f}"
+          f" ms); next write of {c['next_bytes']:.0f} B at {c['next_write'] * 1e3:.1f} ms "
+          f"(+{(c['next_write'] - c['reply']) * 1e3:.2f}); dry "
+          f"{max(0.0, c['next_write'] - c['busy_until']) * 1e3:.1f} ms", file=sys.stderr)
+    dry = sorted(max(0.0, c["next_write"] - c["busy_until"]) for c in done)
+    slack = sorted(c["busy_until"] - c["arrives"] for c in done)
+    late = sorted(c["reply"] - c["arrives"] for c in done)
+    print(f"link 0, {len(done)} cycles: reply after arrival median {late[len(late) // 2] * 1e3:.1f}"
+          f" / p95 {late[int(len(late) * 0.95)] * 1e3:.1f} ms; slack median "
+          f"{slack[len(slack) // 2] * 1e3:.1f} ms; ran dry in {sum(d > 0 for d in dry)} cycles, "
+          f"{sum(dry) * 1e3:.0f} ms in all", file=sys.stderr)
+    worst = sorted(done, key=lambda c: c["busy_until"] - c["next_write"])[:6]
+    print("link 0, the longest dry spells (ms after the start: reply, dry ms): " + ", ".join(
+        f"{c['reply'] * 1e3:.0f}: {(c['next_write'] - c['busy_until']) * 1e3:.1f}"
+        for c in worst if c["next_write"] > c["busy_until"]), file=sys.stderr)
 
 
 async def _loop_lag(lags: list[float], period: float = 0.005) -> None:
@@ -429,6 +596,23 @@ def report(results: list[Result], entries: int) -> None:
           "second of one link's payload at wire speed; busy/idle/steal = cores of the "
           "whole machine; gc2 ms / gc ms = the driver's longest generation-2 / any "
           "garbage collection")
+    for r in results:
+        if r.wire is None:
+            continue
+        w = r.wire
+        wire_s = r.payload_bytes / r.controllers / LINK_BYTES_PER_S
+        sent = w["mean_payload"] + w["mean_marker"] + w["mean_other"]
+        print(f"N={r.controllers} autostatus {r.autostatus}, modelled wire per link (mean / "
+              f"worst): payload {wire_s:.3f} s; markers {w['mean_marker'] / sent:.4f} and "
+              f"other lines {w['mean_other'] / sent:.4f} of the bytes; idle at the start "
+              f"{w['mean_start'] * 1e3:.0f} / {w['max_start'] * 1e3:.0f} ms (first payload "
+              f"line {w['mean_first_payload'] * 1e3:.0f} / {w['max_first_payload'] * 1e3:.0f}"
+              f" ms), dry between payload lines {w['mean_gaps'] * 1e3:.0f} / "
+              f"{w['max_gaps'] * 1e3:.0f} ms, tail {w['mean_tail'] * 1e3:.0f} / "
+              f"{w['max_tail'] * 1e3:.0f} ms, end {w['mean_end']:.3f} / {w['max_end']:.3f} s;"
+              f" reply after the marker's arrival median {w['mean_answer_median'] * 1e3:.1f},"
+              f" p95 {w['mean_answer_p95'] * 1e3:.1f} / {w['max_answer_p95'] * 1e3:.1f} ms; "
+              f"next write after a reply p95 {w['max_react_p95'] * 1e3:.2f} ms")
     print(json.dumps([asdict(r) | {"ratio": r.ratio, "driver_cores": r.driver_cores,
                                    "emulator_cores": r.emulator_cores,
                                    "driver_cpu_per_wire_second": r.driver_cpu_per_wire_second}
@@ -441,7 +625,7 @@ async def main(args: argparse.Namespace) -> list[Result]:
     for count in args.counts:
         results.append(await run(count, args.entries, args.per_process, profile,
                                  args.emulator_profile, args.lean, args.marker_chunk,
-                                 args.gc))
+                                 args.gc, args.autostatus, args.trace))
         print(f"N={count}: {results[-1].ratio:.3f} of the bound", file=sys.stderr)
     if profile is not None:
         profile.dump_stats(args.profile)
@@ -465,6 +649,12 @@ if __name__ == "__main__":
                         help="garbage collector during the upload (default on)")
     parser.add_argument("--marker-chunk", type=int, metavar="BYTES",
                         help="reply-less bytes between credit markers (default: the driver's)")
+    parser.add_argument("--autostatus", type=int, choices=(1, 2), default=1,
+                        help="the links' autostatus mode (2: every line acknowledged, no "
+                             "credit markers)")
+    parser.add_argument("--trace", action="store_true",
+                        help="log every link's writes and reads: one credit cycle, and "
+                             "where the wire stood idle (start-up, gaps, tail)")
     parser.add_argument("--serve", type=int, metavar="N", help=argparse.SUPPRESS)
     parser.add_argument("--serve-lean", type=int, metavar="N", help=argparse.SUPPRESS)
     args = parser.parse_args()

@@ -20,7 +20,9 @@ concurrent uploads would interleave their clears and appends.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
+import operator
 from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TypeVar, overload
@@ -108,6 +110,11 @@ class Column(Sequence[Sequence[float]]):
     def __init__(self, values: list[float]) -> None:
         self._values = values
 
+    @property
+    def values(self) -> list[float]:
+        """The numbers (not a copy: do not change them)."""
+        return self._values
+
     def __len__(self) -> int:
         return len(self._values)
 
@@ -145,6 +152,8 @@ def _positions(values: object, what: str, name: str) -> list[float]:
         raise InvalidCommandError(f"{name}: {what} must be a sequence of numbers, got "
                                   f"{type(values).__name__} {values!r:.40}",
                                   instruction=name, parameter="position", number=5)
+    if type(values) is list and all(type(value) is float for value in values):
+        return values.copy()  # what the loop below makes of plain floats, in C
     out: list[float] = []
     for index, value in enumerate(values):
         try:
@@ -181,6 +190,8 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
     if len(values) > MAX_TRIGGERS:
         raise InvalidCommandError(f"trigp: {len(values)} entries, at most {MAX_TRIGGERS}",
                                   instruction="trigp", parameter="position", number=5)
+    if _finite_and_monotonic(values):
+        return values  # the loops below find nothing (64 uploads: 0.5 ms each saved)
     for index, value in enumerate(values):
         if not math.isfinite(value):
             raise InvalidCommandError(f"trigp: entry {index} is not finite ({value})",
@@ -194,6 +205,25 @@ def validate_trigger_positions(positions: Sequence[float]) -> list[float]:
                     f"trigp: entry {index} ({values[index]}) breaks the monotonic order",
                     instruction="trigp", parameter="position", number=5)
     return values
+
+
+def _finite_and_monotonic(values: list[float]) -> bool:
+    """Whether every value is finite and the list strictly rising or strictly falling: what
+    :func:`validate_trigger_positions` checks value by value, in C (``map``), so that a
+    good list costs no Python loop; ``False`` sends the caller to its loops, which name
+    the first bad entry.
+
+    Returns
+    -------
+    bool
+        ``True`` when the loops would raise nothing.
+    """
+    if not all(map(math.isfinite, values)):
+        return False
+    if len(values) < 2:
+        return True
+    order = operator.lt if values[1] > values[0] else operator.gt
+    return all(map(order, values, itertools.islice(values, 1, None)))
 
 
 def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
@@ -302,6 +332,12 @@ def check_resolution(values: Sequence[Sequence[float]], quantum: Sequence[float]
     InvalidCommandError
         An entry is non-zero but below half the resolution.
     """
+    if isinstance(values, Column) and quantum:
+        # One column (a trigger list): a good list costs one comprehension, not a row
+        # tuple and a loop per entry; a hit goes on to the loop, which names it.
+        half = quantum[0] / 2
+        if not [value for value in values.values if value != 0.0 and abs(value) < half]:
+            return
     for index, row in enumerate(values):
         for column, value in enumerate(row):
             step = quantum[column] if column < len(quantum) else quantum[-1]
@@ -344,18 +380,20 @@ class ListTransfer:
 
     async def replace(self, spec: ListSpec, clear: Callable[[], Awaitable[None]],
                       rows: Sequence[Sequence[float]], progress: Progress | None) -> None:
-        """Validate every line of ``rows``, then (holding :attr:`lock`) await ``clear``
-        (the checked clearing line) and append the rows.
+        """Check every entry of ``rows``, then (holding :attr:`lock`) await ``clear`` (the
+        checked clearing line) and append the rows.
 
-        Where the entries owe no reply in the mode in force (modes 0, 1, 3), they are
-        only checked before the clear (:func:`~tango_aio.instructions.check_rows`, whose
-        rows :func:`~tango_aio.instructions.encode_rows` cannot fail on); each chunk's
-        lines are made as bytes when it is queued, while the chunks before it are on the
-        wire (building every list before the first byte made 64 uploads in one process
-        start one list-build apart), so
-        ``rows`` must not change until the upload has ended (the controller's methods
-        pass copies they validated). Otherwise every line is built before the clear, as
-        commands.
+        Every entry is checked before the clear (:func:`check_entries`, in one go: checks
+        cut into slices with loop turns between made 64 uploads starting together start
+        later, each link's check spread over every link's turns; ``benchmarks/scaling.py
+        --trace``, BENCHMARKS.md). Each chunk's lines are then made when it is queued,
+        while the chunks before it are on the wire
+        (:func:`~tango_aio.instructions.encode_rows`, which cannot fail on rows checked
+        so), as one :class:`~tango_aio.scheduler.Run` where they owe no reply (modes 0,
+        1, 3), or as commands where they do (mode 2: building all of them before the
+        clear made 8 uploads in one process start 60-140 ms later). So ``rows`` must not
+        change until the upload has ended (the controller's methods pass copies they
+        validated).
 
         Parameters
         ----------
@@ -368,17 +406,15 @@ class ListTransfer:
         progress
             Called with (entries the list holds, entries in all) after each length check;
             ``None`` for no reports.
+
+        Raises
+        ------
+        InvalidCommandError
+            An entry is not valid (the first one is named; nothing was written).
         """
         total = len(rows)
-        first = prepare(spec, rows[:1])
-        if first and self._protocol.pack(first) is not None:
-            check_entries(spec, rows)
-            chunks: Iterable[Run | list[Command]] = self._encoded(spec, rows)
-        else:
-            chunks = self._pieces(prepare(spec, rows))
-            # Not kept through the upload: one list per entry (the caller's rows) made a
-            # 64-link upload's full garbage collections scan 200 000 objects.
-            del rows
+        check_entries(spec, rows)
+        chunks = self._encoded(spec, rows)
         async with self.lock:
             await clear()
             await self._upload(spec, chunks, total, progress)
@@ -386,36 +422,30 @@ class ListTransfer:
     def _encoded(self, spec: ListSpec, rows: Sequence[Sequence[float]]
                  ) -> Iterator[Run | list[Command]]:
         """The append lines of ``rows`` (checked) cut at the checkpoints, each piece made
-        when it is asked for, as one row value (a :class:`~tango_aio.scheduler.Run`: its
-        bytes, no Command per entry), or as commands where a mode change since
-        makes its lines owe replies.
+        when it is asked for: as one row value (a :class:`~tango_aio.scheduler.Run`: its
+        bytes, no Command per entry) where its lines owe no reply in the mode they will be
+        written in, else as the commands :func:`prepare` builds (mode 2, or a mode change
+        since the upload began).
 
         Yields
         ------
         Run or list[Command]
             The pieces, in order.
         """
+        runs = True  # whether the last piece went as a run
         for start in range(0, len(rows), CHECKPOINT):
-            piece = list(spec.encode(rows[start:start + CHECKPOINT]))
-            template = parse(piece[0][:-1].decode("ascii"))
-            yield self._protocol.pack_lines(template, piece) or [
-                parse(line[:-1].decode("ascii")) for line in piece]
-
-    def _pieces(self, built: list[Command]) -> list[Run | list[Command]]:
-        """The commands ``built`` cut at the checkpoints, each piece kept as one
-        :class:`~tango_aio.scheduler.Run` where its lines owe no reply, else as they are.
-
-        Returns
-        -------
-        list[Run | list[Command]]
-            The pieces, in order.
-        """
-        chunks: list[Run | list[Command]] = []
-        for start in range(0, len(built), CHECKPOINT):
-            piece = built[start:start + CHECKPOINT]
-            chunks.append(self._protocol.pack(piece) or piece)
-        built.clear()
-        return chunks
+            part = rows[start:start + CHECKPOINT]
+            if runs:
+                piece = list(spec.encode(part))
+                template = parse(piece[0][:-1].decode("ascii"))
+                run = self._protocol.pack_lines(template, piece)
+                if run is not None:
+                    yield run
+                    continue
+            built = list(spec.append(part))
+            run = self._protocol.pack(built)
+            runs = run is not None
+            yield built if run is None else run
 
     async def _upload(self, spec: ListSpec, chunks: Iterable[Run | list[Command]],
                       total: int, progress: Progress | None) -> None:

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import random
+from collections.abc import Iterator, Sequence
 
 import pytest
 from helpers import EmulatorFactory
 
 from tango_aio import InvalidCommandError, TangoError
-from tango_aio.bulk import UploadError
-from tango_aio.instructions import parse
+from tango_aio.bulk import Column, UploadError, trigger_spec
+from tango_aio.instructions import Command, parse
 from tango_aio.sim.lists import ListError
 
 REALTIME = "sim://?baud=57600&latency=0.002&processing=0.0005"
@@ -226,3 +228,33 @@ async def test_marker_errors_are_attributed_to_the_lines_they_cover(
     await emu.tango.query("?trigc")
     assert [s.chunk_error for s in submissions] == [None, None, 5, None]
     assert await emu.tango.read_trigger_positions() == [1.0, 2.0, 3.0]
+
+
+async def test_mode_2_builds_each_chunk_when_it_is_queued(emulator: EmulatorFactory) -> None:
+    """In autostatus 2 the entries owe acknowledgements and go as commands: each chunk's
+    are built when it is queued, not all before the clear (64 uploads in one process
+    started one list-build apart, with long full garbage collections)."""
+    emu = await emulator(autostatus=2)
+    spec = trigger_spec()
+    built: list[int] = []
+
+    def append(rows: Sequence[Sequence[float]]) -> Iterator[Command]:
+        built.append(len(rows))
+        return spec.append(rows)
+
+    counted = dataclasses.replace(spec, append=append)
+    at_clear: list[int] = []
+
+    async def clear() -> None:
+        at_clear.append(sum(built))
+        await emu.tango.command("!trigp x 0")
+
+    values = ramp(450)
+    await emu.tango._transfer().replace(counted, clear, Column(values), None)
+    assert at_clear == [0]
+    assert built == [200, 200, 50]
+    assert await emu.tango.read_trigger_positions() == values
+    with pytest.raises(InvalidCommandError, match="entry 300"):
+        await emu.tango._transfer().replace(
+            counted, clear, Column([*values[:300], math.nan, *values[301:]]), None)
+    assert await emu.tango.read_trigger_positions() == values
