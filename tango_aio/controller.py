@@ -1139,11 +1139,14 @@ class Controller:
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
                     stop_on_cancel: bool) -> dict[str, str]:
-        lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
-        for line, part in zip(lines, _line_groups(axes), strict=True):
+        groups = _line_groups(axes)
+        lines = [build_axes(name, part, context=self.context) for part in groups]
+        for line, part in zip(lines, groups, strict=True):
             self._check_axes(line, part)
+        if len(lines) == 1:
+            return await self._run_motion(lines[0], timeout, stop_on_cancel, groups[0])
         letters: dict[str, str] = {}
-        for line, part in zip(lines, _line_groups(axes), strict=True):
+        for line, part in zip(lines, groups, strict=True):
             letters.update(await self._run_motion(line, timeout, stop_on_cancel, part))
         return letters
 
