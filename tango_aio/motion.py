@@ -254,7 +254,7 @@ class MotionPort(Protocol):
 
         Returns
         -------
-        tuple[dict[str, str], dict[str, str]]
+        Awaitable[tuple[dict[str, str], dict[str, str]]]
             What reads the status letters of every present axis and the positions of
             at least ``axes``, as printed.
 
