@@ -1145,11 +1145,14 @@ class Controller:
 
     async def _move(self, name: str, axes: Mapping[str, float], timeout: float | None,
                     stop_on_cancel: bool) -> dict[str, str]:
-        lines = [build_axes(name, part, context=self.context) for part in _line_groups(axes)]
-        for line, part in zip(lines, _line_groups(axes), strict=True):
+        groups = _line_groups(axes)
+        lines = [build_axes(name, part, context=self.context) for part in groups]
+        for line, part in zip(lines, groups, strict=True):
             self._check_axes(line, part)
+        if len(lines) == 1:
+            return await self._run_motion(lines[0], timeout, stop_on_cancel, groups[0])
         letters: dict[str, str] = {}
-        for line, part in zip(lines, _line_groups(axes), strict=True):
+        for line, part in zip(lines, groups, strict=True):
             letters.update(await self._run_motion(line, timeout, stop_on_cancel, part))
         return letters
 
@@ -2159,6 +2162,17 @@ class Controller:
         tuple[dict[str, str], dict[str, str]]
             The status letter and the position (as printed) of each axis read.
         """
+        return await self._state_replies(self._submit_state(separate_after, axes))
+
+    def _submit_state(self, separate_after: bool, axes: Sequence[str]) -> _StateRead:
+        """Submit the two lines of :meth:`_status_and_positions` (written at once where
+        the credit allows); :meth:`_state_replies` reads their replies.
+
+        Returns
+        -------
+        _StateRead
+            The lines and their submissions.
+        """
         context = self.context
         present = AXES[: context.axes]
         status = self._status_command() if axes else \
@@ -2168,6 +2182,19 @@ class Controller:
         pos = _read_command("pos", axes[0] if single else None, context)
         first, second = self._protocol.submit_together((status, pos),
                                                        separate_after=separate_after)
+        return _StateRead(status, axes[0] if single else None, first, second)
+
+    async def _state_replies(self, read: _StateRead
+                             ) -> tuple[dict[str, str], dict[str, str]]:
+        """The letters and positions of a read :meth:`_submit_state` submitted (see
+        :meth:`_status_and_positions`).
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letter and the position (as printed) of each axis read.
+        """
+        status, first, second = read.status, read.first, read.second
         try:
             letters = parse_reply(status, (await self._protocol.wait_reply(
                 first, self.reply_timeout)).lines)
@@ -2183,10 +2210,12 @@ class Controller:
             raise
         texts = " ".join((await self._protocol.wait_reply(
             second, self.reply_timeout)).lines).split()
+        present = AXES[: self.context.axes]
         if not isinstance(letters, dict) or len(letters) != len(present):
             letters = await self.status()
-        if single and len(texts) == 1:
-            positions = {axes[0]: texts[0]}
+        single = read.single
+        if single is not None and len(texts) == 1:
+            positions = {single: texts[0]}
         elif len(texts) != len(present):
             return letters, await self._position_texts()
         else:
@@ -2201,7 +2230,7 @@ class Controller:
             if submission is None or submission.command.name not in _LIMIT_NEUTRAL:
                 self._forget_limits()  # the end of a cal or rm sets limits (L4575-4580)
             self._publish_completion(event, submission)
-            self._motion.hint()
+            self._motion.reported()
         elif isinstance(event, Unsolicited):
             self._hub.publish(UnsolicitedLine(event.line))
         elif isinstance(event, Dropped):
@@ -2235,12 +2264,14 @@ class Controller:
     async def _stop_all(self) -> None:
         await self._protocol.stop_soft()
 
-    async def _read_state(self, axes: Sequence[str]
-                          ) -> tuple[dict[str, str], dict[str, str]]:
+    def _read_state(self, axes: Sequence[str]
+                    ) -> Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]:
+        # Written now (MotionPort.read_state: also from a report's callback, in the loop
+        # turn the report arrived); the coroutine reads the replies.
         self._protocol.check()
         # A raster's next move_to follows this read: its ?err probe looks like the
         # positions, and a separator behind them keeps it off the move's path.
-        return await self._status_and_positions(separate_after=True, axes=axes)
+        return self._state_replies(self._submit_state(True, axes))
 
     def _signature(self, controller: Controller | None = None) -> Signature | None:
         identity = (controller or self)._identity
@@ -2286,6 +2317,18 @@ class _Port:
     read_state: Callable[[Sequence[str]],
                          Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]]
     finished: Callable[[MoveFinished], None]
+
+
+@dataclass(frozen=True, slots=True)
+class _StateRead:
+    """A state read in flight (:meth:`Controller._submit_state`)."""
+
+    #: The letters' line (``sa`` or ``?statusaxis``).
+    status: Command
+    #: The one axis whose position alone was asked (``?pos x``); ``None``: ``?pos``.
+    single: str | None
+    first: Submission
+    second: Submission
 
 
 @dataclass(frozen=True, slots=True)

@@ -84,7 +84,7 @@ import asyncio
 import contextlib
 import copy
 import logging
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import NoReturn, Protocol
 
@@ -238,11 +238,14 @@ class MotionPort(Protocol):
         """Write ``a`` (stop every axis, keep queued lines)."""
         ...
 
-    async def read_state(self, axes: Sequence[str]
-                         ) -> tuple[dict[str, str], dict[str, str]]:
+    def read_state(self, axes: Sequence[str]
+                   ) -> Awaitable[tuple[dict[str, str], dict[str, str]]]:
         """Read the state: the letters and positions written back to back (see
         :meth:`Controller._status_and_positions
-        <tango_aio.controller.Controller._status_and_positions>`).
+        <tango_aio.controller.Controller._status_and_positions>`). The lines are
+        submitted by the time the awaitable is first awaited (the controller's: when
+        this is called, so that :meth:`Motion.reported` writes them in the loop turn the
+        report arrived); one that is never awaited is a coroutine, closed unstarted.
 
         Parameters
         ----------
@@ -251,9 +254,9 @@ class MotionPort(Protocol):
 
         Returns
         -------
-        tuple[dict[str, str], dict[str, str]]
-            The status letters of every present axis and the positions of at least
-            ``axes``, as printed.
+        Awaitable[tuple[dict[str, str], dict[str, str]]]
+            What reads the status letters of every present axis and the positions of
+            at least ``axes``, as printed.
 
         Raises
         ------
@@ -291,6 +294,8 @@ class _Job:
     #: When the line's check came back: the controller had taken the line by then, so
     #: its ``!delay`` ends at the latest :attr:`MovePlan.delay` later.
     checked: float = 0.0
+    #: The state read :meth:`Motion.reported` wrote while this move waited for a hint.
+    early: Awaitable[tuple[dict[str, str], dict[str, str]]] | None = None
 
 
 class Motion:
@@ -321,6 +326,8 @@ class Motion:
         self.positions: dict[str, str] | None = None
         #: The positions of the latest read alone (the axes it read).
         self.latest: dict[str, str] | None = None
+        #: The move waiting for a hint in :meth:`_follow` (its next step is a state read).
+        self._waiting: _Job | None = None
 
     def saw(self, texts: Mapping[str, str]) -> None:
         """Record the positions of one read of some or all axes.
@@ -388,6 +395,21 @@ class Motion:
     def _was_stopped(self, job: _Job) -> bool:
         """Whether the driver stopped one of ``job``'s axes since its line was written."""
         return job.epoch != self.epoch(job.plan.moved)
+
+    def reported(self) -> None:
+        """A completion report arrived (matched or not): a :meth:`hint`. A move that waits
+        for one reads the state next, whatever the report says; that read is written
+        here, in the loop turn the report arrived, instead of once the move's task runs
+        again (a loop turn and the wake-up later, on the path of every move)."""
+        job = self._waiting
+        if job is not None and job.early is None:
+            try:
+                job.early = self._port.read_state(job.plan.moved)
+            except TangoError:
+                pass  # the link is gone: the move's own read meets it after the wake
+            else:
+                job.hints = self._hints + 1  # this read comes after this hint
+        self.hint()
 
     def hint(self) -> None:
         """Something happened that may have ended a move (a completion report, matched or
@@ -521,12 +543,12 @@ class Motion:
         while True:
             delay = min(next_poll, deadline) - loop.time()
             if delay > 0 and not self._was_stopped(job) and job.hints == self._hints:
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(delay):
-                        await self._wake.wait()
-            job.hints = self._hints  # hints from now on come after this state read
+                await self._wait_hint(job, delay)
+            early, job.early = job.early, None
+            if early is None:
+                job.hints = self._hints  # hints from now on come after this state read
             try:
-                letters, texts = await self._state(plan.moved)
+                letters, texts = await self._state(plan.moved, early)
             except _LOST_READ:
                 if not self._was_stopped(job):
                     raise
@@ -570,11 +592,30 @@ class Motion:
             self._finished(job, letters, ok=False)
             raise MoveError(f"{plan.command.line!r} {failure}", letters)
 
-    async def _state(self, axes: Sequence[str]) -> tuple[dict[str, str], dict[str, str]]:
+    async def _wait_hint(self, job: _Job, delay: float) -> None:
+        """Wait up to ``delay`` seconds for a hint; a read :meth:`reported` wrote meanwhile
+        is left in ``job.early`` (and given up if the wait is cancelled)."""
+        self._waiting = job
+        try:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(delay):
+                    await self._wake.wait()
+        except BaseException:
+            early, job.early = job.early, None
+            if isinstance(early, Coroutine):
+                early.close()  # never started: its replies are routed and dropped
+            raise
+        finally:
+            self._waiting = None
+
+    async def _state(self, axes: Sequence[str],
+                     early: Awaitable[tuple[dict[str, str], dict[str, str]]] | None = None
+                     ) -> tuple[dict[str, str], dict[str, str]]:
         """The status letters and the positions (``?statusaxis`` and ``?pos`` written back
         to back: one round trip), read again (up to 3 times) when the read was lost:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
         (the stream is resynchronised each time, so the next read is in step).
+        ``early``: the first read, already written (:meth:`reported`).
 
         Returns
         -------
@@ -583,7 +624,9 @@ class Motion:
         """
         for _ in range(2):
             with contextlib.suppress(*_LOST_READ):
-                return self._remember(await self._port.read_state(axes))
+                read = early if early is not None else self._port.read_state(axes)
+                early = None
+                return self._remember(await read)
         return self._remember(await self._port.read_state(axes))
 
     def _remember(self, state: tuple[dict[str, str], dict[str, str]]

@@ -38,6 +38,7 @@ from test_matrix import (
 )
 
 from tango_aio.errors import MoveError, TangoError
+from tango_aio.protocol import TangoProtocol
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -242,3 +243,48 @@ async def test_an_unanswered_sa_is_not_asked_again(
     lines = [r.getMessage().split(" ", 1)[1] for r in caplog.records
              if r.name == "tango_aio.wire" and "->" in r.getMessage()]
     assert lines.count("-> b'sa'") == 1, lines
+
+
+async def test_the_confirmation_goes_out_in_the_turn_the_report_arrived(
+        emulator: EmulatorFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """#28: a move that waits for its report writes its confirmation (``sa``, ``?pos x``)
+    while the report's bytes are being handled (``Motion.reported``), not a loop turn
+    later once the move's task runs again; and the move still ends only when the read
+    says so (the report stays a hint)."""
+    tango = (await emulator("sim://?baud=57600")).tango
+    await tango.move_to(x=0.5)
+    handling: list[bytes | None] = [None]
+    written_during: list[bytes | None] = []
+    received = TangoProtocol.data_received
+    stream = bytearray()
+
+    def data_received(protocol: TangoProtocol, data: bytes) -> None:
+        stream.extend(data)
+        handling[0] = bytes(stream[-16:])  # what came last, up to this chunk's end
+        try:
+            received(protocol, data)
+        finally:
+            handling[0] = None
+
+    class Writes(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.getMessage().endswith("-> b'sa'"):
+                written_during.append(handling[0])
+
+    monkeypatch.setattr(TangoProtocol, "data_received", data_received)
+    handler = Writes()
+    wire = logging.getLogger("tango_aio.wire")
+    wire.addHandler(handler)
+    level = wire.level
+    wire.setLevel(logging.DEBUG)
+    try:
+        for target in (0.25, 0.5, 0.25):
+            assert await tango.move_to(x=target) is not None
+    finally:
+        wire.removeHandler(handler)
+        wire.setLevel(level)
+    assert len(written_during) == 3
+    # Each was written while the chunk that ended the report (``@@@-.``) was handled.
+    assert all(chunk is not None and chunk.endswith(b"@@@-.\r") for chunk in written_during), \
+        written_during
+    assert tango.last_positions == {"x": "0.2500"}

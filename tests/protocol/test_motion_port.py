@@ -3,11 +3,13 @@ link, no controller. Each test records the intents a move used, in order."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import asyncio
+from collections.abc import Coroutine, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
 import pytest
+from helpers import true_within_ticks
 
 from tango_aio.errors import ControllerError, LimitSwitchActiveError, MoveError
 from tango_aio.events import MoveFinished
@@ -96,3 +98,58 @@ async def test_a_refused_line_is_raised_without_a_read() -> None:
     with pytest.raises(LimitSwitchActiveError):
         await motion.run(parse("!moa x 10"), _planner({"x": 10.0}), True)
     assert port.calls == ["start !moa x 10", "accepted"]
+
+
+class _WritingPort(_Port):
+    """Writes a read when it is asked for (``write``), reads it when awaited (``read``),
+    as the controller does."""
+
+    def read_state(self, axes: Sequence[str]
+                   ) -> Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]:
+        self.calls.append(f"write {''.join(axes)}")
+
+        async def read() -> tuple[dict[str, str], dict[str, str]]:
+            self.calls.append("read")
+            return self.reads.pop(0)
+
+        return read()
+
+
+async def _waiting_for_a_hint(port: _Port, motion: Motion) -> asyncio.Task[dict[str, str]]:
+    async def plan(command: Command, known: Mapping[str, str] | None) -> MovePlan:
+        return MovePlan(command, ("x",), {"x": 10.0},
+                        Budget(delay=0.0, travel=60.0, after=0.0, settle=0.0, limit=120.0))
+
+    task = asyncio.create_task(motion.run(parse("!moa x 10"), plan, True))
+    await true_within_ticks(lambda: port.calls == ["start !moa x 10", "accepted"])
+    for _ in range(3):
+        await asyncio.sleep(0)  # into the wait for a hint
+    return task
+
+
+async def test_a_report_writes_the_read_and_a_cancel_drops_it_and_stops() -> None:
+    """#28: a report while the move waits for one writes the read at once
+    (:meth:`Motion.reported`); a cancel that comes before the move's task ran again
+    drops that read unstarted and stops the axes, whose stop is then confirmed by a read
+    of its own."""
+    port = _WritingPort(reads=[({"x": "@"}, {"x": "3.000"})])
+    motion = Motion(cast(MotionPort, port))
+    task = await _waiting_for_a_hint(port, motion)
+    motion.reported()
+    assert port.calls[-1] == "write x"  # in the report's turn
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    assert port.calls == ["start !moa x 10", "accepted", "write x", "stop", "accepted",
+                          "write x", "read"]
+
+
+async def test_a_report_read_is_the_moves_confirmation() -> None:
+    """The read :meth:`Motion.reported` writes is the one the move is confirmed with: no
+    second read after the wake."""
+    port = _WritingPort(reads=[({"x": "@"}, {"x": "10.000"})])
+    motion = Motion(cast(MotionPort, port))
+    task = await _waiting_for_a_hint(port, motion)
+    motion.reported()
+    assert await task == {"x": "@"}
+    assert port.calls == ["start !moa x 10", "accepted", "write x", "read", "finished"]
