@@ -10,7 +10,7 @@ import pytest
 from helpers import wait_until
 
 import tango_aio
-from tango_aio import MoveOutcomeUnknown
+from tango_aio import MoveOutcomeUnknown, TangoError
 from tango_aio.testing import Faults, faults
 
 
@@ -42,6 +42,24 @@ async def test_a_lost_move_line_is_not_taken_as_accepted(mode: int,
         await tango.move_by(x=0.25)
         assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)
         assert (await tango.position())["x"] == pytest.approx(0.5, abs=1e-3)
+
+
+@pytest.mark.parametrize("mode", [2, 4])
+@pytest.mark.parametrize(("method", "prefix"), [("move_by", "!mor"), ("move_to", "!moa")])
+async def test_a_lost_move_line_fails_a_waiting_move(mode: int, method: str,
+                                                     prefix: str) -> None:
+    """move_to/move_by wait for the report and confirm the position: a lost line makes
+    them fail (typed), never return, and the next move works."""
+    async with tango_aio.connect("sim://?baud=0", autostatus=mode,
+                                 reply_timeout=2.0) as tango:
+        fault = faults(tango)
+        fault.lose_line(prefix)
+        with pytest.raises(TangoError):
+            await getattr(tango, method)(x=0.5)
+        assert fault.wire.lost_lines == 1
+        assert await _settled(fault) == 0.0
+        await tango.move_by(x=0.25)
+        assert await _settled(fault) == pytest.approx(0.25, abs=1e-3)
 
 
 @pytest.mark.parametrize(("mode", "switch", "counter"), [
