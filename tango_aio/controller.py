@@ -77,7 +77,7 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import STOP_WAIT, Motion, MovePlan, annotate
+from .motion import STOP_WAIT, Motion, MovePlan, acceptance_shown, annotate
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .restart import RestartWatch, report_suggests_restart, settings_of
@@ -643,9 +643,19 @@ class Controller:
         self._check_axes(command)
         if not command.is_read:
             self._forget_start(command)
+        raw_move = command.instruction.completion is not None and command.executes
         try:
-            response = await self._protocol.execute(command, timeout=self._timeout(timeout),
-                                                    check=check)
+            if raw_move and check:
+                # (execute() is start_move() and confirm(); the handle is kept here for
+                # its completion report, which may prove a deferred acceptance.)
+                handle = self._protocol.start_move(command, check=True)
+                await handle.confirm(self._timeout(timeout))
+                response = handle.submission.response
+                if response.deferred:
+                    await self._prove_accepted(handle, self._timeout(timeout))
+            else:
+                response = await self._protocol.execute(
+                    command, timeout=self._timeout(timeout), check=check)
         except ControllerError as error:
             if error.number < INTERNAL_ERRORS or \
                     await self._blame(error.number, self._timeout(timeout)):
@@ -653,7 +663,7 @@ class Controller:
             response = Response()
         except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
                 ConnectionLostError) as error:
-            if command.instruction.completion is None or not command.executes:
+            if not raw_move:
                 raise
             # A raw move may have run.
             raise outcome_unknown(error, command.line) from error.__cause__
@@ -665,6 +675,57 @@ class Controller:
                 and command.name in ("joy", "snsm", "tvr"):
             self._inputs_idle = await self._inputs_are_idle()
         return response
+
+    async def _prove_accepted(self, handle: MoveHandle, timeout: float) -> None:
+        """Prove that a move line whose acceptance rests only on the ``?err`` behind it
+        (:attr:`~tango_aio.protocol.Response.deferred`) arrived, or raise.
+
+        In autostatus 2 the ``OK...`` (L2099-2103: "immediately acknowledged", yet some
+        firmware sends a move's only with its report: switch ``move_ok``) and in
+        autostatus 4 the echo (L2115-2117, when is not said: switch ``echo``) may come
+        with the completion report. Then the ``?err`` reply arrives where they were owed,
+        and its 0 is all the driver has: the same as when the move line was lost (it
+        reached a controller that was off) and the ``?err`` behind it was answered. So
+        ``?statusaxis`` is read, behind the line: the interpreter executes lines in
+        order, so the move has started by then if it arrived, and its report (which
+        carries the deferred ``OK...`` or echo) came before the reply if it already
+        ended (L2087-2089). A moved axis moving, or the report, proves it
+        (:func:`~tango_aio.motion.acceptance_shown`).
+
+        Parameters
+        ----------
+        handle
+            The move line, its verdict 0 received.
+        timeout
+            Seconds the ``?statusaxis`` read may take.
+
+        Raises
+        ------
+        ProtocolError
+            Nothing proves the line arrived (the caller raises it as a
+            :class:`~tango_aio.errors.MoveOutcomeUnknown`); the restart watch reads the
+            mode in force, since a restart loses lines.
+        ControllerTimeoutError, RequestAbortedError, ConnectionLostError
+            The ``?statusaxis`` read failed.
+        """
+        completion = handle.submission.completion
+        if completion is None or _reported(completion):
+            return  # its report came (a refusal fails confirm() before this)
+        # (A report no longer awaited, e.g. dropped when a restart was noticed, is no
+        # proof: only a report that came is.)
+        letters = await self.get("statusaxis", timeout=timeout)
+        assert isinstance(letters, dict)
+        moved = moved_axes(handle.command, AXES[: self.context.axes])
+        if acceptance_shown(_reported(completion), letters, moved):
+            return
+        handle.forget()  # it never ran: its report must not be taken for a later move's
+        self._restarts.suspect()
+        raise ProtocolError(
+            f"the acceptance of {handle.command.line!r} could not be proven: its "
+            f"{'OK...' if handle.submission.expectation.ack else 'echo'} did not come "
+            f"(only the ?err behind it answered 0), no completion report came, and "
+            f"?statusaxis shows {' '.join(moved).upper()} standing: the line may have "
+            f"been lost")
 
     def _forget_start(self, command: Command) -> None:
         """A ``!`` line other than a move: any of them may move the stage or change what
@@ -2389,6 +2450,23 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
 
 #: A per-move velocity or acceleration: one number for every moved axis, or per axis.
 Speed = float | Mapping[str, float]
+
+
+def _reported(completion: asyncio.Future[Completed]) -> bool:
+    """Whether a move's completion report arrived (not: its wait was cancelled or failed).
+
+    Parameters
+    ----------
+    completion
+        The move's completion future.
+
+    Returns
+    -------
+    bool
+        Whether it holds a report.
+    """
+    return completion.done() and not completion.cancelled() \
+        and completion.exception() is None
 
 
 def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[str, Any]:

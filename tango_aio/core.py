@@ -311,21 +311,35 @@ class Replied:
 
 @dataclass(frozen=True, slots=True)
 class Acknowledged:
-    """``OK...`` (``code == 0``) or ``ERR n`` for request ``tag`` (``code`` None: no number)."""
+    """``OK...`` (``code == 0``) or ``ERR n`` for request ``tag`` (``code`` None: no number).
+
+    ``deferred``: the verdict is the reply of the ``?err`` written behind a mode-2 move,
+    which arrived where the move's own ``OK...`` was owed (``line`` is that reply). It
+    shows that no error was reported, not that the move line arrived: firmware that
+    sends the ``OK...`` only with the completion report (switch ``move_ok``) and a lost
+    move line look the same here (L2099-2103 do not say when the ``OK...`` comes).
+    """
 
     tag: Hashable
     code: int | None
     line: str
     done: bool = True
+    deferred: bool = False
 
 
 @dataclass(frozen=True, slots=True)
 class Echoed:
-    """The autostatus-4 echo of request ``tag``."""
+    """The autostatus-4 echo of request ``tag``.
+
+    ``deferred``: no echo came where the move's was owed (``line`` is empty), the reply
+    of the ``?err`` behind it came instead: the echo may come with the completion report
+    (switch ``echo=completion``; L2115-2117 do not say when), or the line was lost.
+    """
 
     tag: Hashable
     line: str
     done: bool = True
+    deferred: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -1335,7 +1349,7 @@ class ProtocolCore:
                 self._deferred_echoes.append(head.echo)
                 done = head.done_after(_Item.ECHO)
                 self._advance(head)
-                self._emit(head, Echoed(head.tag, "", done))
+                self._emit(head, Echoed(head.tag, "", done, deferred=True))
                 self._route(line)
                 return
             self._events.append(Unsolicited(line))
@@ -1483,7 +1497,8 @@ class ProtocolCore:
                 self.forget_completion(head.verdict)
                 with contextlib.suppress(ValueError):
                     self._deferred.remove(head.verdict)
-            self._events.append(Acknowledged(head.verdict, code, lines[0] if lines else ""))
+            self._events.append(Acknowledged(head.verdict, code, lines[0] if lines else "",
+                                             deferred=True))
             return
         self._emit(head, Replied(head.tag, lines, done))
 

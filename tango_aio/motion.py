@@ -107,7 +107,7 @@ from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
 from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
-           "annotate"]
+           "acceptance_shown", "annotate"]
 
 log = logging.getLogger("tango_aio")
 
@@ -721,6 +721,32 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.finished(MoveFinished(job.plan.kind, dict(letters), ok))
+
+
+def acceptance_shown(reported: bool, letters: Mapping[str, str],
+                     moved: Sequence[str]) -> bool:
+    """Whether a move line whose acceptance was deferred (its autostatus-2 ``OK...`` or
+    autostatus-4 echo did not come where owed, the ``?err`` behind it answered 0) is
+    proven to have arrived, from what came by the reply of a ``?statusaxis`` read
+    written behind it: its completion report, or a moved axis moving (``M``, L2695).
+    Every moved axis standing with no report leaves it unproven: the line may have been
+    lost (see :meth:`tango_aio.controller.Controller.command`).
+
+    Parameters
+    ----------
+    reported
+        Whether the line's completion report arrived.
+    letters
+        The ``?statusaxis`` letter of each present axis.
+    moved
+        The axes the line moves.
+
+    Returns
+    -------
+    bool
+        Whether the line is proven to have arrived.
+    """
+    return reported or any(letters.get(axis) == MOVING for axis in moved)
 
 
 def annotate(exc: TangoError, text: str) -> TangoError:

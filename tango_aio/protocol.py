@@ -110,6 +110,12 @@ class Response:
     ack: int | None = None
     acked: bool = False
     echo: str | None = None
+    #: Whether the line's acceptance rests only on the ``?err`` behind it: its
+    #: autostatus-2 ``OK...`` or autostatus-4 echo did not come where it was owed (see
+    #: :attr:`tango_aio.core.Acknowledged.deferred`, :attr:`tango_aio.core.Echoed.deferred`).
+    #: Such a verdict does not prove the line arrived (:meth:`Controller.command
+    #: <tango_aio.controller.Controller.command>` proves it before it returns).
+    deferred: bool = False
 
 
 @dataclass(eq=False, slots=True)
@@ -1557,10 +1563,14 @@ class TangoProtocol(asyncio.Protocol):
             response.lines = event.lines
         elif isinstance(event, Acknowledged):
             response.ack, response.acked = event.code, True
+            if event.deferred:
+                response.deferred = True
             if event.code != 0:  # a refused move never completes (the core forgot it)
                 _fail(submission.completion, _ack_error(event.code, submission))
         else:
             response.echo = event.line
+            if event.deferred:
+                response.deferred = True
         if event.done:
             if submission.reply is not None and not submission.reply.done():
                 submission.reply.set_result(response)

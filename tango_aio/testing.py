@@ -217,6 +217,26 @@ class Faults:
             wire.faults.delay_replies += _count(replies)
         self._do(action)
 
+    def lose_line(self, prefix: str) -> None:
+        """Lose the next line the controller receives that starts with ``prefix`` (e.g.
+        ``"!mor"``), as if it never arrived: it is not executed and gets no answer; the
+        lines behind it are executed as usual. Once.
+
+        Parameters
+        ----------
+        prefix
+            The start of the line to lose (at least one character).
+
+        Raises
+        ------
+        ValueError
+            ``prefix`` is empty.
+        """
+        if not prefix:
+            raise ValueError("lose_line needs a prefix of at least one character")
+        data = prefix.encode("ascii")
+        self._do(lambda wire: setattr(wire.faults, "lose_line", data))
+
     def noise(self, data: bytes = b"\x15noise\r") -> None:
         """Send ``data`` to the driver as if the controller had sent it unasked.
 

@@ -270,6 +270,9 @@ class Faults:
     """Seconds a delayed reply waits before its first byte is sent."""
     disconnect_mid_reply: bool = False
     """Send only the first half of the next reply, then close the connection."""
+    lose_line: bytes | None = None
+    """Lose the next line received that starts with these bytes, as if it never arrived
+    (a line garbled or cut on the way in); once. ``None``: lose none."""
 
 
 @dataclass
@@ -330,6 +333,8 @@ class Wire:
         """Ctrl+C characters received."""
         self.dropped_replies = 0
         """Replies swallowed by :attr:`Faults.drop_replies`."""
+        self.lost_lines = 0
+        """Lines received and lost by :attr:`Faults.lose_line`."""
         self.closed = False
         """True once the connection was cut (:meth:`disconnect` or a mid-reply fault)."""
         self.notify: Callable[[], None] | None = None
@@ -901,6 +906,12 @@ class Wire:
         Ctrl+C that arrives during processing stops it), but what it emits is held until
         processing ends, so every reply includes the processing time.
         """
+        lose = self.faults.lose_line
+        if lose is not None and not too_long and line.startswith(lose):
+            self.faults.lose_line = None
+            self.lost_lines += 1
+            self.lost_bytes += size
+            return
         self.lines_processed += 1
         duration = self._duration(line, too_long)
         self._busy_len = size

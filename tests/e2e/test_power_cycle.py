@@ -23,8 +23,11 @@ STEP = 0.5
 
 
 async def _settled(fault: Faults) -> float:
-    """Where the emulated X stands once it stopped (read from the emulator)."""
-    await wait_until(lambda: fault.axes()["x"][1] == 0.0, timeout=30.0)
+    """Where the emulated X stands once it stopped (read from the emulator). Its
+    velocity alone is no test: it is 0.0 too at the instant a move starts (uvloop's clock
+    ticks in milliseconds), so the motion model must say that no move is under way."""
+    await wait_until(lambda: not fault.model.motion.is_moving("x")
+                     and fault.axes()["x"][1] == 0.0, timeout=30.0)
     return fault.axes()["x"][0]
 
 

@@ -485,7 +485,8 @@ def test_mode2_deferred_move_ok_is_not_credited_to_the_lines_behind_it() -> None
     core, _ = setup(2, *_DURING_MOVE)
     events = feed(core, [stream("0", "ERR 5", "5", "OK...", "0", "R", "OK...", "@@@-.")])
     assert events == [
-        Acknowledged("m", 0, "0", True),  # the ?err behind it: accepted, OK... deferred
+        # The ?err behind it: accepted, OK... deferred.
+        Acknowledged("m", 0, "0", True, deferred=True),
         Acknowledged("t", 5, "ERR 5", True),
         Acknowledged("v", 0, "OK...", True),
         Replied("r", ("R",)),
@@ -506,7 +507,7 @@ def test_mode2_deferred_move_ok_around_a_sets_ack(order: str, refused: bool) -> 
              "ok_first": [ack, "OK...", "@@@-.", "5" if refused else "0"],
              "ack_between": ["OK...", ack, "@@@-.", "5" if refused else "0"]}[order]
     events = feed(core, [stream("0", *lines)])
-    assert Acknowledged("m", 0, "0", True) in events
+    assert Acknowledged("m", 0, "0", True, deferred=True) in events
     assert Acknowledged("v", 5 if refused else 0, ack, True) in events
     assert Completed("m", XYZ, "@@@-.") in events
     assert not [e for e in events if isinstance(e, Unsolicited | Mismatched)]
@@ -521,7 +522,7 @@ def test_mode2_deferred_move_ok_and_an_acknowledged_read() -> None:
     data, _ = core.send(parse("?vel x"), "r")
     assert data == b"?vel x\r?err\r"
     events = feed(core, [stream("0", "R", "OK...", "0")])
-    assert events == [Acknowledged("m", 0, "0", True), Replied("r", ("R",), False),
+    assert events == [Acknowledged("m", 0, "0", True, deferred=True), Replied("r", ("R",), False),
                       Acknowledged("r", 0, "OK...", True)]
     assert feed(core, [stream("OK...", "@@@-.")]) == [Completed("m", XYZ, "@@@-.")]
 
@@ -564,8 +565,9 @@ def test_mode2_deferred_move_after_a_deferred_move() -> None:
     # OK... arriving at its head is not taken for the second's acknowledgement.
     core, _ = setup(2, ("!moa 4", "m1"), ("!moa 1", "m2"))
     events = feed(core, [stream("0", "OK...", "@@@-.", "0", "OK...", "@@@-.")])
-    assert events == [Acknowledged("m1", 0, "0", True), Completed("m1", XYZ, "@@@-."),
-                      Acknowledged("m2", 0, "0", True), Completed("m2", XYZ, "@@@-.")]
+    assert events == [
+        Acknowledged("m1", 0, "0", True, deferred=True), Completed("m1", XYZ, "@@@-."),
+        Acknowledged("m2", 0, "0", True, deferred=True), Completed("m2", XYZ, "@@@-.")]
 
 
 def test_mode2_deferred_move_lost_in_a_resync_is_reported_lost() -> None:
@@ -606,7 +608,7 @@ def test_mode4_move_echo_at_completion() -> None:
     core, _ = setup(4, ("!moa 4", "m"), ("?err", "e"), ("!vel y 5", "v"), ("?vel", "r"))
     events = feed(core, [stream("0", "!vel y 5", "R", "!moa 4", "@@@-.")])
     assert events == [
-        Echoed("m", "", True), Replied("e", ("0",)), Echoed("v", "!vel y 5", True),
+        Echoed("m", "", True, deferred=True), Replied("e", ("0",)), Echoed("v", "!vel y 5", True),
         Replied("r", ("R",)), Completed("m", XYZ, "@@@-."),
     ]
     assert core.tolerated == {"echo@completion": 1}
