@@ -32,7 +32,7 @@ from tango_aio.protocol import Submission, TangoProtocol
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire
-from tango_aio.testing import faults
+from tango_aio.testing import Faults, faults
 
 if TYPE_CHECKING:
     from tango_aio.sim.ptyserve import PtyServer
@@ -400,6 +400,15 @@ async def wait_until(predicate: Callable[[], bool], timeout: float = 2.0) -> Non
             if predicate():
                 return
             await asyncio.sleep(0.005)
+
+
+async def settled_position(fault: Faults, axis: str = "x") -> float:
+    """Where the emulated ``axis`` stands once it stopped (read from the emulator). Its
+    velocity alone is no test: it is 0.0 too at the instant a move starts (uvloop's clock
+    ticks in milliseconds), so the motion model must say that no move is under way."""
+    await wait_until(lambda: not fault.model.motion.is_moving(axis)
+                     and fault.axes()[axis][1] == 0.0, timeout=30.0)
+    return fault.axes()[axis][0]
 
 
 async def opened(url: str, **options: Unpack[ConnectOptions]) -> Controller:

@@ -7,20 +7,11 @@ MoveOutcomeUnknown instead of a false success (prime rule 1)."""
 from __future__ import annotations
 
 import pytest
-from helpers import wait_until
+from helpers import settled_position, wait_until
 
 import tango_aio
 from tango_aio import MoveOutcomeUnknown, TangoError
-from tango_aio.testing import Faults, faults
-
-
-async def _settled(fault: Faults) -> float:
-    """Where the emulated X stands once it stopped (read from the emulator). Its
-    velocity alone is no test: it is 0.0 too at the instant a move starts (uvloop's clock
-    ticks in milliseconds), so the motion model must say that no move is under way."""
-    await wait_until(lambda: not fault.model.motion.is_moving("x")
-                     and fault.axes()["x"][1] == 0.0, timeout=30.0)
-    return fault.axes()["x"][0]
+from tango_aio.testing import faults
 
 
 @pytest.mark.parametrize("mode", [2, 4])
@@ -38,12 +29,12 @@ async def test_a_lost_move_line_is_not_taken_as_accepted(mode: int,
             await tango.command("!mor 0.5")
         assert fault.wire.lost_lines == 1
         assert suspected  # the restart watch reads the mode
-        assert await _settled(fault) == 0.0
+        assert await settled_position(fault) == 0.0
         # The next calls work: the lost move's report is not awaited any more.
         await tango.command("!mor 0.25")
-        assert await _settled(fault) == pytest.approx(0.25, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(0.25, abs=1e-3)
         await tango.move_by(x=0.25)
-        assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(0.5, abs=1e-3)
         assert (await tango.position())["x"] == pytest.approx(0.5, abs=1e-3)
 
 
@@ -60,9 +51,9 @@ async def test_a_lost_move_line_fails_a_waiting_move(mode: int, method: str,
         with pytest.raises(TangoError):
             await getattr(tango, method)(x=0.5)
         assert fault.wire.lost_lines == 1
-        assert await _settled(fault) == 0.0
+        assert await settled_position(fault) == 0.0
         await tango.move_by(x=0.25)
-        assert await _settled(fault) == pytest.approx(0.25, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(0.25, abs=1e-3)
 
 
 @pytest.mark.parametrize(("mode", "switch", "counter"), [
@@ -75,11 +66,11 @@ async def test_a_deferred_acceptance_is_proven_and_returns(mode: int, switch: st
                                  reply_timeout=2.0) as tango:
         fault = faults(tango)
         await tango.command("!mor 0.5")
-        assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(0.5, abs=1e-3)
         await tango.command("!mor 0.25")
-        assert await _settled(fault) == pytest.approx(0.75, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(0.75, abs=1e-3)
         await tango.move_by(x=0.25)
-        assert await _settled(fault) == pytest.approx(1.0, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(1.0, abs=1e-3)
         assert (await tango.position())["x"] == pytest.approx(1.0, abs=1e-3)
         # The OK... or echo did come with the report: the deferred path was taken.
         await wait_until(lambda: tango.protocol.core.tolerated.get(counter, 0) >= 3,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from helpers import wait_until
+from helpers import settled_position
 
 import tango_aio
 from tango_aio import Controller, ControllerRestarted, MoveOutcomeUnknown, TangoError
@@ -22,13 +22,6 @@ MOVES = 4
 STEP = 0.5
 
 
-async def _settled(fault: Faults) -> float:
-    """Where the emulated X stands once it stopped (read from the emulator). Its
-    velocity alone is no test: it is 0.0 too at the instant a move starts (uvloop's clock
-    ticks in milliseconds), so the motion model must say that no move is under way."""
-    await wait_until(lambda: not fault.model.motion.is_moving("x")
-                     and fault.axes()["x"][1] == 0.0, timeout=30.0)
-    return fault.axes()["x"][0]
 
 
 async def _move_after_cycle(tango: Controller, fault: Faults) -> list[str]:
@@ -36,16 +29,16 @@ async def _move_after_cycle(tango: Controller, fault: Faults) -> list[str]:
     fault.power_cycle(0.05)
     outcomes: list[str] = []
     for _ in range(MOVES):
-        before = await _settled(fault)
+        before = await settled_position(fault)
         try:
             await tango.move_by(x=STEP)
         except TangoError as exc:
-            moved = abs(await _settled(fault) - before) > 1e-6
+            moved = abs(await settled_position(fault) - before) > 1e-6
             # A failed move that ran must say so; one that says so may not have run.
             assert not moved or isinstance(exc, MoveOutcomeUnknown), (before, exc)
             outcomes.append(type(exc).__name__)
             continue
-        assert await _settled(fault) == pytest.approx(before + STEP, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(before + STEP, abs=1e-3)
         outcomes.append("ok")
         return outcomes
     raise AssertionError(f"the driver did not recover within {MOVES} moves: {outcomes}")
@@ -104,7 +97,7 @@ async def test_a_raw_move_line_that_ran_is_never_reported_failed_without_saying_
             # lost: under uvloop it may), a failure must not deny that it may have run.
             assert isinstance(exc, MoveOutcomeUnknown), exc
         else:  # returned: it was accepted, so it ran
-            assert await _settled(fault) == pytest.approx(0.5, abs=1e-3)
+            assert await settled_position(fault) == pytest.approx(0.5, abs=1e-3)
 
 
 @pytest.mark.parametrize("mode", [2, 4])
@@ -129,7 +122,7 @@ async def test_a_power_cycle_ends_the_move_by_start_rule() -> None:
         await _restarted(events)
         await tango.move_by(x=STEP)  # confirmed where it stands, with the HDI on
         assert fault.model.hdi_deflect(0, 0.25)  # the power-on HDI is on: honoured
-        nudged = await _settled(fault)
+        nudged = await settled_position(fault)
         await tango.move_by(x=STEP)
-        assert await _settled(fault) == pytest.approx(nudged + STEP, abs=1e-3)
+        assert await settled_position(fault) == pytest.approx(nudged + STEP, abs=1e-3)
         assert (await tango.position())["x"] == pytest.approx(nudged + STEP, abs=1e-3)
