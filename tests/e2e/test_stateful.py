@@ -259,6 +259,8 @@ class DriverMachine(RuleBasedStateMachine):
         """Abort (``a`` or Ctrl+C) a move with reads in flight; ``wait=False`` returns at
         once (then this waits for the axes itself, polling faster than abort does)."""
 
+        aborting: list[float] = []
+
         async def go() -> tuple[object, list[object]]:
             target = one_axis(axis, 1.0 if sleep else -1.0)
             move = asyncio.ensure_future(self.tango.move_to(**target))
@@ -266,7 +268,10 @@ class DriverMachine(RuleBasedStateMachine):
             reads = asyncio.ensure_future(self.reads(lines))
             for _ in range(spins):  # with 2 or more, the reads are written before the abort
                 await asyncio.sleep(0)
+            loop = asyncio.get_running_loop()
+            start = loop.time()
             await self.tango.abort(soft=soft, wait=wait)
+            aborting.append(loop.time() - start)
             if not wait:
                 await self.tango.wait_idle(poll_interval=0.002)
             moved = (await asyncio.gather(move, return_exceptions=True))[0]
@@ -277,6 +282,13 @@ class DriverMachine(RuleBasedStateMachine):
             if isinstance(reply, RequestAbortedError):
                 assert not soft  # only Ctrl+C discards requests
                 OUTCOMES["abort"]["read: RequestAbortedError"] += 1
+            elif isinstance(reply, ControllerTimeoutError) and not soft \
+                    and aborting[0] >= self.tango.reply_timeout:
+                # The Ctrl+C marker went unanswered for the whole reply timeout (Ctrl+C
+                # taken as part of the marker line: abort resyncs again without it), so a
+                # read queued behind that resync waited as long: a typed failure in
+                # bounded time, never another caller's reply.
+                OUTCOMES["abort"]["read: timed out behind a second resync"] += 1
             else:
                 self.check_reply(line, reply)
                 OUTCOMES["abort"]["read: own reply"] += 1
