@@ -1713,8 +1713,12 @@ def _confirm_demo(url: str) -> bool:
 
 
 def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-    """Report an error nobody awaited as one line (the traceback with --debug)."""
+    """Report an error nobody awaited as one line (the traceback with --debug). A second
+    Ctrl+C that lands in a task while the first one's shutdown runs is not reported:
+    ``main()`` already said "interrupted" and exits with 130."""
     error = context.get("exception")
+    if isinstance(error, KeyboardInterrupt):
+        return
     text = describe_exception(error) if error is not None else context.get("message", "")
     logging.getLogger("tango_aio").debug("unhandled: %s", context.get("message"),
                                          exc_info=error)

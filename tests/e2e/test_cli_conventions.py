@@ -4,12 +4,13 @@ controller text shown with its control characters escaped."""
 
 from __future__ import annotations
 
+import asyncio
 import urllib.parse
 from pathlib import Path
 
 import pytest
 
-from tango_aio.cli import _escaped, _parser, _tcp_address, main
+from tango_aio.cli import _escaped, _loop_exception, _parser, _tcp_address, main
 
 SIM = "sim://?baud=0"
 
@@ -136,3 +137,19 @@ def test_shell_checks_what_the_controller_would_refuse(tmp_path: Path) -> None:
     assert "invalid: moa: position '1e3' is in exponent notation, which is refused" in out
     assert "controller error" not in out, out  # nothing reached the controller
     assert "0.0000 0.0000 0.0000" in out
+
+
+def test_a_second_ctrl_c_in_a_task_is_not_reported_as_a_warning(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """main() says "interrupted" once; a KeyboardInterrupt that a task got during the
+    shutdown (an impatient second Ctrl+C) adds no "warning:" line, other errors do."""
+    loop = asyncio.new_event_loop()
+    try:
+        _loop_exception(loop, {"exception": KeyboardInterrupt(), "message": "x"})
+        captured = capsys.readouterr()
+        assert "warning" not in captured.err + captured.out
+        _loop_exception(loop, {"exception": RuntimeError("boom"), "message": "x"})
+        captured = capsys.readouterr()
+        assert "warning: " in captured.err + captured.out
+    finally:
+        loop.close()
