@@ -230,7 +230,7 @@ __all__ = [
 _HOMES = ("errors", "events", "status", "reconnect", "bulk", "connection", "controller",
           "group", "discovery")
 
-__version__ = "0.1.0"
+__version__ = "0.5.0"
 
 
 def __getattr__(name: str) -> Any:
