@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ._argtypes import count_type, seconds_type, url_type, writable_path
 from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
 from .status import ABSENT, MOVING, AxisStatus
@@ -1699,10 +1700,12 @@ def add_probe_command(commands: Any) -> None:
                     "silent, and write a fingerprint (JSON) to send to the project. "
                     "Without --moves nothing moves: it reads, and sets back what it "
                     "changed (the autostatus mode, extmode for one read).")
-    parser.add_argument("url", help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+    parser.add_argument("url", type=url_type,
+                        help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     parser.add_argument("-o", "--output", default="tango-fingerprint.json", metavar="FILE",
+                        type=writable_path,
                         help="fingerprint file (default tango-fingerprint.json)")
-    parser.add_argument("--trace", metavar="FILE",
+    parser.add_argument("--trace", metavar="FILE", type=writable_path,
                         help="also write the whole wire trace, with timestamps")
     parser.add_argument("--moves", action="store_true",
                         help="also make small moves of X inside its limits (asks first)")
@@ -1711,10 +1714,10 @@ def add_probe_command(commands: Any) -> None:
                              "controller's power-on settings)")
     parser.add_argument("--yes", action="store_true",
                         help="do not ask before --moves or --save")
-    parser.add_argument("--baudrate", type=int, default=57600, help="serial baud rate")
-    parser.add_argument("--settle", type=float, default=0.3,
+    parser.add_argument("--baudrate", type=count_type, default=57600, help="serial baud rate")
+    parser.add_argument("--settle", type=seconds_type, default=0.3,
                         help="seconds of silence that end an exchange (default 0.3)")
-    parser.add_argument("--move-time", type=float, default=0.3,
+    parser.add_argument("--move-time", type=seconds_type, default=0.3,
                         help="about how long each test move takes, s (default 0.3)")
     parser.set_defaults(run=_probe_command)
 
