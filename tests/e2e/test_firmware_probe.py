@@ -164,11 +164,12 @@ def _moves(trace: str) -> list[bytes]:
 
 
 async def _served(**state: Any) -> tuple[Any, list[ControllerModel]]:
-    """A TCP emulator whose controller starts in ``state`` (autostatus, extmode)."""
+    """A TCP emulator whose controller starts in ``state`` (autostatus, extmode; the
+    instructions it lacks)."""
     models: list[ControllerModel] = []
 
     def factory(emit: Emit) -> ControllerModel:
-        model = ControllerModel(emit, SimConfig(axes=3))
+        model = ControllerModel(emit, SimConfig(axes=3, lacks=state.get("lacks", frozenset())))
         model.session.autostatus = state.get("autostatus", 1)
         model.params.global_values["extmode"] = (state.get("extmode", 0),)
         models.append(model)
@@ -202,8 +203,9 @@ async def test_without_moves_nothing_moves_and_every_setting_is_set_back(
     assert result.switches["lim_cr_bug"] == "extmode0"  # read in both extmodes
 
 
-async def test_with_moves_x_returns_and_settings_are_set_back() -> None:
-    server, models = await _served()
+@pytest.mark.parametrize("lacks", [frozenset(), frozenset({"lim"})], ids=["all", "no_lim"])
+async def test_with_moves_x_returns_and_settings_are_set_back(lacks: frozenset[str]) -> None:
+    server, models = await _served(lacks=lacks)
     async with server:
         result = await probe(f"socket://127.0.0.1:{server.port}", FAST_MOVES)
         (model,) = models
