@@ -39,9 +39,10 @@ class Handlers(Peripherals):
     def i_version(self, c: Command) -> Reply:
         """``?version``: ``TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00`` with the space
         before the last comma of the 1.71 examples (L1067, L1105); the older edition's
-        example has none (old L426, switch ``version_format=old``)."""
+        example has none (old L426, switch ``version_format=old``). ``?version 1`` answers
+        the number only (L1057-1059), or the whole line with ``version_value=line``."""
         cfg = self.m.config
-        if c.values:
+        if c.values and self.m.firmware.version_value == "number":
             return [cfg.version]
         build = cfg.build
         if self.m.firmware.version_format == "old":
