@@ -207,6 +207,10 @@ class Controller:
                                     self._read_state, self._hub.publish))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
+        #: Axes a line of this driver whose end nobody follows (speed, go, a raw move)
+        #: may keep moving, until a status read shows them standing: their motion does
+        #: not contradict a refusal of a later line (see _contest).
+        self._turning: set[str] = set()
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
@@ -693,6 +697,8 @@ class Controller:
                 await self._contest(error, command)  # it may have run: is it running?
             raise outcome_unknown(error, command.line) from error.__cause__
         self._track(command)
+        if starts:
+            self._turned(command)
         if command.name == "joy" and not command.is_read:
             self._hdi_off = [float(v) for v in command.values
                              if isinstance(v, int | float)] == [0.0]
@@ -701,17 +707,28 @@ class Controller:
             self._inputs_idle = await self._inputs_are_idle()
         return response
 
+    def _turned(self, command: Command) -> None:
+        """An accepted line that starts motion nobody follows: its axes may move on."""
+        moved = moved_axes(command, AXES[: self.context.axes])
+        if command.name == "speed":
+            for axis, value in zip(moved, command.values, strict=False):
+                (self._turning.add if value else self._turning.discard)(axis)
+        else:
+            self._turning.update(moved)
+
     async def _contest(self, cause: TangoError, command: Command) -> NoReturn:
         """A refusal stands if none of the line's axes moves; else stop them and say so."""
         # (The verdict on a line that starts motion refused it or made no sense:
-        # timing.contest judges ?statusaxis, read behind it.)
+        # timing.contest judges ?statusaxis, read behind it. The driver's own motion in
+        # flight, a followed move or what _turning holds, does not contradict a refusal.)
         moved = moved_axes(command, AXES[: self.context.axes])
+        busy = set(AXES) if self._motion.busy else set(self._turning)
         try:
             letters = await self.status()
         except TangoError as exc:
             raise contested(cause, command.line, "the state could not be read behind it",
                             (), moved) from exc
-        found = contest(moved, letters, clean=isinstance(cause, ControllerError))
+        found = contest(moved, letters, clean=isinstance(cause, ControllerError), busy=busy)
         if found.stands:
             raise cause
         try:
@@ -1077,6 +1094,7 @@ class Controller:
         """
         letters = await self.get("statusaxis")
         assert isinstance(letters, dict)
+        self._turning.difference_update(a for a, s in letters.items() if s != MOVING)
         return dict(letters)
 
     async def _position_texts(self) -> dict[str, str]:

@@ -41,7 +41,7 @@ from __future__ import annotations
 import enum
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from .errors import ERROR_DESCRIPTIONS
@@ -525,7 +525,7 @@ class Contest:
 
 
 def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
-            reported: bool = False) -> Contest:
+            reported: bool = False, busy: Collection[str] = ()) -> Contest:
     """Whether the state read behind a refused or garbled verdict on a motion line
     contradicts it.
 
@@ -546,13 +546,18 @@ def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
         Whether the verdict was a clean refusal (else garbled).
     reported
         Whether the line's completion report came.
+    busy
+        The axes that may have been moving before the line (the driver's own motion
+        in flight): their motion does not contradict a clean refusal (e.g. a move
+        refused because its axis is busy).
 
     Returns
     -------
     Contest
         The moving axes, whether the refusal stands, and why not in words.
     """
-    moving = tuple(a for a in moved if letters.get(a) == MOVING)
+    moving = tuple(a for a in moved
+                   if letters.get(a) == MOVING and not (clean and a in busy))
     named = " ".join(moving).upper()
     if moving:
         return Contest(moving, False, f"yet ?statusaxis shows {named} moving: the line ran")
