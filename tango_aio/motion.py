@@ -106,7 +106,15 @@ from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
-from .timing import POLL_GRACE, Budget, contest, describe_stop, too_early, verdict
+from .timing import (
+    POLL_GRACE,
+    Budget,
+    contest,
+    describe_stop,
+    shifted_axes,
+    too_early,
+    verdict,
+)
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
            "acceptance_shown", "annotate", "contested", "report_came"]
@@ -298,6 +306,8 @@ class _Job:
     checked: float = 0.0
     #: The state read :meth:`Motion.reported` wrote while this move waited for a hint.
     early: Awaitable[tuple[dict[str, str], dict[str, str]]] | None = None
+    #: The positions the driver knew when the line was written (:attr:`Motion.positions`).
+    before: dict[str, str] | None = None
 
 
 class Motion:
@@ -468,7 +478,8 @@ class Motion:
             plan = await plan_for(command, self.positions)
             hints = self._hints
             job = _Job(plan, self._port.start(command, plan.batch),
-                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
+                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints,
+                       before=None if self.positions is None else dict(self.positions))
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -537,13 +548,14 @@ class Motion:
         # (The verdict refused the line or made no sense: timing.contest judges the state.)
         line, moved = job.sent.command.line, job.plan.moved
         try:
-            letters, _ = await self._state(moved)
+            letters, texts = await self._state(moved)
         except _LOST_READ as exc:
             stopped = await self._stop_and_wait(job)
             raise contested(cause, line, "the state could not be read behind it",
                             moved if stopped else (), () if stopped else moved) from exc
         found = contest(moved, letters, clean=isinstance(cause, ControllerError),
-                        reported=report_came(job.sent.submission.completion))
+                        reported=report_came(job.sent.submission.completion),
+                        shifted=shifted_axes(moved, job.before, texts))
         if found.stands:
             job.sent.forget()
             raise cause

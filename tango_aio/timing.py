@@ -67,6 +67,7 @@ __all__ = [
     "moved_axes",
     "position_tolerance",
     "rest_budget",
+    "shifted_axes",
     "too_early",
     "travel_time",
     "verdict",
@@ -525,7 +526,8 @@ class Contest:
 
 
 def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
-            reported: bool = False, busy: Collection[str] = ()) -> Contest:
+            reported: bool = False, busy: Collection[str] = (),
+            shifted: Collection[str] = ()) -> Contest:
     """Whether the state read behind a refused or garbled verdict on a motion line
     contradicts it.
 
@@ -550,6 +552,9 @@ def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
         The axes that may have been moving before the line (the driver's own motion
         in flight): their motion does not contradict a clean refusal (e.g. a move
         refused because its axis is busy).
+    shifted
+        The line's axes that stand elsewhere than before it (:func:`shifted_axes`): a
+        short move may have ended before the letters were read.
 
     Returns
     -------
@@ -563,8 +568,39 @@ def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
         return Contest(moving, False, f"yet ?statusaxis shows {named} moving: the line ran")
     if reported:
         return Contest((), False, "yet its completion report came: the line ran")
+    away = [a for a in moved if a in shifted and not (clean and a in busy)]
+    if away:
+        return Contest((), False, f"yet ?pos shows {' '.join(away).upper()} moved since "
+                                  "before the line: it ran")
     if clean:
         return Contest((), True, "")
     standing = " ".join(moved).upper()
     return Contest((), False, f"the line's fate is unknown; ?statusaxis shows "
                               f"{standing or 'no axis of it'} standing: nothing of it moves")
+
+
+def shifted_axes(axes: Sequence[str], before: Mapping[str, str] | None,
+                 now: Mapping[str, str]) -> tuple[str, ...]:
+    """The axes whose position, as printed, moved between two reads: by more than three
+    times the larger :func:`position_tolerance` of the two (a count or two of encoder
+    jitter is no move).
+
+    Parameters
+    ----------
+    axes
+        The axes to compare.
+    before
+        The positions read before (``None``: none known).
+    now
+        The positions read now.
+
+    Returns
+    -------
+    tuple[str, ...]
+        The axes that moved, of those read both times.
+    """
+    if not before:
+        return ()
+    return tuple(a for a in axes if a in before and a in now and abs(
+        float(now[a]) - float(before[a])) > 3.0 * max(position_tolerance(now[a]),
+                                                       position_tolerance(before[a])))
