@@ -546,7 +546,7 @@ class Motion:
     async def _contest(self, job: _Job, cause: TangoError) -> NoReturn:
         """A refusal stands if none of the line's axes moves; else stop them and say so."""
         # (The verdict refused the line or made no sense: timing.contest judges the state.)
-        line, moved = job.sent.command.line, job.plan.moved
+        line, moved = job.plan.command.line, job.plan.moved
         try:
             letters, texts = await self._state(moved)
         except _LOST_READ as exc:
