@@ -599,7 +599,17 @@ class Controller:
         InvalidCommandError
             The line is not valid, or is a read.
         ControllerError
-            With ``check``: the controller reported an error for the line.
+            With ``check``: the controller reported an error for the line (for a line
+            that starts motion: and ``?statusaxis`` read behind it shows none of its
+            axes moving).
+        GarbledVerdictError
+            With ``check``: the error state read was no clean error number or
+            acknowledgement; the line may or may not have been executed.
+        MoveOutcomeUnknown
+            With ``check``, for a line that starts motion (a move, ``cal``, ``rm``,
+            ``speed``, ``go``): its verdict was lost, garbled, or a refusal its moving
+            axes contradict; the message says which axes were stopped or may still
+            move.
         """
         command = parse(line, self.context)
         if command.is_read:
@@ -730,7 +740,7 @@ class Controller:
                             (), moved) from exc
         found = contest(moved, letters, clean=isinstance(cause, ControllerError), busy=busy)
         if found.stands:
-            raise cause
+            raise annotate(cause, found.reason) if found.reason else cause
         try:
             if found.moving:
                 await self.stop(*found.moving)
@@ -1584,7 +1594,11 @@ class Controller:
         InvalidCommandError
             A speed or an axis is not valid, before anything is written.
         ControllerError
-            The controller refused the line (nothing changed).
+            The controller refused the line (nothing changed: none of its axes moves,
+            or only as before).
+        MoveOutcomeUnknown
+            The line's verdict was garbled, or a refusal its moving axes contradict:
+            the message says which axes were stopped or may still move.
         TangoError
             The line's answer was lost; its note says whether the running axes were
             stopped.

@@ -7,7 +7,15 @@ move returns normally only when every axis it moved stands still at its target.
 How a move is followed
 ======================
 1. The move line is written, with its check (the autostatus-2 acknowledgement or an
-   ``?err`` probe right behind it). A refused line raises its ``ControllerError``.
+   ``?err`` probe right behind it). A refused line raises its ``ControllerError``, once
+   a state read behind the refusal shows none of its axes moving: one flipped bit turns
+   the ``?err`` reply ``0`` into a documented refusal (``2``), so the refusal alone
+   proves nothing. A verdict that is no clean error number or acknowledgement
+   (:class:`~tango_aio.errors.GarbledVerdictError`, e.g. ``07``) proves nothing either.
+   When the line's axes move (or stand elsewhere than before, or its report came), it
+   ran: they are stopped, and :class:`~tango_aio.errors.MoveProtocolUnknownError` says
+   which (or which may still move); a garbled verdict with nothing moving raises it
+   too, saying so (:func:`~tango_aio.timing.contest`).
 2. The driver then waits for a *hint*: any completion report (``@@@-.``, or the bare CR
    of autostatus 3), an abort by the driver, or the time at which the move should have
    ended (its :attr:`MovePlan.expected` duration). A report is only a hint, because the
@@ -558,7 +566,7 @@ class Motion:
                         shifted=shifted_axes(moved, job.before, texts))
         if found.stands:
             job.sent.forget()
-            raise cause
+            raise annotate(cause, found.reason) if found.reason else cause
         if found.moving and not await self._stop_and_wait(job):
             raise contested(cause, line, found.reason, (), found.moving)
         job.sent.forget()

@@ -521,7 +521,8 @@ class Contest:
     moving: tuple[str, ...]
     #: Whether a clean refusal stands: none of the line's axes moves and no report came.
     stands: bool
-    #: What the read shows, in words (empty when the refusal stands).
+    #: What the read shows, in words (when the refusal stands: empty, or which of the
+    #: line's axes still move as before it).
     reason: str
 
 
@@ -573,7 +574,8 @@ def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
         return Contest((), False, f"yet ?pos shows {' '.join(away).upper()} moved since "
                                   "before the line: it ran")
     if clean:
-        return Contest((), True, "")
+        before = " ".join(a for a in moved if letters.get(a) == MOVING).upper()
+        return Contest((), True, f"{before} still moving as before the line" if before else "")
     standing = " ".join(moved).upper()
     return Contest((), False, f"the line's fate is unknown; ?statusaxis shows "
                               f"{standing or 'no axis of it'} standing: nothing of it moves")

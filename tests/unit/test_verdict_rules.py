@@ -104,7 +104,11 @@ def test_contest(moved: list[str], read: dict[str, str], clean: bool,
                                  and not (clean and a in busy))
     # A refusal stands only when it was clean and nothing shows the line ran.
     assert found.stands == (clean and not found.moving and not reported)
-    assert bool(found.reason) != found.stands
+    if found.stands:  # it names the line's axes that move as before, if any
+        assert found.reason == " ".join(a for a in moved if read[a] == "M").upper() + \
+            " still moving as before the line" or not found.reason
+    else:
+        assert found.reason
     for axis in found.moving:
         assert axis.upper() in found.reason
 
@@ -118,7 +122,8 @@ def test_an_axis_the_line_does_not_move_does_not_contest_it() -> None:
 def test_a_busy_axis_does_not_contest_a_clean_refusal_but_a_garbled_verdict() -> None:
     """X runs a move of this driver: a move of X refused (busy) stands; a garbled
     verdict with X moving is not taken."""
-    assert contest(["x"], {"x": "M"}, clean=True, busy={"x"}).stands
+    stands = contest(["x"], {"x": "M"}, clean=True, busy={"x"})
+    assert stands.stands and stands.reason == "X still moving as before the line"
     found = contest(["x"], {"x": "M"}, clean=False, busy={"x"})
     assert found.moving == ("x",) and not found.stands
 

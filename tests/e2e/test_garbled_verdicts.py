@@ -197,7 +197,7 @@ async def test_a_refusal_on_an_axis_busy_with_this_drivers_motion_stands() -> No
     async with await opened(1) as tango:
         fault = faults(tango)
         await tango.command("!moa -16")
-        with pytest.raises(NotExecutableError):
+        with pytest.raises(NotExecutableError, match="X still moving as before the line"):
             await tango.speed(x=1)
         assert moving(fault, "x")
         await tango.stop()
