@@ -17,6 +17,7 @@ from collections.abc import Awaitable, Callable, Collection, Iterable
 from typing import Any
 
 import pytest
+from helpers import settled_position
 
 import tango_aio
 from tango_aio import (
@@ -229,3 +230,17 @@ async def test_the_public_garble_targets_the_err_reply() -> None:
             fault.garble(reply_to="")
         with pytest.raises(ValueError, match="byte"):
             fault.glue(b"", reply_to="?err")
+
+
+async def test_a_short_move_that_ended_before_the_state_read_still_contests() -> None:
+    """The ``?err`` reply ``2`` (a flipped ``0``) comes late, after a short move has
+    ended: nothing reads ``M`` any more, but X stands elsewhere than before the line."""
+    async with await opened(0) as tango:
+        fault = faults(tango)
+        await tango.move_to(x=0.0)  # the driver knows where X stands
+        target(fault, "?err", flip(1))
+        fault.delay(0.5)  # the ?err reply (mode 0 sends no report)
+        error = await honest(tango.move_to(x=0.05), fault)
+        assert isinstance(error, MoveProtocolUnknownError), error
+        assert "X moved since before the line" in str(error)
+        assert await settled_position(fault) == pytest.approx(0.05, abs=1e-3)
