@@ -95,6 +95,8 @@ def motion_call(tango: Controller, call: str) -> Awaitable[Any]:
         return tango.move_by(x=-16)
     if call == "go":
         return tango.go(x=-16)
+    if call == "calibrate":
+        return tango.calibrate("x")
     return tango.command("!moa -16")
 
 
@@ -121,7 +123,7 @@ async def test_one_bit_flipped_in_the_err_after_a_move_line(mode: int, bit: int,
         assert fault.axes()["x"][0] == pytest.approx(0.5, abs=1e-3)
 
 
-@pytest.mark.parametrize("call", ["move_by", "go"])
+@pytest.mark.parametrize("call", ["move_by", "go", "calibrate"])
 async def test_a_clean_looking_refusal_of_other_motion_lines_is_checked(call: str
                                                                         ) -> None:
     async with await opened(1) as tango:
