@@ -16,7 +16,8 @@ who failed:
 * :class:`MoveOutcomeUnknown`: a motion call failed after its line was written and the
   controller may have executed it (a timeout, a lost answer or link); read the position
   before repeating the move.
-* :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
+* :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply;
+  :class:`GarbledVerdictError`: the reply that judges a line was garbled).
 * :class:`ConnectionLostError`: a working link went away; the cause is chained
   (:class:`IdentityMismatchError`: a different controller answered after a reconnect).
 * :class:`ConnectError`: a link could not be set up at all, one subclass per reason with
@@ -56,6 +57,7 @@ __all__ = [
     "EncoderIsrError",
     "EncoderSupplyOverloadError",
     "EtsError",
+    "GarbledVerdictError",
     "HardwareFaultError",
     "HdiDeviceError",
     "HdiIsrError",
@@ -149,6 +151,34 @@ class InvalidCommandError(TangoError, ValueError):
 
 class ProtocolError(TangoError):
     """The controller's byte stream violated the protocol (e.g. an over-long line)."""
+
+
+class GarbledVerdictError(ProtocolError):
+    """The reply that judges a line (the ``?err`` behind it, its autostatus-2
+    acknowledgement) is neither a clean error number the manual documents nor a clean
+    acknowledgement (e.g. ``07``, ``ERR 35``): it proves nothing about the line, which
+    may or may not have been executed. ``command`` is the line, ``reply`` that reply.
+
+    Parameters
+    ----------
+    command
+        The line the reply judges.
+    reply
+        The reply, as received.
+    message
+        The message (``None``: says what the reply was).
+    """
+
+    def __init__(self, command: str, reply: str, message: str | None = None) -> None:
+        super().__init__(message or (
+            f"the verdict on {command!r} was {reply!r}, neither a documented error number "
+            "nor an acknowledgement: it says nothing of the line"))
+        self.command = command
+        self.reply = reply
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # As MoveError's: BaseException pickles as ``cls(*self.args)``.
+        return type(self), (self.command, self.reply, str(self)), self.__dict__
 
 
 class ConnectionLostError(TangoError):

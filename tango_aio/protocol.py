@@ -70,13 +70,13 @@ from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     ProtocolError,
     RequestAbortedError,
     TangoError,
     UnknownControllerError,
     WrongEventLoopError,
     controller_error,
-    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
@@ -93,6 +93,7 @@ from .session import (
     Silence,
     Until,
 )
+from .timing import Verdict, ack_verdict, err_verdict
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -116,6 +117,9 @@ class Response:
     #: Such a verdict does not prove the line arrived (:meth:`Controller.command
     #: <tango_aio.controller.Controller.command>` proves it before it returns).
     deferred: bool = False
+    #: The acknowledgement as received (``OK...``, ``ERR 5``; the ``?err`` reply when
+    #: :attr:`deferred`), ``None`` before it came.
+    ack_line: str | None = None
 
 
 @dataclass(eq=False, slots=True)
@@ -753,11 +757,14 @@ class TangoProtocol(asyncio.Protocol):
         line = submission.command.line
         if submission.reply is not None:
             response = await self.wait_reply(submission, timeout)
-            if check and submission.expectation.ack and response.ack != 0:
-                return _ack_error(response.ack, submission)
+            if check and submission.expectation.ack:
+                code = _judged(response.ack_line, response.deferred, line) \
+                    if response.ack_line is not None else response.ack
+                if code != 0:
+                    return _ack_error(code, submission)
         if probe is not None:
             reply = await self.wait_reply(probe, timeout)
-            code, _ = parse_error_reply(reply.lines[0])
+            code = _judged(reply.lines[0], True, line)
             if code:
                 return controller_error(code, line)
         return None
@@ -1562,7 +1569,7 @@ class TangoProtocol(asyncio.Protocol):
         if isinstance(event, Replied):
             response.lines = event.lines
         elif isinstance(event, Acknowledged):
-            response.ack, response.acked = event.code, True
+            response.ack, response.acked, response.ack_line = event.code, True, event.line
             if event.deferred:
                 response.deferred = True
             if event.code != 0:  # a refused move never completes (the core forgot it)
@@ -1666,6 +1673,26 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.set_exception(error)
         # Mark the exception retrieved: nobody may be awaiting a move's future any more.
         future.exception()
+
+
+def _judged(reply: str, err: bool, line: str) -> int | None:
+    """The error number a verdict on ``line`` gives; ``err``: the reply of an ``?err``
+    (else an acknowledgement).
+
+    Returns
+    -------
+    int | None
+        0: accepted; else the error number (``None``: a bare ``ERR``).
+
+    Raises
+    ------
+    GarbledVerdictError
+        The reply is not a clean verdict: it proves nothing about the line.
+    """
+    verdict, code = err_verdict(reply) if err else ack_verdict(reply)
+    if verdict is Verdict.GARBLED:
+        raise GarbledVerdictError(line, reply)
+    return code
 
 
 def _ack_error(code: int | None, submission: Submission) -> ControllerError:
