@@ -72,6 +72,7 @@ from .errors import (
     ControllerTimeoutError,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     UnknownControllerError,
     WrongEventLoopError,
@@ -81,6 +82,7 @@ from .errors import (
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
+from .readback import ReadBack, mismatch, read_back
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
@@ -146,6 +148,9 @@ class MoveHandle:
     submission: Submission
     probe: Submission | None
     check: bool
+    #: A set line's read-back, written behind the probe where the line owes no answer of
+    #: its own (:func:`~tango_aio.readback.read_back`), and its submission.
+    proof: tuple[ReadBack, Submission] | None = None
 
     @property
     def command(self) -> Command:
@@ -180,8 +185,11 @@ class MoveHandle:
             The check was lost to a resync.
         ConnectionLostError
             The link is gone.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         """
-        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+        return await self.protocol._error_of(self.submission, self.probe, self.check,
+                                             timeout, self.proof)
 
     async def confirm(self, timeout: float | None) -> None:
         """Like :meth:`error`, but raise the controller's error (and forget the report).
@@ -195,6 +203,8 @@ class MoveHandle:
         ------
         ControllerError
             The controller reported an error for the line.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         ControllerTimeoutError, RequestAbortedError, ConnectionLostError
             The check itself was lost (see :meth:`error`).
         """
@@ -738,6 +748,7 @@ class TangoProtocol(asyncio.Protocol):
                       batch: object | None = None) -> MoveHandle:
         submission = self.submit(command, hold=True, batch=batch)
         probe = None
+        proof = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853): a
@@ -745,11 +756,19 @@ class TangoProtocol(asyncio.Protocol):
             probe = self.submit(_PROBE, hold=True, batch=batch)
             if submission.owes is None:
                 submission.guard, probe.guard = probe.owes, None
+            if not submission.expectation.echo:
+                # No answer of its own (autostatus 0, 1, 3): the probe's 0 is also what a
+                # lost line gets, so a set is proven by reading its setting behind it.
+                back = read_back(command, self.core.context)
+                if back is not None:
+                    proof = (back, self.submit(back.read, hold=True, batch=batch))
         self._flush()
-        return MoveHandle(self, submission, probe, check)
+        return MoveHandle(self, submission, probe, check, proof)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
-                        timeout: float | None) -> ControllerError | None:
+                        timeout: float | None,
+                        proof: tuple[ReadBack, Submission] | None = None
+                        ) -> ControllerError | None:
         line = submission.command.line
         if submission.reply is not None:
             response = await self.wait_reply(submission, timeout)
@@ -760,6 +779,13 @@ class TangoProtocol(asyncio.Protocol):
             code, _ = parse_error_reply(reply.lines[0])
             if code:
                 return controller_error(code, line)
+        if proof is not None:
+            back, read = proof
+            held = mismatch(back, (await self.wait_reply(read, timeout)).lines)
+            if held is not None:
+                raise SettingNotAppliedError(
+                    line, instruction=back.command.name, axis=back.command.axis,
+                    sent=" ".join(back.command.tokens), read=back.read.line, held=held)
         return None
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
