@@ -67,6 +67,7 @@ from .core import (
     Unsolicited,
 )
 from .errors import (
+    INTERNAL_ERRORS,
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
@@ -774,18 +775,26 @@ class TangoProtocol(asyncio.Protocol):
             response = await self.wait_reply(submission, timeout)
             if check and submission.expectation.ack and response.ack != 0:
                 return _ack_error(response.ack, submission)
+        code = None
         if probe is not None:
             reply = await self.wait_reply(probe, timeout)
             code, _ = parse_error_reply(reply.lines[0])
-            if code:
+            if code and (proof is None or code < INTERNAL_ERRORS):
                 return controller_error(code, line)
         if proof is not None:
             back, read = proof
             held = mismatch(back, (await self.wait_reply(read, timeout)).lines)
             if held is not None:
-                raise SettingNotAppliedError(
+                # (An internal error the ?err reported may be a standing condition, not
+                # the line's: the read-back decides, and names it.)
+                error = SettingNotAppliedError(
                     line, instruction=back.command.name, axis=back.command.axis,
                     sent=" ".join(back.command.tokens), read=back.read.line, held=held)
+                if code:
+                    raise error from controller_error(code, line)
+                raise error
+            if code:
+                return controller_error(code, line)
         return None
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:

@@ -159,8 +159,8 @@ def read_back(command: Command, context: Context) -> ReadBack | None:
 
 
 def _flags(command: Command, context: Context) -> ReadBack:
-    """``!lock 0101`` (the first flags) is read as ``?lock``; ``!lock 2 1`` (one flag by
-    its index) as ``?lock 2`` (L4222-4296, L8579-8626)."""
+    # '!lock 0101' (the first flags) is read as '?lock', '!lock 2 1' (one flag by its
+    # index) as '?lock 2' (L4222, L8579).
     name = command.name
     if len(command.tokens) == 2:
         read = build(name, command.values[0], form=Form.READ, context=context)

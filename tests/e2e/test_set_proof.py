@@ -6,13 +6,14 @@ value; the rounding the manual documents is what the controller holds."""
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
+
 import pytest
 from helpers import INSTANT, EmulatorFactory
 
 import tango_aio.sync
 from tango_aio import SettingNotAppliedError
 from tango_aio.controller import Controller
-from tango_aio.errors import ControllerTimeoutError
+from tango_aio.errors import ControllerError, ControllerTimeoutError
 from tango_aio.testing import Faults, faults
 
 Setter = Callable[[Controller], Awaitable[None]]
@@ -135,3 +136,22 @@ def test_the_blocking_api_raises_too() -> None:
             tango.set_velocity(x=55.5)
         tango.set_velocity(x=33.5)
         assert tango.velocity()["x"] == 33.5
+
+
+@pytest.mark.parametrize("mode", [0, 1, 3])
+async def test_a_standing_internal_error_does_not_stand_in_for_the_proof(
+        emulator: EmulatorFactory, mode: int) -> None:
+    """With an internal error standing (29: amplifier off, L2824-2881), ``?err`` answers
+    it behind every line that was fine (L2853-2867), and the driver takes it for the
+    controller's state, not the line's: the read-back still decides."""
+    tango = (await emulator(INSTANT, autostatus=mode)).tango
+    fault = faults(tango)
+    fault.model.inject_internal_error(29, permanent=True)
+    await tango.set("vel", 44.25, axis="x")  # held: accepted, the fault published
+    assert _vel_x(fault) == 44.25
+    fault.lose_line("!vel")
+    with pytest.raises(SettingNotAppliedError) as info:
+        await tango.set("vel", 55.5, axis="x")
+    assert isinstance(info.value.__cause__, ControllerError)
+    assert info.value.__cause__.number == 29
+    assert _vel_x(fault) == 44.25

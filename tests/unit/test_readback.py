@@ -12,8 +12,17 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tango_aio.errors import SettingNotAppliedError, TangoError
-from tango_aio.instructions import INSTRUCTIONS, AxisRule, Command, Context, Form, Kind, \
-    Param, build, parse
+from tango_aio.instructions import (
+    INSTRUCTIONS,
+    AxisRule,
+    Command,
+    Context,
+    Form,
+    Kind,
+    Param,
+    build,
+    parse,
+)
 from tango_aio.readback import NO_READ_BACK, ReadBack, mismatch, read_back
 from tango_aio.sim.model import ControllerModel, SimConfig
 
