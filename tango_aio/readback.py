@@ -94,7 +94,7 @@ class ReadBack:
     command: Command
     #: The read written behind it (and behind its ``?err``).
     read: Command
-    #: The values written, as sent, that the reply must start with (after :attr:`skip`).
+    #: The values written, as sent, that the reply must start with.
     expected: tuple[str, ...]
     #: One value group applied to every axis (``!swtyp 1 0 1``): each group of the reply
     #: must hold it.
