@@ -46,6 +46,7 @@ from .errors import (
     InvalidCommandError,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     outcome_unknown,
     parse_error_reply,
@@ -660,6 +661,13 @@ class Controller:
             if error.number < INTERNAL_ERRORS or \
                     await self._blame(error.number, self._timeout(timeout)):
                 raise
+            if check and not raw_move:
+                # The ?err showed a standing internal error, which a lost line gets too:
+                # the read-back decides (the one pipelined behind it was not awaited).
+                try:
+                    await self._protocol.prove_set(command, self._timeout(timeout))
+                except SettingNotAppliedError as failed:
+                    raise failed from error
             response = Response()
         except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
                 ConnectionLostError) as error:

@@ -65,9 +65,9 @@ from .core import (
     Replied,
     RequestLost,
     Unsolicited,
+    expectation,
 )
 from .errors import (
-    INTERNAL_ERRORS,
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
@@ -775,27 +775,38 @@ class TangoProtocol(asyncio.Protocol):
             response = await self.wait_reply(submission, timeout)
             if check and submission.expectation.ack and response.ack != 0:
                 return _ack_error(response.ack, submission)
-        code = None
         if probe is not None:
             reply = await self.wait_reply(probe, timeout)
             code, _ = parse_error_reply(reply.lines[0])
-            if code and (proof is None or code < INTERNAL_ERRORS):
+            if code:
                 return controller_error(code, line)
         if proof is not None:
             back, read = proof
-            held = mismatch(back, (await self.wait_reply(read, timeout)).lines)
-            if held is not None:
-                # (An internal error the ?err reported may be a standing condition, not
-                # the line's: the read-back decides, and names it.)
-                error = SettingNotAppliedError(
-                    line, instruction=back.command.name, axis=back.command.axis,
-                    sent=" ".join(back.command.tokens), read=back.read.line, held=held)
-                if code:
-                    raise error from controller_error(code, line)
-                raise error
-            if code:
-                return controller_error(code, line)
+            _judge(back, (await self.wait_reply(read, timeout)).lines)
         return None
+
+    async def prove_set(self, command: Command, timeout: float | None) -> None:
+        """Read the setting the set line ``command`` wrote, where the line owes no answer
+        of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
+        :mod:`tango_aio.readback`; no read: nothing to do). For a line whose ``?err``
+        answered only a standing internal error (L2853-2867), which proves nothing.
+
+        Parameters
+        ----------
+        command
+            The set line, already written and answered.
+        timeout
+            Seconds the read may take (``None``: no limit).
+
+        Raises
+        ------
+        SettingNotAppliedError
+            The read shows another value.
+        """
+        expect = expectation(command, self.core.autostatus, self.core.context)
+        back = None if expect.ack or expect.echo else read_back(command, self.core.context)
+        if back is not None:
+            _judge(back, (await self.query(back.read, timeout=timeout)).lines)
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
@@ -1692,6 +1703,16 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The check written behind a set/execute line.
 _PROBE = parse("?err")
+
+
+def _judge(back: ReadBack, lines: Sequence[str]) -> None:
+    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
+    held = mismatch(back, lines)
+    if held is not None:
+        command = back.command
+        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
+                                     sent=" ".join(command.tokens), read=back.read.line,
+                                     held=held)
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
 

@@ -31,6 +31,7 @@ proven by the mode exchange that reads the mode behind it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from typing import Final
@@ -169,7 +170,7 @@ def _flags(command: Command, context: Context) -> ReadBack:
                     flags=True)
 
 
-def mismatch(proof: ReadBack, lines: tuple[str, ...] | list[str]) -> str | None:
+def mismatch(proof: ReadBack, lines: Sequence[str]) -> str | None:
     """Compare the read-back's reply with what the set line wrote.
 
     A number matches when the reply, at the digits it prints, is the value written
