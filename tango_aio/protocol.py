@@ -1703,16 +1703,6 @@ class TangoProtocol(asyncio.Protocol):
 
 #: The check written behind a set/execute line.
 _PROBE = parse("?err")
-
-
-def _judge(back: ReadBack, lines: Sequence[str]) -> None:
-    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
-    held = mismatch(back, lines)
-    if held is not None:
-        command = back.command
-        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
-                                     sent=" ".join(command.tokens), read=back.read.line,
-                                     held=held)
 #: The soft stop (manual L6797).
 _SOFT_STOP = build("a", form=Form.SET)
 
@@ -1727,6 +1717,16 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
 def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+def _judge(back: ReadBack, lines: Sequence[str]) -> None:
+    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
+    held = mismatch(back, lines)
+    if held is not None:
+        command = back.command
+        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
+                                     sent=" ".join(command.tokens), read=back.read.line,
+                                     held=held)
 
 
 #: Bytes of one line a wire-log record shows at most, so that a long line (or one whose
