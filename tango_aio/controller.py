@@ -48,6 +48,7 @@ from .errors import (
     MoveOutcomeUnknown,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     outcome_unknown,
     parse_error_reply,
@@ -694,6 +695,13 @@ class Controller:
                 if starts:
                     await self._contest(error, command)
                 raise
+            if check and not raw_move:
+                # The ?err showed a standing internal error, which a lost line gets too:
+                # the read-back decides (the one pipelined behind it was not awaited).
+                try:
+                    await self._protocol.prove_set(command, self._timeout(timeout))
+                except SettingNotAppliedError as failed:
+                    raise failed from error
             response = Response()
         except GarbledVerdictError as error:
             if starts:

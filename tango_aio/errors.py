@@ -16,6 +16,8 @@ who failed:
 * :class:`MoveOutcomeUnknown`: a motion call failed after its line was written and the
   controller may have executed it (a timeout, a lost answer or link); read the position
   before repeating the move.
+* :class:`SettingNotAppliedError`: a set line got no error, but the read behind it shows
+  another value (autostatus 0, 1, 3: the line may have been lost).
 * :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply;
   :class:`GarbledVerdictError`: the reply that judges a line was garbled).
 * :class:`ConnectionLostError`: a working link went away; the cause is chained
@@ -97,6 +99,7 @@ __all__ = [
     "ProtocolError",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "SettingNotAppliedError",
     "StageLimitsError",
     "StateError",
     "TangoError",
@@ -331,6 +334,56 @@ def outcome_unknown(error: TangoError, command: str) -> TangoError:
             wrapped.command = command
             return wrapped
     return error
+
+
+class SettingNotAppliedError(TangoError):
+    """A set line was answered without an error, but the read behind it shows that the
+    controller does not hold the value written: the setting may not have been applied
+    (the line was lost on the way, or the controller clamped or rounded the value).
+
+    Raised in the autostatus modes whose set lines owe no answer of their own (0, 1 and
+    3), where only a read-back proves a set (:mod:`tango_aio.readback`).
+
+    Parameters
+    ----------
+    command
+        The set line (``'!vel x 55.5'``).
+    instruction
+        Its instruction (``'vel'``).
+    axis
+        The one axis the line named (``None``: none, or several in order).
+    sent
+        The values written, as text (``'55.5'``).
+    read
+        The read-back (``'?vel x'``).
+    held
+        Its reply, as the controller printed it (``'10.000'``).
+    """
+
+    def __init__(self, command: str, *, instruction: str, axis: str | None, sent: str,
+                 read: str, held: str) -> None:
+        where = f"{instruction} {axis.upper()}" if axis else instruction
+        super().__init__(
+            f"the setting may not have been applied: {command!r} sent {sent} for {where}, "
+            f"but {read!r} reads {held!r} (the line was lost on the way, or the "
+            f"controller clamped or rounded the value)")
+        self.command = command
+        self.instruction = instruction
+        self.axis = axis
+        self.sent = sent
+        self.read = read
+        self.held = held
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return _rebuild_setting_error, (type(self), self.command, self.instruction,
+                                        self.axis, self.sent, self.read, self.held), \
+            self.__dict__
+
+
+def _rebuild_setting_error(cls: type[SettingNotAppliedError], command: str,
+                           instruction: str, axis: str | None, sent: str, read: str,
+                           held: str) -> SettingNotAppliedError:
+    return cls(command, instruction=instruction, axis=axis, sent=sent, read=read, held=held)
 
 
 # -- the errors of one surface (each module re-exports its own) --------------------------

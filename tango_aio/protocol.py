@@ -65,6 +65,7 @@ from .core import (
     Replied,
     RequestLost,
     Unsolicited,
+    expectation,
 )
 from .errors import (
     ConnectionLostError,
@@ -73,6 +74,7 @@ from .errors import (
     GarbledVerdictError,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     UnknownControllerError,
     WrongEventLoopError,
@@ -81,6 +83,7 @@ from .errors import (
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
+from .readback import ReadBack, mismatch, read_back
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
@@ -150,6 +153,9 @@ class MoveHandle:
     submission: Submission
     probe: Submission | None
     check: bool
+    #: A set line's read-back, written behind the probe where the line owes no answer of
+    #: its own (:func:`~tango_aio.readback.read_back`), and its submission.
+    proof: tuple[ReadBack, Submission] | None = None
 
     @property
     def command(self) -> Command:
@@ -184,8 +190,11 @@ class MoveHandle:
             The check was lost to a resync.
         ConnectionLostError
             The link is gone.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         """
-        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+        return await self.protocol._error_of(self.submission, self.probe, self.check,
+                                             timeout, self.proof)
 
     async def confirm(self, timeout: float | None) -> None:
         """Like :meth:`error`, but raise the controller's error (and forget the report).
@@ -199,6 +208,8 @@ class MoveHandle:
         ------
         ControllerError
             The controller reported an error for the line.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         ControllerTimeoutError, RequestAbortedError, ConnectionLostError
             The check itself was lost (see :meth:`error`).
         """
@@ -742,6 +753,7 @@ class TangoProtocol(asyncio.Protocol):
                       batch: object | None = None) -> MoveHandle:
         submission = self.submit(command, hold=True, batch=batch)
         probe = None
+        proof = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853): a
@@ -749,11 +761,19 @@ class TangoProtocol(asyncio.Protocol):
             probe = self.submit(_PROBE, hold=True, batch=batch)
             if submission.owes is None:
                 submission.guard, probe.guard = probe.owes, None
+            if not submission.expectation.echo:
+                # No answer of its own (autostatus 0, 1, 3): the probe's 0 is also what a
+                # lost line gets, so a set is proven by reading its setting behind it.
+                back = read_back(command, self.core.context)
+                if back is not None:
+                    proof = (back, self.submit(back.read, hold=True, batch=batch))
         self._flush()
-        return MoveHandle(self, submission, probe, check)
+        return MoveHandle(self, submission, probe, check, proof)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
-                        timeout: float | None) -> ControllerError | None:
+                        timeout: float | None,
+                        proof: tuple[ReadBack, Submission] | None = None
+                        ) -> ControllerError | None:
         line = submission.command.line
         if submission.reply is not None:
             response = await self.wait_reply(submission, timeout)
@@ -767,7 +787,33 @@ class TangoProtocol(asyncio.Protocol):
             code = _judged(reply.lines[0], True, line)
             if code:
                 return controller_error(code, line)
+        if proof is not None:
+            back, read = proof
+            _judge(back, (await self.wait_reply(read, timeout)).lines)
         return None
+
+    async def prove_set(self, command: Command, timeout: float | None) -> None:
+        """Read the setting the set line ``command`` wrote, where the line owes no answer
+        of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
+        :mod:`tango_aio.readback`; no read: nothing to do). For a line whose ``?err``
+        answered only a standing internal error (L2853-2867), which proves nothing.
+
+        Parameters
+        ----------
+        command
+            The set line, already written and answered.
+        timeout
+            Seconds the read may take (``None``: no limit).
+
+        Raises
+        ------
+        SettingNotAppliedError
+            The read shows another value.
+        """
+        expect = expectation(command, self.core.autostatus, self.core.context)
+        back = None if expect.ack or expect.echo else read_back(command, self.core.context)
+        if back is not None:
+            _judge(back, (await self.query(back.read, timeout=timeout)).lines)
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
@@ -1698,6 +1744,16 @@ def _judged(reply: str, err: bool, line: str) -> int | None:
 def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+def _judge(back: ReadBack, lines: Sequence[str]) -> None:
+    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
+    held = mismatch(back, lines)
+    if held is not None:
+        command = back.command
+        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
+                                     sent=" ".join(command.tokens), read=back.read.line,
+                                     held=held)
 
 
 #: Bytes of one line a wire-log record shows at most, so that a long line (or one whose

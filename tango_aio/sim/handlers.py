@@ -436,6 +436,14 @@ class Handlers(Peripherals):
             self.m.params.put_global("trigm", (20 if end > start else 21,))
         return None
 
+    def i_trigs(self, c: Command) -> Reply:
+        """Widths and delay in steps of 40 µs, each rounded to the nearest (90 → 80,
+        100 → 120) and read back so (L12959-12967, the secondary ones L12976-12981)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        self.m.params.put_global("trigs", tuple((int(v) + 20) // 40 * 40 for v in c.values))
+        return None
+
     def i_trigcount(self, c: Command) -> Reply:
         if c.is_read:
             return [str(self.m.motion.trigger_count)]
