@@ -206,15 +206,20 @@ def _field(name: str, dtype: Any, doc: str, **kwargs: Any) -> Any:
     return pvproperty(name=name, dtype=dtype, doc=doc, put=_put(name), **kwargs)
 
 
-class TargetDouble(PvpropertyDouble):  # type: ignore[misc]
-    """A target channel (VAL, DVAL): it serves control limits, which clients check before
-    they put (classic ophyd's ``check_value``), while a put beyond them still reaches its
-    handler, which refuses it as the motor record does (LVIO=1, no motion). caproto's own
-    check would refuse it first, without LVIO; its value alarms are not used here.
+class _Handled:
+    """A numeric channel whose put only its handler judges. caproto's own check of a
+    numeric put refuses a value beyond the control limits and re-applies the alarm its
+    value limits give (none here), which would clear the axis's alarm on every field
+    sharing it (a STOP put clearing RBV's alarm). So VAL and DVAL serve control limits,
+    which clients check before they put (classic ophyd's ``check_value``), while a put
+    beyond them still reaches the handler, which refuses it as the motor record does
+    (LVIO=1, no motion); and a field's put leaves the axis's alarm to its own rule.
     """
 
+    putter: Any
+
     async def verify_value(self, value: Any) -> Any:
-        """Hand the value to the put handler without caproto's limit check.
+        """Hand the value to the put handler without caproto's checks.
 
         Parameters
         ----------
@@ -229,6 +234,18 @@ class TargetDouble(PvpropertyDouble):  # type: ignore[misc]
         if self.putter is not None:
             return await self.putter(self, value)
         return value
+
+
+class HandledDouble(_Handled, PvpropertyDouble):  # type: ignore[misc]
+    """A double field judged by its put handler only (:class:`_Handled`)."""
+
+
+class HandledShort(_Handled, PvpropertyShort):  # type: ignore[misc]
+    """A short field judged by its put handler only (:class:`_Handled`)."""
+
+
+class HandledInteger(_Handled, PvpropertyInteger):  # type: ignore[misc]
+    """An integer field judged by its put handler only (:class:`_Handled`)."""
 
 
 @register_record
@@ -258,38 +275,38 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
-    stop = _field("STOP", PvpropertyShort, "Stop")
+    stop = _field("STOP", HandledShort, "Stop")
     stop_pause_move_go = _field("SPMG", PvpropertyEnum, "Stop/Pause/Move/Go", value=3,
                                 enum_strings=motorSPMG.get_string_tuple())
-    velocity = _field("VELO", PvpropertyDouble, "Velocity (EGU/s)")
-    max_velocity = _field("VMAX", PvpropertyDouble, "Max. Velocity (EGU/s)")
-    base_velocity = _field("VBAS", PvpropertyDouble, "Base Velocity (EGU/s)")
-    seconds_to_velocity = _field("ACCL", PvpropertyDouble, "Seconds to Velocity",
+    velocity = _field("VELO", HandledDouble, "Velocity (EGU/s)")
+    max_velocity = _field("VMAX", HandledDouble, "Max. Velocity (EGU/s)")
+    base_velocity = _field("VBAS", HandledDouble, "Base Velocity (EGU/s)")
+    seconds_to_velocity = _field("ACCL", HandledDouble, "Seconds to Velocity",
                                  value=0.2)
-    user_high_limit = _field("HLM", PvpropertyDouble, "User High Limit")
-    user_low_limit = _field("LLM", PvpropertyDouble, "User Low Limit")
-    dial_high_limit = _field("DHLM", PvpropertyDouble, "Dial High Limit")
-    dial_low_limit = _field("DLLM", PvpropertyDouble, "Dial Low Limit")
-    tweak_motor_forward = _field("TWF", PvpropertyShort, "Tweak motor Forward")
-    tweak_motor_reverse = _field("TWR", PvpropertyShort, "Tweak motor Reverse")
-    tweak_step_size = _field("TWV", PvpropertyDouble, "Tweak Step Size (EGU)")
-    home_forward = _field("HOMF", PvpropertyShort, "Home Forward")
-    home_reverse = _field("HOMR", PvpropertyShort, "Home Reverse")
-    user_offset = _field("OFF", PvpropertyDouble, "User Offset (EGU)")
+    user_high_limit = _field("HLM", HandledDouble, "User High Limit")
+    user_low_limit = _field("LLM", HandledDouble, "User Low Limit")
+    dial_high_limit = _field("DHLM", HandledDouble, "Dial High Limit")
+    dial_low_limit = _field("DLLM", HandledDouble, "Dial Low Limit")
+    tweak_motor_forward = _field("TWF", HandledShort, "Tweak motor Forward")
+    tweak_motor_reverse = _field("TWR", HandledShort, "Tweak motor Reverse")
+    tweak_step_size = _field("TWV", HandledDouble, "Tweak Step Size (EGU)")
+    home_forward = _field("HOMF", HandledShort, "Home Forward")
+    home_reverse = _field("HOMR", HandledShort, "Home Reverse")
+    user_offset = _field("OFF", HandledDouble, "User Offset (EGU)")
     enable_control = _field("CNEN", PvpropertyEnum, "Enable control", value=1,
                             enum_strings=motorTORQ.get_string_tuple())
     user_direction = _field("DIR", PvpropertyEnum, "User Direction", value=0,
                             enum_strings=motorDIR.get_string_tuple())
-    relative_value = _field("RLV", PvpropertyDouble, "Relative Value")
-    dial_desired_value = _field("DVAL", TargetDouble, "Dial Desired Value (EGU)")
-    raw_desired_value = _field("RVAL", PvpropertyInteger, "Raw Desired Value")
-    set_set_mode = _field("SSET", PvpropertyShort, "Set SET Mode")
-    set_use_mode = _field("SUSE", PvpropertyShort, "Set USE Mode")
-    motor_step_size = _field("MRES", PvpropertyDouble, "Motor Step Size (EGU)")
-    jog_motor_forward = _field("JOGF", PvpropertyShort, "Jog motor Forward")
-    jog_motor_reverse = _field("JOGR", PvpropertyShort, "Jog motor Reverse")
-    jog_velocity = _field("JVEL", PvpropertyDouble, "Jog Velocity (EGU/s)")
-    monitor_deadband = _field("MDEL", PvpropertyDouble, "Monitor Deadband")
+    relative_value = _field("RLV", HandledDouble, "Relative Value")
+    dial_desired_value = _field("DVAL", HandledDouble, "Dial Desired Value (EGU)")
+    raw_desired_value = _field("RVAL", HandledInteger, "Raw Desired Value")
+    set_set_mode = _field("SSET", HandledShort, "Set SET Mode")
+    set_use_mode = _field("SUSE", HandledShort, "Set USE Mode")
+    motor_step_size = _field("MRES", HandledDouble, "Motor Step Size (EGU)")
+    jog_motor_forward = _field("JOGF", HandledShort, "Jog motor Forward")
+    jog_motor_reverse = _field("JOGR", HandledShort, "Jog motor Reverse")
+    jog_velocity = _field("JVEL", HandledDouble, "Jog Velocity (EGU/s)")
+    monitor_deadband = _field("MDEL", HandledDouble, "Monitor Deadband")
     move_acceleration = pvproperty(name="ACCS", dtype=PvpropertyDouble, read_only=True,
                                    doc="Move Accel. (EGU/s^2)")
     acceleration_used = pvproperty(name="ACCU", dtype=PvpropertyEnum, read_only=True,
@@ -299,7 +316,7 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
                                   doc="Drive High Limit (dial EGU)")
     drive_low_limit = pvproperty(name="DRVL", dtype=PvpropertyDouble, read_only=True,
                                  doc="Drive Low Limit (dial EGU)")
-    archive_deadband = _field("ADEL", PvpropertyDouble, "Archive Deadband")
+    archive_deadband = _field("ADEL", HandledDouble, "Archive Deadband")
 
 
 #: The fields a client may write (besides VAL); every other field refuses writes.
@@ -354,7 +371,7 @@ class AxisGroup(PVGroup):  # type: ignore[misc]
         The axis it drives.
     """
 
-    motor = pvproperty(name="", value=0.0, dtype=TargetDouble, record="tango_motor",
+    motor = pvproperty(name="", value=0.0, dtype=HandledDouble, record="tango_motor",
                        precision=4, doc="TANGO axis", put=_put_val)
 
     def __init__(self, prefix: str, *, axis: AxisServer) -> None:
@@ -923,7 +940,7 @@ class AxisServer:
             await self.controller.command(f"!pos {self.letter} {target - f.user_offset.value}")
             await self._publish_dial(await self.controller.get("pos", axis=self.letter))
         else:
-            await f.user_offset.write(target - self._dial)
+            await f.user_offset.write(target - self._dial)  # through OFF's handler
 
     # -- settings ------------------------------------------------------------------------
 
@@ -1027,7 +1044,7 @@ class AxisServer:
         f = self._f
         if abs(offset) > MAX_MAGNITUDE:
             raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
-        await f.user_readback_value.write(self._dial + offset)
+        await f.user_readback_value.write(self._dial + offset, verify_value=False)
         await f.user_high_limit.write(f.dial_high_limit.value + offset, verify_value=False)
         await f.user_low_limit.write(f.dial_low_limit.value + offset, verify_value=False)
         await self._publish_drive_limits(offset)
@@ -1144,7 +1161,7 @@ class AxisServer:
     async def _publish_drive_limits(self, offset: float) -> None:
         """VAL's control and display limits are the user soft limits, DVAL's and
         DRVH/DRVL the dial ones, as the motor record serves them (clients check a
-        target against them before they put; :class:`TargetDouble`)."""
+        target against them before they put; :class:`HandledDouble`)."""
         f = self._f
         low, high = f.dial_low_limit.value, f.dial_high_limit.value
         await self.record.write_metadata(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import os
 from importlib.util import find_spec
+from typing import Any
 
 import pytest
 
@@ -18,11 +19,16 @@ _MISSING = [name for name in ("caproto", "epics", "ophyd", "ophyd_async", "blues
 if _MISSING:
     pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
+from caproto import AlarmSeverity, AlarmStatus  # noqa: E402
 from helpers import INSTANT  # noqa: E402
-from test_epics import ca_env  # noqa: E402, F401 - ca_env is a fixture
+from test_epics import Client, PutFailed, ca_env, one_stage  # noqa: E402, F401 - a fixture
+from test_epics import serving as serving_in_process  # noqa: E402
 from test_epics_clients import run_client, serving  # noqa: E402
 
+from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.connection import connect  # noqa: E402
+from tango_aio.controller import Controller  # noqa: E402
+from tango_aio.epics.record import Msta  # noqa: E402
 
 pytestmark = [
     pytest.mark.timeout(300),
@@ -126,3 +132,149 @@ async def test_a_move_beyond_the_soft_limits_fails_at_once_for_every_client() ->
     assert pyepics["severity"] == 2  # MAJOR
     assert ophyd["refused"] not in ("completed", "WaitTimeoutError"), ophyd
     assert ophyd["position"] == 0.0
+
+
+# ---------------------------------------------------- alarms and VAL (in-process client)
+
+
+async def _alarms(client: Client) -> dict[str, Any]:
+    """The alarm of every PV a client judges a move by, SEVR, and MSTA's problem bit."""
+    seen: dict[str, Any] = {name: await client.alarm(name)
+                            for name in ("X", "X.RBV", "X.DMOV", "X.DVAL", "X.MSTA")}
+    seen["SEVR"] = await client.get("X.SEVR")
+    seen["problem"] = bool(await client.get("X.MSTA") & Msta.PROBLEM)
+    return seen
+
+
+def _all(alarm: tuple[AlarmStatus, AlarmSeverity], sevr: AlarmSeverity,
+         problem: bool) -> dict[str, Any]:
+    return {"X": alarm, "X.RBV": alarm, "X.DMOV": alarm, "X.DVAL": alarm, "X.MSTA": alarm,
+            "SEVR": sevr, "problem": problem}
+
+
+FAULT = (AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
+CLEAR = (AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+
+
+async def test_one_alarm_rule_on_every_pv_failed_move_stop_good_move() -> None:
+    async with one_stage() as (tango, ioc, client):
+        await tango.command("!axis x 0")  # disabled: the move ends short (a fault)
+        with pytest.raises(PutFailed):
+            await client.put("X", 5.0)
+        assert await _alarms(client) == _all(FAULT, AlarmSeverity.MAJOR_ALARM, True)
+        await client.put("X.STOP", 1)  # a stop neither raises nor clears
+        assert await _alarms(client) == _all(FAULT, AlarmSeverity.MAJOR_ALARM, True)
+        await client.put("X.SPMG", "Stop")
+        await client.put("X.SPMG", "Go")
+        assert await _alarms(client) == _all(FAULT, AlarmSeverity.MAJOR_ALARM, True)
+        await tango.command("!axis x 1")
+        await client.put("X", 1.0)  # a move that arrives clears every PV
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+        # A stop of a clean axis raises nothing either.
+        move = asyncio.create_task(client.put("X", 40.0))
+        await client.until("X.DMOV", 0)
+        await client.put("X.STOP", 1)
+        with pytest.raises(PutFailed):
+            await move
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+        # A refused setting is no failed move: the put fails, the alarm stays as it was.
+        with pytest.raises(PutFailed):
+            await client.put("X.VELO", -1.0)
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+        # Beyond the soft limits: refused, in alarm on its side, until a good move.
+        with pytest.raises(PutFailed):
+            await client.put("X", 1e5)
+        assert await _alarms(client) == _all((AlarmStatus.HIGH, AlarmSeverity.MAJOR_ALARM),
+                                             AlarmSeverity.MAJOR_ALARM, True)
+        await client.put("X", 2.0)
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+        assert ioc.servers[0].axes[0].record.alarm.severity == AlarmSeverity.NO_ALARM
+
+
+async def _stopped_mid_move(tango: Controller, client: Client, how: str) -> float:
+    """Move X toward 40, stop it by ``how`` mid-move; where it stands."""
+    move = asyncio.create_task(client.put("X", 40.0))
+    await client.until("X.DMOV", 0)
+    async with asyncio.timeout(30):
+        while (await tango.position())["x"] < 0.5:  # noqa: ASYNC110 - polls the stage
+            await asyncio.sleep(0.01)
+    if how == "STOP":
+        await client.put("X.STOP", 1)
+    else:
+        await client.put("X.SPMG", how)
+    with pytest.raises(PutFailed):
+        await move
+    await client.until("X.DMOV", 1)
+    return float((await tango.position())["x"])
+
+
+@pytest.mark.parametrize("how", ["STOP", "Stop", "Pause"])
+async def test_val_after_a_stop_is_where_the_axis_stopped(how: str) -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("X.OFF", 1.5)
+        stood = await _stopped_mid_move(tango, client, how)
+        assert 0.5 <= stood < 40.0 - 1.5
+        assert await client.get("X.DRBV") == pytest.approx(stood, abs=1e-3)
+        if how == "Pause":  # the motor record keeps the target: Go resumes toward it
+            assert await client.get("X") == pytest.approx(40.0)
+            assert await client.get("X.DVAL") == pytest.approx(38.5)
+        else:
+            assert await client.get("X") == pytest.approx(stood + 1.5, abs=1e-3)
+            assert await client.get("X.DVAL") == pytest.approx(stood, abs=1e-3)
+
+
+async def test_val_after_a_failed_move_is_where_the_axis_stands() -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("X", 2.0)
+        await tango.command("!axis x 0")
+        with pytest.raises(PutFailed):
+            await client.put("X", 5.0)
+        stood = (await tango.position())["x"]
+        assert stood != pytest.approx(5.0)
+        assert await client.get("X") == pytest.approx(stood, abs=1e-3)
+        assert await client.get("X.DVAL") == pytest.approx(stood, abs=1e-3)
+
+
+# ------------------------------------------------------------------------ metadata
+
+
+async def _bluesky_facts(axis: MarzhauserAxis) -> dict[str, float]:
+    return {"MRES": await axis.motor_resolution.get_value(),
+            "SREV": await axis.steps_per_revolution.get_value(),
+            "UREV": await axis.units_per_revolution.get_value()}
+
+
+async def _ioc_facts(client: Client) -> dict[str, float]:
+    return {name: await client.get(f"X.{name}") for name in ("MRES", "SREV", "UREV")}
+
+
+async def test_resolution_fields_match_the_bluesky_device_and_follow_a_pitch_change() -> None:
+    stage = MarzhauserStage("sim://?baud=0", axes="x")
+    await stage.connect()
+    try:
+        tango = stage.controller
+        async with serving_in_process({"": tango}) as (_, client):
+            facts = await _bluesky_facts(stage.x)
+            assert facts == {"MRES": pytest.approx(2.5e-5), "SREV": 40000,
+                             "UREV": pytest.approx(1.0)}
+            assert await _ioc_facts(client) == facts
+            assert await client.get("X.RDBD") == pytest.approx(1.5e-4)  # 4 decimals
+            assert await client.get("X.ACCS") == pytest.approx(
+                1000.0 * await tango.get("accel", axis="x"))
+            assert await client.get("X.ACCU") == 2  # Accs: the acceleration is held
+            assert await client.get("X.DRVH") == await client.get("X.DHLM")
+            assert await client.get("X.DRVL") == await client.get("X.DLLM")
+            velo = await client.get("X.VELO")
+            # Through the driver, not the IOC: the IOC follows.
+            await tango.set("pitch", 2.0, axis="x")
+            await stage.refresh_settings()
+            facts = await _bluesky_facts(stage.x)
+            assert facts["UREV"] == pytest.approx(2.0)
+            await client.until("X.UREV", facts["UREV"])
+            assert await _ioc_facts(client) == facts
+            assert await client.get("X.VELO") == pytest.approx(2 * velo)  # same rev/s
+            await tango.command("!lim x -3 7")
+            await client.until("X.DRVH", 7.0)
+            assert await client.get("X.HLM") == 7.0 and await client.get("X.DRVL") == -3.0
+    finally:
+        await stage.aclose()
