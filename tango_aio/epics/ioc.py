@@ -41,7 +41,9 @@ Choices (the motor record documentation leaves room, the TANGO has no such conce
   (but 0), JOGF/JOGR/JVEL, RVAL and MRES refuse writes (:data:`REFUSED`), and every field
   not in :data:`WRITABLE` is read-only.
 * CNEN Enable/Disable sends ``!axis <axis> 1`` / ``0`` (L3919: a disabled axis keeps its
-  motor current, so a vertical axis does not drop; ``-1``, power off, is never sent).
+  motor current, so a vertical axis does not drop; ``-1``, power off, is never sent). A
+  moving axis is stopped first, as by STOP: the manual does not say what disabling does
+  to a move (L3919-3960).
 """
 
 from __future__ import annotations
@@ -1050,7 +1052,12 @@ class AxisServer:
         await self._publish_drive_limits(offset)
 
     async def set_enabled(self, enabled: bool) -> None:
-        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919).
+        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919-3960).
+
+        The manual does not say what disabling a moving axis does to its move (it may go
+        on, stop, or the line be refused: the emulator's ``disable_during_move``), so a
+        moving axis is first stopped as by STOP (its put fails, VAL is where it stood,
+        no alarm), then disabled: the same outcome whatever the controller does.
 
         Parameters
         ----------
@@ -1058,6 +1065,9 @@ class AxisServer:
             The CNEN put.
         """
         self._require_link()
+        if not enabled and (self._busy or
+                            (await self.controller.status()).get(self.letter) == MOVING):
+            await self.stop()
         await self.controller.command(f"!axis {self.letter} {1 if enabled else 0}")
 
     def _vmax_ceiling(self) -> float:

@@ -29,6 +29,7 @@ from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.connection import connect  # noqa: E402
 from tango_aio.controller import Controller  # noqa: E402
 from tango_aio.epics.record import Msta  # noqa: E402
+from tango_aio.sim.profiles import SWITCHES  # noqa: E402
 
 pytestmark = [
     pytest.mark.timeout(300),
@@ -200,6 +201,8 @@ async def _stopped_mid_move(tango: Controller, client: Client, how: str) -> floa
             await asyncio.sleep(0.01)
     if how == "STOP":
         await client.put("X.STOP", 1)
+    elif how == "CNEN":
+        await client.put("X.CNEN", "Disable")
     else:
         await client.put("X.SPMG", how)
     with pytest.raises(PutFailed):
@@ -278,3 +281,26 @@ async def test_resolution_fields_match_the_bluesky_device_and_follow_a_pitch_cha
             assert await client.get("X.HLM") == 7.0 and await client.get("X.DRVL") == -3.0
     finally:
         await stage.aclose()
+
+
+# ------------------------------------------------------------------- CNEN mid-move
+
+
+@pytest.mark.parametrize("policy", SWITCHES["disable_during_move"].values)
+async def test_cnen_disable_during_a_move_stops_then_disables(policy: str) -> None:
+    # The manual is silent on what a disable does to a move (L3919-3960): the IOC stops
+    # the axis first, so the outcome is the same under every behaviour of the emulator.
+    async with connect(f"{INSTANT}&disable_during_move={policy}") as tango, \
+            serving_in_process({"": tango}) as (_, client):
+        stood = await _stopped_mid_move(tango, client, "CNEN")
+        assert stood < 40.0
+        assert await tango.get("axis", axis="x") == 0
+        assert await client.get("X.CNEN") == 0  # Disable
+        assert await client.get("X") == pytest.approx(stood, abs=1e-3)
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+        with pytest.raises(PutFailed):  # a disabled axis does not move: a fault
+            await client.put("X", 1.0)
+        assert (await tango.position())["x"] == pytest.approx(stood)
+        await client.put("X.CNEN", "Enable")
+        await client.put("X", 1.0)
+        assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
