@@ -176,7 +176,13 @@ class Handlers(Peripherals):
     def i_axis(self, c: Command) -> Reply:
         """``!axis``/``?axis``: 1 enabled, 0 disabled, -1 power stage off (L3919-3960).
         What disabling or switching off a moving axis does to its move the manual does
-        not say: switch ``disable_during_move``."""
+        not say: switch ``disable_during_move``.
+
+        Raises
+        ------
+        MotionRefused
+            ``refuse``: a moving axis is to be disabled (error 2).
+        """
         if c.is_read:
             return [self.m.params.read(c, self.m.axes)]
         motion = self.m.motion
