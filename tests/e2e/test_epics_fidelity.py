@@ -23,7 +23,7 @@ from caproto import AlarmSeverity, AlarmStatus  # noqa: E402
 from helpers import INSTANT  # noqa: E402
 from test_epics import Client, PutFailed, ca_env, one_stage  # noqa: E402, F401 - a fixture
 from test_epics import serving as serving_in_process  # noqa: E402
-from test_epics_clients import run_client, serving  # noqa: E402
+from test_epics_clients import _spy_moves, run_client, serving  # noqa: E402
 
 from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.connection import connect  # noqa: E402
@@ -304,3 +304,139 @@ async def test_cnen_disable_during_a_move_stops_then_disables(policy: str) -> No
         await client.put("X.CNEN", "Enable")
         await client.put("X", 1.0)
         assert await _alarms(client) == _all(CLEAR, AlarmSeverity.NO_ALARM, False)
+
+
+# ------------------------------------------------------- puts from two client threads
+
+#: pyepics: two threads put X and Y (with callback) at once, ``pairs`` times.
+THREADS = """
+import json, sys, threading, warnings
+warnings.simplefilter("ignore")
+import epics
+prefix, pairs = sys.argv[1], int(sys.argv[2])
+pvs = {axis: epics.PV(prefix + axis) for axis in "XY"}
+assert all(pv.wait_for_connection(30) for pv in pvs.values())
+done = []
+for i in range(pairs):
+    barrier = threading.Barrier(2)
+    def put(axis, target):
+        barrier.wait(timeout=30)
+        done.append(pvs[axis].put(target, wait=True, timeout=60))
+    threads = [threading.Thread(target=put, args=(axis, 1.0 + i + (axis == "Y")))
+               for axis in "XY"]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(90)
+print(json.dumps({"done": done}))
+"""
+
+
+async def test_puts_from_two_threads_within_the_merge_window_are_merged() -> None:
+    # merge="window": every put waits the window for puts to other axes, whatever thread
+    # (or client) sent them; with the default "turn" only puts that reach the IOC
+    # together merge, which two threads' puts may or may not do (see the how-to).
+    async with connect(INSTANT) as tango, \
+            serving_in_process({"": tango}, merge="window", window=0.5) as (_, client):
+        assert await client.get("X.DMOV") == 1  # served (and the in-process client used)
+        moves = _spy_moves(tango)
+        result = await run_client(THREADS, "T:", 2, timeout=120)
+    assert len(result["done"]) == 4
+    assert moves == ["!moa 1.0 2.0", "!moa 2.0 3.0"], moves
+
+
+# ------------------------------------------------------------------ client pitfalls
+# Each test states what a client should do and fails because the client does otherwise
+# (strict xfail: should a fixed release come, the test passes and the mark must go).
+
+#: ``ophyd-async``: ``Motor.set`` of a move that fails (a disabled axis): did it raise?
+#: ``ophyd-stop``: ``EpicsMotor.move`` that another client stops: did it raise?
+#: ``ophyd-after-caput``: pyepics ``caput(wait=True)``, then ``EpicsMotor.move`` on the
+#: same PV in the same process, ``rounds`` times: the rounds where ``move`` returned with
+#: the axis short of its target.
+PITFALLS = """
+import asyncio, json, sys, time, warnings
+warnings.simplefilter("ignore")
+prefix, case, rounds = sys.argv[1], sys.argv[2], int(sys.argv[3])
+x = prefix + "X"
+out = {}
+if case == "ophyd-async":
+    from ophyd_async.epics.motor import Motor
+
+    async def main():
+        motor = Motor(x, name="x")
+        await motor.connect(timeout=30)
+        try:
+            await asyncio.wait_for(motor.set(15.0), 60)
+            out["raised"] = False
+        except Exception as exc:
+            out["raised"], out["error"] = True, repr(exc)
+        out["position"] = await motor.user_readback.get_value()
+    asyncio.run(main())
+else:
+    import epics
+    from ophyd import EpicsMotor
+    motor = EpicsMotor(x, name="x")
+    motor.wait_for_connection(timeout=30)
+    if case == "ophyd-stop":
+        try:
+            motor.move(40.0, wait=True, timeout=60)
+            out["raised"] = False
+        except Exception as exc:
+            out["raised"], out["error"] = True, repr(exc)
+        out["position"] = motor.position
+    else:
+        early = []
+        for i in range(rounds):
+            start = 1.0 + i % 2
+            epics.caput(x, start, wait=True, timeout=30)
+            motor.move(start + 3.0, wait=True, timeout=30)
+            position = epics.caget(x + ".RBV", use_monitor=False, timeout=10)
+            if abs(position - (start + 3.0)) > 1e-3:
+                early.append([start + 3.0, position])
+        out["early"] = early
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="ophyd-async 0.21's Motor.set returns normally when "
+                   "the put fails: its retry loop (stamina over tenacity) takes aioca's "
+                   "CANothing, falsy for a failure, for a success")
+async def test_pitfall_ophyd_async_set_raises_when_the_move_fails() -> None:
+    async with connect(INSTANT) as tango, serving({"": tango}, "PFA:"):
+        await tango.command("!axis x 0")
+        result = await run_client(PITFALLS, "PFA:", "ophyd-async", 0, timeout=120)
+        assert (await tango.position())["x"] == 0.0  # the move failed
+    assert result["raised"], result
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="classic ophyd judges a move by RBV's alarm when DMOV "
+                   "returns to 1, and a STOP raises no alarm (as the motor record's does "
+                   "not): a move stopped by another client is taken for a success")
+async def test_pitfall_ophyd_move_stopped_by_another_client_raises() -> None:
+    async with connect(INSTANT) as tango, serving({"": tango}, "PFS:") as ioc:
+        for axis in "xyz":
+            await tango.set("vel", 20.0, axis=axis)
+        mover = asyncio.create_task(run_client(PITFALLS, "PFS:", "ophyd-stop", 0,
+                                               timeout=120))
+        async with asyncio.timeout(60):
+            while (await tango.position())["x"] < 1.0:  # noqa: ASYNC110 - polls the stage
+                await asyncio.sleep(0.02)
+        await ioc.servers[0].axes[0].put_field("STOP", 1)  # another client's STOP
+        result = await mover
+        assert (await tango.position())["x"] < 40.0  # stopped short
+    assert result["raised"], result
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="classic ophyd's move() right after a pyepics "
+                   "caput(wait=True) on the same PV in the same process: the caput's DMOV "
+                   "0 and 1 reach ophyd's callback thread late and end the new move at once")
+async def test_pitfall_ophyd_move_after_a_pyepics_caput_ends_at_its_target() -> None:
+    async with connect(INSTANT) as tango, serving({"": tango}, "PFC:"):
+        for axis in "xyz":
+            await tango.set("vel", 20.0, axis=axis)
+        result = await run_client(PITFALLS, "PFC:", "ophyd-after-caput", 8, timeout=200)
+    assert result["early"] == [], result
