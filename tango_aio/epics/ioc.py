@@ -9,7 +9,10 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
   the wire to every client (:mod:`.flush`). A move that ends anywhere but at its target
   (any status letter but @/A/D, a controller error, a lost link, a refused line) fails
   the put, sets the MSTA problem bit and puts the record and its fields in a MAJOR alarm
-  until the next successful move.
+  until a move ends at its target (one rule for every PV of the axis,
+  :func:`~.record.fault_after`: STOP and SPMG neither raise nor clear it); VAL and DVAL
+  are then where the axis stands, as after STOP or SPMG=Stop (the motor record's rule;
+  SPMG=Pause keeps them, Go resumes toward VAL).
 * ``P:CONNECTED`` (0/1), ``P:ERROR`` (number of the last error: the controller's error
   number, -1 for a failure without one, 0 none), ``P:ERROR:TEXT``, ``P:AUTOSTATUS``,
   ``P:TRIGCOUNT``.
@@ -17,7 +20,11 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
 One poller per controller reads ``?pos`` and ``?statusaxis`` every ``poll`` seconds and
 ``?readsw``, ``?statuslimit`` and ``?trigcount`` every fifth time. While the link is down
 every PV but CONNECTED is in an INVALID/COMM alarm; when the driver has reconnected
-(``connect(url, reconnect=True)``) the settings are read again and the alarms clear.
+(``connect(url, reconnect=True)``) the settings are read again and the alarms go back to
+the axis's own (a move that failed with the link still shows its fault). Every fifth poll
+also reads the unit settings (``dim``, ``pitch``, ``gear``, ``usteps``, ``resolution``)
+and the soft limits the driver knows, so EGU, PREC, MRES, UREV, SREV, RDBD, the speeds
+and the limits follow a change made through any path.
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 
@@ -25,7 +32,7 @@ Choices (the motor record documentation leaves room, the TANGO has no such conce
   move retargets (the one-axis stop ``a x``, L6785-6844, then the new move), and a newer
   request replaces a waiting one. STOP, and SPMG set to Stop or Pause, stop the axis the
   same way and drop every waiting request; the stopped put fails (the target was not
-  reached) without an alarm. While SPMG is Stop or Pause every motion request is refused
+  reached), its alarm left as it was. While SPMG is Stop or Pause every motion request is refused
   (the flag is set before the stop is awaited, so a VAL right behind it is refused too);
   Pause then Go resumes the move toward VAL.
 * HOMR runs ``cal`` (reverse, to the lower limit switch, sets the origin, L5259), HOMF
@@ -33,13 +40,16 @@ Choices (the motor record documentation leaves room, the TANGO has no such conce
 * SET=Set: a put to VAL redefines the position instead of moving; with FOFF=Variable the
   user offset OFF changes, with FOFF=Frozen the controller's position is set (``!pos``,
   L6900).
-* HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522); a VAL outside
-  them sets LVIO=1 and fails the put before anything is sent.
+* HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522), served as
+  VAL's (user) and DVAL's, DRVH's and DRVL's (dial) control limits, which clients check
+  before they put; a target outside them sets LVIO=1, keeps VAL, blinks DMOV (0, then 1)
+  and fails the put, with the axis in a HIGH or LOW/MAJOR alarm, before anything is sent
+  (the motor record's rule, limits 0 and 0 meaning none).
 * VELO sets ``vel`` (at most VMAX, which starts at the controller's own speed); ACCL sets
   ``accel`` so that VELO is reached in ACCL seconds; a new VELO keeps ``accel`` (ACCL is
-  recomputed). DVAL and RLV move through VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS
-  (but 0), JOGF/JOGR/JVEL, RVAL and MRES refuse writes (:data:`REFUSED`), and every field
-  not in :data:`WRITABLE` is read-only.
+  recomputed: ACCU is Accs, ACCS the acceleration in EGU/s²). DVAL and RLV move through
+  VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS (but 0), JOGF/JOGR/JVEL, RVAL and MRES
+  refuse writes (:data:`REFUSED`), and every field not in :data:`WRITABLE` is read-only.
 * CNEN Enable/Disable sends ``!axis <axis> 1`` / ``0`` (L3919: a disabled axis keeps its
   motor current, so a vertical axis does not drop; ``-1``, power off, is never sent). A
   moving axis is stopped first, as by STOP: the manual does not say what disabling does
