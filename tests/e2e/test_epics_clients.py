@@ -354,8 +354,10 @@ async def _cell(emulator: EmulatorFactory, client: str, ending: str) -> None:
         axis = ioc.servers[0].axes[0]
         if ending == "disabled axis":
             await tango.command("!axis x 0")
-        if ending == "refused line":  # another program narrows the limits: the IOC's
-            await tango.command("!lim x -5 5")  # own check passes, the controller refuses
+        if ending == "refused line":  # the limits narrowed behind the driver's back (the
+            # stage's own keys): the IOC's own check passes, the controller refuses.
+            motion = emulated.model.motion
+            motion.set_limits(0, motion.from_user(0, -5.0), motion.from_user(0, 5.0))
         mover = asyncio.create_task(run_client(MOVE, "MTX:", client, 15.0))
         if ending in ("abort by another client", "stop", "link lost"):
             async with asyncio.timeout(60):
