@@ -22,9 +22,10 @@ One poller per controller reads ``?pos`` and ``?statusaxis`` every ``poll`` seco
 every PV but CONNECTED is in an INVALID/COMM alarm; when the driver has reconnected
 (``connect(url, reconnect=True)``) the settings are read again and the alarms go back to
 the axis's own (a move that failed with the link still shows its fault). Every fifth poll
-also reads the unit settings (``dim``, ``pitch``, ``gear``, ``usteps``, ``resolution``)
-and the soft limits the driver knows, so EGU, PREC, MRES, UREV, SREV, RDBD, the speeds
-and the limits follow a change made through any path.
+also publishes the soft limits the driver knows (read again after any line that may
+change them), and every 25th reads the unit settings (``dim``, ``pitch``, ``gear``,
+``usteps``, ``resolution``), so the limits, EGU, PREC, MRES, UREV, SREV, RDBD and the
+speeds follow a change made through any path.
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 
@@ -135,6 +136,9 @@ REFUSED = {
 
 #: How many polls of ``?pos``/``?statusaxis`` per read of switches and counters.
 SLOW_EVERY = 5
+
+#: How many polls per read of the unit settings (five reads, pipelined).
+UNITS_EVERY = 5 * SLOW_EVERY
 
 
 def _finite(pvname: str, field: str, value: float) -> None:
@@ -1438,7 +1442,8 @@ class ControllerServer:
         count = 0
         while True:
             try:
-                await self._poll_once(slow=count % SLOW_EVERY == 0)
+                await self._poll_once(slow=count % SLOW_EVERY == 0,
+                                      units=count % UNITS_EVERY == 0)
             except ConnectionLostError:
                 pass  # seen as link down by the next round
             except TangoError as exc:  # a timeout, a garbled reply: try again later
@@ -1446,7 +1451,7 @@ class ControllerServer:
             count += 1
             await asyncio.sleep(self.poll)
 
-    async def _poll_once(self, *, slow: bool) -> None:
+    async def _poll_once(self, *, slow: bool, units: bool = False) -> None:
         c = self.controller
         if not c.connected:
             await self._set_link(False)
@@ -1468,12 +1473,13 @@ class ControllerServer:
         if slow:
             readsw = await c.query("?readsw")
             statuslimit = await c.query("?statuslimit")
-            units, decimals = await self.read_units()
+            settings = await self.read_units() if units else None
             for axis in self.axes:
                 await axis.slow_update(readsw, statuslimit)
                 # Settings changed through another path (the driver, another program on
                 # this link, the IOC's own puts) show here.
-                await axis.units_read(units[axis.letter], decimals)
+                if settings is not None:
+                    await axis.units_read(settings[0][axis.letter], settings[1])
                 await axis.follow_limits()
             await self.group.trigcount.write(int(await c.get("trigcount")), verify_value=False)
             await self.group.autostatus.write(c.autostatus, verify_value=False)

@@ -23,7 +23,7 @@ from caproto import AlarmSeverity, AlarmStatus  # noqa: E402
 from helpers import INSTANT  # noqa: E402
 from test_epics import Client, PutFailed, ca_env, one_stage  # noqa: E402, F401 - a fixture
 from test_epics import serving as serving_in_process  # noqa: E402
-from test_epics_clients import _spy_moves, run_client, serving  # noqa: E402
+from test_epics_clients import _spy_moves, _stage, run_client, serving  # noqa: E402
 
 from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.connection import connect  # noqa: E402
@@ -417,8 +417,7 @@ async def test_pitfall_ophyd_async_set_raises_when_the_move_fails() -> None:
                    "not): a move stopped by another client is taken for a success")
 async def test_pitfall_ophyd_move_stopped_by_another_client_raises() -> None:
     async with connect(INSTANT) as tango, serving({"": tango}, "PFS:") as ioc:
-        for axis in "xyz":
-            await tango.set("vel", 20.0, axis=axis)
+        await _stage(tango)
         mover = asyncio.create_task(run_client(PITFALLS, "PFS:", "ophyd-stop", 0,
                                                timeout=120))
         async with asyncio.timeout(60):
@@ -436,7 +435,6 @@ async def test_pitfall_ophyd_move_stopped_by_another_client_raises() -> None:
                    "0 and 1 reach ophyd's callback thread late and end the new move at once")
 async def test_pitfall_ophyd_move_after_a_pyepics_caput_ends_at_its_target() -> None:
     async with connect(INSTANT) as tango, serving({"": tango}, "PFC:"):
-        for axis in "xyz":
-            await tango.set("vel", 20.0, axis=axis)
+        await _stage(tango)
         result = await run_client(PITFALLS, "PFC:", "ophyd-after-caput", 8, timeout=200)
     assert result["early"] == [], result
