@@ -444,3 +444,98 @@ async def test_pitfall_ophyd_move_after_a_pyepics_caput_ends_at_its_target() -> 
         await _stage(tango)
         result = await run_client(PITFALLS, "PFC:", "ophyd-after-caput", 8, timeout=200)
     assert result["early"] == [], result
+
+
+# ------------------------------------------------------- the same, by clients in other processes
+
+#: pyepics: a move that fails (the test disabled X), STOP, CNEN=Enable and a good move,
+#: then a move stopped mid-way; after each step the severity of VAL, RBV and DMOV, SEVR
+#: and MSTA's problem bit, and at the end VAL, DVAL and RBV.
+RULE = """
+import json, sys, time, warnings
+warnings.simplefilter("ignore")
+import epics
+x = sys.argv[1] + "X"
+pvs = {name: epics.PV(x + name, form="time") for name in ("", ".RBV", ".DMOV")}
+assert all(pv.wait_for_connection(30) for pv in pvs.values())
+def alarms():
+    for pv in pvs.values():
+        pv.get(timeout=10, use_monitor=False)
+    return [[pv.severity for pv in pvs.values()],
+            epics.caget(x + ".SEVR", timeout=10, use_monitor=False),
+            bool(int(epics.caget(x + ".MSTA", timeout=10, use_monitor=False)) & 512)]
+out = {}
+epics.caput(x, 5.0, wait=True, timeout=30)
+out["failed"] = alarms()
+epics.caput(x + ".STOP", 1, wait=True, timeout=30)
+out["stop"] = alarms()
+epics.caput(x + ".CNEN", 1, wait=True, timeout=30)
+epics.caput(x, 1.0, wait=True, timeout=30)
+out["good"] = alarms()
+epics.caput(x, 40.0, wait=False)
+end = time.monotonic() + 30
+while time.monotonic() < end and epics.caget(x + ".RBV", use_monitor=False) < 2.0:
+    time.sleep(0.01)
+epics.caput(x + ".STOP", 1, wait=True, timeout=30)
+end = time.monotonic() + 30
+while time.monotonic() < end and epics.caget(x + ".DMOV", use_monitor=False) != 1:
+    time.sleep(0.01)
+out["stopped"] = alarms()
+out["val"], out["dval"], out["rbv"] = (epics.caget(x + name, timeout=10, use_monitor=False)
+                                       for name in ("", ".DVAL", ".RBV"))
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+async def test_pyepics_sees_the_alarm_rule_and_val_after_stop() -> None:
+    async with connect(INSTANT) as tango, serving({"": tango}, "RUL:"):
+        await _stage(tango)
+        await tango.command("!axis x 0")
+        result = await run_client(RULE, "RUL:", timeout=120)
+        stood = (await tango.position())["x"]
+    fault, clear = [[2, 2, 2], 2, True], [[0, 0, 0], 0, False]
+    assert result["failed"] == fault, result
+    assert result["stop"] == fault, result  # a STOP neither raises nor clears
+    assert result["good"] == clear, result
+    assert result["stopped"] == clear, result
+    assert 2.0 <= stood < 40.0
+    for name in ("val", "dval", "rbv"):
+        assert result[name] == pytest.approx(stood, abs=1e-3), result
+
+
+#: ophyd-async's Motor: the resolution fields it records as configuration.
+RESOLUTION = """
+import asyncio, json, sys
+from ophyd_async.epics.motor import Motor
+
+async def main():
+    motor = Motor(sys.argv[1] + "X", name="x")
+    await motor.connect(timeout=30)
+    print(json.dumps({"MRES": await motor.motor_resolution.get_value(),
+                      "SREV": await motor.steps_per_revolution.get_value(),
+                      "UREV": await motor.units_per_revolution.get_value()}))
+asyncio.run(main())
+"""
+
+
+@pytest.mark.slow
+async def test_ophyd_async_records_the_bluesky_devices_resolution() -> None:
+    stage = MarzhauserStage(INSTANT, axes="x")
+    await stage.connect()
+    try:
+        async with serving({"": stage.controller}, "RES:") as ioc:
+            assert await run_client(RESOLUTION, "RES:", timeout=120) == \
+                pytest.approx(await _bluesky_facts(stage.x))
+            await stage.controller.set("pitch", 4.0, axis="x")
+            await stage.refresh_settings()
+            wanted = await _bluesky_facts(stage.x)
+            assert wanted["UREV"] == pytest.approx(4.0)
+            urev = ioc.servers[0].axes[0].record.fields["UREV"]
+            async with asyncio.timeout(60):
+                while urev.value != pytest.approx(4.0):  # noqa: ASYNC110 - the IOC's poll
+                    await asyncio.sleep(0.05)
+            assert await run_client(RESOLUTION, "RES:", timeout=120) == \
+                pytest.approx(wanted)
+    finally:
+        await stage.aclose()
