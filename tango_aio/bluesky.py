@@ -1494,7 +1494,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         return self._scale.user_per_rev
 
     async def _resolution(self) -> float:
-        return self._scale.user_per_rev / self._scale.usteps
+        return self._scale.resolution
 
     async def _done_move(self) -> int:
         letters = await self._link.controller.status()

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from ..errors import ERROR_DESCRIPTIONS
 from ..instructions import Command
 from .lists import MAX_TRIGGERS, ListError
-from .motion import MotionConfig
+from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
 from .params import format_value
 from .peripherals import Peripherals
 from .port import ModelPort
@@ -173,6 +173,30 @@ class Handlers(Peripherals):
             values = self.m.params.read(c, self.m.axes).split()
             return ["1" if "1" in values else "0"]
         return [self.m.params.read(c, self.m.axes)]
+
+    def i_axis(self, c: Command) -> Reply:
+        """``!axis``/``?axis``: 1 enabled, 0 disabled, -1 power stage off (L3919-3960).
+        What disabling or switching off a moving axis does to its move the manual does
+        not say: switch ``disable_during_move``.
+
+        Raises
+        ------
+        MotionRefused
+            ``refuse``: a moving axis is to be disabled (error 2).
+        """
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        motion = self.m.motion
+        halted = [axis for axis, value in self.m.axis_map(c).items()
+                  if int(value) != 1 and motion.is_moving(axis)]
+        policy = self.m.firmware.disable_during_move
+        if halted and policy == "refuse":
+            raise MotionRefused(ERR_NOT_EXECUTABLE, "!axis: the axis moves")
+        self.m.store(c)
+        if policy == "stop":
+            for axis in halted:
+                motion.abort(axis)
+        return None
 
     def i_swtyp(self, c: Command) -> Reply:
         if not c.is_read:

@@ -112,6 +112,12 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "A move line for axes that are still moving is refused with error 2, waits "
               "until they stop (`queue`, then reports on its own), or takes over their "
               "target (`retarget`: the first move sends no report of its own)."),
+    SwitchDoc("disable_during_move", ("continue", "stop", "refuse"), "L3919-3960",
+              "`!axis x 0` (disable) or `-1` (power stage off) while X moves: the manual "
+              "says only that a disabled axis keeps its motor current and a switched-off "
+              "one loses its torque. The move goes on to its target (`continue`), X "
+              "stops as by `a x` (`stop`: letter `E`), or the line is refused with "
+              "error 2 (`refuse`)."),
     SwitchDoc("zero_move_report", ("yes", "no"), "L2087-2089",
               "A move to where the axes already are sends a report (`yes`) or nothing."),
     # -- reports and status ------------------------------------------------------------------
@@ -216,6 +222,8 @@ class Firmware:
     refused_move_report: str = "no"
     #: A move for moving axes: ``refuse``, ``queue`` or ``retarget``.
     move_during_move: str = "refuse"
+    #: ``!axis`` 0 or -1 for a moving axis: ``continue``, ``stop`` or ``refuse``.
+    disable_during_move: str = "continue"
     #: A move to where the axes are sends a report (``yes``/``no``).
     zero_move_report: str = "yes"
     #: Report letters for ``four`` axes always or as many as the unit has (``axes``).

@@ -401,6 +401,29 @@ def test_zero_move_report(zero: str) -> None:
     assert lines == (["OK...", "@@@-."] if zero == "yes" else ["OK..."])
 
 
+@pytest.mark.parametrize("policy", values_of("disable_during_move"))
+@pytest.mark.parametrize("state", ["0", "-1"])
+def test_disable_during_move(policy: str, state: str) -> None:
+    s = sim(disable_during_move=policy)
+    s.send("!moa 5")
+    s.now += 0.1
+    assert s.ask("sa").startswith("M")
+    lines = s.send(f"!axis x {state}")
+    assert s.ask("?err") == ("2" if policy == "refuse" else "0")
+    assert s.ask("?axis x") == ("1" if policy == "refuse" else state)
+    lines += s.settle()
+    x = float(s.ask("?pos").split()[0])
+    if policy == "stop":
+        assert 0.0 < x < 5.0
+        assert lines == ["E@@-."]  # stopped as by 'a x'
+    else:
+        assert x == pytest.approx(5.0)
+        assert lines == ["@@@-."]
+    # An axis at rest is disabled under every policy.
+    s.send("!axis y 0")
+    assert s.ask("?err") == "0" and s.ask("?axis y") == "0"
+
+
 def test_move_ok_at_completion_without_a_report_still_acknowledges() -> None:
     s = sim(move_ok="completion", zero_move_report="no")
     s.send("!autostatus 2")
