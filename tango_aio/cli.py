@@ -1565,7 +1565,7 @@ def _parser() -> argparse.ArgumentParser:
                           "'tango-aio probe') as far as the firmware switches go")
     sim.add_argument("--switch", action="append", default=[], metavar="NAME=VALUE",
                      help="a firmware switch on top of the profile (repeatable), "
-                          "e.g. echo=after; see the README's switch table")
+                          "e.g. echo=after; see docs/concepts/firmware-profiles.md")
     sim.add_argument("--speed", default="1", metavar="X",
                      help="run motion, pauses and timeouts X times as fast (the wire "
                           "keeps its baud rate)")

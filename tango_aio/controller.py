@@ -140,7 +140,7 @@ class Identity:
     ``family`` is ``"1.71"`` for firmware that answers like the 1.71 manual, ``"older"``
     for the older edition (its ``?version`` format or ``help`` without a number, old
     L805-819). ``detected`` maps each behaviour found at connect to what was found, e.g.
-    ``{"help_number": "no", "per_axis_replies": "exact"}`` (see README "Motion semantics").
+    ``{"help_number": "no", "per_axis_replies": "exact"}`` (docs/getting-started.md).
     """
 
     model: str
@@ -1150,9 +1150,9 @@ class Controller:
         stopped) if it still moves after ``timeout`` seconds (default: computed from the
         distance, speed, ``delay``, ``pause`` and ``ctrt``), counted from when its line is
         written. Axes not named are never moved: a set that does not start at X without
-        gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
-        semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
-        the connection's ``units``, else the dim unit) or pint Quantities.
+        gaps (``move_to(y=5, z=1)``) is moved axis by axis (docs/concepts/motion.md).
+        Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default: the
+        connection's ``units``, else the dim unit) or pint Quantities.
 
         ``velocity`` and ``acceleration`` apply to this move only: one number for every
         moved axis, or a mapping per axis (``velocity={"x": 5}``), in ``unit`` per second

@@ -17,7 +17,8 @@ Select one in a URL (``sim://?profile=legacy&echo=after``), on the command line
     SimConfig(firmware=Firmware.from_options("legacy", echo="after"))
 
 :data:`SWITCHES` documents every switch (values, the ``manual`` default, the manual lines
-it comes from, what it changes); the README's switch table is generated from it.
+it comes from, what it changes); the switch table of the firmware-profiles page of the
+docs is generated from it.
 :func:`variants` lists the firmwares a client's test matrix should run against.
 
 This module imports nothing of the driver: it is part of the emulator's own reading of
@@ -463,7 +464,7 @@ def variants(*, unsupported: bool = False) -> list[tuple[str, Firmware]]:
 
 
 def switch_table() -> str:
-    """The Markdown table of every switch (the README's, checked by a test).
+    """The Markdown table of every switch (the firmware-profiles page's, checked by a test).
 
     Returns
     -------

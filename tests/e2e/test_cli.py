@@ -356,7 +356,7 @@ def test_monitor_exits_cleanly_on_ctrl_c() -> None:
     with Terminal("monitor", SIM, "--interval", "0.05", env={"TERM": "xterm"}) as term:
         term.expect(r"│ z\s+│\s+0\.0000 │ @")  # the live table is up
         term.send("\x03")  # Ctrl+C in a terminal: SIGINT
-        assert term.wait() == 130  # as every command after Ctrl+C (README, cli.md)
+        assert term.wait() == 130  # as every command after Ctrl+C (cli.md)
 
 
 def test_ports_lists_and_probes() -> None:

@@ -194,9 +194,9 @@ def test_the_version_number_is_separate_from_the_firmware_behaviour() -> None:
     assert Sim(version="1.69").ask("?version 1") == "1.69"
 
 
-def test_the_readme_table_lists_every_switch() -> None:
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert switch_table() in readme, "regenerate: python -c 'from tango_aio.sim.profiles " \
+def test_the_docs_table_lists_every_switch() -> None:
+    page = (ROOT / "docs" / "concepts" / "firmware-profiles.md").read_text(encoding="utf-8")
+    assert switch_table() in page, "regenerate: python -c 'from tango_aio.sim.profiles " \
         "import switch_table; print(switch_table())'"
 
 

@@ -522,7 +522,7 @@ async def test_sim_url_speed_reaches_the_emulator() -> None:
 
 def test_the_readme_imports_work() -> None:
     import tango_aio.sim as package
-    from tango_aio.sim import (  # the README's promise
+    from tango_aio.sim import (  # the emulator reference page's promise
         ControllerModel,
         SimConfig,
         Wire,
