@@ -84,6 +84,7 @@ from .linktiming import LinkTiming
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
+    STATUS_READ,
     Barrier,
     Exchange,
     LinkSession,
@@ -822,7 +823,7 @@ class TangoProtocol(asyncio.Protocol):
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
-    async def read_autostatus(self, *, timeout: float | None) -> int:
+    async def read_autostatus(self, *, timeout: float | None, status: bool = False) -> int:
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
         way a mode change is confirmed (:meth:`_mode_exchange`).
@@ -831,13 +832,18 @@ class TangoProtocol(asyncio.Protocol):
         ----------
         timeout
             Seconds the exchange may take (``None``: no limit).
+        status
+            Also write ``?statusaxis`` in front, and record in :attr:`detected` how its
+            reply ends (``status_tail``, :func:`~tango_aio.session.status_tail`): the
+            exchange sees the raw lines, which the core would route a reply shaped like
+            a completion report away from.
 
         Returns
         -------
         int
             The mode in force.
         """
-        return (await self._mode_exchange([], timeout))[1]
+        return (await self._mode_exchange([STATUS_READ] if status else [], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
 
@@ -1617,6 +1623,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _on_completed(self, event: Completed) -> None:
         self._heard()
+        self.session.report_seen(event.line)
         if event.tag is None:
             return
         submission = self._submissions.get(event.tag)
