@@ -39,7 +39,10 @@ How a move is followed
    reason why the read may come too early: a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state until the delay is over,
    and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
-   expected end (:func:`tango_aio.timing.too_early`).
+   expected end (:func:`tango_aio.timing.too_early`). In a move of several axes, one
+   that reads a failure letter while the others still move ends the move too
+   (:func:`tango_aio.timing.cut_short`): the others are stopped and the error names
+   every axis; their report would come only once all of them stand.
 4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
    Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
    driver's stops per axis, and a move that saw the count of one of its axes change
@@ -55,8 +58,9 @@ another one does not spend it), and covers ``delay`` before the start (L6845-686
 travel (trapezoid at the slowest plausible speed), ``pause`` after it (L6873-6899) and
 the closed-loop settling time ``ctrt`` (L11616-11631). When no report comes, the state is
 polled from shortly after the expected end, with an interval that grows to
-:data:`POLL_MAX` (in autostatus 0, which sends no reports, every :data:`POLL_MAX` during
-the move as well: an early end is seen within that); the move fails with
+:data:`POLL_MAX` (in autostatus 0, which sends no reports, and for a move of several
+axes, every :data:`POLL_MAX` during the move as well: an early end is seen within that,
+:func:`tango_aio.timing.polled_during`); the move fails with
 :class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
 moves.
 
