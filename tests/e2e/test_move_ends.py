@@ -134,9 +134,9 @@ async def test_an_axis_stopped_by_its_switch_ends_a_move_of_several_axes_at_once
     errors: list[tuple[MoveError, float, list[str]]] = []
     try:
         await tango.move_to(x=x1, y=y1)
-    except MoveError as error:
+    except MoveError as raised:
         # The emulator's own clock and state when the error arrives.
-        errors.append((error, motion.now, [a for a in "xyz" if motion.is_moving(a)]))
+        errors.append((raised, motion.now, [a for a in "xyz" if motion.is_moving(a)]))
     [(error, ended, moving)] = errors
     assert ended - start < planned / 2  # not the planned end of the move
     assert moving == []  # the other axis was stopped: nothing moves
