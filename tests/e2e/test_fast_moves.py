@@ -94,9 +94,10 @@ async def run_sequence(emulator: EmulatorFactory, profile: str, baud: int,
         except TangoError as error:
             result = (type(error).__name__,)
         state = sim_axes(emu)
-        # An axis the driver stopped because another of the move failed (status E)
-        # stands wherever the stop found it: when the state was polled.
-        cut = {a for a, s in result[1].items() if s == "E"} \
+        # An axis the driver stopped because another of the move stopped at its switch
+        # stands wherever the stop found it (when the state was polled): E, or @ where
+        # aborted axes report @ (legacy).
+        cut = {a for a, s in result[1].items() if s != "S"} \
             if result[0] == "MoveError" else set()
         outcomes.append((kind, values, result,
                          {a: round(p, 3) for a, (p, _) in state.items() if a not in cut}))
