@@ -7,7 +7,15 @@ move returns normally only when every axis it moved stands still at its target.
 How a move is followed
 ======================
 1. The move line is written, with its check (the autostatus-2 acknowledgement or an
-   ``?err`` probe right behind it). A refused line raises its ``ControllerError``.
+   ``?err`` probe right behind it). A refused line raises its ``ControllerError``, once
+   a state read behind the refusal shows none of its axes moving: one flipped bit turns
+   the ``?err`` reply ``0`` into a documented refusal (``2``), so the refusal alone
+   proves nothing. A verdict that is no clean error number or acknowledgement
+   (:class:`~tango_aio.errors.GarbledVerdictError`, e.g. ``07``) proves nothing either.
+   When the line's axes move (or stand elsewhere than before, or its report came), it
+   ran: they are stopped, and :class:`~tango_aio.errors.MoveProtocolUnknownError` says
+   which (or which may still move); a garbled verdict with nothing moving raises it
+   too, saying so (:func:`~tango_aio.timing.contest`).
 2. The driver then waits for a *hint*: any completion report (``@@@-.``, or the bare CR
    of autostatus 3), an abort by the driver, or the time at which the move should have
    ended (its :attr:`MovePlan.expected` duration). A report is only a hint, because the
@@ -94,10 +102,12 @@ from typing import NoReturn, Protocol
 
 import anyio
 
+from .core import Completed
 from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     MoveError,
     ProtocolError,
     RequestAbortedError,
@@ -111,15 +121,17 @@ from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
 from .timing import (
     POLL_GRACE,
     Budget,
+    contest,
     cut_short,
     describe_stop,
     polled_during,
+    shifted_axes,
     too_early,
     verdict,
 )
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
-           "acceptance_shown", "annotate"]
+           "acceptance_shown", "annotate", "contested", "report_came"]
 
 log = logging.getLogger("tango_aio")
 
@@ -308,6 +320,8 @@ class _Job:
     checked: float = 0.0
     #: The state read :meth:`Motion.reported` wrote while this move waited for a hint.
     early: Awaitable[tuple[dict[str, str], dict[str, str]]] | None = None
+    #: The positions the driver knew when the line was written (:attr:`Motion.positions`).
+    before: dict[str, str] | None = None
 
 
 class Motion:
@@ -478,7 +492,8 @@ class Motion:
             plan = await plan_for(command, self.positions)
             hints = self._hints
             job = _Job(plan, self._port.start(command, plan.batch),
-                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
+                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints,
+                       before=None if self.positions is None else dict(self.positions))
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -509,6 +524,8 @@ class Motion:
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
+        except GarbledVerdictError as exc:
+            await self._contest(job, exc)
         except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed, and
@@ -523,8 +540,7 @@ class Motion:
         except ConnectionLostError as exc:
             raise outcome_unknown(exc, job.sent.command.line) from exc.__cause__
         if error is not None:
-            job.sent.forget()
-            raise error
+            await self._contest(job, error)
         try:
             letters = await self._follow(job)
         except _LOST_READ as exc:
@@ -540,6 +556,27 @@ class Motion:
             raise
         job.sent.forget()
         return letters
+
+    async def _contest(self, job: _Job, cause: TangoError) -> NoReturn:
+        """A refusal stands if none of the line's axes moves; else stop them and say so."""
+        # (The verdict refused the line or made no sense: timing.contest judges the state.)
+        line, moved = job.plan.command.line, job.plan.moved
+        try:
+            letters, texts = await self._state(moved)
+        except _LOST_READ as exc:
+            stopped = await self._stop_and_wait(job) is not None
+            raise contested(cause, line, "the state could not be read behind it",
+                            moved if stopped else (), () if stopped else moved) from exc
+        found = contest(moved, letters, clean=isinstance(cause, ControllerError),
+                        reported=report_came(job.sent.submission.completion),
+                        shifted=shifted_axes(moved, job.before, texts))
+        if found.stands:
+            job.sent.forget()
+            raise annotate(cause, found.reason) if found.reason else cause
+        if found.moving and await self._stop_and_wait(job) is None:
+            raise contested(cause, line, found.reason, (), found.moving)
+        job.sent.forget()
+        raise contested(cause, line, found.reason, found.moving, ())
 
     async def _follow(self, job: _Job) -> dict[str, str]:
         """Wait for hints and confirm them until the move has ended (see module doc)."""
@@ -820,6 +857,60 @@ def annotate(exc: TangoError, text: str) -> TangoError:
     else:
         new.add_note(text)
     return new
+
+
+def contested(cause: TangoError, line: str, reason: str, stopped: Sequence[str],
+              moving: Sequence[str]) -> TangoError:
+    """The error of a motion line whose verdict (a refusal, or a garbled reply) the
+    state contradicted or could not settle (:func:`~tango_aio.timing.contest`): a
+    :class:`~tango_aio.errors.MoveProtocolUnknownError` saying what the state showed,
+    which axes were stopped and which may still move.
+
+    Parameters
+    ----------
+    cause
+        The verdict's error: a :class:`ControllerError`, a
+        :class:`~tango_aio.errors.GarbledVerdictError`, or the error that took the
+        verdict (a timeout, a resync).
+    line
+        The motion line.
+    reason
+        What the state read showed, in words.
+    stopped
+        The axes seen to stand still after the driver stopped them.
+    moving
+        The axes that may still move (the stop failed, or the state was not read).
+
+    Returns
+    -------
+    TangoError
+        The error to raise.
+    """
+    error = ProtocolError(str(cause)) if isinstance(cause, ControllerError) else cause
+    if reason:
+        error = annotate(error, reason)
+    if stopped:
+        error = annotate(error, f"axes {' '.join(stopped).upper()} stopped")
+    if moving:
+        error = annotate(error, f"axes {' '.join(moving).upper()} may still move")
+    return outcome_unknown(error, line)
+
+
+def report_came(completion: asyncio.Future[Completed] | None) -> bool:
+    """Whether a move's completion report arrived (not: its wait was cancelled or failed).
+
+    Parameters
+    ----------
+    completion
+        The move's completion future (``None``: none is awaited).
+
+    Returns
+    -------
+    bool
+        Whether it holds a report.
+    """
+    return completion is not None and completion.done() and not completion.cancelled() \
+        and completion.exception() is None
 
 
 def _with_stop(exc: TangoError, job: _Job, stopped: bool) -> TangoError:

@@ -65,22 +65,25 @@ from .core import (
     Replied,
     RequestLost,
     Unsolicited,
+    expectation,
 )
 from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     UnknownControllerError,
     WrongEventLoopError,
     controller_error,
-    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
+from .readback import ReadBack, mismatch, read_back
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
@@ -94,6 +97,7 @@ from .session import (
     Silence,
     Until,
 )
+from .timing import Verdict, ack_verdict, err_verdict
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -117,6 +121,9 @@ class Response:
     #: Such a verdict does not prove the line arrived (:meth:`Controller.command
     #: <tango_aio.controller.Controller.command>` proves it before it returns).
     deferred: bool = False
+    #: The acknowledgement as received (``OK...``, ``ERR 5``; the ``?err`` reply when
+    #: :attr:`deferred`), ``None`` before it came.
+    ack_line: str | None = None
 
 
 @dataclass(eq=False, slots=True)
@@ -147,6 +154,9 @@ class MoveHandle:
     submission: Submission
     probe: Submission | None
     check: bool
+    #: A set line's read-back, written behind the probe where the line owes no answer of
+    #: its own (:func:`~tango_aio.readback.read_back`), and its submission.
+    proof: tuple[ReadBack, Submission] | None = None
 
     @property
     def command(self) -> Command:
@@ -181,8 +191,11 @@ class MoveHandle:
             The check was lost to a resync.
         ConnectionLostError
             The link is gone.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         """
-        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+        return await self.protocol._error_of(self.submission, self.probe, self.check,
+                                             timeout, self.proof)
 
     async def confirm(self, timeout: float | None) -> None:
         """Like :meth:`error`, but raise the controller's error (and forget the report).
@@ -196,6 +209,8 @@ class MoveHandle:
         ------
         ControllerError
             The controller reported an error for the line.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         ControllerTimeoutError, RequestAbortedError, ConnectionLostError
             The check itself was lost (see :meth:`error`).
         """
@@ -770,6 +785,7 @@ class TangoProtocol(asyncio.Protocol):
                       batch: object | None = None) -> MoveHandle:
         submission = self.submit(command, hold=True, batch=batch)
         probe = None
+        proof = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853): a
@@ -777,22 +793,59 @@ class TangoProtocol(asyncio.Protocol):
             probe = self.submit(_PROBE, hold=True, batch=batch)
             if submission.owes is None:
                 submission.guard, probe.guard = probe.owes, None
+            if not submission.expectation.echo:
+                # No answer of its own (autostatus 0, 1, 3): the probe's 0 is also what a
+                # lost line gets, so a set is proven by reading its setting behind it.
+                back = read_back(command, self.core.context)
+                if back is not None:
+                    proof = (back, self.submit(back.read, hold=True, batch=batch))
         self._flush()
-        return MoveHandle(self, submission, probe, check)
+        return MoveHandle(self, submission, probe, check, proof)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
-                        timeout: float | None) -> ControllerError | None:
+                        timeout: float | None,
+                        proof: tuple[ReadBack, Submission] | None = None
+                        ) -> ControllerError | None:
         line = submission.command.line
         if submission.reply is not None:
             response = await self.wait_reply(submission, timeout)
-            if check and submission.expectation.ack and response.ack != 0:
-                return _ack_error(response.ack, submission)
+            if check and submission.expectation.ack:
+                code = _judged(response.ack_line, response.deferred, line) \
+                    if response.ack_line is not None else response.ack
+                if code != 0:
+                    return _ack_error(code, submission)
         if probe is not None:
             reply = await self.wait_reply(probe, timeout)
-            code, _ = parse_error_reply(reply.lines[0])
+            code = _judged(reply.lines[0], True, line)
             if code:
                 return controller_error(code, line)
+        if proof is not None:
+            back, read = proof
+            _judge(back, (await self.wait_reply(read, timeout)).lines)
         return None
+
+    async def prove_set(self, command: Command, timeout: float | None) -> None:
+        """Read the setting the set line ``command`` wrote, where the line owes no answer
+        of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
+        :mod:`tango_aio.readback`; no read: nothing to do). For a line whose ``?err``
+        answered only a standing internal error (L2853-2867), which proves nothing.
+
+        Parameters
+        ----------
+        command
+            The set line, already written and answered.
+        timeout
+            Seconds the read may take (``None``: no limit).
+
+        Raises
+        ------
+        SettingNotAppliedError
+            The read shows another value.
+        """
+        expect = expectation(command, self.core.autostatus, self.core.context)
+        back = None if expect.ack or expect.echo else read_back(command, self.core.context)
+        if back is not None:
+            _judge(back, (await self.query(back.read, timeout=timeout)).lines)
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
@@ -1602,7 +1655,7 @@ class TangoProtocol(asyncio.Protocol):
         if isinstance(event, Replied):
             response.lines = event.lines
         elif isinstance(event, Acknowledged):
-            response.ack, response.acked = event.code, True
+            response.ack, response.acked, response.ack_line = event.code, True, event.line
             if event.deferred:
                 response.deferred = True
             if event.code != 0:  # a refused move never completes (the core forgot it)
@@ -1709,9 +1762,39 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.exception()
 
 
+def _judged(reply: str, err: bool, line: str) -> int | None:
+    """The error number a verdict on ``line`` gives; ``err``: the reply of an ``?err``
+    (else an acknowledgement).
+
+    Returns
+    -------
+    int | None
+        0: accepted; else the error number (``None``: a bare ``ERR``).
+
+    Raises
+    ------
+    GarbledVerdictError
+        The reply is not a clean verdict: it proves nothing about the line.
+    """
+    verdict, code = err_verdict(reply) if err else ack_verdict(reply)
+    if verdict is Verdict.GARBLED:
+        raise GarbledVerdictError(line, reply)
+    return code
+
+
 def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+def _judge(back: ReadBack, lines: Sequence[str]) -> None:
+    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
+    held = mismatch(back, lines)
+    if held is not None:
+        command = back.command
+        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
+                                     sent=" ".join(command.tokens), read=back.read.line,
+                                     held=held)
 
 
 #: Bytes of one line a wire-log record shows at most, so that a long line (or one whose

@@ -42,9 +42,10 @@ class Handlers(Peripherals):
     def i_version(self, c: Command) -> Reply:
         """``?version``: ``TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00`` with the space
         before the last comma of the 1.71 examples (L1067, L1105); the older edition's
-        example has none (old L426, switch ``version_format=old``)."""
+        example has none (old L426, switch ``version_format=old``). ``?version 1`` answers
+        the number only (L1057-1059), or the whole line with ``version_value=line``."""
         cfg = self.m.config
-        if c.values:
+        if c.values and self.m.firmware.version_value == "number":
             return [cfg.version]
         build = cfg.build
         if self.m.firmware.version_format == "old":
@@ -436,6 +437,14 @@ class Handlers(Peripherals):
         self._list_written()
         if start != end:
             self.m.params.put_global("trigm", (20 if end > start else 21,))
+        return None
+
+    def i_trigs(self, c: Command) -> Reply:
+        """Widths and delay in steps of 40 µs, each rounded to the nearest (90 → 80,
+        100 → 120) and read back so (L12959-12967, the secondary ones L12976-12981)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        self.m.params.put_global("trigs", tuple((int(v) + 20) // 40 * 40 for v in c.values))
         return None
 
     def i_trigcount(self, c: Command) -> Reply:

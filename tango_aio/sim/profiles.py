@@ -34,7 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
-__all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "switch_table", "variants"]
+__all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "fingerprint_lacks",
+           "switch_table", "variants"]
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,12 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`?version` as `TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00` (`new`) or "
               "`TANGO-DT, Version 1.71, Jun  4 2019, 12:00:00` (`old`, no space before "
               "the last comma)."),
+    SwitchDoc("version_value", ("number", "line"), "L1046-1059, L1107, old L414-418",
+              "`?version 1` answers the version number only (`number`, L1057-1059, "
+              "L1107; refused with error 4 under `instruction_set=older`, whose `version` "
+              "takes no value, old L416-418), or ignores the value and answers the whole "
+              "`?version` line (`line`: firmware whose `version` takes no value, in either "
+              "instruction set)."),
     SwitchDoc("line_end", ("cr", "crlf"), "L82",
               "Replies end with CR (`cr`) or CR LF (`crlf`)."),
     SwitchDoc("numbers", ("plain", "plus", "negzero"), "L66-70, L94-96",
@@ -237,6 +244,8 @@ class Firmware:
     lim_cr_bug: str = "extmode0"
     #: ``?version`` format: ``new`` or ``old``.
     version_format: str = "new"
+    #: ``?version 1``: the ``number`` only, or the whole ``line`` (the value ignored).
+    version_value: str = "number"
     #: Reply line end: ``cr`` or ``crlf``.
     line_end: str = "cr"
     #: Number format: ``plain``, ``plus`` or ``negzero``.
@@ -311,12 +320,12 @@ class Firmware:
         """The firmware a fingerprint describes (a file written by ``tango-aio probe``, or
         its JSON already loaded).
 
-        A fingerprint is, for the emulator, just switch values: its ``switches`` mapping
-        on top of the ``manual`` profile. A switch the probe could not observe (absent, or
-        ``null``: e.g. the move switches of a probe without ``--moves``) keeps the
-        ``manual`` value; what it recorded as unknown is not a switch value and is left
-        out. Raises ValueError for a file that is not a fingerprint or holds a switch
-        name or value the emulator does not know.
+        The firmware is the fingerprint's ``switches`` mapping on top of the ``manual``
+        profile (the instructions the unit lacks are :func:`fingerprint_lacks`'s). A
+        switch the probe could not observe (absent, or ``null``: e.g. the move switches of
+        a probe without ``--moves``) keeps the ``manual`` value; what it recorded as
+        unknown is not a switch value and is left out. Raises ValueError for a file that
+        is not a fingerprint or holds a switch name or value the emulator does not know.
 
         Parameters
         ----------
@@ -333,18 +342,7 @@ class Firmware:
         ValueError
             Not a fingerprint, or an unknown switch name or value.
         """
-        if not isinstance(fingerprint, Mapping):
-            path = Path(fingerprint)
-            try:
-                data = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError) as exc:
-                raise ValueError(f"cannot read fingerprint {str(path)!r}: {exc}") from None
-            if not isinstance(data, Mapping):
-                raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
-            fingerprint = data
-        kind = fingerprint.get("format", "tango_aio.fingerprint/")
-        if not str(kind).startswith("tango_aio.fingerprint/"):
-            raise ValueError(f"not a fingerprint: format {kind!r}")
+        fingerprint = _fingerprint_data(fingerprint)
         switches = fingerprint.get("switches")
         if not isinstance(switches, Mapping):
             raise ValueError("not a fingerprint: no 'switches' object")
@@ -364,6 +362,52 @@ class Firmware:
         """
         return {name: getattr(self, name) for name, doc in SWITCHES.items()
                 if getattr(self, name) != doc.default}
+
+
+def fingerprint_lacks(fingerprint: Mapping[str, object] | str | os.PathLike[str]
+                      ) -> frozenset[str]:
+    """The instructions a fingerprint says its unit lacks (its ``lacks`` list: no reply,
+    error 4, L970), for :attr:`~tango_aio.sim.model.SimConfig.lacks`; none when it has no
+    such list.
+
+    Parameters
+    ----------
+    fingerprint
+        The fingerprint's file, or its JSON data.
+
+    Returns
+    -------
+    frozenset[str]
+        The instruction names, in lower case.
+
+    Raises
+    ------
+    ValueError
+        Not a fingerprint, or a ``lacks`` that is not a list of names.
+    """
+    lacks = _fingerprint_data(fingerprint).get("lacks", [])
+    if not isinstance(lacks, list) or not all(isinstance(name, str) and name.strip()
+                                              for name in lacks):
+        raise ValueError(f"fingerprint lacks={lacks!r} is not a list of instruction names")
+    return frozenset(name.strip().lower() for name in lacks)
+
+
+def _fingerprint_data(fingerprint: Mapping[str, object] | str | os.PathLike[str]
+                      ) -> Mapping[str, object]:
+    """A fingerprint's JSON object (read from its file); ValueError if it is none."""
+    if not isinstance(fingerprint, Mapping):
+        path = Path(fingerprint)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"cannot read fingerprint {str(path)!r}: {exc}") from None
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
+        fingerprint = data
+    kind = fingerprint.get("format", "tango_aio.fingerprint/")
+    if not str(kind).startswith("tango_aio.fingerprint/"):
+        raise ValueError(f"not a fingerprint: format {kind!r}")
+    return fingerprint
 
 
 def _check(name: str, value: object) -> None:

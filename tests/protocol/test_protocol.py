@@ -612,9 +612,10 @@ async def test_bad_set_raises_typed_error_from_err_probe(fake_link: LinkFactory)
     link = fake_link()
     tango = Controller(link.protocol)
     task = asyncio.create_task(tango.command("!lim x 10 5"))
-    await link.wait_written(b"?err\r")
-    assert link.transport.sent == b"!lim x 10 5\r?err\r"  # back to back
-    link.feed(b"5\r")
+    await link.wait_written(b"?lim x\r")
+    # Back to back, and the read-back that proves the set behind them (readback.py).
+    assert link.transport.sent == b"!lim x 10 5\r?err\r?lim x\r"
+    link.feed(b"5\r")  # the refusal decides: the read-back's reply is not awaited
     with pytest.raises(OutOfRangeError) as info:
         await task
     assert info.value.number == 5 and isinstance(info.value, CommandRejectedError)

@@ -542,6 +542,23 @@ def test_instruction_set(instruction_set: str) -> None:
                         "10.000", "0"] if full else ["4", "4", "4", "10.000", "0"])
 
 
+@pytest.mark.parametrize("instruction_set", values_of("instruction_set"))
+@pytest.mark.parametrize("version_value", values_of("version_value"))
+def test_version_value(version_value: str, instruction_set: str) -> None:
+    s = sim(version_value=version_value, instruction_set=instruction_set)
+    line = "TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00"
+    if version_value == "line":  # the value ignored, in either instruction set
+        version = [line, "0"]
+    elif instruction_set == "full":  # the number only (L1057-1059, L1107)
+        version = ["1.71", "0"]
+    else:  # the older edition's version takes no value (old L416-418)
+        version = ["4"]
+    assert s.send("?version 1", "?err") == version
+    # help's value is the instruction set's business alone (old L805-811)
+    assert s.send("?help 5", "?err") == (["ERROR 5,number outside range", "0"]
+                                         if instruction_set == "full" else ["4"])
+
+
 # ---------------------------------------------------------------------------------------
 # Every variant: one common session against an oracle written from the switch docs
 
