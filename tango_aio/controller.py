@@ -218,6 +218,9 @@ class Controller:
         #: Whether a confirmation may read the letters with ``sa``: cleared for
         #: good once an ``sa`` went unanswered (a firmware that does not know it).
         self._short_status = True
+        #: Whether the letters are read axis by axis: the unit's all-axes ``?statusaxis``
+        #: ends with ``.`` alone (not ``.-``, L2668-2670), like a completion report.
+        self._letters_by_axis = False
         # A move_by's start without a read: see _still() and _plan().
         #: ``!joy 0`` was accepted on this link (the HDI is off, L7101-7144).
         self._hdi_off = False
@@ -350,7 +353,12 @@ class Controller:
         self._forget_power_state()
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
-            current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
+            current = await self._protocol.read_autostatus(timeout=self.reply_timeout,
+                                                           status=True)
+            # A unit whose ?statusaxis ends like a completion report (@@@-.) is read
+            # axis by axis ('sa x' answers its letter alone, L2725).
+            self._letters_by_axis = \
+                self._protocol.detected.get("status_tail") == "dot"
             wanted = current if autostatus is None else autostatus
             if wanted in _ECHO_BLIND:
                 current = await self._check_local_echo(current)
@@ -1032,7 +1040,8 @@ class Controller:
             check_axis_word(axis, name)  # "" or "y 5" would read something else
         command = build(name, *args, form=Form.READ, axis=axis, context=self.context) \
             if args else _read_command(name, axis, self.context)
-        if axis is None and not args and name in AXIS_BY_AXIS:
+        if axis is None and not args and (name in AXIS_BY_AXIS or (
+                self._letters_by_axis and command.name == "statusaxis")):
             return await self._axis_by_axis(name, timeout)
         response = await self._request(command, timeout)
         value = parse_reply(command, response.lines)
@@ -2311,7 +2320,23 @@ class Controller:
         tuple[dict[str, str], dict[str, str]]
             The status letter and the position (as printed) of each axis read.
         """
+        if self._letters_by_axis:
+            return await self._state_by_axis()
         return await self._state_replies(self._submit_state(separate_after, axes))
+
+    async def _state_by_axis(self) -> tuple[dict[str, str], dict[str, str]]:
+        """The state on a unit whose letters are read axis by axis: the letters first
+        (:meth:`status`), then the positions (:meth:`_position_texts`).
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letter and the position (as printed) of each present axis.
+        """
+        letters = await self.status()
+        positions = await self._position_texts()
+        self._motion.saw(positions)
+        return letters, positions
 
     def _submit_state(self, separate_after: bool, axes: Sequence[str]) -> _StateRead:
         """Submit the two lines of :meth:`_status_and_positions` (written at once where
@@ -2418,6 +2443,8 @@ class Controller:
         # Written now (MotionPort.read_state: also from a report's callback, in the loop
         # turn the report arrived); the coroutine reads the replies.
         self._protocol.check()
+        if self._letters_by_axis:
+            return self._state_by_axis()
         # A raster's next move_to follows this read: its ?err probe looks like the
         # positions, and a separator behind them keeps it off the move's path.
         return self._state_replies(self._submit_state(True, axes))

@@ -521,8 +521,8 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
                  extmode0, extmode1)
 
 
-def status_letters(line: str) -> tuple[str, bool] | None:
-    """The letters of an all-axes ``?statusaxis`` line and whether it ends with ``.-``.
+def status_letters(line: str) -> tuple[str, str] | None:
+    """The letters of an all-axes ``?statusaxis`` line and how it ends.
 
     Parameters
     ----------
@@ -531,13 +531,17 @@ def status_letters(line: str) -> tuple[str, bool] | None:
 
     Returns
     -------
-    tuple[str, bool] or None
-        The letters and whether ``.-`` ended them; ``None`` if it is no such line.
+    tuple[str, str] or None
+        The letters and the ``status_tail`` value: ``"yes"`` (``.-``), ``"dot"`` (``.``
+        alone, the completion report's shape) or ``"no"`` (the letters alone); ``None``
+        if it is no such line.
     """
     if line.endswith(".-"):
-        return line[:-2], True
+        return line[:-2], "yes"
+    if line.endswith(".") and "." not in line[:-1] and 1 <= len(line) - 1 <= 4:
+        return line[:-1], "dot"
     if "." not in line and 1 <= len(line) <= 4:
-        return line, False
+        return line, "no"
     return None
 
 
@@ -567,9 +571,8 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
         return {name: _unknown(note, exchange)
                 for name in ("status_tail", "absent_axes", "joystick_letter")}
     letters, tail = parsed
-    out["status_tail"] = _seen("yes" if tail else "no",
-                               "ends with '.-'" if tail else "ends with the letters",
-                               exchange)
+    out["status_tail"] = _seen(tail, {"yes": "ends with '.-'", "dot": "ends with '.'",
+                                      "no": "ends with the letters"}[tail], exchange)
     if axes >= 4:
         out["absent_axes"] = _unseen("every axis is present", ("dash", "omit"), exchange)
         present = letters

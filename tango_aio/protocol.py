@@ -87,6 +87,7 @@ from .readback import ReadBack, mismatch, read_back
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
+    STATUS_READ,
     Barrier,
     Exchange,
     LinkSession,
@@ -663,26 +664,35 @@ class TangoProtocol(asyncio.Protocol):
             raise UnknownControllerError(None, command.line)
         return Response()
 
-    async def _mode_exchange(self, lines: list[str], timeout: float | None
-                             ) -> tuple[int, int]:
+    async def _mode_exchange(self, lines: list[str], timeout: float | None, *,
+                             restore: bool = False) -> tuple[int, int]:
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
         :attr:`quiet_interval` (in modes 2 and 4 only:
         :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
-        force (adopted) and, in mode 2, how reads are acknowledged from those lines
+        force (adopted before the lines held behind the exchange are written) and, in
+        mode 2, how reads are acknowledged from those lines
         (:meth:`~tango_aio.session.LinkSession.mode_read`).
+
+        With ``restore``, a mode found that is not the driver's (the controller
+        restarted, :meth:`~tango_aio.session.LinkSession.mode_verified`) is replaced by
+        the driver's in a second exchange before any held line goes out: those lines
+        were submitted for the driver's mode (a mode-2 move relies on its ``OK...``),
+        so they are written in it.
 
         Returns
         -------
         tuple of (int, int)
             The mode the driver had in force once every line before was answered, and the
-            mode in force.
+            mode in force (with ``restore``: the mode found, before it was replaced).
 
         Raises
         ------
         ControllerTimeoutError
             The lines before got no reply within ``timeout`` seconds.
+        UnknownControllerError
+            With ``restore``: the controller kept another mode (that mode is adopted).
         """
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
@@ -693,11 +703,33 @@ class TangoProtocol(asyncio.Protocol):
                 raise ControllerTimeoutError(
                     f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
             driver = self.core.autostatus  # the driver's, once all is answered
-            received = await self._exchange(sent, timeout, Until.HELP)
+            found: list[int] = []
+
+            def adopt(received: Exchange, sent: list[str]) -> bool:
+                # Before the lines held behind the exchange go out: the core encodes
+                # them in the mode found (a move written in mode 1 owes no OK...).
+                found.append(self.session.mode_read(sent, received.lines))
+                self.scheduler.reproject()
+                return restore and len(found) == 1 and self.session.mode_verified(
+                    driver, found[0]) is ModeVerdict.RESTARTED
+
+            try:
+                await self._exchange(sent, timeout, Until.HELP,
+                                     adopt=functools.partial(adopt, sent=sent))
+                if restore and self.session.mode_verified(
+                        driver, found[0]) is ModeVerdict.RESTARTED:
+                    again = self.session.mode_lines(
+                        [build("autostatus", driver, form=Form.SET).line])
+                    await self._exchange(again, timeout, Until.HELP,
+                                         adopt=functools.partial(adopt, sent=again))
+            finally:
+                self.scheduler.release()  # (a no-op unless a restore did not start)
+                self._flush()
         self._heard()
-        actual = self.session.mode_read(sent, received.lines)
-        self.scheduler.reproject()
-        return driver, actual
+        if restore and len(found) == 2 and self.session.mode_changed(
+                driver, found[1]) is ModeVerdict.KEPT_ANOTHER:
+            raise UnknownControllerError(None, f"!autostatus {driver}")
+        return driver, found[0]
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
@@ -844,7 +876,7 @@ class TangoProtocol(asyncio.Protocol):
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
-    async def read_autostatus(self, *, timeout: float | None) -> int:
+    async def read_autostatus(self, *, timeout: float | None, status: bool = False) -> int:
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
         way a mode change is confirmed (:meth:`_mode_exchange`).
@@ -853,13 +885,18 @@ class TangoProtocol(asyncio.Protocol):
         ----------
         timeout
             Seconds the exchange may take (``None``: no limit).
+        status
+            Also write ``?statusaxis`` in front, and record in :attr:`detected` how its
+            reply ends (``status_tail``, :func:`~tango_aio.session.status_tail`): the
+            exchange sees the raw lines, which the core would route a reply shaped like
+            a completion report away from.
 
         Returns
         -------
         int
             The mode in force.
         """
-        return (await self._mode_exchange([], timeout))[1]
+        return (await self._mode_exchange([STATUS_READ] if status else [], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
 
@@ -897,13 +934,11 @@ class TangoProtocol(asyncio.Protocol):
         bool
             Whether the mode had to be restored.
         """
-        expected, actual = await self._mode_exchange([], timeout)
+        expected, actual = await self._mode_exchange([], timeout, restore=True)
         if self.session.mode_verified(expected, actual) is ModeVerdict.IN_FORCE:
             return False
-        log.warning("the controller is in autostatus %d, the driver had %d in force: it "
-                    "restarted; restoring autostatus %d", actual, expected, expected)
-        await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
-                                timeout)
+        log.warning("the controller was in autostatus %d, the driver had %d in force: it "
+                    "restarted; autostatus %d restored", actual, expected, expected)
         if self.on_restored is not None:
             self.on_restored(actual, expected)
         return True
@@ -1423,10 +1458,13 @@ class TangoProtocol(asyncio.Protocol):
         return self.detected
 
     async def _exchange(self, lines: list[str], timeout: float | None, until: Until,
-                        marker: str | None = None) -> Exchange:
+                        marker: str | None = None, *,
+                        adopt: Callable[[Exchange], bool] | None = None) -> Exchange:
         """Write ``lines`` with the core dropping every line; return what the session
         collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
-        Only call it when nothing is owed.
+        Only call it when nothing is owed. ``adopt`` learns from the lines collected
+        before the lines held behind the exchange are written; when it returns true,
+        they stay held (the caller releases them).
 
         Returns
         -------
@@ -1437,7 +1475,7 @@ class TangoProtocol(asyncio.Protocol):
         collected = self.session.exchange
         assert collected is not None
         self._collected = self._loop.create_future()
-        in_step = False
+        in_step = keep = False
         try:
             self._write(data)
             serial = self.scheduler.exchanged(len(lines))
@@ -1454,9 +1492,11 @@ class TangoProtocol(asyncio.Protocol):
                                         else self.reply_timeout)
                 raise error from None
             in_step = True
+            keep = adopt is not None and adopt(collected)
         finally:
             self._collected = None
-            self.scheduler.release()
+            if not keep:
+                self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
             ended = self.session.end_exchange(in_step=in_step)
@@ -1636,6 +1676,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _on_completed(self, event: Completed) -> None:
         self._heard()
+        self.session.report_seen(event.line)
         if event.tag is None:
             return
         submission = self._submissions.get(event.tag)

@@ -27,6 +27,10 @@ step with every accepted set) and from the geometry of the move:
   stopped: ``None`` if every moved axis ended well, else in words what went wrong
   (:func:`describe_stop`); :func:`too_early` says when a failed verdict may still be read
   too early (``!delay``, closed-loop settling) and so does not stand yet.
+* :func:`cut_short` judges a read of a move of several axes while some still move: an
+  axis that reads a failure letter has ended the move already (a limit switch stops
+  that axis alone, and the report waits for the others), and :func:`polled_during` says
+  when such a read is made during the travel.
 * :func:`err_verdict` and :func:`ack_verdict` judge the reply that judges a line (its
   ``?err``, its acknowledgement): accepted, refused, or garbled (it proves nothing);
   :func:`contest` says whether the state read behind a refusal or a garbled verdict on a
@@ -61,10 +65,12 @@ __all__ = [
     "Verdict",
     "ack_verdict",
     "contest",
+    "cut_short",
     "describe_stop",
     "err_verdict",
     "move_budget",
     "moved_axes",
+    "polled_during",
     "position_tolerance",
     "rest_budget",
     "shifted_axes",
@@ -387,6 +393,70 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
     if budget.settle > 0 and not failed and now < expected_end:
         return expected_end + POLL_GRACE
     return None
+
+
+def polled_during(moved: Sequence[str], reports: bool) -> bool:
+    """Whether a move's state is read during its travel (every ``POLL_MAX`` of
+    :mod:`tango_aio.motion`), not only at its report or its expected end.
+
+    Without completion reports (autostatus 0, L2078) nothing else tells of an early
+    end. A move of several axes sends its report only once all of them stand (one report
+    per move line, L2085-2089); the manual does not say that an axis stopped by a limit
+    switch or an error (L2699, L2705-2707) stops the others of the line, so the report
+    may come only when they end, the whole planned travel later.
+
+    Parameters
+    ----------
+    moved
+        The axes the line moves.
+    reports
+        Whether the mode in force sends completion reports.
+
+    Returns
+    -------
+    bool
+        Whether to poll during the travel.
+    """
+    return not reports or len(moved) > 1
+
+
+def cut_short(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
+              checked: float, now: float, expected_end: float) -> tuple[str, ...]:
+    """The axes that ended a move of several axes early, read while others still move.
+
+    An axis that reads a failure letter (``E``, ``S``, ``T``) or ``-`` (disabled, L2711)
+    has not reached its target and will not (:func:`too_early`: such a letter is final
+    once any ``!delay`` is over): the move has failed, whatever the other axes do. The
+    caller stops them and raises at once instead of waiting for them to end.
+
+    Parameters
+    ----------
+    budget
+        The move's budget (its ``!delay``).
+    moved
+        The axes the move moved.
+    letters
+        The status letters read.
+    checked
+        When the line's check came back.
+    now
+        When the state was read.
+    expected_end
+        When the move should have ended.
+
+    Returns
+    -------
+    tuple[str, ...]
+        The moved axes that ended it, in order; empty when none did, when no moved axis
+        still moves (:func:`verdict` judges that read), or while the read may come too
+        early.
+    """
+    ended = tuple(a for a in moved if letters.get(a, ABSENT) in _FINAL)
+    if not ended or not any(letters.get(a) == MOVING for a in moved):
+        return ()
+    if too_early(budget, moved, letters, checked, now, expected_end) is not None:
+        return ()
+    return ended
 
 
 #: Why an axis stopped, by the letter it reads (L2693-2711).

@@ -21,6 +21,9 @@ __all__ = ["Handlers", "build_handlers"]
 
 Reply = list[str] | None
 
+#: What ``sa`` prints after the letters, by the switch ``status_tail`` (L2668-2670, L2715).
+_STATUS_TAILS = {"yes": ".-", "no": "", "dot": "."}
+
 
 class Handlers(Peripherals):
     """The special instructions of one emulated controller.
@@ -219,7 +222,7 @@ class Handlers(Peripherals):
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":
             letters = letters.replace("-", "")
-        return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
+        return [letters + _STATUS_TAILS[self.m.firmware.status_tail]]
 
     def i_calst(self, c: Command) -> Reply:
         return [self.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]

@@ -125,9 +125,11 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("report_width", ("four", "axes"), "L2089, L2141, L5404",
               "Completion reports carry letters for X Y Z A always, absent axes `-` "
               "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
-    SwitchDoc("status_tail", ("yes", "no"), "L2662-2725",
+    SwitchDoc("status_tail", ("yes", "no", "dot"), "L2662-2725",
               "`?statusaxis` (all axes) ends with `.-` like every example of the manual "
-              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`)."),
+              "(`@@@-.-`, `yes`), with the axis letters only (`no`: `@@@-`), or with the "
+              "dot but not the `-` that L2668-2670 adds to the completion report's shape "
+              "(`dot`: `@@@-.`, a line that reads like a completion report)."),
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
@@ -229,7 +231,7 @@ class Firmware:
     zero_move_report: str = "yes"
     #: Report letters for ``four`` axes always or as many as the unit has (``axes``).
     report_width: str = "four"
-    #: ``?statusaxis`` ends with ``.-`` (``yes``/``no``).
+    #: ``?statusaxis`` ends with ``.-`` (``yes``), nothing (``no``) or ``.`` (``dot``).
     status_tail: str = "yes"
     #: ``sa`` shows absent/disabled axes as ``dash`` or leaves them out (``omit``).
     absent_axes: str = "dash"

@@ -773,6 +773,29 @@ async def test_a_read_that_finds_another_mode_restores_the_drivers(
     assert restored == [(1, 0)] and link.protocol.autostatus == 0
 
 
+@pytest.mark.parametrize("mode", [0, 2, 3, 4])
+async def test_lines_held_behind_a_read_that_finds_a_restart_go_out_in_the_drivers_mode(
+        fake_link: LinkFactory, mode: int) -> None:
+    """#37 item 4: a move submitted while the mode read runs was submitted for the
+    driver's mode (in mode 2 it waits for its ``OK...``). It goes out only after that
+    mode is selected again, not in the power-on mode 1 the read found."""
+    link = fake_link(autostatus=mode)
+    verify = asyncio.create_task(link.protocol.verify_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    move = link.protocol.start_move(parse("!moa x 1"))  # held behind the read
+    link.feed(b"1\rERROR 0,no error\r")  # a restart: power-on mode 1 (L2062)
+    await link.wait_written(b"!autostatus %d\r?autostatus\r?help\r" % mode)
+    assert b"!moa" not in link.transport.sent
+    link.feed(b"%d\rERROR 0,no error\r" % mode)
+    assert await asyncio.wait_for(verify, 5.0) is True
+    # The move goes out once the driver's mode is in force again, encoded for it: in
+    # mode 2 it owes its OK... (and the ?err the core writes behind it).
+    await link.wait_written(b"!moa x 1\r")
+    assert link.protocol.autostatus == mode
+    link.feed(b"OK...\r0\r" if mode == 2 else b"!moa x 1\r0\r" if mode == 4 else b"0\r")
+    assert await asyncio.wait_for(move.error(5.0), 5.0) is None
+
+
 async def test_a_mode_change_waiting_for_the_lines_before_it_is_not_sent_after_ctrl_c(
         fake_link: LinkFactory) -> None:
     """The session's ``Barrier.ABORTED`` carried out: Ctrl+C discarded a line the change

@@ -601,7 +601,7 @@ def _status(firmware: Firmware, letters: str) -> str:
     letters = letters.replace("@", firmware.joystick_letter)
     if firmware.absent_axes == "omit":
         letters = letters.replace("-", "")
-    return letters + (".-" if firmware.status_tail == "yes" else "")
+    return letters + {"yes": ".-", "no": "", "dot": "."}[firmware.status_tail]
 
 
 def _ack(firmware: Firmware, text: str) -> str:

@@ -143,7 +143,8 @@ def test_lim_cr_bug() -> None:
 
 @pytest.mark.parametrize(("line", "tail", "absent", "joystick"), [
     ("@@@-.-", "yes", "dash", "@"), ("JJJ-", "no", "dash", "J"), ("@@@.-", "yes", "omit", "@"),
-    ("JJJ", "no", "omit", "J"), ("@M@-.-", "yes", "dash", None)])
+    ("JJJ", "no", "omit", "J"), ("@M@-.-", "yes", "dash", None), ("@@@-.", "dot", "dash", "@"),
+    ("JJJ.", "dot", "omit", "J")])
 def test_status(line: str, tail: str, absent: str, joystick: str | None) -> None:
     found = decide_status(ex("?statusaxis", [line], 0), 3, 2)
     assert (found["status_tail"].value, found["absent_axes"].value,
