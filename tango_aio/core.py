@@ -66,6 +66,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import itertools
+import math
 import random
 import re
 from collections import deque
@@ -87,6 +88,7 @@ from .instructions import (
     parse,
     reply_rule,
 )
+from .linktiming import ARRIVAL_MARGIN, earliest_reply
 from .patterns import (
     ACK_PATTERN,
     ONE_NUMBER,
@@ -130,6 +132,8 @@ MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
 
 _CR: Final = 0x0D
+#: The bytes ``str.strip`` removes from a Latin-1 line (a reply is matched stripped).
+_BLANK_BYTES: Final = frozenset(code for code in range(256) if chr(code).isspace())
 
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
@@ -215,20 +219,34 @@ class LineAssembler:
         self._scanned = 0
         self._discarding = False
         self._max_line = max_line
+        # Where each timed chunk starts (counting every byte ever fed) and when it was
+        # read, oldest first; only the chunks the buffer still holds (and the one its
+        # first byte came in).
+        self._stamps: deque[tuple[int, float]] = deque()
+        self._offset = 0  # the count of bytes fed before the buffer's first
+        #: When the first byte of the line :meth:`next_line` returned last was read (the
+        #: time given to :meth:`feed`): leading blanks and LF bytes do not count, they
+        #: change no reply. ``inf`` when not known.
+        self.started = math.inf
 
     @property
     def buffered(self) -> int:
         """Number of bytes held for an incomplete line."""
         return len(self._buffer)
 
-    def feed(self, data: bytes) -> None:
+    def feed(self, data: bytes, at: float | None = None) -> None:
         """Add received bytes; collect the lines with :meth:`next_line`.
 
         Parameters
         ----------
         data
             Bytes as they were read, any fragment of the stream.
+        at
+            When they were read (any monotonic clock; ``None``: not known).
         """
+        if data and (at is not None or self._stamps):
+            self._stamps.append((self._offset + len(self._buffer),
+                                 math.inf if at is None else at))
         self._buffer += data
 
     def next_line(self) -> str | None:
@@ -251,11 +269,13 @@ class LineAssembler:
             if self._scanned > self._max_line and not self._discarding:
                 self._overflow()
             if self._discarding:
-                self._buffer.clear()
+                self._consume(len(self._buffer))
                 self._scanned = 0
             return None
         raw = bytes(self._buffer[:end])
-        del self._buffer[: end + 1]
+        if self._stamps:
+            self.started = self._started(raw)
+        self._consume(end + 1)
         self._scanned = 0
         if self._discarding:
             self._discarding = False
@@ -264,9 +284,39 @@ class LineAssembler:
             raise ProtocolError(f"reply line of {len(raw)} bytes exceeds {self._max_line}")
         return raw.replace(b"\n", b"").decode("latin-1")
 
+    def _started(self, raw: bytes) -> float:
+        """When the first byte of ``raw`` (at the buffer's start) that is not blank was
+        read (the line's own start if it is all blank).
+
+        Returns
+        -------
+        float
+            The time given to :meth:`feed` with that byte (``inf``: none was).
+        """
+        lead = 0
+        if raw[:1] and raw[0] in _BLANK_BYTES:
+            lead = len(raw) - len(raw.decode("latin-1").lstrip())
+            if lead == len(raw):
+                lead = 0
+        position = self._offset + lead
+        stamps = self._stamps
+        while len(stamps) > 1 and stamps[1][0] <= position:
+            stamps.popleft()
+        first, at = stamps[0]
+        return at if first <= position else math.inf
+
+    def _consume(self, size: int) -> None:
+        """Drop the buffer's first ``size`` bytes, and the stamps of the chunks they
+        ended."""
+        del self._buffer[:size]
+        self._offset += size
+        stamps = self._stamps
+        while len(stamps) > 1 and stamps[1][0] <= self._offset:
+            stamps.popleft()
+
     def _overflow(self) -> NoReturn:
         size = len(self._buffer)
-        self._buffer.clear()
+        self._consume(size)
         self._scanned = 0
         self._discarding = True
         raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
@@ -442,6 +492,9 @@ class _Pending:
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
+    #: A data line that starts earlier is not this line's reply
+    #: (:func:`~tango_aio.linktiming.earliest_reply`); ``-inf``: not known.
+    earliest: float = -math.inf
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -740,6 +793,14 @@ def wire_size(command: Command, expect: Expectation) -> int:
     return size + len(_FOLLOW_UP) if follows else size
 
 
+def _too_early(line: str, head: _Pending) -> str:
+    """Why ``line`` that started too early is not the reply of ``head``."""
+    shown = repr(line) if len(line) <= 60 else repr(line[:60]) + "..."
+    request = f"{head.sent!r}" if head.sent else "its request"
+    return (f"{shown} cannot be the reply to {request}: it started before the request "
+            "could have been answered (stray bytes without a CR in front of the reply)")
+
+
 def _is_ok(text: str) -> bool:
     """Whether an acknowledgement line is ``OK...`` (in any case: switch ``ack_case``)."""
     return text[:2].upper() == "OK"
@@ -816,6 +877,13 @@ class ProtocolCore:
         #: Echoes of mode-4 moves that come with their completion report (switch
         #: ``echo=completion``), oldest first.
         self._deferred_echoes: deque[ReplyPattern] = deque()
+        #: Seconds per byte of a wire known to carry bytes at that rate (0: not known;
+        #: see :func:`~tango_aio.linktiming.earliest_reply`), and how much earlier than
+        #: their arrival the times given to :meth:`receive_data` may be.
+        self.wire_seconds = 0.0
+        self.arrival_margin = ARRIVAL_MARGIN
+        self._sent_at: float | None = None  # see writing()
+        self._wire_free = 0.0  # when the bytes registered so far have passed
 
     # -- state ------------------------------------------------------------------------
 
@@ -901,6 +969,8 @@ class ProtocolCore:
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
+        if self._sent_at is not None:
+            self._stamp(pending, len(data))
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
         elif pending is not None and ((expect.ack and expect.completion is not None)
@@ -992,9 +1062,37 @@ class ProtocolCore:
     def _register_follow_up(self, mode: int) -> bytes:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
                             self.ack_reads)
-        self._pending.append(_Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
-                                      internal=True, pattern=ONE_NUMBER, sent="?err"))
+        pending = _Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
+                           internal=True, pattern=ONE_NUMBER, sent="?err")
+        self._pending.append(pending)
+        if self._sent_at is not None:
+            self._stamp(pending, len(_FOLLOW_UP))
         return _FOLLOW_UP
+
+    # -- timing ---------------------------------------------------------------------------
+
+    def writing(self, now: float) -> None:
+        """The lines registered from now on are handed to the transport at ``now`` or
+        later: their replies are judged by their timing too (a line that starts earlier
+        than its request could have been answered is not its reply:
+        :func:`~tango_aio.linktiming.earliest_reply`). Call it before registering the
+        lines of each write, with the clock the arrival times come from
+        (:meth:`receive_data`); a time from before the write only makes the rule milder.
+
+        Parameters
+        ----------
+        now
+            The current time.
+        """
+        self._sent_at = now
+
+    def _stamp(self, pending: _Pending | None, size: int) -> None:
+        """Mark when the reply of a line of ``size`` bytes just registered may start."""
+        assert self._sent_at is not None
+        earliest, self._wire_free = earliest_reply(self._sent_at, self._wire_free, size,
+                                                   self.wire_seconds, self.arrival_margin)
+        if pending is not None:
+            pending.earliest = earliest
 
     def forget_completion(self, tag: Hashable) -> bool:
         """Stop waiting for the completion report of ``tag`` (e.g. the move was refused).
@@ -1170,21 +1268,27 @@ class ProtocolCore:
             The bytes to write.
         """
         data, pattern = separator
-        self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
-                                      _echo_of(data.decode()), pattern=pattern))
+        pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
+                           _echo_of(data.decode()), pattern=pattern)
+        self._pending.append(pending)
+        if self._sent_at is not None:
+            self._stamp(pending, len(data))
         return data
 
     # -- receiving ------------------------------------------------------------------------
 
-    def receive_data(self, data: bytes) -> None:
+    def receive_data(self, data: bytes, at: float | None = None) -> None:
         """Feed bytes read from the controller.
 
         Parameters
         ----------
         data
             Bytes as they were read, any fragment of the stream.
+        at
+            When they were read, on the clock :meth:`writing` is given (``None``: not
+            known; a line that starts in them is never judged by its timing).
         """
-        self._assembler.feed(data)
+        self._assembler.feed(data, at)
 
     def next_event(self) -> Event | None:
         """Return the next event, or ``None`` when more bytes are needed.
@@ -1452,12 +1556,17 @@ class ProtocolCore:
             tag = None if head.internal else head.tag
             self._events.append(Mismatched(tag, line, head.pattern, LOCAL_ECHO))
             return
-        elif not head.lines and self.check_replies and not head.pattern.accepts(text):
-            # Not this request's reply: its own was lost, or the line is extra. Handing it
-            # over would shift every later reply by one request (tango_aio.patterns).
+        elif not head.lines and self.check_replies and (
+                (early := self._assembler.started < head.earliest)
+                or not head.pattern.accepts(text)):
+            # Not this request's reply: its own was lost, or the line is extra, or it
+            # started before the request could have been answered (bytes without a CR
+            # glued in front of the reply). Handing it over would shift every later reply
+            # by one request (tango_aio.patterns), or hand over a wrong value.
             self._desynced = True
             tag = None if head.internal else head.tag
-            self._events.append(Mismatched(tag, line, head.pattern))
+            self._events.append(Mismatched(tag, line, head.pattern,
+                                           _too_early(line, head) if early else ""))
             return
         rule = head.rule
         ended = rule.continuation is not None and not rule.continuation.match(text)
