@@ -1628,8 +1628,11 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(event.tag)
         command = submission.command.line if submission is not None else "a marker"
         line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
-        log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
-                    line, command, event.expected.kind.value)
+        if event.reason:
+            log.warning("reply mismatch: %s (%r), resyncing", event.reason, command)
+        else:
+            log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
+                        line, command, event.expected.kind.value)
         if submission is not None:
             why = event.reason or (f"{line} cannot be the reply to {command!r} "
                                    f"({event.expected.kind.value} expected): a line was "
