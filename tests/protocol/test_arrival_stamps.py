@@ -13,6 +13,7 @@ from helpers import FakeLink
 
 from tango_aio.errors import ProtocolError
 from tango_aio.instructions import parse
+from tango_aio.protocol import Submission
 
 LinkFactory = Callable[..., FakeLink]
 
@@ -38,6 +39,24 @@ async def clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
     return hand
 
 
+async def _fails_then_in_step(link: FakeLink, read: Submission, clock: _Clock,
+                              answer_after: float) -> None:
+    """``read`` fails with the timing's ProtocolError, the stream resyncs as for any
+    unfitting line, and a read whose reply comes ``answer_after`` s after its write gets
+    it."""
+    assert read.reply is not None
+    with pytest.raises(ProtocolError, match="started before the request could have been"):
+        await read.reply
+    await link.wait_written(b"?help ")
+    link.answer_marker()
+    clock.now += 0.100
+    again = link.protocol.submit(parse("?pos x"))
+    clock.now += answer_after
+    link.feed(b"91.125\r")
+    assert again.reply is not None
+    assert (await again.reply).lines == ("91.125",)
+
+
 async def test_noise_read_before_a_read_was_written_fails_it(
         fake_link: LinkFactory, clock: _Clock) -> None:
     link = fake_link()
@@ -47,17 +66,7 @@ async def test_noise_read_before_a_read_was_written_fails_it(
     assert link.sent_lines()[-1] == b"?pos x"
     clock.now += 0.005
     link.feed(b"91.125\r")  # the reply, glued behind the stray byte: '191.125'
-    assert read.reply is not None
-    with pytest.raises(ProtocolError, match="started before the request could have been"):
-        await read.reply
-    await link.wait_written(b"?help ")  # the resync path, as for any unfitting line
-    link.answer_marker()
-    clock.now += 0.010
-    again = link.protocol.submit(parse("?pos x"))
-    clock.now += 0.005
-    link.feed(b"91.125\r")
-    assert again.reply is not None
-    assert (await again.reply).lines == ("91.125",)
+    await _fails_then_in_step(link, read, clock, 0.005)
 
 
 async def test_a_reply_that_starts_after_the_write_is_taken(
@@ -80,15 +89,5 @@ async def test_on_a_paced_wire_a_line_started_while_the_read_passes_fails_it(
     link.feed(b"1")  # while the request is still on the wire
     clock.now += 0.010
     link.feed(b"91.125\r")
-    assert read.reply is not None
-    with pytest.raises(ProtocolError, match="started before"):
-        await read.reply
-    await link.wait_written(b"?help ")
-    link.answer_marker()
-    # In time (7 ms + 1 byte time - the 2 ms margin): taken.
-    clock.now += 0.100
-    again = link.protocol.submit(parse("?pos x"))
-    clock.now += 0.0065
-    link.feed(b"91.125\r")
-    assert again.reply is not None
-    assert (await again.reply).lines == ("91.125",)
+    # Then a reply in time (7 ms + 1 byte time - the 2 ms margin) is taken.
+    await _fails_then_in_step(link, read, clock, 0.0065)
