@@ -273,9 +273,18 @@ class LineAssembler:
                 self._scanned = 0
             return None
         raw = bytes(self._buffer[:end])
-        if self._stamps:
-            self.started = self._started(raw)
-        self._consume(end + 1)
+        stamps = self._stamps
+        if stamps:
+            offset = self._offset
+            while len(stamps) > 1 and stamps[1][0] <= offset:
+                stamps.popleft()  # chunks that ended before this line
+            if raw and raw[0] in _BLANK_BYTES:
+                self.started = self._started(raw)
+            else:
+                first, at = stamps[0]
+                self.started = at if first <= offset else math.inf
+        del self._buffer[: end + 1]
+        self._offset += end + 1
         self._scanned = 0
         if self._discarding:
             self._discarding = False
@@ -285,20 +294,16 @@ class LineAssembler:
         return raw.replace(b"\n", b"").decode("latin-1")
 
     def _started(self, raw: bytes) -> float:
-        """When the first byte of ``raw`` (at the buffer's start) that is not blank was
-        read (the line's own start if it is all blank).
+        """When the first byte of ``raw`` (at the buffer's start, led by blanks) that is
+        not blank was read (the line's own start if it is all blank).
 
         Returns
         -------
         float
             The time given to :meth:`feed` with that byte (``inf``: none was).
         """
-        lead = 0
-        if raw[:1] and raw[0] in _BLANK_BYTES:
-            lead = len(raw) - len(raw.decode("latin-1").lstrip())
-            if lead == len(raw):
-                lead = 0
-        position = self._offset + lead
+        lead = len(raw) - len(raw.decode("latin-1").lstrip())
+        position = self._offset + (lead if lead < len(raw) else 0)
         stamps = self._stamps
         while len(stamps) > 1 and stamps[1][0] <= position:
             stamps.popleft()
@@ -882,7 +887,13 @@ class ProtocolCore:
         #: their arrival the times given to :meth:`receive_data` may be.
         self.wire_seconds = 0.0
         self.arrival_margin = ARRIVAL_MARGIN
-        self._sent_at: float | None = None  # see writing()
+        #: When the lines registered from now on are handed to the transport (at this
+        #: time or later; ``None``: not known): their replies are judged by their timing
+        #: too (:func:`~tango_aio.linktiming.earliest_reply`). Set it before registering
+        #: the lines of each write, on the clock the arrival times given to
+        #: :meth:`receive_data` come from; a time from before the write only makes the
+        #: rule milder.
+        self.write_time: float | None = None
         self._wire_free = 0.0  # when the bytes registered so far have passed
 
     # -- state ------------------------------------------------------------------------
@@ -969,8 +980,11 @@ class ProtocolCore:
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
-        if self._sent_at is not None:
-            self._stamp(pending, len(data))
+        if self.write_time is not None:
+            if pending is not None and not self.wire_seconds:
+                pending.earliest = self.write_time  # (what _stamp does, on the hot path)
+            else:
+                self._stamp(pending, len(data))
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
         elif pending is not None and ((expect.ack and expect.completion is not None)
@@ -1065,31 +1079,21 @@ class ProtocolCore:
         pending = _Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
                            internal=True, pattern=ONE_NUMBER, sent="?err")
         self._pending.append(pending)
-        if self._sent_at is not None:
+        if self.write_time is not None:
             self._stamp(pending, len(_FOLLOW_UP))
         return _FOLLOW_UP
 
     # -- timing ---------------------------------------------------------------------------
 
-    def writing(self, now: float) -> None:
-        """The lines registered from now on are handed to the transport at ``now`` or
-        later: their replies are judged by their timing too (a line that starts earlier
-        than its request could have been answered is not its reply:
-        :func:`~tango_aio.linktiming.earliest_reply`). Call it before registering the
-        lines of each write, with the clock the arrival times come from
-        (:meth:`receive_data`); a time from before the write only makes the rule milder.
-
-        Parameters
-        ----------
-        now
-            The current time.
-        """
-        self._sent_at = now
-
     def _stamp(self, pending: _Pending | None, size: int) -> None:
         """Mark when the reply of a line of ``size`` bytes just registered may start."""
-        assert self._sent_at is not None
-        earliest, self._wire_free = earliest_reply(self._sent_at, self._wire_free, size,
+        at = self.write_time
+        assert at is not None
+        if not self.wire_seconds:  # (earliest_reply's answer, without the call)
+            if pending is not None:
+                pending.earliest = at
+            return
+        earliest, self._wire_free = earliest_reply(at, self._wire_free, size,
                                                    self.wire_seconds, self.arrival_margin)
         if pending is not None:
             pending.earliest = earliest
@@ -1271,7 +1275,7 @@ class ProtocolCore:
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
                            _echo_of(data.decode()), pattern=pattern)
         self._pending.append(pending)
-        if self._sent_at is not None:
+        if self.write_time is not None:
             self._stamp(pending, len(data))
         return data
 
@@ -1286,7 +1290,8 @@ class ProtocolCore:
             Bytes as they were read, any fragment of the stream.
         at
             When they were read, on the clock :meth:`writing` is given (``None``: not
-            known; a line that starts in them is never judged by its timing).
+            known; a line that starts in them is never judged by its timing). The clock of
+            :attr:`write_time`.
         """
         self._assembler.feed(data, at)
 

@@ -1105,7 +1105,7 @@ class TangoProtocol(asyncio.Protocol):
             return
         # Before the lines are registered: a reply that starts before this time is not
         # theirs (the core's timing rule; the arrival times come from the same clock).
-        self.core.writing(self._loop.time() if now is None else now)
+        self.core.write_time = self._loop.time() if now is None else now
         data = self.scheduler.next_write()
         if data:
             self._write(data)

@@ -103,7 +103,9 @@ def test_each_line_is_stamped_with_the_chunk_of_its_first_byte_that_counts(
         lead = len(text) - len(text.lstrip())
         assert started == at[start + (lead if lead < len(raw) else 0)]
         start += len(raw) + 1
-    assert len(assembler._stamps) <= 1  # the chunks consumed are forgotten
+    assembler.feed(b"x\r", 1000.0)
+    assert assembler.next_line() == "x" and assembler.started == 1000.0
+    assert len(assembler._stamps) == 1  # the chunks consumed are forgotten
 
 
 def test_bytes_fed_without_a_time_are_never_stamped() -> None:
@@ -121,7 +123,7 @@ def _core_with_read(sent_at: float, wire_seconds: float = 0.0,
                     line: str = "?pos x") -> ProtocolCore:
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.wire_seconds = wire_seconds
-    core.writing(sent_at)
+    core.write_time = sent_at
     core.send(parse(line), "read")
     return core
 
@@ -129,7 +131,7 @@ def _core_with_read(sent_at: float, wire_seconds: float = 0.0,
 def test_noise_read_before_the_write_glued_to_a_reply_fails_the_read() -> None:
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.receive_data(b"1", 9.5)  # stray byte, no CR, before the read is written
-    core.writing(10.0)
+    core.write_time = 10.0
     core.send(parse("?pos x"), "read")
     events = core.events()
     core.receive_data(b"91.125\r", 10.01)
@@ -148,7 +150,7 @@ def test_the_same_reply_after_the_write_is_taken() -> None:
 def test_blanks_and_lf_in_front_of_a_reply_do_not_count() -> None:
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.receive_data(b" \n", 9.5)
-    core.writing(10.0)
+    core.write_time = 10.0
     core.send(parse("?pos x"), "read")
     core.receive_data(b"91.125\r", 10.01)
     assert core.events() == [Replied("read", (" 91.125",))]
@@ -157,7 +159,7 @@ def test_blanks_and_lf_in_front_of_a_reply_do_not_count() -> None:
 def test_untimed_bytes_are_not_judged() -> None:
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.receive_data(b"1")
-    core.writing(10.0)
+    core.write_time = 10.0
     core.send(parse("?pos x"), "read")
     core.receive_data(b"91.125\r")
     assert core.events() == [Replied("read", ("191.125",))]
@@ -180,7 +182,7 @@ def test_pipelined_lines_queue_on_the_wire() -> None:
     """The second read's bytes pass behind the first's: its earliest reply is later."""
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.wire_seconds = 0.001
-    core.writing(10.0)
+    core.write_time = 10.0
     core.send(parse("?pos x"), "first")
     core.send(parse("?vel y"), "second")
     core.receive_data(b"1.0000\r", 10.0065)  # the first's, in time
@@ -195,7 +197,7 @@ def test_a_marker_reply_behind_stale_bytes_still_ends_the_resync() -> None:
     """The marker's reply is searched in its line (stale bytes may lead it): no timing."""
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.receive_data(b"stale", 9.0)
-    core.writing(10.0)
+    core.write_time = 10.0
     data = core.resync("marker")
     code = data.decode().split()[-1]
     core.receive_data(f"ERROR {code},marker\r".encode(), 10.01)
@@ -210,7 +212,7 @@ def test_a_marker_reply_behind_stale_bytes_still_ends_the_resync() -> None:
 def test_noise_before_the_write_never_becomes_a_reply(noise: bytes, reply: bytes) -> None:
     core = ProtocolCore(autostatus=1, marker_seed=0)
     core.receive_data(noise, 1.0)
-    core.writing(2.0)
+    core.write_time = 2.0
     core.send(parse("?pos x"), "read")
     core.receive_data(reply + b"\r", 3.0)
     assert not any(isinstance(event, Replied) and event.tag == "read"
