@@ -56,6 +56,12 @@ Some lines come *late* on some firmware, and the core tells from the stream:
   adapter; switch ``local_echo``): a :class:`Mismatched` with :data:`LOCAL_ECHO`, and
   :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
 
+A line is also judged by its timing where the protocol gives it (arrival times with the
+bytes, :attr:`ProtocolCore.write_time` before each write): a data line whose first byte
+(blanks aside) was read before its request could have been answered is not its reply
+(:func:`~tango_aio.linktiming.earliest_reply`): stray bytes without a CR glued in front
+of the reply. It is a :class:`Mismatched` with its reason, like a line of the wrong shape.
+
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
 ever raised for bad input; the core stays usable afterwards.
