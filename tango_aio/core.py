@@ -57,10 +57,13 @@ Some lines come *late* on some firmware, and the core tells from the stream:
   :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
 
 A line is also judged by its timing where the protocol gives it (arrival times with the
-bytes, :attr:`ProtocolCore.write_time` before each write): a data line whose first byte
-(blanks aside) was read before its request could have been answered is not its reply
-(:func:`~tango_aio.linktiming.earliest_reply`): stray bytes without a CR glued in front
-of the reply. It is a :class:`Mismatched` with its reason, like a line of the wrong shape.
+bytes): a data line whose first byte (blanks aside) was read before its request was
+written is not its reply, nor, on a paced wire (:attr:`ProtocolCore.wire_seconds`,
+:attr:`ProtocolCore.write_time`), one that started while the request's bytes were still
+on the wire (:func:`~tango_aio.linktiming.earliest_reply`): stray bytes without a CR
+glued in front of the reply. Which came first, the chunk or the write, is known by the
+order they were handled in, not by a clock. Such a line is a :class:`Mismatched` with its
+reason, like a line of the wrong shape.
 
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
@@ -225,14 +228,18 @@ class LineAssembler:
         self._scanned = 0
         self._discarding = False
         self._max_line = max_line
-        # Where each timed chunk starts (counting every byte ever fed) and when it was
-        # read, oldest first; only the chunks the buffer still holds (and the one its
-        # first byte came in).
-        self._stamps: deque[tuple[int, float]] = deque()
+        # Where each timed chunk starts (counting every byte ever fed), its number and
+        # when it was read, oldest first; only the chunks the buffer still holds (and the
+        # one its first byte came in).
+        self._stamps: deque[tuple[int, int, float]] = deque()
         self._offset = 0  # the count of bytes fed before the buffer's first
-        #: When the first byte of the line :meth:`next_line` returned last was read (the
-        #: time given to :meth:`feed`): leading blanks and LF bytes do not count, they
-        #: change no reply. ``inf`` when not known.
+        #: Chunks fed with a time so far (and any after the first such).
+        self.feeds = 0
+        #: The number (:attr:`feeds`) of the chunk that brought the first byte of the line
+        #: :meth:`next_line` returned last, and when it was read (the time given to
+        #: :meth:`feed`): leading blanks and LF bytes do not count, they change no reply.
+        #: ``inf`` when not known.
+        self.started_feed: float = math.inf
         self.started = math.inf
 
     @property
@@ -251,7 +258,8 @@ class LineAssembler:
             When they were read (any monotonic clock; ``None``: not known).
         """
         if data and (at is not None or self._stamps):
-            self._stamps.append((self._offset + len(self._buffer),
+            self.feeds += 1
+            self._stamps.append((self._offset + len(self._buffer), self.feeds,
                                  math.inf if at is None else at))
         self._buffer += data
 
@@ -285,10 +293,11 @@ class LineAssembler:
             while len(stamps) > 1 and stamps[1][0] <= offset:
                 stamps.popleft()  # chunks that ended before this line
             if raw and raw[0] in _BLANK_BYTES:
-                self.started = self._started(raw)
+                self.started_feed, self.started = self._started(raw)
             else:
-                first, at = stamps[0]
-                self.started = at if first <= offset else math.inf
+                first, fed, at = stamps[0]
+                self.started_feed, self.started = (fed, at) if first <= offset \
+                    else (math.inf, math.inf)
         del self._buffer[: end + 1]
         self._offset += end + 1
         self._scanned = 0
@@ -299,22 +308,22 @@ class LineAssembler:
             raise ProtocolError(f"reply line of {len(raw)} bytes exceeds {self._max_line}")
         return raw.replace(b"\n", b"").decode("latin-1")
 
-    def _started(self, raw: bytes) -> float:
-        """When the first byte of ``raw`` (at the buffer's start, led by blanks) that is
-        not blank was read (the line's own start if it is all blank).
+    def _started(self, raw: bytes) -> tuple[float, float]:
+        """The chunk that brought the first byte of ``raw`` (at the buffer's start, led by
+        blanks) that is not blank (the line's own first if it is all blank).
 
         Returns
         -------
-        float
-            The time given to :meth:`feed` with that byte (``inf``: none was).
+        tuple of (float, float)
+            The chunk's number and the time given with it (``inf``: not known).
         """
         lead = len(raw) - len(raw.decode("latin-1").lstrip())
         position = self._offset + (lead if lead < len(raw) else 0)
         stamps = self._stamps
         while len(stamps) > 1 and stamps[1][0] <= position:
             stamps.popleft()
-        first, at = stamps[0]
-        return at if first <= position else math.inf
+        first, fed, at = stamps[0]
+        return (fed, at) if first <= position else (math.inf, math.inf)
 
     def _consume(self, size: int) -> None:
         """Drop the buffer's first ``size`` bytes, and the stamps of the chunks they
@@ -503,8 +512,12 @@ class _Pending:
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
-    #: A data line that starts earlier is not this line's reply
-    #: (:func:`~tango_aio.linktiming.earliest_reply`); ``-inf``: not known.
+    #: A data line whose first byte came in chunk :attr:`LineAssembler.feeds` ``<=
+    #: fed`` was read before this line was written: not its reply (-1: not known).
+    fed: int = -1
+    #: A data line that starts earlier is not this line's reply either: its bytes were
+    #: still on a paced wire (:func:`~tango_aio.linktiming.earliest_reply`); ``-inf``:
+    #: not known.
     earliest: float = -math.inf
 
     def done_after(self, item: _Item) -> bool:
@@ -893,12 +906,11 @@ class ProtocolCore:
         #: their arrival the times given to :meth:`receive_data` may be.
         self.wire_seconds = 0.0
         self.arrival_margin = ARRIVAL_MARGIN
-        #: When the lines registered from now on are handed to the transport (at this
-        #: time or later; ``None``: not known): their replies are judged by their timing
-        #: too (:func:`~tango_aio.linktiming.earliest_reply`). Set it before registering
-        #: the lines of each write, on the clock the arrival times given to
-        #: :meth:`receive_data` come from; a time from before the write only makes the
-        #: rule milder.
+        #: On a paced wire (:attr:`wire_seconds`): when the lines registered from now on
+        #: are handed to the transport (at this time or later; ``None``: not known), on
+        #: the clock of the arrival times given to :meth:`receive_data`. Set it before
+        #: registering the lines of each write; a time from before the write only makes
+        #: the rule milder.
         self.write_time: float | None = None
         self._wire_free = 0.0  # when the bytes registered so far have passed
 
@@ -986,11 +998,10 @@ class ProtocolCore:
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
+        if pending is not None:
+            pending.fed = self._assembler.feeds
         if self.write_time is not None:
-            if pending is not None and not self.wire_seconds:
-                pending.earliest = self.write_time  # (what _stamp does, on the hot path)
-            else:
-                self._stamp(pending, len(data))
+            self._stamp(pending, len(data))
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
         elif pending is not None and ((expect.ack and expect.completion is not None)
@@ -1085,6 +1096,7 @@ class ProtocolCore:
         pending = _Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
                            internal=True, pattern=ONE_NUMBER, sent="?err")
         self._pending.append(pending)
+        pending.fed = self._assembler.feeds
         if self.write_time is not None:
             self._stamp(pending, len(_FOLLOW_UP))
         return _FOLLOW_UP
@@ -1095,10 +1107,6 @@ class ProtocolCore:
         """Mark when the reply of a line of ``size`` bytes just registered may start."""
         at = self.write_time
         assert at is not None
-        if not self.wire_seconds:  # (earliest_reply's answer, without the call)
-            if pending is not None:
-                pending.earliest = at
-            return
         earliest, self._wire_free = earliest_reply(at, self._wire_free, size,
                                                    self.wire_seconds, self.arrival_margin)
         if pending is not None:
@@ -1281,6 +1289,7 @@ class ProtocolCore:
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
                            _echo_of(data.decode()), pattern=pattern)
         self._pending.append(pending)
+        pending.fed = self._assembler.feeds
         if self.write_time is not None:
             self._stamp(pending, len(data))
         return data
@@ -1295,9 +1304,8 @@ class ProtocolCore:
         data
             Bytes as they were read, any fragment of the stream.
         at
-            When they were read, on the clock :meth:`writing` is given (``None``: not
-            known; a line that starts in them is never judged by its timing). The clock of
-            :attr:`write_time`.
+            When they were read, on the clock of :attr:`write_time` (``None``: not known;
+            a line that starts in them is never judged by its timing).
         """
         self._assembler.feed(data, at)
 
@@ -1568,7 +1576,8 @@ class ProtocolCore:
             self._events.append(Mismatched(tag, line, head.pattern, LOCAL_ECHO))
             return
         elif not head.lines and self.check_replies and (
-                (early := self._assembler.started < head.earliest)
+                (early := self._assembler.started_feed <= head.fed
+                 or self._assembler.started < head.earliest)
                 or not head.pattern.accepts(text)):
             # Not this request's reply: its own was lost, or the line is extra, or it
             # started before the request could have been answered (bytes without a CR

@@ -124,7 +124,9 @@ def earliest_reply(sent_at: float, wire_free: float, size: int, byte_seconds: fl
       never goes back. A reply starts only once its request has reached the controller
       (it executes a line when its CR arrives: L28-30), so the first byte of a true reply
       is read after the write, and its time is not earlier than ``sent_at``. This part
-      holds on every link, whatever its speed.
+      holds on every link, whatever its speed (the core tells it without a clock, by the
+      order it handled the chunk and the write: two readings of a coarse clock may be
+      equal).
     * With ``byte_seconds`` (a wire known to carry every byte at that rate, 11 bits per
       byte: L8-10), the line's bytes pass one byte time apart, behind what was written
       before it (``wire_free``), and the reply's first byte needs one more byte time

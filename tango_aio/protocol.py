@@ -1103,9 +1103,10 @@ class TangoProtocol(asyncio.Protocol):
         the markers and separators due); ``now``: the loop time, if just read."""
         if self._transport is None or self._lost is not None:
             return
-        # Before the lines are registered: a reply that starts before this time is not
-        # theirs (the core's timing rule; the arrival times come from the same clock).
-        self.core.write_time = self._loop.time() if now is None else now
+        if self.core.wire_seconds:
+            # Before the lines are registered: on a paced wire, a reply that starts before
+            # this time plus their bytes' is not theirs (the arrival times' clock).
+            self.core.write_time = self._loop.time() if now is None else now
         data = self.scheduler.next_write()
         if data:
             self._write(data)
