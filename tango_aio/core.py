@@ -296,8 +296,11 @@ class LineAssembler:
                 self.started_feed, self.started = self._started(raw)
             else:
                 first, fed, at = stamps[0]
-                self.started_feed, self.started = (fed, at) if first <= offset \
-                    else (math.inf, math.inf)
+                if first <= offset:
+                    self.started_feed = fed
+                    self.started = at
+                else:
+                    self.started_feed = self.started = math.inf
         del self._buffer[: end + 1]
         self._offset += end + 1
         self._scanned = 0
