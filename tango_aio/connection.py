@@ -317,9 +317,13 @@ async def _open_socket(url: str, factory: ProtocolFactory
 async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
                 ) -> tuple[TangoProtocol, Closer | None]:
     if url.startswith("sim://"):
-        from .sim.inprocess import open_sim
+        from .sim.inprocess import configs_from_url, open_sim
 
-        return await open_sim(url, factory)
+        protocol, closer = await open_sim(url, factory)
+        baud = configs_from_url(url)[1].baud
+        if baud:  # the emulator's wire carries bytes at this rate, both ways
+            protocol.wire_paced(byte_time(baud))
+        return protocol, closer
     if url.startswith("socket://"):
         _, protocol = await _open_socket(url, factory)
         return protocol, None

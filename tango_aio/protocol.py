@@ -372,6 +372,19 @@ class TangoProtocol(asyncio.Protocol):
     def quiet_interval(self, seconds: float) -> None:
         self.session.quiet_interval = seconds
 
+    def wire_paced(self, byte_seconds: float) -> None:
+        """The link carries bytes at ``byte_seconds`` per byte or slower, both ways (the
+        emulator's paced wire): a reply that starts before its request's bytes could have
+        passed is not its reply (:func:`~tango_aio.linktiming.earliest_reply`). Not for a
+        serial port's opened rate, which USB and PCI units do not keep (L10, L1645-1653).
+
+        Parameters
+        ----------
+        byte_seconds
+            Seconds per byte (:func:`~tango_aio.linktiming.byte_time`).
+        """
+        self.core.wire_seconds = byte_seconds
+
     @property
     def link(self) -> LinkTiming:
         """The link's timing: its byte time where the baud rate is known and the longest
@@ -1173,11 +1186,15 @@ class TangoProtocol(asyncio.Protocol):
             self._flush()
         return run
 
-    def _flush(self) -> None:
+    def _flush(self, now: float | None = None) -> None:
         """Write what the scheduler lets go now (queued lines as the credit allows, with
-        the markers and separators due)."""
+        the markers and separators due); ``now``: the loop time, if just read."""
         if self._transport is None or self._lost is not None:
             return
+        if self.core.wire_seconds:
+            # Before the lines are registered: on a paced wire, a reply that starts before
+            # this time plus their bytes' is not theirs (the arrival times' clock).
+            self.core.write_time = self._loop.time() if now is None else now
         data = self.scheduler.next_write()
         if data:
             self._write(data)
@@ -1593,11 +1610,13 @@ class TangoProtocol(asyncio.Protocol):
             Bytes as they were read, any fragment of the stream.
         """
         self._trace_received(data)
-        if self.session.bytes_received(self._loop.time()) is Outcome.WAIT_QUIET:
+        # Read after the bytes were: never earlier than they arrived (linktiming).
+        now = self._loop.time()
+        if self.session.bytes_received(now) is Outcome.WAIT_QUIET:
             self._quiet_from_now()
-        self.core.receive_data(data)
+        self.core.receive_data(data, now)
         self._dispatch_pending()
-        self._flush()
+        self._flush(now)
 
     def _dispatch_pending(self) -> None:
         while True:
@@ -1704,8 +1723,11 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(event.tag)
         command = submission.command.line if submission is not None else "a marker"
         line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
-        log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
-                    line, command, event.expected.kind.value)
+        if event.reason:
+            log.warning("reply mismatch: %s (%r), resyncing", event.reason, command)
+        else:
+            log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
+                        line, command, event.expected.kind.value)
         if submission is not None:
             why = event.reason or (f"{line} cannot be the reply to {command!r} "
                                    f"({event.expected.kind.value} expected): a line was "
