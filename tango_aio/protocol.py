@@ -1723,10 +1723,12 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(event.tag)
         command = submission.command.line if submission is not None else "a marker"
         line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
+        # A link that echoes every byte fails connect() with the same words: no warning.
+        level = logging.DEBUG if self.core.local_echo else logging.WARNING
         if event.reason:
-            log.warning("reply mismatch: %s (%r), resyncing", event.reason, command)
+            log.log(level, "reply mismatch: %s (%r), resyncing", event.reason, command)
         else:
-            log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
+            log.log(level, "reply mismatch: %s is not a reply to %r (%s expected), resyncing",
                         line, command, event.expected.kind.value)
         if submission is not None:
             why = event.reason or (f"{line} cannot be the reply to {command!r} "

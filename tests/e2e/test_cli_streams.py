@@ -132,6 +132,14 @@ def test_the_install_hint_is_what_works_from_this_installation() -> None:
     assert hint == f"pip install -e '{checkout}[epics]'", hint
 
 
+def test_an_echoing_adapter_is_one_error_line_and_nothing_else(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path, busy_port: str) -> None:
+    code, out, err = _run(["info", "sim://?baud=0&local_echo=yes"], capsys, tmp_path,
+                          busy_port)
+    assert code == 1 and out == "", out
+    assert err.count("\n") == 1 and err.startswith("error: ") and "echo" in err, err
+
+
 def test_permission_advice_fits_the_kind_of_port() -> None:
     from tango_aio.connection import port_error
 
