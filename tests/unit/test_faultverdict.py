@@ -55,7 +55,7 @@ def test_done_verdict() -> None:
     assert done_verdict(None, held=True) == DONE
     assert done_verdict({"x": "@"}, held=True) == DONE
     assert done_verdict(None, held=False) == FALSE_SUCCESS
-    assert done_verdict(NotExecutableError("refused"), held=False) == \
+    assert done_verdict(NotExecutableError(command="!moa 1"), held=False) == \
         "error NotExecutableError"
     assert done_verdict(RuntimeError("bug"), held=True) == UNTYPED
 
@@ -67,7 +67,7 @@ def test_error_verdict_tells_a_hang_from_a_timeout() -> None:
 
 
 def test_running_verdict() -> None:
-    refused = NotExecutableError("controller error 2")
+    refused = NotExecutableError(command="!speed z 2")
     assert running_verdict(refused, []) is None
     assert running_verdict(refused, ["x"]) == UNSTOPPED  # "refused" while X ran on
     assert running_verdict(None, ["x"]) is None  # a call that returned: done_verdict
