@@ -538,9 +538,6 @@ async def next_call(rig: Rig, op: str, second: bool = True) -> None:
 
 _SEPS = ("#37 failure 1: in mode 4 look-alike reads are written with nothing between "
          "them, and a lost or extra line hands replies to other callers")
-_SETS = "#37 failure 2: a set whose line is lost returns, proven by nothing but ?err 0"
-_VERDICTS = ("#37 failure 3: a garbled ?err after !speed raises a controller error while "
-             "the axis runs on")
 _RESTART = ("#37 failure 4: after a power cycle, in modes 2 and 4, the call after the one "
             "that met it fails")
 _TIMING = ("#37, noise glued in front of a reply: a digit that came before the request "
@@ -554,15 +551,8 @@ _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's r
 KNOWN: dict[tuple[int, str, str, str], str] = {
     **{(4, fault, "reads", "sim"): _SEPS for fault in ("drop", "lose")},
     (4, "drop", "reads", "pty"): _SEPS,
-    **{(mode, "lose", "set", transport): _SETS
-       for mode in (0, 1, 3) for transport in ("sim", "pty")},
-    (1, "garble", "speed", "sim"): _VERDICTS,
-    (3, "garble", "speed", "sim"): _VERDICTS,
-    (3, "garble", "speed", "pty"): _VERDICTS,
-    **{(mode, "cycle_idle", op, "sim"): _RESTART
-       for mode in (2, 4) for op in ("set", "move", "upload")},
-    **{(mode, "cycle_idle", op, "pty"): _RESTART
-       for mode in (2, 4) for op in ("set", "speed")},
+    **{(mode, "cycle_idle", "speed", "pty"): _RESTART for mode in (2, 4)},
+    **{(mode, "cycle_moving", "speed", "sim"): _RESTART for mode in (2, 4)},
     (2, "noise", "reads", "pty"): _TIMING,
     (4, "noise", "reads", "pty"): _TIMING,
 }
