@@ -31,7 +31,7 @@ async def test_local_echo_is_refused_at_connect_in_words(mode: int) -> None:
     with pytest.raises(ConnectError, match="local echo"):
         async with asyncio.timeout(30):
             await connect("sim://?baud=0&local_echo=yes", autostatus=mode,
-                          reply_timeout=1.0)
+                          reply_timeout=5.0)  # replies come: a bound on a hang
 
 
 def left_in(mode: int, profile: str, local_echo: str) -> Callable[[Emit], ControllerModel]:
@@ -53,7 +53,7 @@ async def connect_through_pty(factory: Callable[[Emit], ControllerModel],
     server = await serve_pty(factory, WireConfig(baud=0))
     try:
         async with asyncio.timeout(30), \
-                connect(server.path, autostatus=wanted, reply_timeout=1.0) as tango:
+                connect(server.path, autostatus=wanted, reply_timeout=5.0) as tango:
             handler = server.wire.handler
             assert isinstance(handler, ControllerModel)
             assert handler.autostatus == tango.autostatus
