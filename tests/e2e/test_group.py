@@ -75,9 +75,9 @@ async def _expire_when(deadline: asyncio.Timeout, ready: Callable[[], bool]) -> 
 
 
 def _under_way(group: ControllerGroup) -> bool:
-    """Both members of the move test move (their emulators' state)."""
-    return (faults(group["a"]).model.motion.is_moving("x")
-            and faults(group["b"]).model.motion.is_moving("y"))
+    """Both members of the move test have left 0 on their way to 20 (their emulators'
+    state: past what a stop at the very start would leave)."""
+    return faults(group["a"]).axes()["x"][0] > 0.01 and faults(group["b"]).axes()["y"][0] > 0.01
 
 
 async def next_events(events: tango_aio.group.GroupSubscription, count: int,
