@@ -20,9 +20,6 @@ pytestmark = pytest.mark.timeout(600)
 #: Moves tried after each power cycle; the first may fail (its answer cannot come).
 MOVES = 4
 STEP = 0.5
-#: The reply timeout once connected (the set-up's replies come: the default for them):
-#: short for the lines lost while the unit is off.
-SHORT = 0.5
 
 
 
@@ -57,10 +54,9 @@ async def _restarted(events: Subscription) -> ControllerRestarted:
 
 async def _power_cycles(mode: int, count: int) -> None:
     url = "sim://?baud=0"
-    async with tango_aio.connect(url, autostatus=mode) as tango:
+    async with tango_aio.connect(url, autostatus=mode, reply_timeout=0.5) as tango:
         fault = faults(tango)
         await tango.set("vel", x=20)  # not saved: the restart loses it
-        tango.reply_timeout = SHORT
         events = tango.events()
         for _ in range(count):
             await _move_after_cycle(tango, fault)
@@ -69,7 +65,6 @@ async def _power_cycles(mode: int, count: int) -> None:
                 assert (event.found, event.autostatus) == (1, mode)
                 assert tango.autostatus == mode
             assert fault.model.autostatus == tango.autostatus
-        tango.reply_timeout = 5.0  # this reply comes
         if mode != 1:
             assert (await tango.get("vel"))["x"] == 10.0  # read again: the power-on value
 
@@ -91,8 +86,8 @@ async def test_a_raw_move_line_that_ran_is_never_reported_failed_without_saying_
     """``command("!mor ...")`` right after a restart: it returns (the line was seen
     accepted, and the stage moved) or raises a MoveOutcomeUnknown error (it may have
     run; on the stock loop it always does, as the line arrives after the power-on)."""
-    async with tango_aio.connect("sim://?baud=0", autostatus=mode) as tango:
-        tango.reply_timeout = SHORT
+    async with tango_aio.connect("sim://?baud=0", autostatus=mode,
+                                 reply_timeout=0.5) as tango:
         fault = faults(tango)
         fault.power_cycle(0.0)
         try:
@@ -107,8 +102,8 @@ async def test_a_raw_move_line_that_ran_is_never_reported_failed_without_saying_
 
 @pytest.mark.parametrize("mode", [2, 4])
 async def test_a_set_line_unanswered_after_a_restart_claims_no_move(mode: int) -> None:
-    async with tango_aio.connect("sim://?baud=0", autostatus=mode) as tango:
-        tango.reply_timeout = SHORT
+    async with tango_aio.connect("sim://?baud=0", autostatus=mode,
+                                 reply_timeout=0.5) as tango:
         faults(tango).power_cycle(0.0)
         with pytest.raises(tango_aio.ControllerTimeoutError) as info:
             await tango.command("!vel x 5")
@@ -118,8 +113,7 @@ async def test_a_set_line_unanswered_after_a_restart_claims_no_move(mode: int) -
 async def test_a_power_cycle_ends_the_move_by_start_rule() -> None:
     """After a restart the HDI is on again: a ``!joy 0`` sent before it no longer holds,
     so a move_by reads its start again and honours a hand on the joystick."""
-    async with tango_aio.connect("sim://?baud=0", autostatus=2) as tango:
-        tango.reply_timeout = SHORT
+    async with tango_aio.connect("sim://?baud=0", autostatus=2, reply_timeout=0.5) as tango:
         fault = faults(tango)
         events = tango.events()
         await tango.set("joy", 0)
