@@ -195,7 +195,7 @@ class FakeLink:
         """Numbers of the ``?help N`` resync markers written so far."""
         return [int(n) for n in re.findall(rb"\?help (\d+)\r", self.transport.sent)]
 
-    async def wait_written(self, needle: bytes, count: int = 1, timeout: float = 2.0) -> None:
+    async def wait_written(self, needle: bytes, count: int = 1, timeout: float = 10.0) -> None:
         """Wait until ``needle`` occurs ``count`` times in what was written."""
         async with asyncio.timeout(timeout):
             while self.transport.sent.count(needle) < count:
@@ -337,12 +337,12 @@ class EmulatorFactory(Protocol):
 FAST: ReconnectOptions = {"reconnect": True, "reconnect_initial": 0.05, "reconnect_max": 0.2}
 
 
-async def next_event(events: Subscription, timeout: float = 3.0) -> TangoEvent:
+async def next_event(events: Subscription, timeout: float = 10.0) -> TangoEvent:
     async with asyncio.timeout(timeout):
         return await anext(events)
 
 
-async def remaining(events: Subscription, timeout: float = 2.0) -> list[TangoEvent]:
+async def remaining(events: Subscription, timeout: float = 10.0) -> list[TangoEvent]:
     """Every event up to the end of the stream (fails if it does not end)."""
     async with asyncio.timeout(timeout):
         return [event async for event in events]
@@ -379,7 +379,7 @@ async def done_within_ticks(*awaited: asyncio.Future[Any], ticks: int = TICKS) -
 
 
 async def wait_lost(tango: Controller) -> None:
-    """Wait until the driver has noticed that its link is gone (within 2 s)."""
+    """Wait until the driver has noticed that its link is gone (bounded: a hang fails)."""
     await wait_until(lambda: not tango.connected)
 
 
@@ -394,7 +394,8 @@ async def assert_fails_fast(call: Callable[[], Awaitable[object]],
     assert isinstance(info.value.__cause__, cause)
 
 
-async def wait_until(predicate: Callable[[], bool], timeout: float = 2.0) -> None:
+async def wait_until(predicate: Callable[[], bool], timeout: float = 10.0) -> None:
+    """Poll until ``predicate()`` holds; ``timeout`` only bounds a hang (not a speed)."""
     async with asyncio.timeout(timeout):
         while True:  # polled: the conditions are states of other objects, not events
             if predicate():

@@ -551,11 +551,11 @@ def test_ctrl_c_during_demo_stops_the_axes() -> None:
 
 def test_ctrl_c_during_move_stops_the_axes() -> None:
     with PtySim() as sim:
-        proc = subprocess.Popen([*CLI, "move", sim.path, "x=40", "y=40"],
+        proc = subprocess.Popen([*CLI, "-v", "move", sim.path, "x=40", "y=40"],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        time.sleep(1.5)  # connected and moving (the move takes about 10 s)
+        seen = _read_until(proc, "b'!moa ")  # the -v trace: the move line went out
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
+        out = seen + proc.communicate(timeout=30)[0]
         assert proc.returncode == 130 and "Traceback" not in out, out
         assert sim.moving_axes() == []
 
@@ -779,11 +779,11 @@ def test_monitor_ends_on_ctrl_c_through_signal_signal() -> None:
 def test_ctrl_c_during_move_stops_the_axes_as_on_windows() -> None:
     with PtySim() as sim:
         url = sim.path
-        proc = subprocess.Popen([*CLI, "move", url, "x=40", "y=40"], env=_as_windows(),
+        proc = subprocess.Popen([*CLI, "-v", "move", url, "x=40", "y=40"], env=_as_windows(),
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        time.sleep(1.5)  # connected and moving (the move takes about 10 s)
+        seen = _read_until(proc, "b'!moa ")  # the -v trace: the move line went out
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
+        out = seen + proc.communicate(timeout=30)[0]
         assert proc.returncode == 130 and "Traceback" not in out, out
         assert sim.moving_axes() == []
 

@@ -87,16 +87,17 @@ async def test_serial_ports_are_opened_exclusively() -> None:
 
 async def test_a_connect_cancelled_before_connection_made_closes_the_serial_port(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    hang = asyncio.Event()
+    hang, reached = asyncio.Event(), asyncio.Event()
 
     async def never(self: TangoProtocol) -> None:
+        reached.set()
         await hang.wait()
 
     async with await serve_pty(make_model) as server:
         with monkeypatch.context() as patch:
             patch.setattr(TangoProtocol, "wait_connected", never)
             task = asyncio.create_task(opened(server.path))
-            await asyncio.sleep(0.1)
+            await asyncio.wait_for(reached.wait(), 30.0)  # it waits there now
             task.cancel()
             with pytest.raises(asyncio.CancelledError):
                 await task

@@ -7,7 +7,7 @@ import asyncio
 import collections
 import contextlib
 import random
-import time
+import threading
 from typing import Any
 
 import pytest
@@ -74,17 +74,20 @@ async def test_a_connect_cancelled_while_the_port_opens_has_closed_it_when_it_re
         monkeypatch: pytest.MonkeyPatch) -> None:
     real = serial.serial_for_url
     ports: list[Any] = []
+    entered, release = threading.Event(), threading.Event()
 
     def slow_open(*args: Any, **kwargs: Any) -> Any:
-        time.sleep(0.2)  # runs in the opening thread
+        entered.set()  # runs in the opening thread
+        assert release.wait(30.0)
         ports.append(real(*args, **kwargs))
         return ports[-1]
 
     async with await serve_pty(make_model) as server:
         monkeypatch.setattr(serial, "serial_for_url", slow_open)
         task = asyncio.create_task(opened(server.path))
-        await asyncio.sleep(0.05)
+        assert await asyncio.to_thread(entered.wait, 30.0)  # the port is being opened
         task.cancel()
+        release.set()  # the open ends after the cancellation
         with pytest.raises(asyncio.CancelledError):
             await task
         assert len(ports) == 1 and not ports[0].is_open  # closed before connect returned

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from helpers import EmulatorFactory
+from helpers import EmulatorFactory, wait_until
 
 from tango_aio.errors import MoveError
 from tango_aio.events import (
@@ -85,7 +85,7 @@ async def test_iteration_waits_for_events_and_ends_on_close() -> None:
     await asyncio.sleep(0)
     hub.publish(line("b"))
     hub.close()
-    assert await asyncio.wait_for(reader, 1.0) == [line("a"), line("b")]
+    assert await asyncio.wait_for(reader, 10.0) == [line("a"), line("b")]
 
 
 async def test_closed_subscription_ends_and_receives_nothing() -> None:
@@ -149,11 +149,11 @@ async def test_unsolicited_lines_and_status_reports(emulator: EmulatorFactory) -
     emu = await emulator()
     async with emu.tango.events() as events:
         emu.wire.emit(b"hello\r")
-        unsolicited = await asyncio.wait_for(anext(events), 1.0)
+        unsolicited = await asyncio.wait_for(anext(events), 10.0)
         assert isinstance(unsolicited, UnsolicitedLine) and unsolicited.line == "hello"
         await emu.tango.command("!joy 1")
         await emu.tango.command("!joy 0")  # disabling the joystick reports @@@-.
-        report = await asyncio.wait_for(anext(events), 1.0)
+        report = await asyncio.wait_for(anext(events), 10.0)
     assert isinstance(report, StatusReport)
     assert dict(report.statuses) == {"x": "@", "y": "@", "z": "@"}
     assert report.line == "@@@-."
@@ -173,7 +173,7 @@ async def test_abort_publishes_move_aborted(emulator: EmulatorFactory) -> None:
     emu = await emulator()
     async with emu.tango.events() as events:
         move = asyncio.create_task(emu.tango.move_to(x=40))
-        await asyncio.sleep(0.05)
+        await wait_until(lambda: emu.model.motion.is_moving("x"), timeout=30.0)  # under way
         await emu.tango.abort()
         with pytest.raises(MoveError):
             await move
@@ -190,7 +190,7 @@ async def test_connection_loss_ends_every_subscription(emulator: EmulatorFactory
     await asyncio.sleep(0.01)
     emu.wire.disconnect()
     for reader in readers:
-        events = await asyncio.wait_for(reader, 1.0)
+        events = await asyncio.wait_for(reader, 10.0)
         assert isinstance(events[-1], ConnectionLost)
         assert isinstance(events[-1].cause, ConnectionResetError)
     assert await collect(emu.tango.events()) == []  # a late subscriber ends at once
@@ -201,7 +201,7 @@ async def test_watch_position_follows_a_move_and_stops_when_idle(
     emu = await emulator()
     events = emu.tango.events()
     move = asyncio.create_task(emu.tango.move_to(x=3))
-    await asyncio.sleep(0.01)
+    await wait_until(lambda: emu.model.motion.is_moving("x"), timeout=30.0)  # under way
     updates = [update async for update in emu.tango.watch_position(interval=0.02)]
     assert not move.done() or move.result()
     xs = [update.positions["x"] for update in updates]

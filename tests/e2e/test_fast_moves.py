@@ -229,8 +229,9 @@ async def test_an_unanswered_sa_is_not_asked_again(
     """A unit that answers like the 1.71 manual but does not know ``sa`` (an unknown
     instruction: error 4, no reply): the confirmation is read again as ``?statusaxis``,
     ``sa`` is not written again, and the moves end where they should."""
-    emu = await emulator("sim://?baud=0", reply_timeout=0.3)
+    emu = await emulator("sim://?baud=0")  # the set-up's replies come: the default timeout
     tango, model = emu.tango, emu.model
+    tango.reply_timeout = 0.3  # short for the unanswered sa
     handle_line = model.handle_line
 
     def without_sa(line: bytes, now: float) -> None:
@@ -239,6 +240,7 @@ async def test_an_unanswered_sa_is_not_asked_again(
     monkeypatch.setattr(model, "handle_line", without_sa)
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
         await tango.move_to(x=0.5)
+        tango.reply_timeout = 5.0  # the replies from here on come
         assert tango.last_positions == {"x": "0.5000"}
         # The error 4 the unanswered sa left is not taken for the next move's (the resync
         # after the lost read reads the error state).

@@ -31,7 +31,7 @@ async def test_local_echo_is_refused_at_connect_in_words(mode: int) -> None:
     with pytest.raises(ConnectError, match="local echo"):
         async with asyncio.timeout(30):
             await connect("sim://?baud=0&local_echo=yes", autostatus=mode,
-                          reply_timeout=1.0)
+                          reply_timeout=5.0)  # replies come: a bound on a hang
 
 
 def left_in(mode: int, profile: str, local_echo: str) -> Callable[[Emit], ControllerModel]:
@@ -53,7 +53,7 @@ async def connect_through_pty(factory: Callable[[Emit], ControllerModel],
     server = await serve_pty(factory, WireConfig(baud=0))
     try:
         async with asyncio.timeout(30), \
-                connect(server.path, autostatus=wanted, reply_timeout=1.0) as tango:
+                connect(server.path, autostatus=wanted, reply_timeout=5.0) as tango:
             handler = server.wire.handler
             assert isinstance(handler, ControllerModel)
             assert handler.autostatus == tango.autostatus
@@ -107,9 +107,10 @@ async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
         emulator: EmulatorFactory) -> None:
     # Autostatus 0 polls the state during the move; every poll's reply is lost, so the
     # move cannot be followed. It must not leave X running without a word.
-    emu = await emulator("sim://?baud=0", autostatus=0, reply_timeout=0.3, dead_after=100)
+    emu = await emulator("sim://?baud=0", autostatus=0, dead_after=100)
     tango = emu.tango
     await tango.set("vel", 1.0, axis="x")
+    tango.reply_timeout = 0.3  # short for the lost replies: the move's polls from now on
     move = asyncio.create_task(tango.move_to(x=4.0))
     await wait_moving(emu, "x")
     # The next 20 replies are lost, the resyncs' markers among them: the state reads
@@ -126,6 +127,7 @@ async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
         position, velocity = faults(tango).axes()["x"]
         assert velocity == 0.0 and position < 4.0
     await wait_until(lambda: faults(tango).wire.faults.drop_replies == 0, timeout=30.0)
+    tango.reply_timeout = 5.0  # the replies from here on come
     await tango.set("vel", 50.0, axis="x")
     await tango.move_to(x=0.5)  # the next call works
 
@@ -133,12 +135,13 @@ async def test_a_lost_state_read_stops_the_move_or_says_it_still_runs(
 @pytest.mark.parametrize("mode", [1, 2])
 async def test_speed_whose_answer_is_lost_stops_its_axes(emulator: EmulatorFactory,
                                                          mode: int) -> None:
-    emu = await emulator("sim://?baud=0", autostatus=mode, reply_timeout=0.3,
-                         dead_after=100)
+    emu = await emulator("sim://?baud=0", autostatus=mode, dead_after=100)
     tango = emu.tango
     faults(tango).drop(1)  # the speed line's check: ?err, or its OK... in mode 2
+    tango.reply_timeout = 0.3  # short for the lost reply only
     with pytest.raises(TangoError) as info:
         await tango.speed(z=1.0)
+    tango.reply_timeout = 5.0  # the replies from here on come
     assert not isinstance(info.value, ControllerError)
     assert str(info.value).endswith("; axes Z stopped"), info.value
     assert faults(tango).axes()["z"][1] == 0.0

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import anyio
 import pytest
-from helpers import Emulated, posix_only, serve_pty, wire_of
+from helpers import Emulated, posix_only, serve_pty, wait_until, wire_of
 
 import tango_aio
 import tango_aio.connection
@@ -39,6 +39,7 @@ from tango_aio.group import (
 )
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.wire import Emit
+from tango_aio.testing import faults
 
 if TYPE_CHECKING:
     from tango_aio.sim.ptyserve import PtyServer
@@ -65,6 +66,18 @@ async def wait_moving(controller: Controller) -> None:
             return
         await asyncio.sleep(0.005)
     raise AssertionError("the move did not start")
+
+
+async def _expire_when(deadline: asyncio.Timeout, ready: Callable[[], bool]) -> None:
+    """Let ``deadline`` expire now once ``ready()`` holds (polled, bounded by 30 s)."""
+    await wait_until(ready, timeout=30.0)
+    deadline.reschedule(asyncio.get_running_loop().time())
+
+
+def _under_way(group: ControllerGroup) -> bool:
+    """Both members of the move test have left 0 on their way to 20 (their emulators'
+    state: past what a stop at the very start would leave)."""
+    return faults(group["a"]).axes()["x"][0] > 0.01 and faults(group["b"]).axes()["y"][0] > 0.01
 
 
 async def next_events(events: tango_aio.group.GroupSubscription, count: int,
@@ -201,8 +214,11 @@ async def test_cancelled_open_closes_what_opened(monkeypatch: pytest.MonkeyPatch
 
     monkeypatch.setattr(group_module, "connect", spy)
     with pytest.raises(TimeoutError):
-        async with asyncio.timeout(1):
+        async with asyncio.timeout(None) as deadline:
+            # Cancelled once "ok" is open (not after a time a loaded machine may need).
+            watch = asyncio.create_task(_expire_when(deadline, lambda: bool(opened)))
             await ControllerGroup({"ok": INSTANT, "stuck": "sim://?hang"}).open()
+    await watch
     assert len(opened) == 1 and not opened[0].protocol.is_connected
 
 
@@ -340,14 +356,22 @@ async def test_fail_fast_cancels_and_stops_the_others() -> None:
 async def test_cancelling_a_group_move_stops_every_member(how: str) -> None:
     async with ControllerGroup({"a": INSTANT, "b": "sim://?baud=0&axes=2"}) as group:
         targets = {"a": {"x": 20.0, "y": -20.0}, "b": {"y": 20.0}}
+        # Cancelled once both members move (their emulators say so), not after a time.
         if how == "anyio":  # level-triggered: every await in the scope is cancelled
-            with anyio.move_on_after(0.3) as scope:
+            with anyio.CancelScope() as scope:
+                async def cancel_when_under_way() -> None:
+                    await wait_until(lambda: _under_way(group), timeout=30.0)
+                    scope.cancel()
+                watch = asyncio.create_task(cancel_when_under_way())
                 await group.move_to(targets)
             assert scope.cancelled_caught
         else:
             with pytest.raises(TimeoutError):
-                async with asyncio.timeout(0.3):
+                async with asyncio.timeout(None) as deadline:
+                    watch = asyncio.create_task(
+                        _expire_when(deadline, lambda: _under_way(group)))
                     await group.move_to(targets)
+        await watch
         # Each member stopped its axes before the cancellation went on.
         statuses = await group.status()
         assert all("M" not in letters.values() for letters in statuses.values()), statuses
@@ -394,7 +418,7 @@ async def test_merged_events_drop_the_oldest_when_full() -> None:
         events = group.events(maxsize=2)
         for _ in range(2):
             await group.move_by({name: {"x": 0.05} for name in group})
-        await asyncio.sleep(0.05)  # let the forwarders run
+        await wait_until(lambda: events.dropped >= 4, timeout=30.0)  # the forwarders ran
         assert events.pending == 2
         assert events.dropped == 4
         assert all(isinstance(item.event, MoveFinished) for item in
@@ -406,7 +430,7 @@ async def test_merged_events_drop_the_oldest_when_full() -> None:
 async def test_merged_stream_ends_when_the_group_closes() -> None:
     async with ControllerGroup({"a": INSTANT, "b": INSTANT}) as group:
         events = group.events()
-    async with asyncio.timeout(2):
+    async with asyncio.timeout(30):  # a bound on a hang only
         remaining = [item async for item in events]
     assert all(not isinstance(item.event, MoveFinished) for item in remaining)
     await events.aclose()
@@ -553,7 +577,8 @@ async def test_discover_finds_the_emulators_and_skips_the_rest(
             probing.discard(args[0] if args else func)
 
     monkeypatch.setattr(anyio.to_thread, "run_sync", counted)
-    found = await discover(ports=ports, timeout=0.5)
+    # The silent port's probe waits it out, the others answer within it: not short.
+    found = await discover(ports=ports, timeout=2.0)
     assert [item.port for item in found] == [servers[0].path, servers[1].path]
     assert [item.model for item in found] == ["TANGO-DT", "TANGO-MINI3"]
     assert all(item.firmware == "1.71" and item.version.firmware_tuple == (1, 71)
@@ -579,7 +604,7 @@ async def test_discover_lists_the_serial_ports(ptys: dict[str, Any],
             yield info
 
     monkeypatch.setattr(list_ports, "comports", lambda: list(infos()))
-    found = await discover(timeout=0.3)
+    found = await discover(timeout=2.0)  # the silent port waits it out; the other answers
     assert [(item.port, item.model, item.description) for item in found] == [
         (ptys["servers"][1].path, "TANGO-MINI3", "USB TANGO")]
     assert found[0].hwid == "USB VID:PID=0403:6001"

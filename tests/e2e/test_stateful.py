@@ -159,7 +159,8 @@ class DriverMachine(RuleBasedStateMachine):
         self.elapsed = 0.0
 
     async def _open(self, url: str, mode: int) -> Emulated:
-        tango = await connect(url, autostatus=mode, reply_timeout=2.0)
+        # A marker late behind the timeout rule's short wait is written again (dead_after).
+        tango = await connect(url, autostatus=mode, reply_timeout=2.0, dead_after=10)
         emu = Emulated(tango)
         try:
             await emu.shorten(TRAVEL, mode)

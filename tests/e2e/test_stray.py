@@ -35,7 +35,8 @@ async def _trial(emulator: EmulatorFactory, separators: bool, seed: int
     (wrong values after the reached request, wrong values of the reached request, typed
     failures)."""
     rng = random.Random(seed)
-    emu = await emulator("sim://?baud=0&processing=0.002", reply_timeout=0.5)
+    # The default reply timeout where replies come; a late marker is written again.
+    emu = await emulator("sim://?baud=0&processing=0.002", dead_after=10)
     tango = emu.tango
     await tango.set("vel", **VELS)
     await tango.set("accel", **ACCELS)
@@ -43,11 +44,13 @@ async def _trial(emulator: EmulatorFactory, separators: bool, seed: int
     later_wrong = reached_wrong = failed = 0
     for _ in range(6):
         keys = [rng.choice(list(TRUTH)) for _ in range(rng.randint(2, 5))]
+        tango.reply_timeout = 0.5  # short: a shifted reply leaves the last one unanswered
         first = asyncio.create_task(tango.get(keys[0][0], axis=keys[0][1]))
         await asyncio.sleep(0)  # written; its reply takes 2 ms
         tango.protocol.data_received(f"{STRAY:.3f}\r".encode())  # the stray line
         rest = [asyncio.create_task(tango.get(name, axis=axis)) for name, axis in keys[1:]]
         results = await asyncio.gather(first, *rest, return_exceptions=True)
+        tango.reply_timeout = 5.0
         for index, (key, result) in enumerate(zip(keys, results, strict=True)):
             if isinstance(result, BaseException):
                 assert isinstance(result, TangoError), result

@@ -54,7 +54,7 @@ class Link:
         return wire.handler
 
     async def query(self, line: str) -> tuple[str, ...]:
-        return (await self.protocol.query(parse(line), timeout=1.0)).lines
+        return (await self.protocol.query(parse(line), timeout=5.0)).lines
 
 
 #: The ``open_link`` fixture: ``await open_link("echo=after")``.
@@ -68,7 +68,7 @@ async def open_link() -> AsyncIterator[LinkOpener]:
     async def make(switches: str) -> Link:
         url = f"sim://?baud=0&{switches}" if switches else "sim://?baud=0"
         protocol, closer = await _open_link(
-            url, lambda: TangoProtocol(detect=True, reply_timeout=1.0), {})
+            url, lambda: TangoProtocol(detect=True, reply_timeout=5.0), {})
         link = Link(protocol, closer)
         opened.append(link)
         return link
@@ -85,18 +85,18 @@ async def test_detect_resync_and_mode_barrier_on_every_variant(
         open_link: LinkOpener, switches: str, help_number: str) -> None:
     link = await open_link(switches)
     protocol = link.protocol
-    await protocol.resync(timeout=1.0)  # the first one detects
+    await protocol.resync(timeout=5.0)  # the first one detects
     assert protocol.detected["help_number"] == help_number
-    assert await protocol.read_autostatus(timeout=1.0) == link.model.autostatus == 1
+    assert await protocol.read_autostatus(timeout=5.0) == link.model.autostatus == 1
     for mode in (4, 2, 0, 3, 4, 1, 2, 4, 2, 1):
-        await protocol.execute(parse(f"!autostatus {mode}"), timeout=1.0)
+        await protocol.execute(parse(f"!autostatus {mode}"), timeout=5.0)
         # The driver knows the mode for certain, and it is the controller's.
         assert protocol.autostatus == link.model.autostatus == mode
-        await protocol.execute(parse("!vel x 11.50"), timeout=1.0)
+        await protocol.execute(parse("!vel x 11.50"), timeout=5.0)
         assert await link.query("?vel x") in (("11.500",), ("+11.500",))
         with pytest.raises(ControllerError):
-            await protocol.execute(parse("!lim x 5 1"), timeout=1.0)
-        await protocol.resync(timeout=1.0)  # whether ?help repeats its number or not
+            await protocol.execute(parse("!lim x 5 1"), timeout=5.0)
+        await protocol.resync(timeout=5.0)  # whether ?help repeats its number or not
         assert await link.query("?vel x") in (("11.500",), ("+11.500",))
         assert protocol.core.pending_tags == []
     if "ack_reads=after" in switches:
@@ -109,7 +109,7 @@ async def test_each_session_starts_at_another_marker(open_link, switches: str  #
     codes = set()
     for _ in range(12):
         link = await open_link(switches)
-        await link.protocol.resync(timeout=1.0)
+        await link.protocol.resync(timeout=5.0)
         codes.add(link.protocol.core.pick_marker_code())
     assert len(codes) > 1
 
@@ -118,10 +118,10 @@ async def test_a_restart_behind_the_adapter_is_noticed_and_the_mode_restored(
         open_link: LinkOpener) -> None:
     link = await open_link("ack_reads=after")
     protocol = link.protocol
-    await protocol.resync(timeout=1.0)
-    await protocol.execute(parse("!autostatus 2"), timeout=1.0)
+    await protocol.resync(timeout=5.0)
+    await protocol.execute(parse("!autostatus 2"), timeout=5.0)
     link.model.reboot()  # back at power-on mode 1; the link stays up
-    assert await protocol.verify_autostatus(timeout=1.0)
+    assert await protocol.verify_autostatus(timeout=5.0)
     assert link.model.autostatus == 2 == protocol.autostatus
-    await protocol.execute(parse("!vel x 12.25"), timeout=1.0)
+    await protocol.execute(parse("!vel x 12.25"), timeout=5.0)
     assert await link.query("?vel x") == ("12.250",)

@@ -14,7 +14,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 import pytest
-from helpers import FakeLink
+from helpers import FakeLink, done_within_ticks
 
 import tango_aio.protocol as protocol_module
 from tango_aio.controller import Controller
@@ -233,15 +233,17 @@ async def test_settle_waits_for_the_drivers_own_lines_only(fake_link: LinkFactor
     await asyncio.sleep(0.01)
     assert not settle.done()  # the separator's reply is still due
     link.feed(b"ERROR 0,no error\r")
-    await asyncio.wait_for(settle, 1.0)
+    await asyncio.wait_for(settle, 30.0)  # a bound on a hang only
     # Unanswered: it gives up at its bound (one loop turn when the bound is spent).
     link.protocol.submit_together((parse("?pos"),), separate_after=True)
     link.feed(b"1.0 2.0 3.0\r")
-    await asyncio.wait_for(link.protocol.settle(0.0), 1.0)
+    spent = asyncio.ensure_future(link.protocol.settle(0.0))
+    await done_within_ticks(spent)
     # A caller's request in flight: no wait (closing fails it anyway).
     link.feed(b"ERROR 0,no error\r")
     link.protocol.submit(parse("?vel"))
-    await asyncio.wait_for(link.protocol.settle(5.0), 0.5)
+    in_flight = asyncio.ensure_future(link.protocol.settle(5.0))
+    await done_within_ticks(in_flight)
 
 
 # --------------------------------------------------------------------------------------
@@ -466,7 +468,7 @@ async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFact
     link = fake_link()
     tasks = [asyncio.create_task(link.protocol.request(parse(line), timeout=0.05))
              for line in ("?vel x", "?vel y")]
-    async with asyncio.timeout(0.5):
+    async with asyncio.timeout(30.0):  # a bound on a hang only
         for task in tasks:
             with pytest.raises(ControllerTimeoutError, match="no reply"):
                 await task
@@ -663,7 +665,8 @@ async def test_stream_recovers_after_a_resync_that_timed_out(fake_link: LinkFact
     link.protocol.reply_timeout = 0.02
     await link.wait_written(b"?help ", count=2)  # the first marker timed out: a second
     assert link.protocol.core.resyncing
-    task = asyncio.create_task(link.protocol.request(parse("?vel y")))
+    # Answered at once, but its clock starts now: not the markers' short deadline.
+    task = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
     old, code = link.marker_codes()[-2:]
     link.feed(f"11.500\rERROR {old},x\rERROR {code},x\r".encode())
     await link.wait_written(b"?vel y\r")
@@ -687,7 +690,7 @@ async def test_a_link_that_still_delivers_lines_is_not_declared_dead(
     await link.wait_written(b"?help ", count=2)  # its deadline passed: a second marker
     assert link.protocol.is_connected
     link.answer_marker()
-    task = asyncio.create_task(link.protocol.request(parse("?vel y")))
+    task = asyncio.create_task(link.protocol.request(parse("?vel y"), timeout=5.0))
     await link.wait_written(b"?vel y\r")
     link.feed(b"12.250\r")
     assert (await task).lines == ("12.250",)

@@ -21,6 +21,8 @@ from tango_aio.sim.profiles import PROFILES
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, Wire, WireConfig
 
+from .test_serve import asked_in_loop, ctrl_c_done, read_until_settled
+
 pytestmark = pytest.mark.timeout(30)
 
 
@@ -203,16 +205,26 @@ async def test_paced_trigp_upload_loses_nothing() -> None:
 async def test_ctrl_c_stops_and_discards_queued_input() -> None:
     config = WireConfig(processing_time_per_line=0.05)
     async with await serve_pty(controller(), config) as server:
+        # The emulator's own state, asked from the host's thread (no time is assumed).
+        moving = asked_in_loop(lambda: model_of(server.wire).motion.is_moving("x")
+                               and not server.wire.busy)  # and its line done
+        stopped_all = asked_in_loop(lambda: ctrl_c_done(lambda: [server.wire])
+                                    and not model_of(server.wire).motion.is_moving("x"))
 
         def host() -> tuple[bytes, str, str]:
             with open_port(server.path) as port:
                 tango = Host(port)
                 tango.tell("!moa 30")
-                time.sleep(0.3)
+                deadline = time.monotonic() + 30.0  # a bound on a hang only
+                while not moving():  # under way (a 3 s move), the interpreter free
+                    assert time.monotonic() < deadline, "x did not start moving"
+                    time.sleep(0.005)
                 # ?pos keeps the interpreter busy for 50 ms; '!moa y 5' waits behind it
                 # in the input buffer when Ctrl+C arrives, and is discarded.
                 port.write(b"?pos\r!moa y 5\r\x03")
-                stopped = tango.quiet(0.4)
+                port.timeout = 0.3
+                stopped = read_until_settled(lambda: port.read(4096), stopped_all)
+                port.timeout = 2
                 return stopped, tango.ask("?pos y"), tango.ask("sa")
 
         stopped, pos_y, status = await asyncio.to_thread(host)

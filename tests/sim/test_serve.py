@@ -79,12 +79,51 @@ def recv_line(sock: socket.socket) -> bytes:
     return reply
 
 
-def read_until_quiet(read: Callable[[], bytes]) -> bytes:
-    """Collect bytes from ``read()`` (a blocking call with a timeout) until it returns none."""
+def read_until_settled(read: Callable[[], bytes], settled: Callable[[], bool]) -> bytes:
+    """Collect bytes from ``read()`` (a blocking call with a short timeout) until the
+    emulator is done (``settled()``, its own state, asked before the read) and a read then
+    returns none: a read that times out ends nothing while the emulator is still at work,
+    so a loaded machine cannot cut the output short. 30 s bound a hang."""
     out = b""
-    while chunk := read():
+    deadline = time.monotonic() + 30.0
+    while True:
+        done = settled()  # what it had sent by then is in the OS buffer: read below
+        chunk = read()
         out += chunk
-    return out
+        if done and not chunk:
+            return out
+        assert time.monotonic() < deadline, out
+
+
+def asked_in_loop(predicate: Callable[[], bool]) -> Callable[[], bool]:
+    """``predicate`` evaluated in the running event loop (the emulator's), for a thread."""
+    loop = asyncio.get_running_loop()
+
+    async def ask() -> bool:
+        return predicate()
+
+    return lambda: asyncio.run_coroutine_threadsafe(ask(), loop).result(timeout=30.0)
+
+
+def idle(wire: Wire) -> bool:
+    """The emulated link took every byte it got and sent every reply it made."""
+    return not wire.busy and wire.rx_pending == 0 and wire.tx_pending == 0
+
+
+def overflow_done(wires: Callable[[], list[Wire]], sent: int) -> bool:
+    """Every byte of ``sent`` reached the (only) wire, which is idle: nothing more comes."""
+    found = wires()
+    if not found:
+        return False
+    wire = found[0]
+    handled = sum(len(line) + 1 for line in handler_of(wire).texts)
+    return idle(wire) and wire.lost_bytes + handled + wire.buffered == sent
+
+
+def ctrl_c_done(wires: Callable[[], list[Wire]]) -> bool:
+    """The (only) wire got its Ctrl+C and is idle: nothing more comes."""
+    found = wires()
+    return bool(found) and found[0].ctrl_c_count == 1 and idle(found[0])
 
 
 # ---------------------------------------------------------------------------------- pty
@@ -108,11 +147,12 @@ async def test_pty_round_trip_with_pyserial() -> None:
 
 async def test_pty_overflow_loses_bytes() -> None:
     async with await serve_pty(PingHandler, SLOW) as server:
+        settled = asked_in_loop(lambda: overflow_done(lambda: [server.wire], len(STREAM)))
 
         def host() -> bytes:
             with serial.Serial(server.path, 57600, timeout=0.3) as port:
                 port.write(STREAM)
-                return read_until_quiet(lambda: port.read(4096))
+                return read_until_settled(lambda: port.read(4096), settled)
 
         replies = await asyncio.to_thread(host)
         wire = server.wire
@@ -125,11 +165,13 @@ async def test_pty_overflow_loses_bytes() -> None:
 async def test_pty_ctrl_c_clears_input() -> None:
     config = WireConfig(processing_time_per_line=0.1)
     async with await serve_pty(PingHandler, config) as server:
+        settled = asked_in_loop(lambda: ctrl_c_done(lambda: [server.wire]))
 
         def host() -> tuple[bytes, bytes]:
             with serial.Serial(server.path, 57600, timeout=0.3) as port:
                 port.write(b"?ping\r?ping\r?ping\r\x03")
-                first = read_until_quiet(lambda: port.read(100))
+                first = read_until_settled(lambda: port.read(100), settled)
+                port.timeout = 30.0  # this reply comes: a bound on a hang only
                 port.write(b"?ping\r")
                 return first, port.read_until(b"\r")
 
@@ -232,6 +274,7 @@ async def test_tcp_per_connection_gives_each_connection_a_fresh_controller() -> 
 
 async def test_tcp_overflow_loses_bytes() -> None:
     async with await serve_tcp(PingHandler, config=SLOW) as server:
+        settled = asked_in_loop(lambda: overflow_done(lambda: server.wires, len(STREAM)))
 
         def host() -> bytes:
             with socket.create_connection(("127.0.0.1", server.port), timeout=0.3) as sock:
@@ -243,7 +286,7 @@ async def test_tcp_overflow_loses_bytes() -> None:
                     except TimeoutError:
                         return b""
 
-                return read_until_quiet(recv)
+                return read_until_settled(recv, settled)
 
         replies = await asyncio.to_thread(host)
         wire = server.wires[0] if server.wires else await server.next_connection()
@@ -255,12 +298,13 @@ async def test_tcp_overflow_loses_bytes() -> None:
 async def test_tcp_ctrl_c_clears_input() -> None:
     async with await serve_tcp(PingHandler, config=WireConfig(processing_time_per_line=0.1)) \
             as server:
+        settled = asked_in_loop(lambda: ctrl_c_done(lambda: server.wires))
 
         def host() -> bytes:
             port = serial.serial_for_url(f"socket://127.0.0.1:{server.port}", timeout=0.3)
             try:
                 port.write(b"?ping\r?ping\r?ping\r\x03")
-                return read_until_quiet(lambda: port.read(100))
+                return read_until_settled(lambda: port.read(100), settled)
             finally:
                 port.close()
 
@@ -794,10 +838,10 @@ async def test_runner_stops_and_resumes_reading_input_beyond_its_limit() -> None
         await task
 
 
-def push(port: int, data: bytes, chunk: int = 65536) -> int:
-    """Send ``data`` until done or the server stops taking it for 0.5 s; bytes sent."""
+def push(port: int, data: bytes, chunk: int = 65536, held: float = 0.5) -> int:
+    """Send ``data`` until done or the server stops taking it for ``held`` s; bytes sent."""
     sent = 0
-    with socket.create_connection(("127.0.0.1", port), timeout=0.5) as sock:
+    with socket.create_connection(("127.0.0.1", port), timeout=held) as sock:
         try:
             while sent < len(data):
                 sent += sock.send(data[sent:sent + chunk])
@@ -806,12 +850,15 @@ def push(port: int, data: bytes, chunk: int = 65536) -> int:
     return sent
 
 
-async def stream_to(server: TcpServer, data: bytes) -> tuple[Wire, int, int]:
+async def stream_to(server: TcpServer, data: bytes, held: float = 0.5
+                    ) -> tuple[Wire, int, int]:
     """:func:`push` ``data`` to ``server``: the connection's wire, the bytes sent and the
-    peak of memory allocated meanwhile (tracemalloc)."""
+    peak of memory allocated meanwhile (tracemalloc). ``held``: how long the server may
+    stop taking bytes before the client counts itself held back (short only where the
+    server holds it back for good)."""
     tracemalloc.start()
     try:
-        task = asyncio.create_task(asyncio.to_thread(push, server.port, data))
+        task = asyncio.create_task(asyncio.to_thread(push, server.port, data, 65536, held))
         wire = await server.next_connection()
         sent = await task
         return wire, sent, tracemalloc.get_traced_memory()[1]
@@ -868,7 +915,7 @@ async def test_pty_a_host_writing_faster_than_the_line_is_held_back() -> None:
 async def test_tcp_10_mb_of_garbage_pass_through_in_bounded_memory() -> None:
     garbage = (b"x" * 99 + b"\r") * 100_000
     async with await serve_tcp(model_factory(), config=WireConfig(baud=None)) as server:
-        wire, sent, peak = await stream_to(server, garbage)
+        wire, sent, peak = await stream_to(server, garbage, held=30.0)  # it takes them all
         await settle(server)
     assert sent == len(garbage)
     assert wire.lines_processed == 100_000
