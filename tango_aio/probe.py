@@ -88,16 +88,16 @@ REPORT_TO = "the project's issue tracker (a new issue titled 'fingerprint: <mode
 SWITCH_NAMES: tuple[str, ...] = (
     "echo", "echo_report", "echo_all", "echo_text", "ack_reads", "err_number",
     "ack_mode_change", "move_ok", "ack_case", "save_ack", "refused_move_report",
-    "move_during_move", "zero_move_report", "report_width", "status_tail", "absent_axes",
-    "joystick_letter", "abort_letter", "abort_report", "ctrl_c", "help_number",
-    "help_case", "service_end", "lim_cr_bug", "version_format", "version_value", "line_end",
-    "numbers", "instruction_set", "local_echo")
+    "move_during_move", "disable_during_move", "zero_move_report", "report_width",
+    "status_tail", "absent_axes", "joystick_letter", "abort_letter", "abort_report",
+    "ctrl_c", "help_number", "help_case", "service_end", "lim_cr_bug", "version_format",
+    "version_value", "line_end", "numbers", "instruction_set", "local_echo")
 
 #: Switches only moves show (observed with ``--moves``). ``echo`` tells ``after`` from
 #: the others without moves, ``before`` from ``completion`` only with a move; ``numbers``
 #: tells ``plain`` from ``negzero`` only from a value just below zero (a move).
 MOVE_SWITCHES = frozenset({
-    "echo_report", "move_ok", "refused_move_report", "move_during_move",
+    "echo_report", "move_ok", "refused_move_report", "move_during_move", "disable_during_move",
     "zero_move_report", "report_width", "abort_letter", "abort_report", "ctrl_c"})
 
 #: Switches only ``--save`` shows.
@@ -1493,7 +1493,8 @@ class _Prober:
             lambda length, last: self.abort(p0, sign * length, decimals, wait, b"a\r", "a",
                                             last),
             lambda length, last: self.abort(p0, sign * length, decimals, wait, b"\x03",
-                                            "ctrl_c", last)]
+                                            "ctrl_c", last),
+            lambda length, last: self.disable(p0, sign * length, decimals, wait, last)]
         for attempt in attempts:
             length = step
             for tries in range(3):
@@ -1636,6 +1637,58 @@ class _Prober:
                 f"error {sent.err}, {len(reports)} reports, X at {at}", exchange, where)
             return True
         self.obs["move_during_move"] = _seen(value, note, exchange, where)
+        return True
+
+    async def disable(self, p0: float, step: float, decimals: int, wait: float,
+                      last: bool) -> bool:
+        """``disable_during_move``: ``!axis x 0`` while X moves (L3919-3960 say nothing of
+        a moving axis): refused (error 2), the move stopped, or the move going on to its
+        target. X is enabled again afterwards. False (nothing recorded unless ``last``)
+        when the move had ended before the line arrived.
+
+        Returns
+        -------
+        bool
+            Whether the line arrived during the move.
+        """
+        target = p0 + step
+        lines = (f"!moa x {target:.{decimals}f}", "!axis x 0")
+        self.undo.append("!axis x 1")
+        sent = await self.ask(*lines)
+        early = [g for g in sent.got if _REPORT.match(g)]
+        got = list(sent.got)
+        if not early:
+            _, more = await self.wait_report(wait)
+            got += more
+        await self.link.quiet(self.options.settle)
+        got += self.link.take()
+        where = await self.ask("?pos x")
+        await self.settled("!axis x 1")
+        self.undo.pop()
+        exchange = Exchange(list(lines), got, sent.err)
+        try:
+            at = float(where.got[0])
+        except (IndexError, ValueError):
+            self.obs["disable_during_move"] = _unknown("no position after the move",
+                                                       exchange, where)
+            return True
+        at_target = abs(at - target) <= abs(step) / 20
+        if early and sent.err == 0 and at_target:  # the report came before ?err's answer
+            if last:
+                self.obs["disable_during_move"] = _unseen(
+                    "the move ended before !axis x 0 arrived", ("continue", "stop", "refuse"),
+                    exchange)
+            return False
+        if sent.err == 2:
+            value, note = "refuse", "disabling a moving axis is refused (error 2)"
+        elif sent.err == 0 and at_target:
+            value, note = "continue", "the move went on to its target"
+        elif sent.err == 0:
+            value, note = "stop", f"the move stopped at {at}, short of its target"
+        else:
+            self.obs["disable_during_move"] = _unknown(f"error {sent.err}", exchange, where)
+            return True
+        self.obs["disable_during_move"] = _seen(value, note, exchange, where)
         return True
 
     async def abort(self, p0: float, step: float, decimals: int, wait: float, stop: bytes,
