@@ -69,7 +69,7 @@ import itertools
 import random
 import re
 from collections import deque
-from collections.abc import Hashable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Final, NoReturn
 
@@ -90,6 +90,7 @@ from .instructions import (
 from .patterns import (
     ACK_PATTERN,
     ONE_NUMBER,
+    Edge,
     ReplyKind,
     ReplyPattern,
     echo_pattern,
@@ -116,7 +117,7 @@ __all__ = [
     "Unsolicited",
     "canonical_case",
     "is_completion_line",
-    "owed_pattern",
+    "owed_edge",
     "wire_size",
 ]
 
@@ -442,6 +443,9 @@ class _Pending:
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
+    #: The back :class:`~tango_aio.patterns.Edge` of what it owes (``None``: it is sure to
+    #: get no line), set once its items are complete (:meth:`seal`).
+    last_edge: Edge | None = None
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -452,9 +456,23 @@ class _Pending:
         """Whether only optional lines are still owed."""
         return all(item in _OPTIONAL for item in self.items)
 
-    def last_pattern(self) -> ReplyPattern:
-        """The pattern of the last line this request still owes."""
-        return _item_pattern(self, self.items[-1])
+    @property
+    def defers(self) -> bool:
+        """Whether it is a move whose echo (mode 4) or acknowledgement (mode 2) may come
+        only with its report."""
+        return self.defers_echo or self.follow is not None
+
+    def owes_sure(self) -> bool:
+        """Whether a line it is sure to get is still owed."""
+        defers = self.defers
+        return any(_sure(item, defers) for item in self.items)
+
+    def seal(self) -> _Pending:
+        """Compute :attr:`last_edge` from the items owed; return the pending."""
+        defers = self.defers
+        self.last_edge = _edge((_item_pattern(self, item), _sure(item, defers))
+                               for item in reversed(self.items))
+        return self
 
 
 def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
@@ -463,29 +481,85 @@ def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
     return pending.pattern if item is _Item.DATA else ACK_PATTERN
 
 
-def owed_pattern(command: Command, expect: Expectation,
-                 context: Context | None = None) -> ReplyPattern | None:
-    """The pattern of the first line ``command`` owes (``None``: it owes no line).
+def _sure(item: _Item, defers: bool) -> bool:
+    """Whether ``item`` is sure to come in its place (not optional, not deferrable)."""
+    # ``defers``: the echo (mode 4) or acknowledgement (mode 2) of a move, which some
+    # firmware sends only with its report (switches echo=completion, move_ok=completion;
+    # L2099-2103 and L2117 do not say when).
+    return item not in _OPTIONAL and not (defers and item in (_Item.ECHO, _Item.ACK))
+
+
+def _edge(owed: Iterable[tuple[ReplyPattern, bool]]) -> Edge | None:
+    """The edge of lines ``owed`` (pattern, sure; nearest the neighbour first)."""
+    # Up to and with the first sure line; None when none is sure.
+    patterns = []
+    for pattern, sure in owed:
+        patterns.append(pattern)
+        if sure:
+            return Edge(tuple(patterns))
+    return None
+
+
+def _defers(expect: Expectation) -> bool:
+    """Whether a move's echo or acknowledgement may come only with its report."""
+    return expect.completion is not None and (expect.echo or expect.ack)
+
+
+def owed_edge(command: Command, expect: Expectation, mode: int,
+              context: Context | None = None,
+              ack_reads: AckReads | None = None) -> Edge | None:
+    """The front :class:`~tango_aio.patterns.Edge` of what ``command`` owes when written
+    in ``mode``: the lines it may get before the first one it is sure to get, and that
+    one (``None``: it is sure to get none; a move's ``?err`` probe then guards it).
+
+    A move whose acknowledgement may come with its report (mode 2) is sure of the reply
+    of the ``?err`` the core writes behind it (:meth:`ProtocolCore.send`), which then
+    ends the edge.
 
     Parameters
     ----------
     command
         The line.
     expect
-        What it owes (:func:`expectation`).
+        What it owes in ``mode`` (:func:`expectation`).
+    mode
+        The autostatus mode in force when it is written.
     context
         Controller state that shapes the reply (dims, axes, extmode).
+    ack_reads
+        Whether reads are acknowledged in mode 2 (``None``: not known).
 
     Returns
     -------
-    ReplyPattern or None
-        The pattern of its echo, else of its data, else of its acknowledgement.
+    Edge or None
+        The front edge.
     """
-    if expect.echo:
-        return echo_pattern(command)
-    if _has_data(expect.rule):
-        return reply_pattern(command, context)
-    return ACK_PATTERN if expect.ack else None
+    items = _owed_items(command, expect, mode, ack_reads)
+    echo = echo_pattern(command)
+    pattern = reply_pattern(command, context) if _has_data(expect.rule) else ACK_PATTERN
+    return _front(items, echo, pattern, expect, mode, ack_reads)
+
+
+def _front(items: Iterable[_Item], echo: ReplyPattern | None, pattern: ReplyPattern,
+           expect: Expectation, mode: int, ack_reads: AckReads | None) -> Edge | None:
+    """:func:`owed_edge` from the items owed and the patterns of the echo and data."""
+    defers = _defers(expect)
+
+    def owed() -> Iterable[tuple[ReplyPattern, bool]]:
+        for item in items:
+            if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None:
+                yield echo, _sure(item, defers)
+            else:
+                yield (pattern if item is _Item.DATA else ACK_PATTERN), _sure(item, defers)
+        if expect.ack and expect.completion is not None:  # its follow-up (see send)
+            follow = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode),
+                                 mode, ack_reads)
+            for item in follow:
+                yield ({_Item.DATA: ONE_NUMBER, _Item.ECHO: _FOLLOW_UP_ECHO,
+                        _Item.ECHO_OPT: _FOLLOW_UP_ECHO}.get(item, ACK_PATTERN),
+                       item not in _OPTIONAL)
+
+    return _edge(owed())
 
 
 @dataclass(frozen=True, slots=True)
@@ -570,8 +644,10 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     return result
 
 
-#: What a read line owes: its bytes, the items owed, its echo's and its data's pattern.
-_Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern]
+#: What a read line owes: its bytes, the items owed, its echo's and its data's pattern,
+#: and the front and back edges of its reply (:func:`owed_edge`, :meth:`_Pending.seal`).
+_Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern, Edge | None,
+               Edge | None]
 #: Distinct read lines a core keeps at most (reads with many values are forgotten, not
 #: hoarded).
 _LINE_FACTS_MAX: Final = 1024
@@ -714,6 +790,7 @@ class HelpStyle(enum.Enum):
     NONE = "none"  #: not at all (older firmware, old L805-819): resyncs wait for quiet
 _FOLLOW_UP: Final = encode("?err")
 _FOLLOW_UP_COMMAND: Final = parse("?err")
+_FOLLOW_UP_ECHO: Final = echo_pattern(_FOLLOW_UP_COMMAND)
 
 
 def wire_size(command: Command, expect: Expectation) -> int:
@@ -816,6 +893,10 @@ class ProtocolCore:
         #: Echoes of mode-4 moves that come with their completion report (switch
         #: ``echo=completion``), oldest first.
         self._deferred_echoes: deque[ReplyPattern] = deque()
+        self._sent: tuple[Hashable, Edge] | None = None
+        #: Front and back edges of each separator line, by (line, mode, ack_reads).
+        self._separator_edges: dict[tuple[bytes, int, AckReads | None],
+                                    tuple[Edge, Edge]] = {}
 
     # -- state ------------------------------------------------------------------------
 
@@ -846,15 +927,23 @@ class ProtocolCore:
         return self._resync is not _Resync.NONE
 
     @property
-    def tail(self) -> tuple[Hashable, ReplyPattern] | None:
-        """Tag and pattern of the last line owed (by the newest request still owed one);
-        ``None`` when nothing is owed. A line whose reply :meth:`ReplyPattern.overlaps`
-        this pattern should wait until the tail is answered (:mod:`tango_aio.patterns`).
-        Internal lines (follow-ups, markers) have tags of their own."""
-        if not self._pending:
-            return None
-        last = self._pending[-1]
-        return last.tag, last.last_pattern()
+    def tail(self) -> tuple[Hashable, Edge] | None:
+        """Tag and back edge (:class:`~tango_aio.patterns.Edge`) of the newest request
+        still sure to get a line; ``None`` when none is. A line whose front edge overlaps
+        it should wait until the tail is answered (:mod:`tango_aio.patterns`). Requests
+        that may only still get optional lines do not count. Internal lines (follow-ups,
+        markers) have tags of their own."""
+        for pending in reversed(self._pending):
+            if pending.last_edge is not None and pending.owes_sure():
+                return pending.tag, pending.last_edge
+        return None
+
+    @property
+    def sent(self) -> tuple[Hashable, Edge] | None:
+        """Tag and back edge of the last line the latest :meth:`send` or :meth:`separate`
+        registered that is sure to get a line (a follow-up ``?err`` behind the line
+        itself); ``None`` when it registered none."""
+        return self._sent
 
     # -- sending ------------------------------------------------------------------------
 
@@ -889,8 +978,9 @@ class ProtocolCore:
             expect = expectation(command, self._autostatus, self.context)
         mode = self._autostatus
         self._autostatus = expect.mode_after
-        data, template, echo, pattern = self._line_facts(command, expect, mode)
+        data, template, echo, pattern, _, back = self._line_facts(command, expect, mode)
         pending = None
+        self._sent = None
         deferring = False
         if template:
             # (Checked before this line joins the queue: a move's own follow-up is below.)
@@ -920,6 +1010,13 @@ class ProtocolCore:
         if pending is not None and expect.completion is not None \
                 and pending.items[0] is _Item.ECHO:
             pending.defers_echo = True
+        if pending is not None:
+            if pending.defers:
+                pending.seal()
+            else:
+                pending.last_edge = back
+            if self._sent is None and pending.last_edge is not None:
+                self._sent = pending.tag, pending.last_edge
         return data, expect
 
     def _deferring(self) -> bool:
@@ -933,9 +1030,9 @@ class ProtocolCore:
         """
         return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
-    def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
-        """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
-        what :meth:`send` registers).
+    def owed(self, command: Command, expect: Expectation, mode: int) -> Edge | None:
+        """:func:`owed_edge` of ``command`` written in ``mode``, as reads are acknowledged
+        here (cached for reads like what :meth:`send` registers).
 
         Parameters
         ----------
@@ -948,14 +1045,10 @@ class ProtocolCore:
 
         Returns
         -------
-        ReplyPattern or None
-            The pattern of the first line it owes (``None``: it owes no line).
+        Edge or None
+            The front edge of its reply (``None``: it is sure to get no line).
         """
-        if expect.echo:
-            return echo_pattern(command)
-        if _has_data(expect.rule):
-            return self._line_facts(command, expect, mode)[3]
-        return ACK_PATTERN if expect.ack else None
+        return self._line_facts(command, expect, mode)[4]
 
     def _line_facts(self, command: Command, expect: Expectation, mode: int
                      ) -> _Facts:
@@ -967,8 +1060,10 @@ class ProtocolCore:
         Returns
         -------
         tuple
-            The line's bytes, the items it owes, its echo's pattern (``None``: no echo)
-            and its data's pattern.
+            The line's bytes, the items it owes, its echo's pattern (``None``: no echo),
+            its data's pattern and its reply's front and back edges (the back one of a
+            move whose echo or acknowledgement may come late is computed by
+            :meth:`send`).
         """
         entry = command.instruction
         cacheable = command.is_read and entry.lines is None
@@ -982,7 +1077,11 @@ class ProtocolCore:
             else None
         pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
             else ACK_PATTERN
-        facts = (command.to_bytes(), tuple(items), echo, pattern)
+        front = _front(items, echo, pattern, expect, mode, self.ack_reads)
+        back = _edge((echo if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None
+                      else pattern if item is _Item.DATA else ACK_PATTERN,
+                      _sure(item, False)) for item in reversed(items))
+        facts = (command.to_bytes(), tuple(items), echo, pattern, front, back)
         if cacheable:
             if len(self._facts) >= _LINE_FACTS_MAX:
                 self._facts.clear()
@@ -992,8 +1091,11 @@ class ProtocolCore:
     def _register_follow_up(self, mode: int) -> bytes:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
                             self.ack_reads)
-        self._pending.append(_Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
-                                      internal=True, pattern=ONE_NUMBER, sent="?err"))
+        follow = _Pending(object(), items, _FOLLOW_UP_ECHO, internal=True,
+                          pattern=ONE_NUMBER, sent="?err").seal()
+        self._pending.append(follow)
+        if follow.last_edge is not None:
+            self._sent = follow.tag, follow.last_edge
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -1070,7 +1172,8 @@ class ProtocolCore:
         self._resync, self._resync_marker = _Resync.MARKER, text
         line = f"?help {code}"
         self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
-                                      _echo_of(line), marker=text))
+                                      _echo_of(line), pattern=marker_pattern(text),
+                                      marker=text).seal())
         return stop + encode(line)
 
     def drop_all(self) -> None:
@@ -1120,13 +1223,14 @@ class ProtocolCore:
         self._marker_index += 1
         return code
 
-    def separator(self, *neighbours: ReplyPattern) -> tuple[bytes, ReplyPattern] | None:
+    def separator(self, before: Edge, after: Edge) -> tuple[bytes, ReplyPattern] | None:
         """A *separator* for two requests in a row whose replies look alike: a short read
-        whose reply cannot be taken for the replies of its ``neighbours`` (the last line
-        owed before it and the first owed after it), with its reply's pattern; register it
-        with :meth:`separate`. Written between the two, it turns a line too many (or too
-        few) between them into a :class:`Mismatched` instead of a reply shifted onto the
-        next request (:mod:`tango_aio.patterns`).
+        whose reply cannot be taken for the replies of its neighbours (the back edge of
+        the request before it and the front edge of the one after it, each facing the
+        separator's own edge in the mode in force: its echo in mode 4 too), with its
+        reply's pattern; register it with :meth:`separate`. Written between the two, it
+        turns a line too many (or too few) between them into a :class:`Mismatched`
+        instead of a reply shifted onto the next request (:mod:`tango_aio.patterns`).
 
         Only reads that leave the error state alone qualify: "each instruction
         overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
@@ -1138,8 +1242,10 @@ class ProtocolCore:
 
         Parameters
         ----------
-        *neighbours
-            The patterns of the lines owed right before and right after it.
+        before
+            The back edge of the request right before it.
+        after
+            The front edge of the request right after it.
 
         Returns
         -------
@@ -1147,12 +1253,28 @@ class ProtocolCore:
             The separator's bytes and its reply's pattern; ``None`` when none fits.
         """
         for line, fits in _SEPARATORS:
-            if not any(fits.overlaps(other) for other in neighbours):
+            if self._separates(line, fits, before, after):
                 return line, fits
         marker = self._marker()
         if marker is None:
             return None
-        return encode(f"?help {marker[0]}"), marker_pattern(marker[1])
+        line, fits = encode(f"?help {marker[0]}"), marker_pattern(marker[1])
+        return (line, fits) if self._separates(line, fits, before, after) else None
+
+    def _separates(self, line: bytes, fits: ReplyPattern, before: Edge, after: Edge
+                   ) -> bool:
+        """Whether separator ``line`` (reply ``fits``) faces neither edge in this mode."""
+        key = (line, self._autostatus, self.ack_reads)
+        edges = self._separator_edges.get(key)
+        if edges is None:
+            separator = _Pending(None, _read_items(self._autostatus, self.ack_reads),
+                                 _echo_of(line.decode()), pattern=fits).seal()
+            front = _edge((_item_pattern(separator, item), _sure(item, False))
+                          for item in separator.items)
+            back = separator.last_edge
+            assert front is not None and back is not None  # a read is sure of its data
+            edges = self._separator_edges[key] = front, back
+        return not edges[0].overlaps(before) and not edges[1].overlaps(after)
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
         """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.
@@ -1170,8 +1292,10 @@ class ProtocolCore:
             The bytes to write.
         """
         data, pattern = separator
-        self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
-                                      _echo_of(data.decode()), pattern=pattern))
+        pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
+                           _echo_of(data.decode()), pattern=pattern).seal()
+        self._pending.append(pending)
+        self._sent = (tag, pending.last_edge) if pending.last_edge is not None else None
         return data
 
     # -- receiving ------------------------------------------------------------------------

@@ -43,7 +43,7 @@ from typing import Final
 
 from .instructions import Command, Context, Shape, reply_group, reply_rule
 
-__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "ReplyKind", "ReplyPattern",
+__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "Edge", "ReplyKind", "ReplyPattern",
            "echo_pattern", "marker_pattern", "reply_pattern"]
 
 #: Most values a list reply (``NUMBERS``, ``INTS``) is expected to hold.
@@ -130,6 +130,11 @@ class ReplyPattern:
         a, b = (self, other) if _ORDER[self.kind] <= _ORDER[other.kind] else (other, self)
         if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
             return True
+        if ReplyKind.ECHO in (a.kind, b.kind) and a.kind is not b.kind:
+            # An echo is one known text: it overlaps whatever accepts that text, with or
+            # without its '!' (the echo of a bare read 'sa' or 'err' is status letters).
+            echo, rest = (a, b) if a.kind is ReplyKind.ECHO else (b, a)
+            return rest.accepts(echo.text) or rest.accepts(_unbanged(echo.text))
         if ReplyKind.MARKER in (a.kind, b.kind):
             # A marker's text is chosen to be unlike any reply (the HELP kind is the
             # conservative exception: ERROR n,text replies of ?help).
@@ -145,6 +150,39 @@ class ReplyPattern:
 
 
 _ORDER: Final = {kind: index for index, kind in enumerate(ReplyKind)}
+
+
+@dataclass(frozen=True, slots=True)
+class Edge:
+    """The lines at one end of a request's reply, where it meets its neighbour's on the
+    wire: at the front, the lines before the first one it is sure to get and that one; at
+    the back, the last line it is sure to get and the lines after it. "Sure" excludes the
+    lines some firmware sends and some does not (a read's echo in mode 4, a read's
+    acknowledgement in mode 2 before it is detected) and those that may come much later
+    (a move's echo or acknowledgement that some firmware sends only with its report).
+
+    A single lost or extra line moves the sure line of one end onto the other end, so two
+    requests in a row need something between them when their facing edges
+    :meth:`overlap <overlaps>`; an optional line is part of the edge because when it does
+    come it may be taken there too.
+    """
+
+    patterns: tuple[ReplyPattern, ...]
+
+    def overlaps(self, other: Edge) -> bool:
+        """Whether some line may fit both edges.
+
+        Parameters
+        ----------
+        other
+            The edge it faces.
+
+        Returns
+        -------
+        bool
+            Whether a line of one may be taken for a line of the other.
+        """
+        return any(a.overlaps(b) for a in self.patterns for b in other.patterns)
 
 #: An acknowledgement of a ``!`` line (autostatus 2, ``save``).
 ACK_PATTERN: Final = ReplyPattern(ReplyKind.ACK)

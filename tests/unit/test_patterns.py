@@ -23,6 +23,7 @@ from tango_aio.instructions import INSTRUCTIONS, Context, LineRule, parse, reply
 from tango_aio.patterns import (
     ACK_PATTERN,
     ANY_PATTERN,
+    Edge,
     ReplyKind,
     ReplyPattern,
     echo_pattern,
@@ -202,14 +203,19 @@ def test_tail_names_the_last_line_owed() -> None:
     core = ProtocolCore(autostatus=2, context=CONTEXT)
     assert core.tail is None
     core.send(parse("?vel x"), "v")
-    # Whether reads are acknowledged in mode 2 is not known yet: the last line it may owe
-    # is an acknowledgement.
-    assert core.tail == ("v", ACK_PATTERN)
+    # Whether reads are acknowledged in mode 2 is not known yet: the last line it is sure
+    # to get is its number, and an acknowledgement may follow.
+    assert core.tail == ("v", Edge((ACK_PATTERN, pattern("?vel x"))))
     core.ack_reads = AckReads.NO
-    core.send(parse("?vel x"), "v")
-    assert core.tail == ("v", pattern("?vel x"))
+    core.send(parse("?vel x"), "w")
+    assert core.tail == ("w", Edge((pattern("?vel x"),)))
     core.send(parse("!vel x 5"), "s")
-    assert core.tail == ("s", ACK_PATTERN)
+    assert core.tail == ("s", Edge((ACK_PATTERN,)))
+    assert core.events(b"1.5\r1.5\r") == [Replied("v", ("1.5",)), Replied("w", ("1.5",))]
+    # "v" may still get its optional acknowledgement: it is no longer sure of a line.
+    assert core.tail == ("s", Edge((ACK_PATTERN,)))
+    core.events(b"OK...\rOK...\r")
+    assert core.tail is None
 
 
 @settings(max_examples=200)
