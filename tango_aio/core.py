@@ -443,9 +443,9 @@ class _Pending:
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
-    #: The back :class:`~tango_aio.patterns.Edge` of what it owes (``None``: it is sure to
-    #: get no line), set once its items are complete (:meth:`seal`).
-    last_edge: Edge | None = None
+    #: The :func:`rear <_rear>` edge of what it owes (``None``: it is sure to get no
+    #: line), set once its items are complete (:meth:`seal`).
+    rear: Edge | None = None
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -468,10 +468,10 @@ class _Pending:
         return any(_sure(item, defers) for item in self.items)
 
     def seal(self) -> _Pending:
-        """Compute :attr:`last_edge` from the items owed; return the pending."""
+        """Compute :attr:`rear` from the items owed; return the pending."""
         defers = self.defers
-        self.last_edge = _edge((_item_pattern(self, item), _sure(item, defers))
-                               for item in reversed(self.items))
+        owed = [(_item_pattern(self, item), _sure(item, defers)) for item in self.items]
+        self.rear = _rear(_edge(owed), _edge(reversed(owed)))
         return self
 
 
@@ -498,6 +498,15 @@ def _edge(owed: Iterable[tuple[ReplyPattern, bool]]) -> Edge | None:
         if sure:
             return Edge(tuple(patterns))
     return None
+
+
+def _rear(front: Edge | None, back: Edge | None) -> Edge | None:
+    """What a line written after a request must not look like: both its edges."""
+    # The back edge: one line lost or extra shifts its last sure line onto the next
+    # request. The front edge: its own line lost, the next reply lands on its first items.
+    if front is None or back is None:
+        return None
+    return Edge(front.patterns + back.patterns)
 
 
 def _defers(expect: Expectation) -> bool:
@@ -645,7 +654,7 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
 
 
 #: What a read line owes: its bytes, the items owed, its echo's and its data's pattern,
-#: and the front and back edges of its reply (:func:`owed_edge`, :meth:`_Pending.seal`).
+#: and the front and rear edges of its reply (:func:`owed_edge`, :func:`_rear`).
 _Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern, Edge | None,
                Edge | None]
 #: Distinct read lines a core keeps at most (reads with many values are forgotten, not
@@ -894,9 +903,8 @@ class ProtocolCore:
         #: ``echo=completion``), oldest first.
         self._deferred_echoes: deque[ReplyPattern] = deque()
         self._sent: tuple[Hashable, Edge] | None = None
-        #: Front and back edges of each separator line, by (line, mode, ack_reads).
-        self._separator_edges: dict[tuple[bytes, int, AckReads | None],
-                                    tuple[Edge, Edge]] = {}
+        #: The rear edge of each separator line, by (line, mode, ack_reads).
+        self._separator_edges: dict[tuple[bytes, int, AckReads | None], Edge] = {}
 
     # -- state ------------------------------------------------------------------------
 
@@ -928,21 +936,22 @@ class ProtocolCore:
 
     @property
     def tail(self) -> tuple[Hashable, Edge] | None:
-        """Tag and back edge (:class:`~tango_aio.patterns.Edge`) of the newest request
-        still sure to get a line; ``None`` when none is. A line whose front edge overlaps
-        it should wait until the tail is answered (:mod:`tango_aio.patterns`). Requests
+        """Tag and rear edge (:class:`~tango_aio.patterns.Edge`: its front and back edges)
+        of the newest request still sure to get a line; ``None`` when none is. A line
+        whose front edge overlaps it should wait until the tail is answered
+        (:mod:`tango_aio.patterns`). Requests
         that may only still get optional lines do not count. Internal lines (follow-ups,
         markers) have tags of their own."""
         for pending in reversed(self._pending):
-            if pending.last_edge is not None and pending.owes_sure():
-                return pending.tag, pending.last_edge
+            if pending.rear is not None and pending.owes_sure():
+                return pending.tag, pending.rear
         return None
 
     @property
     def sent(self) -> tuple[Hashable, Edge] | None:
-        """Tag and back edge of the last line the latest :meth:`send` or :meth:`separate`
-        registered that is sure to get a line (a follow-up ``?err`` behind the line
-        itself); ``None`` when it registered none."""
+        """Tag and rear edge (see :attr:`tail`) of the last line the latest :meth:`send`
+        or :meth:`separate` registered that is sure to get a line (a follow-up ``?err``
+        behind the line itself); ``None`` when it registered none."""
         return self._sent
 
     # -- sending ------------------------------------------------------------------------
@@ -978,7 +987,7 @@ class ProtocolCore:
             expect = expectation(command, self._autostatus, self.context)
         mode = self._autostatus
         self._autostatus = expect.mode_after
-        data, template, echo, pattern, _, back = self._line_facts(command, expect, mode)
+        data, template, echo, pattern, _, rear = self._line_facts(command, expect, mode)
         pending = None
         self._sent = None
         deferring = False
@@ -1014,9 +1023,9 @@ class ProtocolCore:
             if pending.defers:
                 pending.seal()
             else:
-                pending.last_edge = back
-            if self._sent is None and pending.last_edge is not None:
-                self._sent = pending.tag, pending.last_edge
+                pending.rear = rear
+            if self._sent is None and pending.rear is not None:
+                self._sent = pending.tag, pending.rear
         return data, expect
 
     def _deferring(self) -> bool:
@@ -1061,7 +1070,7 @@ class ProtocolCore:
         -------
         tuple
             The line's bytes, the items it owes, its echo's pattern (``None``: no echo),
-            its data's pattern and its reply's front and back edges (the back one of a
+            its data's pattern and its reply's front and rear edges (the rear one of a
             move whose echo or acknowledgement may come late is computed by
             :meth:`send`).
         """
@@ -1081,7 +1090,7 @@ class ProtocolCore:
         back = _edge((echo if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None
                       else pattern if item is _Item.DATA else ACK_PATTERN,
                       _sure(item, False)) for item in reversed(items))
-        facts = (command.to_bytes(), tuple(items), echo, pattern, front, back)
+        facts = (command.to_bytes(), tuple(items), echo, pattern, front, _rear(front, back))
         if cacheable:
             if len(self._facts) >= _LINE_FACTS_MAX:
                 self._facts.clear()
@@ -1094,8 +1103,8 @@ class ProtocolCore:
         follow = _Pending(object(), items, _FOLLOW_UP_ECHO, internal=True,
                           pattern=ONE_NUMBER, sent="?err").seal()
         self._pending.append(follow)
-        if follow.last_edge is not None:
-            self._sent = follow.tag, follow.last_edge
+        if follow.rear is not None:
+            self._sent = follow.tag, follow.rear
         return _FOLLOW_UP
 
     def forget_completion(self, tag: Hashable) -> bool:
@@ -1265,16 +1274,15 @@ class ProtocolCore:
                    ) -> bool:
         """Whether separator ``line`` (reply ``fits``) faces neither edge in this mode."""
         key = (line, self._autostatus, self.ack_reads)
-        edges = self._separator_edges.get(key)
-        if edges is None:
-            separator = _Pending(None, _read_items(self._autostatus, self.ack_reads),
-                                 _echo_of(line.decode()), pattern=fits).seal()
-            front = _edge((_item_pattern(separator, item), _sure(item, False))
-                          for item in separator.items)
-            back = separator.last_edge
-            assert front is not None and back is not None  # a read is sure of its data
-            edges = self._separator_edges[key] = front, back
-        return not edges[0].overlaps(before) and not edges[1].overlaps(after)
+        rear = self._separator_edges.get(key)
+        if rear is None:
+            rear = _Pending(None, _read_items(self._autostatus, self.ack_reads),
+                            _echo_of(line.decode()), pattern=fits).seal().rear
+            assert rear is not None  # a read is sure of its data
+            self._separator_edges[key] = rear
+        # Its rear edge holds its front one: neither end may look like a neighbour's
+        # (its own line lost, the next request's reply lands on its first items).
+        return not rear.overlaps(before) and not rear.overlaps(after)
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
         """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.
@@ -1295,7 +1303,7 @@ class ProtocolCore:
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
                            _echo_of(data.decode()), pattern=pattern).seal()
         self._pending.append(pending)
-        self._sent = (tag, pending.last_edge) if pending.last_edge is not None else None
+        self._sent = (tag, pending.rear) if pending.rear is not None else None
         return data
 
     # -- receiving ------------------------------------------------------------------------

@@ -137,8 +137,10 @@ class ReplyPattern:
             return rest.accepts(echo.text) or rest.accepts(_unbanged(echo.text))
         if ReplyKind.MARKER in (a.kind, b.kind):
             # A marker's text is chosen to be unlike any reply (the HELP kind is the
-            # conservative exception: ERROR n,text replies of ?help).
-            return (a.kind is b.kind and a.text == b.text) or ReplyKind.HELP in (a.kind, b.kind)
+            # conservative exception: ERROR n,text replies of ?help; words fit any line
+            # of their number of words, a marker's too).
+            return (a.kind is b.kind and a.text == b.text) \
+                or ReplyKind.HELP in (a.kind, b.kind) or ReplyKind.WORDS in (a.kind, b.kind)
         if a.kind is b.kind:
             if a.kind is ReplyKind.ECHO:
                 return _unbanged(a.text) == _unbanged(b.text)
