@@ -11,11 +11,16 @@ would be taken by the request before its own. Two rules stop that:
    A line that does not fit is not this request's reply: the core reports a mismatch and
    the protocol resynchronises instead of handing it over.
 2. **Separate.** Two requests in a row whose replies could be taken for each other
-   (:meth:`ReplyPattern.overlaps`: ``?vel x`` then ``?accel y``, one number each) get a
-   *separator* written between them: a read whose reply looks like neither
-   (``err``, ``help`` or ``?help N``, see :meth:`ProtocolCore.separate
-   <tango_aio.core.ProtocolCore.separate>`). "In a row" means in write order, whether or
-   not the first is answered yet: its real reply may still be on its way.
+   (``?vel x`` then ``?accel y``, one number each) get a *separator* written between
+   them: a read whose reply looks like neither (``err``, ``help`` or ``?help N``, see
+   :meth:`ProtocolCore.separate <tango_aio.core.ProtocolCore.separate>`). "In a row"
+   means in write order, whether or not the first is answered yet: its real reply may
+   still be on its way. What is compared are the edges (:class:`Edge`) where the replies
+   meet, built from the lines each request is *sure* to get, in every autostatus mode:
+   the first request's last sure line and its first (its own line lost, the next reply
+   lands there), against the second's first sure line, each with the optional lines
+   around it (a read's echo in mode 4, a read's acknowledgement in mode 2 before it is
+   detected), which may come and so may be taken too, but never hide a sure line.
 
 Together they guarantee that a single lost, extra or garbled line is never delivered to a
 later request: a line too many shifts the replies after it by one, and the shift is
@@ -24,8 +29,11 @@ latest). The request the stray line reached may take it (when it fits: no protoc
 without ids can tell) or fail; every later one gets its own reply or a typed error. A lost
 reply times out, or its neighbour's reply lands where it does not fit (a ProtocolError,
 and the resync aborts what was in flight). (A garbled line that still fits its own
-pattern reaches its own caller, garbled: no protocol without checksums can tell.) Two
-faults close together can still fool the check.
+pattern reaches its own caller, garbled: no protocol without checksums can tell.) A read
+whose reply is free text (:data:`ANY_PATTERN`: ``?version``, ``detext``, ``?lim`` of
+every axis) fits any line: when its own reply or line is lost it takes the next line,
+and only the request after it is protected. Two faults close together can still fool
+the check.
 
 Lines of one all-or-nothing batch (a list upload or download, which fails as a whole when
 any of its lines fails) need no separators between them. With

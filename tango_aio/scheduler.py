@@ -24,7 +24,10 @@ Four rules decide what is written:
 3. **Separators** (:mod:`tango_aio.patterns`). Take two lines in a row whose replies
    could be taken for each other, such as ``?vel x`` and then ``?accel y``. They get a
    separator between them, or, when no separator fits, the second waits until the first
-   is answered. Lines of one all-or-nothing *batch* (a list transfer) need neither.
+   got the lines it is sure to get. The rule is the same in every autostatus mode and
+   decided from the lines each is sure to get (:class:`~tango_aio.patterns.Edge`), with
+   the optional ones around them (a read's echo in mode 4), never from an optional line
+   alone. Lines of one all-or-nothing *batch* (a list transfer) need neither.
    A line may ask for a separator *behind* it (:attr:`Line.separate_after`: a move's
    confirming ``?pos``, which the next move's ``?err`` probe looks like). It goes out in
    the same write, off the next request's path, and that request then needs none.
