@@ -506,7 +506,14 @@ def _rear(front: Edge | None, back: Edge | None) -> Edge | None:
     # request. The front edge: its own line lost, the next reply lands on its first items.
     if front is None or back is None:
         return None
-    return Edge(front.patterns + back.patterns)
+    if front == back:
+        return front
+    return Edge(tuple(dict.fromkeys(front.patterns + back.patterns)))
+
+
+def _specific(edge: Edge) -> Edge:
+    """``edge`` without free text (which fits every line)."""
+    return Edge(tuple(pattern for pattern in edge.patterns if pattern.kind is not ReplyKind.ANY))
 
 
 def _defers(expect: Expectation) -> bool:
@@ -1057,6 +1064,8 @@ class ProtocolCore:
         Edge or None
             The front edge of its reply (``None``: it is sure to get no line).
         """
+        if not expect.expects_reply:
+            return None  # nothing but optional lines (and not computed twice: a set)
         return self._line_facts(command, expect, mode)[4]
 
     def _line_facts(self, command: Command, expect: Expectation, mode: int
@@ -1086,10 +1095,12 @@ class ProtocolCore:
             else None
         pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
             else ACK_PATTERN
-        front = _front(items, echo, pattern, expect, mode, self.ack_reads)
-        back = _edge((echo if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None
-                      else pattern if item is _Item.DATA else ACK_PATTERN,
-                      _sure(item, False)) for item in reversed(items))
+        front = back = None
+        if expect.expects_reply:  # else it is sure to get no line (a set in mode 1)
+            front = _front(items, echo, pattern, expect, mode, self.ack_reads)
+            back = _edge((echo if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None
+                          else pattern if item is _Item.DATA else ACK_PATTERN,
+                          _sure(item, False)) for item in reversed(items))
         facts = (command.to_bytes(), tuple(items), echo, pattern, front, _rear(front, back))
         if cacheable:
             if len(self._facts) >= _LINE_FACTS_MAX:
@@ -1268,7 +1279,12 @@ class ProtocolCore:
         if marker is None:
             return None
         line, fits = encode(f"?help {marker[0]}"), marker_pattern(marker[1])
-        return (line, fits) if self._separates(line, fits, before, after) else None
+        # Free text fits every line, a marker's reply too; but no other reply fits the
+        # marker's, so it still stands between free-text replies (only the free-text read
+        # itself takes whatever comes, tango_aio.patterns).
+        if self._separates(line, fits, _specific(before), _specific(after)):
+            return line, fits
+        return None
 
     def _separates(self, line: bytes, fits: ReplyPattern, before: Edge, after: Edge
                    ) -> bool:

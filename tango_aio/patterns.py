@@ -134,29 +134,32 @@ class ReplyPattern:
         bool
             Whether a line may fit both.
         """
-        # (As sorted() by _ORDER, stable; without its key function: a hot path.)
+        # (As sorted() by _ORDER, stable; without its key function: a hot path. The
+        # kinds' order: NUMBERS WORDS STATUS HELP ACK ECHO MARKER ANY.)
         a, b = (self, other) if _ORDER[self.kind] <= _ORDER[other.kind] else (other, self)
-        if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
+        low, high = a.kind, b.kind
+        if high is ReplyKind.ANY:
             return True
-        if ReplyKind.ECHO in (a.kind, b.kind) and a.kind is not b.kind:
+        if low is high:
+            if low is ReplyKind.ECHO:
+                return _unbanged(a.text) == _unbanged(b.text)
+            if low is ReplyKind.MARKER:
+                return a.text == b.text
+            return a.low <= b.high and b.low <= a.high
+        if high is ReplyKind.ECHO or low is ReplyKind.ECHO:
             # An echo is one known text: it overlaps whatever accepts that text, with or
             # without its '!' (the echo of a bare read 'sa' or 'err' is status letters).
-            echo, rest = (a, b) if a.kind is ReplyKind.ECHO else (b, a)
+            echo, rest = (a, b) if low is ReplyKind.ECHO else (b, a)
             return rest.accepts(echo.text) or rest.accepts(_unbanged(echo.text))
-        if ReplyKind.MARKER in (a.kind, b.kind):
+        if high is ReplyKind.MARKER:
             # A marker's text is chosen to be unlike any reply (the HELP kind is the
             # conservative exception: ERROR n,text replies of ?help; words fit any line
             # of their number of words, a marker's too).
-            return (a.kind is b.kind and a.text == b.text) \
-                or ReplyKind.HELP in (a.kind, b.kind) or ReplyKind.WORDS in (a.kind, b.kind)
-        if a.kind is b.kind:
-            if a.kind is ReplyKind.ECHO:
-                return _unbanged(a.text) == _unbanged(b.text)
-            return a.low <= b.high and b.low <= a.high
-        if a.kind is ReplyKind.NUMBERS and b.kind is ReplyKind.WORDS:
+            return low is ReplyKind.HELP or low is ReplyKind.WORDS
+        if low is ReplyKind.NUMBERS and high is ReplyKind.WORDS:
             return a.low <= b.high and b.low <= a.high
         # Words may be anything else; the specific kinds exclude each other.
-        return ReplyKind.WORDS in (a.kind, b.kind)
+        return low is ReplyKind.WORDS
 
 
 _ORDER: Final = {kind: index for index, kind in enumerate(ReplyKind)}
@@ -192,7 +195,11 @@ class Edge:
         bool
             Whether a line of one may be taken for a line of the other.
         """
-        return any(a.overlaps(b) for a in self.patterns for b in other.patterns)
+        for mine in self.patterns:  # (loops, not any(): a hot path)
+            for theirs in other.patterns:
+                if mine.overlaps(theirs):
+                    return True
+        return False
 
 #: An acknowledgement of a ``!`` line (autostatus 2, ``save``).
 ACK_PATTERN: Final = ReplyPattern(ReplyKind.ACK)
