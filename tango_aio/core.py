@@ -946,9 +946,8 @@ class ProtocolCore:
         """Tag and rear edge (:class:`~tango_aio.patterns.Edge`: its front and back edges)
         of the newest request still sure to get a line; ``None`` when none is. A line
         whose front edge overlaps it should wait until the tail is answered
-        (:mod:`tango_aio.patterns`). Requests
-        that may only still get optional lines do not count. Internal lines (follow-ups,
-        markers) have tags of their own."""
+        (:mod:`tango_aio.patterns`). Requests that may only still get optional lines do
+        not count. Internal lines (follow-ups, markers) have tags of their own."""
         for pending in reversed(self._pending):
             if pending.rear is not None and pending.owes_sure():
                 return pending.tag, pending.rear
@@ -1245,9 +1244,9 @@ class ProtocolCore:
 
     def separator(self, before: Edge, after: Edge) -> tuple[bytes, ReplyPattern] | None:
         """A *separator* for two requests in a row whose replies look alike: a short read
-        whose reply cannot be taken for the replies of its neighbours (the back edge of
+        whose reply cannot be taken for the replies of its neighbours (the rear edge of
         the request before it and the front edge of the one after it, each facing the
-        separator's own edge in the mode in force: its echo in mode 4 too), with its
+        separator's own rear edge in the mode in force: its echo in mode 4 too), with its
         reply's pattern; register it with :meth:`separate`. Written between the two, it
         turns a line too many (or too few) between them into a :class:`Mismatched`
         instead of a reply shifted onto the next request (:mod:`tango_aio.patterns`).
@@ -1263,7 +1262,7 @@ class ProtocolCore:
         Parameters
         ----------
         before
-            The back edge of the request right before it.
+            The rear edge of the request right before it (:attr:`tail`).
         after
             The front edge of the request right after it.
 

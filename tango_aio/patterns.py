@@ -174,10 +174,12 @@ class Edge:
     acknowledgement in mode 2 before it is detected) and those that may come much later
     (a move's echo or acknowledgement that some firmware sends only with its report).
 
-    A single lost or extra line moves the sure line of one end onto the other end, so two
-    requests in a row need something between them when their facing edges
-    :meth:`overlap <overlaps>`; an optional line is part of the edge because when it does
-    come it may be taken there too.
+    A single lost or extra line moves the sure line of one end onto the other end, and a
+    lost request line moves the next request's reply onto the front of the lost one's.
+    So two requests in a row need something between them when the front edge of the
+    second :meth:`overlaps` either edge of the first (the core's *rear* edge). An
+    optional line is part of an edge because when it does come it may be taken there
+    too.
     """
 
     patterns: tuple[ReplyPattern, ...]

@@ -121,7 +121,7 @@ class Line:
     #: to the first one it is sure to get; ``None`` if it is sure to get none (set by
     #: :meth:`WriteScheduler.submit`).
     owes: Edge | None = None
-    #: The edge compared with the back edge of the line owed before this one to decide
+    #: The edge compared with the rear edge of the line owed before this one to decide
     #: whether a separator goes first (``owes``, or for a line sure to get nothing that
     #: is checked by the probe behind it, the probe's: the separator must not go between
     #: the two).
@@ -226,8 +226,8 @@ class WriteScheduler:
         self._unmarked: list[Line] = []
         self._credit_markers: dict[Hashable, list[Line]] = {}
         self._separators: set[Hashable] = set()
-        # The back edge of the last line written that is sure to get a line, its batch
-        # and tag (see _separator_for).
+        # The rear edge (front and back, ProtocolCore.tail) of the last line written that
+        # is sure to get a line, its batch and tag (see _separator_for).
         self._last_owed: Edge | None = None
         self._last_batch: object | None = None
         self._last_owing: Hashable | None = None
@@ -608,9 +608,10 @@ class WriteScheduler:
                        ) -> _Separation:
         """What goes before a line whose reply's front edge is ``owes``: nothing
         (:data:`_APART`), a separator line, or :data:`_WAIT` (none exists, wait for the
-        reply instead). One is needed when the back edge of the last line written that is
-        sure to get a line overlaps it: a line too many (or too few) between them would
-        shift a reply onto the wrong request (:mod:`tango_aio.patterns`). The edges are
+        reply instead). One is needed when the rear edge of the last line written that is
+        sure to get a line overlaps it: a line too many (or too few) between them, or that
+        line's own line lost, would shift a reply onto the wrong request
+        (:mod:`tango_aio.patterns`). The edges are
         those of the lines each is sure to get, with the optional ones around them, in
         every mode: a read's optional echo in mode 4 hides nothing. Lines of one batch
         need none: it fails as a whole.
@@ -639,7 +640,7 @@ class WriteScheduler:
         return data
 
     def _owed(self, batch: object | None) -> None:
-        """Remember the back edge of the line just registered (or of the follow-up the
+        """Remember the rear edge of the line just registered (or of the follow-up the
         core wrote behind it), if it is sure to get a line."""
         sent = self.core.sent
         if sent is not None:
