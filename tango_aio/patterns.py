@@ -153,9 +153,10 @@ class ReplyPattern:
             return rest.accepts(echo.text) or rest.accepts(_unbanged(echo.text))
         if high is ReplyKind.MARKER:
             # A marker's text is chosen to be unlike any reply (the HELP kind is the
-            # conservative exception: ERROR n,text replies of ?help; words fit any line
-            # of their number of words, a marker's too).
-            return low is ReplyKind.HELP or low is ReplyKind.WORDS
+            # conservative exception: ERROR n,text replies of ?help). Words fit any line
+            # of their count, and a line holding the text has at least its words.
+            return low is ReplyKind.HELP or (
+                low is ReplyKind.WORDS and a.high >= len(b.text.split()))
         if low is ReplyKind.NUMBERS and high is ReplyKind.WORDS:
             return a.low <= b.high and b.low <= a.high
         # Words may be anything else; the specific kinds exclude each other.
