@@ -912,6 +912,9 @@ class ProtocolCore:
         self._sent: tuple[Hashable, Edge] | None = None
         #: The rear edge of each separator line, by (line, mode, ack_reads).
         self._separator_edges: dict[tuple[bytes, int, AckReads | None], Edge] = {}
+        #: The fixed separator chosen between two edges (see :meth:`separator`).
+        self._separator_choice: dict[tuple[int, int, int, AckReads | None],
+                                     tuple[Edge, Edge, tuple[bytes, ReplyPattern] | None]] = {}
 
     # -- state ------------------------------------------------------------------------
 
@@ -1271,9 +1274,20 @@ class ProtocolCore:
         tuple of (bytes, ReplyPattern) or None
             The separator's bytes and its reply's pattern; ``None`` when none fits.
         """
-        for line, fits in _SEPARATORS:
-            if self._separates(line, fits, before, after):
-                return line, fits
+        # The edges are the cached ones of the lines' facts, so the choice among the fixed
+        # separators is cached by their identity (kept alive, checked on a hit).
+        key = (id(before), id(after), self._autostatus, self.ack_reads)
+        hit = self._separator_choice.get(key)
+        if hit is not None and hit[0] is before and hit[1] is after:
+            fixed = hit[2]
+        else:
+            fixed = next(((line, fits) for line, fits in _SEPARATORS
+                          if self._separates(line, fits, before, after)), None)
+            if len(self._separator_choice) >= _LINE_FACTS_MAX:
+                self._separator_choice.clear()
+            self._separator_choice[key] = (before, after, fixed)
+        if fixed is not None:
+            return fixed
         marker = self._marker()
         if marker is None:
             return None
