@@ -910,8 +910,9 @@ class ProtocolCore:
         #: ``echo=completion``), oldest first.
         self._deferred_echoes: deque[ReplyPattern] = deque()
         self._sent: tuple[Hashable, Edge] | None = None
-        #: The rear edge of each separator line, by (line, mode, ack_reads).
-        self._separator_edges: dict[tuple[bytes, int, AckReads | None], Edge] = {}
+        #: The front and rear edges of each separator line, by (line, mode, ack_reads).
+        self._separator_edges: dict[tuple[bytes, int, AckReads | None],
+                                    tuple[Edge, Edge]] = {}
         #: The fixed separator chosen between two edges (see :meth:`separator`).
         self._separator_choice: dict[tuple[int, int, int, AckReads | None],
                                      tuple[Edge, Edge, tuple[bytes, ReplyPattern] | None]] = {}
@@ -1035,6 +1036,14 @@ class ProtocolCore:
                 pending.rear = rear
             if self._sent is None and pending.rear is not None:
                 self._sent = pending.tag, pending.rear
+            elif expect.rule.continuation is not None and self._sent is not None \
+                    and rear is not None:
+                # A stray line that ends the read early is taken by its follow-up, and
+                # the read's further lines come after it: they face the next request.
+                follow = self._pending[-1]
+                follow.rear = Edge(tuple(dict.fromkeys(self._sent[1].patterns
+                                                       + rear.patterns)))
+                self._sent = follow.tag, follow.rear
         return data, expect
 
     def _deferring(self) -> bool:
@@ -1248,11 +1257,12 @@ class ProtocolCore:
     def separator(self, before: Edge, after: Edge) -> tuple[bytes, ReplyPattern] | None:
         """A *separator* for two requests in a row whose replies look alike: a short read
         whose reply cannot be taken for the replies of its neighbours (the rear edge of
-        the request before it and the front edge of the one after it, each facing the
-        separator's own rear edge in the mode in force: its echo in mode 4 too), with its
-        reply's pattern; register it with :meth:`separate`. Written between the two, it
-        turns a line too many (or too few) between them into a :class:`Mismatched`
-        instead of a reply shifted onto the next request (:mod:`tango_aio.patterns`).
+        the request before it and the front edge of the one after it, facing the
+        separator's own front and rear edges in the mode in force: its echo in mode 4
+        too), with its reply's pattern; register it with :meth:`separate`. Written
+        between the two, it turns a line too many (or too few) between them into a
+        :class:`Mismatched` instead of a reply shifted onto the next request
+        (:mod:`tango_aio.patterns`).
 
         Only reads that leave the error state alone qualify: "each instruction
         overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
@@ -1303,15 +1313,17 @@ class ProtocolCore:
                    ) -> bool:
         """Whether separator ``line`` (reply ``fits``) faces neither edge in this mode."""
         key = (line, self._autostatus, self.ack_reads)
-        rear = self._separator_edges.get(key)
-        if rear is None:
-            rear = _Pending(None, _read_items(self._autostatus, self.ack_reads),
-                            _echo_of(line.decode()), pattern=fits).seal().rear
-            assert rear is not None  # a read is sure of its data
-            self._separator_edges[key] = rear
-        # Its rear edge holds its front one: neither end may look like a neighbour's
-        # (its own line lost, the next request's reply lands on its first items).
-        return not rear.overlaps(before) and not rear.overlaps(after)
+        edges = self._separator_edges.get(key)
+        if edges is None:
+            separator = _Pending(None, _read_items(self._autostatus, self.ack_reads),
+                                 _echo_of(line.decode()), pattern=fits).seal()
+            front = _edge((_item_pattern(separator, item), _sure(item, False))
+                          for item in separator.items)
+            assert front is not None and separator.rear is not None  # sure of its data
+            edges = self._separator_edges[key] = front, separator.rear
+        # Its front faces the rear edge before it; its rear edge (its own line lost, the
+        # next request's reply lands on its first items) faces the front after it.
+        return not edges[0].overlaps(before) and not edges[1].overlaps(after)
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
         """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.

@@ -26,7 +26,7 @@ class _NoCache(dict[Any, Any]):
 
 
 def _registered(core: ProtocolCore) -> list[tuple[object, ...]]:
-    return [(tuple(p.items), p.echo, p.rule, p.pattern, p.internal)
+    return [(tuple(p.items), p.echo, p.rule, p.pattern, p.internal, p.rear)
             for p in core._pending]  # the two paths' registered state
 
 

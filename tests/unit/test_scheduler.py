@@ -473,3 +473,39 @@ def test_an_exchange_written_outside_the_queue_counts_its_lines() -> None:
     link.submit("?vel x")
     link.flush()
     assert link.scheduler.exchanged(3) == 4 == link.scheduler.written_lines
+
+
+def _written(mode: int, *lines: str, ack_reads: AckReads | None = AckReads.NO) -> list[str]:
+    """What a scheduler writes at once for ``lines`` in autostatus ``mode``."""
+    core = ProtocolCore(autostatus=mode, marker_seed=0)
+    core.ack_reads = ack_reads
+    scheduler = WriteScheduler(core)
+    for text in lines:
+        command = parse(text)
+        tag, planned, expect = scheduler.plan(command)
+        scheduler.submit(Line(command, tag, expect, planned))
+    return scheduler.next_write().decode().split("\r")[:-1]
+
+
+def test_lookalike_reads_get_a_separator_in_every_mode() -> None:
+    # Mode 4: a read's echo is optional (the manual's firmware sends none), so the
+    # numbers it is sure to get are what meet (#37).
+    reads = ("?accel z", "?vel y", "?accel x")
+    for mode in range(5):
+        assert _written(mode, *reads) == ["?accel z", "?help", "?vel y", "?help",
+                                          "?accel x"], mode
+
+
+def test_a_lost_request_line_cannot_hand_its_neighbours_reply_over() -> None:
+    # Mode 2, reads acknowledged after their data: "1.5" "OK..." per read. The last sure
+    # lines differ (an OK... then a number), but with the first line lost the second's
+    # number and OK... would fit the first: a separator goes between.
+    assert _written(2, "?vel x", "?accel x", ack_reads=AckReads.AFTER) == [
+        "?vel x", "?help", "?accel x"]
+
+
+def test_moves_in_mode_2_are_separated_by_their_probes_replies() -> None:
+    # A move's OK... may come only with its report (switch move_ok): the ?err behind it
+    # is what it is sure to get, and the next move's ?err looks like it.
+    assert _written(2, "!moa x 1", "!moa x 2") == ["!moa x 1", "?err", "?help", "!moa x 2",
+                                                   "?err"]

@@ -244,6 +244,8 @@ def _run(case: tuple[str, int, bool, bool, str, str]) -> None:
 @example(("help_number=no", 1, True, False, "?vel x", "?accel x"))
 @example(("manual", 1, True, True, "?vel x", "?encerr x"))  # a marker between
 @example(("manual", 1, True, True, "?accel", "?lockstate"))  # the marker may look alike
+@example(("manual", 0, True, True, "?lim", "?mro"))  # ?lim's lines after its follow-up
+@example(("manual", 0, True, False, "?lim", "?mro"))
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_two_reads_never_take_each_others_replies(
