@@ -9,8 +9,9 @@ real link. Side by side, in one run:
 
 * ``?pos``: ``await tango.position()`` against a raw asyncio protocol that writes
   ``?pos\\r`` and resolves a future on the reply line;
-* a checked set: ``await tango.set("vel", x=...)`` (the line and its ``?err`` probe)
-  against the raw client writing ``!vel x v\\r?err\\r`` and waiting for the ``0``;
+* a checked set: ``await tango.set("vel", x=...)`` (the line, its ``?err`` probe and
+  the read-back that proves it, see ``tango_aio.readback``) against the raw client
+  writing ``!vel x v\\r?err\\r?vel x\\r`` and waiting for the ``0`` and the value;
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
   2 ms after the move line (and puts the axes at the target, where the driver's
   ``?pos``/``?pos x`` confirming the move finds them), against the raw client writing
@@ -66,6 +67,9 @@ class CannedTransport(asyncio.Transport):
         self.model = ControllerModel(self._emit, SimConfig())
         self.recording = True
         self.memory: dict[bytes, bytes] = {}
+        #: The last set line of each instruction: a read is remembered with it, so that
+        #: the read-back behind a set (tango_aio.readback) replays what that set wrote.
+        self.held: dict[bytes, bytes] = {}
         self.reports: tuple[bytes, ...] = ()
         self.delivered_at = 0.0
         self._partial = b""
@@ -85,16 +89,26 @@ class CannedTransport(asyncio.Transport):
                 reports += 1
                 self._arrive(line)
                 continue
-            reply = None if self.recording else self.memory.get(line)
+            key = self._key(line)
+            reply = None if self.recording else self.memory.get(key)
             if reply is None:
                 self.model.handle_line(line, time.monotonic())
                 reply = b"".join(self._emitted)
                 self._emitted.clear()
                 if self.recording:
-                    self.memory[line] = reply
+                    self.memory[key] = reply
             replies.append(reply)
         if any(replies) or reports:
             self._loop.call_soon(self._deliver, b"".join(replies), reports)
+
+    def _key(self, line: bytes) -> bytes:
+        """``line``, and for a read the last set line of its instruction."""
+        name = line[1:].split(b" ", 1)[0]
+        if line.startswith(b"!"):
+            self.held[name] = line
+        elif line.startswith(b"?") and name in self.held:
+            return line + b"\r" + self.held[name]
+        return line
 
     def _deliver(self, replies: bytes, reports: int) -> None:
         """Hand over the immediate replies, then start the reports' delay: a report can
@@ -178,10 +192,11 @@ class RawClient(asyncio.Protocol):
         (future,) = self.request(data)
         return await future
 
-    async def checked(self, data: bytes) -> None:
-        """Write a set line and ``?err``; raise unless the error code is 0."""
-        (future,) = self.request(data + b"?err\r")
-        if await future != b"0":
+    async def checked(self, data: bytes, read: bytes, value: float) -> None:
+        """Write a set line, ``?err`` and the read of the setting; raise unless the error
+        code is 0 and the read shows ``value``."""
+        error, held = self.request(data + b"?err\r" + read, 2)
+        if await error != b"0" or float(await held) != value:
             raise RuntimeError(f"{data!r} failed")
 
 
@@ -262,7 +277,8 @@ async def _requests(calls: int, rounds: int, separators: bool) -> list[tuple[Cos
             await tango.set("vel", x=_velocity(index))
 
         async def raw_set_vel(index: int) -> None:
-            await raw.checked(f"!vel x {_velocity(index)}\r".encode())
+            await raw.checked(f"!vel x {_velocity(index)}\r".encode(), b"?vel x\r",
+                              _velocity(index))
 
         for name, driver_call, raw_call in (("?pos", position, raw_position),
                                             ("checked set", set_vel, raw_set_vel)):

@@ -56,6 +56,7 @@ if TYPE_CHECKING:
         EncoderIsrError,
         EncoderSupplyOverloadError,
         EtsError,
+        GarbledVerdictError,
         HardwareFaultError,
         HdiDeviceError,
         HdiIsrError,
@@ -95,6 +96,7 @@ if TYPE_CHECKING:
         ProtocolError,
         RequestAbortedError,
         SafetyCircuitError,
+        SettingNotAppliedError,
         StageLimitsError,
         StateError,
         TangoError,
@@ -156,6 +158,7 @@ __all__ = [
     "EncoderIsrError",
     "EncoderSupplyOverloadError",
     "EtsError",
+    "GarbledVerdictError",
     "GroupError",
     "GroupEvent",
     "GroupSubscription",
@@ -205,6 +208,7 @@ __all__ = [
     "Reconnected",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "SettingNotAppliedError",
     "StageLimitsError",
     "StateError",
     "StatusReport",
@@ -230,7 +234,7 @@ __all__ = [
 _HOMES = ("errors", "events", "status", "reconnect", "bulk", "connection", "controller",
           "group", "discovery")
 
-__version__ = "0.1.0"
+__version__ = "0.5.0"
 
 
 def __getattr__(name: str) -> Any:

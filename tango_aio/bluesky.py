@@ -108,8 +108,10 @@ try:
     )
     from ophyd_async.core._movable import MoveTimeout, StopState
 except ImportError as exc:  # pragma: no cover - depends on the environment
-    raise ImportError("tango_aio.bluesky needs the bluesky extra: "
-                      "pip install 'tango-aio[bluesky]'") from exc
+    from ._install import install_hint
+
+    raise ImportError(f"tango_aio.bluesky needs the bluesky extra: "
+                      f"{install_hint('bluesky')}") from exc
 
 from .coalesce import MoveCoalescer
 from .connection import connect
@@ -1492,7 +1494,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         return self._scale.user_per_rev
 
     async def _resolution(self) -> float:
-        return self._scale.user_per_rev / self._scale.usteps
+        return self._scale.resolution
 
     async def _done_move(self) -> int:
         letters = await self._link.controller.status()

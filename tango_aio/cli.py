@@ -17,6 +17,7 @@ from . import _startup
 import argparse
 import asyncio
 import contextlib
+import errno
 import functools
 import logging
 import math
@@ -26,7 +27,6 @@ import signal
 import sys
 import threading
 import time
-import urllib.parse
 from collections.abc import Awaitable, Callable, Coroutine, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol, TypeVar
@@ -38,6 +38,16 @@ from rich.table import Table
 from rich.text import Text
 
 from . import __version__
+from ._argtypes import (
+    UsageError,
+    axes_type,
+    baud_type,
+    count_type,
+    delay_type,
+    existing_path,
+    seconds_type,
+    url_type,
+)
 from .bulk import MAX_TRIGGERS, validate_trigger_positions
 from .connection import connect
 from .controller import Controller
@@ -72,6 +82,8 @@ from .units import DIM_UNITS, velocity_unit
 __all__ = ["main"]
 
 console = Console(highlight=False)
+#: Diagnostics (errors, warnings, "interrupted"): stderr, so that stdout holds only results.
+err_console = Console(stderr=True, highlight=False)
 Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
 _T = TypeVar("_T")
 
@@ -95,6 +107,11 @@ def _escaped(text: str) -> str:
 def _say(text: str, style: str = "") -> None:
     """Print ``text`` literally (no rich markup, control characters escaped)."""
     console.print(Text(_escaped(text), style=style), soft_wrap=True)
+
+
+def _complain(text: str, style: str = "") -> None:
+    """Print a diagnostic on stderr, as :func:`_say` prints a result on stdout."""
+    err_console.print(Text(_escaped(text), style=style), soft_wrap=True)
 
 
 def _table(title: str, columns: Sequence[str] = (), *, show_header: bool = True) -> Table:
@@ -296,7 +313,7 @@ async def _sim(args: argparse.Namespace) -> int:
 
     address = _tcp_address(args.tcp) if args.tcp else None
     if args.per_connection and address is None:
-        raise _UsageError("--per-connection needs --tcp (a pty serves one controller)")
+        raise UsageError("--per-connection needs --tcp (a pty serves one controller)")
     url = _sim_url(args)
     sim_config, wire_config = configs_from_url(url)
     speed = speed_from_url(url)
@@ -306,9 +323,12 @@ async def _sim(args: argparse.Namespace) -> int:
 
     factory(lambda data: None)  # a bad --state file: one error now, not one per connection
     if address is not None:
-        server = await serve_tcp(factory, host=address[0], port=address[1],
-                                 config=wire_config, speed=speed,
-                                 shared=not args.per_connection)
+        try:
+            server = await serve_tcp(factory, host=address[0], port=address[1],
+                                     config=wire_config, speed=speed,
+                                     shared=not args.per_connection)
+        except OSError as exc:
+            raise OSError(_bind_failure(address, exc)) from exc
         host = f"[{server.host}]" if ":" in server.host else server.host
         print(f"socket://{host}:{server.port}", flush=True)
     else:
@@ -321,6 +341,20 @@ async def _sim(args: argparse.Namespace) -> int:
     async with server:
         await server.wait_closed()
     return 0
+
+
+def _bind_failure(address: tuple[str, int], exc: OSError) -> str:
+    """Why ``sim --tcp`` could not listen, in words, with the next step."""
+    host, port = address
+    if exc.errno == errno.EADDRINUSE:
+        return (f"port {port} on {host} is already in use (another tango-aio sim?): choose "
+                f"another, or --tcp {host}:0 for any free port")
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return f"{host} is not an address of this machine: use 127.0.0.1 or one of its own"
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return f"this user may not listen on port {port}: choose a port above 1023"
+    reason = exc.strerror or str(exc)
+    return f"cannot listen on {host}:{port}: {reason}"
 
 
 #: What ``tango-aio sim --pty`` says on Windows (one line).
@@ -337,10 +371,6 @@ def _check_pty_platform() -> None:
         raise ValueError(PTY_NEEDS_POSIX)
 
 
-class _UsageError(ValueError):
-    """A command line that cannot work as given: exit code 2, like argparse's errors."""
-
-
 def _tcp_address(text: str) -> tuple[str, int]:
     """``HOST:PORT``, ``:PORT`` or ``PORT`` (host 127.0.0.1) or ``[IPv6]:PORT`` as (host,
     port); a usage error with the reason for anything else.
@@ -352,17 +382,17 @@ def _tcp_address(text: str) -> tuple[str, int]:
 
     Raises
     ------
-    _UsageError
+    UsageError
         The text is no such address.
     """
     host, _, port_text = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
     elif ":" in host:
-        raise _UsageError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. "
+        raise UsageError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. "
                           f"[::1]:4001")
     if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise _UsageError(f"--tcp {text!r}: expected [HOST:]PORT, the port a number 0-65535 "
+        raise UsageError(f"--tcp {text!r}: expected [HOST:]PORT, the port a number 0-65535 "
                           f"(0: any free one), e.g. 4001 or 127.0.0.1:4001")
     return host or "127.0.0.1", int(port_text)
 
@@ -387,7 +417,7 @@ def _sim_url(args: argparse.Namespace) -> str:
             Firmware.from_options(profile, **switches)  # unknown names or values
             base = {"profile": profile}
     except ValueError as exc:
-        raise _UsageError(str(exc)) from None
+        raise UsageError(str(exc)) from None
     query: dict[str, object] = {
         "axes": args.axes, "baud": args.baud, "latency": args.latency,
         "processing": args.processing, "speed": _speed(args.speed), **base, **switches}
@@ -402,13 +432,13 @@ def _speed(text: str) -> float:
     try:
         return check_speed(float(text))
     except ValueError:
-        raise _UsageError(f"--speed {text!r}: expected a finite number > 0, e.g. 20") from None
+        raise UsageError(f"--speed {text!r}: expected a finite number > 0, e.g. 20") from None
 
 
 def _switch(text: str) -> tuple[str, str]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip() or not value.strip():
-        raise _UsageError(f"--switch {text!r}: expected NAME=VALUE, e.g. echo=after")
+        raise UsageError(f"--switch {text!r}: expected NAME=VALUE, e.g. echo=after")
     return name.strip(), value.strip()
 
 
@@ -781,7 +811,7 @@ class _TerminalReader:
 
 
 def _history_warning(history: Path, exc: OSError) -> None:
-    _say(f"warning: the history file {history} cannot be written "
+    _complain(f"warning: the history file {history} cannot be written "
          f"({exc.strerror or exc}): no history is kept; set TANGO_AIO_HISTORY to another "
          f"file", "yellow")
 
@@ -991,15 +1021,15 @@ class Shell:
             self._job = None
             job.cancel()
         if job.cancelled():
-            _say(f"interrupted: {line}", "yellow")
+            _complain(f"interrupted: {line}", "yellow")
             self.failures += 1
             await self._abort()
             return
         error = job.exception()
         if isinstance(error, InvalidCommandError):
-            _say(f"invalid: {describe_exception(error)} (nothing sent)", "yellow")
+            _complain(f"invalid: {describe_exception(error)} (nothing sent)", "yellow")
         elif isinstance(error, TangoError):
-            _say(f"error: {describe_exception(error)}", "red")
+            _complain(f"error: {describe_exception(error)}", "red")
         else:
             job.result()
             return
@@ -1059,7 +1089,7 @@ class Shell:
                 letters = await self.tango.status()
                 reply = await self.tango.query("?pos")
             except (TangoError, TimeoutError) as exc:
-                _say(f"error: reading the state after a move: {describe_exception(exc)}",
+                _complain(f"error: reading the state after a move: {describe_exception(exc)}",
                      "red")
                 self.move_failures += 1
                 return
@@ -1082,7 +1112,7 @@ class Shell:
                     failed.append(describe_stop(axis, letter, text, target))
             if failed:
                 self.move_failures += 1
-                _say(f"move failed: {'; '.join(failed)}", "red")
+                _complain(f"move failed: {'; '.join(failed)}", "red")
 
     @staticmethod
     def help(topic: str | None) -> str:
@@ -1126,7 +1156,7 @@ class Shell:
         try:
             await self.tango.abort()
         except (TangoError, TimeoutError) as exc:
-            _say(f"error: abort: {describe_exception(exc)}", "red")
+            _complain(f"error: abort: {describe_exception(exc)}", "red")
 
     async def _stop_moving(self) -> None:
         """Stop the axes that still move when the shell is left."""
@@ -1134,10 +1164,10 @@ class Shell:
         try:
             moving = [a for a, s in (await self.tango.status()).items() if s == MOVING]
             if moving:
-                _say(f"stopping the axes that still move: {' '.join(moving)}", "yellow")
+                _complain(f"stopping the axes that still move: {' '.join(moving)}", "yellow")
                 await self.tango.abort()
         except (TangoError, TimeoutError) as exc:
-            _say(f"error: stopping the axes: {describe_exception(exc)}", "red")
+            _complain(f"error: stopping the axes: {describe_exception(exc)}", "red")
             self.failures += 1
 
     async def _print_events(self, events: Subscription) -> None:
@@ -1165,11 +1195,9 @@ async def _shell(args: argparse.Namespace) -> int:
     async with connect(args.url) as tango:
         ident = tango.identity
         # On stderr: stdout holds the replies only (a script's).
-        Console(stderr=True, highlight=False).print(Text(
-            f"connected to {ident.model} firmware {ident.firmware}, "
-            f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
-            f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", style="bold"),
-            soft_wrap=True)
+        _complain(f"connected to {ident.model} firmware {ident.firmware}, "
+                  f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}; 'help' lists the "
+                  f"commands, Ctrl+C aborts, Ctrl+D or 'exit' leaves", "bold")
         if sys.stdin.isatty() and sys.stdout.isatty():
             from prompt_toolkit.patch_stdout import patch_stdout
 
@@ -1233,22 +1261,22 @@ def _one_unit(targets: Sequence[tuple[str, float, str | None]]
 
     Raises
     ------
-    _UsageError
+    UsageError
         Units are mixed with bare values, do not convert, or an axis is given twice.
     """
     from .units import LENGTH_UNITS
 
     units = {unit for _, _, unit in targets}
     if len(units) > 1 and None in units:
-        raise _UsageError("give every axis a unit, or none (the controller's unit)")
+        raise UsageError("give every axis a unit, or none (the controller's unit)")
     if len(units) > 1 and not units <= set(LENGTH_UNITS):
-        raise _UsageError(f"the units {', '.join(sorted(map(str, units)))} do not convert "
+        raise UsageError(f"the units {', '.join(sorted(map(str, units)))} do not convert "
                           f"into each other: give every axis the same unit")
     chosen = next(iter(units)) if len(units) == 1 else "mm"
     values: dict[str, float] = {}
     for axis, value, unit in targets:
         if axis in values:
-            raise _UsageError(f"axis {axis} given twice")
+            raise UsageError(f"axis {axis} given twice")
         values[axis] = value if unit == chosen or unit is None else \
             float(value * LENGTH_UNITS[unit])
     return values, chosen
@@ -1490,92 +1518,6 @@ def _plain(text: str | None) -> str | None:
     return re.sub(r"``([^`]+)``", r"\1", text)
 
 
-def _number_type(kind: Callable[[str], _T], what: str, *, minimum: float = 0.0,
-                 allow_minimum: bool = False) -> Callable[[str], _T]:
-    """argparse type of a finite number above ``minimum`` (or equal, if allowed)."""
-    def convert(text: str) -> _T:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not {what}: {text!r}") from None
-        number = float(value)  # type: ignore[arg-type]
-        if not math.isfinite(number) or number < minimum or (
-                number == minimum and not allow_minimum):
-            bound = f"{'at least' if allow_minimum else 'above'} {minimum:g}"
-            raise argparse.ArgumentTypeError(f"must be {bound}: {text!r}")
-        return value
-    return convert
-
-
-_count_type = _number_type(int, "a whole number", minimum=1, allow_minimum=True)
-_seconds_type = _number_type(float, "a number of seconds")
-_delay_type = _number_type(float, "a number of seconds", allow_minimum=True)
-
-
-def _url_type(text: str) -> str:
-    """argparse type of a controller URL: ``SIM://`` and ``SOCKET://`` in any case; a
-    ``sim://`` URL is checked here, so that a bad option is named and nothing opens.
-
-    Returns
-    -------
-    str
-        The URL.
-
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        The ``sim://`` URL's query is not valid.
-    """
-    scheme, sep, rest = text.partition("://")
-    if sep and scheme.lower() in ("sim", "socket"):
-        text = f"{scheme.lower()}://{rest}"
-    if text.startswith("sim://"):
-        try:
-            check_sim_url(text)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
-
-
-def check_sim_url(url: str) -> None:
-    """Raise ValueError, naming the option, if the ``sim://`` URL's query is invalid:
-    an option given twice, an unknown option or a value the emulator refuses.
-
-    Parameters
-    ----------
-    url
-        The URL.
-
-    Raises
-    ------
-    ValueError
-        An option is given twice, unknown, or refused.
-    """
-    from .sim.inprocess import configs_from_url
-
-    pairs = urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query, keep_blank_values=True)
-    keys = [key for key, _ in pairs]
-    twice = sorted({key for key in keys if keys.count(key) > 1})
-    if twice:
-        raise ValueError(f"sim:// option(s) given more than once: {', '.join(twice)}")
-    for key, value in pairs:
-        try:
-            number = float(value)
-        except ValueError:
-            continue  # a word (profile=legacy): the emulator checks it below
-        if not math.isfinite(number):
-            raise ValueError(f"sim:// option {key}={value!r} is not a finite number")
-    try:
-        configs_from_url(url)
-    except ValueError:
-        for key, value in pairs:  # find the option the emulator refuses
-            try:
-                configs_from_url("sim://?" + urllib.parse.urlencode({key: value}))
-            except ValueError as exc:
-                raise ValueError(f"sim:// option {key}={value!r} is not valid: {exc}") from None
-        raise
-
-
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tango-aio",
@@ -1591,18 +1533,18 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = commands.add_parser("demo", help="calibrate and run a raster scan (emulator)",
                                description=_plain(_demo.__doc__))
-    demo.add_argument("url", type=_url_type, nargs="?", default="sim://",
+    demo.add_argument("url", type=url_type, nargs="?", default="sim://",
                       help="controller URL (default: sim://, the emulator)")
-    demo.add_argument("--url", type=_url_type, dest="old_url", help=argparse.SUPPRESS)
-    demo.add_argument("--rows", type=_count_type, default=4, help="scan rows (default 4)")
-    demo.add_argument("--points", type=_count_type, default=10,
+    demo.add_argument("--url", type=url_type, dest="old_url", help=argparse.SUPPRESS)
+    demo.add_argument("--rows", type=count_type, default=4, help="scan rows (default 4)")
+    demo.add_argument("--points", type=count_type, default=10,
                       help="triggers per row (default 10)")
     demo.add_argument("--yes", action="store_true",
                       help="do not ask before moving a real controller's axes")
     demo.set_defaults(run=_demo)
     info = commands.add_parser("info", help="show identity and settings",
                                description=_plain(_info.__doc__))
-    info.add_argument("url", type=_url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+    info.add_argument("url", type=url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     info.set_defaults(run=_info)
     sim = commands.add_parser("sim", help="serve the emulator on a pty or TCP",
                               description=_sim.__doc__)
@@ -1611,10 +1553,10 @@ def _parser() -> argparse.ArgumentParser:
                        "prints the device path as the first line")
     where.add_argument("--tcp", metavar="[HOST:]PORT",
                        help="serve on TCP for socket:// URLs (host defaults to 127.0.0.1)")
-    sim.add_argument("--axes", type=int, default=3, help="number of axes 1-4 (default 3)")
-    sim.add_argument("--baud", type=int, default=57600, help="wire speed, 0 = instant")
-    sim.add_argument("--latency", type=_delay_type, default=0.0, help="reply latency in s")
-    sim.add_argument("--processing", type=_delay_type, default=0.0, help="time per line in s")
+    sim.add_argument("--axes", type=axes_type, default=3, help="number of axes 1-4 (default 3)")
+    sim.add_argument("--baud", type=baud_type, default=57600, help="wire speed, 0 = instant")
+    sim.add_argument("--latency", type=delay_type, default=0.0, help="reply latency in s")
+    sim.add_argument("--processing", type=delay_type, default=0.0, help="time per line in s")
     sim.add_argument("--state", help="JSON file where 'save' persists settings")
     sim.add_argument("--profile", default=None,
                      help="firmware profile: manual (1.71, default) or legacy (older edition)")
@@ -1623,7 +1565,7 @@ def _parser() -> argparse.ArgumentParser:
                           "'tango-aio probe') as far as the firmware switches go")
     sim.add_argument("--switch", action="append", default=[], metavar="NAME=VALUE",
                      help="a firmware switch on top of the profile (repeatable), "
-                          "e.g. echo=after; see the README's switch table")
+                          "e.g. echo=after; see docs/concepts/firmware-profiles.md")
     sim.add_argument("--speed", default="1", metavar="X",
                      help="run motion, pauses and timeouts X times as fast (the wire "
                           "keeps its baud rate)")
@@ -1641,34 +1583,34 @@ def _add_operator_commands(commands: Any) -> None:
     """The subcommands shell, move, monitor, ports and upload-trigp."""
     shell = commands.add_parser("shell", help="interactive command line shell",
                                 description=_plain(_shell.__doc__))
-    shell.add_argument("url", type=_url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+    shell.add_argument("url", type=url_type, help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     shell.set_defaults(run=_shell)
     move = commands.add_parser("move", help="move axes with a progress bar",
                                description=_plain(_move.__doc__))
-    move.add_argument("url", type=_url_type, help="controller URL")
+    move.add_argument("url", type=url_type, help="controller URL")
     move.add_argument("targets", nargs="+", type=_axis_target, metavar="AXIS=VALUE",
                       help="target (or distance with --relative) per axis, e.g. x=10 y=5")
     move.add_argument("--relative", action="store_true", help="move by distances (mor)")
     move.set_defaults(run=_move)
     monitor = commands.add_parser("monitor", help="live table of positions and status",
                                   description=_plain(_monitor.__doc__))
-    monitor.add_argument("url", type=_url_type, help="controller URL")
-    monitor.add_argument("--interval", type=_seconds_type, default=0.2,
+    monitor.add_argument("url", type=url_type, help="controller URL")
+    monitor.add_argument("--interval", type=seconds_type, default=0.2,
                          help="seconds between refreshes (default 0.2)")
-    monitor.add_argument("--count", type=_count_type, help="stop after N refreshes")
+    monitor.add_argument("--count", type=count_type, help="stop after N refreshes")
     monitor.set_defaults(run=_monitor)
     ports = commands.add_parser("ports", help="list serial ports, optionally probe them",
                                 description=_plain(_ports.__doc__))
     ports.add_argument("--probe", action="store_true", help="find TANGO controllers")
     ports.add_argument("--port", action="append", default=[], metavar="DEVICE",
                        help="probe DEVICE instead of every listed port (repeatable)")
-    ports.add_argument("--timeout", type=_seconds_type, default=0.5,
+    ports.add_argument("--timeout", type=seconds_type, default=0.5,
                        help="seconds to wait for each port's reply (default 0.5)")
     ports.set_defaults(run=_ports)
     upload = commands.add_parser("upload-trigp", help="upload a trigger position list",
                                  description=_plain(_upload_trigp.__doc__))
-    upload.add_argument("url", type=_url_type, help="controller URL")
-    upload.add_argument("file", help="text file with one position per line")
+    upload.add_argument("url", type=url_type, help="controller URL")
+    upload.add_argument("file", type=existing_path, help="text file with one position per line")
     upload.add_argument("--axis", default="x", choices=["x", "y", "z", "a"],
                         help="trigger axis (default x)")
     upload.set_defaults(run=_upload_trigp)
@@ -1697,12 +1639,23 @@ def _is_emulator(url: str) -> bool:
     return url.lower().startswith("sim://")
 
 
-def _confirm_demo(url: str) -> bool:
-    """Ask before the demo moves a real controller's axes to their limit switches."""
+async def _identify(args: argparse.Namespace) -> int:
+    """Connect, say which controller answers at ``args.url``, and close again."""
+    async with connect(args.url) as tango:
+        ident = tango.identity
+        _say(f"Found {ident.model} firmware {ident.firmware}, "
+             f"{_plural(ident.axes, 'axis', 'axes')} at {args.url}")
+    return 0
+
+
+def _confirm_demo(args: argparse.Namespace) -> bool:
+    """Whether to run the demo on a real controller: one answers there, the user agrees."""
+    url = args.url
     if not sys.stdin.isatty():
-        raise ValueError(f"demo on {url} calibrates and range-measures every axis; "
-                         f"confirm with --yes (stdin is not a terminal to ask)")
-    _say(f"The demo calibrates and range-measures every axis of the controller at {url}, "
+        raise UsageError(f"demo on {url} calibrates and range-measures every axis; "
+                          f"confirm with --yes (stdin is not a terminal to ask)")
+    _run_loop(argparse.Namespace(**{**vars(args), "run": _identify}))
+    _complain(f"The demo calibrates and range-measures every axis of the controller at {url}, "
          f"Z/focus included: each axis drives to both of its limit switches. Make sure "
          f"nothing (objective, sample, cables) is in the way.", "yellow")
     try:
@@ -1722,7 +1675,7 @@ def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) ->
     text = describe_exception(error) if error is not None else context.get("message", "")
     logging.getLogger("tango_aio").debug("unhandled: %s", context.get("message"),
                                          exc_info=error)
-    _say(f"warning: {text}", "yellow")
+    _complain(f"warning: {text}", "yellow")
 
 
 async def _run(run: Command, args: argparse.Namespace) -> int:
@@ -1807,22 +1760,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         debug = args.debug
         if getattr(args, "old_url", None):  # demo --url, the old spelling of its argument
             args.url = args.old_url
-        if args.command == "demo" and not args.yes and not _is_emulator(args.url) \
-                and not _confirm_demo(args.url):
-            _say("demo cancelled: nothing was moved")
-            return 1
         with _logging(args):
+            if args.command == "demo" and not args.yes and not _is_emulator(args.url) \
+                    and not _confirm_demo(args):
+                _complain("demo cancelled: nothing was moved")
+                return 1
             return _run_loop(args)
     except KeyboardInterrupt:
-        _say("interrupted", "yellow")
+        _complain("interrupted", "yellow")
         return 130
-    except _UsageError as exc:
-        _say(f"error: {describe_exception(exc)}", "red")
+    except UsageError as exc:
+        _complain(f"error: {describe_exception(exc)}", "red")
         return 2
     except Exception as exc:
         if debug:
             raise
-        _say(f"error: {describe_exception(exc)}", "red")
+        _complain(f"error: {describe_exception(exc)}", "red")
         return 1
 
 

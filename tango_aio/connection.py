@@ -22,6 +22,8 @@ import functools
 import logging
 import os
 import re
+import socket
+import sys
 import urllib.parse
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -162,9 +164,8 @@ def port_error(url: str, exc: BaseException) -> ConnectError:
                                  f"name right? `tango-aio ports` lists the serial ports",
                                  url)
     if number in _DENIED and "lock" not in text.lower():
-        return PortPermissionError(
-            f"permission denied for {url}: add yourself to the dialout group "
-            f"(sudo usermod -aG dialout $USER) and log in again", url)
+        return PortPermissionError(f"permission denied for {url}: {_permission_advice(url)}",
+                                   url)
     if number in _HELD or "exclusively lock" in text or (
             WINDOWS and "PermissionError" in text):  # Windows: in use is EACCES
         return PortBusyError(f"{url} is busy: another program holds it (a tango-aio shell, "
@@ -173,6 +174,16 @@ def port_error(url: str, exc: BaseException) -> ConnectError:
     reason = os.strerror(number) if number is not None else \
         re.sub(r"\[Errno -?\d+\] ?", "", text)
     return ConnectError(f"cannot open {url}: {reason}", url)
+
+
+def _permission_advice(url: str) -> str:
+    # The dialout group is the answer for a serial adapter on Linux, not for a pty or a file.
+    if WINDOWS:
+        return "another user or program may own it; close that program, or run as its user"
+    if sys.platform.startswith("linux") and re.match(r"/dev/tty(USB|ACM|S|AMA|XRUSB)\d", url):
+        return ("add yourself to the dialout group (sudo usermod -aG dialout $USER) and "
+                "log in again")
+    return f"this user may not read and write it; see its owner and mode with ls -l {url}"
 
 
 def check_url(url: str) -> None:
@@ -200,6 +211,21 @@ def check_url(url: str) -> None:
                          f"write socket://{rest or 'HOST:PORT'}")
     if scheme in ("sim", "socket") and slashes != "//":
         raise ValueError(f"{url!r}: write {scheme}://{url[match.end():]}")
+    if scheme == "socket":
+        _socket_address(url)
+
+
+def _socket_address(url: str) -> tuple[str, int]:
+    """``socket://HOST:PORT``'s host and port, or a ValueError that says what to write."""
+    parts = urllib.parse.urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = -1
+    if not parts.hostname or port is None or not 0 < port < 65536:
+        raise ValueError(f"{url!r}: write socket://HOST:PORT, with PORT a number 1-65535 "
+                         f"(e.g. socket://127.0.0.1:4001)")
+    return parts.hostname, port
 
 
 def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future[None]:
@@ -274,12 +300,14 @@ def _close_opened(task: asyncio.Future[Any]) -> None:
 
 async def _open_socket(url: str, factory: ProtocolFactory
                        ) -> tuple[asyncio.BaseTransport, TangoProtocol]:
-    parts = urllib.parse.urlsplit(url)
-    if not parts.hostname or not parts.port:
-        raise ValueError(f"socket URL needs host and port: {url!r}")
+    host, port = _socket_address(url)
     loop = asyncio.get_running_loop()
     try:
-        return await loop.create_connection(factory, parts.hostname, parts.port)
+        return await loop.create_connection(factory, host, port)
+    except socket.gaierror as exc:  # its errno is the resolver's, not the system's
+        raise ConnectError(f"cannot connect to {url}: the host name {host!r} does not "
+                           f"resolve ({exc.strerror}); check the name, or give the "
+                           f"address (socket://192.0.2.10:{port})", url) from exc
     except OSError as exc:
         reason = os.strerror(exc.errno) if exc.errno else str(exc) or type(exc).__name__
         raise ConnectError(f"cannot connect to {url}: {reason} (is the server running, "
@@ -289,9 +317,13 @@ async def _open_socket(url: str, factory: ProtocolFactory
 async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
                 ) -> tuple[TangoProtocol, Closer | None]:
     if url.startswith("sim://"):
-        from .sim.inprocess import open_sim
+        from .sim.inprocess import configs_from_url, open_sim
 
-        return await open_sim(url, factory)
+        protocol, closer = await open_sim(url, factory)
+        baud = configs_from_url(url)[1].baud
+        if baud:  # the emulator's wire carries bytes at this rate, both ways
+            protocol.wire_paced(byte_time(baud))
+        return protocol, closer
     if url.startswith("socket://"):
         _, protocol = await _open_socket(url, factory)
         return protocol, None

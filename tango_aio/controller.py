@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from fractions import Fraction
 from types import TracebackType
-from typing import Any, Final, Protocol
+from typing import Any, Final, NoReturn, Protocol
 
 from ._checks import check_count, check_timeout
 from .bulk import (
@@ -42,10 +42,13 @@ from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     InternalControllerError,
     InvalidCommandError,
+    MoveOutcomeUnknown,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     outcome_unknown,
     parse_error_reply,
@@ -77,13 +80,28 @@ from .instructions import (
     parse,
     parse_reply,
 )
-from .motion import STOP_WAIT, Motion, MovePlan, acceptance_shown, annotate
+from .motion import (
+    STOP_WAIT,
+    Motion,
+    MovePlan,
+    acceptance_shown,
+    annotate,
+    contested,
+    report_came,
+)
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
 from .restart import RestartWatch, report_suggests_restart, settings_of
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
-from .timing import Budget, move_budget, moved_axes, position_tolerance, rest_budget
+from .timing import (
+    Budget,
+    contest,
+    move_budget,
+    moved_axes,
+    position_tolerance,
+    rest_budget,
+)
 from .units import Measure, UnitScale, from_controller, plain, to_controller
 
 __all__ = ["Controller", "Identity"]
@@ -122,7 +140,7 @@ class Identity:
     ``family`` is ``"1.71"`` for firmware that answers like the 1.71 manual, ``"older"``
     for the older edition (its ``?version`` format or ``help`` without a number, old
     L805-819). ``detected`` maps each behaviour found at connect to what was found, e.g.
-    ``{"help_number": "no", "per_axis_replies": "exact"}`` (see README "Motion semantics").
+    ``{"help_number": "no", "per_axis_replies": "exact"}`` (docs/getting-started.md).
     """
 
     model: str
@@ -190,12 +208,19 @@ class Controller:
                                     self._read_state, self._hub.publish))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
+        #: Axes a line of this driver whose end nobody follows (speed, go, a raw move)
+        #: may keep moving, until a status read shows them standing: their motion does
+        #: not contradict a refusal of a later line (see _contest).
+        self._turning: set[str] = set()
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
         #: Whether a confirmation may read the letters with ``sa``: cleared for
         #: good once an ``sa`` went unanswered (a firmware that does not know it).
         self._short_status = True
+        #: Whether the letters are read axis by axis: the unit's all-axes ``?statusaxis``
+        #: ends with ``.`` alone (not ``.-``, L2668-2670), like a completion report.
+        self._letters_by_axis = False
         # A move_by's start without a read: see _still() and _plan().
         #: ``!joy 0`` was accepted on this link (the HDI is off, L7101-7144).
         self._hdi_off = False
@@ -328,7 +353,12 @@ class Controller:
         self._forget_power_state()
         try:
             await self._protocol.resync(timeout=self.reply_timeout)
-            current = await self._protocol.read_autostatus(timeout=self.reply_timeout)
+            current = await self._protocol.read_autostatus(timeout=self.reply_timeout,
+                                                           status=True)
+            # A unit whose ?statusaxis ends like a completion report (@@@-.) is read
+            # axis by axis ('sa x' answers its letter alone, L2725).
+            self._letters_by_axis = \
+                self._protocol.detected.get("status_tail") == "dot"
             wanted = current if autostatus is None else autostatus
             if wanted in _ECHO_BLIND:
                 current = await self._check_local_echo(current)
@@ -578,7 +608,17 @@ class Controller:
         InvalidCommandError
             The line is not valid, or is a read.
         ControllerError
-            With ``check``: the controller reported an error for the line.
+            With ``check``: the controller reported an error for the line (for a line
+            that starts motion: and ``?statusaxis`` read behind it shows none of its
+            axes moving).
+        GarbledVerdictError
+            With ``check``: the error state read was no clean error number or
+            acknowledgement; the line may or may not have been executed.
+        MoveOutcomeUnknown
+            With ``check``, for a line that starts motion (a move, ``cal``, ``rm``,
+            ``speed``, ``go``): its verdict was lost, garbled, or a refusal its moving
+            axes contradict; the message says which axes were stopped or may still
+            move.
         """
         command = parse(line, self.context)
         if command.is_read:
@@ -644,6 +684,7 @@ class Controller:
         if not command.is_read:
             self._forget_start(command)
         raw_move = command.instruction.completion is not None and command.executes
+        starts = check and command.executes and (raw_move or command.name in _STARTS_MOTION)
         try:
             if raw_move and check:
                 # (execute() is start_move() and confirm(); the handle is kept here for
@@ -659,15 +700,31 @@ class Controller:
         except ControllerError as error:
             if error.number < INTERNAL_ERRORS or \
                     await self._blame(error.number, self._timeout(timeout)):
+                if starts:
+                    await self._contest(error, command)
                 raise
+            if check and not raw_move:
+                # The ?err showed a standing internal error, which a lost line gets too:
+                # the read-back decides (the one pipelined behind it was not awaited).
+                try:
+                    await self._protocol.prove_set(command, self._timeout(timeout))
+                except SettingNotAppliedError as failed:
+                    raise failed from error
             response = Response()
+        except GarbledVerdictError as error:
+            if starts:
+                await self._contest(error, command)
+            raise
         except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
                 ConnectionLostError) as error:
             if not raw_move:
                 raise
-            # A raw move may have run.
+            if starts and not isinstance(error, ConnectionLostError):
+                await self._contest(error, command)  # it may have run: is it running?
             raise outcome_unknown(error, command.line) from error.__cause__
         self._track(command)
+        if starts:
+            self._turned(command)
         if command.name == "joy" and not command.is_read:
             self._hdi_off = [float(v) for v in command.values
                              if isinstance(v, int | float)] == [0.0]
@@ -675,6 +732,37 @@ class Controller:
                 and command.name in ("joy", "snsm", "tvr"):
             self._inputs_idle = await self._inputs_are_idle()
         return response
+
+    def _turned(self, command: Command) -> None:
+        """An accepted line that starts motion nobody follows: its axes may move on."""
+        moved = moved_axes(command, AXES[: self.context.axes])
+        if command.name == "speed":
+            for axis, value in zip(moved, command.values, strict=False):
+                (self._turning.add if value else self._turning.discard)(axis)
+        else:
+            self._turning.update(moved)
+
+    async def _contest(self, cause: TangoError, command: Command) -> NoReturn:
+        """A refusal stands if none of the line's axes moves; else stop them and say so."""
+        # (The verdict on a line that starts motion refused it or made no sense:
+        # timing.contest judges ?statusaxis, read behind it. The driver's own motion in
+        # flight, a followed move or what _turning holds, does not contradict a refusal.)
+        moved = moved_axes(command, AXES[: self.context.axes])
+        busy = set(AXES) if self._motion.busy else set(self._turning)
+        try:
+            letters = await self.status()
+        except TangoError as exc:
+            raise contested(cause, command.line, "the state could not be read behind it",
+                            (), moved) from exc
+        found = contest(moved, letters, clean=isinstance(cause, ControllerError), busy=busy)
+        if found.stands:
+            raise annotate(cause, found.reason) if found.reason else cause
+        try:
+            if found.moving:
+                await self.stop(*found.moving)
+        except TangoError:
+            raise contested(cause, command.line, found.reason, (), found.moving) from None
+        raise contested(cause, command.line, found.reason, found.moving, ())
 
     async def _prove_accepted(self, handle: MoveHandle, timeout: float) -> None:
         """Prove that a move line whose acceptance rests only on the ``?err`` behind it
@@ -952,7 +1040,8 @@ class Controller:
             check_axis_word(axis, name)  # "" or "y 5" would read something else
         command = build(name, *args, form=Form.READ, axis=axis, context=self.context) \
             if args else _read_command(name, axis, self.context)
-        if axis is None and not args and name in AXIS_BY_AXIS:
+        if axis is None and not args and (name in AXIS_BY_AXIS or (
+                self._letters_by_axis and command.name == "statusaxis")):
             return await self._axis_by_axis(name, timeout)
         response = await self._request(command, timeout)
         value = parse_reply(command, response.lines)
@@ -1032,6 +1121,7 @@ class Controller:
         """
         letters = await self.get("statusaxis")
         assert isinstance(letters, dict)
+        self._turning.difference_update(a for a, s in letters.items() if s != MOVING)
         return dict(letters)
 
     async def _position_texts(self) -> dict[str, str]:
@@ -1069,9 +1159,9 @@ class Controller:
         stopped) if it still moves after ``timeout`` seconds (default: computed from the
         distance, speed, ``delay``, ``pause`` and ``ctrt``), counted from when its line is
         written. Axes not named are never moved: a set that does not start at X without
-        gaps (``move_to(y=5, z=1)``) is moved axis by axis (see README "Motion
-        semantics"). Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default:
-        the connection's ``units``, else the dim unit) or pint Quantities.
+        gaps (``move_to(y=5, z=1)``) is moved axis by axis (docs/concepts/motion.md).
+        Positions are in ``unit`` (``move_to(x=1.5, unit="mm")``; default: the
+        connection's ``units``, else the dim unit) or pint Quantities.
 
         ``velocity`` and ``acceleration`` apply to this move only: one number for every
         moved axis, or a mapping per axis (``velocity={"x": 5}``), in ``unit`` per second
@@ -1521,7 +1611,11 @@ class Controller:
         InvalidCommandError
             A speed or an axis is not valid, before anything is written.
         ControllerError
-            The controller refused the line (nothing changed).
+            The controller refused the line (nothing changed: none of its axes moves,
+            or only as before).
+        MoveOutcomeUnknown
+            The line's verdict was garbled, or a refusal its moving axes contradict:
+            the message says which axes were stopped or may still move.
         TangoError
             The line's answer was lost; its note says whether the running axes were
             stopped.
@@ -1531,8 +1625,11 @@ class Controller:
         self._check_axes(command, axes)
         try:
             await self._execute(command, check=True)
-        except ControllerError:
-            raise  # refused: the line changed nothing (L2853-2856)
+        except (ControllerError, MoveOutcomeUnknown):
+            # Refused with nothing of it moving: the line changed nothing (L2853-2856); or
+            # a verdict that motion contradicted or that made no sense, the error saying
+            # what was stopped (Controller._contest).
+            raise
         except TangoError as exc:
             # Its answer was lost: the axes may run. A call that raises never leaves
             # axes it set moving: stop them and say so.
@@ -2223,7 +2320,23 @@ class Controller:
         tuple[dict[str, str], dict[str, str]]
             The status letter and the position (as printed) of each axis read.
         """
+        if self._letters_by_axis:
+            return await self._state_by_axis()
         return await self._state_replies(self._submit_state(separate_after, axes))
+
+    async def _state_by_axis(self) -> tuple[dict[str, str], dict[str, str]]:
+        """The state on a unit whose letters are read axis by axis: the letters first
+        (:meth:`status`), then the positions (:meth:`_position_texts`).
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The status letter and the position (as printed) of each present axis.
+        """
+        letters = await self.status()
+        positions = await self._position_texts()
+        self._motion.saw(positions)
+        return letters, positions
 
     def _submit_state(self, separate_after: bool, axes: Sequence[str]) -> _StateRead:
         """Submit the two lines of :meth:`_status_and_positions` (written at once where
@@ -2330,6 +2443,8 @@ class Controller:
         # Written now (MotionPort.read_state: also from a report's callback, in the loop
         # turn the report arrived); the coroutine reads the replies.
         self._protocol.check()
+        if self._letters_by_axis:
+            return self._state_by_axis()
         # A raster's next move_to follows this read: its ?err probe looks like the
         # positions, and a separator behind them keeps it off the move's path.
         return self._state_replies(self._submit_state(True, axes))
@@ -2452,21 +2567,8 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
 Speed = float | Mapping[str, float]
 
 
-def _reported(completion: asyncio.Future[Completed]) -> bool:
-    """Whether a move's completion report arrived (not: its wait was cancelled or failed).
-
-    Parameters
-    ----------
-    completion
-        The move's completion future.
-
-    Returns
-    -------
-    bool
-        Whether it holds a report.
-    """
-    return completion.done() and not completion.cancelled() \
-        and completion.exception() is None
+#: Whether a move's completion report arrived (its wait not cancelled, not failed).
+_reported = report_came
 
 
 def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[str, Any]:
@@ -2480,6 +2582,10 @@ def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[st
         return dict(value)
     return dict.fromkeys(axes, value)
 
+
+#: Lines without a completion report that start motion (a refusal is checked, see
+#: :meth:`Controller._contest`).
+_STARTS_MOTION = frozenset({"speed", "go"})
 
 #: Instructions whose float values are list positions (checked against the resolution).
 _LIST_POSITIONS = frozenset({"trigp", "trigr", "snsa"})

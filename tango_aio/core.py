@@ -56,6 +56,15 @@ Some lines come *late* on some firmware, and the core tells from the stream:
   adapter; switch ``local_echo``): a :class:`Mismatched` with :data:`LOCAL_ECHO`, and
   :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
 
+A line is also judged by its timing where the protocol gives it (arrival times with the
+bytes): a data line whose first byte (blanks aside) was read before its request was
+written is not its reply, nor, on a paced wire (:attr:`ProtocolCore.wire_seconds`,
+:attr:`ProtocolCore.write_time`), one that started while the request's bytes were still
+on the wire (:func:`~tango_aio.linktiming.earliest_reply`): stray bytes without a CR
+glued in front of the reply. Which came first, the chunk or the write, is known by the
+order they were handled in, not by a clock. Such a line is a :class:`Mismatched` with its
+reason, like a line of the wrong shape.
+
 The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
 :meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
 ever raised for bad input; the core stays usable afterwards.
@@ -66,6 +75,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import itertools
+import math
 import random
 import re
 from collections import deque
@@ -87,6 +97,7 @@ from .instructions import (
     parse,
     reply_rule,
 )
+from .linktiming import ARRIVAL_MARGIN, earliest_reply
 from .patterns import (
     ACK_PATTERN,
     ONE_NUMBER,
@@ -131,6 +142,8 @@ MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
 
 _CR: Final = 0x0D
+#: The bytes ``str.strip`` removes from a Latin-1 line (a reply is matched stripped).
+_BLANK_BYTES: Final = frozenset(code for code in range(256) if chr(code).isspace())
 
 #: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
 #: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
@@ -216,20 +229,39 @@ class LineAssembler:
         self._scanned = 0
         self._discarding = False
         self._max_line = max_line
+        # Where each timed chunk starts (counting every byte ever fed), its number and
+        # when it was read, oldest first; only the chunks the buffer still holds (and the
+        # one its first byte came in).
+        self._stamps: deque[tuple[int, int, float]] = deque()
+        self._offset = 0  # the count of bytes fed before the buffer's first
+        #: Chunks fed with a time so far (and any after the first such).
+        self.feeds = 0
+        #: The number (:attr:`feeds`) of the chunk that brought the first byte of the line
+        #: :meth:`next_line` returned last, and when it was read (the time given to
+        #: :meth:`feed`): leading blanks and LF bytes do not count, they change no reply.
+        #: ``inf`` when not known.
+        self.started_feed: float = math.inf
+        self.started = math.inf
 
     @property
     def buffered(self) -> int:
         """Number of bytes held for an incomplete line."""
         return len(self._buffer)
 
-    def feed(self, data: bytes) -> None:
+    def feed(self, data: bytes, at: float | None = None) -> None:
         """Add received bytes; collect the lines with :meth:`next_line`.
 
         Parameters
         ----------
         data
             Bytes as they were read, any fragment of the stream.
+        at
+            When they were read (any monotonic clock; ``None``: not known).
         """
+        if data and (at is not None or self._stamps):
+            self.feeds += 1
+            self._stamps.append((self._offset + len(self._buffer), self.feeds,
+                                 math.inf if at is None else at))
         self._buffer += data
 
     def next_line(self) -> str | None:
@@ -252,11 +284,26 @@ class LineAssembler:
             if self._scanned > self._max_line and not self._discarding:
                 self._overflow()
             if self._discarding:
-                self._buffer.clear()
+                self._consume(len(self._buffer))
                 self._scanned = 0
             return None
         raw = bytes(self._buffer[:end])
+        stamps = self._stamps
+        if stamps:
+            offset = self._offset
+            while len(stamps) > 1 and stamps[1][0] <= offset:
+                stamps.popleft()  # chunks that ended before this line
+            if raw and raw[0] in _BLANK_BYTES:
+                self.started_feed, self.started = self._started(raw)
+            else:
+                first, fed, at = stamps[0]
+                if first <= offset:
+                    self.started_feed = fed
+                    self.started = at
+                else:
+                    self.started_feed = self.started = math.inf
         del self._buffer[: end + 1]
+        self._offset += end + 1
         self._scanned = 0
         if self._discarding:
             self._discarding = False
@@ -265,9 +312,35 @@ class LineAssembler:
             raise ProtocolError(f"reply line of {len(raw)} bytes exceeds {self._max_line}")
         return raw.replace(b"\n", b"").decode("latin-1")
 
+    def _started(self, raw: bytes) -> tuple[float, float]:
+        """The chunk that brought the first byte of ``raw`` (at the buffer's start, led by
+        blanks) that is not blank (the line's own first if it is all blank).
+
+        Returns
+        -------
+        tuple of (float, float)
+            The chunk's number and the time given with it (``inf``: not known).
+        """
+        lead = len(raw) - len(raw.decode("latin-1").lstrip())
+        position = self._offset + (lead if lead < len(raw) else 0)
+        stamps = self._stamps
+        while len(stamps) > 1 and stamps[1][0] <= position:
+            stamps.popleft()
+        first, fed, at = stamps[0]
+        return (fed, at) if first <= position else (math.inf, math.inf)
+
+    def _consume(self, size: int) -> None:
+        """Drop the buffer's first ``size`` bytes, and the stamps of the chunks they
+        ended."""
+        del self._buffer[:size]
+        self._offset += size
+        stamps = self._stamps
+        while len(stamps) > 1 and stamps[1][0] <= self._offset:
+            stamps.popleft()
+
     def _overflow(self) -> NoReturn:
         size = len(self._buffer)
-        self._buffer.clear()
+        self._consume(size)
         self._scanned = 0
         self._discarding = True
         raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
@@ -443,6 +516,13 @@ class _Pending:
     #: On such a follow-up, once the move's acknowledgement proved deferred: the move
     #: whose verdict this reply's error number is.
     verdict: Hashable | None = None
+    #: A data line whose first byte came in chunk :attr:`LineAssembler.feeds` ``<=
+    #: fed`` was read before this line was written: not its reply (-1: not known).
+    fed: int = -1
+    #: A data line that starts earlier is not this line's reply either: its bytes were
+    #: still on a paced wire (:func:`~tango_aio.linktiming.earliest_reply`); ``-inf``:
+    #: not known.
+    earliest: float = -math.inf
     #: The :func:`rear <_rear>` edge of what it owes (``None``: it is sure to get no
     #: line), set once its items are complete (:meth:`seal`).
     rear: Edge | None = None
@@ -833,6 +913,14 @@ def wire_size(command: Command, expect: Expectation) -> int:
     return size + len(_FOLLOW_UP) if follows else size
 
 
+def _too_early(line: str, head: _Pending) -> str:
+    """Why ``line`` that started too early is not the reply of ``head``."""
+    shown = repr(line) if len(line) <= 60 else repr(line[:60]) + "..."
+    request = f"{head.sent!r}" if head.sent else "its request"
+    return (f"{shown} cannot be the reply to {request}: it started before the request "
+            "could have been answered (stray bytes without a CR in front of the reply)")
+
+
 def _is_ok(text: str) -> bool:
     """Whether an acknowledgement line is ``OK...`` (in any case: switch ``ack_case``)."""
     return text[:2].upper() == "OK"
@@ -909,6 +997,18 @@ class ProtocolCore:
         #: Echoes of mode-4 moves that come with their completion report (switch
         #: ``echo=completion``), oldest first.
         self._deferred_echoes: deque[ReplyPattern] = deque()
+        #: Seconds per byte of a wire known to carry bytes at that rate (0: not known;
+        #: see :func:`~tango_aio.linktiming.earliest_reply`), and how much earlier than
+        #: their arrival the times given to :meth:`receive_data` may be.
+        self.wire_seconds = 0.0
+        self.arrival_margin = ARRIVAL_MARGIN
+        #: On a paced wire (:attr:`wire_seconds`): when the lines registered from now on
+        #: are handed to the transport (at this time or later; ``None``: not known), on
+        #: the clock of the arrival times given to :meth:`receive_data`. Set it before
+        #: registering the lines of each write; a time from before the write only makes
+        #: the rule milder.
+        self.write_time: float | None = None
+        self._wire_free = 0.0  # when the bytes registered so far have passed
         self._sent: tuple[Hashable, Edge] | None = None
         #: The front and rear edges of each separator line, by (line, mode, ack_reads).
         self._separator_edges: dict[tuple[bytes, int, AckReads | None],
@@ -1010,6 +1110,10 @@ class ProtocolCore:
             self._pending.append(pending)
         if expect.completion is not None:
             self._moves.append(tag)
+        if pending is not None:
+            pending.fed = self._assembler.feeds
+        if self.write_time is not None:
+            self._stamp(pending, len(data))
         if expect.rule.continuation is not None:
             data += self._register_follow_up(mode)
         elif pending is not None and ((expect.ack and expect.completion is not None)
@@ -1125,9 +1229,23 @@ class ProtocolCore:
         follow = _Pending(object(), items, _FOLLOW_UP_ECHO, internal=True,
                           pattern=ONE_NUMBER, sent="?err").seal()
         self._pending.append(follow)
+        follow.fed = self._assembler.feeds
+        if self.write_time is not None:
+            self._stamp(follow, len(_FOLLOW_UP))
         if follow.rear is not None:
             self._sent = follow.tag, follow.rear
         return _FOLLOW_UP
+
+    # -- timing ---------------------------------------------------------------------------
+
+    def _stamp(self, pending: _Pending | None, size: int) -> None:
+        """Mark when the reply of a line of ``size`` bytes just registered may start."""
+        at = self.write_time
+        assert at is not None
+        earliest, self._wire_free = earliest_reply(at, self._wire_free, size,
+                                                   self.wire_seconds, self.arrival_margin)
+        if pending is not None:
+            pending.earliest = earliest
 
     def forget_completion(self, tag: Hashable) -> bool:
         """Stop waiting for the completion report of ``tag`` (e.g. the move was refused).
@@ -1344,20 +1462,26 @@ class ProtocolCore:
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
                            _echo_of(data.decode()), pattern=pattern).seal()
         self._pending.append(pending)
+        pending.fed = self._assembler.feeds
+        if self.write_time is not None:
+            self._stamp(pending, len(data))
         self._sent = (tag, pending.rear) if pending.rear is not None else None
         return data
 
     # -- receiving ------------------------------------------------------------------------
 
-    def receive_data(self, data: bytes) -> None:
+    def receive_data(self, data: bytes, at: float | None = None) -> None:
         """Feed bytes read from the controller.
 
         Parameters
         ----------
         data
             Bytes as they were read, any fragment of the stream.
+        at
+            When they were read, on the clock of :attr:`write_time` (``None``: not known;
+            a line that starts in them is never judged by its timing).
         """
-        self._assembler.feed(data)
+        self._assembler.feed(data, at)
 
     def next_event(self) -> Event | None:
         """Return the next event, or ``None`` when more bytes are needed.
@@ -1625,12 +1749,18 @@ class ProtocolCore:
             tag = None if head.internal else head.tag
             self._events.append(Mismatched(tag, line, head.pattern, LOCAL_ECHO))
             return
-        elif not head.lines and self.check_replies and not head.pattern.accepts(text):
-            # Not this request's reply: its own was lost, or the line is extra. Handing it
-            # over would shift every later reply by one request (tango_aio.patterns).
+        elif not head.lines and self.check_replies and (
+                (early := self._assembler.started_feed <= head.fed
+                 or self._assembler.started < head.earliest)
+                or not head.pattern.accepts(text)):
+            # Not this request's reply: its own was lost, or the line is extra, or it
+            # started before the request could have been answered (bytes without a CR
+            # glued in front of the reply). Handing it over would shift every later reply
+            # by one request (tango_aio.patterns), or hand over a wrong value.
             self._desynced = True
             tag = None if head.internal else head.tag
-            self._events.append(Mismatched(tag, line, head.pattern))
+            self._events.append(Mismatched(tag, line, head.pattern,
+                                           _too_early(line, head) if early else ""))
             return
         rule = head.rule
         ended = rule.continuation is not None and not rule.continuation.match(text)

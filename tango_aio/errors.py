@@ -16,7 +16,10 @@ who failed:
 * :class:`MoveOutcomeUnknown`: a motion call failed after its line was written and the
   controller may have executed it (a timeout, a lost answer or link); read the position
   before repeating the move.
-* :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply).
+* :class:`SettingNotAppliedError`: a set line got no error, but the read behind it shows
+  another value (autostatus 0, 1, 3: the line may have been lost).
+* :class:`ProtocolError`: the byte stream made no sense (over-long line, unexpected reply;
+  :class:`GarbledVerdictError`: the reply that judges a line was garbled).
 * :class:`ConnectionLostError`: a working link went away; the cause is chained
   (:class:`IdentityMismatchError`: a different controller answered after a reconnect).
 * :class:`ConnectError`: a link could not be set up at all, one subclass per reason with
@@ -56,6 +59,7 @@ __all__ = [
     "EncoderIsrError",
     "EncoderSupplyOverloadError",
     "EtsError",
+    "GarbledVerdictError",
     "HardwareFaultError",
     "HdiDeviceError",
     "HdiIsrError",
@@ -95,6 +99,7 @@ __all__ = [
     "ProtocolError",
     "RequestAbortedError",
     "SafetyCircuitError",
+    "SettingNotAppliedError",
     "StageLimitsError",
     "StateError",
     "TangoError",
@@ -149,6 +154,34 @@ class InvalidCommandError(TangoError, ValueError):
 
 class ProtocolError(TangoError):
     """The controller's byte stream violated the protocol (e.g. an over-long line)."""
+
+
+class GarbledVerdictError(ProtocolError):
+    """The reply that judges a line (the ``?err`` behind it, its autostatus-2
+    acknowledgement) is neither a clean error number the manual documents nor a clean
+    acknowledgement (e.g. ``07``, ``ERR 35``): it proves nothing about the line, which
+    may or may not have been executed. ``command`` is the line, ``reply`` that reply.
+
+    Parameters
+    ----------
+    command
+        The line the reply judges.
+    reply
+        The reply, as received.
+    message
+        The message (``None``: says what the reply was).
+    """
+
+    def __init__(self, command: str, reply: str, message: str | None = None) -> None:
+        super().__init__(message or (
+            f"the verdict on {command!r} was {reply!r}, neither a documented error number "
+            "nor an acknowledgement: it says nothing of the line"))
+        self.command = command
+        self.reply = reply
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # As MoveError's: BaseException pickles as ``cls(*self.args)``.
+        return type(self), (self.command, self.reply, str(self)), self.__dict__
 
 
 class ConnectionLostError(TangoError):
@@ -301,6 +334,56 @@ def outcome_unknown(error: TangoError, command: str) -> TangoError:
             wrapped.command = command
             return wrapped
     return error
+
+
+class SettingNotAppliedError(TangoError):
+    """A set line was answered without an error, but the read behind it shows that the
+    controller does not hold the value written: the setting may not have been applied
+    (the line was lost on the way, or the controller clamped or rounded the value).
+
+    Raised in the autostatus modes whose set lines owe no answer of their own (0, 1 and
+    3), where only a read-back proves a set (:mod:`tango_aio.readback`).
+
+    Parameters
+    ----------
+    command
+        The set line (``'!vel x 55.5'``).
+    instruction
+        Its instruction (``'vel'``).
+    axis
+        The one axis the line named (``None``: none, or several in order).
+    sent
+        The values written, as text (``'55.5'``).
+    read
+        The read-back (``'?vel x'``).
+    held
+        Its reply, as the controller printed it (``'10.000'``).
+    """
+
+    def __init__(self, command: str, *, instruction: str, axis: str | None, sent: str,
+                 read: str, held: str) -> None:
+        where = f"{instruction} {axis.upper()}" if axis else instruction
+        super().__init__(
+            f"the setting may not have been applied: {command!r} sent {sent} for {where}, "
+            f"but {read!r} reads {held!r} (the line was lost on the way, or the "
+            f"controller clamped or rounded the value)")
+        self.command = command
+        self.instruction = instruction
+        self.axis = axis
+        self.sent = sent
+        self.read = read
+        self.held = held
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return _rebuild_setting_error, (type(self), self.command, self.instruction,
+                                        self.axis, self.sent, self.read, self.held), \
+            self.__dict__
+
+
+def _rebuild_setting_error(cls: type[SettingNotAppliedError], command: str,
+                           instruction: str, axis: str | None, sent: str, read: str,
+                           held: str) -> SettingNotAppliedError:
+    return cls(command, instruction=instruction, axis=axis, sent=sent, read=read, held=held)
 
 
 # -- the errors of one surface (each module re-exports its own) --------------------------

@@ -7,7 +7,15 @@ move returns normally only when every axis it moved stands still at its target.
 How a move is followed
 ======================
 1. The move line is written, with its check (the autostatus-2 acknowledgement or an
-   ``?err`` probe right behind it). A refused line raises its ``ControllerError``.
+   ``?err`` probe right behind it). A refused line raises its ``ControllerError``, once
+   a state read behind the refusal shows none of its axes moving: one flipped bit turns
+   the ``?err`` reply ``0`` into a documented refusal (``2``), so the refusal alone
+   proves nothing. A verdict that is no clean error number or acknowledgement
+   (:class:`~tango_aio.errors.GarbledVerdictError`, e.g. ``07``) proves nothing either.
+   When the line's axes move (or stand elsewhere than before, or its report came), it
+   ran: they are stopped, and :class:`~tango_aio.errors.MoveProtocolUnknownError` says
+   which (or which may still move); a garbled verdict with nothing moving raises it
+   too, saying so (:func:`~tango_aio.timing.contest`).
 2. The driver then waits for a *hint*: any completion report (``@@@-.``, or the bare CR
    of autostatus 3), an abort by the driver, or the time at which the move should have
    ended (its :attr:`MovePlan.expected` duration). A report is only a hint, because the
@@ -39,7 +47,10 @@ How a move is followed
    reason why the read may come too early: a move that has not started yet
    (``!delay``, L6845-6868) can read like the previous state until the delay is over,
    and an axis may still settle in closed loop (``ctrt``, L11616-11631) until the
-   expected end (:func:`tango_aio.timing.too_early`).
+   expected end (:func:`tango_aio.timing.too_early`). In a move of several axes, one
+   that reads a failure letter while the others still move ends the move too
+   (:func:`tango_aio.timing.cut_short`): the others are stopped and the error names
+   every axis; their report would come only once all of them stand.
 4. A move during which the driver itself stopped one of its axes (``a``, ``a x`` or
    Ctrl+C) never succeeds, whatever letters are reported: the "stop epoch" counts the
    driver's stops per axis, and a move that saw the count of one of its axes change
@@ -55,8 +66,9 @@ another one does not spend it), and covers ``delay`` before the start (L6845-686
 travel (trapezoid at the slowest plausible speed), ``pause`` after it (L6873-6899) and
 the closed-loop settling time ``ctrt`` (L11616-11631). When no report comes, the state is
 polled from shortly after the expected end, with an interval that grows to
-:data:`POLL_MAX` (in autostatus 0, which sends no reports, every :data:`POLL_MAX` during
-the move as well: an early end is seen within that); the move fails with
+:data:`POLL_MAX` (in autostatus 0, which sends no reports, and for a move of several
+axes, every :data:`POLL_MAX` during the move as well: an early end is seen within that,
+:func:`tango_aio.timing.polled_during`); the move fails with
 :class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
 moves.
 
@@ -90,10 +102,12 @@ from typing import NoReturn, Protocol
 
 import anyio
 
+from .core import Completed
 from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     MoveError,
     ProtocolError,
     RequestAbortedError,
@@ -104,10 +118,20 @@ from .events import MoveFinished
 from .instructions import AXES, Command, Completion
 from .protocol import MoveHandle, Submission
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
-from .timing import POLL_GRACE, Budget, describe_stop, too_early, verdict
+from .timing import (
+    POLL_GRACE,
+    Budget,
+    contest,
+    cut_short,
+    describe_stop,
+    polled_during,
+    shifted_axes,
+    too_early,
+    verdict,
+)
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
-           "acceptance_shown", "annotate"]
+           "acceptance_shown", "annotate", "contested", "report_came"]
 
 log = logging.getLogger("tango_aio")
 
@@ -296,6 +320,8 @@ class _Job:
     checked: float = 0.0
     #: The state read :meth:`Motion.reported` wrote while this move waited for a hint.
     early: Awaitable[tuple[dict[str, str], dict[str, str]]] | None = None
+    #: The positions the driver knew when the line was written (:attr:`Motion.positions`).
+    before: dict[str, str] | None = None
 
 
 class Motion:
@@ -466,7 +492,8 @@ class Motion:
             plan = await plan_for(command, self.positions)
             hints = self._hints
             job = _Job(plan, self._port.start(command, plan.batch),
-                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints)
+                       asyncio.get_running_loop().time(), self.epoch(plan.moved), hints,
+                       before=None if self.positions is None else dict(self.positions))
             try:
                 return await self._run(job)
             except asyncio.CancelledError:
@@ -497,13 +524,15 @@ class Motion:
             job.checked = asyncio.get_running_loop().time()
             if error is None:
                 job.plan = await job.plan.resolved()
+        except GarbledVerdictError as exc:
+            await self._contest(job, exc)
         except _LOST_READ as exc:
             # The check (or the start of a move_by) was lost (Ctrl+C or a resync): the
             # move may or may not run. Stop it and fail: success is never assumed, and
             # the error says the line may have run (so that the caller does not retry
             # blindly).
             aborted = self._was_stopped(job)
-            stopped = await self._stop_and_wait(job)
+            stopped = await self._stop_and_wait(job) is not None
             if aborted:
                 await self._aborted(job, {})
             raise outcome_unknown(_with_stop(exc, job, stopped),
@@ -511,14 +540,13 @@ class Motion:
         except ConnectionLostError as exc:
             raise outcome_unknown(exc, job.sent.command.line) from exc.__cause__
         if error is not None:
-            job.sent.forget()
-            raise error
+            await self._contest(job, error)
         try:
             letters = await self._follow(job)
         except _LOST_READ as exc:
             # The state could not be read (a call that raises never leaves the axes
             # it set moving): stop them and say so, or say that they may still move.
-            stopped = await self._stop_and_wait(job)
+            stopped = await self._stop_and_wait(job) is not None
             raise _with_stop(exc, job, stopped) from exc.__cause__
         except ConnectionLostError as exc:
             job.sent.forget()
@@ -529,16 +557,39 @@ class Motion:
         job.sent.forget()
         return letters
 
+    async def _contest(self, job: _Job, cause: TangoError) -> NoReturn:
+        """A refusal stands if none of the line's axes moves; else stop them and say so."""
+        # (The verdict refused the line or made no sense: timing.contest judges the state.)
+        line, moved = job.plan.command.line, job.plan.moved
+        try:
+            letters, texts = await self._state(moved)
+        except _LOST_READ as exc:
+            stopped = await self._stop_and_wait(job) is not None
+            raise contested(cause, line, "the state could not be read behind it",
+                            moved if stopped else (), () if stopped else moved) from exc
+        found = contest(moved, letters, clean=isinstance(cause, ControllerError),
+                        reported=report_came(job.sent.submission.completion),
+                        shifted=shifted_axes(moved, job.before, texts))
+        if found.stands:
+            job.sent.forget()
+            raise annotate(cause, found.reason) if found.reason else cause
+        if found.moving and await self._stop_and_wait(job) is None:
+            raise contested(cause, line, found.reason, (), found.moving)
+        job.sent.forget()
+        raise contested(cause, line, found.reason, found.moving, ())
+
     async def _follow(self, job: _Job) -> dict[str, str]:
         """Wait for hints and confirm them until the move has ended (see module doc)."""
         loop = asyncio.get_running_loop()
         plan = job.plan
         expected_end = job.started + plan.expected
         deadline = job.started + plan.limit
-        # Without completion reports (autostatus 0) nothing tells of an early end (a limit
-        # switch, an abort by someone else): the state is polled during the move too.
-        next_poll = (expected_end + POLL_GRACE if plan.reports
-                     else min(job.started + POLL_MAX, expected_end + POLL_GRACE))
+        # Without completion reports (autostatus 0), or for a move of several axes (its
+        # report waits for all of them), nothing tells of an early end (a limit switch,
+        # an abort by someone else): the state is polled during the move too.
+        polled = polled_during(plan.moved, plan.reports)
+        next_poll = (min(job.started + POLL_MAX, expected_end + POLL_GRACE) if polled
+                     else expected_end + POLL_GRACE)
         interval = POLL_MIN
         while True:
             delay = min(next_poll, deadline) - loop.time()
@@ -558,6 +609,10 @@ class Motion:
             if self._was_stopped(job):
                 return await self._aborted(job, letters)
             if any(letters.get(axis) == MOVING for axis in plan.moved):
+                ended = cut_short(plan.budget, plan.moved, letters, job.checked, now,
+                                  expected_end)
+                if ended:
+                    await self._cut_short(job, ended, letters, texts)
                 if now >= deadline:
                     if plan.extend is None or job.extended:
                         await self._timed_out(job)
@@ -569,8 +624,8 @@ class Motion:
                 if now < expected_end:
                     # A false hint (e.g. !joy 0): the real report or the expected end
                     # comes next (without reports: the next poll of the move).
-                    next_poll = (expected_end + POLL_GRACE if plan.reports
-                                 else min(now + POLL_MAX, expected_end + POLL_GRACE))
+                    next_poll = (min(now + POLL_MAX, expected_end + POLL_GRACE) if polled
+                                 else expected_end + POLL_GRACE)
                 else:
                     next_poll = now + interval
                     interval = min(interval * 1.5, POLL_MAX)
@@ -661,6 +716,35 @@ class Motion:
             {a: (AxisStatus.ERROR if a in plan.moved and s not in FAILED_LETTERS else s)
              for a, s in letters.items()})
 
+    async def _cut_short(self, job: _Job, ended: Sequence[str], letters: Mapping[str, str],
+                         texts: Mapping[str, str]) -> NoReturn:
+        """Axes of a move ended it early (:func:`~tango_aio.timing.cut_short`) while the
+        others still move: stop those, wait until they stand, and fail.
+
+        Raises
+        ------
+        MoveError
+            Always: the axes that ended it in words, and the others stopped, or said to
+            move still.
+        """
+        idle = await self._stop_and_wait(job)
+        stopped = idle is not None
+        # The letters seen when they stood, the ended axes' letters of the read that
+        # showed them (a stop may turn them into the abort's letter).
+        final = {**letters, **(idle or {}), **{a: letters.get(a, ABSENT) for a in ended}}
+        plan = job.plan
+        targets = plan.targets or {}
+        others = [a for a in plan.moved if a not in ended]
+        where = self.positions or {}
+        parts = [describe_stop(a, final[a], texts.get(a), targets.get(a)) for a in ended]
+        parts += [describe_stop(a, final.get(a, ABSENT), where.get(a), targets.get(a),
+                                why=f"was stopped by this program when "
+                                    f"{' '.join(ended).upper()} stopped")
+                  if stopped else f"{a.upper()} may still move" for a in others]
+        self._finished(job, final, ok=False)
+        raise MoveError(f"{plan.command.line!r} did not end at its target: "
+                        + "; ".join(parts), final)
+
     async def _idle(self, job: _Job, timeout: float) -> dict[str, str]:
         async with asyncio.timeout(timeout):
             while True:
@@ -675,21 +759,21 @@ class Motion:
             f"{job.plan.command.line!r} did not complete within {job.plan.limit:.1f} s; "
             "axes stopped")
 
-    async def _stop_and_wait(self, job: _Job) -> bool:
+    async def _stop_and_wait(self, job: _Job) -> dict[str, str] | None:
         """Write ``a`` and wait (bounded) until the moved axes stand still.
 
         Returns
         -------
-        bool
-            Whether they were seen to stand still.
+        dict[str, str] | None
+            The letters read once they were seen to stand still; ``None`` if they were
+            not.
         """
         with contextlib.suppress(TangoError):
             await self._port.stop()
             self.stopped()
-        idle = False
+        idle = None
         with contextlib.suppress(TangoError, TimeoutError):
-            await self._idle(job, STOP_WAIT)
-            idle = True
+            idle = await self._idle(job, STOP_WAIT)
         job.sent.forget()
         return idle
 
@@ -773,6 +857,60 @@ def annotate(exc: TangoError, text: str) -> TangoError:
     else:
         new.add_note(text)
     return new
+
+
+def contested(cause: TangoError, line: str, reason: str, stopped: Sequence[str],
+              moving: Sequence[str]) -> TangoError:
+    """The error of a motion line whose verdict (a refusal, or a garbled reply) the
+    state contradicted or could not settle (:func:`~tango_aio.timing.contest`): a
+    :class:`~tango_aio.errors.MoveProtocolUnknownError` saying what the state showed,
+    which axes were stopped and which may still move.
+
+    Parameters
+    ----------
+    cause
+        The verdict's error: a :class:`ControllerError`, a
+        :class:`~tango_aio.errors.GarbledVerdictError`, or the error that took the
+        verdict (a timeout, a resync).
+    line
+        The motion line.
+    reason
+        What the state read showed, in words.
+    stopped
+        The axes seen to stand still after the driver stopped them.
+    moving
+        The axes that may still move (the stop failed, or the state was not read).
+
+    Returns
+    -------
+    TangoError
+        The error to raise.
+    """
+    error = ProtocolError(str(cause)) if isinstance(cause, ControllerError) else cause
+    if reason:
+        error = annotate(error, reason)
+    if stopped:
+        error = annotate(error, f"axes {' '.join(stopped).upper()} stopped")
+    if moving:
+        error = annotate(error, f"axes {' '.join(moving).upper()} may still move")
+    return outcome_unknown(error, line)
+
+
+def report_came(completion: asyncio.Future[Completed] | None) -> bool:
+    """Whether a move's completion report arrived (not: its wait was cancelled or failed).
+
+    Parameters
+    ----------
+    completion
+        The move's completion future (``None``: none is awaited).
+
+    Returns
+    -------
+    bool
+        Whether it holds a report.
+    """
+    return completion is not None and completion.done() and not completion.cancelled() \
+        and completion.exception() is None
 
 
 def _with_stop(exc: TangoError, job: _Job, stopped: bool) -> TangoError:

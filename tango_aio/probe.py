@@ -32,7 +32,10 @@ raw lines and reads every line the controller sends, since the driver's routing 
 
 The decisions from the observed lines are pure functions (``decide_*``), tested without
 I/O; a value no switch has is recorded under ``unknown`` with its lines, and the command
-asks the user to send the file.
+asks the user to send the file. An instruction the unit answers with nothing and error 4
+("invalid instruction", L970) is recorded under ``lacks``, and the probe goes on without
+it: without ``?lim`` there is no ``lim_cr_bug`` to see, the moves stay within
+``2 * 10**(4 - decimals)`` of where X stands (towards 0), and no move goes beyond a limit.
 """
 
 from __future__ import annotations
@@ -51,8 +54,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ._argtypes import count_type, seconds_type, url_type, writable_path
 from .errors import ConnectionLostError, ProbeError, TangoError
 from .protocol import TangoProtocol
+from .state import CACHED_SETTINGS
 from .status import ABSENT, MOVING, AxisStatus
 from .trace import format_record, trace_header
 
@@ -85,8 +90,8 @@ SWITCH_NAMES: tuple[str, ...] = (
     "ack_mode_change", "move_ok", "ack_case", "save_ack", "refused_move_report",
     "move_during_move", "zero_move_report", "report_width", "status_tail", "absent_axes",
     "joystick_letter", "abort_letter", "abort_report", "ctrl_c", "help_number",
-    "help_case", "service_end", "lim_cr_bug", "version_format", "line_end", "numbers",
-    "instruction_set", "local_echo")
+    "help_case", "service_end", "lim_cr_bug", "version_format", "version_value", "line_end",
+    "numbers", "instruction_set", "local_echo")
 
 #: Switches only moves show (observed with ``--moves``). ``echo`` tells ``after`` from
 #: the others without moves, ``before`` from ``completion`` only with a move; ``numbers``
@@ -196,6 +201,35 @@ def is_ack(line: str) -> bool:
         Whether it is an acknowledgement.
     """
     return _ACK.match(line) is not None
+
+
+def exchange_end(got: Sequence[str], version: str) -> tuple[int, int] | None:
+    """Where a mode-1 exchange that ends with ``?err`` and ``?version`` ends in ``got``:
+    the index of the first ``version`` line whose last line before it, move reports
+    aside, is a number (``?err``'s answer), and that number's index.
+
+    Parameters
+    ----------
+    got
+        The lines received so far.
+    version
+        The ``?version`` line.
+
+    Returns
+    -------
+    tuple[int, int] or None
+        The indices of the ``?version`` line and of ``?err``'s answer; ``None`` while
+        the exchange has not ended.
+    """
+    for index, line in enumerate(got):
+        if line != version:
+            continue
+        at = index - 1
+        while at >= 0 and _REPORT.match(got[at]):
+            at -= 1
+        if at >= 0 and _INT.match(got[at].strip()):
+            return index, at
+    return None
 
 
 def normalized(line: str) -> str:
@@ -311,25 +345,69 @@ def decide_version_format(exchange: Exchange, version: str) -> Observation:
     return _unknown("a ?version reply of neither known form", exchange)
 
 
-def decide_instruction_set(exchange: Exchange) -> Observation:
-    """``instruction_set`` from ``?version 1`` (a value the older edition's ``version``
-    did not take, old L414).
+def decide_version_value(exchange: Exchange, version: str) -> Observation:
+    """``version_value`` from ``?version 1``: the version number only (L1057-1059,
+    L1107), or the whole ``?version`` line, the value ignored (as by a ``version`` that
+    takes none, old L416-418).
 
     Parameters
     ----------
     exchange
         The exchange of ``?version 1``.
+    version
+        The ``?version`` answer.
+
+    Returns
+    -------
+    Observation
+        The value of ``version_value``.
+    """
+    if exchange.got == [version] and exchange.err == 0:
+        return _seen("line", "?version 1 answered the whole ?version line", exchange)
+    if len(exchange.got) == 1 and exchange.err == 0 and "," not in exchange.got[0]:
+        return _seen("number", "?version 1 answered the version number only", exchange)
+    if not exchange.got and exchange.err == 4:
+        return _unseen("moot: ?version 1 is refused with error 4 (version takes no value, "
+                       "as in the older edition)", (), exchange)
+    return _unknown("?version 1 answered neither the number, nor the ?version line, nor "
+                    "error 4", exchange)
+
+
+def decide_instruction_set(version1: Exchange, help5: Exchange, version: str
+                           ) -> Observation:
+    """``instruction_set`` from ``?version 1`` and ``?help 5``, values the older
+    edition's ``version`` and ``help`` did not take (old L416-418, old L805-811): error 4
+    for ``?version 1`` is the older edition's; where ``?version 1`` answers the whole
+    line (the value ignored), ``?help 5`` tells.
+
+    Parameters
+    ----------
+    version1
+        The exchange of ``?version 1``.
+    help5
+        The exchange of ``?help 5``.
+    version
+        The ``?version`` answer.
 
     Returns
     -------
     Observation
         The value of ``instruction_set``.
     """
-    if exchange.got and exchange.err == 0:
-        return _seen("full", "?version 1 answered", exchange)
-    if not exchange.got and exchange.err == 4:
-        return _seen("older", "?version 1 answered nothing and set error 4", exchange)
-    return _unknown("?version 1 answered neither a version nor error 4", exchange)
+    if not version1.got and version1.err == 4:
+        return _seen("older", "?version 1 answered nothing and set error 4", version1)
+    if version1.got == [version] and version1.err == 0:
+        if not help5.got and help5.err == 4:
+            return _seen("older", "?version 1 answered the whole ?version line (the value "
+                         "ignored), ?help 5 nothing and error 4", version1, help5)
+        if len(help5.got) == 1 and help5.err is not None:
+            return _seen("full", "?version 1 answered the whole ?version line (the value "
+                         "ignored), ?help 5 answered", version1, help5)
+        return _unknown("?version 1 ignored its value and ?help 5 answered neither a line "
+                        "nor error 4", version1, help5)
+    if version1.got and version1.err == 0:
+        return _seen("full", "?version 1 answered", version1)
+    return _unknown("?version 1 answered neither a version nor error 4", version1)
 
 
 def decide_help_number(exchange: Exchange) -> Observation:
@@ -443,8 +521,8 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
                  extmode0, extmode1)
 
 
-def status_letters(line: str) -> tuple[str, bool] | None:
-    """The letters of an all-axes ``?statusaxis`` line and whether it ends with ``.-``.
+def status_letters(line: str) -> tuple[str, str] | None:
+    """The letters of an all-axes ``?statusaxis`` line and how it ends.
 
     Parameters
     ----------
@@ -453,13 +531,17 @@ def status_letters(line: str) -> tuple[str, bool] | None:
 
     Returns
     -------
-    tuple[str, bool] or None
-        The letters and whether ``.-`` ended them; ``None`` if it is no such line.
+    tuple[str, str] or None
+        The letters and the ``status_tail`` value: ``"yes"`` (``.-``), ``"dot"`` (``.``
+        alone, the completion report's shape) or ``"no"`` (the letters alone); ``None``
+        if it is no such line.
     """
     if line.endswith(".-"):
-        return line[:-2], True
+        return line[:-2], "yes"
+    if line.endswith(".") and "." not in line[:-1] and 1 <= len(line) - 1 <= 4:
+        return line[:-1], "dot"
     if "." not in line and 1 <= len(line) <= 4:
-        return line, False
+        return line, "no"
     return None
 
 
@@ -489,9 +571,8 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
         return {name: _unknown(note, exchange)
                 for name in ("status_tail", "absent_axes", "joystick_letter")}
     letters, tail = parsed
-    out["status_tail"] = _seen("yes" if tail else "no",
-                               "ends with '.-'" if tail else "ends with the letters",
-                               exchange)
+    out["status_tail"] = _seen(tail, {"yes": "ends with '.-'", "dot": "ends with '.'",
+                                      "no": "ends with the letters"}[tail], exchange)
     if axes >= 4:
         out["absent_axes"] = _unseen("every axis is present", ("dash", "omit"), exchange)
         present = letters
@@ -951,6 +1032,9 @@ class ProbeResult:
     url: str
     #: The wire trace (:mod:`tango_aio.trace`'s format).
     trace: str
+    #: The instructions the unit lacks: it answered them with nothing and error 4
+    #: (L970), sorted.
+    lacks: list[str] = field(default_factory=list)
 
     @property
     def switches(self) -> dict[str, str]:
@@ -983,6 +1067,7 @@ class ProbeResult:
             "identity": self.identity,
             "axes": self.axes,
             "settings": self.settings,
+            "lacks": self.lacks,
             "switches": self.switches,
             "unobserved": {name: obs.note for name, obs in self.observations.items()
                            if obs.value is None and not obs.unknown},
@@ -995,9 +1080,9 @@ class ProbeResult:
 
 def comparable(fingerprint: dict[str, Any]) -> dict[str, Any]:
     """The parts of a fingerprint that do not depend on timing or on when it was written:
-    identity, axes, settings, switch values, and each observation's value and note (not
-    its lines, which hold positions a stop reached). Two probes of one unit give equal
-    ones.
+    identity, axes, settings, the instructions it lacks, switch values, and each
+    observation's value and note (not its lines, which hold positions a stop reached).
+    Two probes of one unit give equal ones.
 
     Parameters
     ----------
@@ -1014,6 +1099,7 @@ def comparable(fingerprint: dict[str, Any]) -> dict[str, Any]:
         "identity": fingerprint.get("identity"),
         "axes": fingerprint.get("axes"),
         "settings": fingerprint.get("settings"),
+        "lacks": fingerprint.get("lacks"),
         "switches": fingerprint.get("switches"),
         "unobserved": fingerprint.get("unobserved"),
         "unknown": sorted(fingerprint.get("unknown") or {}),
@@ -1095,6 +1181,8 @@ class _Prober:
         self.identity: dict[str, Any] = {}
         self.extra: dict[str, Any] = {}
         self.numeric: list[Exchange] = []
+        #: Instructions the unit answered with nothing and error 4.
+        self.lacks: set[str] = set()
         self.mode = 1
         self.initial_mode: int | None = None
         self.ack_reads = "no"
@@ -1120,7 +1208,10 @@ class _Prober:
 
     async def ask(self, *lines: str) -> Exchange:
         """Mode 1: write ``lines``, ``?err`` and ``?version``; the lines before the answer
-        to ``?err`` are theirs (in mode 1 a read answers one line, L2087).
+        to ``?err`` are theirs (in mode 1 a read answers one line, L2087). The exchange
+        ends at the ``?version`` line that follows a number (``?err``'s answer, move
+        reports aside): a line of ``lines`` may be the ``?version`` line too (``?version
+        1`` on firmware that ignores the value).
 
         Returns
         -------
@@ -1136,23 +1227,38 @@ class _Prober:
         self.link.send(*lines, "?err", "?version")
         version = self.version
         try:
-            await self.link.until(lambda got: version in got, self.options.reply_timeout)
+            await self.link.until(lambda got: exchange_end(got, version) is not None,
+                                  self.options.reply_timeout)
         except TimeoutError:
-            raise ProbeError(f"no answer to {list(lines)!r} and the ?version after them "
-                             f"within {self.options.reply_timeout} s; received "
+            raise ProbeError(f"no answer to {list(lines)!r} and the ?err and ?version after "
+                             f"them within {self.options.reply_timeout} s; received "
                              f"{self.link.inbox!r}") from None
         got = self.link.take()
-        index = got.index(version)
-        before, after = got[:index], got[index + 1:]
-        self.link.inbox[:0] = after  # e.g. a report that came right after
-        err: int | None = None
-        if before and _INT.match(before[-1].strip()):
-            err = int(before.pop().strip())
+        end = exchange_end(got, version)
+        assert end is not None
+        index, at = end
+        err = int(got[at].strip())
+        before = got[:at] + got[at + 1:index]
+        self.link.inbox[:0] = got[index + 1:]  # e.g. a report that came right after
         return Exchange(list(lines), before, err)
 
-    async def read(self, line: str) -> Exchange:
-        """A read in mode 1, kept among the settings."""
+    async def checked(self, line: str) -> Exchange:
+        """:meth:`ask` for one instruction; one it answers with nothing and error 4
+        ("invalid instruction", L970) is recorded among those the unit lacks.
+
+        Returns
+        -------
+        Exchange
+            The line sent and its answer.
+        """
         exchange = await self.ask(line)
+        if not exchange.got and exchange.err == 4:
+            self.lacks.add(line.lstrip("?").split()[0].lower())
+        return exchange
+
+    async def read(self, line: str) -> Exchange:
+        """A read in mode 1, kept among the settings (see :meth:`checked`)."""
+        exchange = await self.checked(line)
         self.settings[line[1:]] = exchange.got if exchange.err == 0 else \
             [f"(error {exchange.err})"]
         return exchange
@@ -1193,7 +1299,7 @@ class _Prober:
                 self.obs[name] = Observation(None, reason)
         return ProbeResult({name: self.obs[name] for name in SWITCH_NAMES}, self.identity,
                            self.axes, self.settings, self.extra, self.options, self.url,
-                           self.link.trace_text())
+                           self.link.trace_text(), sorted(self.lacks))
 
     async def restore(self) -> None:
         """Send the set-back lines (mode 1), then the mode the unit was found in."""
@@ -1242,9 +1348,9 @@ class _Prober:
         """Reads: identity, settings, help, service, ?lim, ?statusaxis."""
         link = self.link
         version1 = await self.ask("?version 1")
-        self.obs["instruction_set"] = decide_instruction_set(version1)
+        self.obs["version_value"] = decide_version_value(version1, self.version)
         for line in ("?readsn", "?det", "?detext"):
-            exchange = await self.ask(line)
+            exchange = await self.checked(line)
             if exchange.err == 0:
                 self.identity[line[1:]] = exchange.got
         pos = await self.read("?pos")
@@ -1252,8 +1358,13 @@ class _Prober:
             raise ProbeError(f"?pos answered {pos.got!r}, not one line")
         self.axes = len(pos.got[0].split())
         self.numeric.append(pos)
-        for line in ("?vel", "?accel", "?secvel", "?pitch", "?dim", "?lim x", "?pause",
-                     "?delay"):
+        # The settings the driver reads at connect (ctrt among them, L11616-11631),
+        # and the others the probe reports.
+        cached = [f"?{entry.name}" for entry in CACHED_SETTINGS]
+        for line in dict.fromkeys(["?vel", "?accel", "?secvel", "?pitch", "?dim", "?lim x",
+                                   "?pause", "?delay", *cached]):
+            if line == "?extmode":
+                continue  # read below
             exchange = await self.read(line)
             if exchange.err == 0:
                 self.numeric.append(exchange)
@@ -1261,12 +1372,17 @@ class _Prober:
         self.joy = int(joy.got[0]) if joy.err == 0 and len(joy.got) == 1 and \
             _INT.match(joy.got[0].strip()) else None
         extmode = await self.read("?extmode")
-        self.obs["help_number"] = decide_help_number(await self.ask("?help 5"))
-        self.obs["help_case"] = decide_help_case(await self.ask("help"))
-        self.obs["service_end"] = decide_service_end(await self.ask("service"))
-        lim = await self.ask("?lim")
+        help5 = await self.ask("?help 5")
+        self.obs["instruction_set"] = decide_instruction_set(version1, help5, self.version)
+        self.obs["help_number"] = decide_help_number(help5)
+        self.obs["help_case"] = decide_help_case(await self.checked("help"))
+        self.obs["service_end"] = decide_service_end(await self.checked("service"))
+        lim = await self.checked("?lim")
         self.settings["lim"] = lim.got
-        if extmode.err == 0 and len(extmode.got) == 1 and extmode.got[0].strip() in "01":
+        if "lim" in self.lacks:
+            self.obs["lim_cr_bug"] = _unseen("moot: the unit lacks ?lim (no reply, error 4)",
+                                             (), lim)
+        elif extmode.err == 0 and len(extmode.got) == 1 and extmode.got[0].strip() in "01":
             current = int(extmode.got[0])
             other = 1 - current
             self.undo.append(f"!extmode {current}")
@@ -1316,25 +1432,32 @@ class _Prober:
     async def moves(self) -> None:
         """Small moves of X (see the module text); X returns to where it was."""
         start = await self.ask("?pos x")
-        lim = await self.ask("?lim x")
+        lim = await self.checked("?lim x")
+        limits: tuple[float, float] | None = None
         try:
             p0_text = start.got[0].strip()
             p0 = float(p0_text)
-            lo, hi = (float(v) for v in lim.got[0].replace(",", " ").split()[:2])
+            if "lim" not in self.lacks:
+                lo, hi = (float(v) for v in lim.got[0].replace(",", " ").split()[:2])
+                limits = (lo, hi)
         except (IndexError, ValueError):
             raise ProbeError(f"cannot read X's position and limits: {start.got!r} "
                              f"{lim.got!r}") from None
         decimals = len(p0_text.partition(".")[2]) or 4
         self.undo.append(f"!moa x {p0_text}")
-        sign = 1.0 if p0 <= (lo + hi) / 2 else -1.0
+        # Without ?lim the moves stay within 2 * 10**(4 - decimals) of where X stands
+        # (2 mm with positions in mm to 4 decimals), towards 0 (up from 0).
+        span = limits[1] - limits[0] if limits else 10.0 ** (5 - decimals)
+        middle = (limits[0] + limits[1]) / 2 if limits else 0.0
+        sign = 1.0 if p0 <= middle else -1.0
         # A first short move measures how far the axis goes in move_time.
-        step0 = min(10.0 ** (3 - decimals), (hi - lo) / 100)
+        step0 = min(10.0 ** (3 - decimals), span / 100)
         began = time.monotonic()
         first = await self.move(f"!mor x {sign * step0:.{decimals}f}")
         took = max(time.monotonic() - began, 1e-3)
         back = await self.move(f"!mor x {-sign * step0:.{decimals}f}")
         scale = min(max(self.options.move_time / took, 1.0), 50.0)
-        step = min(step0 * scale, (hi - lo) / 10)
+        step = min(step0 * scale, span / 10)
         wait = self.options.move_time * 10 + self.options.reply_timeout
         self.obs["report_width"] = self.decide_width(first)
         self.extra["first_move"] = {"lines": first.transcript() + back.transcript(),
@@ -1348,18 +1471,23 @@ class _Prober:
             _REPORT.match(zero.got[0]) else _seen("no", "a zero move sends nothing", zero)
             if not zero.got else _unknown("a zero move answered more than a report", zero))
         # A refused move, beyond the limit.
-        beyond = hi + max(1.0, (hi - lo) / 10) if sign > 0 else lo - max(1.0, (hi - lo) / 10)
-        refused = await self.settled(f"!moa x {beyond:.{decimals}f}")
-        self.obs["refused_move_report"] = (
-            _seen("no", "a refused move sends nothing", refused) if not refused.got else
-            _seen("yes", "a refused move reports 'E'", refused)
-            if len(refused.got) == 1 and refused.got[0][:1] == AxisStatus.ERROR
-            else _unknown("a refused move answered more than one 'E' report", refused))
-        await self.ask("?err")
+        if limits is None:
+            self.obs["refused_move_report"] = _unseen(
+                "the unit lacks ?lim: no known limit to move beyond", ("no", "yes"), lim)
+        else:
+            lo, hi = limits
+            beyond = hi + max(1.0, span / 10) if sign > 0 else lo - max(1.0, span / 10)
+            refused = await self.settled(f"!moa x {beyond:.{decimals}f}")
+            self.obs["refused_move_report"] = (
+                _seen("no", "a refused move sends nothing", refused) if not refused.got else
+                _seen("yes", "a refused move reports 'E'", refused)
+                if len(refused.got) == 1 and refused.got[0][:1] == AxisStatus.ERROR
+                else _unknown("a refused move answered more than one 'E' report", refused))
+            await self.ask("?err")
         # A move during a move; 'a' and Ctrl+C during a move. Each needs the move to
         # still run when the next line arrives: when it had ended, the move is tried
         # again twice as long (up to three times, within a tenth of the travel).
-        longest = (hi - lo) / 10
+        longest = span / 10
         attempts: list[Callable[[float, bool], Awaitable[bool]]] = [
             lambda length, last: self.during(p0, sign * length, decimals, wait, last),
             lambda length, last: self.abort(p0, sign * length, decimals, wait, b"a\r", "a",
@@ -1392,7 +1520,7 @@ class _Prober:
         # A value just below zero (numbers=negzero), when X stands near 0.
         below: Exchange | None = None
         tiny = 0.4 * 10.0 ** -decimals
-        if abs(p0) <= step and lo < -tiny:
+        if abs(p0) <= step and limits is not None and limits[0] < -tiny:
             await self.move(f"!moa x {-tiny:.{decimals + 1}f}")
             below = await self.ask("?pos x")
             await self.back_to(p0_text, p0, decimals, wait, force=True)
@@ -1699,10 +1827,12 @@ def add_probe_command(commands: Any) -> None:
                     "silent, and write a fingerprint (JSON) to send to the project. "
                     "Without --moves nothing moves: it reads, and sets back what it "
                     "changed (the autostatus mode, extmode for one read).")
-    parser.add_argument("url", help="controller URL, e.g. /dev/ttyUSB0 or sim://")
+    parser.add_argument("url", type=url_type,
+                        help="controller URL, e.g. /dev/ttyUSB0 or sim://")
     parser.add_argument("-o", "--output", default="tango-fingerprint.json", metavar="FILE",
+                        type=writable_path,
                         help="fingerprint file (default tango-fingerprint.json)")
-    parser.add_argument("--trace", metavar="FILE",
+    parser.add_argument("--trace", metavar="FILE", type=writable_path,
                         help="also write the whole wire trace, with timestamps")
     parser.add_argument("--moves", action="store_true",
                         help="also make small moves of X inside its limits (asks first)")
@@ -1711,10 +1841,10 @@ def add_probe_command(commands: Any) -> None:
                              "controller's power-on settings)")
     parser.add_argument("--yes", action="store_true",
                         help="do not ask before --moves or --save")
-    parser.add_argument("--baudrate", type=int, default=57600, help="serial baud rate")
-    parser.add_argument("--settle", type=float, default=0.3,
+    parser.add_argument("--baudrate", type=count_type, default=57600, help="serial baud rate")
+    parser.add_argument("--settle", type=seconds_type, default=0.3,
                         help="seconds of silence that end an exchange (default 0.3)")
-    parser.add_argument("--move-time", type=float, default=0.3,
+    parser.add_argument("--move-time", type=seconds_type, default=0.3,
                         help="about how long each test move takes, s (default 0.3)")
     parser.set_defaults(run=_probe_command)
 

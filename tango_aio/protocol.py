@@ -65,25 +65,29 @@ from .core import (
     Replied,
     RequestLost,
     Unsolicited,
+    expectation,
 )
 from .errors import (
     ConnectionLostError,
     ControllerError,
     ControllerTimeoutError,
+    GarbledVerdictError,
     ProtocolError,
     RequestAbortedError,
+    SettingNotAppliedError,
     TangoError,
     UnknownControllerError,
     WrongEventLoopError,
     controller_error,
-    parse_error_reply,
 )
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, CreditWindow
 from .instructions import Command, Context, Form, build, check_framing, check_rows_framing, parse
 from .linktiming import LinkTiming
+from .readback import ReadBack, mismatch, read_back
 from .scheduler import Line, Run, WriteScheduler
 from .session import (
     DEAD_AFTER,
+    STATUS_READ,
     Barrier,
     Exchange,
     LinkSession,
@@ -93,6 +97,7 @@ from .session import (
     Silence,
     Until,
 )
+from .timing import Verdict, ack_verdict, err_verdict
 
 __all__ = ["DEAD_AFTER", "MoveHandle", "Response", "Submission", "TangoProtocol",
            "WrongEventLoopError"]
@@ -116,6 +121,9 @@ class Response:
     #: Such a verdict does not prove the line arrived (:meth:`Controller.command
     #: <tango_aio.controller.Controller.command>` proves it before it returns).
     deferred: bool = False
+    #: The acknowledgement as received (``OK...``, ``ERR 5``; the ``?err`` reply when
+    #: :attr:`deferred`), ``None`` before it came.
+    ack_line: str | None = None
 
 
 @dataclass(eq=False, slots=True)
@@ -146,6 +154,9 @@ class MoveHandle:
     submission: Submission
     probe: Submission | None
     check: bool
+    #: A set line's read-back, written behind the probe where the line owes no answer of
+    #: its own (:func:`~tango_aio.readback.read_back`), and its submission.
+    proof: tuple[ReadBack, Submission] | None = None
 
     @property
     def command(self) -> Command:
@@ -180,8 +191,11 @@ class MoveHandle:
             The check was lost to a resync.
         ConnectionLostError
             The link is gone.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         """
-        return await self.protocol._error_of(self.submission, self.probe, self.check, timeout)
+        return await self.protocol._error_of(self.submission, self.probe, self.check,
+                                             timeout, self.proof)
 
     async def confirm(self, timeout: float | None) -> None:
         """Like :meth:`error`, but raise the controller's error (and forget the report).
@@ -195,6 +209,8 @@ class MoveHandle:
         ------
         ControllerError
             The controller reported an error for the line.
+        SettingNotAppliedError
+            A set line's read-back shows another value than the one written.
         ControllerTimeoutError, RequestAbortedError, ConnectionLostError
             The check itself was lost (see :meth:`error`).
         """
@@ -355,6 +371,19 @@ class TangoProtocol(asyncio.Protocol):
     @quiet_interval.setter
     def quiet_interval(self, seconds: float) -> None:
         self.session.quiet_interval = seconds
+
+    def wire_paced(self, byte_seconds: float) -> None:
+        """The link carries bytes at ``byte_seconds`` per byte or slower, both ways (the
+        emulator's paced wire): a reply that starts before its request's bytes could have
+        passed is not its reply (:func:`~tango_aio.linktiming.earliest_reply`). Not for a
+        serial port's opened rate, which USB and PCI units do not keep (L10, L1645-1653).
+
+        Parameters
+        ----------
+        byte_seconds
+            Seconds per byte (:func:`~tango_aio.linktiming.byte_time`).
+        """
+        self.core.wire_seconds = byte_seconds
 
     @property
     def link(self) -> LinkTiming:
@@ -648,26 +677,35 @@ class TangoProtocol(asyncio.Protocol):
             raise UnknownControllerError(None, command.line)
         return Response()
 
-    async def _mode_exchange(self, lines: list[str], timeout: float | None
-                             ) -> tuple[int, int]:
+    async def _mode_exchange(self, lines: list[str], timeout: float | None, *,
+                             restore: bool = False) -> tuple[int, int]:
         """Once every line before is answered (later lines wait), write ``lines``,
         ``?autostatus`` and ``?help`` with the core dropping every line; collect what
         comes back up to the reply of ``?help`` (``ERROR n,text``, L2915) and a quiet
         :attr:`quiet_interval` (in modes 2 and 4 only:
         :func:`~tango_aio.session.nothing_trails_help`). The session reads the mode in
-        force (adopted) and, in mode 2, how reads are acknowledged from those lines
+        force (adopted before the lines held behind the exchange are written) and, in
+        mode 2, how reads are acknowledged from those lines
         (:meth:`~tango_aio.session.LinkSession.mode_read`).
+
+        With ``restore``, a mode found that is not the driver's (the controller
+        restarted, :meth:`~tango_aio.session.LinkSession.mode_verified`) is replaced by
+        the driver's in a second exchange before any held line goes out: those lines
+        were submitted for the driver's mode (a mode-2 move relies on its ``OK...``),
+        so they are written in it.
 
         Returns
         -------
         tuple of (int, int)
             The mode the driver had in force once every line before was answered, and the
-            mode in force.
+            mode in force (with ``restore``: the mode found, before it was replaced).
 
         Raises
         ------
         ControllerTimeoutError
             The lines before got no reply within ``timeout`` seconds.
+        UnknownControllerError
+            With ``restore``: the controller kept another mode (that mode is adopted).
         """
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
@@ -678,11 +716,33 @@ class TangoProtocol(asyncio.Protocol):
                 raise ControllerTimeoutError(
                     f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
             driver = self.core.autostatus  # the driver's, once all is answered
-            received = await self._exchange(sent, timeout, Until.HELP)
+            found: list[int] = []
+
+            def adopt(received: Exchange, sent: list[str]) -> bool:
+                # Before the lines held behind the exchange go out: the core encodes
+                # them in the mode found (a move written in mode 1 owes no OK...).
+                found.append(self.session.mode_read(sent, received.lines))
+                self.scheduler.reproject()
+                return restore and len(found) == 1 and self.session.mode_verified(
+                    driver, found[0]) is ModeVerdict.RESTARTED
+
+            try:
+                await self._exchange(sent, timeout, Until.HELP,
+                                     adopt=functools.partial(adopt, sent=sent))
+                if restore and self.session.mode_verified(
+                        driver, found[0]) is ModeVerdict.RESTARTED:
+                    again = self.session.mode_lines(
+                        [build("autostatus", driver, form=Form.SET).line])
+                    await self._exchange(again, timeout, Until.HELP,
+                                         adopt=functools.partial(adopt, sent=again))
+            finally:
+                self.scheduler.release()  # (a no-op unless a restore did not start)
+                self._flush()
         self._heard()
-        actual = self.session.mode_read(sent, received.lines)
-        self.scheduler.reproject()
-        return driver, actual
+        if restore and len(found) == 2 and self.session.mode_changed(
+                driver, found[1]) is ModeVerdict.KEPT_ANOTHER:
+            raise UnknownControllerError(None, f"!autostatus {driver}")
+        return driver, found[0]
 
     async def _idle(self) -> None:
         """Hold lines submitted from now on and wait until every line before is written
@@ -738,6 +798,7 @@ class TangoProtocol(asyncio.Protocol):
                       batch: object | None = None) -> MoveHandle:
         submission = self.submit(command, hold=True, batch=batch)
         probe = None
+        proof = None
         if check and not submission.expectation.ack:
             # Written back to back with the command, so no other line can change the
             # error state in between (each instruction overwrites it, manual L2853): a
@@ -745,22 +806,59 @@ class TangoProtocol(asyncio.Protocol):
             probe = self.submit(_PROBE, hold=True, batch=batch)
             if submission.owes is None:
                 submission.guard, probe.guard = probe.owes, None
+            if not submission.expectation.echo:
+                # No answer of its own (autostatus 0, 1, 3): the probe's 0 is also what a
+                # lost line gets, so a set is proven by reading its setting behind it.
+                back = read_back(command, self.core.context)
+                if back is not None:
+                    proof = (back, self.submit(back.read, hold=True, batch=batch))
         self._flush()
-        return MoveHandle(self, submission, probe, check)
+        return MoveHandle(self, submission, probe, check, proof)
 
     async def _error_of(self, submission: Submission, probe: Submission | None, check: bool,
-                        timeout: float | None) -> ControllerError | None:
+                        timeout: float | None,
+                        proof: tuple[ReadBack, Submission] | None = None
+                        ) -> ControllerError | None:
         line = submission.command.line
         if submission.reply is not None:
             response = await self.wait_reply(submission, timeout)
-            if check and submission.expectation.ack and response.ack != 0:
-                return _ack_error(response.ack, submission)
+            if check and submission.expectation.ack:
+                code = _judged(response.ack_line, response.deferred, line) \
+                    if response.ack_line is not None else response.ack
+                if code != 0:
+                    return _ack_error(code, submission)
         if probe is not None:
             reply = await self.wait_reply(probe, timeout)
-            code, _ = parse_error_reply(reply.lines[0])
+            code = _judged(reply.lines[0], True, line)
             if code:
                 return controller_error(code, line)
+        if proof is not None:
+            back, read = proof
+            _judge(back, (await self.wait_reply(read, timeout)).lines)
         return None
+
+    async def prove_set(self, command: Command, timeout: float | None) -> None:
+        """Read the setting the set line ``command`` wrote, where the line owes no answer
+        of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
+        :mod:`tango_aio.readback`; no read: nothing to do). For a line whose ``?err``
+        answered only a standing internal error (L2853-2867), which proves nothing.
+
+        Parameters
+        ----------
+        command
+            The set line, already written and answered.
+        timeout
+            Seconds the read may take (``None``: no limit).
+
+        Raises
+        ------
+        SettingNotAppliedError
+            The read shows another value.
+        """
+        expect = expectation(command, self.core.autostatus, self.core.context)
+        back = None if expect.ack or expect.echo else read_back(command, self.core.context)
+        if back is not None:
+            _judge(back, (await self.query(back.read, timeout=timeout)).lines)
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
@@ -791,7 +889,7 @@ class TangoProtocol(asyncio.Protocol):
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
-    async def read_autostatus(self, *, timeout: float | None) -> int:
+    async def read_autostatus(self, *, timeout: float | None, status: bool = False) -> int:
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
         way a mode change is confirmed (:meth:`_mode_exchange`).
@@ -800,13 +898,18 @@ class TangoProtocol(asyncio.Protocol):
         ----------
         timeout
             Seconds the exchange may take (``None``: no limit).
+        status
+            Also write ``?statusaxis`` in front, and record in :attr:`detected` how its
+            reply ends (``status_tail``, :func:`~tango_aio.session.status_tail`): the
+            exchange sees the raw lines, which the core would route a reply shaped like
+            a completion report away from.
 
         Returns
         -------
         int
             The mode in force.
         """
-        return (await self._mode_exchange([], timeout))[1]
+        return (await self._mode_exchange([STATUS_READ] if status else [], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
 
@@ -844,13 +947,11 @@ class TangoProtocol(asyncio.Protocol):
         bool
             Whether the mode had to be restored.
         """
-        expected, actual = await self._mode_exchange([], timeout)
+        expected, actual = await self._mode_exchange([], timeout, restore=True)
         if self.session.mode_verified(expected, actual) is ModeVerdict.IN_FORCE:
             return False
-        log.warning("the controller is in autostatus %d, the driver had %d in force: it "
-                    "restarted; restoring autostatus %d", actual, expected, expected)
-        await self._change_mode(build("autostatus", expected, form=Form.SET), expected,
-                                timeout)
+        log.warning("the controller was in autostatus %d, the driver had %d in force: it "
+                    "restarted; autostatus %d restored", actual, expected, expected)
         if self.on_restored is not None:
             self.on_restored(actual, expected)
         return True
@@ -1085,11 +1186,15 @@ class TangoProtocol(asyncio.Protocol):
             self._flush()
         return run
 
-    def _flush(self) -> None:
+    def _flush(self, now: float | None = None) -> None:
         """Write what the scheduler lets go now (queued lines as the credit allows, with
-        the markers and separators due)."""
+        the markers and separators due); ``now``: the loop time, if just read."""
         if self._transport is None or self._lost is not None:
             return
+        if self.core.wire_seconds:
+            # Before the lines are registered: on a paced wire, a reply that starts before
+            # this time plus their bytes' is not theirs (the arrival times' clock).
+            self.core.write_time = self._loop.time() if now is None else now
         data = self.scheduler.next_write()
         if data:
             self._write(data)
@@ -1370,10 +1475,13 @@ class TangoProtocol(asyncio.Protocol):
         return self.detected
 
     async def _exchange(self, lines: list[str], timeout: float | None, until: Until,
-                        marker: str | None = None) -> Exchange:
+                        marker: str | None = None, *,
+                        adopt: Callable[[Exchange], bool] | None = None) -> Exchange:
         """Write ``lines`` with the core dropping every line; return what the session
         collected up to what ends the exchange (:class:`~tango_aio.session.Until`).
-        Only call it when nothing is owed.
+        Only call it when nothing is owed. ``adopt`` learns from the lines collected
+        before the lines held behind the exchange are written; when it returns true,
+        they stay held (the caller releases them).
 
         Returns
         -------
@@ -1384,7 +1492,7 @@ class TangoProtocol(asyncio.Protocol):
         collected = self.session.exchange
         assert collected is not None
         self._collected = self._loop.create_future()
-        in_step = False
+        in_step = keep = False
         try:
             self._write(data)
             serial = self.scheduler.exchanged(len(lines))
@@ -1401,9 +1509,11 @@ class TangoProtocol(asyncio.Protocol):
                                         else self.reply_timeout)
                 raise error from None
             in_step = True
+            keep = adopt is not None and adopt(collected)
         finally:
             self._collected = None
-            self.scheduler.release()
+            if not keep:
+                self.scheduler.release()
             if self._quiet_timer is not None:
                 self._quiet_timer.cancel()
             ended = self.session.end_exchange(in_step=in_step)
@@ -1500,11 +1610,13 @@ class TangoProtocol(asyncio.Protocol):
             Bytes as they were read, any fragment of the stream.
         """
         self._trace_received(data)
-        if self.session.bytes_received(self._loop.time()) is Outcome.WAIT_QUIET:
+        # Read after the bytes were: never earlier than they arrived (linktiming).
+        now = self._loop.time()
+        if self.session.bytes_received(now) is Outcome.WAIT_QUIET:
             self._quiet_from_now()
-        self.core.receive_data(data)
+        self.core.receive_data(data, now)
         self._dispatch_pending()
-        self._flush()
+        self._flush(now)
 
     def _dispatch_pending(self) -> None:
         while True:
@@ -1562,7 +1674,7 @@ class TangoProtocol(asyncio.Protocol):
         if isinstance(event, Replied):
             response.lines = event.lines
         elif isinstance(event, Acknowledged):
-            response.ack, response.acked = event.code, True
+            response.ack, response.acked, response.ack_line = event.code, True, event.line
             if event.deferred:
                 response.deferred = True
             if event.code != 0:  # a refused move never completes (the core forgot it)
@@ -1583,6 +1695,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def _on_completed(self, event: Completed) -> None:
         self._heard()
+        self.session.report_seen(event.line)
         if event.tag is None:
             return
         submission = self._submissions.get(event.tag)
@@ -1610,8 +1723,13 @@ class TangoProtocol(asyncio.Protocol):
         submission = self._submissions.get(event.tag)
         command = submission.command.line if submission is not None else "a marker"
         line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
-        log.warning("reply mismatch: %s is not a reply to %r (%s expected), resyncing",
-                    line, command, event.expected.kind.value)
+        # A link that echoes every byte fails connect() with the same words: no warning.
+        level = logging.DEBUG if self.core.local_echo else logging.WARNING
+        if event.reason:
+            log.log(level, "reply mismatch: %s (%r), resyncing", event.reason, command)
+        else:
+            log.log(level, "reply mismatch: %s is not a reply to %r (%s expected), resyncing",
+                        line, command, event.expected.kind.value)
         if submission is not None:
             why = event.reason or (f"{line} cannot be the reply to {command!r} "
                                    f"({event.expected.kind.value} expected): a line was "
@@ -1668,9 +1786,39 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
         future.exception()
 
 
+def _judged(reply: str, err: bool, line: str) -> int | None:
+    """The error number a verdict on ``line`` gives; ``err``: the reply of an ``?err``
+    (else an acknowledgement).
+
+    Returns
+    -------
+    int | None
+        0: accepted; else the error number (``None``: a bare ``ERR``).
+
+    Raises
+    ------
+    GarbledVerdictError
+        The reply is not a clean verdict: it proves nothing about the line.
+    """
+    verdict, code = err_verdict(reply) if err else ack_verdict(reply)
+    if verdict is Verdict.GARBLED:
+        raise GarbledVerdictError(line, reply)
+    return code
+
+
 def _ack_error(code: int | None, submission: Submission) -> ControllerError:
     line = submission.command.line
     return UnknownControllerError(None, line) if code is None else controller_error(code, line)
+
+
+def _judge(back: ReadBack, lines: Sequence[str]) -> None:
+    """Raise :class:`SettingNotAppliedError` unless the read-back's reply shows the value."""
+    held = mismatch(back, lines)
+    if held is not None:
+        command = back.command
+        raise SettingNotAppliedError(command.line, instruction=command.name, axis=command.axis,
+                                     sent=" ".join(command.tokens), read=back.read.line,
+                                     held=held)
 
 
 #: Bytes of one line a wire-log record shows at most, so that a long line (or one whose

@@ -11,7 +11,12 @@ recorded on a real unit becomes a regression test without hardware::
 
     async with tango_aio.testing.replay("session.trace") as player:
         async with tango_aio.connect(player.url) as tango:
-            await tango.move_to(x=1.0)      # the same calls as when it was recorded
+            await tango.move_to(x=1.0)      # the program that was recorded
+
+The replayed program must be the recorded one (the same calls with the same options),
+not one that does the same thing: it must write the very lines of the trace. A trace of
+``tango-aio move URL x=1`` replayed by ``move_to(x=1.0)`` fails at the command's first
+``?pos``: the command reads where the axes start, to show the distance covered.
 
 The first line that differs ends the replay: the link is closed (the client fails with
 :class:`~tango_aio.errors.ConnectionLostError`) and leaving the block raises

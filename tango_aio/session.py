@@ -46,15 +46,33 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
-from .core import AckReads, HelpStyle, ProtocolCore
+from .core import AckReads, HelpStyle, ProtocolCore, is_completion_line
 from .errors import ProtocolError
 from .instructions import encode
 from .linktiming import MIN_QUIET, LinkTiming
 from .patterns import ACK_PATTERN, normal_line
+from .status import LETTERS
 
-__all__ = ["DEAD_AFTER", "QUIET_INTERVAL", "REPLY_WAITS", "TRANSITIONS", "Barrier",
-           "Exchange", "LinkEvent", "LinkSession", "LinkState", "ModeVerdict", "Outcome",
-           "Overdue", "SessionStateError", "Silence", "Until", "nothing_trails_help"]
+__all__ = [
+    "DEAD_AFTER",
+    "QUIET_INTERVAL",
+    "REPLY_WAITS",
+    "STATUS_READ",
+    "TRANSITIONS",
+    "Barrier",
+    "Exchange",
+    "LinkEvent",
+    "LinkSession",
+    "LinkState",
+    "ModeVerdict",
+    "Outcome",
+    "Overdue",
+    "SessionStateError",
+    "Silence",
+    "Until",
+    "nothing_trails_help",
+    "status_tail",
+]
 
 #: Consecutive unanswered requests after which a link that stays open is declared lost.
 #: Two: a request's own timeout, then the resync marker written after it.
@@ -246,6 +264,41 @@ def nothing_trails_help(lines: Sequence[str]) -> bool:
         if _INTEGER.match(line):
             return int(line) in (0, 1, 3)
     return False
+
+
+#: The read a mode exchange may carry to see how ``?statusaxis`` ends (:func:`status_tail`).
+STATUS_READ: Final = "?statusaxis"
+
+#: The all-axes ``?statusaxis`` reply without a tail: one letter per axis.
+_BARE_LETTERS: Final = re.compile(f"[{re.escape(''.join(sorted(LETTERS)))}]{{1,4}}$")
+
+
+def status_tail(lines: Sequence[str]) -> str | None:
+    """How a unit ends its all-axes ``?statusaxis`` reply, from the lines an exchange
+    that wrote it brought back: ``"yes"`` (``.-``, as the manual says and prints:
+    "an additional '-' after the dot (.- instead of .)", L2668-2670, ``@@@-.-`` L2715),
+    ``"no"`` (the letters alone), or ``"dot"`` (``@@@-.``: the completion report's own
+    shape, L2087-2089, which a read then cannot be told from). A completion report that
+    came meanwhile does not count: a line with ``.-`` or the bare letters decides first.
+
+    Parameters
+    ----------
+    lines
+        The lines collected (stripped or not).
+
+    Returns
+    -------
+    str | None
+        ``"yes"``, ``"no"`` or ``"dot"``; ``None``: no line of letters came.
+    """
+    texts = [line.strip() for line in lines]
+    if any(text.endswith(".-") and is_completion_line(text[:-1]) for text in texts):
+        return "yes"
+    if any(_BARE_LETTERS.match(text) for text in texts):
+        return "no"
+    if any(is_completion_line(text) for text in texts):
+        return "dot"
+    return None
 
 
 def _is_help_reply(text: str) -> bool:
@@ -452,6 +505,20 @@ class LinkSession:
             self._help_last = False
         return self._wait_quiet(now)
 
+    def report_seen(self, line: str) -> None:
+        """A line the core took for a completion report (it routes them even while it
+        drops every other line): a mode exchange under way keeps it among its lines,
+        where :func:`status_tail` may find it to be the reply of ``?statusaxis`` (the
+        other exchanges take only their own replies).
+
+        Parameters
+        ----------
+        line
+            The line, as the core reported it.
+        """
+        if self.exchange is not None and self.exchange.until is Until.HELP:
+            self.exchange.lines.append(line)
+
     def _marker_line(self, exchange: Exchange, line: str, now: float) -> Outcome:
         """Count the marker replies in a row, then the number that ends them."""
         assert exchange.marker is not None
@@ -657,6 +724,8 @@ class LinkSession:
             raise ProtocolError(f"{list(sent)!r}: no ?autostatus reply among {kept!r}")
         actual = int(kept[numbers[0]])
         self.core.autostatus = actual
+        if STATUS_READ in sent and (tail := status_tail(kept)) is not None:
+            self.detected["status_tail"] = tail
         if actual == 2:
             between = kept[numbers[0] + 1:helps[-1]]
             after = kept[helps[-1] + 1:]

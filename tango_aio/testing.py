@@ -28,6 +28,8 @@ motion settings; ``real`` - 57600 Bd pacing and the controller's own settings.
     faults = tango_aio.testing.faults(tango)
     faults.drop()           # the next reply is lost
     faults.garble()         # the next reply has one bit flipped
+    faults.garble(reply_to="?err")    # ... the reply to the next ?err line
+    faults.glue(b"7", reply_to="?err")  # stray bytes glued onto that reply
     faults.noise(b"x?\\r")   # bytes arrive that no request asked for
     faults.stall(0.5)       # the controller stops reading for 0.5 s
     faults.disconnect()     # the link is cut
@@ -41,6 +43,7 @@ driver writes the same lines: see :mod:`tango_aio.replay`.
 from __future__ import annotations
 
 import math
+import random
 import urllib.parse
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from dataclasses import dataclass
@@ -52,7 +55,7 @@ from .connection import connect
 from .controller import Controller
 from .replay import Replay, ReplayMismatch, replay
 from .sim.model import ControllerModel
-from .sim.wire import Wire
+from .sim.wire import Garbler, Wire, flip_one_bit
 from .sync import Controller as SyncController
 from .sync import connect as sync_connect
 
@@ -189,16 +192,58 @@ class Faults:
         self._do(lambda wire: setattr(wire.faults, "drop_replies",
                                       wire.faults.drop_replies + _count(replies)))
 
-    def garble(self, replies: int = 1) -> None:
-        """Flip one bit in each of the next ``replies`` replies.
+    def garble(self, replies: int = 1, *, reply_to: str | None = None) -> None:
+        """Flip one bit in each of the next ``replies`` replies; with ``reply_to``, in
+        the first reply to the next line the controller receives that starts with it
+        instead (e.g. ``"?err"``: the verdict on the line before it), once.
 
         Parameters
         ----------
         replies
-            How many replies to garble.
+            How many replies to garble (without ``reply_to``).
+        reply_to
+            The start of the line whose reply is garbled (at least one character).
         """
-        self._do(lambda wire: setattr(wire.faults, "garble_replies",
-                                      wire.faults.garble_replies + _count(replies)))
+        count = _count(replies)
+        if reply_to is None:
+            self._do(lambda wire: setattr(wire.faults, "garble_replies",
+                                          wire.faults.garble_replies + count))
+        else:
+            self._garble_reply_to(reply_to, flip_one_bit)
+
+    def glue(self, data: bytes, *, reply_to: str, before: bool = False) -> None:
+        """Glue stray bytes onto the first reply to the next line the controller receives
+        that starts with ``reply_to``, in the same line: behind its text (before its CR),
+        or in front of it with ``before``. Once.
+
+        Parameters
+        ----------
+        data
+            The stray bytes (at least one).
+        reply_to
+            The start of the line whose reply gets them (at least one character).
+        before
+            Put them in front of the reply instead of behind its text.
+
+        Raises
+        ------
+        ValueError
+            ``data`` is empty.
+        """
+        if not data:
+            raise ValueError("glue needs at least one byte")
+        stray = bytes(data)
+
+        def glued(reply: bytes, rng: random.Random) -> bytes:
+            text, end = (reply[:-1], reply[-1:]) if reply.endswith(b"\r") else (reply, b"")
+            return stray + reply if before else text + stray + end
+        self._garble_reply_to(reply_to, glued)
+
+    def _garble_reply_to(self, reply_to: str, garbler: Garbler) -> None:
+        if not reply_to:
+            raise ValueError("reply_to needs at least one character")
+        target = (reply_to.encode("ascii"), garbler)
+        self._do(lambda wire: setattr(wire.faults, "garble_reply_to", target))
 
     def delay(self, seconds: float, replies: int = 1) -> None:
         """Hold the next ``replies`` replies back by ``seconds`` (later output waits).

@@ -27,6 +27,14 @@ step with every accepted set) and from the geometry of the move:
   stopped: ``None`` if every moved axis ended well, else in words what went wrong
   (:func:`describe_stop`); :func:`too_early` says when a failed verdict may still be read
   too early (``!delay``, closed-loop settling) and so does not stand yet.
+* :func:`cut_short` judges a read of a move of several axes while some still move: an
+  axis that reads a failure letter has ended the move already (a limit switch stops
+  that axis alone, and the report waits for the others), and :func:`polled_during` says
+  when such a read is made during the travel.
+* :func:`err_verdict` and :func:`ack_verdict` judge the reply that judges a line (its
+  ``?err``, its acknowledgement): accepted, refused, or garbled (it proves nothing);
+  :func:`contest` says whether the state read behind a refusal or a garbled verdict on a
+  motion line contradicts it (the line's axes move: the line ran).
 
 Everything here is a pure function of its arguments, tested synchronously
 (``tests/unit/test_timing.py``); :mod:`tango_aio.motion` asks it and does the waiting.
@@ -34,12 +42,15 @@ Everything here is a pure function of its arguments, tested synchronously
 
 from __future__ import annotations
 
+import enum
 import math
-from collections.abc import Mapping, Sequence
+import re
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from .errors import ERROR_DESCRIPTIONS
 from .instructions import AXES, Command, Completion
-from .status import ABSENT, FAILED_LETTERS, AxisStatus
+from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
 from .units import UnitScale
 
 __all__ = [
@@ -49,12 +60,20 @@ __all__ = [
     "POLL_GRACE",
     "UNKNOWN_TRAVEL",
     "Budget",
+    "Contest",
     "MoveTiming",
+    "Verdict",
+    "ack_verdict",
+    "contest",
+    "cut_short",
     "describe_stop",
+    "err_verdict",
     "move_budget",
     "moved_axes",
+    "polled_during",
     "position_tolerance",
     "rest_budget",
+    "shifted_axes",
     "too_early",
     "travel_time",
     "verdict",
@@ -376,6 +395,70 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
     return None
 
 
+def polled_during(moved: Sequence[str], reports: bool) -> bool:
+    """Whether a move's state is read during its travel (every ``POLL_MAX`` of
+    :mod:`tango_aio.motion`), not only at its report or its expected end.
+
+    Without completion reports (autostatus 0, L2078) nothing else tells of an early
+    end. A move of several axes sends its report only once all of them stand (one report
+    per move line, L2085-2089); the manual does not say that an axis stopped by a limit
+    switch or an error (L2699, L2705-2707) stops the others of the line, so the report
+    may come only when they end, the whole planned travel later.
+
+    Parameters
+    ----------
+    moved
+        The axes the line moves.
+    reports
+        Whether the mode in force sends completion reports.
+
+    Returns
+    -------
+    bool
+        Whether to poll during the travel.
+    """
+    return not reports or len(moved) > 1
+
+
+def cut_short(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
+              checked: float, now: float, expected_end: float) -> tuple[str, ...]:
+    """The axes that ended a move of several axes early, read while others still move.
+
+    An axis that reads a failure letter (``E``, ``S``, ``T``) or ``-`` (disabled, L2711)
+    has not reached its target and will not (:func:`too_early`: such a letter is final
+    once any ``!delay`` is over): the move has failed, whatever the other axes do. The
+    caller stops them and raises at once instead of waiting for them to end.
+
+    Parameters
+    ----------
+    budget
+        The move's budget (its ``!delay``).
+    moved
+        The axes the move moved.
+    letters
+        The status letters read.
+    checked
+        When the line's check came back.
+    now
+        When the state was read.
+    expected_end
+        When the move should have ended.
+
+    Returns
+    -------
+    tuple[str, ...]
+        The moved axes that ended it, in order; empty when none did, when no moved axis
+        still moves (:func:`verdict` judges that read), or while the read may come too
+        early.
+    """
+    ended = tuple(a for a in moved if letters.get(a, ABSENT) in _FINAL)
+    if not ended or not any(letters.get(a) == MOVING for a in moved):
+        return ()
+    if too_early(budget, moved, letters, checked, now, expected_end) is not None:
+        return ()
+    return ended
+
+
 #: Why an axis stopped, by the letter it reads (L2693-2711).
 _WHY = {
     AxisStatus.ERROR: "stopped: its move was aborted or not executed (status E)",
@@ -423,3 +506,173 @@ def describe_stop(axis: str, letter: str, text: str | None, target: float | None
         return f"{name} stopped at {side} (status S), {where}{aim}"
     reason = _WHY.get(letter, f"stopped short of its target (status {letter})")
     return f"{name} {reason}, {where}{aim}"
+
+
+class Verdict(enum.Enum):
+    """What the reply that judges a line (its ``?err``, its acknowledgement) says of it."""
+
+    #: ``0`` or ``OK...``: the line was taken.
+    ACCEPTED = "accepted"
+    #: A documented error number (or a bare ``ERR``): the line was refused.
+    REFUSED = "refused"
+    #: Anything else: the reply proves nothing about the line.
+    GARBLED = "garbled"
+
+
+#: ``?err``: "Error number as decimal value" (L2847), blanks around it tolerated.
+_ERR_REPLY = re.compile(r" *(0|[1-9][0-9]{0,5}) *")
+#: Mode 2: ``OK...`` or ``ERR 5`` (L2099-2103, L2150-2152), a bare ``ERR`` (switch
+#: ``err_number``), in any case (switch ``ack_case``).
+_ACK_REPLY = re.compile(r" *(?:OK\.*|ERR(?: +(0|[1-9][0-9]{0,5}))?) *", re.IGNORECASE)
+
+
+def _number_verdict(number: int) -> Verdict:
+    if number == 0:
+        return Verdict.ACCEPTED
+    return Verdict.REFUSED if number in ERROR_DESCRIPTIONS else Verdict.GARBLED
+
+
+def err_verdict(line: str) -> tuple[Verdict, int | None]:
+    """Judge the reply of the ``?err`` written behind a line.
+
+    Clean is the error number as a decimal value (L2847), one the manual documents
+    (chapter 5, L961-1034), with no leading zero: a glued or flipped byte that still
+    makes a number (``07``, ``50``) is garbled; ``0`` accepts.
+
+    Parameters
+    ----------
+    line
+        The reply, CR removed.
+
+    Returns
+    -------
+    tuple[Verdict, int | None]
+        The verdict and the number read (``None``: no number).
+    """
+    match = _ERR_REPLY.fullmatch(line)
+    if match is None:
+        return Verdict.GARBLED, None
+    number = int(match[1])
+    return _number_verdict(number), number
+
+
+def ack_verdict(line: str) -> tuple[Verdict, int | None]:
+    """Judge an autostatus-2 acknowledgement: ``OK...`` accepts, ``ERR n`` with a
+    documented non-zero ``n`` (or a bare ``ERR``) refuses, anything else is garbled.
+
+    Parameters
+    ----------
+    line
+        The acknowledgement, CR removed.
+
+    Returns
+    -------
+    tuple[Verdict, int | None]
+        The verdict and the error number (0 for ``OK...``; ``None``: a bare ``ERR``,
+        or none read).
+    """
+    match = _ACK_REPLY.fullmatch(line)
+    if match is None:
+        return Verdict.GARBLED, None
+    if line.strip()[:2].upper() == "OK":
+        return Verdict.ACCEPTED, 0
+    if match[1] is None:
+        return Verdict.REFUSED, None
+    number = int(match[1])
+    return (Verdict.GARBLED if number == 0 else _number_verdict(number)), number
+
+
+@dataclass(frozen=True, slots=True)
+class Contest:
+    """What a state read behind a verdict that refused a motion line or made no sense
+    shows (:func:`contest`)."""
+
+    #: The line's axes that move (``M``): stop them, and say so.
+    moving: tuple[str, ...]
+    #: Whether a clean refusal stands: none of the line's axes moves and no report came.
+    stands: bool
+    #: What the read shows, in words (when the refusal stands: empty, or which of the
+    #: line's axes still move as before it).
+    reason: str
+
+
+def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
+            reported: bool = False, busy: Collection[str] = (),
+            shifted: Collection[str] = ()) -> Contest:
+    """Whether the state read behind a refused or garbled verdict on a motion line
+    contradicts it.
+
+    A single flipped bit turns ``0`` into a documented number (``1``, ``2``, ``4``,
+    ``8``), so even a clean refusal may be a garbled acceptance: the line's axes
+    moving (``M``, L2695), or its completion report, show that it ran. A garbled
+    verdict with nothing moving leaves the line's fate unknown (a short move may have
+    ended already).
+
+    Parameters
+    ----------
+    moved
+        The axes the line moves.
+    letters
+        The ``?statusaxis`` letters read behind the verdict (the interpreter executes
+        lines in order, so the line had started by then if it ran).
+    clean
+        Whether the verdict was a clean refusal (else garbled).
+    reported
+        Whether the line's completion report came.
+    busy
+        The axes that may have been moving before the line (the driver's own motion
+        in flight): their motion does not contradict a clean refusal (e.g. a move
+        refused because its axis is busy).
+    shifted
+        The line's axes that stand elsewhere than before it (:func:`shifted_axes`): a
+        short move may have ended before the letters were read.
+
+    Returns
+    -------
+    Contest
+        The moving axes, whether the refusal stands, and why not in words.
+    """
+    moving = tuple(a for a in moved
+                   if letters.get(a) == MOVING and not (clean and a in busy))
+    named = " ".join(moving).upper()
+    if moving:
+        return Contest(moving, False, f"yet ?statusaxis shows {named} moving: the line ran")
+    if reported:
+        return Contest((), False, "yet its completion report came: the line ran")
+    away = [a for a in moved if a in shifted and not (clean and a in busy)]
+    if away:
+        return Contest((), False, f"yet ?pos shows {' '.join(away).upper()} moved since "
+                                  "before the line: it ran")
+    if clean:
+        before = " ".join(a for a in moved if letters.get(a) == MOVING).upper()
+        return Contest((), True, f"{before} still moving as before the line" if before else "")
+    standing = " ".join(moved).upper()
+    return Contest((), False, f"the line's fate is unknown; ?statusaxis shows "
+                              f"{standing or 'no axis of it'} standing: nothing of it moves")
+
+
+def shifted_axes(axes: Sequence[str], before: Mapping[str, str] | None,
+                 now: Mapping[str, str]) -> tuple[str, ...]:
+    """The axes whose position, as printed, moved between two reads: by more than three
+    times the larger :func:`position_tolerance` of the two (a count or two of encoder
+    jitter is no move).
+
+    Parameters
+    ----------
+    axes
+        The axes to compare.
+    before
+        The positions read before (``None``: none known).
+    now
+        The positions read now.
+
+    Returns
+    -------
+    tuple[str, ...]
+        The axes that moved, of those read both times.
+    """
+    if not before:
+        return ()
+    return tuple(a for a in axes if a in before and a in now and abs(
+        float(now[a]) - float(before[a])) > 3.0 * max(position_tolerance(now[a]),
+                                                       position_tolerance(before[a])))

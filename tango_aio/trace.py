@@ -4,7 +4,7 @@
 A trace is text, one record per line, exactly the messages of the ``tango_aio.wire``
 logger (:mod:`tango_aio.protocol`)::
 
-    # tango_aio wire trace, tango-aio 0.1.0
+    # tango_aio wire trace, tango-aio 0.5.0
     1234.567890 -> b'?version'
     1234.569120 <- b'TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00'
 

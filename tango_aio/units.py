@@ -228,6 +228,12 @@ class UnitScale:
         """User length units per motor revolution."""
         return user_per_rev(self.dim, self.pitch, self.gear, self.usteps)
 
+    @property
+    def resolution(self) -> float:
+        """User length units per microstep (the motor record's MRES, ophyd-async's
+        ``motor_resolution``)."""
+        return self.user_per_rev / self.usteps
+
     def pos_to_user(self, revs: float) -> float:
         """Convert a position or distance in motor revolutions to user units.
 

@@ -7,8 +7,9 @@ same with the same reported names). :class:`AccessPolicy` is that decision:
 
 * ``read_only``: nobody writes; every client reads.
 * ``hosts``: if given, only clients reporting one of these host names write. Whole names
-  are compared, case-insensitively: ``pc3.lab.example`` matches only a client reporting
-  ``pc3.lab.example`` (or ``PC3.LAB.EXAMPLE``), not ``pc3`` nor ``pc3.evil.example``;
+  are compared, case-insensitively (a trailing dot, DNS's root, aside), and nothing else
+  is trimmed: ``pc3.lab.example`` matches only a client reporting ``pc3.lab.example`` (or
+  ``PC3.LAB.EXAMPLE``), not ``pc3``, ``pc3.evil.example`` nor ``'pc3.lab.example '``;
   give each form a client may report (``--allow-host pc3 --allow-host pc3.lab.example``).
   The decision is made again at every write, with the names the client reports then.
 * ``users``: if given, only clients reporting one of these user names write
@@ -30,7 +31,7 @@ __all__ = ["AccessPolicy"]
 
 def _host(name: str) -> str:
     """A host name as compared: lower case, without a trailing dot (whole names only)."""
-    return name.strip().lower().rstrip(".")
+    return name.lower().rstrip(".")
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,12 +64,14 @@ class AccessPolicy:
         Raises
         ------
         ValueError
-            A host or user name is empty.
+            A host or user name is empty or has blanks around it (names are compared
+            whole, so such a name would never match what a client reports).
         """
-        host_set = frozenset(h.strip() for h in hosts)
-        user_set = frozenset(u.strip() for u in users)
-        if "" in host_set or "" in user_set:
-            raise ValueError("--allow-host and --allow-user need a non-empty name")
+        host_set, user_set = frozenset(hosts), frozenset(users)
+        for name in host_set | user_set:
+            if not name or name != name.strip():
+                raise ValueError("--allow-host and --allow-user need a name without "
+                                 f"blanks around it, got {name!r}")
         return cls(read_only, host_set, user_set)
 
     @property

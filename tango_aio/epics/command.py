@@ -22,6 +22,7 @@ import sys
 from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
+from .._argtypes import UsageError
 from .._platform import signal_calls
 from ..connection import connect
 from ..controller import Controller
@@ -169,15 +170,20 @@ async def run_ioc(args: argparse.Namespace) -> int:
     """Serve TANGO controllers over EPICS Channel Access: one motor record per axis
     (PREFIX X, Y, Z, A) and controller PVs (PREFIX CONNECTED, ERROR, AUTOSTATUS,
     TRIGCOUNT). Runs until interrupted; moves this IOC started are stopped on exit."""  # noqa: DOC201, DOC501 - the ioc command's --help text, no sections
-    controllers = parse_controllers(args.url, args.controller)
-    policy = AccessPolicy.build(read_only=args.read_only, hosts=args.allow_host,
-                                users=args.allow_user)
+    try:
+        controllers = parse_controllers(args.url, args.controller)
+        policy = AccessPolicy.build(read_only=args.read_only, hosts=args.allow_host,
+                                    users=args.allow_user)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     interfaces = args.interface or [DEFAULT_INTERFACE]
     try:
         from . import ioc  # noqa: F401 - caproto present?
     except ImportError as exc:
+        from .._install import install_hint
+
         print(f"error: the ioc command needs caproto ({exc}); "
-              "install it with: pip install 'tango-aio[epics]'", file=sys.stderr)
+              f"install it with: {install_hint('epics')}", file=sys.stderr)
         return 1
     _environment(interfaces, args.port)
     logging.getLogger("caproto.ctx").addFilter(_BeaconFailures(loopback_only(interfaces)))

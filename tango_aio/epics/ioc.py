@@ -9,7 +9,10 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
   the wire to every client (:mod:`.flush`). A move that ends anywhere but at its target
   (any status letter but @/A/D, a controller error, a lost link, a refused line) fails
   the put, sets the MSTA problem bit and puts the record and its fields in a MAJOR alarm
-  until the next successful move.
+  until a move ends at its target (one rule for every PV of the axis,
+  :func:`~.record.fault_after`: STOP and SPMG neither raise nor clear it); VAL and DVAL
+  are then where the axis stands, as after STOP or SPMG=Stop (the motor record's rule;
+  SPMG=Pause keeps them, Go resumes toward VAL).
 * ``P:CONNECTED`` (0/1), ``P:ERROR`` (number of the last error: the controller's error
   number, -1 for a failure without one, 0 none), ``P:ERROR:TEXT``, ``P:AUTOSTATUS``,
   ``P:TRIGCOUNT``.
@@ -17,7 +20,12 @@ For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
 One poller per controller reads ``?pos`` and ``?statusaxis`` every ``poll`` seconds and
 ``?readsw``, ``?statuslimit`` and ``?trigcount`` every fifth time. While the link is down
 every PV but CONNECTED is in an INVALID/COMM alarm; when the driver has reconnected
-(``connect(url, reconnect=True)``) the settings are read again and the alarms clear.
+(``connect(url, reconnect=True)``) the settings are read again and the alarms go back to
+the axis's own (a move that failed with the link still shows its fault). Every fifth poll
+also publishes the soft limits the driver knows (read again after any line that may
+change them), and every 25th reads the unit settings (``dim``, ``pitch``, ``gear``,
+``usteps``, ``resolution``), so the limits, EGU, PREC, MRES, UREV, SREV, RDBD and the
+speeds follow a change made through any path.
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 
@@ -25,7 +33,7 @@ Choices (the motor record documentation leaves room, the TANGO has no such conce
   move retargets (the one-axis stop ``a x``, L6785-6844, then the new move), and a newer
   request replaces a waiting one. STOP, and SPMG set to Stop or Pause, stop the axis the
   same way and drop every waiting request; the stopped put fails (the target was not
-  reached) without an alarm. While SPMG is Stop or Pause every motion request is refused
+  reached), its alarm left as it was. While SPMG is Stop or Pause every motion request is refused
   (the flag is set before the stop is awaited, so a VAL right behind it is refused too);
   Pause then Go resumes the move toward VAL.
 * HOMR runs ``cal`` (reverse, to the lower limit switch, sets the origin, L5259), HOMF
@@ -33,15 +41,20 @@ Choices (the motor record documentation leaves room, the TANGO has no such conce
 * SET=Set: a put to VAL redefines the position instead of moving; with FOFF=Variable the
   user offset OFF changes, with FOFF=Frozen the controller's position is set (``!pos``,
   L6900).
-* HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522); a VAL outside
-  them sets LVIO=1 and fails the put before anything is sent.
+* HLM/LLM and DHLM/DLLM are the controller's soft limits (``!lim``, L4522), served as
+  VAL's (user) and DVAL's, DRVH's and DRVL's (dial) control limits, which clients check
+  before they put; a target outside them sets LVIO=1, keeps VAL, blinks DMOV (0, then 1)
+  and fails the put, with the axis in a HIGH or LOW/MAJOR alarm, before anything is sent
+  (the motor record's rule, limits 0 and 0 meaning none).
 * VELO sets ``vel`` (at most VMAX, which starts at the controller's own speed); ACCL sets
   ``accel`` so that VELO is reached in ACCL seconds; a new VELO keeps ``accel`` (ACCL is
-  recomputed). DVAL and RLV move through VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS
-  (but 0), JOGF/JOGR/JVEL, RVAL and MRES refuse writes (:data:`REFUSED`), and every field
-  not in :data:`WRITABLE` is read-only.
+  recomputed: ACCU is Accs, ACCS the acceleration in EGU/s²). DVAL and RLV move through
+  VAL, SSET/SUSE switch SET; DIR (but Pos), VBAS (but 0), JOGF/JOGR/JVEL, RVAL and MRES
+  refuse writes (:data:`REFUSED`), and every field not in :data:`WRITABLE` is read-only.
 * CNEN Enable/Disable sends ``!axis <axis> 1`` / ``0`` (L3919: a disabled axis keeps its
-  motor current, so a vertical axis does not drop; ``-1``, power off, is never sent).
+  motor current, so a vertical axis does not drop; ``-1``, power off, is never sent). A
+  moving axis is stopped first, as by STOP: the manual does not say what disabling does
+  to a move (L3919-3960).
 """
 
 from __future__ import annotations
@@ -82,7 +95,18 @@ from ..units import DEFAULT_USTEPS
 from .access import AccessPolicy
 from .autosave import SAVED, Autosave
 from .flush import FlushingContext
-from .record import AxisUnits, LimitSwitches, calibrated, limit_switches, msta
+from .record import (
+    NO_ALARM,
+    AxisUnits,
+    Ending,
+    LimitSwitches,
+    calibrated,
+    fault_after,
+    limit_switches,
+    limit_violation,
+    msta,
+    shown_alarm,
+)
 
 __all__ = ["MotorRefusedError", "MoveStoppedError", "TangoIoc", "build_ioc"]
 
@@ -112,6 +136,9 @@ REFUSED = {
 
 #: How many polls of ``?pos``/``?statusaxis`` per read of switches and counters.
 SLOW_EVERY = 5
+
+#: How many polls per read of the unit settings (five reads, pipelined).
+UNITS_EVERY = 5 * SLOW_EVERY
 
 
 def _finite(pvname: str, field: str, value: float) -> None:
@@ -185,7 +212,7 @@ def _put(field: str) -> Callable[[Any, Any, Any], Awaitable[Any]]:
     """The put handler of ``field``: :meth:`AxisServer.put_field` does the work."""
 
     async def put(fields: Any, instance: Any, value: Any) -> Any:
-        return await _stopped_is_no_fault(_axis_of(fields).put_field(field, value))
+        return await _failure_is_ours(_axis_of(fields).put_field(field, value))
 
     put.__name__ = f"_put_{field.lower()}"
     return put
@@ -193,6 +220,48 @@ def _put(field: str) -> Callable[[Any, Any, Any], Awaitable[Any]]:
 
 def _field(name: str, dtype: Any, doc: str, **kwargs: Any) -> Any:
     return pvproperty(name=name, dtype=dtype, doc=doc, put=_put(name), **kwargs)
+
+
+class _Handled:
+    """A numeric channel whose put only its handler judges. caproto's own check of a
+    numeric put refuses a value beyond the control limits and re-applies the alarm its
+    value limits give (none here), which would clear the axis's alarm on every field
+    sharing it (a STOP put clearing RBV's alarm). So VAL and DVAL serve control limits,
+    which clients check before they put (classic ophyd's ``check_value``), while a put
+    beyond them still reaches the handler, which refuses it as the motor record does
+    (LVIO=1, no motion); and a field's put leaves the axis's alarm to its own rule.
+    """
+
+    putter: Any
+
+    async def verify_value(self, value: Any) -> Any:
+        """Hand the value to the put handler without caproto's checks.
+
+        Parameters
+        ----------
+        value
+            The value put.
+
+        Returns
+        -------
+        Any
+            What the handler returns.
+        """
+        if self.putter is not None:
+            return await self.putter(self, value)
+        return value
+
+
+class HandledDouble(_Handled, PvpropertyDouble):  # type: ignore[misc]
+    """A double field judged by its put handler only (:class:`_Handled`)."""
+
+
+class HandledShort(_Handled, PvpropertyShort):  # type: ignore[misc]
+    """A short field judged by its put handler only (:class:`_Handled`)."""
+
+
+class HandledInteger(_Handled, PvpropertyInteger):  # type: ignore[misc]
+    """An integer field judged by its put handler only (:class:`_Handled`)."""
 
 
 @register_record
@@ -222,39 +291,48 @@ class TangoMotorFields(MotorFields):  # type: ignore[misc]
         self.record_type._data["value"] = "motor"
         self.parent.reported_record_type = "motor"
 
-    stop = _field("STOP", PvpropertyShort, "Stop")
+    stop = _field("STOP", HandledShort, "Stop")
     stop_pause_move_go = _field("SPMG", PvpropertyEnum, "Stop/Pause/Move/Go", value=3,
                                 enum_strings=motorSPMG.get_string_tuple())
-    velocity = _field("VELO", PvpropertyDouble, "Velocity (EGU/s)")
-    max_velocity = _field("VMAX", PvpropertyDouble, "Max. Velocity (EGU/s)")
-    base_velocity = _field("VBAS", PvpropertyDouble, "Base Velocity (EGU/s)")
-    seconds_to_velocity = _field("ACCL", PvpropertyDouble, "Seconds to Velocity",
+    velocity = _field("VELO", HandledDouble, "Velocity (EGU/s)")
+    max_velocity = _field("VMAX", HandledDouble, "Max. Velocity (EGU/s)")
+    base_velocity = _field("VBAS", HandledDouble, "Base Velocity (EGU/s)")
+    seconds_to_velocity = _field("ACCL", HandledDouble, "Seconds to Velocity",
                                  value=0.2)
-    user_high_limit = _field("HLM", PvpropertyDouble, "User High Limit")
-    user_low_limit = _field("LLM", PvpropertyDouble, "User Low Limit")
-    dial_high_limit = _field("DHLM", PvpropertyDouble, "Dial High Limit")
-    dial_low_limit = _field("DLLM", PvpropertyDouble, "Dial Low Limit")
-    tweak_motor_forward = _field("TWF", PvpropertyShort, "Tweak motor Forward")
-    tweak_motor_reverse = _field("TWR", PvpropertyShort, "Tweak motor Reverse")
-    tweak_step_size = _field("TWV", PvpropertyDouble, "Tweak Step Size (EGU)")
-    home_forward = _field("HOMF", PvpropertyShort, "Home Forward")
-    home_reverse = _field("HOMR", PvpropertyShort, "Home Reverse")
-    user_offset = _field("OFF", PvpropertyDouble, "User Offset (EGU)")
+    user_high_limit = _field("HLM", HandledDouble, "User High Limit")
+    user_low_limit = _field("LLM", HandledDouble, "User Low Limit")
+    dial_high_limit = _field("DHLM", HandledDouble, "Dial High Limit")
+    dial_low_limit = _field("DLLM", HandledDouble, "Dial Low Limit")
+    tweak_motor_forward = _field("TWF", HandledShort, "Tweak motor Forward")
+    tweak_motor_reverse = _field("TWR", HandledShort, "Tweak motor Reverse")
+    tweak_step_size = _field("TWV", HandledDouble, "Tweak Step Size (EGU)")
+    home_forward = _field("HOMF", HandledShort, "Home Forward")
+    home_reverse = _field("HOMR", HandledShort, "Home Reverse")
+    user_offset = _field("OFF", HandledDouble, "User Offset (EGU)")
     enable_control = _field("CNEN", PvpropertyEnum, "Enable control", value=1,
                             enum_strings=motorTORQ.get_string_tuple())
     user_direction = _field("DIR", PvpropertyEnum, "User Direction", value=0,
                             enum_strings=motorDIR.get_string_tuple())
-    relative_value = _field("RLV", PvpropertyDouble, "Relative Value")
-    dial_desired_value = _field("DVAL", PvpropertyDouble, "Dial Desired Value (EGU)")
-    raw_desired_value = _field("RVAL", PvpropertyInteger, "Raw Desired Value")
-    set_set_mode = _field("SSET", PvpropertyShort, "Set SET Mode")
-    set_use_mode = _field("SUSE", PvpropertyShort, "Set USE Mode")
-    motor_step_size = _field("MRES", PvpropertyDouble, "Motor Step Size (EGU)")
-    jog_motor_forward = _field("JOGF", PvpropertyShort, "Jog motor Forward")
-    jog_motor_reverse = _field("JOGR", PvpropertyShort, "Jog motor Reverse")
-    jog_velocity = _field("JVEL", PvpropertyDouble, "Jog Velocity (EGU/s)")
-    monitor_deadband = _field("MDEL", PvpropertyDouble, "Monitor Deadband")
-    archive_deadband = _field("ADEL", PvpropertyDouble, "Archive Deadband")
+    relative_value = _field("RLV", HandledDouble, "Relative Value")
+    dial_desired_value = _field("DVAL", HandledDouble, "Dial Desired Value (EGU)")
+    raw_desired_value = _field("RVAL", HandledInteger, "Raw Desired Value")
+    set_set_mode = _field("SSET", HandledShort, "Set SET Mode")
+    set_use_mode = _field("SUSE", HandledShort, "Set USE Mode")
+    motor_step_size = _field("MRES", HandledDouble, "Motor Step Size (EGU)")
+    jog_motor_forward = _field("JOGF", HandledShort, "Jog motor Forward")
+    jog_motor_reverse = _field("JOGR", HandledShort, "Jog motor Reverse")
+    jog_velocity = _field("JVEL", HandledDouble, "Jog Velocity (EGU/s)")
+    monitor_deadband = _field("MDEL", HandledDouble, "Monitor Deadband")
+    move_acceleration = pvproperty(name="ACCS", dtype=PvpropertyDouble, read_only=True,
+                                   doc="Move Accel. (EGU/s^2)")
+    acceleration_used = pvproperty(name="ACCU", dtype=PvpropertyEnum, read_only=True,
+                                   value="Accs", enum_strings=("Undef", "Accl", "Accs"),
+                                   doc="ACCS used")
+    drive_high_limit = pvproperty(name="DRVH", dtype=PvpropertyDouble, read_only=True,
+                                  doc="Drive High Limit (dial EGU)")
+    drive_low_limit = pvproperty(name="DRVL", dtype=PvpropertyDouble, read_only=True,
+                                 doc="Drive Low Limit (dial EGU)")
+    archive_deadband = _field("ADEL", HandledDouble, "Archive Deadband")
 
 
 #: The fields a client may write (besides VAL); every other field refuses writes.
@@ -265,13 +343,14 @@ WRITABLE = frozenset({
 })
 
 
-#: The stop that ended the current put (set by the handler, read by :func:`_guard`).
-_STOPPED: ContextVar[MoveStoppedError | None] = ContextVar("_STOPPED", default=None)
+#: What failed the current put (set by the handler, read by :func:`_guard`).
+_FAILED: ContextVar[Exception | None] = ContextVar("_FAILED", default=None)
 
 
-async def _stopped_is_no_fault(put: Awaitable[Any]) -> Any:
-    """Await a put handler; a :class:`MoveStoppedError` skips caproto's WRITE/MAJOR alarm
-    (the put still fails: :func:`_guard` answers ECA_PUTFAIL).
+async def _failure_is_ours(put: Awaitable[Any]) -> Any:
+    """Await a put handler; a failure skips caproto's WRITE/MAJOR alarm, as the axis's
+    alarm follows its own rule (:func:`~.record.fault_after`); the put still fails:
+    :func:`_guard` answers ECA_PUTFAIL.
 
     Returns
     -------
@@ -281,17 +360,17 @@ async def _stopped_is_no_fault(put: Awaitable[Any]) -> Any:
     Raises
     ------
     SkipWrite
-        The handler raised :class:`MoveStoppedError`.
+        The handler raised.
     """
     try:
         return await put
-    except MoveStoppedError as exc:
-        _STOPPED.set(exc)
+    except Exception as exc:
+        _FAILED.set(exc)
         raise SkipWrite from exc
 
 
 async def _put_val(group: AxisGroup, instance: Any, value: float) -> Any:
-    published = await _stopped_is_no_fault(group.axis.move(float(value)))
+    published = await _failure_is_ours(group.axis.move(float(value)))
     # A move published VAL as it started; writing it again now would post the same value
     # to every VAL monitor once more, on the put's own path (its response waits for it).
     return SkipWrite if published else value
@@ -308,8 +387,8 @@ class AxisGroup(PVGroup):  # type: ignore[misc]
         The axis it drives.
     """
 
-    motor = pvproperty(name="", value=0.0, record="tango_motor", precision=4,
-                       doc="TANGO axis", put=_put_val)
+    motor = pvproperty(name="", value=0.0, dtype=HandledDouble, record="tango_motor",
+                       precision=4, doc="TANGO axis", put=_put_val)
 
     def __init__(self, prefix: str, *, axis: AxisServer) -> None:
         self.axis = axis
@@ -374,14 +453,34 @@ class AxisServer:
         self._turn = asyncio.Lock()
         self._halted = False  # SPMG is Stop or Pause (set before any await)
         self._resume: float | None = None  # Pause interrupted a move to this user value
-        self._problem = False
+        self._fault = NO_ALARM  # raised by a failed move, cleared by one that arrived
+        self._settle = False  # a STOP ends the running request: VAL goes where it stood
         self._standing_unknown = False  # a move ended with the link down
         self._switches = LimitSwitches()
         self._homed = False
         self._dial = 0.0
+        self._decimals = 4
         self._positive = True
         self._motion: asyncio.Future[Any] | None = None
         self._saving: set[asyncio.Future[None]] = set()
+
+    async def _end(self, ending: Ending) -> None:
+        """A motion request ended as ``ending``: the axis's alarm follows
+        (:func:`~.record.fault_after`) on every PV, unless the link is down."""
+        self._fault = fault_after(self._fault, ending)
+        if self.server.link_up and self.controller.connected:
+            await self._show_alarm()
+
+    async def _show_alarm(self, link_up: bool | None = None) -> None:
+        """Show the axis's alarm (:func:`~.record.shown_alarm`) on every PV (``link_up``:
+        the link's state, if not yet the server's)."""
+        up = self.server.link_up if link_up is None else link_up
+        alarm = shown_alarm(self._fault, link_up=up)
+        await self._set_alarm(AlarmStatus[alarm.status], AlarmSeverity[alarm.severity])
+
+    @property
+    def _problem(self) -> bool:
+        return self._fault != NO_ALARM
 
     async def _set_alarm(self, status: AlarmStatus, severity: AlarmSeverity) -> None:
         """Set the record's alarm and that of its fields (RBV shows INVALID too).
@@ -545,7 +644,7 @@ class AxisServer:
             # The flag is set before the first await: a VAL put right behind is refused.
             self._halted = True
             resume = self.record.value if value == "Pause" and self._busy else None
-            await self.stop()
+            await self.stop(keep_target=value == "Pause")
             self._resume = resume
             return value
         self._halted = False
@@ -610,14 +709,30 @@ class AxisServer:
                                     "move")
 
     async def _check_limits(self, dial: float) -> None:
+        """Refuse a target beyond the soft limits as the motor record does: LVIO=1, VAL
+        and DVAL kept, no motion, DMOV blinks (0, then 1 at once: a client waiting for
+        DMOV's end sees one), and the put fails with the axis's alarm raised.
+
+        Raises
+        ------
+        MotorRefusedError
+            The target is beyond the soft limits.
+        """
         f = self._f
         low, high = f.dial_low_limit.value, f.dial_high_limit.value
-        inside = (low == high == 0.0) or low <= dial <= high
-        if f.limit_violation.value != (0 if inside else 1):
-            await f.limit_violation.write(0 if inside else 1, verify_value=False)
-        if not inside:
-            raise MotorRefusedError(f"{self.record.pvname}: dial target {dial} outside the "
-                                    f"limits [{low}, {high}]")
+        violation = limit_violation(dial, low, high)
+        if f.limit_violation.value != int(violation is not None):
+            await f.limit_violation.write(int(violation is not None), verify_value=False)
+        if violation is None:
+            return
+        await self._end(violation)
+        if not self._busy:
+            await f.done_moving_to_value.write(0, verify_value=False)
+            await f.done_moving_to_value.write(1, verify_value=False)
+        await self._publish_status()
+        await self.server.flush()
+        raise MotorRefusedError(f"{self.record.pvname}: dial target {dial} outside the "
+                                f"limits [{low}, {high}] (LVIO)")
 
     async def _run(self, motion: Callable[[], Awaitable[Any]], *,
                    positive: bool = True, confirmed: Mapping[str, str] | None = None
@@ -646,6 +761,7 @@ class AxisServer:
         request = self._request
         self._busy += 1
         self._ongoing[request] = asyncio.Event()
+        self._settle = False  # replaced, not stopped: this request sets VAL itself
         try:
             if f.done_moving_to_value.value != 0:
                 await f.done_moving_to_value.write(0, verify_value=False)
@@ -657,6 +773,7 @@ class AxisServer:
         # The turn covers the final publishing too: the next request (or a STOP that
         # waits for its turn) starts after this one's RBV/DMOV are out.
         arrived_at: str | None = None  # the confirmed position, after a success only
+        settle = moving = False
         async with self._turn:
             try:
                 if request != self._request:
@@ -665,26 +782,27 @@ class AxisServer:
                 self._require_link()
                 self._require_go()
                 self._positive = positive
+                moving = True
                 await self._motion_of(motion, request)
             except MoveStoppedError:
-                if self.server.link_up and self.controller.connected:
-                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+                settle = self._settle  # a STOP's; a newer request sets VAL itself
                 raise
             except TangoError:
                 # The record's alarm shows on its fields too, as a motor record's SEVR
                 # does: classic ophyd's EpicsMotor fails a move when RBV is in alarm.
-                self._problem = True
-                if self.server.link_up and self.controller.connected:
-                    await self._set_alarm(AlarmStatus.STATE, AlarmSeverity.MAJOR_ALARM)
+                # VAL and DVAL go where the axis stopped, as the motor record's do. A
+                # request refused before it moved (SPMG, the link) changes neither.
+                if moving:
+                    settle = True
+                    await self._end(Ending.FAILED)
                 raise
             else:
-                self._problem = False
-                if self.server.link_up:
-                    await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
+                settle = False
+                await self._end(Ending.ARRIVED)
                 arrived_at = (confirmed or {}).get(self.letter)
             finally:
                 self._ended(request)
-                await self._finish(arrived_at)
+                await self._finish(arrived_at, settle=settle)
 
     def _ended(self, request: int) -> None:
         self._busy -= 1
@@ -733,17 +851,20 @@ class AxisServer:
             await self.controller.stop(self.letter)
         await asyncio.wait([task])
 
-    async def _finish(self, confirmed: str | None = None) -> None:
+    async def _finish(self, confirmed: str | None = None, *, settle: bool = False) -> None:
         """A request ended: publish the position (``confirmed``, as printed by the read
-        that confirmed its move's arrival, else read now); unless another request follows,
-        publish MOVN=0 and DMOV=1 (only while the link is up: a move that lost its link
-        has not been seen to stand); then wait until every client has those updates."""
+        that confirmed its move's arrival, else read now), with ``settle`` VAL and DVAL
+        too (where the axis stopped); unless another request follows, publish MOVN=0 and
+        DMOV=1 (only while the link is up: a move that lost its link has not been seen to
+        stand); then wait until every client has those updates."""
         f = self._f
         self.finished += 1  # a poll in flight read the axis before this request ended
         dial = _number(confirmed)
         with contextlib.suppress(TangoError):
             await self._publish_dial(dial if dial is not None
                                      else await self.controller.get("pos", axis=self.letter))
+            if settle:
+                await self._settle_target()
         if not self.controller.connected:
             self._standing_unknown = True
             await self.server.link_lost()
@@ -755,15 +876,35 @@ class AxisServer:
         await self._publish_status()
         await self.server.flush()
 
-    async def stop(self) -> None:
+    async def _settle_target(self) -> None:
+        """VAL and DVAL where the axis stands (DRBV as last published), as the motor
+        record sets them after a STOP, SPMG=Stop or a move that ended short."""
+        f = self._f
+        if f.dial_desired_value.value != self._dial:
+            await f.dial_desired_value.write(self._dial, verify_value=False)
+        user = self._dial + f.user_offset.value
+        if self.record.value != user:
+            await self.record.write(user, verify_value=False)
+
+    async def stop(self, *, keep_target: bool = False) -> None:
         """STOP, or SPMG Stop/Pause: stop this axis, drop every waiting request, and
         return once it stands still.
 
         A move this IOC started and not yet sent is withdrawn; otherwise the axis gets the
-        one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on.
+        one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on. VAL and
+        DVAL are then set to where the axis stands, but with ``keep_target`` (SPMG=Pause,
+        which the motor record resumes toward VAL on Go).
+
+        Parameters
+        ----------
+        keep_target
+            Leave VAL and DVAL at the stopped target.
         """
         self._request += 1  # every waiting request is now stale
         stopped = self._request
+        self._settle = not keep_target
+        if not keep_target:
+            self._resume = None
         self._require_link()
         await self._cancel_running()
         # Whatever moves this axis now (a move sent as it was withdrawn, another
@@ -777,7 +918,8 @@ class AxisServer:
             if number < stopped:
                 await ended.wait()
         async with self._turn:  # the stopped and the stale requests have ended
-            await self._finish()
+            # A request made after this stop is a new move and sets VAL itself.
+            await self._finish(settle=not keep_target and self._request == stopped)
 
     async def tweak(self, sign: int) -> None:
         """TWF/TWR: move VAL by TWV.
@@ -814,7 +956,7 @@ class AxisServer:
             await self.controller.command(f"!pos {self.letter} {target - f.user_offset.value}")
             await self._publish_dial(await self.controller.get("pos", axis=self.letter))
         else:
-            await f.user_offset.write(target - self._dial)
+            await f.user_offset.write(target - self._dial)  # through OFF's handler
 
     # -- settings ------------------------------------------------------------------------
 
@@ -918,13 +1060,18 @@ class AxisServer:
         f = self._f
         if abs(offset) > MAX_MAGNITUDE:
             raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
-        await f.user_readback_value.write(self._dial + offset)
+        await f.user_readback_value.write(self._dial + offset, verify_value=False)
         await f.user_high_limit.write(f.dial_high_limit.value + offset, verify_value=False)
         await f.user_low_limit.write(f.dial_low_limit.value + offset, verify_value=False)
         await self._publish_drive_limits(offset)
 
     async def set_enabled(self, enabled: bool) -> None:
-        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919).
+        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919-3960).
+
+        The manual does not say what disabling a moving axis does to its move (it may go
+        on, stop, or the line be refused: the emulator's ``disable_during_move``), so a
+        moving axis is first stopped as by STOP (its put fails, VAL is where it stood,
+        no alarm), then disabled: the same outcome whatever the controller does.
 
         Parameters
         ----------
@@ -932,6 +1079,9 @@ class AxisServer:
             The CNEN put.
         """
         self._require_link()
+        if not enabled and (self._busy or
+                            (await self.controller.status()).get(self.letter) == MOVING):
+            await self.stop()
         await self.controller.command(f"!axis {self.letter} {1 if enabled else 0}")
 
     def _vmax_ceiling(self) -> float:
@@ -948,45 +1098,60 @@ class AxisServer:
 
     async def read_settings(self) -> None:
         """Read units, speeds, limits, enable state and position (at start, reconnect)."""
-        c, axis = self.controller, self.letter
-        self.units = AxisUnits(int(await c.get("dim", axis=axis)),
-                               float(await c.get("pitch", axis=axis)),
-                               float(await self._optional("gear", 1.0, axis=axis)),
-                               int(await self._optional("usteps", DEFAULT_USTEPS)))
-        f = self._f
-        precision = int(await self._optional("resolution", 4))
-        await self.record.write_metadata(units=self.units.egu, precision=precision)
-        await f.engineering_units.write(self.units.egu)
-        for field in ("RBV", "DRBV", "DVAL", "HLM", "LLM", "DHLM", "DLLM"):
-            await self.record.fields[field].write_metadata(precision=precision,
-                                                           units=self.units.egu)
-        await self._read_speed()
+        c, axis, f = self.controller, self.letter, self._f
+        units, decimals = await self.server.read_units()
+        await self.units_read(units[axis], decimals, force=True)
         await self._read_limits()
         enabled = int(await c.get("axis", axis=axis)) == 1
         await f.enable_control.write("Enable" if enabled else "Disable", verify_value=False)
         await self._publish_dial(await c.get("pos", axis=axis))
-        await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+        await self._settle_target()
         # LVIO says whether the position (VAL at start) is inside the limits: caproto's
         # record starts with LVIO=1.
-        low, high = f.dial_low_limit.value, f.dial_high_limit.value
-        inside = (low == high == 0.0) or low <= self._dial <= high
-        await f.limit_violation.write(0 if inside else 1, verify_value=False)
+        violation = limit_violation(self._dial, f.dial_low_limit.value,
+                                    f.dial_high_limit.value)
+        await f.limit_violation.write(int(violation is not None), verify_value=False)
 
-    async def _optional(self, name: str, default: float, axis: str | None = None) -> Any:
-        """Read ``name``; a controller that refuses it (older firmware may lack gear,
-        usteps or resolution) gives ``default``, with a warning.
+    async def units_read(self, units: AxisUnits, decimals: int, *,
+                         force: bool = False) -> None:
+        """Publish what follows from the unit settings (EGU, PREC, MRES, UREV, SREV,
+        RDBD, and the speeds in EGU/s) if they changed since last read (or ``force``).
 
-        Returns
-        -------
-        Any
-            The value read, or ``default``.
+        Parameters
+        ----------
+        units
+            The axis's unit settings, as just read.
+        decimals
+            The decimals the controller prints positions with (PREC).
+        force
+            Publish even if nothing changed.
         """
-        try:
-            return await self.controller.get(name, axis=axis)
-        except ControllerError as exc:
-            log.warning("%s: ?%s refused (%s); assuming %s", self.record.pvname, name, exc,
-                        default)
-            return default
+        f = self._f
+        if not force and units == self.units and decimals == self._decimals:
+            return
+        self.units, self._decimals = units, decimals
+        egu = units.egu
+        await self.record.write_metadata(units=egu, precision=decimals)
+        if f.engineering_units.value != egu:
+            await f.engineering_units.write(egu)
+        for field in ("RBV", "DRBV", "DVAL", "HLM", "LLM", "DHLM", "DLLM", "DRVH", "DRVL",
+                      "RDBD", "MRES", "UREV"):
+            await self.record.fields[field].write_metadata(precision=decimals, units=egu)
+        for field, value in ((f.motor_step_size, units.mres),
+                             (f.egu_s_per_revolution, units.urev),
+                             (f.steps_per_revolution, units.srev),
+                             (f.retry_deadband, units.rdbd(decimals))):
+            if field.value != value:
+                await field.write(value, verify_value=False)
+        await self._read_speed()
+
+    async def follow_limits(self) -> None:
+        """Publish the soft limits if they changed through another path (the driver's
+        cached limits: read again only after a line that may have changed them)."""
+        f = self._f
+        low, high = await self.controller.axis_limits(self.letter)
+        if (low, high) != (f.dial_low_limit.value, f.dial_high_limit.value):
+            await self._publish_limits(low, high)
 
     async def _read_speed(self) -> None:
         c, axis, f = self.controller, self.letter, self._f
@@ -1000,9 +1165,15 @@ class AxisServer:
             await f.max_velocity.write(velo, verify_value=False)
         await f.seconds_to_velocity.write(self.units.accl_from_accel(velo, accel),
                                           verify_value=False)
+        accs = self.units.accs_from_accel(accel)
+        if f.move_acceleration.value != accs:
+            await f.move_acceleration.write(accs, verify_value=False)
 
     async def _read_limits(self) -> None:
-        low, high = await self.controller.get("lim", axis=self.letter)
+        await self._publish_limits(*await self.controller.axis_limits(self.letter,
+                                                                      cached=False))
+
+    async def _publish_limits(self, low: float, high: float) -> None:
         f = self._f
         offset = f.user_offset.value
         await f.dial_low_limit.write(float(low), verify_value=False)
@@ -1012,12 +1183,20 @@ class AxisServer:
         await self._publish_drive_limits(offset)
 
     async def _publish_drive_limits(self, offset: float) -> None:
+        """VAL's control and display limits are the user soft limits, DVAL's and
+        DRVH/DRVL the dial ones, as the motor record serves them (clients check a
+        target against them before they put; :class:`HandledDouble`)."""
         f = self._f
-        # Display limits only: control limits would make caproto refuse an out-of-limit
-        # VAL before the record sees it, and the motor record sets LVIO for that.
+        low, high = f.dial_low_limit.value, f.dial_high_limit.value
         await self.record.write_metadata(
-            lower_disp_limit=f.dial_low_limit.value + offset,
-            upper_disp_limit=f.dial_high_limit.value + offset)
+            lower_disp_limit=low + offset, upper_disp_limit=high + offset,
+            lower_ctrl_limit=low + offset, upper_ctrl_limit=high + offset)
+        await f.dial_desired_value.write_metadata(
+            lower_disp_limit=low, upper_disp_limit=high, lower_ctrl_limit=low,
+            upper_ctrl_limit=high)
+        for field, value in ((f.drive_high_limit, high), (f.drive_low_limit, low)):
+            if field.value != value:
+                await field.write(value, verify_value=False)
 
     async def _publish_dial(self, dial: float) -> None:
         self._dial = float(dial)
@@ -1097,9 +1276,7 @@ class AxisServer:
         """
         if up:
             await self.read_settings()
-            await self._set_alarm(AlarmStatus.NO_ALARM, AlarmSeverity.NO_ALARM)
-        else:
-            await self._set_alarm(AlarmStatus.COMM, AlarmSeverity.INVALID_ALARM)
+        await self._show_alarm(up)  # the fault of a failed move outlives the link's loss
         await self._publish_status()
 
     async def assert_invalid(self) -> None:
@@ -1147,6 +1324,7 @@ class ControllerServer:
                                        collect="announced" if merge == "turn" else "window")
         self.group = group if group is not None else ControllerPVs(prefix)
         self.link_up = controller.connected
+        self._lacking: set[str] = set()  # settings this controller refused
         self.context: FlushingContext | None = None
         # The context's axis count: set by identification, or the connect() default when
         # the controller was connected with identify=False (the identity is not read).
@@ -1168,6 +1346,44 @@ class ControllerServer:
             await self._set_link(self.controller.connected, force=True)
         except ConnectionLostError:
             await self._set_link(False, force=True)
+
+    async def read_units(self) -> tuple[dict[str, AxisUnits], int]:
+        """Read every axis's unit settings (``dim``, ``pitch``, ``gear``, ``usteps``) and
+        the decimals of printed positions (``resolution``), pipelined.
+
+        Returns
+        -------
+        tuple[dict[str, AxisUnits], int]
+            The unit settings by axis letter, and the decimals.
+        """
+        c = self.controller
+        dims, pitch, gear, usteps, decimals = await asyncio.gather(
+            c.get("dim"), c.get("pitch"), self._optional("gear", None),
+            self._optional("usteps", DEFAULT_USTEPS), self._optional("resolution", 4))
+        units = {axis.letter: AxisUnits(
+            int(dims[axis.letter]), float(pitch[axis.letter]),
+            float(gear[axis.letter]) if isinstance(gear, Mapping) else 1.0, int(usteps))
+            for axis in self.axes}
+        return units, int(decimals)
+
+    async def _optional(self, name: str, default: Any) -> Any:
+        """Read ``name``; a controller that refuses it (older firmware may lack gear,
+        usteps or resolution) gives ``default``, with one warning, and is not asked again.
+
+        Returns
+        -------
+        Any
+            The value read, or ``default``.
+        """
+        if name in self._lacking:
+            return default
+        try:
+            return await self.controller.get(name)
+        except ControllerError as exc:
+            self._lacking.add(name)
+            log.warning("%s: ?%s refused (%s); assuming %s", self.prefix, name, exc,
+                        default)
+            return default
 
     async def flush(self) -> None:
         """Wait until the monitor updates published so far are on the wire to every
@@ -1226,7 +1442,8 @@ class ControllerServer:
         count = 0
         while True:
             try:
-                await self._poll_once(slow=count % SLOW_EVERY == 0)
+                await self._poll_once(slow=count % SLOW_EVERY == 0,
+                                      units=count % UNITS_EVERY == 0)
             except ConnectionLostError:
                 pass  # seen as link down by the next round
             except TangoError as exc:  # a timeout, a garbled reply: try again later
@@ -1234,7 +1451,7 @@ class ControllerServer:
             count += 1
             await asyncio.sleep(self.poll)
 
-    async def _poll_once(self, *, slow: bool) -> None:
+    async def _poll_once(self, *, slow: bool, units: bool = False) -> None:
         c = self.controller
         if not c.connected:
             await self._set_link(False)
@@ -1256,8 +1473,14 @@ class ControllerServer:
         if slow:
             readsw = await c.query("?readsw")
             statuslimit = await c.query("?statuslimit")
+            settings = await self.read_units() if units else None
             for axis in self.axes:
                 await axis.slow_update(readsw, statuslimit)
+                # Settings changed through another path (the driver, another program on
+                # this link, the IOC's own puts) show here.
+                if settings is not None:
+                    await axis.units_read(settings[0][axis.letter], settings[1])
+                await axis.follow_limits()
             await self.group.trigcount.write(int(await c.get("trigcount")), verify_value=False)
             await self.group.autostatus.write(c.autostatus, verify_value=False)
 
@@ -1288,14 +1511,16 @@ def _guard(pv: Any, policy: AccessPolicy,
         return rights
 
     async def auth_write(hostname: str, username: str, *args: Any, **kwargs: Any) -> Any:
-        _STOPPED.set(None)
+        _FAILED.set(None)
         try:
             status = await own_write(hostname, username, *args, **kwargs)
-            stopped = _STOPPED.get()
-            if stopped is not None:
+            failed = _FAILED.get()
+            if isinstance(failed, MoveStoppedError):
                 log.info("%s: put by %s@%s ended short: %s", pv.pvname, username,
-                         hostname, stopped)
+                         hostname, failed)
                 return CAStatus.ECA_PUTFAIL
+            if failed is not None:
+                raise failed
             return status
         except Forbidden:
             log.warning("%s: write refused to %s@%s", pv.pvname, username, hostname)

@@ -6,29 +6,48 @@
 * Velocities: VELO is EGU/s. The controller's ``vel`` is motor rev/s in dims 0-8 and mm/s
   in dim 9 (L189, L3452), converted with :class:`~tango_aio.units.UnitScale`.
 * Acceleration: ACCL is the seconds to reach VELO; the controller's ``accel`` is m/s²
-  (L3298).
+  (L3298), ACCS the same in EGU/s².
+* Resolution: MRES is the user units per microstep, UREV per motor revolution, SREV the
+  microsteps per revolution (``usteps``), the facts :class:`~tango_aio.units.UnitScale`
+  gives every surface (the Bluesky device's ``motor_resolution`` too); RDBD is how far from
+  its target a move still counts as arrived (the driver's tolerance for the decimals the
+  controller prints, at least MRES).
 * Limit switches: ``?readsw`` gives 12 characters, E0 (lower, cal) of X Y Z A, the
   reference switches, then EE (upper, rm) of X Y Z A (L5027-5078).
 * MSTA: the bits of the motor record's status word that a TANGO axis can fill.
+* Alarms: one rule for every PV of an axis (:func:`fault_after`, :func:`shown_alarm`): a
+  failed move raises the alarm, only a move that ends at its target clears it, and a stop
+  (STOP, SPMG) leaves it as it was; while the link is down every PV shows INVALID/COMM.
+* Soft limits: a target beyond them is refused as the motor record refuses it
+  (:func:`limit_violation`: limits of 0 and 0 mean none).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
+from typing import NamedTuple
 
 from ..instructions import AXES
 from ..status import CALIBRATED_FLAG
+from ..timing import position_tolerance
 from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [
     "EGU_BY_DIM",
+    "NO_ALARM",
+    "Alarm",
     "AxisUnits",
+    "Ending",
     "LimitSwitches",
     "Msta",
     "calibrated",
+    "fault_after",
     "limit_switches",
+    "limit_violation",
     "msta",
+    "shown_alarm",
 ]
 
 #: The engineering unit of each ``dim`` (L3061-3144): ASCII, as CA strings are latin-1.
@@ -85,6 +104,51 @@ class AxisUnits:
         """
         scale = self.scale
         return scale.vel_to_user(scale.pos_from_user(velo))
+
+    @property
+    def mres(self) -> float:
+        """MRES: user units (EGU) per microstep."""
+        return self.scale.resolution
+
+    @property
+    def urev(self) -> float:
+        """UREV: user units (EGU) per motor revolution."""
+        return self.scale.user_per_rev
+
+    @property
+    def srev(self) -> int:
+        """SREV: microsteps per motor revolution."""
+        return self.usteps
+
+    def rdbd(self, decimals: int) -> float:
+        """RDBD: how far from its target a move counts as arrived, in EGU.
+
+        Parameters
+        ----------
+        decimals
+            The decimals the controller prints positions with (its ``resolution``).
+
+        Returns
+        -------
+        float
+            The driver's tolerance for positions printed so, and at least MRES.
+        """
+        return max(self.mres, position_tolerance(f"{0:.{max(decimals, 0)}f}"))
+
+    def accs_from_accel(self, accel: float) -> float:
+        """ACCS (EGU/s²) from the controller's ``accel`` (m/s²).
+
+        Parameters
+        ----------
+        accel
+            The controller's ``accel``, in m/s².
+
+        Returns
+        -------
+        float
+            ACCS, in EGU/s².
+        """
+        return max(accel, 0.0) * self._egu_per_m()
 
     def _egu_per_m(self) -> float:
         scale = self.scale
@@ -230,3 +294,102 @@ def msta(*, moving: bool, switches: LimitSwitches, problem: bool, comm_error: bo
         if on:
             word |= bit
     return word
+
+
+class Alarm(NamedTuple):
+    """An alarm as Channel Access names it (caproto's ``AlarmStatus`` and
+    ``AlarmSeverity`` member names)."""
+
+    status: str
+    severity: str
+
+
+#: No alarm.
+NO_ALARM = Alarm("NO_ALARM", "NO_ALARM")
+
+#: The link to the controller is down: nothing read stands.
+LINK_DOWN = Alarm("COMM", "INVALID_ALARM")
+
+
+class Ending(Enum):
+    """How a motion request of an axis ended."""
+
+    #: The move ended at its target.
+    ARRIVED = "arrived"
+    #: The move ended anywhere else (a status letter, a controller error, a refused line).
+    FAILED = "failed"
+    #: Refused before any motion: the target is above the high soft limit.
+    ABOVE_LIMIT = "above limit"
+    #: Refused before any motion: the target is below the low soft limit.
+    BELOW_LIMIT = "below limit"
+    #: STOP, SPMG Stop or Pause, or a newer request replaced it.
+    STOPPED = "stopped"
+
+
+def fault_after(fault: Alarm, ending: Ending) -> Alarm:
+    """The fault alarm of an axis after a request ended as ``ending``.
+
+    Parameters
+    ----------
+    fault
+        The fault alarm before (:data:`NO_ALARM` for none).
+    ending
+        How the request ended.
+
+    Returns
+    -------
+    Alarm
+        The fault alarm after: raised by a failed or refused move, cleared only by a move
+        that arrived, unchanged by a stop.
+    """
+    if ending is Ending.ARRIVED:
+        return NO_ALARM
+    if ending is Ending.FAILED:
+        return Alarm("STATE", "MAJOR_ALARM")
+    if ending is Ending.ABOVE_LIMIT:
+        return Alarm("HIGH", "MAJOR_ALARM")
+    if ending is Ending.BELOW_LIMIT:
+        return Alarm("LOW", "MAJOR_ALARM")
+    return fault
+
+
+def shown_alarm(fault: Alarm, *, link_up: bool) -> Alarm:
+    """The alarm every PV of an axis shows.
+
+    Parameters
+    ----------
+    fault
+        The axis's fault alarm (:func:`fault_after`).
+    link_up
+        Whether the link to the controller is up.
+
+    Returns
+    -------
+    Alarm
+        INVALID/COMM while the link is down, else the fault alarm.
+    """
+    return fault if link_up else LINK_DOWN
+
+
+def limit_violation(dial: float, low: float, high: float) -> Ending | None:
+    """Whether a dial target violates the soft limits ``[low, high]`` (dial units).
+
+    Parameters
+    ----------
+    dial
+        The target, in dial units.
+    low, high
+        The dial soft limits (DLLM, DHLM); both 0 means no limits, as in the motor record.
+
+    Returns
+    -------
+    Ending | None
+        :attr:`Ending.ABOVE_LIMIT` or :attr:`Ending.BELOW_LIMIT`, or ``None`` inside.
+    """
+    if low == high == 0.0:
+        return None
+    if dial > high:
+        return Ending.ABOVE_LIMIT
+    if dial < low:
+        return Ending.BELOW_LIMIT
+    return None

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from ..errors import ERROR_DESCRIPTIONS
 from ..instructions import Command
 from .lists import MAX_TRIGGERS, ListError
-from .motion import MotionConfig
+from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
 from .params import format_value
 from .peripherals import Peripherals
 from .port import ModelPort
@@ -20,6 +20,9 @@ from .port import ModelPort
 __all__ = ["Handlers", "build_handlers"]
 
 Reply = list[str] | None
+
+#: What ``sa`` prints after the letters, by the switch ``status_tail`` (L2668-2670, L2715).
+_STATUS_TAILS = {"yes": ".-", "no": "", "dot": "."}
 
 
 class Handlers(Peripherals):
@@ -39,9 +42,10 @@ class Handlers(Peripherals):
     def i_version(self, c: Command) -> Reply:
         """``?version``: ``TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00`` with the space
         before the last comma of the 1.71 examples (L1067, L1105); the older edition's
-        example has none (old L426, switch ``version_format=old``)."""
+        example has none (old L426, switch ``version_format=old``). ``?version 1`` answers
+        the number only (L1057-1059), or the whole line with ``version_value=line``."""
         cfg = self.m.config
-        if c.values:
+        if c.values and self.m.firmware.version_value == "number":
             return [cfg.version]
         build = cfg.build
         if self.m.firmware.version_format == "old":
@@ -173,6 +177,30 @@ class Handlers(Peripherals):
             return ["1" if "1" in values else "0"]
         return [self.m.params.read(c, self.m.axes)]
 
+    def i_axis(self, c: Command) -> Reply:
+        """``!axis``/``?axis``: 1 enabled, 0 disabled, -1 power stage off (L3919-3960).
+        What disabling or switching off a moving axis does to its move the manual does
+        not say: switch ``disable_during_move``.
+
+        Raises
+        ------
+        MotionRefused
+            ``refuse``: a moving axis is to be disabled (error 2).
+        """
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        motion = self.m.motion
+        halted = [axis for axis, value in self.m.axis_map(c).items()
+                  if int(value) != 1 and motion.is_moving(axis)]
+        policy = self.m.firmware.disable_during_move
+        if halted and policy == "refuse":
+            raise MotionRefused(ERR_NOT_EXECUTABLE, "!axis: the axis moves")
+        self.m.store(c)
+        if policy == "stop":
+            for axis in halted:
+                motion.abort(axis)
+        return None
+
     def i_swtyp(self, c: Command) -> Reply:
         if not c.is_read:
             self.m.store(c)
@@ -194,7 +222,7 @@ class Handlers(Peripherals):
             return [letters["xyza".index(c.axis)]]
         if self.m.firmware.absent_axes == "omit":
             letters = letters.replace("-", "")
-        return [letters + (".-" if self.m.firmware.status_tail == "yes" else "")]
+        return [letters + _STATUS_TAILS[self.m.firmware.status_tail]]
 
     def i_calst(self, c: Command) -> Reply:
         return [self.axes_text(self.m.present(c), lambda i: str(self.m.motion.calst(i)))]
@@ -433,6 +461,14 @@ class Handlers(Peripherals):
         self._list_written()
         if start != end:
             self.m.params.put_global("trigm", (20 if end > start else 21,))
+        return None
+
+    def i_trigs(self, c: Command) -> Reply:
+        """Widths and delay in steps of 40 µs, each rounded to the nearest (90 → 80,
+        100 → 120) and read back so (L12959-12967, the secondary ones L12976-12981)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        self.m.params.put_global("trigs", tuple((int(v) + 20) // 40 * 40 for v in c.values))
         return None
 
     def i_trigcount(self, c: Command) -> Reply:

@@ -18,15 +18,16 @@ firmware       the firmware version                                       1.71
 state          path of a JSON file where ``save`` persists settings        none
 lacks          instructions it lacks (``ctrt,pause``): no reply, error 4  none
 profile        firmware profile (:mod:`tango_aio.sim.profiles`)            manual
-fingerprint    switch values of a ``tango-aio probe`` fingerprint file    none
+fingerprint    switches and lacks of a ``tango-aio probe`` fingerprint    none
 <switch>       any switch of :data:`~tango_aio.sim.profiles.SWITCHES`      per profile
 speed          the controller's time runs this many times as fast          1
 =============  =========================================================  ===========
 
 Example: ``sim://?profile=legacy&echo=after`` (the profile first, single switches on top).
 ``sim://?fingerprint=unit.json`` behaves like the unit ``tango-aio probe`` wrote
-``unit.json`` for, as far as the switches go (:meth:`Firmware.from_fingerprint`); single
-switches go on top of it too.
+``unit.json`` for, as far as the switches go (:meth:`Firmware.from_fingerprint`), and
+lacks the instructions it lacks (:func:`~tango_aio.sim.profiles.fingerprint_lacks`, on top
+of any ``lacks`` option); single switches go on top of it too.
 ``speed`` (a finite number > 0) scales motion, pauses and the controller's timeouts; the
 wire keeps its baud rate, latency and processing times (:mod:`tango_aio.sim.clock`).
 """
@@ -41,7 +42,7 @@ from typing import TypeVar
 
 from .clock import check_speed
 from .model import ControllerModel, SimConfig
-from .profiles import SWITCHES, Firmware
+from .profiles import SWITCHES, Firmware, fingerprint_lacks
 from .serve import SimTransport, create_sim_connection
 from .wire import Emit, WireConfig
 
@@ -82,10 +83,13 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
     if not 1 <= axes <= 4:
         raise ValueError(f"sim:// axes must be 1..4, got {axes}")
     switches = {name: value for name, value in query.items() if name in SWITCHES}
+    lacks = frozenset(name.strip().lower() for name in query.get("lacks", "").split(",")
+                      if name.strip())
     if "fingerprint" in query:
         if "profile" in query:
             raise ValueError("sim:// takes a profile or a fingerprint, not both")
         firmware = Firmware.from_fingerprint(query["fingerprint"]).with_(**switches)
+        lacks |= fingerprint_lacks(query["fingerprint"])
     else:
         firmware = Firmware.from_options(query.get("profile", "manual"), **switches)
     sim = SimConfig(
@@ -94,8 +98,7 @@ def configs_from_url(url: str) -> tuple[SimConfig, WireConfig]:
         firmware=firmware,
         version=query.get("firmware", "1.71"),
         state_file=Path(query["state"]) if "state" in query else None,
-        lacks=frozenset(name.strip().lower() for name in query.get("lacks", "").split(",")
-                        if name.strip()),
+        lacks=lacks,
     )
     baud = int(query.get("baud", 57600))
     wire = WireConfig(

@@ -414,7 +414,8 @@ class ControllerModel:
     def _unknown_to_older(self, command: Command) -> bool:
         """Switch ``instruction_set=older``: instructions the older edition lacks, and
         values for those that took none there (``help N``, ``version 1``; old L414,
-        old L805-819), are unknown to it: error 4 ("invalid instruction").
+        old L805-819), are unknown to it: error 4 ("invalid instruction"); with
+        ``version_value=line`` a value for ``version`` is ignored instead.
 
         Returns
         -------
@@ -424,7 +425,8 @@ class ControllerModel:
         if self.firmware.instruction_set != "older":
             return False
         entry = command.instruction
-        return not entry.in_older_manual or (entry.older_without_values
+        ignored = entry.name == "version" and self.firmware.version_value == "line"
+        return not entry.in_older_manual or (entry.older_without_values and not ignored
                                              and bool(command.values))
 
     def _rejected(self, text: str, code: int) -> None:

@@ -17,7 +17,8 @@ Select one in a URL (``sim://?profile=legacy&echo=after``), on the command line
     SimConfig(firmware=Firmware.from_options("legacy", echo="after"))
 
 :data:`SWITCHES` documents every switch (values, the ``manual`` default, the manual lines
-it comes from, what it changes); the README's switch table is generated from it.
+it comes from, what it changes); the switch table of the firmware-profiles page of the
+docs is generated from it.
 :func:`variants` lists the firmwares a client's test matrix should run against.
 
 This module imports nothing of the driver: it is part of the emulator's own reading of
@@ -34,7 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
-__all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "switch_table", "variants"]
+__all__ = ["PROFILES", "SWITCHES", "Firmware", "SwitchDoc", "fingerprint_lacks",
+           "switch_table", "variants"]
 
 
 @dataclass(frozen=True)
@@ -111,15 +113,23 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "A move line for axes that are still moving is refused with error 2, waits "
               "until they stop (`queue`, then reports on its own), or takes over their "
               "target (`retarget`: the first move sends no report of its own)."),
+    SwitchDoc("disable_during_move", ("continue", "stop", "refuse"), "L3919-3960",
+              "`!axis x 0` (disable) or `-1` (power stage off) while X moves: the manual "
+              "says only that a disabled axis keeps its motor current and a switched-off "
+              "one loses its torque. The move goes on to its target (`continue`), X "
+              "stops as by `a x` (`stop`: letter `E`), or the line is refused with "
+              "error 2 (`refuse`)."),
     SwitchDoc("zero_move_report", ("yes", "no"), "L2087-2089",
               "A move to where the axes already are sends a report (`yes`) or nothing."),
     # -- reports and status ------------------------------------------------------------------
     SwitchDoc("report_width", ("four", "axes"), "L2089, L2141, L5404",
               "Completion reports carry letters for X Y Z A always, absent axes `-` "
               "(`four`: `@@--.` on 2 axes), or only as many as the unit has (`axes`: `@@.`)."),
-    SwitchDoc("status_tail", ("yes", "no"), "L2662-2725",
+    SwitchDoc("status_tail", ("yes", "no", "dot"), "L2662-2725",
               "`?statusaxis` (all axes) ends with `.-` like every example of the manual "
-              "(`@@@-.-`, `yes`), or with the axis letters only (`no`: `@@@-`)."),
+              "(`@@@-.-`, `yes`), with the axis letters only (`no`: `@@@-`), or with the "
+              "dot but not the `-` that L2668-2670 adds to the completion report's shape "
+              "(`dot`: `@@@-.`, a line that reads like a completion report)."),
     SwitchDoc("absent_axes", ("dash", "omit"), "L2711, L2721",
               "`sa`/`?statusaxis` shows absent and disabled axes as `-` (`dash`: "
               "`JM--.-`), or leaves them out (`omit`: `JM.-`, L2711 prints no character)."),
@@ -154,6 +164,12 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "`?version` as `TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00` (`new`) or "
               "`TANGO-DT, Version 1.71, Jun  4 2019, 12:00:00` (`old`, no space before "
               "the last comma)."),
+    SwitchDoc("version_value", ("number", "line"), "L1046-1059, L1107, old L414-418",
+              "`?version 1` answers the version number only (`number`, L1057-1059, "
+              "L1107; refused with error 4 under `instruction_set=older`, whose `version` "
+              "takes no value, old L416-418), or ignores the value and answers the whole "
+              "`?version` line (`line`: firmware whose `version` takes no value, in either "
+              "instruction set)."),
     SwitchDoc("line_end", ("cr", "crlf"), "L82",
               "Replies end with CR (`cr`) or CR LF (`crlf`)."),
     SwitchDoc("numbers", ("plain", "plus", "negzero"), "L66-70, L94-96",
@@ -209,11 +225,13 @@ class Firmware:
     refused_move_report: str = "no"
     #: A move for moving axes: ``refuse``, ``queue`` or ``retarget``.
     move_during_move: str = "refuse"
+    #: ``!axis`` 0 or -1 for a moving axis: ``continue``, ``stop`` or ``refuse``.
+    disable_during_move: str = "continue"
     #: A move to where the axes are sends a report (``yes``/``no``).
     zero_move_report: str = "yes"
     #: Report letters for ``four`` axes always or as many as the unit has (``axes``).
     report_width: str = "four"
-    #: ``?statusaxis`` ends with ``.-`` (``yes``/``no``).
+    #: ``?statusaxis`` ends with ``.-`` (``yes``), nothing (``no``) or ``.`` (``dot``).
     status_tail: str = "yes"
     #: ``sa`` shows absent/disabled axes as ``dash`` or leaves them out (``omit``).
     absent_axes: str = "dash"
@@ -235,6 +253,8 @@ class Firmware:
     lim_cr_bug: str = "extmode0"
     #: ``?version`` format: ``new`` or ``old``.
     version_format: str = "new"
+    #: ``?version 1``: the ``number`` only, or the whole ``line`` (the value ignored).
+    version_value: str = "number"
     #: Reply line end: ``cr`` or ``crlf``.
     line_end: str = "cr"
     #: Number format: ``plain``, ``plus`` or ``negzero``.
@@ -309,12 +329,12 @@ class Firmware:
         """The firmware a fingerprint describes (a file written by ``tango-aio probe``, or
         its JSON already loaded).
 
-        A fingerprint is, for the emulator, just switch values: its ``switches`` mapping
-        on top of the ``manual`` profile. A switch the probe could not observe (absent, or
-        ``null``: e.g. the move switches of a probe without ``--moves``) keeps the
-        ``manual`` value; what it recorded as unknown is not a switch value and is left
-        out. Raises ValueError for a file that is not a fingerprint or holds a switch
-        name or value the emulator does not know.
+        The firmware is the fingerprint's ``switches`` mapping on top of the ``manual``
+        profile (the instructions the unit lacks are :func:`fingerprint_lacks`'s). A
+        switch the probe could not observe (absent, or ``null``: e.g. the move switches of
+        a probe without ``--moves``) keeps the ``manual`` value; what it recorded as
+        unknown is not a switch value and is left out. Raises ValueError for a file that
+        is not a fingerprint or holds a switch name or value the emulator does not know.
 
         Parameters
         ----------
@@ -331,18 +351,7 @@ class Firmware:
         ValueError
             Not a fingerprint, or an unknown switch name or value.
         """
-        if not isinstance(fingerprint, Mapping):
-            path = Path(fingerprint)
-            try:
-                data = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError) as exc:
-                raise ValueError(f"cannot read fingerprint {str(path)!r}: {exc}") from None
-            if not isinstance(data, Mapping):
-                raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
-            fingerprint = data
-        kind = fingerprint.get("format", "tango_aio.fingerprint/")
-        if not str(kind).startswith("tango_aio.fingerprint/"):
-            raise ValueError(f"not a fingerprint: format {kind!r}")
+        fingerprint = _fingerprint_data(fingerprint)
         switches = fingerprint.get("switches")
         if not isinstance(switches, Mapping):
             raise ValueError("not a fingerprint: no 'switches' object")
@@ -362,6 +371,52 @@ class Firmware:
         """
         return {name: getattr(self, name) for name, doc in SWITCHES.items()
                 if getattr(self, name) != doc.default}
+
+
+def fingerprint_lacks(fingerprint: Mapping[str, object] | str | os.PathLike[str]
+                      ) -> frozenset[str]:
+    """The instructions a fingerprint says its unit lacks (its ``lacks`` list: no reply,
+    error 4, L970), for :attr:`~tango_aio.sim.model.SimConfig.lacks`; none when it has no
+    such list.
+
+    Parameters
+    ----------
+    fingerprint
+        The fingerprint's file, or its JSON data.
+
+    Returns
+    -------
+    frozenset[str]
+        The instruction names, in lower case.
+
+    Raises
+    ------
+    ValueError
+        Not a fingerprint, or a ``lacks`` that is not a list of names.
+    """
+    lacks = _fingerprint_data(fingerprint).get("lacks", [])
+    if not isinstance(lacks, list) or not all(isinstance(name, str) and name.strip()
+                                              for name in lacks):
+        raise ValueError(f"fingerprint lacks={lacks!r} is not a list of instruction names")
+    return frozenset(name.strip().lower() for name in lacks)
+
+
+def _fingerprint_data(fingerprint: Mapping[str, object] | str | os.PathLike[str]
+                      ) -> Mapping[str, object]:
+    """A fingerprint's JSON object (read from its file); ValueError if it is none."""
+    if not isinstance(fingerprint, Mapping):
+        path = Path(fingerprint)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"cannot read fingerprint {str(path)!r}: {exc}") from None
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{str(path)!r} is not a fingerprint (no JSON object)")
+        fingerprint = data
+    kind = fingerprint.get("format", "tango_aio.fingerprint/")
+    if not str(kind).startswith("tango_aio.fingerprint/"):
+        raise ValueError(f"not a fingerprint: format {kind!r}")
+    return fingerprint
 
 
 def _check(name: str, value: object) -> None:
@@ -411,7 +466,7 @@ def variants(*, unsupported: bool = False) -> list[tuple[str, Firmware]]:
 
 
 def switch_table() -> str:
-    """The Markdown table of every switch (the README's, checked by a test).
+    """The Markdown table of every switch (the firmware-profiles page's, checked by a test).
 
     Returns
     -------

@@ -273,6 +273,10 @@ class Faults:
     lose_line: bytes | None = None
     """Lose the next line received that starts with these bytes, as if it never arrived
     (a line garbled or cut on the way in); once. ``None``: lose none."""
+    garble_reply_to: tuple[bytes, Garbler] | None = None
+    """Pass the first reply to the next line received that starts with these bytes
+    through this garbler (e.g. only the ``?err`` reply behind a move line); once.
+    ``None``: none."""
 
 
 @dataclass
@@ -354,6 +358,7 @@ class Wire:
         self._discard_head: bytes | None = None
         self._handler_polled_at = float("-inf")
         self._deaf = False  # rebooting: input is lost
+        self._garble_first: Garbler | None = None  # for the line being handled
         self.handler: LineHandler = make_handler(self.emit)
         """The controller logic built by the factory."""
         self._ctrl_c_stops: bool = getattr(self.handler, "ctrl_c_stops", True)
@@ -549,6 +554,11 @@ class Wire:
         """
         if self.closed or not data:
             return
+        garbler, self._garble_first = self._garble_first, None
+        if garbler is not None:
+            data = garbler(bytes(data), self.rng)
+            if not data:
+                return
         if self._busy_until is not None:
             self._held.append(bytes(data))
         else:
@@ -926,10 +936,22 @@ class Wire:
         if too_long:
             self.handler.line_too_long(line, self._now)
         else:
-            self.handler.handle_line(line, self._now)
+            self._garble_first = self._reply_garbler(line)
+            try:
+                self.handler.handle_line(line, self._now)
+            finally:
+                self._garble_first = None
         self._handler_deadline = self.handler.next_deadline()
         if duration <= 0.0:
             self._finish_line()
+
+    def _reply_garbler(self, line: bytes) -> Garbler | None:
+        """The garbler of the first reply to ``line`` (:attr:`Faults.garble_reply_to`)."""
+        target = self.faults.garble_reply_to
+        if target is None or not line.startswith(target[0]):
+            return None
+        self.faults.garble_reply_to = None
+        return target[1]
 
     def _duration(self, line: bytes, too_long: bool) -> float:
         """Processing time of one line: base + handler's extra (not for over-long lines)."""

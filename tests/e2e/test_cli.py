@@ -109,9 +109,9 @@ def test_info_prints_identity() -> None:
 
 def test_errors_are_one_line_with_nonzero_exit() -> None:
     result = run("info", "/dev/does-not-exist")
-    assert result.returncode == 1
-    assert result.stdout.strip().startswith("error:")
-    assert len(result.stdout.strip().splitlines()) == 1
+    assert result.returncode == 1 and result.stdout == ""
+    assert result.stderr.strip().startswith("error:")
+    assert len(result.stderr.strip().splitlines()) == 1
     bad = run("info", "sim://?axes=9")
     assert bad.returncode == 2 and "axes must be 1..4" in bad.stderr
 
@@ -295,13 +295,13 @@ def test_shell_reads_a_script_from_a_pipe(tmp_path: Path) -> None:
                             text=True, timeout=60, check=False,
                             env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
     assert result.returncode == 1, result.stderr  # lines failed
-    out = result.stdout
+    out, err = result.stdout, result.stderr
     assert "0.0000 0.0000 0.0000" in out
-    assert "invalid: vel: velocity=1000.0 is above 200 (nothing sent)" in out
-    assert "error: controller error 5: number is not inside allowed range" in out
+    assert "invalid: vel: velocity=1000.0 is above 200 (nothing sent)" in err
+    assert "error: controller error 5: number is not inside allowed range" in err
     assert re.search(r"→ (no error|error 5: number is not inside allowed range)", out)
     assert "ERROR 5,number outside range  → error 5: number is not inside allowed range" in out
-    assert out.count("invalid:") == 2
+    assert err.count("invalid:") == 2 and "invalid:" not in out
     assert not (tmp_path / "h").exists()  # no history for non-interactive input
 
 
@@ -339,7 +339,7 @@ def test_move_prints_the_status_letters() -> None:
 def test_move_beyond_the_limits_is_a_one_line_error() -> None:
     result = run("move", SIM, "x=1000000")
     assert result.returncode == 1
-    lines = result.stdout.strip().splitlines()
+    lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: controller error 5"), lines
     usage = run("move", SIM, "q=1")
     assert usage.returncode == 2 and "expected AXIS=VALUE" in usage.stderr
@@ -356,7 +356,7 @@ def test_monitor_exits_cleanly_on_ctrl_c() -> None:
     with Terminal("monitor", SIM, "--interval", "0.05", env={"TERM": "xterm"}) as term:
         term.expect(r"│ z\s+│\s+0\.0000 │ @")  # the live table is up
         term.send("\x03")  # Ctrl+C in a terminal: SIGINT
-        assert term.wait() == 130  # as every command after Ctrl+C (README, cli.md)
+        assert term.wait() == 130  # as every command after Ctrl+C (cli.md)
 
 
 def test_ports_lists_and_probes() -> None:
@@ -389,11 +389,11 @@ def test_upload_trigp_reports_bad_input_in_one_line(tmp_path: Path) -> None:
     path.write_text("1.0\n2.0\n1.5\n")
     result = run("upload-trigp", "sim://?baud=0", str(path))
     assert result.returncode == 1
-    assert "breaks the monotonic order" in result.stdout
-    assert len(result.stdout.strip().splitlines()) == 1
+    assert "breaks the monotonic order" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and result.stdout == ""
     path.write_text("1.0\nabc\n")
     result = run("upload-trigp", "sim://?baud=0", str(path))
-    assert result.returncode == 1 and ":2: not a number" in result.stdout
+    assert result.returncode == 1 and ":2: not a number" in result.stderr
 
 
 # -- issue 16: one-line errors, safety, the shell, words ---------------------------------
@@ -411,33 +411,33 @@ def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
 
 def test_user_text_is_printed_literally(capsys: pytest.CaptureFixture[str],
                                         tmp_path: Path) -> None:
-    code, out, _ = cli(capsys, "info", "[/]")
+    code, _, out = cli(capsys, "info", "[/]")
     assert code == 1 and out.startswith("error: no serial port [/]:"), out
     path = tmp_path / "positions.txt"
     path.write_text("1.0\n[mm]\n")
-    code, out, _ = cli(capsys, "upload-trigp", SIM, str(path))
+    code, _, out = cli(capsys, "upload-trigp", SIM, str(path))
     assert code == 1 and f"{path}:2: not a number: '[mm]'" in out, out
 
 
 def test_position_files_are_read_with_bounds(capsys: pytest.CaptureFixture[str],
                                              tmp_path: Path) -> None:
-    code, out, _ = cli(capsys, "upload-trigp", SIM, "/dev/zero")
+    code, _, out = cli(capsys, "upload-trigp", SIM, "/dev/zero")
     assert code == 1 and "/dev/zero:1: line longer than 200 bytes" in out
     many = tmp_path / "many.txt"
     many.write_text("\n".join(str(i * 0.001) for i in range(10002)))
-    code, out, _ = cli(capsys, "upload-trigp", SIM, str(many))
+    code, _, out = cli(capsys, "upload-trigp", SIM, str(many))
     assert code == 1 and "more than 10000 positions" in out
     binary = tmp_path / "binary.txt"
     binary.write_bytes(b"1.0\n\xff\xfe\n")
-    code, out, _ = cli(capsys, "upload-trigp", SIM, str(binary))
+    code, _, out = cli(capsys, "upload-trigp", SIM, str(binary))
     assert code == 1 and ":2: not a number" in out
-    code, out, _ = cli(capsys, "upload-trigp", SIM, str(tmp_path))
+    code, _, out = cli(capsys, "upload-trigp", SIM, str(tmp_path))
     assert code == 1 and "Is a directory" in out
 
 
 def test_a_url_without_file_descriptor_is_a_one_line_error(
         capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = cli(capsys, "info", "loop://")
+    code, _, out = cli(capsys, "info", "loop://")
     assert code == 1 and len(out.splitlines()) == 1
     if WINDOWS:  # the thread transport needs no descriptor: loop:// echoes, no controller
         assert out.startswith("error: no TANGO answered on loop://"), out
@@ -516,7 +516,7 @@ def test_status_letters_are_named_in_words(capsys: pytest.CaptureFixture[str],
     state = tmp_path / "state.json"
     state.write_text(json.dumps({"format": "tango_aio.sim state", "version": 1,
                                  "axes": {"vel": [[100.0]] * 4, "secvel": [[100.0]] * 4}}))
-    code, out, _ = cli(capsys, "move", f"{SIM}&state={state}", "x=60")
+    code, _, out = cli(capsys, "move", f"{SIM}&state={state}", "x=60")
     assert code == 1 and len(out.splitlines()) == 1, out
     # Words only, no raw dict of letters before them (issue 30 item 7).
     assert "{" not in out, out
@@ -577,8 +577,9 @@ def test_demo_asks_before_moving_a_real_controller() -> None:
     with PtySim() as sim:
         piped = subprocess.run([*CLI, "demo", sim.path], capture_output=True,
                                text=True, timeout=60, check=False, stdin=subprocess.DEVNULL)
-        assert piped.returncode == 1 and "confirm with --yes" in piped.stdout
+        assert piped.returncode == 2 and "confirm with --yes" in piped.stderr
         with Terminal("demo", sim.path, env={"TERM": "dumb"}) as term:
+            term.expect(r"Found TANGO-DT firmware 1\.71, 3 axes at")  # before asking
             term.expect(r"Z/focus included")
             term.expect(r"Continue\? \[y/N\]")
             term.send("n\r")
@@ -622,7 +623,7 @@ def test_shell_survives_undecodable_and_long_input() -> None:
     result = _decoded(script, SIM)
     assert result.returncode == 1  # two invalid lines
     assert "0.0000 0.0000 0.0000" in result.stdout
-    assert result.stdout.count("invalid:") == 2, result.stdout
+    assert result.stderr.count("invalid:") == 2, result.stderr
 
 
 def test_shell_script_exit_status_and_wait() -> None:
@@ -632,14 +633,14 @@ def test_shell_script_exit_status_and_wait() -> None:
     assert "1.0000 2.0000 0.0000" in good.stdout
     bad = _decoded(b"!moa 1000000\n?pos\n", SIM)
     assert bad.returncode == 1
-    assert "error: controller error 5" in bad.stdout and "ok" not in bad.stdout.split()
+    assert "error: controller error 5" in bad.stderr and "ok" not in bad.stdout.split()
 
 
 def test_leaving_the_shell_stops_the_axes() -> None:
     with PtySim() as sim:
         result = _decoded(b"!moa 40 40\n", sim.path)
-        assert "stopping the axes that still move: x y" in result.stdout, result.stdout
-        assert "move failed: X still moving when the shell was left" in result.stdout
+        assert "stopping the axes that still move: x y" in result.stderr, result.stderr
+        assert "move failed: X still moving when the shell was left" in result.stderr
         assert result.returncode == 1  # the move did not end at its target (#26)
         assert sim.moving_axes() == []
 
@@ -718,7 +719,7 @@ def test_sim_pty_on_windows_is_one_line_pointing_to_tcp() -> None:
     for where in (["--pty"], []):
         result = subprocess.run([*CLI, "sim", *where], capture_output=True, text=True,
                                 timeout=60, check=False, env=_as_windows())
-        lines = result.stdout.strip().splitlines()
+        lines = result.stderr.strip().splitlines()
         assert result.returncode == 1, result.stdout + result.stderr
         assert lines == [f"error: {PTY_NEEDS_POSIX}"], lines
         assert "--tcp" in lines[0] and "socket://" in lines[0] and "com0com" in lines[0]

@@ -129,14 +129,14 @@ def test_shell_checks_what_the_controller_would_refuse(tmp_path: Path) -> None:
     result = subprocess.run([sys.executable, "-m", "tango_aio", "shell", SIM], input=script,
                             capture_output=True, text=True, timeout=60, check=False,
                             env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
-    out = result.stdout
-    assert result.returncode == 1, out + result.stderr
+    out = result.stderr
+    assert result.returncode == 1, result.stdout + out
     assert "invalid: unknown instruction 'mao' (did you mean moa or mro?) (nothing sent)" in out
     assert ("invalid: moa: 4 axis values, but the controller has 3 (axes X Y Z) "
             "(nothing sent)") in out
     assert "invalid: moa: position '1e3' is in exponent notation, which is refused" in out
     assert "controller error" not in out, out  # nothing reached the controller
-    assert "0.0000 0.0000 0.0000" in out
+    assert "0.0000 0.0000 0.0000" in result.stdout and "invalid:" not in result.stdout
 
 
 def test_a_second_ctrl_c_in_a_task_is_not_reported_as_a_warning(

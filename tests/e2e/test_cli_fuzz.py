@@ -99,11 +99,12 @@ def _script(rng: random.Random) -> bytes:
 def _check_output(argv: list[str], code: int, out: str, err: str) -> None:
     assert "Traceback" not in out + err, (argv, out, err)
     assert "never retrieved" not in out + err, (argv, out, err)
-    assert "warning:" not in out, (argv, out)  # an error no task awaited
+    assert "warning:" not in out + err, (argv, out, err)  # an error no task awaited
+    assert "error:" not in out, (argv, out)  # diagnostics go to stderr
     assert code in (0, 1, 2), (argv, code, out, err)
     if code == 1 and argv[-2:-1] != ["shell"] and "shell" not in argv:
-        errors = [line for line in out.splitlines() if line.startswith("error: ")]
-        assert len(errors) == 1, (argv, out)
+        errors = [line for line in err.splitlines() if line.startswith("error: ")]
+        assert len(errors) == 1, (argv, err)
 
 
 def _run_in_process(argv: list[str], stdin: bytes, monkeypatch: pytest.MonkeyPatch,
@@ -245,7 +246,7 @@ def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
              "sys.exit(main(['info', 'sim://?baud=0']))")
     done = subprocess.run([sys.executable, "-W", "error", "-c", probe], capture_output=True,
                           text=True, timeout=60, check=False)
-    assert (done.returncode, done.stdout, done.stderr) == (130, "interrupted\n", "")
+    assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
 
 
 @pytest.mark.parametrize("delay", [0.0, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.25])

@@ -377,8 +377,10 @@ async def test_wire_logger_traces_lines_both_ways(emulator: EmulatorFactory,
              if r.name == "tango_aio.wire"]
     # Separators between look-alike requests (?help N, ERROR N,...) left out.
     lines = [line for line in lines if "help" not in line and "ERROR" not in line]
+    # The set's read-back (tango_aio.readback) follows its ?err in the same write.
     assert lines == ["-> b'?vel'", "<- b'10.000 10.000 10.000'",
-                     "-> b'!vel 10 5'", "-> b'?err'", "<- b'0'"]
+                     "-> b'!vel 10 5'", "-> b'?err'", "-> b'?vel'", "<- b'0'",
+                     "<- b'10.000 5.000 10.000'"]
 
 
 # --------------------------------------------------------------------------------------

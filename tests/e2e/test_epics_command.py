@@ -26,9 +26,9 @@ def test_loopback_detection() -> None:
 
 
 def test_usage_errors_exit_nonzero(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["ioc", "--prefix", "P:"]) == 1
-    assert "controller URL" in capsys.readouterr().out
-    assert main(["ioc", "sim://", "--prefix", "P:", "--allow-user", ""]) == 1
+    assert main(["ioc", "--prefix", "P:"]) == 2  # a usage error
+    assert "controller URL" in capsys.readouterr().err
+    assert main(["ioc", "sim://", "--prefix", "P:", "--allow-user", ""]) == 2
     with pytest.raises(SystemExit):
         main(["ioc", "sim://"])  # --prefix is required
 

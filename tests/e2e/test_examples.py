@@ -1,4 +1,4 @@
-"""The examples run against the embedded emulator, as the README promises.
+"""The examples run against the embedded emulator, as getting-started.md promises.
 
 Every ``examples/*.py`` runs once, as a subprocess; each must exit with 0 and print
 something, and what it prints is checked by the example's function in ``CHECKS`` (one run

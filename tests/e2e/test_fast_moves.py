@@ -94,8 +94,13 @@ async def run_sequence(emulator: EmulatorFactory, profile: str, baud: int,
         except TangoError as error:
             result = (type(error).__name__,)
         state = sim_axes(emu)
+        # An axis the driver stopped because another of the move stopped at its switch
+        # stands wherever the stop found it (when the state was polled): E, or @ where
+        # aborted axes report @ (legacy).
+        cut = {a for a, s in result[1].items() if s != "S"} \
+            if result[0] == "MoveError" else set()
         outcomes.append((kind, values, result,
-                         {a: round(p, 3) for a, (p, _) in state.items()}))
+                         {a: round(p, 3) for a, (p, _) in state.items() if a not in cut}))
         if result[0] != "ok":
             # Leave the limit switch the way any caller would: back inside the travel.
             await bounded(tango.move_to(**as_axes({a: 0.0 for a in values})))

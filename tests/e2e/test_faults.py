@@ -401,6 +401,10 @@ async def test_garbled_reply_among_pipelined_requests_stays_with_its_caller(seed
                     verdict = "set ok" if result is None else outcome(result)
                     assert result is None or isinstance(result, TangoError), result
                 counts[verdict] += 1
+            # The short timeout was for the fault (a garbled acknowledgement or echo is
+            # waited for until it expires; any typed error is an outcome above). Whether
+            # the stream is back in step does not depend on how busy the machine is.
+            tango.reply_timeout = tango.protocol.reply_timeout = 2.0
             await settle(emu)
             await check_in_step(emu)
             counts["runs"] += 1

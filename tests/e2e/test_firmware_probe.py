@@ -23,6 +23,7 @@ from typing import Any
 
 import pytest
 
+import tango_aio
 from tango_aio.instructions import lookup
 from tango_aio.probe import (
     MOVE_SWITCHES,
@@ -86,6 +87,9 @@ def expected(firmware: Firmware, options: ProbeOptions) -> dict[str, str | None]
             value = None  # plain and negzero differ only for a value just below 0
         if name == "help_number" and firmware.instruction_set == "older":
             value = None  # moot: '?help N' is refused
+        if name == "version_value" and firmware.instruction_set == "older" \
+                and value == "number":
+            value = None  # moot: '?version 1' is refused
         out[name] = value
     return out
 
@@ -160,11 +164,12 @@ def _moves(trace: str) -> list[bytes]:
 
 
 async def _served(**state: Any) -> tuple[Any, list[ControllerModel]]:
-    """A TCP emulator whose controller starts in ``state`` (autostatus, extmode)."""
+    """A TCP emulator whose controller starts in ``state`` (autostatus, extmode; the
+    instructions it lacks)."""
     models: list[ControllerModel] = []
 
     def factory(emit: Emit) -> ControllerModel:
-        model = ControllerModel(emit, SimConfig(axes=3))
+        model = ControllerModel(emit, SimConfig(axes=3, lacks=state.get("lacks", frozenset())))
         model.session.autostatus = state.get("autostatus", 1)
         model.params.global_values["extmode"] = (state.get("extmode", 0),)
         models.append(model)
@@ -198,8 +203,9 @@ async def test_without_moves_nothing_moves_and_every_setting_is_set_back(
     assert result.switches["lim_cr_bug"] == "extmode0"  # read in both extmodes
 
 
-async def test_with_moves_x_returns_and_settings_are_set_back() -> None:
-    server, models = await _served()
+@pytest.mark.parametrize("lacks", [frozenset(), frozenset({"lim"})], ids=["all", "no_lim"])
+async def test_with_moves_x_returns_and_settings_are_set_back(lacks: frozenset[str]) -> None:
+    server, models = await _served(lacks=lacks)
     async with server:
         result = await probe(f"socket://127.0.0.1:{server.port}", FAST_MOVES)
         (model,) = models
@@ -346,3 +352,76 @@ async def test_a_probe_that_fails_still_writes_the_trace(tmp_path: Path) -> None
     assert [r.data for r in parse_trace(trace.read_text(encoding="utf-8"))] == \
         [b"?autostatus", b"?autostatus"]
     assert not (tmp_path / "fp.json").exists()
+
+
+# ---------------------------------------------------------------------------------------
+# Old units and units that lack instructions
+
+#: An older-edition unit whose version ignores a value (old L416-418) and answers
+#: '?version 1' with the whole line; a unit without ?lim; one without ctrt (L11616-11631).
+OLD_UNITS = {
+    "version_line": ("profile=legacy&version_value=line", []),
+    "no_lim": ("lacks=lim", ["lim"]),
+    "no_ctrt": ("lacks=ctrt", ["ctrt"]),
+}
+
+
+def _unit_url(query: str, baud: int = 0) -> str:
+    return f"sim://?baud={baud}&speed=10&{query}"
+
+
+@pytest.mark.parametrize(("unit", "options"), [
+    *[pytest.param(unit, FAST, id=f"{unit}-reads") for unit in OLD_UNITS],
+    pytest.param("no_lim", FAST_MOVES, id="no_lim-moves"),
+    *[pytest.param(unit, FAST_MOVES, id=f"{unit}-moves", marks=pytest.mark.slow)
+      for unit in OLD_UNITS if unit != "no_lim"]])
+async def test_the_probe_fingerprints_old_units_and_units_lacking_instructions(
+        unit: str, options: ProbeOptions) -> None:
+    query, lacks = OLD_UNITS[unit]
+    # At 57600 Bd the replies behind ?version 1's line come after it, as from a unit
+    # (in instant mode they come with it).
+    baud = 57600 if unit == "version_line" and not options.moves else 0
+    result = await probe(_unit_url(query, baud), options)
+    assert not result.unknown, result.unknown
+    assert set(lacks) <= set(result.lacks)
+    fingerprint = result.fingerprint()
+    assert fingerprint["lacks"] == result.lacks
+    if unit == "version_line":
+        assert result.switches["version_value"] == "line"
+        assert result.switches["instruction_set"] == "older"
+        assert "extmode" in result.lacks  # not in the older edition
+    else:
+        assert result.lacks == lacks
+        assert result.switches["version_value"] == "number"
+        assert result.switches["instruction_set"] == "full"
+    if unit == "no_lim":
+        # Missing, not an unknown behaviour; with moves, nothing goes beyond a limit.
+        assert result.observations["lim_cr_bug"].value is None
+        assert "lacks ?lim" in result.observations["lim_cr_bug"].note
+        assert "lim" not in fingerprint["unknown"]
+        if options.moves:
+            assert "lacks ?lim" in result.observations["refused_move_report"].note
+    else:
+        assert result.switches["lim_cr_bug"] == "extmode0"
+    if options.moves:
+        assert result.switches["move_during_move"] == "refuse"
+        assert result.switches["ctrl_c"] == "stop"
+
+
+@pytest.mark.parametrize("unit", list(OLD_UNITS))
+async def test_a_fingerprint_replays_as_its_unit_lacks_included(tmp_path: Path,
+                                                                unit: str) -> None:
+    query, _ = OLD_UNITS[unit]
+    first = await probe(_unit_url(query), FAST)
+    path = write_fingerprint(first, tmp_path / "unit.json")
+    again = await probe(_unit_url(f"fingerprint={path}"), FAST)
+    assert comparable(again.fingerprint()) == comparable(first.fingerprint())
+    assert again.lacks == first.lacks
+
+
+@pytest.mark.parametrize("unit", list(OLD_UNITS))
+async def test_the_driver_connects_and_moves_on_those_units(unit: str) -> None:
+    query, _ = OLD_UNITS[unit]
+    async with tango_aio.connect(_unit_url(query)) as tango:
+        await tango.move_to(x=0.2)
+        assert (await tango.position())["x"] == pytest.approx(0.2)

@@ -108,3 +108,45 @@ async def test_without_reports_a_limit_switch_is_seen_by_polling_during_the_move
     assert not motion.is_moving("x")
     planned = tango._settings.travel("x", 60.0)
     assert motion.now - start < planned / 2
+
+
+# -- a move of several axes, one of which stops early (#37 item 5) ---------------------------
+
+#: Where each move starts and goes: the stopped axis runs into its upper switch at +2 mm
+#: while the other has a quarter of a millimetre to go over the whole vector move.
+_SPLIT = {"x": ((1.5, -0.25), (60.0, 0.0)), "y": ((-0.25, 1.5), (0.0, 60.0))}
+
+
+@pytest.mark.parametrize("stopped", ["x", "y"])
+@pytest.mark.parametrize("autostatus", [0, 1, 2, 3, 4])
+async def test_an_axis_stopped_by_its_switch_ends_a_move_of_several_axes_at_once(
+        emulator: EmulatorFactory, autostatus: int, stopped: str) -> None:
+    """The other axis of the vector move goes on (the emulator's reading: a switch stops
+    its own axis) and the report waits for it; the call ends once the stop is read,
+    with the other axis stopped, not at the planned end of the move."""
+    emu = await emulator(travel=4.0, autostatus=autostatus)
+    tango, motion = emu.tango, emu.model.motion
+    other = "y" if stopped == "x" else "x"
+    (x0, y0), (x1, y1) = _SPLIT[stopped]
+    await tango.move_to(x=x0, y=y0)
+    planned = tango._settings.travel(stopped, 58.5)  # the line's own plan
+    start = motion.now
+    errors: list[tuple[MoveError, float, list[str]]] = []
+    try:
+        await tango.move_to(x=x1, y=y1)
+    except MoveError as raised:
+        # The emulator's own clock and state when the error arrives.
+        errors.append((raised, motion.now, [a for a in "xyz" if motion.is_moving(a)]))
+    [(error, ended, moving)] = errors
+    assert ended - start < planned / 2  # not the planned end of the move
+    assert moving == []  # the other axis was stopped: nothing moves
+    assert emulated_position(emu, stopped) < 3.0
+    assert abs(emulated_position(emu, other)) < 0.25  # stopped short of its target
+    assert error.statuses[stopped] == "S"
+    assert error.statuses[other] != "M"
+    name = stopped.upper()
+    assert f"{name} stopped at its upper limit switch (EE) (status S)" in str(error)
+    assert f"{other.upper()} was stopped by this program when {name} stopped" in str(error)
+    # The link is in step: the next move works.
+    assert (await tango.move_to(x=0.0, y=0.0))["x"] == "@"
+    assert emulated_position(emu, "x") == pytest.approx(0.0, abs=1e-3)

@@ -17,8 +17,9 @@ from tango_aio.testing import Faults, faults
 
 pytestmark = pytest.mark.timeout(600)
 
-#: Moves tried after each power cycle; the first may fail (its answer cannot come).
-MOVES = 4
+#: Moves tried after each power cycle: the first may fail (its answer cannot come), the
+#: next one works (#37 item 4: in modes 2 and 4 it was written in the power-on mode).
+MOVES = 2
 STEP = 0.5
 
 
@@ -71,7 +72,7 @@ async def _power_cycles(mode: int, count: int) -> None:
 
 @pytest.mark.parametrize("mode", range(5))
 async def test_the_driver_recovers_from_a_power_cycle(mode: int) -> None:
-    await _power_cycles(mode, 1)
+    await _power_cycles(mode, 2)
 
 
 @pytest.mark.slow

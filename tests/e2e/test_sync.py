@@ -16,12 +16,14 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+from helpers import Emulated
 
 import tango_aio
 import tango_aio.sync
 from tango_aio import MoveError
 from tango_aio.controller import Controller as AsyncController
 from tango_aio.group import ControllerGroup as AsyncGroup
+from tango_aio.sim.motion import MotionModel
 
 INSTANT = "sim://?baud=0"
 
@@ -87,6 +89,29 @@ def test_wait_idle_raises_a_started_move_failure(tango: tango_aio.sync.Controlle
     with pytest.raises((MoveError, tango_aio.ControllerError)):
         tango.wait_idle()
     assert future.done()
+
+
+def test_a_started_move_cut_short_by_a_switch_is_done_when_the_stop_is_read(
+        tango: tango_aio.sync.Controller) -> None:
+    """#37 item 5 through the blocking API: a host polling the started move's future
+    (Micro-Manager's "busy") sees it fail once X stops at its switch, while Y (a quarter
+    of a millimetre over the whole vector move) would still run for seconds."""
+    emu = Emulated(tango.aio)
+    tango._portal.call(emu.shorten, 4.0, 1)  # switches at +-2 mm
+    tango.move_to(x=1.5, y=-0.25)
+    motion = emu.model.motion
+    start = tango._portal.call(lambda: _now(motion))
+    future = tango.start_move_to(x=60, y=0)
+    error = future.exception(timeout=60)  # a bound that only catches a hang
+    ended = tango._portal.call(lambda: _now(motion))
+    assert isinstance(error, MoveError) and error.statuses["x"] == "S"
+    # Done long before the emulator's clock reached the planned end of the move.
+    assert ended - start < tango.aio._settings.travel("x", 58.5) / 2
+    assert tango.status() == {"x": "S", "y": "E", "z": "@"}
+
+
+async def _now(motion: MotionModel) -> float:
+    return motion.now
 
 
 @contextlib.contextmanager

@@ -10,11 +10,12 @@ import math
 
 import pytest
 
-from benchmarks import canned, profiles
+from benchmarks import canned, profiles, sets
 from benchmarks.__main__ import CASES, RUNNERS, Row, table
 
 MODULES = ["benchmarks.__main__", "benchmarks.bluesky", "benchmarks.canned", "benchmarks.moves",
-           "benchmarks.profiles", "benchmarks.scaling", "benchmarks.transports",
+           "benchmarks.profiles", "benchmarks.scaling", "benchmarks.sets",
+           "benchmarks.transports",
            "benchmarks.upload", "benchmarks.watch"]
 
 
@@ -40,6 +41,14 @@ async def test_canned_requests_produce_numbers() -> None:
         "driver checked set, no separators"]
     for driver, raw in pairs:
         assert _measured(driver) and _measured(raw)
+
+
+async def test_proven_sets_beside_today_s() -> None:
+    results = await sets.main(calls=2, rounds=1, mode=1)
+    for figures in results.values():
+        assert figures["today ms/set"] > 0 and figures["proven ms/set"] > 0
+        # The read-back (and the separator before it) reached the controller.
+        assert figures["proven lines/set"] == figures["today lines/set"] + 2
 
 
 async def test_canned_moves_produce_latencies() -> None:

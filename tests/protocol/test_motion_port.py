@@ -11,7 +11,12 @@ from typing import Any, cast
 import pytest
 from helpers import true_within_ticks
 
-from tango_aio.errors import ControllerError, LimitSwitchActiveError, MoveError
+from tango_aio.errors import (
+    ControllerError,
+    LimitSwitchActiveError,
+    MoveError,
+    MoveProtocolUnknownError,
+)
 from tango_aio.events import MoveFinished
 from tango_aio.instructions import Command, parse
 from tango_aio.motion import Motion, MotionPort, MovePlan
@@ -92,12 +97,25 @@ async def test_a_move_at_a_limit_switch_fails_with_its_words_after_one_read() ->
     assert port.finished_events[0].ok is False
 
 
-async def test_a_refused_line_is_raised_without_a_read() -> None:
-    port = _Port(reads=[], refusal=LimitSwitchActiveError(command="!moa x 10"))
+async def test_a_refused_line_is_raised_after_one_read_that_shows_nothing_moving() -> None:
+    """A flipped bit makes a documented refusal of an ``?err`` that said 0: the refusal
+    stands once the state read behind it shows X standing where it stood."""
+    port = _Port(reads=[({"x": "@"}, {"x": "0.000"})],
+                 refusal=LimitSwitchActiveError(command="!moa x 10"))
     motion = Motion(cast(MotionPort, port))
     with pytest.raises(LimitSwitchActiveError):
         await motion.run(parse("!moa x 10"), _planner({"x": 10.0}), True)
-    assert port.calls == ["start !moa x 10", "accepted"]
+    assert port.calls == ["start !moa x 10", "accepted", "read_state x"]
+
+
+async def test_a_refusal_that_motion_contradicts_stops_the_axes_and_says_so() -> None:
+    port = _Port(reads=[({"x": "M"}, {"x": "0.500"}), ({"x": "E"}, {"x": "0.600"})],
+                 refusal=LimitSwitchActiveError(command="!moa x 10"))
+    motion = Motion(cast(MotionPort, port))
+    with pytest.raises(MoveProtocolUnknownError, match=r"X moving.*axes X stopped"):
+        await motion.run(parse("!moa x 10"), _planner({"x": 10.0}), True)
+    assert port.calls == ["start !moa x 10", "accepted", "read_state x", "stop",
+                          "read_state x"]
 
 
 class _WritingPort(_Port):

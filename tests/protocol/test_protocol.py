@@ -617,9 +617,10 @@ async def test_bad_set_raises_typed_error_from_err_probe(fake_link: LinkFactory)
     link = fake_link()
     tango = Controller(link.protocol)
     task = asyncio.create_task(tango.command("!lim x 10 5"))
-    await link.wait_written(b"?err\r")
-    assert link.transport.sent == b"!lim x 10 5\r?err\r"  # back to back
-    link.feed(b"5\r")
+    await link.wait_written(b"?lim x\r")
+    # Back to back, and the read-back that proves the set behind them (readback.py).
+    assert link.transport.sent == b"!lim x 10 5\r?err\r?lim x\r"
+    link.feed(b"5\r")  # the refusal decides: the read-back's reply is not awaited
     with pytest.raises(OutOfRangeError) as info:
         await task
     assert info.value.number == 5 and isinstance(info.value, CommandRejectedError)
@@ -775,6 +776,29 @@ async def test_a_read_that_finds_another_mode_restores_the_drivers(
     link.feed(b"0\rERROR 0,no error\r")
     assert await asyncio.wait_for(verify, 5.0) is True
     assert restored == [(1, 0)] and link.protocol.autostatus == 0
+
+
+@pytest.mark.parametrize("mode", [0, 2, 3, 4])
+async def test_lines_held_behind_a_read_that_finds_a_restart_go_out_in_the_drivers_mode(
+        fake_link: LinkFactory, mode: int) -> None:
+    """#37 item 4: a move submitted while the mode read runs was submitted for the
+    driver's mode (in mode 2 it waits for its ``OK...``). It goes out only after that
+    mode is selected again, not in the power-on mode 1 the read found."""
+    link = fake_link(autostatus=mode)
+    verify = asyncio.create_task(link.protocol.verify_autostatus(timeout=5.0))
+    await link.wait_written(b"?help\r")
+    move = link.protocol.start_move(parse("!moa x 1"))  # held behind the read
+    link.feed(b"1\rERROR 0,no error\r")  # a restart: power-on mode 1 (L2062)
+    await link.wait_written(b"!autostatus %d\r?autostatus\r?help\r" % mode)
+    assert b"!moa" not in link.transport.sent
+    link.feed(b"%d\rERROR 0,no error\r" % mode)
+    assert await asyncio.wait_for(verify, 5.0) is True
+    # The move goes out once the driver's mode is in force again, encoded for it: in
+    # mode 2 it owes its OK... (and the ?err the core writes behind it).
+    await link.wait_written(b"!moa x 1\r")
+    assert link.protocol.autostatus == mode
+    link.feed(b"OK...\r0\r" if mode == 2 else b"!moa x 1\r0\r" if mode == 4 else b"0\r")
+    assert await asyncio.wait_for(move.error(5.0), 5.0) is None
 
 
 async def test_a_mode_change_waiting_for_the_lines_before_it_is_not_sent_after_ctrl_c(

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from tango_aio.sim.inprocess import configs_from_url
-from tango_aio.sim.profiles import SWITCHES, Firmware, variants
+from tango_aio.sim.profiles import SWITCHES, Firmware, fingerprint_lacks, variants
 
 from .test_model import Sim
 
@@ -113,6 +113,27 @@ def test_a_fingerprint_selects_switch_values(tmp_path: Path) -> None:
     config, _ = configs_from_url(f"sim://?fingerprint={path}&line_end=crlf")
     assert config.firmware.changed() == {"echo": "after", "ack_case": "lower",
                                          "line_end": "crlf"}
+
+
+def test_the_emulator_lacks_what_a_fingerprint_lists_and_what_the_url_adds(
+        tmp_path: Path) -> None:
+    path = tmp_path / "unit.json"
+    path.write_text(json.dumps({"switches": {}, "lacks": ["ctrt", "Lim"]}), encoding="utf-8")
+    assert fingerprint_lacks(path) == {"ctrt", "lim"}
+    config, _ = configs_from_url(f"sim://?fingerprint={path}&lacks=pause")
+    assert config.lacks == {"ctrt", "lim", "pause"}
+    s = Sim(axes=2, lacks=config.lacks)
+    assert s.send("?ctrt", "?err", "?lim x", "?err", "?vel x") == ["4", "4", "10.000"]
+    assert fingerprint_lacks({"switches": {}}) == frozenset()  # written before lacks
+
+
+@pytest.mark.parametrize("lacks", ['"ctrt"', '[1]', '[""]'])
+def test_a_fingerprint_whose_lacks_is_no_list_of_names_is_refused(tmp_path: Path,
+                                                                   lacks: str) -> None:
+    path = tmp_path / "bad.json"
+    path.write_text(f'{{"switches": {{}}, "lacks": {lacks}}}', encoding="utf-8")
+    with pytest.raises(ValueError, match="lacks"):
+        configs_from_url(f"sim://?fingerprint={path}")
 
 
 @pytest.mark.parametrize(("content", "message"), [

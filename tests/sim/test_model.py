@@ -501,6 +501,9 @@ SWEEP_SKIP: dict[str, str] = {
 
 #: Settings that read back as integers although written as numbers (L11902).
 READ_AS_INTEGER = frozenset({"ctrf"})
+#: Settings the controller rounds to a step and reads back rounded (``trigs``: 40 µs,
+#: L12965-12967).
+READ_IN_STEPS: dict[str, int] = {"trigs": 40}
 #: Settings written as ``index value`` and read back per index.
 WRITTEN_WITH_INDEX = frozenset({"joyspeed", "zwtravel", "adiginfunc"})
 
@@ -560,7 +563,22 @@ def test_setting_stores_and_reads_back(name: str) -> None:
     got = after.split()[-1:] if name == "clim" else after.split()[: len(expect)]
     if name in READ_AS_INTEGER:
         expect = [str(round(float(v))) for v in expect]
+    if name in READ_IN_STEPS:
+        step = READ_IN_STEPS[name]
+        expect = [str((int(v) + step // 2) // step * step) for v in expect]
     assert all(_same(w, r) for w, r in zip(expect, got, strict=True)), (name, values, after)
+
+
+def test_trigger_widths_are_rounded_to_40_us() -> None:
+    """"If the parameter is not a multiple of 40 it will be rounded to the nearest
+    multiple: e.g. 90 → 80, 100 → 120. When read back, the corrected (nearest) value is
+    returned" (L12965-12967); the secondary output's delay and width too (L12976-12981)."""
+    sim = Sim()
+    sim.send("!trigs 90")
+    assert sim.ask("?trigs").split()[0] == "80"
+    sim.send("!trigs 100 30 60")
+    assert sim.ask("?trigs") == "120 40 80"
+    assert sim.err == 0
 
 
 def test_per_axis_values_without_axis_letter_go_x_y_z() -> None:

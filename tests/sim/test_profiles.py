@@ -194,9 +194,9 @@ def test_the_version_number_is_separate_from_the_firmware_behaviour() -> None:
     assert Sim(version="1.69").ask("?version 1") == "1.69"
 
 
-def test_the_readme_table_lists_every_switch() -> None:
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert switch_table() in readme, "regenerate: python -c 'from tango_aio.sim.profiles " \
+def test_the_docs_table_lists_every_switch() -> None:
+    page = (ROOT / "docs" / "concepts" / "firmware-profiles.md").read_text(encoding="utf-8")
+    assert switch_table() in page, "regenerate: python -c 'from tango_aio.sim.profiles " \
         "import switch_table; print(switch_table())'"
 
 
@@ -401,6 +401,29 @@ def test_zero_move_report(zero: str) -> None:
     assert lines == (["OK...", "@@@-."] if zero == "yes" else ["OK..."])
 
 
+@pytest.mark.parametrize("policy", values_of("disable_during_move"))
+@pytest.mark.parametrize("state", ["0", "-1"])
+def test_disable_during_move(policy: str, state: str) -> None:
+    s = sim(disable_during_move=policy)
+    s.send("!moa 5")
+    s.now += 0.1
+    assert s.ask("sa").startswith("M")
+    lines = s.send(f"!axis x {state}")
+    assert s.ask("?err") == ("2" if policy == "refuse" else "0")
+    assert s.ask("?axis x") == ("1" if policy == "refuse" else state)
+    lines += s.settle()
+    x = float(s.ask("?pos").split()[0])
+    if policy == "stop":
+        assert 0.0 < x < 5.0
+        assert lines == ["E@@-."]  # stopped as by 'a x'
+    else:
+        assert x == pytest.approx(5.0)
+        assert lines == ["@@@-."]
+    # An axis at rest is disabled under every policy.
+    s.send("!axis y 0")
+    assert s.ask("?err") == "0" and s.ask("?axis y") == "0"
+
+
 def test_move_ok_at_completion_without_a_report_still_acknowledges() -> None:
     s = sim(move_ok="completion", zero_move_report="no")
     s.send("!autostatus 2")
@@ -542,6 +565,23 @@ def test_instruction_set(instruction_set: str) -> None:
                         "10.000", "0"] if full else ["4", "4", "4", "10.000", "0"])
 
 
+@pytest.mark.parametrize("instruction_set", values_of("instruction_set"))
+@pytest.mark.parametrize("version_value", values_of("version_value"))
+def test_version_value(version_value: str, instruction_set: str) -> None:
+    s = sim(version_value=version_value, instruction_set=instruction_set)
+    line = "TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00"
+    if version_value == "line":  # the value ignored, in either instruction set
+        version = [line, "0"]
+    elif instruction_set == "full":  # the number only (L1057-1059, L1107)
+        version = ["1.71", "0"]
+    else:  # the older edition's version takes no value (old L416-418)
+        version = ["4"]
+    assert s.send("?version 1", "?err") == version
+    # help's value is the instruction set's business alone (old L805-811)
+    assert s.send("?help 5", "?err") == (["ERROR 5,number outside range", "0"]
+                                         if instruction_set == "full" else ["4"])
+
+
 # ---------------------------------------------------------------------------------------
 # Every variant: one common session against an oracle written from the switch docs
 
@@ -561,7 +601,7 @@ def _status(firmware: Firmware, letters: str) -> str:
     letters = letters.replace("@", firmware.joystick_letter)
     if firmware.absent_axes == "omit":
         letters = letters.replace("-", "")
-    return letters + (".-" if firmware.status_tail == "yes" else "")
+    return letters + {"yes": ".-", "no": "", "dot": "."}[firmware.status_tail]
 
 
 def _ack(firmware: Firmware, text: str) -> str:

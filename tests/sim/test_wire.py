@@ -422,6 +422,23 @@ def test_custom_garbler() -> None:
     assert wire.poll(0.0) == b"#####"
 
 
+def test_garble_reply_to_one_line_only() -> None:
+    """Faults.garble_reply_to: the first reply to the next line with that prefix, once;
+    the replies before and after it pass untouched."""
+    wire, _ = make(baud=None, extra=0.01)
+    wire.faults.garble_reply_to = (b"?pi", lambda data, rng: b"7" + data)
+    wire.feed(b"echo 1\r?ping\r?ping\r", 0.0)
+    assert b"".join(chunk for _, chunk in drain(wire, 0.1, 0.005)) == b"1\r7pong\rpong\r"
+    assert wire.faults.garble_reply_to is None
+
+
+def test_garble_reply_to_may_drop_the_reply() -> None:
+    wire, _ = make(baud=None)
+    wire.faults.garble_reply_to = (b"?ping", lambda data, rng: b"")
+    wire.feed(b"?ping\r?ping\r", 0.0)
+    assert wire.poll(0.0) == b"pong\r"
+
+
 def test_flip_one_bit_never_creates_cr() -> None:
     import random
 

@@ -108,7 +108,8 @@ EMULATOR_MAY_IMPORT = {"tango_aio.schema", "tango_aio._catalog", "tango_aio.inst
                        "tango_aio.replyrules", "tango_aio.errors"}
 # The documented exceptions, each named in ARCHITECTURE.md.
 EMULATOR_EXCEPTIONS = {("tango_aio.sim.motion", "tango_aio.units")}
-STARTS_THE_EMULATOR = {"tango_aio.connection", "tango_aio.testing", "tango_aio.cli"}
+STARTS_THE_EMULATOR = {"tango_aio.connection", "tango_aio.testing", "tango_aio.cli",
+                       "tango_aio._argtypes"}
 
 
 def _layers() -> list[tuple[str, list[str]]]:

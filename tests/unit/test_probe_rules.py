@@ -27,7 +27,9 @@ from tango_aio.probe import (
     decide_service_end,
     decide_status,
     decide_version_format,
+    decide_version_value,
     echo_form,
+    exchange_end,
     normalized,
 )
 
@@ -111,9 +113,11 @@ def test_identity_and_replies() -> None:
     old = V.replace(" , ", ", ")
     assert decide_version_format(ex("?version", [old]), old).value == "old"
     assert decide_version_format(ex("?version", ["TANGO"]), "TANGO").unknown
-    assert decide_instruction_set(ex("?version 1", ["1.71"], 0)).value == "full"
-    assert decide_instruction_set(ex("?version 1", [], 4)).value == "older"
-    assert decide_instruction_set(ex("?version 1", [], 0)).unknown
+    help5 = ex("?help 5", ["ERROR 5,number outside range"], 0)
+    assert decide_instruction_set(ex("?version 1", ["1.71"], 0), help5, V).value == "full"
+    assert decide_instruction_set(ex("?version 1", [], 4), ex("?help 5", [], 4), V).value \
+        == "older"
+    assert decide_instruction_set(ex("?version 1", [], 0), help5, V).unknown
     assert decide_help_number(ex("?help 5", ["ERROR 5,number outside range"], 0)).value \
         == "yes"
     assert decide_help_number(ex("?help 5", ["number outside range"], 0)).value == "no"
@@ -139,7 +143,8 @@ def test_lim_cr_bug() -> None:
 
 @pytest.mark.parametrize(("line", "tail", "absent", "joystick"), [
     ("@@@-.-", "yes", "dash", "@"), ("JJJ-", "no", "dash", "J"), ("@@@.-", "yes", "omit", "@"),
-    ("JJJ", "no", "omit", "J"), ("@M@-.-", "yes", "dash", None)])
+    ("JJJ", "no", "omit", "J"), ("@M@-.-", "yes", "dash", None), ("@@@-.", "dot", "dash", "@"),
+    ("JJJ.", "dot", "omit", "J")])
 def test_status(line: str, tail: str, absent: str, joystick: str | None) -> None:
     found = decide_status(ex("?statusaxis", [line], 0), 3, 2)
     assert (found["status_tail"].value, found["absent_axes"].value,
@@ -188,3 +193,35 @@ def test_a_local_echo_is_taken_out_of_the_lines() -> None:
     link._feed(b"os\r1.0\r\n\x03\r?pos\r")
     assert link.inbox == ["1.0", "?pos"]  # the second ?pos is the controller's (mode 4)
     assert link._echo_pending == b""
+
+
+def test_version_1_answered_by_the_whole_line_and_the_instruction_set_it_leaves() -> None:
+    # 1.71: the number only (L1057-1059, L1107); the older edition's version takes no
+    # value (old L416-418): refused with error 4, or the value ignored.
+    whole = ex("?version 1", [V], 0)
+    assert decide_version_value(ex("?version 1", ["1.71"], 0), V).value == "number"
+    assert decide_version_value(whole, V).value == "line"
+    moot = decide_version_value(ex("?version 1", [], 4), V)
+    assert moot.value is None and not moot.unknown and moot.note.startswith("moot")
+    assert decide_version_value(ex("?version 1", ["1.71", V], 0), V).unknown
+    # The whole line leaves the instruction set to ?help 5, whose value the older
+    # edition's help does not take either (old L805-811).
+    older = decide_instruction_set(whole, ex("?help 5", [], 4), V)
+    assert older.value == "older" and "-> ?help 5" in older.lines
+    full = decide_instruction_set(whole, ex("?help 5", ["ERROR 5,number outside range"], 0),
+                                  V)
+    assert full.value == "full"
+    assert decide_instruction_set(whole, ex("?help 5", [], 0), V).unknown
+
+
+@pytest.mark.parametrize(("got", "end"), [
+    (["2", "0", V], (2, 1)),           # a read, ?err, ?version
+    (["4", V], (1, 0)),                # refused: nothing, error 4
+    ([V, "0", V], (2, 1)),             # ?version 1 answered with the whole line
+    ([V], None), ([V, "0"], None),     # not there yet
+    (["0", "@@@-.", V], (2, 0)),       # a report between ?err and ?version
+    (["1.71", V], None),               # no number before the ?version line
+])
+def test_a_mode_1_exchange_ends_at_the_version_line_after_the_err_number(
+        got: list[str], end: tuple[int, int] | None) -> None:
+    assert exchange_end(got, V) == end

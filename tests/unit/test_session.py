@@ -23,6 +23,7 @@ from tango_aio.linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
 from tango_aio.session import (
     QUIET_INTERVAL,
     REPLY_WAITS,
+    STATUS_READ,
     TRANSITIONS,
     Barrier,
     LinkEvent,
@@ -35,6 +36,7 @@ from tango_aio.session import (
     Silence,
     Until,
     nothing_trails_help,
+    status_tail,
 )
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, Firmware
@@ -614,3 +616,24 @@ def test_step_0_avoids_the_numbers_recent_detections_used() -> None:
     assert len(set(codes)) == 4 and list(recent) == codes
     first = ProtocolCore(marker_seed=0).pick_marker_code()
     assert codes[0] == first  # without recent ones, the core's own choice
+
+
+@pytest.mark.parametrize(("lines", "tail"), [
+    (["@@@-.-"], "yes"), (["JM.-"], "yes"), (["@@@-"], "no"), (["@@@-."], "dot"),
+    (["M@."], "dot"),
+    # A completion report that came meanwhile does not decide: the reply's tail does.
+    (["@@@-.", "@@@-.-"], "yes"), (["@@@-.", "@@@-"], "no"), (["@@@-.", "E@@-."], "dot"),
+    # Echoes, acknowledgements and the mode exchange's own replies are no letters.
+    (["OK...", "1", "ERROR 0,no error"], None), (["ERR", "ERR 5"], None), ([], None)])
+def test_how_statusaxis_ends_is_told_from_the_lines_of_its_exchange(
+        lines: list[str], tail: str | None) -> None:
+    assert status_tail(lines) == tail
+
+
+def test_a_mode_exchange_with_statusaxis_records_its_tail_and_one_without_does_not() -> None:
+    session = LinkSession(ProtocolCore())
+    session.mode_read(["?autostatus", "?help"], ["@@@-.", "1", "ERROR 0,no error"])
+    assert "status_tail" not in session.detected  # a report during a mode change
+    assert session.mode_read([STATUS_READ, "?autostatus", "?help"],
+                             ["@@@-.", "2", "ERROR 0,no error"]) == 2
+    assert session.detected["status_tail"] == "dot"

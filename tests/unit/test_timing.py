@@ -17,9 +17,11 @@ from tango_aio.timing import (
     UNKNOWN_TRAVEL,
     Budget,
     MoveTiming,
+    cut_short,
     describe_stop,
     move_budget,
     moved_axes,
+    polled_during,
     position_tolerance,
     rest_budget,
     too_early,
@@ -199,3 +201,43 @@ def test_a_settling_axis_is_read_again_at_the_expected_end_unless_its_letter_is_
     assert too_early(budget, ("x",), {"x": "@"}, 0.0, now=2.6, expected_end=2.5) is None
     no_settling = Budget(delay=0.0, travel=2.0, after=0.0, settle=0.0, limit=10.0)
     assert too_early(no_settling, ("x",), {"x": "@"}, 0.0, 1.0, 2.5) is None
+
+
+_PLAIN = Budget(delay=0.0, travel=100.0, after=0.0, settle=0.0, limit=202.0)
+
+
+@pytest.mark.parametrize("final", "EST-")
+@pytest.mark.parametrize("stopped", ["x", "y"])
+def test_an_axis_that_failed_while_the_others_move_ends_the_move(final: str,
+                                                                 stopped: str) -> None:
+    # From x = 1.5, y = -0.25: moa 1000 0 (#37 item 5). Whichever axis failed.
+    letters = {"x": "M", "y": "M", "z": "@", stopped: final}
+    assert cut_short(_PLAIN, ("x", "y"), letters, 0.0, now=5.0,
+                     expected_end=100.0) == (stopped,)
+    three = {"x": "M", "y": final, "z": final}
+    assert cut_short(_PLAIN, ("x", "y", "z"), three, 0.0, 5.0, 100.0) == ("y", "z")
+
+
+def test_a_move_is_not_cut_short_by_good_letters_or_when_nothing_moves() -> None:
+    for letters in ({"x": "M", "y": "M"}, {"x": "@", "y": "M"}, {"x": "A", "y": "M"},
+                    {"x": "S", "y": "@"}, {"x": "S", "y": "E"}, {}):
+        assert cut_short(_PLAIN, ("x", "y"), letters, 0.0, 5.0, 100.0) == (), letters
+    # A letter of an axis the move does not move says nothing of it.
+    assert cut_short(_PLAIN, ("x", "y"), {"x": "M", "y": "M", "z": "S"}, 0.0, 5.0,
+                     100.0) == ()
+
+
+def test_a_failure_letter_during_the_delay_does_not_cut_the_move_short_yet() -> None:
+    budget = Budget(delay=1.0, travel=100.0, after=0.0, settle=0.0, limit=203.0)
+    letters = {"x": "S", "y": "M"}
+    assert cut_short(budget, ("x", "y"), letters, checked=5.0, now=5.5,
+                     expected_end=106.0) == ()
+    assert cut_short(budget, ("x", "y"), letters, checked=5.0, now=6.1,
+                     expected_end=106.0) == ("x",)
+
+
+def test_a_move_is_polled_during_its_travel_without_reports_or_with_several_axes() -> None:
+    assert not polled_during(("x",), reports=True)
+    assert polled_during(("x",), reports=False)
+    assert polled_during(("x", "y"), reports=True)
+    assert polled_during(("x", "y", "z"), reports=False)
