@@ -13,9 +13,10 @@ second request only waits until the first is answered, no extra line):
 * checked sets (``set`` writes ``!vel ...`` and an ``?err`` probe; probes look alike).
 
 Against the in-process emulator at 57600 Bd 8N2 with 2 ms latency and 0.5 ms processing
-per line (the real wire rate), and at ``baud=0`` (the driver's own overhead). Usage::
+per line (the real wire rate), and at ``baud=0`` (the driver's own overhead), in the
+driver's default autostatus mode (1) or the one given. Usage::
 
-    python benchmarks/separators.py [--calls 200] [--burst 32] [--rounds 3]
+    python benchmarks/separators.py [--calls 200] [--burst 32] [--rounds 3] [--autostatus 4]
 """
 
 from __future__ import annotations
@@ -50,8 +51,8 @@ async def _sets(tango: Controller, calls: int) -> None:
 
 
 async def _time(url: str, separators: bool, run: Callable[[Controller, int], Awaitable[None]],
-                calls: int) -> float:
-    async with tango_aio.connect(url) as tango:
+                calls: int, autostatus: int = 1) -> float:
+    async with tango_aio.connect(url, autostatus=autostatus) as tango:
         tango.protocol.separators = separators
         await run(tango, 4)  # warm up
         start = time.perf_counter()
@@ -59,7 +60,8 @@ async def _time(url: str, separators: bool, run: Callable[[Controller, int], Awa
         return (time.perf_counter() - start) / calls
 
 
-async def main(calls: int, burst: int, rounds: int) -> dict[str, dict[str, float]]:
+async def main(calls: int, burst: int, rounds: int, autostatus: int = 1
+               ) -> dict[str, dict[str, float]]:
     cases: list[tuple[str, str, Callable[[Controller, int], Awaitable[None]], int]] = [
         ("get after get, 57600 Bd", WIRE, _sequential_gets, calls),
         (f"burst of {burst} reads, 57600 Bd", WIRE, _burst, burst),
@@ -72,7 +74,8 @@ async def main(calls: int, burst: int, rounds: int) -> dict[str, dict[str, float
         timings: dict[bool, list[float]] = {True: [], False: []}
         for _ in range(rounds):  # interleaved, so that both see the same machine load
             for separators in (False, True):
-                timings[separators].append(await _time(url, separators, run, count))
+                timings[separators].append(await _time(url, separators, run, count,
+                                                       autostatus))
         wait = statistics.median(timings[False]) * 1e3
         bracket = statistics.median(timings[True]) * 1e3
         results[name] = {"wait rule ms/call": round(wait, 3),
@@ -88,5 +91,7 @@ if __name__ == "__main__":
     parser.add_argument("--calls", type=int, default=200)
     parser.add_argument("--burst", type=int, default=32)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--autostatus", type=int, choices=range(5), default=1)
     args = parser.parse_args()
-    print(json.dumps(asyncio.run(main(args.calls, args.burst, args.rounds)), indent=1))
+    print(json.dumps(asyncio.run(main(args.calls, args.burst, args.rounds, args.autostatus)),
+                     indent=1))

@@ -79,7 +79,7 @@ import math
 import random
 import re
 from collections import deque
-from collections.abc import Hashable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Final, NoReturn
 
@@ -101,6 +101,7 @@ from .linktiming import ARRIVAL_MARGIN, earliest_reply
 from .patterns import (
     ACK_PATTERN,
     ONE_NUMBER,
+    Edge,
     ReplyKind,
     ReplyPattern,
     echo_pattern,
@@ -127,7 +128,7 @@ __all__ = [
     "Unsolicited",
     "canonical_case",
     "is_completion_line",
-    "owed_pattern",
+    "owed_edge",
     "wire_size",
 ]
 
@@ -522,6 +523,9 @@ class _Pending:
     #: still on a paced wire (:func:`~tango_aio.linktiming.earliest_reply`); ``-inf``:
     #: not known.
     earliest: float = -math.inf
+    #: The :func:`rear <_rear>` edge of what it owes (``None``: it is sure to get no
+    #: line), set once its items are complete (:meth:`seal`).
+    rear: Edge | None = None
 
     def done_after(self, item: _Item) -> bool:
         """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
@@ -532,9 +536,23 @@ class _Pending:
         """Whether only optional lines are still owed."""
         return all(item in _OPTIONAL for item in self.items)
 
-    def last_pattern(self) -> ReplyPattern:
-        """The pattern of the last line this request still owes."""
-        return _item_pattern(self, self.items[-1])
+    @property
+    def defers(self) -> bool:
+        """Whether it is a move whose echo (mode 4) or acknowledgement (mode 2) may come
+        only with its report."""
+        return self.defers_echo or self.follow is not None
+
+    def owes_sure(self) -> bool:
+        """Whether a line it is sure to get is still owed."""
+        defers = self.defers
+        return any(_sure(item, defers) for item in self.items)
+
+    def seal(self) -> _Pending:
+        """Compute :attr:`rear` from the items owed; return the pending."""
+        defers = self.defers
+        owed = [(_item_pattern(self, item), _sure(item, defers)) for item in self.items]
+        self.rear = _rear(_edge(owed), _edge(reversed(owed)))
+        return self
 
 
 def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
@@ -543,29 +561,101 @@ def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
     return pending.pattern if item is _Item.DATA else ACK_PATTERN
 
 
-def owed_pattern(command: Command, expect: Expectation,
-                 context: Context | None = None) -> ReplyPattern | None:
-    """The pattern of the first line ``command`` owes (``None``: it owes no line).
+def _sure(item: _Item, defers: bool) -> bool:
+    """Whether ``item`` is sure to come in its place (not optional, not deferrable)."""
+    # ``defers``: the echo (mode 4) or acknowledgement (mode 2) of a move, which some
+    # firmware sends only with its report (switches echo=completion, move_ok=completion;
+    # L2099-2103 and L2117 do not say when).
+    return item not in _OPTIONAL and not (defers and item in (_Item.ECHO, _Item.ACK))
+
+
+def _edge(owed: Iterable[tuple[ReplyPattern, bool]]) -> Edge | None:
+    """The edge of lines ``owed`` (pattern, sure; nearest the neighbour first)."""
+    # Up to and with the first sure line; None when none is sure.
+    patterns = []
+    for pattern, sure in owed:
+        patterns.append(pattern)
+        if sure:
+            return Edge(tuple(patterns))
+    return None
+
+
+def _rear(front: Edge | None, back: Edge | None) -> Edge | None:
+    """What a line written after a request must not look like: both its edges."""
+    # The back edge: one line lost or extra shifts its last sure line onto the next
+    # request. The front edge: its own line lost, the next reply lands on its first items.
+    if front is None or back is None:
+        return None
+    if front == back:
+        return front
+    return Edge(tuple(dict.fromkeys(front.patterns + back.patterns)))
+
+
+def _specific(edge: Edge) -> Edge:
+    """``edge`` without free text (which fits every line)."""
+    return Edge(tuple(pattern for pattern in edge.patterns if pattern.kind is not ReplyKind.ANY))
+
+
+def _defers(expect: Expectation) -> bool:
+    """Whether a move's echo or acknowledgement may come only with its report."""
+    return expect.completion is not None and (expect.echo or expect.ack)
+
+
+def owed_edge(command: Command, expect: Expectation, mode: int,
+              context: Context | None = None,
+              ack_reads: AckReads | None = None) -> Edge | None:
+    """The front :class:`~tango_aio.patterns.Edge` of what ``command`` owes when written
+    in ``mode``: the lines it may get before the first one it is sure to get, and that
+    one (``None``: it is sure to get none; a move's ``?err`` probe then guards it).
+
+    A move whose acknowledgement may come with its report (mode 2) is sure of the reply
+    of the ``?err`` the core writes behind it (:meth:`ProtocolCore.send`), which then
+    ends the edge.
 
     Parameters
     ----------
     command
         The line.
     expect
-        What it owes (:func:`expectation`).
+        What it owes in ``mode`` (:func:`expectation`).
+    mode
+        The autostatus mode in force when it is written.
     context
         Controller state that shapes the reply (dims, axes, extmode).
+    ack_reads
+        Whether reads are acknowledged in mode 2 (``None``: not known).
 
     Returns
     -------
-    ReplyPattern or None
-        The pattern of its echo, else of its data, else of its acknowledgement.
+    Edge or None
+        The front edge.
     """
-    if expect.echo:
-        return echo_pattern(command)
-    if _has_data(expect.rule):
-        return reply_pattern(command, context)
-    return ACK_PATTERN if expect.ack else None
+    items = _owed_items(command, expect, mode, ack_reads)
+    echo = echo_pattern(command)
+    pattern = reply_pattern(command, context) if _has_data(expect.rule) else ACK_PATTERN
+    return _front(items, echo, pattern, expect, mode, ack_reads)
+
+
+def _front(items: Iterable[_Item], echo: ReplyPattern | None, pattern: ReplyPattern,
+           expect: Expectation, mode: int, ack_reads: AckReads | None) -> Edge | None:
+    """:func:`owed_edge` from the items owed and the patterns of the echo and data."""
+    defers = _defers(expect)
+
+    def owed() -> Iterable[tuple[ReplyPattern, bool]]:
+        for item in items:
+            if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None:
+                yield echo, _sure(item, defers)
+            else:
+                yield (pattern if item is _Item.DATA else ACK_PATTERN), _sure(item, defers)
+        if expect.ack and expect.completion is not None:  # its follow-up (see send)
+            follow = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode),
+                                 mode, ack_reads)
+            for item in follow:
+                yield ({_Item.DATA: ONE_NUMBER, _Item.ECHO: _FOLLOW_UP_ECHO,
+                        _Item.ECHO_OPT: _FOLLOW_UP_ECHO}.get(item, ACK_PATTERN),
+                       item not in _OPTIONAL)
+
+    return _edge(owed())
 
 
 @dataclass(frozen=True, slots=True)
@@ -650,8 +740,10 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     return result
 
 
-#: What a read line owes: its bytes, the items owed, its echo's and its data's pattern.
-_Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern]
+#: What a read line owes: its bytes, the items owed, its echo's and its data's pattern,
+#: and the front and rear edges of its reply (:func:`owed_edge`, :func:`_rear`).
+_Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern, Edge | None,
+               Edge | None]
 #: Distinct read lines a core keeps at most (reads with many values are forgotten, not
 #: hoarded).
 _LINE_FACTS_MAX: Final = 1024
@@ -794,6 +886,7 @@ class HelpStyle(enum.Enum):
     NONE = "none"  #: not at all (older firmware, old L805-819): resyncs wait for quiet
 _FOLLOW_UP: Final = encode("?err")
 _FOLLOW_UP_COMMAND: Final = parse("?err")
+_FOLLOW_UP_ECHO: Final = echo_pattern(_FOLLOW_UP_COMMAND)
 
 
 def wire_size(command: Command, expect: Expectation) -> int:
@@ -916,6 +1009,13 @@ class ProtocolCore:
         #: the rule milder.
         self.write_time: float | None = None
         self._wire_free = 0.0  # when the bytes registered so far have passed
+        self._sent: tuple[Hashable, Edge] | None = None
+        #: The front and rear edges of each separator line, by (line, mode, ack_reads).
+        self._separator_edges: dict[tuple[bytes, int, AckReads | None],
+                                    tuple[Edge, Edge]] = {}
+        #: The fixed separator chosen between two edges (see :meth:`separator`).
+        self._separator_choice: dict[tuple[int, int, int, AckReads | None],
+                                     tuple[Edge, Edge, tuple[bytes, ReplyPattern] | None]] = {}
 
     # -- state ------------------------------------------------------------------------
 
@@ -946,15 +1046,23 @@ class ProtocolCore:
         return self._resync is not _Resync.NONE
 
     @property
-    def tail(self) -> tuple[Hashable, ReplyPattern] | None:
-        """Tag and pattern of the last line owed (by the newest request still owed one);
-        ``None`` when nothing is owed. A line whose reply :meth:`ReplyPattern.overlaps`
-        this pattern should wait until the tail is answered (:mod:`tango_aio.patterns`).
-        Internal lines (follow-ups, markers) have tags of their own."""
-        if not self._pending:
-            return None
-        last = self._pending[-1]
-        return last.tag, last.last_pattern()
+    def tail(self) -> tuple[Hashable, Edge] | None:
+        """Tag and rear edge (:class:`~tango_aio.patterns.Edge`: its front and back edges)
+        of the newest request still sure to get a line; ``None`` when none is. A line
+        whose front edge overlaps it should wait until the tail is answered
+        (:mod:`tango_aio.patterns`). Requests that may only still get optional lines do
+        not count. Internal lines (follow-ups, markers) have tags of their own."""
+        for pending in reversed(self._pending):
+            if pending.rear is not None and pending.owes_sure():
+                return pending.tag, pending.rear
+        return None
+
+    @property
+    def sent(self) -> tuple[Hashable, Edge] | None:
+        """Tag and rear edge (see :attr:`tail`) of the last line the latest :meth:`send`
+        or :meth:`separate` registered that is sure to get a line (a follow-up ``?err``
+        behind the line itself); ``None`` when it registered none."""
+        return self._sent
 
     # -- sending ------------------------------------------------------------------------
 
@@ -989,8 +1097,9 @@ class ProtocolCore:
             expect = expectation(command, self._autostatus, self.context)
         mode = self._autostatus
         self._autostatus = expect.mode_after
-        data, template, echo, pattern = self._line_facts(command, expect, mode)
+        data, template, echo, pattern, _, rear = self._line_facts(command, expect, mode)
         pending = None
+        self._sent = None
         deferring = False
         if template:
             # (Checked before this line joins the queue: a move's own follow-up is below.)
@@ -1024,6 +1133,21 @@ class ProtocolCore:
         if pending is not None and expect.completion is not None \
                 and pending.items[0] is _Item.ECHO:
             pending.defers_echo = True
+        if pending is not None:
+            if pending.defers:
+                pending.seal()
+            else:
+                pending.rear = rear
+            if self._sent is None and pending.rear is not None:
+                self._sent = pending.tag, pending.rear
+            elif expect.rule.continuation is not None and self._sent is not None \
+                    and rear is not None:
+                # A stray line that ends the read early is taken by its follow-up, and
+                # the read's further lines come after it: they face the next request.
+                follow = self._pending[-1]
+                follow.rear = Edge(tuple(dict.fromkeys(self._sent[1].patterns
+                                                       + rear.patterns)))
+                self._sent = follow.tag, follow.rear
         return data, expect
 
     def _deferring(self) -> bool:
@@ -1037,9 +1161,9 @@ class ProtocolCore:
         """
         return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
-    def owed(self, command: Command, expect: Expectation, mode: int) -> ReplyPattern | None:
-        """:func:`owed_pattern` of ``command`` written in ``mode`` (cached for reads like
-        what :meth:`send` registers).
+    def owed(self, command: Command, expect: Expectation, mode: int) -> Edge | None:
+        """:func:`owed_edge` of ``command`` written in ``mode``, as reads are acknowledged
+        here (cached for reads like what :meth:`send` registers).
 
         Parameters
         ----------
@@ -1052,14 +1176,12 @@ class ProtocolCore:
 
         Returns
         -------
-        ReplyPattern or None
-            The pattern of the first line it owes (``None``: it owes no line).
+        Edge or None
+            The front edge of its reply (``None``: it is sure to get no line).
         """
-        if expect.echo:
-            return echo_pattern(command)
-        if _has_data(expect.rule):
-            return self._line_facts(command, expect, mode)[3]
-        return ACK_PATTERN if expect.ack else None
+        if not expect.expects_reply:
+            return None  # nothing but optional lines (and not computed twice: a set)
+        return self._line_facts(command, expect, mode)[4]
 
     def _line_facts(self, command: Command, expect: Expectation, mode: int
                      ) -> _Facts:
@@ -1071,8 +1193,10 @@ class ProtocolCore:
         Returns
         -------
         tuple
-            The line's bytes, the items it owes, its echo's pattern (``None``: no echo)
-            and its data's pattern.
+            The line's bytes, the items it owes, its echo's pattern (``None``: no echo),
+            its data's pattern and its reply's front and rear edges (the rear one of a
+            move whose echo or acknowledgement may come late is computed by
+            :meth:`send`).
         """
         entry = command.instruction
         cacheable = command.is_read and entry.lines is None
@@ -1086,7 +1210,13 @@ class ProtocolCore:
             else None
         pattern = reply_pattern(command, self.context) if _has_data(expect.rule) \
             else ACK_PATTERN
-        facts = (command.to_bytes(), tuple(items), echo, pattern)
+        front = back = None
+        if expect.expects_reply:  # else it is sure to get no line (a set in mode 1)
+            front = _front(items, echo, pattern, expect, mode, self.ack_reads)
+            back = _edge((echo if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None
+                          else pattern if item is _Item.DATA else ACK_PATTERN,
+                          _sure(item, False)) for item in reversed(items))
+        facts = (command.to_bytes(), tuple(items), echo, pattern, front, _rear(front, back))
         if cacheable:
             if len(self._facts) >= _LINE_FACTS_MAX:
                 self._facts.clear()
@@ -1096,12 +1226,14 @@ class ProtocolCore:
     def _register_follow_up(self, mode: int) -> bytes:
         items = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode), mode,
                             self.ack_reads)
-        pending = _Pending(object(), items, echo_pattern(_FOLLOW_UP_COMMAND),
-                           internal=True, pattern=ONE_NUMBER, sent="?err")
-        self._pending.append(pending)
-        pending.fed = self._assembler.feeds
+        follow = _Pending(object(), items, _FOLLOW_UP_ECHO, internal=True,
+                          pattern=ONE_NUMBER, sent="?err").seal()
+        self._pending.append(follow)
+        follow.fed = self._assembler.feeds
         if self.write_time is not None:
-            self._stamp(pending, len(_FOLLOW_UP))
+            self._stamp(follow, len(_FOLLOW_UP))
+        if follow.rear is not None:
+            self._sent = follow.tag, follow.rear
         return _FOLLOW_UP
 
     # -- timing ---------------------------------------------------------------------------
@@ -1189,7 +1321,8 @@ class ProtocolCore:
         self._resync, self._resync_marker = _Resync.MARKER, text
         line = f"?help {code}"
         self._pending.append(_Pending(tag, _read_items(self._autostatus, self.ack_reads),
-                                      _echo_of(line), marker=text))
+                                      _echo_of(line), pattern=marker_pattern(text),
+                                      marker=text).seal())
         return stop + encode(line)
 
     def drop_all(self) -> None:
@@ -1239,13 +1372,15 @@ class ProtocolCore:
         self._marker_index += 1
         return code
 
-    def separator(self, *neighbours: ReplyPattern) -> tuple[bytes, ReplyPattern] | None:
+    def separator(self, before: Edge, after: Edge) -> tuple[bytes, ReplyPattern] | None:
         """A *separator* for two requests in a row whose replies look alike: a short read
-        whose reply cannot be taken for the replies of its ``neighbours`` (the last line
-        owed before it and the first owed after it), with its reply's pattern; register it
-        with :meth:`separate`. Written between the two, it turns a line too many (or too
-        few) between them into a :class:`Mismatched` instead of a reply shifted onto the
-        next request (:mod:`tango_aio.patterns`).
+        whose reply cannot be taken for the replies of its neighbours (the rear edge of
+        the request before it and the front edge of the one after it, facing the
+        separator's own front and rear edges in the mode in force: its echo in mode 4
+        too), with its reply's pattern; register it with :meth:`separate`. Written
+        between the two, it turns a line too many (or too few) between them into a
+        :class:`Mismatched` instead of a reply shifted onto the next request
+        (:mod:`tango_aio.patterns`).
 
         Only reads that leave the error state alone qualify: "each instruction
         overwrites the error state" (L2853-2856), and a caller may read ``?err`` after an
@@ -1257,21 +1392,56 @@ class ProtocolCore:
 
         Parameters
         ----------
-        *neighbours
-            The patterns of the lines owed right before and right after it.
+        before
+            The rear edge of the request right before it (:attr:`tail`).
+        after
+            The front edge of the request right after it.
 
         Returns
         -------
         tuple of (bytes, ReplyPattern) or None
             The separator's bytes and its reply's pattern; ``None`` when none fits.
         """
-        for line, fits in _SEPARATORS:
-            if not any(fits.overlaps(other) for other in neighbours):
-                return line, fits
+        # The edges are the cached ones of the lines' facts, so the choice among the fixed
+        # separators is cached by their identity (kept alive, checked on a hit).
+        key = (id(before), id(after), self._autostatus, self.ack_reads)
+        hit = self._separator_choice.get(key)
+        if hit is not None and hit[0] is before and hit[1] is after:
+            fixed = hit[2]
+        else:
+            fixed = next(((line, fits) for line, fits in _SEPARATORS
+                          if self._separates(line, fits, before, after)), None)
+            if len(self._separator_choice) >= _LINE_FACTS_MAX:
+                self._separator_choice.clear()
+            self._separator_choice[key] = (before, after, fixed)
+        if fixed is not None:
+            return fixed
         marker = self._marker()
         if marker is None:
             return None
-        return encode(f"?help {marker[0]}"), marker_pattern(marker[1])
+        line, fits = encode(f"?help {marker[0]}"), marker_pattern(marker[1])
+        # Free text fits every line, a marker's reply too; but no other reply fits the
+        # marker's, so it still stands between free-text replies (only the free-text read
+        # itself takes whatever comes, tango_aio.patterns).
+        if self._separates(line, fits, _specific(before), _specific(after)):
+            return line, fits
+        return None
+
+    def _separates(self, line: bytes, fits: ReplyPattern, before: Edge, after: Edge
+                   ) -> bool:
+        """Whether separator ``line`` (reply ``fits``) faces neither edge in this mode."""
+        key = (line, self._autostatus, self.ack_reads)
+        edges = self._separator_edges.get(key)
+        if edges is None:
+            separator = _Pending(None, _read_items(self._autostatus, self.ack_reads),
+                                 _echo_of(line.decode()), pattern=fits).seal()
+            front = _edge((_item_pattern(separator, item), _sure(item, False))
+                          for item in separator.items)
+            assert front is not None and separator.rear is not None  # sure of its data
+            edges = self._separator_edges[key] = front, separator.rear
+        # Its front faces the rear edge before it; its rear edge (its own line lost, the
+        # next request's reply lands on its first items) faces the front after it.
+        return not edges[0].overlaps(before) and not edges[1].overlaps(after)
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
         """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.
@@ -1290,11 +1460,12 @@ class ProtocolCore:
         """
         data, pattern = separator
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
-                           _echo_of(data.decode()), pattern=pattern)
+                           _echo_of(data.decode()), pattern=pattern).seal()
         self._pending.append(pending)
         pending.fed = self._assembler.feeds
         if self.write_time is not None:
             self._stamp(pending, len(data))
+        self._sent = (tag, pending.rear) if pending.rear is not None else None
         return data
 
     # -- receiving ------------------------------------------------------------------------

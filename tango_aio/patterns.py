@@ -11,11 +11,16 @@ would be taken by the request before its own. Two rules stop that:
    A line that does not fit is not this request's reply: the core reports a mismatch and
    the protocol resynchronises instead of handing it over.
 2. **Separate.** Two requests in a row whose replies could be taken for each other
-   (:meth:`ReplyPattern.overlaps`: ``?vel x`` then ``?accel y``, one number each) get a
-   *separator* written between them: a read whose reply looks like neither
-   (``err``, ``help`` or ``?help N``, see :meth:`ProtocolCore.separate
-   <tango_aio.core.ProtocolCore.separate>`). "In a row" means in write order, whether or
-   not the first is answered yet: its real reply may still be on its way.
+   (``?vel x`` then ``?accel y``, one number each) get a *separator* written between
+   them: a read whose reply looks like neither (``err``, ``help`` or ``?help N``, see
+   :meth:`ProtocolCore.separate <tango_aio.core.ProtocolCore.separate>`). "In a row"
+   means in write order, whether or not the first is answered yet: its real reply may
+   still be on its way. What is compared are the edges (:class:`Edge`) where the replies
+   meet, built from the lines each request is *sure* to get, in every autostatus mode:
+   the first request's last sure line and its first (its own line lost, the next reply
+   lands there), against the second's first sure line, each with the optional lines
+   around it (a read's echo in mode 4, a read's acknowledgement in mode 2 before it is
+   detected), which may come and so may be taken too, but never hide a sure line.
 
 Together they guarantee that a single lost, extra or garbled line is never delivered to a
 later request: a line too many shifts the replies after it by one, and the shift is
@@ -24,8 +29,11 @@ latest). The request the stray line reached may take it (when it fits: no protoc
 without ids can tell) or fail; every later one gets its own reply or a typed error. A lost
 reply times out, or its neighbour's reply lands where it does not fit (a ProtocolError,
 and the resync aborts what was in flight). (A garbled line that still fits its own
-pattern reaches its own caller, garbled: no protocol without checksums can tell.) Two
-faults close together can still fool the check.
+pattern reaches its own caller, garbled: no protocol without checksums can tell.) A read
+whose reply is free text (:data:`ANY_PATTERN`: ``?version``, ``detext``, ``?lim`` of
+every axis) fits any line: when its own reply or line is lost it takes the next line,
+and only the request after it is protected. Two faults close together can still fool
+the check.
 
 Lines of one all-or-nothing batch (a list upload or download, which fails as a whole when
 any of its lines fails) need no separators between them. With
@@ -43,7 +51,7 @@ from typing import Final
 
 from .instructions import Command, Context, Shape, reply_group, reply_rule
 
-__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "ReplyKind", "ReplyPattern",
+__all__ = ["ACK_PATTERN", "ANY_PATTERN", "ONE_NUMBER", "Edge", "ReplyKind", "ReplyPattern",
            "echo_pattern", "marker_pattern", "reply_pattern"]
 
 #: Most values a list reply (``NUMBERS``, ``INTS``) is expected to hold.
@@ -126,25 +134,75 @@ class ReplyPattern:
         bool
             Whether a line may fit both.
         """
-        # (As sorted() by _ORDER, stable; without its key function: a hot path.)
+        # (As sorted() by _ORDER, stable; without its key function: a hot path. The
+        # kinds' order: NUMBERS WORDS STATUS HELP ACK ECHO MARKER ANY.)
         a, b = (self, other) if _ORDER[self.kind] <= _ORDER[other.kind] else (other, self)
-        if a.kind is ReplyKind.ANY or b.kind is ReplyKind.ANY:
+        low, high = a.kind, b.kind
+        if high is ReplyKind.ANY:
             return True
-        if ReplyKind.MARKER in (a.kind, b.kind):
-            # A marker's text is chosen to be unlike any reply (the HELP kind is the
-            # conservative exception: ERROR n,text replies of ?help).
-            return (a.kind is b.kind and a.text == b.text) or ReplyKind.HELP in (a.kind, b.kind)
-        if a.kind is b.kind:
-            if a.kind is ReplyKind.ECHO:
+        if low is high:
+            if low is ReplyKind.ECHO:
                 return _unbanged(a.text) == _unbanged(b.text)
+            if low is ReplyKind.MARKER:
+                return a.text == b.text
             return a.low <= b.high and b.low <= a.high
-        if a.kind is ReplyKind.NUMBERS and b.kind is ReplyKind.WORDS:
+        if high is ReplyKind.ECHO or low is ReplyKind.ECHO:
+            # An echo is one known text: it overlaps whatever accepts that text, with or
+            # without its '!' (the echo of a bare read 'sa' or 'err' is status letters).
+            echo, rest = (a, b) if low is ReplyKind.ECHO else (b, a)
+            return rest.accepts(echo.text) or rest.accepts(_unbanged(echo.text))
+        if high is ReplyKind.MARKER:
+            # A marker's text is chosen to be unlike any reply (the HELP kind is the
+            # conservative exception: ERROR n,text replies of ?help). Words fit any line
+            # of their count, and a line holding the text has at least its words.
+            return low is ReplyKind.HELP or (
+                low is ReplyKind.WORDS and a.high >= len(b.text.split()))
+        if low is ReplyKind.NUMBERS and high is ReplyKind.WORDS:
             return a.low <= b.high and b.low <= a.high
         # Words may be anything else; the specific kinds exclude each other.
-        return ReplyKind.WORDS in (a.kind, b.kind)
+        return low is ReplyKind.WORDS
 
 
 _ORDER: Final = {kind: index for index, kind in enumerate(ReplyKind)}
+
+
+@dataclass(frozen=True, slots=True)
+class Edge:
+    """The lines at one end of a request's reply, where it meets its neighbour's on the
+    wire: at the front, the lines before the first one it is sure to get and that one; at
+    the back, the last line it is sure to get and the lines after it. "Sure" excludes the
+    lines some firmware sends and some does not (a read's echo in mode 4, a read's
+    acknowledgement in mode 2 before it is detected) and those that may come much later
+    (a move's echo or acknowledgement that some firmware sends only with its report).
+
+    A single lost or extra line moves the sure line of one end onto the other end, and a
+    lost request line moves the next request's reply onto the front of the lost one's.
+    So two requests in a row need something between them when the front edge of the
+    second :meth:`overlaps` either edge of the first (the core's *rear* edge). An
+    optional line is part of an edge because when it does come it may be taken there
+    too.
+    """
+
+    patterns: tuple[ReplyPattern, ...]
+
+    def overlaps(self, other: Edge) -> bool:
+        """Whether some line may fit both edges.
+
+        Parameters
+        ----------
+        other
+            The edge it faces.
+
+        Returns
+        -------
+        bool
+            Whether a line of one may be taken for a line of the other.
+        """
+        for mine in self.patterns:  # (loops, not any(): a hot path)
+            for theirs in other.patterns:
+                if mine.overlaps(theirs):
+                    return True
+        return False
 
 #: An acknowledgement of a ``!`` line (autostatus 2, ``save``).
 ACK_PATTERN: Final = ReplyPattern(ReplyKind.ACK)

@@ -24,7 +24,10 @@ Four rules decide what is written:
 3. **Separators** (:mod:`tango_aio.patterns`). Take two lines in a row whose replies
    could be taken for each other, such as ``?vel x`` and then ``?accel y``. They get a
    separator between them, or, when no separator fits, the second waits until the first
-   is answered. Lines of one all-or-nothing *batch* (a list transfer) need neither.
+   got the lines it is sure to get. The rule is the same in every autostatus mode and
+   decided from the lines each is sure to get (:class:`~tango_aio.patterns.Edge`), with
+   the optional ones around them (a read's echo in mode 4), never from an optional line
+   alone. Lines of one all-or-nothing *batch* (a list transfer) need neither.
    A line may ask for a separator *behind* it (:attr:`Line.separate_after`: a move's
    confirming ``?pos``, which the next move's ``?err`` probe looks like). It goes out in
    the same write, off the next request's path, and that request then needs none.
@@ -55,10 +58,10 @@ from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
-from .core import Expectation, ProtocolCore, expectation, owed_pattern, wire_size
+from .core import Expectation, ProtocolCore, expectation, wire_size
 from .flow import DEFAULT_CHUNK, DEFAULT_LIMIT, MARKER, CreditWindow
 from .instructions import Command, parse
-from .patterns import ONE_NUMBER, ReplyPattern
+from .patterns import Edge, ReplyPattern
 
 __all__ = ["Line", "Run", "WriteScheduler"]
 
@@ -66,7 +69,8 @@ log = logging.getLogger("tango_aio.scheduler")
 
 #: The credit marker as a command (its bytes are :data:`tango_aio.flow.MARKER`).
 _MARKER: Final = parse(MARKER.decode().rstrip("\r"))
-_MARKER_OWES: Final[ReplyPattern] = ONE_NUMBER
+#: The ``?err`` probe of a checked line (what a trailing separator must not look like).
+_PROBE: Final = parse("?err")
 #: Longest separator line (``?help NN`` and CR; ``?err`` and ``?help`` are shorter).
 _SEPARATOR_SIZE: Final = 9
 
@@ -113,12 +117,15 @@ class Line:
     #: Error number reported by the credit marker that followed this reply-less line
     #: (``?err`` reports the state after the last line before it), if non-zero.
     chunk_error: int | None = None
-    #: Pattern of the first line owed, ``None`` if none (set by :meth:`WriteScheduler.submit`).
-    owes: ReplyPattern | None = None
-    #: The pattern compared with the last line owed before this one to decide whether a
-    #: separator goes first (``owes``, or for a line owing nothing that is checked by the
-    #: probe behind it, the probe's: the separator must not go between the two).
-    guard: ReplyPattern | None = None
+    #: Front edge of its reply (:func:`tango_aio.core.owed_edge`): the lines it may get up
+    #: to the first one it is sure to get; ``None`` if it is sure to get none (set by
+    #: :meth:`WriteScheduler.submit`).
+    owes: Edge | None = None
+    #: The edge compared with the rear edge of the line owed before this one to decide
+    #: whether a separator goes first (``owes``, or for a line sure to get nothing that
+    #: is checked by the probe behind it, the probe's: the separator must not go between
+    #: the two).
+    guard: Edge | None = None
     #: Write a separator right behind this line, in the same write, where the credit
     #: allows (:meth:`WriteScheduler.next_write`): a request that usually comes next and
     #: looks like this one's reply then needs none of its own (a move's confirming
@@ -219,8 +226,9 @@ class WriteScheduler:
         self._unmarked: list[Line] = []
         self._credit_markers: dict[Hashable, list[Line]] = {}
         self._separators: set[Hashable] = set()
-        # What the last line written owes last, its batch and tag (see _separator_for).
-        self._last_owed: ReplyPattern | None = None
+        # The rear edge (front and back, ProtocolCore.tail) of the last line written that
+        # is sure to get a line, its batch and tag (see _separator_for).
+        self._last_owed: Edge | None = None
         self._last_batch: object | None = None
         self._last_owing: Hashable | None = None
         self._hold_after: int | None = None
@@ -467,9 +475,10 @@ class WriteScheduler:
                 # (The second: the line and its separator would not fit behind the
                 # reply-less bytes even once all else is confirmed; a small limit.)
                 batch = self._marker_batch()
-                separator = self._separator_for(_MARKER_OWES, batch)
+                marker = self._edge_of(_MARKER)
+                separator = self._separator_for(marker, batch)
                 if not credit.marker_fits() or (
-                        separator.wait and self._must_wait(_MARKER_OWES, batch)) or (
+                        separator.wait and self._must_wait(marker, batch)) or (
                         separator.needed
                         and not credit.fits(_SEPARATOR_SIZE + len(MARKER), True)):
                     break
@@ -511,12 +520,18 @@ class WriteScheduler:
             The separator's bytes, or none.
         """
         last = self._last_owed
-        if not self.separators or last is None:
+        probe = self._edge_of(_PROBE)
+        if not self.separators or last is None or probe is None:
             return b""
-        separator = self.core.separator(last, ONE_NUMBER)
+        separator = self.core.separator(last, probe)
         if separator is None or not self.credit.fits(len(separator[0]), True):
             return b""
         return self._separator(separator)
+
+    def _edge_of(self, command: Command) -> Edge | None:
+        """The front edge of a read of the scheduler's own, written now."""
+        mode = self.core.autostatus
+        return self.core.owed(command, expectation(command, mode, self.core.context), mode)
 
     def _run_line(self, run: Run) -> bytes:
         """Write the next line of ``run`` (at the head of the queue, checked by the caller)
@@ -563,15 +578,16 @@ class WriteScheduler:
             expect = expectation(command, mode, self.core.context)
             line = Line(command, next(self._tags), expect, mode, run.batch)
             self._unrolled[line.tag] = run.tag
-            line.owes = line.guard = owed_pattern(command, expect, self.core.context)
+            line.owes = line.guard = self.core.owed(command, expect, mode)
             lines.append(line)
             mode = expect.mode_after
         run.written = True  # as a run; withdrawing it withdraws these lines
         self._queue.extendleft(reversed(lines))
 
-    def _must_wait(self, owes: ReplyPattern | None, batch: object | None) -> bool:
-        """Without a separator: whether a line owing ``owes`` must wait for the newest
-        line in flight to be answered (their replies could be taken for each other).
+    def _must_wait(self, owes: Edge | None, batch: object | None) -> bool:
+        """Without a separator: whether a line whose reply's front edge is ``owes`` must
+        wait for the newest line in flight to get the lines it is sure to get (their
+        replies could be taken for each other).
 
         Returns
         -------
@@ -588,13 +604,17 @@ class WriteScheduler:
     def _batch_of(self, tag: Hashable) -> object | None:
         return self._last_batch if tag == self._last_owing else None
 
-    def _separator_for(self, owes: ReplyPattern | None, batch: object | None
+    def _separator_for(self, owes: Edge | None, batch: object | None
                        ) -> _Separation:
-        """What goes before a line owing ``owes``: nothing (:data:`_APART`), a separator
-        line, or :data:`_WAIT` (none exists, wait for the reply instead). One is needed when the
-        last line owed by the line written before looks alike: a line too many (or too
-        few) between them would shift a reply onto the wrong request
-        (:mod:`tango_aio.patterns`). Lines of one batch need none: it fails as a whole.
+        """What goes before a line whose reply's front edge is ``owes``: nothing
+        (:data:`_APART`), a separator line, or :data:`_WAIT` (none exists, wait for the
+        reply instead). One is needed when the rear edge of the last line written that is
+        sure to get a line overlaps it: a line too many (or too few) between them, or that
+        line's own line lost, would shift a reply onto the wrong request
+        (:mod:`tango_aio.patterns`). The edges are
+        those of the lines each is sure to get, with the optional ones around them, in
+        every mode: a read's optional echo in mode 4 hides nothing. Lines of one batch
+        need none: it fails as a whole.
 
         Returns
         -------
@@ -616,16 +636,15 @@ class WriteScheduler:
         data = self.core.separate(tag, separator)
         self._separators.add(tag)
         self.credit.wrote(len(data), tag)
-        tail = self.core.tail
-        self._last_owed, self._last_batch = (tail[1] if tail else None), None
-        self._last_owing = tag
+        self._owed(None)
         return data
 
-    def _owed(self, tag: Hashable, batch: object | None) -> None:
-        """Remember what the line just registered under ``tag`` owes last."""
-        tail = self.core.tail
-        if tail is not None and tail[0] == tag:
-            self._last_owed, self._last_batch, self._last_owing = tail[1], batch, tag
+    def _owed(self, batch: object | None) -> None:
+        """Remember the rear edge of the line just registered (or of the follow-up the
+        core wrote behind it), if it is sure to get a line."""
+        sent = self.core.sent
+        if sent is not None:
+            self._last_owed, self._last_batch, self._last_owing = sent[1], batch, sent[0]
 
     def _marker_batch(self) -> object:
         """A credit marker joins the batch of the lines it confirms; markers after lines
@@ -646,7 +665,7 @@ class WriteScheduler:
         data, _ = self.core.send(line.command, line.tag, (line.mode, line.expectation))
         line.written = True
         if line.owes is not None:
-            self._owed(line.tag, line.batch)
+            self._owed(line.batch)
         confirming = line.confirming
         self.credit.wrote(len(data), line.tag if confirming else None)
         if not confirming:
@@ -656,7 +675,7 @@ class WriteScheduler:
     def _marker(self, batch: object) -> bytes:
         tag = next(self._tags)
         data, _ = self.core.send(_MARKER, tag)
-        self._owed(tag, batch)
+        self._owed(batch)
         self.credit.wrote(len(data), tag)
         self._credit_markers[tag] = self._unmarked
         self._unmarked = []

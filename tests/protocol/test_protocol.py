@@ -268,10 +268,15 @@ async def test_mode2_acknowledges_sets_and_moves(fake_link: LinkFactory) -> None
 
 async def test_mode2_refused_move_fails_its_completion(fake_link: LinkFactory) -> None:
     link = fake_link(autostatus=2)
+    link.protocol.core.ack_reads = AckReads.NO  # as found when mode 2 is entered
     move = link.protocol.submit(parse("!moa x 1"))
     after = link.protocol.submit(parse("!moa x 2"))
-    link.feed(b"ERR 5\r")  # acknowledgements look alike: the second move waited for it
-    link.feed(b"OK...\r@@@-.\r")
+    # Each move's OK... may come only with its report (switch move_ok): the ?err behind
+    # each is all it is sure to get, and the second waits for the first's reply.
+    assert link.sent_lines() == [b"!moa x 1", b"?err"]
+    link.feed(b"ERR 5\r5\r")
+    assert link.sent_lines()[2:] == [b"!moa x 2", b"?err"]
+    link.feed(b"OK...\r0\r@@@-.\r")
     assert move.reply is not None and move.reply.result().ack == 5
     assert move.completion is not None and move.completion.done()
     with pytest.raises(OutOfRangeError):

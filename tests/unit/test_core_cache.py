@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import AckReads, ProtocolCore, expectation, owed_pattern
+from tango_aio.core import AckReads, ProtocolCore, expectation, owed_edge
 from tango_aio.instructions import parse
 
 LINES = ["?pos", "?pos x", "?vel", "?vel x", "?err", "?statusaxis", "?dim", "?lim x",
@@ -26,7 +26,7 @@ class _NoCache(dict[Any, Any]):
 
 
 def _registered(core: ProtocolCore) -> list[tuple[object, ...]]:
-    return [(tuple(p.items), p.echo, p.rule, p.pattern, p.internal)
+    return [(tuple(p.items), p.echo, p.rule, p.pattern, p.internal, p.rear)
             for p in core._pending]  # the two paths' registered state
 
 
@@ -67,10 +67,11 @@ def test_each_core_keeps_its_own_facts() -> None:
 @given(st.lists(st.tuples(st.sampled_from(LINES), st.sampled_from([0, 1, 2, 3, 4]),
                           st.sampled_from([None, *AckReads])),
                 min_size=1, max_size=20))
-def test_owed_is_owed_pattern(steps: list[tuple[str, int, AckReads | None]]) -> None:
+def test_owed_is_owed_edge(steps: list[tuple[str, int, AckReads | None]]) -> None:
     core = ProtocolCore()
     for text, mode, ack_reads in steps:
         command = parse(text)
         core.ack_reads = ack_reads
         expect = expectation(command, mode, core.context)
-        assert core.owed(command, expect, mode) == owed_pattern(command, expect, core.context)
+        assert core.owed(command, expect, mode) == owed_edge(command, expect, mode,
+                                                             core.context, ack_reads)

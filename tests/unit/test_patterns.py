@@ -23,6 +23,7 @@ from tango_aio.instructions import INSTRUCTIONS, Context, LineRule, parse, reply
 from tango_aio.patterns import (
     ACK_PATTERN,
     ANY_PATTERN,
+    Edge,
     ReplyKind,
     ReplyPattern,
     echo_pattern,
@@ -202,14 +203,22 @@ def test_tail_names_the_last_line_owed() -> None:
     core = ProtocolCore(autostatus=2, context=CONTEXT)
     assert core.tail is None
     core.send(parse("?vel x"), "v")
-    # Whether reads are acknowledged in mode 2 is not known yet: the last line it may owe
-    # is an acknowledgement.
-    assert core.tail == ("v", ACK_PATTERN)
+    # Whether reads are acknowledged in mode 2 is not known yet: the line it is sure to
+    # get is its number, and an acknowledgement may come before and after it.
+    number, ack = Edge((pattern("?vel x"),)), Edge((ACK_PATTERN,))
+    assert core.tail is not None and core.tail[0] == "v"
+    assert core.tail[1].overlaps(number) and core.tail[1].overlaps(ack)
     core.ack_reads = AckReads.NO
-    core.send(parse("?vel x"), "v")
-    assert core.tail == ("v", pattern("?vel x"))
+    core.send(parse("?vel x"), "w")
+    assert core.tail == ("w", Edge((pattern("?vel x"),)))  # its front and back: one line
     core.send(parse("!vel x 5"), "s")
-    assert core.tail == ("s", ACK_PATTERN)
+    assert core.tail == ("s", Edge((ACK_PATTERN,)))
+    assert not core.tail[1].overlaps(number)
+    assert core.events(b"1.5\r1.5\r") == [Replied("v", ("1.5",)), Replied("w", ("1.5",))]
+    # "v" may still get its optional acknowledgement: it is no longer sure of a line.
+    assert core.tail is not None and core.tail[0] == "s"
+    core.events(b"OK...\rOK...\r")
+    assert core.tail is None
 
 
 @settings(max_examples=200)
