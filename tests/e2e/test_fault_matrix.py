@@ -560,9 +560,8 @@ KNOWN: dict[tuple[int, str, str, str], str] = {
     (3, "garble", "speed", "sim"): _VERDICTS,
     (3, "garble", "speed", "pty"): _VERDICTS,
     **{(mode, "cycle_idle", op, "sim"): _RESTART
-       for mode in (2, 4) for op in ("set", "move", "upload")},
-    **{(mode, "cycle_idle", op, "pty"): _RESTART
-       for mode in (2, 4) for op in ("set", "speed")},
+       for mode in (2, 4) for op in ("set", "move")},
+    **{(mode, "cycle_idle", "set", "pty"): _RESTART for mode in (2, 4)},
     (2, "noise", "reads", "pty"): _TIMING,
     (4, "noise", "reads", "pty"): _TIMING,
 }
