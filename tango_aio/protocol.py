@@ -9,9 +9,10 @@ Cancellation never desynchronises the stream: a cancelled request keeps its plac
 core's FIFO, and its late reply is consumed there and dropped. A *timed-out* request is
 different: its reply may be lost for good. Its caller gets
 :class:`~tango_aio.errors.ControllerTimeoutError` at its own timeout (a line that went out
-only during the wait gets the time once more from then; one never written is withdrawn
-and counts nothing: :meth:`~tango_aio.session.LinkSession.reply_overdue`), and the
-protocol resynchronises in the background (see the core's theory of operation): requests
+only during the wait gets the time once more from then; one never written is withdrawn,
+and goes on as below only when the reply it was held behind is one nobody waits for:
+:meth:`~tango_aio.session.LinkSession.reply_overdue`), and the protocol resynchronises in
+the background (see the core's theory of operation): requests
 still in flight fail with :class:`~tango_aio.errors.RequestAbortedError`, lines still
 queued wait until the marker is answered. When resyncs overlap, the reply to the newest marker ends
 all of them. Lines that get no reply ``dead_after`` times in a row, with no line at all
@@ -1297,8 +1298,8 @@ class TangoProtocol(asyncio.Protocol):
         """
         waits = 1
         while (overdue := self.session.reply_overdue(
-                queued=queued, written=submission.written, waits=waits)) \
-                is Overdue.WAIT_AGAIN:
+                queued=queued, written=submission.written, waits=waits,
+                awaited=self._awaited())) is Overdue.WAIT_AGAIN:
             await _until_done(reply, timeout, submission)
             if reply.done():
                 return reply.result()
@@ -1306,13 +1307,23 @@ class TangoProtocol(asyncio.Protocol):
         self.check()
         error = ControllerTimeoutError(
             f"no reply to {submission.command.line!r} within {timeout} s")
-        if overdue is Overdue.WITHDRAW:
+        serial = submission.serial
+        if overdue is not Overdue.UNANSWERED:
             self.withdraw([submission])
-            raise error
-        if self._unanswered(error, submission.serial) is Silence.DEAD:
+            if overdue is Overdue.WITHDRAW:
+                raise error
+            error = ControllerTimeoutError(
+                f"no reply to {submission.command.line!r} within {timeout} s: it was not "
+                "written, a reply owed before it did not come")
+            serial = self.scheduler.written_lines  # the lines ahead of it
+        if self._unanswered(error, serial) is Silence.DEAD:
             self.check()
         self._background_resync(timeout if timeout is not None else self.reply_timeout)
         raise error
+
+    def _awaited(self) -> set[Hashable]:
+        """The tags of the lines whose callers wait for their replies now."""
+        return {tag for tag, s in self._submissions.items() if s.waiter is not None}
 
     def _unanswered(self, error: TangoError, serial: int, marker: Hashable | None = None
                     ) -> Silence:
@@ -1721,7 +1732,8 @@ class TangoProtocol(asyncio.Protocol):
         :class:`ProtocolError` and resynchronise: the other lines in flight fail with
         :class:`RequestAbortedError`; lines still queued are written after the marker."""
         submission = self._submissions.get(event.tag)
-        command = submission.command.line if submission is not None else "a marker"
+        command = submission.command.line if submission is not None else \
+            "a line the driver wrote on its own (credit marker, separator, ?err follow-up)"
         line = repr(event.line) if len(event.line) <= 60 else repr(event.line[:60]) + "..."
         # A link that echoes every byte fails connect() with the same words: no warning.
         level = logging.DEBUG if self.core.local_echo else logging.WARNING

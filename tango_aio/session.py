@@ -20,8 +20,9 @@ wake the exchange, the stream is in step, wait once more, the link is dead). It 
   on what its exchange read back: the change failed (:meth:`LinkSession.mode_changed`),
   or the controller restarted and the driver's mode is restored
   (:meth:`LinkSession.mode_verified`), as :class:`ModeVerdict`;
-* **liveness**: what an overdue reply calls for (wait once more, withdraw the line, or
-  count it: :meth:`LinkSession.reply_overdue`, :class:`Overdue`), dead-link counting and
+* **liveness**: what an overdue reply calls for (wait once more, withdraw the line, count
+  it, or resync behind a lost reply nobody awaits: :meth:`LinkSession.reply_overdue`,
+  :class:`Overdue`), dead-link counting and
   a new marker for an overdue one (:meth:`LinkSession.unanswered`,
   :meth:`LinkSession.marker_overdue`, :class:`Silence`), and the keepalive's schedule
   (:meth:`LinkSession.keepalive_wait`);
@@ -42,7 +43,7 @@ from __future__ import annotations
 import collections
 import enum
 import re
-from collections.abc import Hashable, Sequence
+from collections.abc import Container, Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -180,7 +181,15 @@ class Overdue(enum.Enum):
     #: It went out during the wait (queued when the wait began): its reply gets the time
     #: once more, from now.
     WAIT_AGAIN = "wait again"
-    WITHDRAW = "withdraw"  #: never written: take it back out of the queue, count nothing
+    #: Never written, held behind a resync (its marker has a deadline of its own), or
+    #: behind a reply a caller still waits for (its caller's deadline covers it): take it
+    #: back out of the queue, count nothing.
+    WITHDRAW = "withdraw"
+    #: Never written, held in step behind a reply owed to nobody who waits (a credit
+    #: marker, a separator, a list's entry, a cancelled read): no deadline covers that
+    #: reply but this one. Take the line back out of the queue, count the lines ahead
+    #: of it (:meth:`LinkSession.unanswered`) and resync in the background.
+    STALLED = "stalled"
     #: Written and unanswered: count it (:meth:`LinkSession.unanswered`), then resync in the
     #: background (its reply may be lost for good).
     UNANSWERED = "unanswered"
@@ -941,15 +950,24 @@ class LinkSession:
         """
         self.last_reply = now
 
-    def reply_overdue(self, *, queued: bool, written: bool, waits: int) -> Overdue:
+    def reply_overdue(self, *, queued: bool, written: bool, waits: int,
+                      awaited: Container[Hashable] = ()) -> Overdue:
         """A request's reply did not come within its timeout: wait once more, withdraw it,
         or count it unanswered. A line still queued when the wait began (behind a resync,
         for credit) and written during it has had less than the timeout to be answered:
         its reply gets the time once more from then (at most :data:`REPLY_WAITS` timeouts
         in all), instead of being declared lost moments after its write, which would
-        resync the stream under the lines written with it. A line never written was held
-        behind a resync that has not ended: nothing went out, nothing is counted (the
-        resync's marker has its own deadline).
+        resync the stream under the lines written with it.
+
+        A line never written went nowhere and is withdrawn. What held it decides whether
+        anything else is done: a resync that has not ended (its marker has its own
+        deadline), or the oldest reply still owed, for which the line waited (for credit,
+        or as a look-alike). When a caller waits for that reply (in ``awaited``), its own
+        deadline covers it. When nobody does (a credit marker's, a separator's, a list
+        entry's echo, a cancelled read's), no deadline but this one ever will: that reply
+        is taken as lost, the lines ahead are counted and the stream resynchronised
+        (:attr:`Overdue.STALLED`); else the next call would be held, or its reply taken
+        for the lost one.
 
         Parameters
         ----------
@@ -959,14 +977,20 @@ class LinkSession:
             Whether it is written now.
         waits
             How many timeouts its reply has had.
+        awaited
+            The tags of the lines whose callers wait for their replies now.
 
         Returns
         -------
         Overdue
-            :attr:`Overdue.WAIT_AGAIN`, :attr:`Overdue.WITHDRAW` or
-            :attr:`Overdue.UNANSWERED`.
+            :attr:`Overdue.WAIT_AGAIN`, :attr:`Overdue.WITHDRAW`,
+            :attr:`Overdue.STALLED` or :attr:`Overdue.UNANSWERED`.
         """
         if not written:
+            owed = self.core.pending_tags
+            if self.state is LinkState.IN_STEP and not self.core.resyncing and owed \
+                    and owed[0] not in awaited:
+                return Overdue.STALLED
             return Overdue.WITHDRAW
         if queued and waits < REPLY_WAITS:
             return Overdue.WAIT_AGAIN

@@ -551,7 +551,6 @@ _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's r
 KNOWN: dict[tuple[int, str, str, str], str] = {
     **{(4, fault, "reads", "sim"): _SEPS for fault in ("drop", "lose")},
     (4, "drop", "reads", "pty"): _SEPS,
-    **{(mode, "cycle_idle", "speed", "pty"): _RESTART for mode in (2, 4)},
     **{(mode, "cycle_moving", "speed", "sim"): _RESTART for mode in (2, 4)},
     (2, "noise", "reads", "pty"): _TIMING,
     (4, "noise", "reads", "pty"): _TIMING,

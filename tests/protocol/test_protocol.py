@@ -486,6 +486,36 @@ async def test_concurrent_timeouts_both_return_once_resynced(fake_link: LinkFact
     assert link.protocol.is_connected
 
 
+@pytest.mark.parametrize("autostatus", [1, 4])
+async def test_a_lost_reply_nobody_awaits_does_not_hold_the_next_call(
+        fake_link: LinkFactory, autostatus: int) -> None:
+    """A list upload whose check read was held for credit behind a reply that got lost:
+    in autostatus 1 a credit marker's number, in autostatus 4 a list entry's echo (the
+    echoes after it are not it, so the core still owes it). Nobody awaits those replies,
+    so the check's timeout is the only one that covers them: it resyncs the stream, and
+    the next read is written after the marker and gets its own reply (not held for
+    credit, nor handed to the lost line's place)."""
+    link = fake_link(autostatus=autostatus, credit_limit=64, marker_chunk=30)
+    protocol = link.protocol
+    values = [f"0.{5000 + 137 * i}" for i in range(8)]
+    entries = [protocol.submit(parse(f"!trigp -1 {value}")) for value in values]
+    check = protocol.submit(parse("?trigc"))
+    written = link.sent_lines()
+    assert b"?trigc" not in written  # held for credit
+    if autostatus == 4:
+        # Every entry written is echoed, but the first entry's echo is lost.
+        link.feed(b"".join(line + b"\r" for line in written[1:] if line.startswith(b"!")))
+    with pytest.raises(ControllerTimeoutError, match=r"no reply to '\?trigc'"):
+        await protocol.wait_reply(check, 0.05)
+    assert protocol.core.resyncing  # the background resync started at once
+    protocol.withdraw(entries)  # as the failed upload does
+    link.answer_marker()
+    pos = asyncio.create_task(protocol.request(parse("?pos"), timeout=5.0))
+    await link.wait_written(b"?pos\r")
+    link.feed(b"1.0000 2.0000 3.0000\r")
+    assert (await pos).lines == ("1.0000 2.0000 3.0000",)
+
+
 async def test_resync_with_ctrl_c(fake_link: LinkFactory) -> None:
     link = fake_link()
     move = link.protocol.submit(parse("!moa x 1"))

@@ -507,7 +507,7 @@ def test_an_overdue_marker_that_declares_the_link_dead_is_not_written_again() ->
     # Queued when the wait began, written during it: once more, then counted.
     (True, True, 1, Overdue.WAIT_AGAIN),
     (True, True, REPLY_WAITS, Overdue.UNANSWERED),
-    # Still queued (held behind a resync): taken back, never counted.
+    # Still queued, nothing owed ahead of it: taken back, never counted.
     (True, False, 1, Overdue.WITHDRAW),
     (True, False, REPLY_WAITS, Overdue.WITHDRAW),
 ])
@@ -516,6 +516,34 @@ def test_an_overdue_reply_waits_again_once_is_withdrawn_or_counted(
     session = Link().session
     assert session.reply_overdue(queued=queued, written=written, waits=waits) is overdue
     assert session.silent == 0 and session.state is S.IN_STEP  # it decides, counts nothing
+
+
+@pytest.mark.parametrize("autostatus", [1, 4])
+def test_a_line_held_behind_a_reply_nobody_awaits_stalls_instead_of_being_withdrawn(
+        autostatus: int) -> None:
+    """A list upload's check read, held for credit behind lines whose replies no caller
+    awaits: a credit marker ``err`` whose number was lost (autostatus 1), the echo of a
+    list entry that was lost (autostatus 4: the echoes of the entries after it are not
+    that echo, so the core keeps owing it). No deadline but the held line's covers that
+    reply: its timeout resyncs the stream (STALLED). Behind a reply a caller awaits, or
+    behind a resync, the line is only withdrawn."""
+    link = Link()
+    core, session = link.core, link.session
+    core.autostatus = autostatus
+    if autostatus == 4:
+        for tag, value in (("entry 1", "0.5"), ("entry 2", "0.5137")):
+            core.send(parse(f"!trigp -1 {value}"), tag)
+        assert core.events(b"!trigp -1 0.5137\r")  # entry 1's echo was lost on the way
+        assert core.pending_tags == ["entry 1", "entry 2"]
+    else:
+        core.send(parse("err"), "credit marker")
+    head = core.pending_tags[0]
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.STALLED
+    assert session.reply_overdue(queued=True, written=False, waits=1,
+                                 awaited={head}) is Overdue.WITHDRAW
+    assert session.silent == 0 and session.state is S.IN_STEP  # it decides, counts nothing
+    link.resync()
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.WITHDRAW
 
 
 # -- the mode ----------------------------------------------------------------------------
