@@ -23,29 +23,23 @@ def point_to_comma(data: bytes, rng: random.Random) -> bytes:
     return data.replace(b".", b",", 1)
 
 
-@pytest.mark.parametrize("mode", [0, 1, 2, 3, 4])
-async def test_a_comma_in_the_start_read_of_a_move_is_a_protocol_error(mode: int) -> None:
+@pytest.mark.parametrize(("mode", "read"), [
+    *((mode, "move") for mode in range(5)),  # the start read of a move
+    (1, "get"), (4, "get"),
+])
+async def test_a_comma_in_a_position_reply_is_a_protocol_error(mode: int, read: str
+                                                               ) -> None:
     async with await tango_aio.connect("sim://?baud=0", autostatus=mode,
                                        reply_timeout=2.0) as tango:
         fault = faults(tango)
         fault.wire.faults.garble_reply_to = (b"?pos", point_to_comma)
         with pytest.raises(ProtocolError):
-            await tango.move_to(x=0.5)
+            await (tango.move_to(x=0.5) if read == "move" else tango.get("pos"))
         assert fault.wire.faults.garble_reply_to is None  # the ?pos reply was garbled
         assert fault.axes()["x"] == (0.0, 0.0)  # nothing moved
+        assert await tango.get("pos", axis="x") == 0.0
         # Nothing garbled was remembered: the next moves start from true positions.
         await tango.move_to(x=0.5)
         assert fault.axes()["x"][0] == pytest.approx(0.5, abs=1e-3)
         await tango.move_by(x=0.25)
         assert fault.axes()["x"][0] == pytest.approx(0.75, abs=1e-3)
-
-
-@pytest.mark.parametrize("mode", [1, 4])
-async def test_a_comma_in_a_position_read_is_a_protocol_error(mode: int) -> None:
-    async with await tango_aio.connect("sim://?baud=0", autostatus=mode,
-                                       reply_timeout=2.0) as tango:
-        fault = faults(tango)
-        fault.wire.faults.garble_reply_to = (b"?pos", point_to_comma)
-        with pytest.raises(ProtocolError):
-            await tango.get("pos")
-        assert await tango.get("pos", axis="x") == 0.0

@@ -62,30 +62,23 @@ async def test_a_lost_speed_line_raises(mode: int, call: str) -> None:
         assert not moving(fault, "z")
 
 
+@pytest.mark.parametrize(("new", "says"), [
+    (0.0, "Z still moving.*axes Z stopped"),  # a lost stop: Z runs on
+    (4.0, "Z moving as before the line.*axes Z stopped"),  # M proves nothing, ?speed does
+])
 @pytest.mark.parametrize("mode", sample(UNANSWERED, 1))
-async def test_a_lost_stop_stops_the_axis_and_says_so(mode: int) -> None:
-    async with await opened(mode) as tango:
-        fault = faults(tango)
-        await tango.speed(z=2.0)
-        assert moving(fault, "z")
-        lose(fault, b"!speed")
-        with pytest.raises(MoveOutcomeUnknown, match="axes Z stopped"):
-            await tango.speed(z=0.0)
-        assert fault.wire.lost_lines == 1
-        assert not moving(fault, "z")
-
-
-@pytest.mark.parametrize("mode", sample(UNANSWERED, 3))
-async def test_a_lost_change_of_speed_of_a_running_axis_raises(mode: int) -> None:
-    """The axis moved before the line: its ``M`` proves nothing, ``?speed`` does."""
+async def test_a_lost_line_to_a_running_axis_stops_it_and_says_so(mode: int, new: float,
+                                                                  says: str) -> None:
     async with await opened(mode) as tango:
         fault = faults(tango)
         await tango.speed(z=2.0)
         await tango.speed(z=3.0)  # not lost: the speed in force shows it
+        assert moving(fault, "z")
         assert await tango.get("speed", axis="z") == pytest.approx(3.0)
         lose(fault, b"!speed")
-        with pytest.raises(MoveOutcomeUnknown, match="Z moving as before the line"):
-            await tango.speed(z=4.0)
+        with pytest.raises(MoveOutcomeUnknown, match=says):
+            await tango.speed(z=new)
+        assert fault.wire.lost_lines == 1
         assert not moving(fault, "z")
 
 
