@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import functools
 import logging
 from collections.abc import (
@@ -95,12 +96,16 @@ from .restart import RestartWatch, report_suggests_restart, settings_of
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import (
+    Acceptance,
     Budget,
+    acceptance,
     contest,
     move_budget,
     moved_axes,
     position_tolerance,
     rest_budget,
+    speed_shown,
+    stop_time,
 )
 from .units import Measure, UnitScale, from_controller, plain, to_controller
 
@@ -617,8 +622,9 @@ class Controller:
         MoveOutcomeUnknown
             With ``check``, for a line that starts motion (a move, ``cal``, ``rm``,
             ``speed``, ``go``): its verdict was lost, garbled, or a refusal its moving
-            axes contradict; the message says which axes were stopped or may still
-            move.
+            axes contradict, or (``speed``, ``go`` in autostatus 0, 1, 3) nothing in the
+            state read behind it shows that it arrived; the message says which axes were
+            stopped or may still move.
         """
         command = parse(line, self.context)
         if command.is_read:
@@ -685,6 +691,10 @@ class Controller:
             self._forget_start(command)
         raw_move = command.instruction.completion is not None and command.executes
         starts = check and command.executes and (raw_move or command.name in _STARTS_MOTION)
+        # A speed or go line owes no answer in autostatus 0, 1, 3: its ?err 0 is also
+        # what a lost line gets, so the state read behind it proves it (_prove_started).
+        unanswered = starts and not raw_move and not self._protocol.answers(command)
+        busy = await self._moving_before(command) if unanswered else frozenset()
         try:
             if raw_move and check:
                 # (execute() is start_move() and confirm(); the handle is kept here for
@@ -722,6 +732,8 @@ class Controller:
             if starts and not isinstance(error, ConnectionLostError):
                 await self._contest(error, command)  # it may have run: is it running?
             raise outcome_unknown(error, command.line) from error.__cause__
+        if unanswered:
+            await self._prove_started(command, busy, self._timeout(timeout))
         self._track(command)
         if starts:
             self._turned(command)
@@ -763,6 +775,78 @@ class Controller:
         except TangoError:
             raise contested(cause, command.line, found.reason, (), found.moving) from None
         raise contested(cause, command.line, found.reason, found.moving, ())
+
+    async def _moving_before(self, command: Command) -> frozenset[str]:
+        # The axes a speed line sets running that moved before it (their M proves
+        # nothing behind it), read only when the driver may have left them running. A
+        # go that retargets a moving axis is accepted on its M: no read shows its new
+        # target before it ends (L6616).
+        if command.name != "speed":
+            return frozenset()
+        axes = [a for a, v in zip(moved_axes(command, AXES[: self.context.axes]),
+                                  command.values, strict=False) if v]
+        if not set(axes) & self._turning:
+            return frozenset()
+        letters = await self.status()
+        return frozenset(a for a in axes if letters.get(a) == MOVING)
+
+    async def _prove_started(self, command: Command, busy: frozenset[str],
+                             timeout: float) -> None:
+        """Prove from the state behind it that a speed or go line arrived, or stop it."""
+        # timing.acceptance judges ?statusaxis; an axis the line stops that still moves
+        # is waited for (timing.stop_time); an axis a speed line set running that moved
+        # before must show the speed written in ?speed (timing.speed_shown). Unproven:
+        # the line's axes that move are stopped, and the MoveProtocolUnknownError says
+        # so and that the line may not have been applied.
+        present = AXES[: self.context.axes]
+        deadline = asyncio.get_running_loop().time() + stop_time(self._settings, present)
+        try:
+            letters = await self.status()
+            found = acceptance(command, letters, present, busy=busy)
+            if found.unshown and command.name == "go":
+                found = acceptance(command, letters, present, busy=busy,
+                                   positions=await self._position_texts())
+            if found.unshown and set(found.unshown) <= busy:
+                found = await self._speed_in_force(command, found, deadline, timeout)
+            stopping = found.stopping
+            while stopping and asyncio.get_running_loop().time() < deadline:
+                await asyncio.sleep(_STOP_POLL)
+                letters = await self.status()
+                stopping = tuple(a for a in stopping if letters.get(a) == MOVING)
+            found = dataclasses.replace(found, stopping=stopping)
+        except TangoError as exc:
+            raise contested(ProtocolError(f"{command.line!r} was answered without an "
+                                          "error, but the state behind it could not be "
+                                          "read: it may not have been applied"),
+                            command.line, "", (), moved_axes(command, present)) from exc
+        if found.shown:
+            return
+        cause = ProtocolError(f"{command.line!r} was answered without an error, yet "
+                              f"nothing shows that it arrived: it may not have been applied")
+        running = tuple(dict.fromkeys((*found.moving, *found.stopping)))
+        try:
+            if running:
+                await self.stop(*running)
+        except TangoError:
+            raise contested(cause, command.line, found.reason, (), running) from None
+        raise contested(cause, command.line, found.reason or "nothing of it moves",
+                        running, ())
+
+    async def _speed_in_force(self, command: Command, found: Acceptance, deadline: float,
+                              timeout: float) -> Acceptance:
+        """``found`` without the axes whose ``?speed`` comes to show the speed written."""
+        values = dict(zip(moved_axes(command, AXES[: self.context.axes]), command.values,
+                          strict=False))
+        left = list(found.unshown)
+        while True:
+            for axis in list(left):
+                reply = await self._request(_read_command("speed", axis, self.context),
+                                            timeout)
+                if speed_shown(float(values[axis]), " ".join(reply.lines)):
+                    left.remove(axis)
+            if not left or asyncio.get_running_loop().time() >= deadline:
+                return dataclasses.replace(found, unshown=tuple(left))
+            await asyncio.sleep(_STOP_POLL)
 
     async def _prove_accepted(self, handle: MoveHandle, timeout: float) -> None:
         """Prove that a move line whose acceptance rests only on the ``?err`` behind it
@@ -1587,6 +1671,11 @@ class Controller:
             A target or an axis is not valid, before anything is written.
         ControllerError
             The controller refused the line.
+        MoveOutcomeUnknown
+            In autostatus 0, 1 and 3 (no answer of its own): nothing in the state read
+            behind the line shows that it arrived (an axis it sends neither moves nor
+            stands at its target; one it stops still moves): it may not have been
+            applied. The message says which axes were stopped or may still move.
         """
         axes = await self._to_controller(axes, unit, Measure.POSITION)
         command = build_axes("go", axes, context=self.context)
@@ -1614,8 +1703,12 @@ class Controller:
             The controller refused the line (nothing changed: none of its axes moves,
             or only as before).
         MoveOutcomeUnknown
-            The line's verdict was garbled, or a refusal its moving axes contradict:
-            the message says which axes were stopped or may still move.
+            The line's verdict was garbled, or a refusal its moving axes contradict; or,
+            in autostatus 0, 1 and 3 (no answer of its own), nothing in the state read
+            behind the line shows that it arrived (an axis it sets running stands, or
+            runs as before without ``?speed`` showing the new speed; one it stops still
+            moves after its ramp): it may not have been applied. The message says which
+            axes were stopped or may still move.
         TangoError
             The line's answer was lost; its note says whether the running axes were
             stopped.
@@ -2586,6 +2679,9 @@ def _per_moved_axis(name: str, value: Speed, axes: Mapping[str, Any]) -> dict[st
 #: Lines without a completion report that start motion (a refusal is checked, see
 #: :meth:`Controller._contest`).
 _STARTS_MOTION = frozenset({"speed", "go"})
+
+#: Seconds between two reads of an axis a speed or go line stops, or speeds up.
+_STOP_POLL = 0.01
 
 #: Instructions whose float values are list positions (checked against the resolution).
 _LIST_POSITIONS = frozenset({"trigp", "trigr", "snsa"})

@@ -1318,8 +1318,9 @@ def _parse_status(command: Command, text: str) -> object:
 
 
 def _split_numbers(text: str) -> list[str]:
-    # ?lim in extmode 0 adds stray commas (manual L4559-4619).
-    return text.replace(",", " ").split()
+    # ?lim in extmode 0 adds stray commas after values (manual L4559-4619); a comma
+    # inside a token ("0,0000") stays, so the token is no number.
+    return [token.removesuffix(",") for token in text.split()]
 
 
 def parse_reply(command: Command, lines: Sequence[str]) -> object:

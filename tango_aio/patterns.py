@@ -104,9 +104,11 @@ class ReplyPattern:
         """
         kind = self.kind
         if kind is ReplyKind.NUMBERS:
-            tokens = line.replace(",", " ").split()
+            # A comma only ever ends a value ('?lim' in extmode 0: "-2600 2600,",
+            # L4619); one inside a token ("0,0000") is a garbled number.
+            tokens = line.split()
             return self.low <= len(tokens) <= self.high and \
-                all(_NUMBER_RE.match(token) for token in tokens)
+                all(_NUMBER_RE.match(token.removesuffix(",")) for token in tokens)
         if kind is ReplyKind.WORDS:
             return self.low <= len(line.split()) <= self.high
         if kind is ReplyKind.STATUS:

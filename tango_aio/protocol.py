@@ -838,6 +838,23 @@ class TangoProtocol(asyncio.Protocol):
             _judge(back, (await self.wait_reply(read, timeout)).lines)
         return None
 
+    def answers(self, command: Command) -> bool:
+        """Whether ``command`` owes an answer of its own in the mode in force (the
+        autostatus-2 ``OK...``, the autostatus-4 echo), which proves that it arrived.
+
+        Parameters
+        ----------
+        command
+            A set or execute line.
+
+        Returns
+        -------
+        bool
+            Whether it is acknowledged or echoed.
+        """
+        expect = expectation(command, self.core.autostatus, self.core.context)
+        return expect.ack or expect.echo
+
     async def prove_set(self, command: Command, timeout: float | None) -> None:
         """Read the setting the set line ``command`` wrote, where the line owes no answer
         of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see

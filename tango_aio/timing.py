@@ -35,6 +35,11 @@ step with every accepted set) and from the geometry of the move:
   ``?err``, its acknowledgement): accepted, refused, or garbled (it proves nothing);
   :func:`contest` says whether the state read behind a refusal or a garbled verdict on a
   motion line contradicts it (the line's axes move: the line ran).
+* :func:`acceptance` judges the state read behind a ``speed`` or ``go`` line that owes
+  no answer (autostatus 0, 1, 3), whose ``?err`` 0 a lost line gets too: an axis it sets
+  running moves, or the result it asks for holds; :func:`stop_time` bounds the wait
+  for an axis it stops, :func:`speed_shown` reads the speed in force of one that ran
+  before it.
 
 Everything here is a pure function of its arguments, tested synchronously
 (``tests/unit/test_timing.py``); :mod:`tango_aio.motion` asks it and does the waiting.
@@ -45,7 +50,7 @@ from __future__ import annotations
 import enum
 import math
 import re
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from .errors import ERROR_DESCRIPTIONS
@@ -56,13 +61,16 @@ from .units import UnitScale
 __all__ = [
     "CAL_LIMIT",
     "MARGIN",
+    "MAX_SPEED",
     "MOC_LIMIT",
     "POLL_GRACE",
     "UNKNOWN_TRAVEL",
+    "Acceptance",
     "Budget",
     "Contest",
     "MoveTiming",
     "Verdict",
+    "acceptance",
     "ack_verdict",
     "contest",
     "cut_short",
@@ -74,6 +82,8 @@ __all__ = [
     "position_tolerance",
     "rest_budget",
     "shifted_axes",
+    "speed_shown",
+    "stop_time",
     "too_early",
     "travel_time",
     "verdict",
@@ -676,3 +686,153 @@ def shifted_axes(axes: Sequence[str], before: Mapping[str, str] | None,
     return tuple(a for a in axes if a in before and a in now and abs(
         float(now[a]) - float(before[a])) > 3.0 * max(position_tolerance(now[a]),
                                                        position_tolerance(before[a])))
+
+
+#: The fastest ``!speed`` the manual documents: 100 rev/s, or 100 mm/s in dim 9 (L6718).
+MAX_SPEED = 100.0
+
+
+@dataclass(frozen=True, slots=True)
+class Acceptance:
+    """What the state read behind a motion line without a completion of its own
+    (``speed``, ``go``) shows of its arrival (:func:`acceptance`)."""
+
+    #: The line's axes it sets running that show nothing of it: standing, or moving as
+    #: they did before the line.
+    unshown: tuple[str, ...]
+    #: The line's axes it stops (``!speed z 0``, ``go z``) that still move: a stop ramp,
+    #: or a stop line that was lost; wait for them to stand (:func:`stop_time`).
+    stopping: tuple[str, ...]
+    #: The line's axes that move (``M``): stop them if the line stays unproven.
+    moving: tuple[str, ...]
+    #: The ``?statusaxis`` letters read behind the line.
+    letters: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def shown(self) -> bool:
+        """Whether the read proves the line: every axis it sets running shows it, and
+        every axis it stops stands."""
+        return not self.unshown and not self.stopping
+
+    @property
+    def reason(self) -> str:
+        """What the read shows of the axes that show nothing of the line, in words."""
+        parts = [f"{a.upper()} moving as before the line" if a in self.moving else
+                 f"{a.upper()} standing ({self.letters.get(a, '?')})" for a in self.unshown]
+        parts += [f"{a.upper()} still moving" for a in self.stopping]
+        return f"?statusaxis shows {', '.join(parts)}" if parts else ""
+
+
+def acceptance(command: Command, letters: Mapping[str, str], present: Sequence[str], *,
+               busy: Collection[str] = (),
+               positions: Mapping[str, str] | None = None) -> Acceptance:
+    """Whether the state read behind a ``speed`` or ``go`` line shows that it arrived.
+
+    In autostatus 0, 1 and 3 neither line owes an answer (``go``: "Response: None",
+    L6662; ``speed`` does not report, L6760), and the ``?err`` 0 behind it is also what a
+    lost line gets (each instruction overwrites the error state, L2853-2867). The
+    interpreter executes lines in order, so ``?statusaxis`` read behind the line shows
+    its effect. An axis the line sets running (a non-zero speed, a go target) that
+    moves (``M``, L2695), and did not move before the line (``busy``), proves that the
+    line arrived, and with it the rest of the line. Else each axis must show what the
+    line asked: one it stops (speed 0, L6724; ``go`` without a target, L6624-6630)
+    stands, or is still on its stop ramp (:attr:`Acceptance.stopping`: the caller waits
+    for it, :func:`stop_time`); one a ``go`` sends stands at its target (``positions``,
+    as printed: a short go may be done). An axis that stands where the line sets it
+    running (at a switch or a soft limit in its direction, L6724, or not enabled), or
+    moves as before it, shows nothing: the line may not have arrived.
+
+    Parameters
+    ----------
+    command
+        The ``speed`` or ``go`` line, answered without an error.
+    letters
+        The ``?statusaxis`` letters read behind it.
+    present
+        The axes the controller has.
+    busy
+        The line's axes that moved before it.
+    positions
+        ``?pos`` read behind the line, as printed (``None``: not read).
+
+    Returns
+    -------
+    Acceptance
+        Which axes show nothing of the line, which are still stopping, which move.
+    """
+    moved = moved_axes(command, present)
+    values = [float(v) for v in command.values if isinstance(v, int | float)]
+    runs: dict[str, float] = {}
+    stops: list[str] = []
+    for index, axis in enumerate(moved):
+        value = values[index] if index < len(values) else None
+        if value is None or (command.name == "speed" and value == 0.0):
+            stops.append(axis)
+        else:
+            runs[axis] = value
+    moving = tuple(a for a in moved if letters.get(a) == MOVING)
+    if any(a in moving and a not in busy for a in runs):
+        return Acceptance((), (), moving, dict(letters))
+    unshown = [a for a, value in runs.items()
+               if not (command.name == "go" and a not in moving
+                       and _at(value, (positions or {}).get(a)))]
+    stopping = tuple(a for a in stops if a in moving)
+    return Acceptance(tuple(unshown), stopping, moving, dict(letters))
+
+
+def _at(target: float, printed: str | None) -> bool:
+    """Whether a position as printed stands at ``target``."""
+    try:
+        return printed is not None and \
+            abs(float(printed) - target) <= position_tolerance(printed)
+    except ValueError:
+        return False
+
+
+def speed_shown(value: float, printed: str) -> bool:
+    """Whether ``?speed`` of an axis, as printed, shows the speed ``value`` a line set:
+    the speed in force (L6758), within one and a half units of its last digit.
+
+    Parameters
+    ----------
+    value
+        The speed written.
+    printed
+        The reply of ``?speed`` for that axis.
+
+    Returns
+    -------
+    bool
+        Whether it shows ``value``.
+    """
+    return _at(value, printed.strip())
+
+
+def stop_time(timing: MoveTiming, axes: Iterable[str]) -> float:
+    """How long axes that a ``speed`` 0 or a ``go`` without target stops may still move:
+    the ramp from the fastest speed (:data:`MAX_SPEED`, or ``vel`` if faster) down at
+    ``accel`` (L6728), and :data:`MARGIN`.
+
+    Parameters
+    ----------
+    timing
+        The cached settings.
+    axes
+        The axes that stop.
+
+    Returns
+    -------
+    float
+        Seconds; :data:`UNKNOWN_TRAVEL` and :data:`MARGIN` when an acceleration is not a
+        positive finite number.
+    """
+    longest = 0.0
+    for axis in axes:
+        index = AXES.index(axis)
+        scale = UnitScale(dim=timing.dims[index], pitch=timing.pitch[index])
+        top = scale.mm_to_rev(MAX_SPEED) if timing.dims[index] == 9 else MAX_SPEED
+        top = max(top, scale.vel_from_user(timing.vel[index]))
+        accel = scale.accel_to_rev(timing.accel[index])
+        ramp = top / accel if accel > 0 and math.isfinite(accel + top) else UNKNOWN_TRAVEL
+        longest = max(longest, ramp)
+    return longest + MARGIN
