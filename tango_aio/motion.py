@@ -125,6 +125,7 @@ from .timing import (
     cut_short,
     describe_stop,
     polled_during,
+    report_shows_run,
     shifted_axes,
     too_early,
     verdict,
@@ -567,9 +568,11 @@ class Motion:
             stopped = await self._stop_and_wait(job) is not None
             raise contested(cause, line, "the state could not be read behind it",
                             moved if stopped else (), () if stopped else moved) from exc
+        completion = job.sent.submission.completion
+        reported = report_came(completion) and completion is not None and \
+            report_shows_run(moved, completion.result().letters)
         found = contest(moved, letters, clean=isinstance(cause, ControllerError),
-                        reported=report_came(job.sent.submission.completion),
-                        shifted=shifted_axes(moved, job.before, texts))
+                        reported=reported, shifted=shifted_axes(moved, job.before, texts))
         if found.stands:
             job.sent.forget()
             raise annotate(cause, found.reason) if found.reason else cause

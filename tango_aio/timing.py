@@ -80,6 +80,7 @@ __all__ = [
     "moved_axes",
     "polled_during",
     "position_tolerance",
+    "report_shows_run",
     "rest_budget",
     "shifted_axes",
     "speed_shown",
@@ -604,6 +605,29 @@ class Contest:
     #: What the read shows, in words (when the refusal stands: empty, or which of the
     #: line's axes still move as before it).
     reason: str
+
+
+def report_shows_run(moved: Sequence[str], letters: Mapping[str, str] | None) -> bool:
+    """Whether a motion line's completion report shows that the line ran: any report
+    does, but one with ``E`` for every axis of the line, which some firmware sends for a
+    refused move (switch ``refused_move_report``; the manual is silent: L2690-2705 name
+    ``E`` "error response, move aborted or not executed").
+
+    Parameters
+    ----------
+    moved
+        The axes the line moves.
+    letters
+        The report's letters by axis (``None``: the bare CR of autostatus 3).
+
+    Returns
+    -------
+    bool
+        Whether the report proves the line ran.
+    """
+    if letters is None or not moved:
+        return True
+    return any(letters.get(axis, AxisStatus.ERROR) != AxisStatus.ERROR for axis in moved)
 
 
 def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,

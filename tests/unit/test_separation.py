@@ -163,17 +163,26 @@ def _deliveries(run: Run, stream: list[tuple[str, int]]
             if isinstance(event, Replied) and event.tag in run.tags:
                 # The reply's lines end with this line, or with the one before (a read
                 # that ends where the next line does not continue it).
-                count = len(event.lines)
-                for end in (index, index - 1):
-                    block = stream[end - count + 1:end + 1]
-                    # (Compared in capitals: the core puts OK, ERR, ERROR in them.)
-                    if [line.upper() for line, _ in block] == [
-                            line.upper() for line in event.lines]:
-                        got[event.tag] = [origin for _, origin in block]
-                        break
-                else:
+                block = _block(stream[:index + 1], event.lines)
+                if block is None:
                     raise AssertionError(f"{event} is not in the stream")
+                got[event.tag] = block
     return got
+
+
+def _block(fed: list[tuple[str, int]], lines: tuple[str, ...]) -> list[int] | None:
+    """The origins of the fed lines a reply's ``lines`` are: those ending with the last
+    line fed, or with the one before (a read that ends where the next line does not
+    continue it); a stray empty line (a bare CR) inside a multi-line reply may be passed
+    over, as the core passes it over."""
+    wanted = [line.upper() for line in lines]  # the core puts OK, ERR, ERROR in capitals
+    without_stray_blanks = [entry for entry in fed if entry != ("", STRAY)]
+    for seen in (fed, without_stray_blanks):
+        for end in (len(seen), len(seen) - 1):
+            block = seen[max(end - len(lines), 0):end]
+            if [line.upper() for line, _ in block] == wanted:
+                return [origin for _, origin in block]
+    return None
 
 
 def _check(firmware: Firmware, view: View, separators: bool, first: str,

@@ -132,3 +132,14 @@ def test_a_garbled_verdict_with_nothing_moving_says_the_fate_is_unknown() -> Non
     found = contest(["x", "y"], {"x": "@", "y": "@"}, clean=False)
     assert not found.stands and found.moving == ()
     assert "fate is unknown" in found.reason and "X Y standing" in found.reason
+
+
+def test_a_report_of_e_for_every_axis_of_the_line_does_not_show_it_ran() -> None:
+    from tango_aio.timing import report_shows_run
+
+    # Some firmware reports a refused move with E (switch refused_move_report=yes).
+    assert not report_shows_run(("x",), {"x": "E", "y": "@"})
+    assert not report_shows_run(("x", "y"), {"x": "E", "y": "E"})
+    assert report_shows_run(("x", "y"), {"x": "E", "y": "@"})
+    assert report_shows_run(("x",), {"x": "S"})
+    assert report_shows_run(("x",), None)  # autostatus 3's bare CR
