@@ -536,12 +536,8 @@ async def next_call(rig: Rig, op: str, second: bool = True) -> None:
 # --------------------------------------------------------------------------------------
 # The cells and the failures known on today's code
 
-_SEPS = ("#37 failure 1: in mode 4 look-alike reads are written with nothing between "
-         "them, and a lost or extra line hands replies to other callers")
 _RESTART = ("#37 failure 4: after a power cycle, in modes 2 and 4, the call after the one "
             "that met it fails")
-_TIMING = ("#37, noise glued in front of a reply: a digit that came before the request "
-           "could be answered becomes part of the value")
 
 _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's reply is "
                  "due is taken for it; whether the link's timing can show it is open")
@@ -549,11 +545,7 @@ _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's r
 #: Cells that fail on today's code, by (mode, fault, op, transport), with the failure of
 #: issue #37 that makes them fail (checked on every run of the cell: ``strict``).
 KNOWN: dict[tuple[int, str, str, str], str] = {
-    **{(4, fault, "reads", "sim"): _SEPS for fault in ("drop", "lose")},
-    (4, "drop", "reads", "pty"): _SEPS,
     **{(mode, "cycle_moving", "speed", "sim"): _RESTART for mode in (2, 4)},
-    (2, "noise", "reads", "pty"): _TIMING,
-    (4, "noise", "reads", "pty"): _TIMING,
 }
 
 #: Cells over the pty that fail on some runs of today's code only (the timing of the
@@ -566,8 +558,7 @@ SOMETIMES: dict[tuple[int, str, str, str], str] = {
        for op in ("move", "upload")},
     # An extra number where a read's reply is due: the line's structure cannot tell it
     # from the reply; the link's timing may (in mode 4 replies shift as well).
-    **{(mode, "extra", "reads", "pty"): _EXTRA_NUMBER for mode in (0, 3)},
-    (4, "extra", "reads", "pty"): _SEPS,
+    **{(mode, "extra", "reads", "pty"): _EXTRA_NUMBER for mode in (0, 3, 4)},
 }
 
 
