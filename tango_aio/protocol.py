@@ -710,14 +710,16 @@ class TangoProtocol(asyncio.Protocol):
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             hold = self.scheduler.hold()
-            if not await self._idle(hold, timeout):
-                if self.session.barrier_overdue_resyncs(restore=restore):
+            try:
+                if not await self._idle(hold, timeout):
+                    if not self.session.barrier_overdue_resyncs(restore=restore):
+                        raise ControllerTimeoutError(
+                            f"the lines before {sent[0]!r} got no reply within {timeout} s")
                     await self._resync_held(hold, timeout)
-                else:
-                    self.scheduler.release()
-                    self._flush()
-                    raise ControllerTimeoutError(
-                        f"the lines before {sent[0]!r} got no reply within {timeout} s")
+            except BaseException:
+                self.scheduler.release()
+                self._flush()
+                raise
             driver = self.core.autostatus  # the driver's, once all is answered
             found: list[int] = []
 
@@ -755,8 +757,7 @@ class TangoProtocol(asyncio.Protocol):
         Returns
         -------
         bool
-            Whether they were; false if that took more than ``timeout`` seconds (the
-            lines stay held).
+            Whether they were; false if that took more than ``timeout`` seconds.
 
         Raises
         ------
@@ -765,33 +766,27 @@ class TangoProtocol(asyncio.Protocol):
         """
         dropped = self._queue_drops
         deadline = None if timeout is None else self._loop.time() + timeout
-        try:
-            while (barrier := self.session.barrier(
-                    queued_before=self.scheduler.queued_up_to(hold),
-                    queue_dropped=self._queue_drops != dropped)) is not Barrier.CLEAR:
-                self.check()
-                if barrier is Barrier.ABORTED:
-                    raise RequestAbortedError(
-                        "the mode change was not sent: the stream was resynchronised")
-                if deadline is not None and self._loop.time() >= deadline:
-                    return False
-                await asyncio.sleep(0.002)
-        except BaseException:
-            self.scheduler.release()
-            self._flush()
-            raise
+        while (barrier := self.session.barrier(
+                queued_before=self.scheduler.queued_up_to(hold),
+                queue_dropped=self._queue_drops != dropped)) is not Barrier.CLEAR:
+            self.check()
+            if barrier is Barrier.ABORTED:
+                raise RequestAbortedError(
+                    "the mode change was not sent: the stream was resynchronised")
+            if deadline is not None and self._loop.time() >= deadline:
+                return False
+            await asyncio.sleep(0.002)
         return True
 
     async def _resync_held(self, hold: int, timeout: float | None) -> None:
-        """The lines before a barrier went unanswered: resync (their callers get
-        :class:`~tango_aio.errors.RequestAbortedError`) while the lines after it stay
-        held, then wait for the lines before once more.
+        """The lines up to ``hold`` went unanswered: resync (their callers get
+        :class:`~tango_aio.errors.RequestAbortedError`) while the later lines stay held,
+        then wait for the lines up to ``hold`` once more.
 
         Raises
         ------
         ControllerTimeoutError
-            The marker, or the lines before, got no reply within ``timeout`` seconds
-            (the held lines are released).
+            The marker, or the lines before, got no reply within ``timeout`` seconds.
         """
         limit = timeout if timeout is not None else self.reply_timeout
         marker = self._background_resync(limit)
@@ -800,17 +795,9 @@ class TangoProtocol(asyncio.Protocol):
                 async with asyncio.timeout(limit):
                     await asyncio.shield(marker)
         except TimeoutError:
-            self.scheduler.release()
-            self._flush()
             raise ControllerTimeoutError(
                 f"the resync marker got no reply within {limit} s") from None
-        except BaseException:
-            self.scheduler.release()
-            self._flush()
-            raise
         if not await self._idle(hold, timeout):
-            self.scheduler.release()
-            self._flush()
             raise ControllerTimeoutError(
                 f"the lines before a read of the mode got no reply within {timeout} s")
 

@@ -541,8 +541,6 @@ _SEPS = ("#37 failure 1: in mode 4 look-alike reads are written with nothing bet
 _SETS = "#37 failure 2: a set whose line is lost returns, proven by nothing but ?err 0"
 _VERDICTS = ("#37 failure 3: a garbled ?err after !speed raises a controller error while "
              "the axis runs on")
-_RESTART = ("#37 failure 4: after a power cycle, in modes 2 and 4, the call after the one "
-            "that met it fails")
 _TIMING = ("#37, noise glued in front of a reply: a digit that came before the request "
            "could be answered becomes part of the value")
 
@@ -559,22 +557,14 @@ KNOWN: dict[tuple[int, str, str, str], str] = {
     (1, "garble", "speed", "sim"): _VERDICTS,
     (3, "garble", "speed", "sim"): _VERDICTS,
     (3, "garble", "speed", "pty"): _VERDICTS,
-    **{(mode, "cycle_idle", op, "sim"): _RESTART
-       for mode in (2, 4) for op in ("set", "move", "upload")},
-    **{(mode, "cycle_idle", op, "pty"): _RESTART
-       for mode in (2, 4) for op in ("set", "speed")},
     (2, "noise", "reads", "pty"): _TIMING,
     (4, "noise", "reads", "pty"): _TIMING,
 }
 
-#: Cells over the pty that fail on some runs of today's code only (the timing of the
-#: restart against the calls, or of an extra line against the reads), or that a fix may
-#: leave failing: ``xfail`` without ``strict``.
+#: Cells over the pty that fail on some runs of today's code only (the timing of an
+#: extra line against the reads), or that a fix may leave failing: ``xfail`` without
+#: ``strict``.
 SOMETIMES: dict[tuple[int, str, str, str], str] = {
-    **{(mode, "cycle_moving", op, "pty"): _RESTART
-       for mode in (2, 4) for op in ("reads", "set", "move", "upload")},
-    **{(mode, "cycle_idle", op, "pty"): _RESTART for mode in (2, 4)
-       for op in ("move", "upload")},
     # An extra number where a read's reply is due: the line's structure cannot tell it
     # from the reply; the link's timing may (in mode 4 replies shift as well).
     **{(mode, "extra", "reads", "pty"): _EXTRA_NUMBER for mode in (0, 3)},
