@@ -92,7 +92,12 @@ from .motion import (
 )
 from .protocol import MoveHandle, Response, Submission, TangoProtocol
 from .reconnect import Closer, Reconnect, Reconnector, Signature
-from .restart import RestartWatch, report_suggests_restart, settings_of
+from .restart import (
+    RestartWatch,
+    report_suggests_restart,
+    settings_of,
+    unreported_end_suggests_restart,
+)
 from .state import CACHED_SETTINGS, DriverState
 from .status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
 from .timing import (
@@ -210,7 +215,7 @@ class Controller:
         #: The cached settings (move timing, validation context): tango_aio.state.
         self._settings = DriverState()
         self._motion = Motion(_Port(self._start_move, self._accepted, self._stop_all,
-                                    self._read_state, self._hub.publish))
+                                    self._read_state, self._hub.publish, self._unreported))
         #: Motion calls under way, each an event set when it ends (wait_idle, is_busy).
         self._motion_calls: set[asyncio.Event] = set()
         #: Axes a line of this driver whose end nobody follows (speed, go, a raw move)
@@ -2531,6 +2536,10 @@ class Controller:
     async def _stop_all(self) -> None:
         await self._protocol.stop_soft()
 
+    def _unreported(self) -> None:
+        if unreported_end_suggests_restart(self._protocol.autostatus):
+            self._restarts.suspect()
+
     def _read_state(self, axes: Sequence[str]
                     ) -> Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]:
         # Written now (MotionPort.read_state: also from a report's callback, in the loop
@@ -2586,6 +2595,7 @@ class _Port:
     read_state: Callable[[Sequence[str]],
                          Coroutine[Any, Any, tuple[dict[str, str], dict[str, str]]]]
     finished: Callable[[MoveFinished], None]
+    unreported: Callable[[], None]
 
 
 @dataclass(frozen=True, slots=True)

@@ -223,7 +223,7 @@ class MovePlan:
 
 
 class MotionPort(Protocol):
-    """What :class:`Motion` needs from the controller facade: five intents, each one
+    """What :class:`Motion` needs from the controller facade: six intents, each one
     step of a move (the controller keeps the link, the settings and the subscribers)."""
 
     def start(self, command: Command, batch: object | None) -> MoveHandle:
@@ -298,6 +298,11 @@ class MotionPort(Protocol):
         event
             The move's end.
         """
+        ...
+
+    def unreported(self) -> None:
+        """A followed move ended short of its target and its completion report never
+        came: the controller may have restarted (it loses the move and the report)."""
         ...
 
 
@@ -648,6 +653,9 @@ class Motion:
                 next_poll = wait_until
                 continue
             self._finished(job, letters, ok=False)
+            report = job.sent.submission.completion
+            if report is not None and not report.done():
+                self._port.unreported()
             raise MoveError(f"{plan.command.line!r} {failure}", letters)
 
     async def _wait_hint(self, job: _Job, delay: float) -> None:

@@ -710,12 +710,17 @@ class TangoProtocol(asyncio.Protocol):
         """
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
+            hold = self.scheduler.hold()
             try:
-                async with asyncio.timeout(timeout):
-                    await self._idle()
-            except TimeoutError:
-                raise ControllerTimeoutError(
-                    f"the lines before {sent[0]!r} got no reply within {timeout} s") from None
+                if not await self._idle(hold, timeout):
+                    if not self.session.barrier_overdue_resyncs(restore=restore):
+                        raise ControllerTimeoutError(
+                            f"the lines before {sent[0]!r} got no reply within {timeout} s")
+                    await self._resync_held(hold, timeout)
+            except BaseException:
+                self.scheduler.release()
+                self._flush()
+                raise
             driver = self.core.autostatus  # the driver's, once all is answered
             found: list[int] = []
 
@@ -745,30 +750,57 @@ class TangoProtocol(asyncio.Protocol):
             raise UnknownControllerError(None, f"!autostatus {driver}")
         return driver, found[0]
 
-    async def _idle(self) -> None:
-        """Hold lines submitted from now on and wait until every line before is written
-        and answered (polled: mode changes are rare).
+    async def _idle(self, hold: int, timeout: float | None) -> bool:
+        """Wait until every line up to ``hold`` (:meth:`Scheduler.hold
+        <tango_aio.scheduler.Scheduler.hold>`: later lines are held) is written and
+        answered (polled: mode changes are rare).
+
+        Returns
+        -------
+        bool
+            Whether they were; false if that took more than ``timeout`` seconds.
 
         Raises
         ------
         RequestAbortedError
             Ctrl+C discarded the queued lines: the mode change is not sent.
         """
-        hold = self.scheduler.hold()
         dropped = self._queue_drops
+        deadline = None if timeout is None else self._loop.time() + timeout
+        while (barrier := self.session.barrier(
+                queued_before=self.scheduler.queued_up_to(hold),
+                queue_dropped=self._queue_drops != dropped)) is not Barrier.CLEAR:
+            self.check()
+            if barrier is Barrier.ABORTED:
+                raise RequestAbortedError(
+                    "the mode change was not sent: the stream was resynchronised")
+            if deadline is not None and self._loop.time() >= deadline:
+                return False
+            await asyncio.sleep(0.002)
+        return True
+
+    async def _resync_held(self, hold: int, timeout: float | None) -> None:
+        """The lines up to ``hold`` went unanswered: resync (their callers get
+        :class:`~tango_aio.errors.RequestAbortedError`) while the later lines stay held,
+        then wait for the lines up to ``hold`` once more.
+
+        Raises
+        ------
+        ControllerTimeoutError
+            The marker, or the lines before, got no reply within ``timeout`` seconds.
+        """
+        limit = timeout if timeout is not None else self.reply_timeout
+        marker = self._background_resync(limit)
         try:
-            while (barrier := self.session.barrier(
-                    queued_before=self.scheduler.queued_up_to(hold),
-                    queue_dropped=self._queue_drops != dropped)) is not Barrier.CLEAR:
-                self.check()
-                if barrier is Barrier.ABORTED:
-                    raise RequestAbortedError(
-                        "the mode change was not sent: the stream was resynchronised")
-                await asyncio.sleep(0.002)
-        except BaseException:
-            self.scheduler.release()
-            self._flush()
-            raise
+            if marker is not None:
+                async with asyncio.timeout(limit):
+                    await asyncio.shield(marker)
+        except TimeoutError:
+            raise ControllerTimeoutError(
+                f"the resync marker got no reply within {limit} s") from None
+        if not await self._idle(hold, timeout):
+            raise ControllerTimeoutError(
+                f"the lines before a read of the mode got no reply within {timeout} s")
 
     def start_move(self, command: Command, *, check: bool = True,
                    batch: object | None = None) -> MoveHandle:
@@ -1374,16 +1406,23 @@ class TangoProtocol(asyncio.Protocol):
             self._transport.close()
         return silence
 
-    def _background_resync(self, timeout: float) -> None:
+    def _background_resync(self, timeout: float) -> asyncio.Future[Response] | None:
         """Resync without anybody awaiting it: lines still queued wait for its end; if its
         marker is not answered within ``timeout`` it counts as unanswered and the next
-        resync starts."""
+        resync starts.
+
+        Returns
+        -------
+        asyncio.Future[Response] | None
+            The marker's future; ``None``: the link is gone, nothing was written.
+        """
         if self._lost is not None or self._transport is None:
-            return
+            return None
         tag, marker = self._begin_resync(keep_queue=True)
         handle = self._loop.call_later(timeout, self._marker_deadline, tag, marker, timeout,
                                        self.scheduler.written_lines)
         marker.add_done_callback(functools.partial(self._forget_marker, tag, handle))
+        return marker
 
     def _marker_deadline(self, tag: Hashable, marker: asyncio.Future[Response],
                          timeout: float, serial: int) -> None:

@@ -10,6 +10,8 @@ controller executes it. So the driver reads the mode in force
 
 * a request got no answer in time in mode 2 or 4 (:func:`timeout_suggests_restart`; in
   modes 0, 1 and 3 a restart leaves every request answered);
+* a move that ended short of its target without its completion report
+  (:func:`unreported_end_suggests_restart`);
 * a completion report the mode in force does not send (:func:`report_suggests_restart`:
   any in mode 0, one with letters in mode 3, which sends a bare CR, L2107-2110);
 * the keepalive's periodic read of the mode (``connect(keepalive=...)``).
@@ -50,7 +52,7 @@ from .instructions import Command, Form, build
 from .timing import MoveTiming
 
 __all__ = ["RestartWatch", "Restartable", "changed_settings", "report_suggests_restart",
-           "settings_of", "timeout_suggests_restart"]
+           "settings_of", "timeout_suggests_restart", "unreported_end_suggests_restart"]
 
 log = logging.getLogger("tango_aio")
 
@@ -94,6 +96,28 @@ def timeout_suggests_restart(mode: int) -> bool:
         Whether the timeout suggests a restart.
     """
     return mode in (2, 4)
+
+
+def unreported_end_suggests_restart(mode: int) -> bool:
+    """Whether a move that ended short of its target without the completion report the
+    driver's mode ``mode`` sends may be a restart, which loses the move and its report
+    (the power-on mode 1 and counters 0, L2062, L1837-1857). In modes 2 and 4 a
+    controller back in mode 1 leaves every later set unanswered (L2099-2103, L2117), and
+    in mode 3 it sends letters where the driver expects a bare CR (L2107-2110): read the
+    mode now, before the next line meets it. Mode 0 sends no report (L2079-2081); in
+    mode 1, the power-on mode, a read cannot tell.
+
+    Parameters
+    ----------
+    mode
+        The autostatus mode the driver has in force.
+
+    Returns
+    -------
+    bool
+        Whether the missing report suggests a restart.
+    """
+    return mode in (2, 3, 4)
 
 
 def settings_of(timing: MoveTiming) -> dict[str, Any]:

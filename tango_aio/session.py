@@ -767,6 +767,30 @@ class LinkSession:
         return Barrier.ABORTED if queue_dropped else Barrier.WAIT
 
     @staticmethod
+    def barrier_overdue_resyncs(*, restore: bool) -> bool:
+        """The lines before a barrier were not all answered within its timeout: whether
+        the barrier resyncs the stream (its marker, the lines after the barrier still
+        held) and goes on, instead of giving up. A read of the mode that checks for a
+        restart (``restore``) resyncs: a controller back in its power-on mode 1 (L2062)
+        never sends the ``OK...`` (L2099-2103) or the echo (L2117) that a line written
+        before it owes in mode 2 or 4, and a line nobody awaits (a stop) would hold the
+        barrier for ever; giving up would release the held lines, written then for a
+        mode the controller no longer has. A mode change gives up (its caller sees the
+        timeout).
+
+        Parameters
+        ----------
+        restore
+            Whether the barrier is a read of the mode that restores the driver's.
+
+        Returns
+        -------
+        bool
+            Whether to resync and go on.
+        """
+        return restore
+
+    @staticmethod
     def mode_changed(asked: int, actual: int) -> ModeVerdict:
         """The verdict on a mode change (``!autostatus asked``) from the mode its exchange
         read back (:meth:`mode_read`, which adopted it).

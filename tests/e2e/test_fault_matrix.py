@@ -536,8 +536,6 @@ async def next_call(rig: Rig, op: str, second: bool = True) -> None:
 # --------------------------------------------------------------------------------------
 # The cells and the failures known on today's code
 
-_RESTART = ("#37 failure 4: after a power cycle, in modes 2 and 4, the call after the one "
-            "that met it fails")
 
 _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's reply is "
                  "due is taken for it; whether the link's timing can show it is open")
@@ -545,17 +543,12 @@ _EXTRA_NUMBER = ("#37, timing as evidence: an extra number line where a read's r
 #: Cells that fail on today's code, by (mode, fault, op, transport), with the failure of
 #: issue #37 that makes them fail (checked on every run of the cell: ``strict``).
 KNOWN: dict[tuple[int, str, str, str], str] = {
-    **{(mode, "cycle_moving", "speed", "sim"): _RESTART for mode in (2, 4)},
 }
 
-#: Cells over the pty that fail on some runs of today's code only (the timing of the
-#: restart against the calls, or of an extra line against the reads), or that a fix may
-#: leave failing: ``xfail`` without ``strict``.
+#: Cells over the pty that fail on some runs of today's code only (the timing of an
+#: extra line against the reads), or that a fix may leave failing: ``xfail`` without
+#: ``strict``.
 SOMETIMES: dict[tuple[int, str, str, str], str] = {
-    **{(mode, "cycle_moving", op, "pty"): _RESTART
-       for mode in (2, 4) for op in ("reads", "set", "move", "upload")},
-    **{(mode, "cycle_idle", op, "pty"): _RESTART for mode in (2, 4)
-       for op in ("move", "upload")},
     # An extra number where a read's reply is due: the line's structure cannot tell it
     # from the reply; the link's timing may (in mode 4 replies shift as well).
     **{(mode, "extra", "reads", "pty"): _EXTRA_NUMBER for mode in (0, 3, 4)},

@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from helpers import settled_position
+from helpers import settled_position, wait_until
 
 import tango_aio
 from tango_aio import Controller, ControllerRestarted, MoveOutcomeUnknown, TangoError
@@ -127,3 +127,82 @@ async def test_a_power_cycle_ends_the_move_by_start_rule() -> None:
         await tango.move_by(x=STEP)
         assert await settled_position(fault) == pytest.approx(nudged + STEP, abs=1e-3)
         assert (await tango.position())["x"] == pytest.approx(nudged + STEP, abs=1e-3)
+
+
+#: The firmware variants of the next-call tests: the 1.71 manual's, and one whose
+#: ``?version`` line has the older edition's format (old L426), which the driver takes for
+#: the older instruction set: its stop is ``a`` for every axis (old L1907-1919).
+CYCLE_VARIANTS = ("profile=manual", "profile=manual&version_format=old")
+#: The reply timeout of the calls around the one that meets the restart (and of the
+#: restart check): generous, it only bounds a wait that should not happen.
+NEXT_TIMEOUT = 2.0
+#: Next-call cases of the default run (the rest run under slow), each of which failed
+#: before: the restart check waited behind a stop's ``a`` (the older instruction set's)
+#: whose acknowledgement or echo a unit back in mode 1 never sends, then released the
+#: held next call in the wrong mode; and a move that lost its report to the restart left
+#: it unnoticed, so the set after the next move went unanswered.
+DEFAULT_RUN = {("speed", "idle", CYCLE_VARIANTS[1]), ("move", "moving", CYCLE_VARIANTS[1])}
+
+
+def _next_call_cases() -> list[object]:
+    cases: list[object] = []
+    for mode in (2, 4):
+        for variant in CYCLE_VARIANTS:
+            for op in ("speed", "move"):
+                for when in ("idle", "moving"):
+                    marks = [] if (op, when, variant) in DEFAULT_RUN else [pytest.mark.slow]
+                    cases.append(pytest.param(mode, variant, op, when, marks=marks,
+                                              id=f"{mode}-{op}-{when}-{variant}"))
+    return cases
+
+
+async def _operation(tango: Controller, fault: Faults, op: str) -> None:
+    """``speed(z=2)`` (then stopped) or a ``move_by`` of X, checked on the emulator."""
+    if op == "speed":
+        await tango.speed(z=2.0)
+        assert fault.model.motion.is_moving("z")
+        await tango.speed(z=0.0)
+        await settled_position(fault, "z")
+    else:
+        before = await settled_position(fault)
+        await tango.move_by(x=STEP)
+        assert await settled_position(fault) == pytest.approx(before + STEP, abs=1e-3)
+
+
+@pytest.mark.parametrize(("mode", "variant", "op", "when"), _next_call_cases())
+async def test_the_call_after_the_one_that_met_a_power_cycle_works(
+        mode: int, variant: str, op: str, when: str) -> None:
+    """A power cycle while idle or while X moves, the operation sent while the unit is
+    off fails (typed), and the same operation right after it works: in modes 2 and 4 the
+    restart check must not wait for ever behind a stop's ``OK...`` or echo, which the unit
+    back in its power-on mode 1 (L2062) never sends, and then let the held lines out in
+    the wrong mode."""
+    async with tango_aio.connect(f"sim://?baud=0&{variant}", autostatus=mode,
+                                 reply_timeout=NEXT_TIMEOUT) as tango:
+        fault = faults(tango)
+        events = tango.events()
+        await tango.set("vel", x=2)  # a move of X lasts long enough to be caught moving
+        # The call that meets the restart gives up sooner than the restart check's
+        # read of the mode, which may still run when the next call starts.
+        tango.reply_timeout = tango.protocol.reply_timeout = 0.3
+        if when == "idle":
+            fault.power_cycle(0.2)
+            with pytest.raises(TangoError):
+                await _operation(tango, fault, op)
+        else:  # the power goes while X runs: the operation's own move, or one before it
+            running = asyncio.ensure_future(tango.move_to(x=3.0) if op == "speed"
+                                            else _operation(tango, fault, op))
+            await wait_until(lambda: fault.model.motion.is_moving("x"), timeout=30.0)
+            fault.power_cycle(0.2)
+            if op == "speed":
+                with pytest.raises(TangoError):
+                    await _operation(tango, fault, op)
+            with pytest.raises(TangoError):
+                await running
+        await settled_position(fault)
+        await settled_position(fault, "z")
+        tango.reply_timeout = tango.protocol.reply_timeout = NEXT_TIMEOUT
+        await _operation(tango, fault, op)
+        await tango.set("vel", x=15)  # a set's acknowledgement: the mode is restored
+        await _restarted(events)
+        assert fault.model.autostatus == tango.autostatus == mode

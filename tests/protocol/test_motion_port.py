@@ -1,4 +1,4 @@
-""":class:`tango_aio.motion.Motion` through its five-intent port alone: a fake port, no
+""":class:`tango_aio.motion.Motion` through its six-intent port alone: a fake port, no
 link, no controller. Each test records the intents a move used, in order."""
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from typing import Any, cast
 import pytest
 from helpers import true_within_ticks
 
+from tango_aio.core import Completed
 from tango_aio.errors import (
     ControllerError,
     LimitSwitchActiveError,
@@ -27,7 +28,7 @@ from tango_aio.timing import Budget
 @dataclass(eq=False)
 class _Submission:
     command: Command
-    completion: None = None
+    completion: asyncio.Future[Any] | None = None
 
 
 @dataclass
@@ -47,10 +48,12 @@ class _Port:
     refusal: ControllerError | None = None
     calls: list[str] = field(default_factory=list)
     finished_events: list[MoveFinished] = field(default_factory=list)
+    #: The move's completion report, when the test gives it one (owed or come).
+    report: asyncio.Future[Any] | None = None
 
     def start(self, command: Command, batch: object | None) -> MoveHandle:
         self.calls.append(f"start {command.line}")
-        return cast(MoveHandle, _Handle(_Submission(command)))
+        return cast(MoveHandle, _Handle(_Submission(command, self.report)))
 
     async def accepted(self, sent: MoveHandle) -> ControllerError | None:
         self.calls.append("accepted")
@@ -67,6 +70,9 @@ class _Port:
     def finished(self, event: MoveFinished) -> None:
         self.calls.append("finished")
         self.finished_events.append(event)
+
+    def unreported(self) -> None:
+        self.calls.append("unreported")
 
 
 def _planner(targets: Mapping[str, float]) -> Any:
@@ -171,3 +177,17 @@ async def test_a_report_read_is_the_moves_confirmation() -> None:
     motion.reported()
     assert await task == {"x": "@"}
     assert port.calls == ["start !moa x 10", "accepted", "write x", "read", "finished"]
+
+
+@pytest.mark.parametrize("reported", [False, True])
+async def test_a_move_that_stopped_short_without_its_report_says_so(reported: bool) -> None:
+    """A restart loses the move and its report: a move found standing short with its
+    report still owed tells the port (which reads the mode), one whose report came not."""
+    port = _Port(reads=[({"x": "@"}, {"x": "0.000"})])
+    port.report = asyncio.get_running_loop().create_future()
+    if reported:
+        port.report.set_result(Completed(None, {"x": "@", "y": "@"}, "@@"))
+    motion = Motion(cast(MotionPort, port))
+    with pytest.raises(MoveError, match="X stopped short"):
+        await motion.run(parse("!moa x 10"), _planner({"x": 10.0}), True)
+    assert ("unreported" in port.calls) is not reported

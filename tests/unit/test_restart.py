@@ -23,6 +23,7 @@ from tango_aio.restart import (
     report_suggests_restart,
     settings_of,
     timeout_suggests_restart,
+    unreported_end_suggests_restart,
 )
 from tango_aio.timing import MoveTiming
 
@@ -73,3 +74,11 @@ def test_a_refused_move_is_no_unknown_outcome() -> None:
 def test_only_an_acknowledging_or_echoing_mode_takes_a_timeout_for_a_restart(
         mode: int) -> None:
     assert timeout_suggests_restart(mode) is (mode in (2, 4))
+
+
+@pytest.mark.parametrize("mode", range(5))
+def test_a_move_that_lost_its_report_suggests_a_restart_where_a_read_can_tell(
+        mode: int) -> None:
+    """Mode 0 sends no report; in mode 1, the power-on mode, the read cannot tell."""
+    assert unreported_end_suggests_restart(mode) is (mode in (2, 3, 4))
+

@@ -665,3 +665,10 @@ def test_a_mode_exchange_with_statusaxis_records_its_tail_and_one_without_does_n
     assert session.mode_read([STATUS_READ, "?autostatus", "?help"],
                              ["@@@-.", "2", "ERROR 0,no error"]) == 2
     assert session.detected["status_tail"] == "dot"
+
+
+@pytest.mark.parametrize("restore", [True, False])
+def test_only_a_restart_check_resyncs_behind_lines_left_unanswered(restore: bool) -> None:
+    """A restart check must not give up behind a stop's OK... that a unit back in mode 1
+    never sends (and so release the held lines in the wrong mode); a mode change does."""
+    assert LinkSession.barrier_overdue_resyncs(restore=restore) is restore
