@@ -344,7 +344,8 @@ class Controller:
         A link that echoes every byte sent (local echo of an adapter) is refused with a
         :class:`~tango_aio.errors.ConnectError` naming it, whatever mode the controller
         was left in: before mode 2 or 4 is kept or selected, one read runs in a mode that
-        answers a read with its data alone (:meth:`_check_local_echo`).
+        answers a read with its data alone (:meth:`_check_local_echo`). A reply out of step
+        (a controller still answering an earlier program's lines) starts it over once.
 
         Parameters
         ----------
@@ -357,32 +358,46 @@ class Controller:
         ------
         ConnectError
             A step failed on a link that echoes every byte back (local echo).
+        ProtocolError
+            A reply was out of step twice.
         TangoError
             A step failed (no answer, a garbled reply, an error the controller reported).
         """
         self._forget_power_state()
         try:
-            await self._protocol.resync(timeout=self.reply_timeout)
-            current = await self._protocol.read_autostatus(timeout=self.reply_timeout,
-                                                           status=True)
-            # A unit whose ?statusaxis ends like a completion report (@@@-.) is read
-            # axis by axis ('sa x' answers its letter alone, L2725).
-            self._letters_by_axis = \
-                self._protocol.detected.get("status_tail") == "dot"
-            wanted = current if autostatus is None else autostatus
-            if wanted in _ECHO_BLIND:
-                current = await self._check_local_echo(current)
-            if wanted != current:
-                await self.command(f"!autostatus {wanted}")
-            if identify:
-                self._identity = await self.identify()
-            await self.refresh_settings()
+            try:
+                await self._come_into_step(autostatus, identify)
+            except ProtocolError:
+                if self._protocol.core.local_echo:
+                    raise
+                # A controller still answering an earlier program's lines, one of which
+                # came late (a quiet gap longer than the resync's): in step again, once.
+                log.debug("connect: a reply out of step; resynchronising once more")
+                await self._come_into_step(autostatus, identify)
         except TangoError as exc:
             if self._protocol.core.local_echo:
                 raise ConnectError(LOCAL_ECHO) from exc
             raise
         if self._reconnector is not None:
             self._reconnector.arm()
+
+    async def _come_into_step(self, autostatus: int | None, identify: bool) -> None:
+        """Resync, read the mode in force, select ``autostatus``, identify, read settings."""
+        await self._protocol.resync(timeout=self.reply_timeout)
+        current = await self._protocol.read_autostatus(timeout=self.reply_timeout,
+                                                       status=True)
+        # A unit whose ?statusaxis ends like a completion report (@@@-.) is read
+        # axis by axis ('sa x' answers its letter alone, L2725).
+        self._letters_by_axis = \
+            self._protocol.detected.get("status_tail") == "dot"
+        wanted = current if autostatus is None else autostatus
+        if wanted in _ECHO_BLIND:
+            current = await self._check_local_echo(current)
+        if wanted != current:
+            await self.command(f"!autostatus {wanted}")
+        if identify:
+            self._identity = await self.identify()
+        await self.refresh_settings()
 
     async def _check_local_echo(self, current: int) -> int:
         """Before autostatus 2 or 4 is kept or selected (:data:`_ECHO_BLIND`): one read in
