@@ -10,7 +10,7 @@ real link. Side by side, in one run:
 * ``?pos``: ``await tango.position()`` against a raw asyncio protocol that writes
   ``?pos\\r`` and resolves a future on the reply line;
 * a checked set: ``await tango.set("vel", x=...)`` (the line, its ``?err`` probe and
-  the read-back that proves it, see ``tango_aio.readback``) against the raw client
+  the read-back that proves it, see ``tango_aio.sansio._readback``) against the raw client
   writing ``!vel x v\\r?err\\r?vel x\\r`` and waiting for the ``0`` and the value;
 * a move: ``await tango.move_to(x=...)``, whose completion report the transport delivers
   2 ms after the move line (and puts the axes at the target, where the driver's
@@ -35,8 +35,8 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
-from tango_aio.controller import Controller
-from tango_aio.protocol import TangoProtocol
+from tango_aio.controller._controller import Controller
+from tango_aio.link._protocol import TangoProtocol
 from tango_aio.sim.model import ControllerModel, SimConfig
 
 try:  # python -m benchmarks / python benchmarks/canned.py
@@ -68,7 +68,7 @@ class CannedTransport(asyncio.Transport):
         self.recording = True
         self.memory: dict[bytes, bytes] = {}
         #: The last set line of each instruction: a read is remembered with it, so that
-        #: the read-back behind a set (tango_aio.readback) replays what that set wrote.
+        #: the read-back behind a set (tango_aio.sansio._readback) replays what that set wrote.
         self.held: dict[bytes, bytes] = {}
         self.reports: tuple[bytes, ...] = ()
         self.delivered_at = 0.0
@@ -121,7 +121,7 @@ class CannedTransport(asyncio.Transport):
 
     def _arrive(self, line: bytes) -> None:
         """Put the emulator's axes at the move's target at once (``!moa`` becomes ``!pos``),
-        so that the driver's confirmation of the move (``?pos``, see ``tango_aio.motion``)
+        so that the driver's confirmation of the move (``?pos``, see ``controller/_motion.py``)
         finds them there (outside the timed part of a replayed move: the reply is read
         here, before the report is due)."""
         self.model.handle_line(line.replace(b"moa", b"pos", 1), time.monotonic())
@@ -150,7 +150,7 @@ class CannedTransport(asyncio.Transport):
 async def canned_driver(separators: bool = True) -> tuple[Controller, CannedTransport]:
     """A :class:`Controller` set up (autostatus 1) over a fresh :class:`CannedTransport`,
     built the way ``tango_aio.connect`` builds it (``separators``: see
-    :mod:`tango_aio.patterns`)."""
+    :mod:`tango_aio.sansio._patterns`)."""
     protocol = TangoProtocol(separators=separators)
     transport = CannedTransport(protocol)
     protocol.connection_made(transport)

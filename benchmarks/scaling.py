@@ -56,8 +56,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 
 import tango_aio
-from tango_aio.flow import DEFAULT_CHUNK
-from tango_aio.instructions import build
+from tango_aio.catalog._instructions import build
+from tango_aio.sansio._flow import DEFAULT_CHUNK
 
 BAUD = 57600
 BITS_PER_BYTE = 11

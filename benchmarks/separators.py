@@ -29,7 +29,7 @@ import time
 from collections.abc import Awaitable, Callable
 
 import tango_aio
-from tango_aio.controller import Controller
+from tango_aio.controller._controller import Controller
 
 WIRE = "sim://?baud=57600&latency=0.002&processing=0.0005"
 INSTANT = "sim://?baud=0"

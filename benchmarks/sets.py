@@ -1,7 +1,7 @@
 """Cost of a proven set (issue 37: every set is proven), measured beside today's set.
 
 In autostatus 0, 1 and 3 a set line owes no answer of its own, so ``set`` writes the read
-of the setting behind its ``?err`` probe (``tango_aio.readback``) and compares the reply:
+of the setting behind its ``?err`` probe (``tango_aio.sansio._readback``) and compares the reply:
 ``!vel x v``, ``?err``, a separator where the scheduler needs one, ``?vel x``, all in one
 write and one round trip. Today's set is the same driver with the read-back left out (the
 line and its ``?err`` alone: a lost line returned as a success). Both run interleaved, in
@@ -38,7 +38,7 @@ INSTANT = "sim://?baud=0"
 async def _time(url: str, mode: int, proven: bool, calls: int) -> tuple[float, float, float]:
     """Wall seconds, CPU seconds and controller lines per set, for ``calls`` sets."""
     # Today's set: the same driver with no read-back behind the ?err probe.
-    today = mock.patch("tango_aio.protocol.read_back", lambda command, context: None)
+    today = mock.patch("tango_aio.link._protocol.read_back", lambda command, context: None)
     async with tango_aio.connect(url, autostatus=mode) as tango:
         wire = faults(tango).wire
         with contextlib.nullcontext() if proven else today:

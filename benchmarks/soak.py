@@ -40,9 +40,9 @@ from pathlib import Path
 from typing import Any
 
 import tango_aio
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import TangoError
-from tango_aio.instructions import parse
 from tango_aio.sim.wire import flip_one_bit
 from tango_aio.testing import faults
 

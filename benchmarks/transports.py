@@ -1,5 +1,6 @@
 """Request latency through the two serial transports: the POSIX descriptor transport
-(:mod:`tango_aio.fdlink`) and the Windows thread transport (:mod:`tango_aio.threadlink`),
+(``transports/_fdlink.py``) and the Windows thread transport
+(``transports/_threadlink.py``),
 side by side on the same pty (issue #27: "made for them and measured").
 
 The emulator runs in a process of its own (``tango-aio sim --pty``), so that its CPU is not
@@ -24,7 +25,7 @@ import time
 from dataclasses import dataclass, field
 
 import tango_aio
-import tango_aio.connection as connection
+import tango_aio.controller._connection as connection
 
 try:
     from benchmarks.moves import emulator_pty

@@ -43,8 +43,8 @@ autosummary_generate = True
 autosummary_imported_members = False
 autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython"]
 # "ignore-module-all": a module's page documents what the module defines, not what it
-# re-exports (tango_aio.sim re-exports tango_aio.sim.model's classes, tango_aio.instructions
-# tango_aio.schema's): an object documented twice gets its source page's back-link
+# re-exports (tango_aio.sim re-exports tango_aio.sim.model's classes, tango_aio.catalog._instructions
+# tango_aio.catalog._schema's): an object documented twice gets its source page's back-link
 # pointed at the wrong page (broken anchors, tools/check_links.py).
 autodoc_default_options = {"members": True, "show-inheritance": True,
                            "ignore-module-all": True}
@@ -81,9 +81,9 @@ def _public_modules() -> list[str]:
 #: The modules a program uses (imports, or gets objects of); every other module is one of
 #: the driver's inner layers and is listed apart, under "Internals".
 PUBLIC_API = [
-    "tango_aio.connection", "tango_aio.controller", "tango_aio.sync", "tango_aio.errors",
-    "tango_aio.events", "tango_aio.status", "tango_aio.units", "tango_aio.group",
-    "tango_aio.discovery", "tango_aio.bulk", "tango_aio.reconnect", "tango_aio.instructions",
+    "tango_aio.controller._connection", "tango_aio.controller._controller", "tango_aio.sync", "tango_aio.errors",
+    "tango_aio.events", "tango_aio.status", "tango_aio.units", "tango_aio.group._group",
+    "tango_aio.group._discovery", "tango_aio.families._bulk", "tango_aio.link._reconnect", "tango_aio.catalog._instructions",
     "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.sim",
     "tango_aio.sim.inprocess", "tango_aio.sim.serve", "tango_aio.sim.model",
     "tango_aio.sim.profiles", "tango_aio.sim.wire",

@@ -31,13 +31,13 @@ if getattr(sys, "argv", None) and \
     _startup.install()
 
 if TYPE_CHECKING:
-    from .connection import (
+    from .controller import (
         Connecting,
         ConnectOptions,
+        Controller,
+        Identity,
         connect,
     )
-    from .controller import Controller, Identity
-    from .discovery import DiscoveredController, PortProbe, discover, probe_ports
     from .errors import (
         AmplifiersDisabledError,
         Aux24VOverloadError,
@@ -124,11 +124,15 @@ if TYPE_CHECKING:
     )
     from .group import (
         ControllerGroup,
+        DiscoveredController,
         GroupError,
         GroupEvent,
         GroupSubscription,
+        PortProbe,
+        discover,
+        probe_ports,
     )
-    from .reconnect import ReconnectPolicy
+    from .link import ReconnectPolicy
     from .status import AxisStatus
 
 __all__ = [
@@ -231,8 +235,7 @@ __all__ = [
 
 #: The modules that define the names of ``__all__``, searched in this order (each module's
 #: own ``__all__`` says what it exports).
-_HOMES = ("errors", "events", "status", "reconnect", "bulk", "connection", "controller",
-          "group", "discovery")
+_HOMES = ("errors", "events", "status", "link", "families", "controller", "group")
 
 __version__ = "0.5.0"
 

@@ -11,8 +11,8 @@ import urllib.parse
 from collections.abc import Callable
 from typing import TypeVar
 
-from .connection import check_url
-from .schema import AXES
+from .catalog import AXES
+from .controller import check_url
 
 _T = TypeVar("_T")
 

@@ -26,7 +26,7 @@ who failed:
   the next step in its message: :class:`PortNotFoundError`, :class:`PortPermissionError`,
   :class:`PortBusyError`, :class:`NoControllerError`.
 * The errors of one surface, each defined here and re-exported by its module:
-  :class:`UploadError` (list uploads, :mod:`tango_aio.bulk`), :class:`ProbeError`
+  :class:`UploadError` (list uploads, :mod:`tango_aio.families._bulk`), :class:`ProbeError`
   (``tango-aio probe``), :class:`MotorRefusedError` and :class:`MoveStoppedError` (the
   EPICS IOC), :class:`StageLimitsError` and :class:`MissingAxisError` (the Bluesky
   devices).
@@ -199,7 +199,7 @@ class ControllerTimeoutError(TangoError, TimeoutError):
 
 class WrongEventLoopError(TangoError, RuntimeError):
     """A connection was used from another event loop than the one it was opened on
-    (re-exported by :mod:`tango_aio.protocol`)."""
+    (re-exported by :mod:`tango_aio.link._protocol`)."""
 
 
 class ConnectError(TangoError):
@@ -342,7 +342,7 @@ class SettingNotAppliedError(TangoError):
     (the line was lost on the way, or the controller clamped or rounded the value).
 
     Raised in the autostatus modes whose set lines owe no answer of their own (0, 1 and
-    3), where only a read-back proves a set (:mod:`tango_aio.readback`).
+    3), where only a read-back proves a set (:mod:`tango_aio.sansio._readback`).
 
     Parameters
     ----------
@@ -415,7 +415,7 @@ class UploadError(TangoError):
 class ProbeError(TangoError):
     """The probe could not go on (the controller stopped answering, or it answered in a
     way the probe cannot follow). Its text says what it saw; ``trace`` is the wire trace
-    up to there (filled in by :func:`~tango_aio.probe.probe`)."""
+    up to there (filled in by :func:`~tango_aio.fieldkit.probe`)."""
 
     trace: str = ""
 
@@ -523,7 +523,7 @@ class InternalControllerError(ControllerError):
     """The controller is in a persistent internal error state (``number`` >= 20, e.g.
     29 amplifiers off) that ``?err`` reports although the last instruction was fine
     (manual L2853-2867). It is not the fault of any command (``command`` is ``None``);
-    raised by :meth:`Controller.check_fault <tango_aio.controller.Controller.check_fault>`
+    raised by :meth:`Controller.check_fault <tango_aio.Controller.check_fault>`
     and announced by the :class:`~tango_aio.events.ControllerFault` event.
 
     ``InternalControllerError(29)`` builds an instance that is also of the number's own

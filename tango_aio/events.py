@@ -58,7 +58,7 @@ class MoveFinished:
 @dataclass(frozen=True, slots=True)
 class MoveAborted:
     """Axes were stopped by an abort (``a`` or Ctrl+C), or by :meth:`Controller.stop
-    <tango_aio.controller.Controller.stop>` of some axes (``a x``)."""
+    <tango_aio.Controller.stop>` of some axes (``a x``)."""
 
     ctrl_c: bool
     #: The axes stopped (``()``: every axis).

@@ -8,7 +8,7 @@ consumer drain what is buffered and then stops the iteration; :meth:`close` stop
 once and discards the buffer.
 
 Both :class:`tango_aio.events.Subscription` (one controller's events) and
-:class:`tango_aio.group.GroupSubscription` (a group's merged events) are such streams;
+:class:`tango_aio.GroupSubscription` (a group's merged events) are such streams;
 they add only where their items come from.
 """
 

@@ -36,8 +36,8 @@ motion settings; ``real`` - 57600 Bd pacing and the controller's own settings.
     faults.axes()["x"]      # (position, velocity): where the emulated X axis really is
 
 :func:`replay` plays a recorded wire trace back (a session on a real unit, recorded with
-:func:`tango_aio.trace.record_trace` or ``tango-aio probe --trace``) and checks that the
-driver writes the same lines: see :mod:`tango_aio.replay`.
+:func:`tango_aio.fieldkit.record_trace` or ``tango-aio probe --trace``) and checks that the
+driver writes the same lines: see :mod:`tango_aio.fieldkit._replay`.
 """
 
 from __future__ import annotations
@@ -51,9 +51,8 @@ from typing import Any, Literal
 
 import pytest
 
-from .connection import connect
-from .controller import Controller
-from .replay import Replay, ReplayMismatch, replay
+from .controller import Controller, connect
+from .fieldkit import Replay, ReplayMismatch, replay
 from .sim.model import ControllerModel
 from .sim.wire import Garbler, Wire, flip_one_bit
 from .sync import Controller as SyncController

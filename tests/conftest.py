@@ -17,9 +17,9 @@ from helpers import INSTANT, ConnectOptions, Emulated, EmulatorFactory, FakeLink
 from hypothesis import settings
 
 import tango_aio
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
-from tango_aio.protocol import TangoProtocol
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
+from tango_aio.link._protocol import TangoProtocol
 
 # Bytecode caches on, whatever PYTHONDONTWRITEBYTECODE says: without them every xdist
 # worker and each of the ~100 subprocesses (CLI, examples, docs) compiles the package and

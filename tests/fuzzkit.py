@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import random
 
-from tango_aio.core import ProtocolCore
-from tango_aio.instructions import Context
-from tango_aio.patterns import ReplyKind, ReplyPattern
+from tango_aio.catalog._instructions import Context
+from tango_aio.sansio._core import ProtocolCore
+from tango_aio.sansio._patterns import ReplyKind, ReplyPattern
 
 #: Requests covering every routing path: reads, multi-line reads (terminator, count,
 #: continuation + follow-up), sets, moves, ``save``, mode switches and a list entry.

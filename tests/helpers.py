@@ -23,12 +23,12 @@ from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack, cast
 import pytest
 
 from tango_aio._platform import WINDOWS as WINDOWS
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
-from tango_aio.core import Event
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import ConnectionLostError
 from tango_aio.events import Subscription, TangoEvent
-from tango_aio.protocol import Submission, TangoProtocol
+from tango_aio.link._protocol import Submission, TangoProtocol
+from tango_aio.sansio._core import Event
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.motion import AxisConfig, MotionConfig
 from tango_aio.sim.wire import Emit, Wire

@@ -4,7 +4,7 @@
 :data:`tango_aio.sim.profiles.PROFILES` (with moves and ``!save``, as a lab would run
 ``tango-aio probe URL --moves --save``) and writes ``<profile>.json``. The files are the
 examples of the docs page "Help us support your controller"; ``tests/e2e/test_firmware_probe.py``
-checks that they are current (:func:`tango_aio.probe.comparable`).
+checks that they are current (:func:`tango_aio.fieldkit.comparable`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import asyncio
 import urllib.parse
 from pathlib import Path
 
-from tango_aio.probe import ProbeOptions, ProbeResult, probe, write_fingerprint
+from tango_aio.fieldkit._probe import ProbeOptions, ProbeResult, probe, write_fingerprint
 from tango_aio.sim.profiles import PROFILES
 
 #: Where the example fingerprints live.

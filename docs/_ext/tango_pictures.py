@@ -61,7 +61,7 @@ def label_replies(lines: list[WireLine]) -> list[WireLine]:
     """Join each received line to what it is: a completion report, or the reply to the
     oldest read still unanswered (a read, ``?...`` or ``sa``, gets exactly one reply
     line)."""
-    from tango_aio.core import is_completion_line
+    from tango_aio.sansio._core import is_completion_line
 
     waiting: list[str] = []
     for line in lines:

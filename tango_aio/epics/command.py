@@ -24,8 +24,7 @@ from typing import Any
 
 from .._argtypes import UsageError
 from .._platform import signal_calls
-from ..connection import connect
-from ..controller import Controller
+from ..controller import Controller, connect
 from ..errors import TangoError
 from .access import AccessPolicy
 

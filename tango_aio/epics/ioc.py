@@ -3,7 +3,7 @@
 For each controller (prefix ``P:``, or ``P:name:`` with several controllers):
 
 * ``P:X`` ... ``P:A``: a motor record per present axis (see :mod:`.record` for units).
-  A put to VAL starts the move (through a :class:`~tango_aio.coalesce.MoveCoalescer`,
+  A put to VAL starts the move (through a :class:`~tango_aio.group._coalesce.MoveCoalescer`,
   so puts to different axes that arrive together become one ``!moa`` line); a put with
   callback completes when the move has ended and the final RBV, MOVN=0 and DMOV=1 are on
   the wire to every client (:mod:`.flush`). A move that ends anywhere but at its target
@@ -79,7 +79,7 @@ from caproto.server.server import (
     PvpropertyShort,
 )
 
-from ..coalesce import MoveCoalescer
+from ..catalog import AXES, lookup, upper_bound
 from ..controller import Controller
 from ..errors import (
     ConnectionLostError,
@@ -89,7 +89,7 @@ from ..errors import (
     MoveStoppedError,
     TangoError,
 )
-from ..instructions import AXES, lookup, upper_bound
+from ..group import MoveCoalescer
 from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
 from ..units import DEFAULT_USTEPS
 from .access import AccessPolicy
@@ -669,7 +669,7 @@ class AxisServer:
 
         The put announces itself to the coalescer as it starts, so a merged move being
         collected waits for it (puts to other axes that arrive together join one line)
-        and a lone put waits for no time at all (see :mod:`tango_aio.coalesce`).
+        and a lone put waits for no time at all (see :mod:`tango_aio.group._coalesce`).
 
         Parameters
         ----------
@@ -1738,7 +1738,7 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
         How puts to different axes become one ``!moa`` line: ``"turn"`` merges
         the puts that arrive together (announced as they start, no fixed wait),
         ``"window"`` makes every put wait ``window`` seconds for others
-        (:class:`~tango_aio.coalesce.MoveCoalescer`'s ``collect``).
+        (:class:`~tango_aio.group._coalesce.MoveCoalescer`'s ``collect``).
     autosave
         The autosave file; ``None`` for none.
     waiting

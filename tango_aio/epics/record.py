@@ -29,9 +29,9 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import NamedTuple
 
-from ..instructions import AXES
+from ..catalog import AXES
+from ..moves import position_tolerance
 from ..status import CALIBRATED_FLAG
-from ..timing import position_tolerance
 from ..units import DEFAULT_USTEPS, DIM_MM, DIM_UNITS, UnitScale
 
 __all__ = [

@@ -3,7 +3,7 @@
 The main names are importable from here (``from tango_aio.sim import serve_tcp``); each is
 imported from its module on first use, so importing ``tango_aio.sim`` (or one of its
 modules) loads nothing else. The emulator imports nothing of the driver's rules
-(``tango_aio.core``, ``protocol``, ``patterns``, ``controller``).
+(``tango_aio.sansio._core``, ``protocol``, ``patterns``, ``controller``).
 """
 
 from __future__ import annotations

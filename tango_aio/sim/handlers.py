@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from ..catalog import Command
 from ..errors import ERROR_DESCRIPTIONS
-from ..instructions import Command
 from .lists import MAX_TRIGGERS, ListError
 from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
 from .params import format_value

@@ -22,7 +22,7 @@ import itertools
 from dataclasses import dataclass, field
 from typing import TypeVar
 
-from ..instructions import MAX_SNAPSHOTS, MAX_TRIGGERS
+from ..catalog import MAX_SNAPSHOTS, MAX_TRIGGERS
 
 __all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "TriggerList"]
 

@@ -6,7 +6,7 @@ sans-IO and time comes from the wire, so it runs in virtual time in tests and in
 time in the servers.
 
 How it answers. These are the emulator's own reading of the manual; it never asks the
-driver (nothing of ``tango_aio.core``, ``protocol``, ``patterns`` or ``controller`` is
+driver (nothing of ``tango_aio.sansio._core``, ``protocol``, ``patterns`` or ``controller`` is
 imported). Where the manual is silent, the choice is a switch of
 :class:`~tango_aio.sim.profiles.Firmware` (``SimConfig.firmware``); the ``manual`` profile's
 choice is named first below:
@@ -19,7 +19,7 @@ choice is named first below:
   (``ack_mode_change``), reads never (``ack_reads``);
 * ``save`` answers in every mode (L2081), completion reports follow the mode in force when
   the move ends;
-* every line is parsed by :func:`tango_aio.instructions.parse`; a line the catalog rejects
+* every line is parsed by :func:`tango_aio.catalog._instructions.parse`; a line the catalog rejects
   sets the error number the catalog names (1-7) and executes nothing;
 * each executed instruction overwrites the error state (manual L2853), except the reads
   ``?err``, ``?status`` and ``help`` themselves;
@@ -52,8 +52,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 
-from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
-from ..instructions import (
+from ..catalog import (
     AXES,
     INSTRUCTIONS,
     Command,
@@ -63,6 +62,7 @@ from ..instructions import (
     Shape,
     parse,
 )
+from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
 from .clock import host_now
 from .handlers import build_handlers
 from .lists import ListError, SnapshotList, TriggerList

@@ -7,7 +7,7 @@ with ``resolution`` digits). Instructions with behaviour (moves, lists, identity
 handled by :mod:`tango_aio.sim.model` and only use this store for their plain settings.
 
 The facts come from the manual's catalog (power-on values, reply digits, position-valued
-replies: :class:`~tango_aio.schema.Instruction`); the emulator reads the catalog, never
+replies: :class:`~tango_aio.catalog._schema.Instruction`); the emulator reads the catalog, never
 the driver's rules.
 """
 
@@ -16,14 +16,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final
 
-from ..instructions import AXES, INSTRUCTIONS, AxisRule, Command, Kind, Param, Signature
+from ..catalog import AXES, INSTRUCTIONS, AxisRule, Command, Kind, Param, Signature
 
 __all__ = ["INDEXED", "ParamStore", "format_value"]
 
 Value = float | int | str
 
 #: Settings written as ``index value`` (``!joyspeed 2 25``): their power-on value per
-#: index, from the catalog (:attr:`~tango_aio.schema.Instruction.indexed`).
+#: index, from the catalog (:attr:`~tango_aio.catalog._schema.Instruction.indexed`).
 INDEXED: Final[dict[str, tuple[Value, ...]]] = {
     name: entry.indexed for name, entry in INSTRUCTIONS.items() if entry.indexed
 }

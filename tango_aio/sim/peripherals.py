@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 
-from ..instructions import AXES, Command
+from ..catalog import AXES, Command
 from .params import INDEXED, format_value, position_digits
 from .port import ModelPort
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol
 
-from ..instructions import Command
+from ..catalog import Command
 from .lists import SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel
 from .params import ParamStore

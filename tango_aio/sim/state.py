@@ -38,7 +38,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from ..instructions import AXES
+from ..catalog import AXES
 from .params import ParamStore, Value
 
 __all__ = ["FORMAT", "MAX_SIZE", "VERSION", "StateFileError", "load_state", "save_state"]

@@ -12,8 +12,8 @@ import pytest
 from helpers import EmulatorFactory
 
 from tango_aio import InvalidCommandError, TangoError
-from tango_aio.bulk import Column, UploadError, trigger_spec
-from tango_aio.instructions import Command, parse
+from tango_aio.catalog._instructions import Command, parse
+from tango_aio.families._bulk import Column, UploadError, trigger_spec
 from tango_aio.sim.lists import ListError
 
 REALTIME = "sim://?baud=57600&latency=0.002&processing=0.0005"

@@ -23,7 +23,8 @@ from aswindows import environment as as_windows_environment
 from helpers import WINDOWS, PtySim, posix_only
 
 import tango_aio
-from tango_aio.cli import (
+from tango_aio.catalog._instructions import parse
+from tango_aio.cli._main import (
     PTY_NEEDS_POSIX,
     Shell,
     _parser,
@@ -39,7 +40,6 @@ from tango_aio.cli import (
 )
 from tango_aio.errors import MoveError
 from tango_aio.events import ConnectionLost, MoveAborted, MoveFinished, UnsolicitedLine
-from tango_aio.instructions import parse
 
 CLI = [sys.executable, "-m", "tango_aio"]
 
@@ -177,7 +177,7 @@ class Terminal:
         # A session leader that makes the pty its controlling terminal, so that Ctrl+C
         # typed in cooked mode raises SIGINT as in a real terminal.
         code = ("import fcntl, sys, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); "
-                "from tango_aio.cli import main; sys.exit(main(sys.argv[1:]))")
+                "from tango_aio.cli._main import main; sys.exit(main(sys.argv[1:]))")
         self.proc = subprocess.Popen([sys.executable, "-c", code, *args], stdin=slave,
                                      stdout=slave, stderr=slave, start_new_session=True,
                                      env={**os.environ, **env})

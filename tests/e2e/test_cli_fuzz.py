@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tango_aio.cli import main
+from tango_aio.cli._main import main
 
 SIM = "sim://?baud=0"
 
@@ -143,7 +143,7 @@ def test_many_random_command_lines(seed: int, tmp_path: Path,
 
 #: Runs the CLI after its imports, and says so on stderr: Ctrl+C before that point hits
 #: Python's own start-up (importing the package), which no program code can intercept.
-_HARNESS = ("import sys; from tango_aio.cli import main; "
+_HARNESS = ("import sys; from tango_aio.cli._main import main; "
             "print('ready', file=sys.stderr, flush=True); sys.exit(main(sys.argv[1:]))")
 
 #: Commands that run for a while on the emulator, so that SIGINT lands inside them.
@@ -194,7 +194,7 @@ def _interrupt_at_random(rng: random.Random, positions: Path) -> None:
 #: the command line and its dependencies load.
 _EARLY = ("import sys; sys.argv[0] = '/usr/bin/tango-aio'; import tango_aio; "
           "print('start', file=sys.stderr, flush=True); "
-          "from tango_aio.cli import main; sys.exit(main(sys.argv[1:]))")
+          "from tango_aio.cli._main import main; sys.exit(main(sys.argv[1:]))")
 
 
 def _run_probe(probe: str) -> tuple[int, str, str]:
@@ -208,7 +208,7 @@ def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
     # The interrupt arrives, deterministically, right after the start-up guard is in place
     # and before the rest of the command line has been imported.
     probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
-             "os.kill(os.getpid(), signal.SIGINT); import tango_aio.cli; "
+             "os.kill(os.getpid(), signal.SIGINT); import tango_aio.cli._main; "
              "print('not interrupted')")
     assert _run_probe(probe) == (130, "", "interrupted\n")
 
@@ -216,18 +216,18 @@ def test_ctrl_c_while_the_command_line_loads_ends_quietly() -> None:
 def test_ctrl_c_after_the_command_line_loaded_but_before_main_ends_quietly() -> None:
     # The module's body (its class and function definitions, after the imports) is part
     # of start-up: seen under load, an interrupt there printed a traceback from a class
-    # statement of tango_aio.cli.
+    # statement of tango_aio.cli._main.
     probe = ("import os, signal, sys; import tango_aio._startup as s; s.install(); "
-             "import tango_aio.cli; "
+             "import tango_aio.cli._main; "
              "os.kill(os.getpid(), signal.SIGINT); print('not interrupted')")
     assert _run_probe(probe) == (130, "", "interrupted\n")
 
 
 def test_importing_the_command_line_leaves_ctrl_c_to_the_importer() -> None:
-    # A program (or a pytest worker) that imports tango_aio.cli without running the
+    # A program (or a pytest worker) that imports tango_aio.cli._main without running the
     # command keeps Python's KeyboardInterrupt: the quiet exit of start-up is only the
     # command's (it once ended a test worker that later pressed Ctrl+C on purpose).
-    probe = ("import os, signal, sys, time; import tango_aio.cli\n"
+    probe = ("import os, signal, sys, time; import tango_aio.cli._main\n"
              "try:\n    os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
              "except KeyboardInterrupt:\n    print('caught')")
     assert _run_probe(probe) == (0, "caught\n", "")
@@ -237,7 +237,7 @@ def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
     # Deterministically in the middle of building the event loop (seen under load at a
     # random moment: a half-built loop printed a traceback from its __del__).
     probe = ("import os, signal, sys; import asyncio.selector_events as se; "
-             "from tango_aio.cli import main; "
+             "from tango_aio.cli._main import main; "
              "original = se.BaseSelectorEventLoop._make_self_pipe\n"
              "def interrupted(self):\n"
              "    os.kill(os.getpid(), signal.SIGINT)\n"

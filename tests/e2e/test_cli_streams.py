@@ -15,7 +15,7 @@ import pytest
 
 from tango_aio._install import install_hint
 from tango_aio._platform import WINDOWS
-from tango_aio.cli import _parser, main
+from tango_aio.cli._main import _parser, main
 
 #: Nothing listens on TCP port 1 of the loopback: a connect fails at once, refused.
 REFUSED = "socket://127.0.0.1:1"
@@ -142,7 +142,7 @@ def test_an_echoing_adapter_is_one_error_line_and_nothing_else(
 
 
 def test_permission_advice_fits_the_kind_of_port() -> None:
-    from tango_aio.connection import port_error
+    from tango_aio.controller._connection import port_error
 
     denied = PermissionError(13, "Permission denied")
     pty = str(port_error("/dev/pts/3", denied))

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
 
-from tango_aio.coalesce import MoveCoalescer, _lines
 from tango_aio.errors import InvalidCommandError, MoveError, TangoError
+from tango_aio.group._coalesce import MoveCoalescer, _lines
 
 
 @pytest.fixture

@@ -18,12 +18,12 @@ from helpers import (
     wait_until,
 )
 
-from tango_aio.connection import connect
+from tango_aio.controller._connection import connect
 from tango_aio.errors import (
     ConnectionLostError,
     PortBusyError,
 )
-from tango_aio.protocol import TangoProtocol
+from tango_aio.link._protocol import TangoProtocol
 
 pytestmark = pytest.mark.timeout(30)
 

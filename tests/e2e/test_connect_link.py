@@ -16,7 +16,7 @@ from helpers import make_model, opened, serve_pty
 
 import tango_aio
 from tango_aio import ConnectionLostError, Controller
-from tango_aio.session import LinkSession
+from tango_aio.sansio._session import LinkSession
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import WireConfig
 

@@ -1,6 +1,6 @@
 """Connect works at every baud rate the TANGO offers and through slow links, on every
 firmware profile and into every autostatus mode (issue 32 item 5): every wait at connect
-scales with the link (:mod:`tango_aio.linktiming`), 0 failures, 0 misrouted replies.
+scales with the link (:mod:`tango_aio.sansio._linktiming`), 0 failures, 0 misrouted replies.
 
 The emulator paces both directions at its ``baud`` (8N2, 11 bits per byte) and adds its
 ``latency`` to every reply byte (:mod:`tango_aio.sim.wire`): a slow adapter or a terminal
@@ -12,7 +12,7 @@ from __future__ import annotations
 import pytest
 
 import tango_aio
-from tango_aio.linktiming import BITS_PER_BYTE, LinkTiming, quiet_interval
+from tango_aio.sansio._linktiming import BITS_PER_BYTE, LinkTiming, quiet_interval
 from tango_aio.sim.profiles import PROFILES
 
 pytestmark = pytest.mark.timeout(600)

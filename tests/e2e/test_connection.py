@@ -85,19 +85,20 @@ def test_connect_options_are_keywords() -> None:
 
 
 def test_every_error_event_group_and_upload_class_is_exported() -> None:
-    import tango_aio.bulk
-    import tango_aio.discovery
     import tango_aio.errors
     import tango_aio.events
-    import tango_aio.group
-    import tango_aio.reconnect
+    import tango_aio.families._bulk
+    import tango_aio.group._discovery
+    import tango_aio.group._group
+    import tango_aio.link._reconnect
 
-    for module in (tango_aio.errors, tango_aio.events, tango_aio.group, tango_aio.bulk,
-                   tango_aio.reconnect, tango_aio.discovery):
+    for module in (tango_aio.errors, tango_aio.events, tango_aio.group._group,
+                   tango_aio.families._bulk, tango_aio.link._reconnect,
+                   tango_aio.group._discovery):
         for name, value in vars(module).items():
             if (inspect.isclass(value) and value.__module__ == module.__name__
                     and not name.startswith("_")
-                    and (issubclass(value, BaseException) or module is not tango_aio.bulk)
+                    and (issubclass(value, BaseException) or module is not tango_aio.families._bulk)
                     and name not in ("EventHub", "Reconnect", "Reconnector", "ReconnectPort",
                                      "Stageable")):
                 assert name in tango_aio.__all__, f"{module.__name__}.{name}"

@@ -23,8 +23,8 @@ from helpers import (
     wire_of,
 )
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ConnectionLostError,
 )

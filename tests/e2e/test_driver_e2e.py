@@ -32,8 +32,8 @@ from helpers import (
     wait_until,
 )
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ConnectionLostError,
     InvalidCommandError,
@@ -42,10 +42,10 @@ from tango_aio.errors import (
     OutOfRangeError,
     RequestAbortedError,
 )
-from tango_aio.fdlink import FdTransport
 from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Wire
+from tango_aio.transports._fdlink import FdTransport
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -378,7 +378,7 @@ async def test_wire_logger_traces_lines_both_ways(emulator: EmulatorFactory,
              if r.name == "tango_aio.wire"]
     # Separators between look-alike requests (?help N, ERROR N,...) left out.
     lines = [line for line in lines if "help" not in line and "ERROR" not in line]
-    # The set's read-back (tango_aio.readback) follows its ?err in the same write.
+    # The set's read-back (tango_aio.sansio._readback) follows its ?err in the same write.
     assert lines == ["-> b'?vel'", "<- b'10.000 10.000 10.000'",
                      "-> b'!vel 10 5'", "-> b'?err'", "-> b'?vel'", "<- b'0'",
                      "<- b'10.000 5.000 10.000'"]

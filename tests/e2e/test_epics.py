@@ -32,8 +32,8 @@ from caproto import (
 from caproto.asyncio.client import Context as ClientContext
 from helpers import INSTANT, EmulatorFactory, make_model
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.epics.access import AccessPolicy
 from tango_aio.epics.ioc import TangoIoc, _start_motion, build_ioc
 from tango_aio.epics.record import Msta

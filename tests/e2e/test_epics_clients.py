@@ -30,8 +30,8 @@ if _MISSING:
 from helpers import INSTANT, Emulated, EmulatorFactory, wire_of  # noqa: E402
 from test_epics import ca_env, free_port  # noqa: E402, F401 - ca_env is a fixture
 
-from tango_aio.connection import connect  # noqa: E402
-from tango_aio.controller import Controller  # noqa: E402
+from tango_aio.controller._connection import connect  # noqa: E402
+from tango_aio.controller._controller import Controller  # noqa: E402
 from tango_aio.epics.ioc import TangoIoc, build_ioc  # noqa: E402
 from tango_aio.testing import faults  # noqa: E402
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tango_aio.cli import main
+from tango_aio.cli._main import main
 from tango_aio.epics.command import loopback_only, parse_controllers
 
 

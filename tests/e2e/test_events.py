@@ -136,7 +136,7 @@ async def test_subscribers_get_move_finished_with_letters(emulator: EmulatorFact
 async def test_mode3_move_finished_has_the_confirmed_letters(emulator: EmulatorFactory
                                                              ) -> None:
     # The bare CR of autostatus 3 carries no letters; the move is confirmed with
-    # ?statusaxis (tango_aio.motion), whose letters MoveFinished carries.
+    # ?statusaxis (tango_aio.controller._motion), whose letters MoveFinished carries.
     emu = await emulator(autostatus=3)
     async with emu.tango.events() as events:
         await emu.tango.move_to(x=0.01)

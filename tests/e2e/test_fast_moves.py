@@ -38,7 +38,7 @@ from test_matrix import (
 )
 
 from tango_aio.errors import MoveError, TangoError
-from tango_aio.protocol import TangoProtocol
+from tango_aio.link._protocol import TangoProtocol
 
 pytestmark = pytest.mark.timeout(180)
 

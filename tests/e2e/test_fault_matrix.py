@@ -72,10 +72,10 @@ from faultverdict import (
 )
 from helpers import as_axes, posix_only, serve_pty, wait_until
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import TangoError
-from tango_aio.instructions import parse
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, Firmware, variants
 from tango_aio.sim.wire import Wire, WireConfig, flip_one_bit

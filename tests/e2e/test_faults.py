@@ -46,8 +46,8 @@ from helpers import (
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.connection import connect
-from tango_aio.core import Completed, ProtocolCore, Replied, is_completion_line
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._connection import connect
 from tango_aio.errors import (
     ConnectionLostError,
     ControllerError,
@@ -57,8 +57,8 @@ from tango_aio.errors import (
     TangoError,
 )
 from tango_aio.events import UnsolicitedLine
-from tango_aio.instructions import parse
-from tango_aio.protocol import Response, Submission, TangoProtocol
+from tango_aio.link._protocol import Response, Submission, TangoProtocol
+from tango_aio.sansio._core import Completed, ProtocolCore, Replied, is_completion_line
 from tango_aio.sim.wire import flip_one_bit
 
 pytestmark = pytest.mark.timeout(300)

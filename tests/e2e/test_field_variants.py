@@ -14,7 +14,7 @@ from collections.abc import Callable
 import pytest
 from helpers import EmulatorFactory, serve_pty, wait_moving, wait_until
 
-from tango_aio.connection import connect
+from tango_aio.controller._connection import connect
 from tango_aio.errors import ConnectError, ControllerError, TangoError
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import Firmware

@@ -24,8 +24,8 @@ from typing import Any
 import pytest
 
 import tango_aio
-from tango_aio.instructions import lookup
-from tango_aio.probe import (
+from tango_aio.catalog._instructions import lookup
+from tango_aio.fieldkit._probe import (
     MOVE_SWITCHES,
     SAVE_SWITCHES,
     SWITCH_NAMES,
@@ -40,12 +40,12 @@ from tango_aio.probe import (
     probe,
     write_fingerprint,
 )
+from tango_aio.fieldkit._trace import parse_trace
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, SWITCHES, Firmware, variants
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import replay
-from tango_aio.trace import parse_trace
 
 pytestmark = pytest.mark.timeout(120)
 

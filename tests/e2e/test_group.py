@@ -19,10 +19,8 @@ import pytest
 from helpers import Emulated, posix_only, serve_pty, wait_until, wire_of
 
 import tango_aio
-import tango_aio.connection
-import tango_aio.group as group_module
-from tango_aio.controller import Controller
-from tango_aio.discovery import DiscoveredController, discover
+import tango_aio.group._group as group_module
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ConnectError,
     ConnectionLostError,
@@ -32,7 +30,8 @@ from tango_aio.errors import (
     TangoError,
 )
 from tango_aio.events import ConnectionLost, MoveAborted, MoveFinished
-from tango_aio.group import (
+from tango_aio.group._discovery import DiscoveredController, discover
+from tango_aio.group._group import (
     ControllerGroup,
     GroupError,
     GroupEvent,
@@ -80,7 +79,7 @@ def _under_way(group: ControllerGroup) -> bool:
     return faults(group["a"]).axes()["x"][0] > 0.01 and faults(group["b"]).axes()["y"][0] > 0.01
 
 
-async def next_events(events: tango_aio.group.GroupSubscription, count: int,
+async def next_events(events: tango_aio.GroupSubscription, count: int,
                       kind: type[Any] = object) -> list[GroupEvent]:
     """The next ``count`` events of type ``kind`` (others skipped), within 5 s."""
     seen: list[GroupEvent] = []
@@ -98,7 +97,7 @@ async def next_events(events: tango_aio.group.GroupSubscription, count: int,
 
 async def test_opens_four_controllers_concurrently(monkeypatch: pytest.MonkeyPatch) -> None:
     slow = "sim://?baud=0&latency=0.01"
-    real_connect = tango_aio.connection.connect
+    real_connect = tango_aio.connect
     opening = Counter[str]()
 
     async def counted(url: str, **options: Any) -> Controller:
@@ -172,7 +171,7 @@ async def test_not_open_and_unknown_names() -> None:
 def opened(monkeypatch: pytest.MonkeyPatch) -> list[Controller]:
     """Every controller the group's ``connect`` returns, in order (a spy on it)."""
     controllers: list[Controller] = []
-    real_connect = tango_aio.connection.connect
+    real_connect = tango_aio.connect
 
     async def spy(url: str, **options: Any) -> Controller:
         controller = await real_connect(url, **options)
@@ -203,7 +202,7 @@ async def test_failed_open_closes_the_others_and_names_the_failures(
 
 async def test_cancelled_open_closes_what_opened(monkeypatch: pytest.MonkeyPatch) -> None:
     opened: list[Controller] = []
-    real_connect = tango_aio.connection.connect
+    real_connect = tango_aio.connect
 
     async def spy(url: str, **options: Any) -> Controller:
         if "hang" in url:

@@ -13,13 +13,13 @@ from helpers import (
     make_model,
 )
 
-from tango_aio.cli import Shell
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import Command, build, build_axes, encode, parse
+from tango_aio.cli._main import Shell
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ControllerError,
     InvalidCommandError,
 )
-from tango_aio.instructions import Command, build, build_axes, encode, parse
 from tango_aio.sim.serve import serve_tcp
 
 pytestmark = pytest.mark.timeout(30)

@@ -13,10 +13,10 @@ from collections.abc import Sequence
 import pytest
 from helpers import Emulated, as_axes, serve_pty
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import TangoError
-from tango_aio.instructions import parse
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.wire import Emit
 

@@ -30,7 +30,8 @@ from typing import Any, TypeVar, Unpack
 import pytest
 from helpers import VELS, Axes, Emulated, EmulatorFactory
 
-from tango_aio.connection import connect
+from tango_aio.controller._connection import connect
+from tango_aio.controller._motion import STOP_WAIT
 from tango_aio.errors import (
     ConnectError,
     ControllerError,
@@ -39,7 +40,6 @@ from tango_aio.errors import (
     TangoError,
 )
 from tango_aio.events import ControllerFault, MoveFinished, Subscription, TangoEvent
-from tango_aio.motion import STOP_WAIT
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, variants
 from tango_aio.sim.serve import serve_tcp

@@ -12,7 +12,7 @@ import pytest
 from helpers import Emulated, EmulatorFactory, make_model, serve_pty, wait_until
 
 import tango_aio
-from tango_aio.controller import Controller
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import ProtocolError
 from tango_aio.sim.wire import Wire
 

@@ -14,8 +14,8 @@ import serial
 from helpers import make_model, posix_only, serve_pty
 
 import tango_aio
-from tango_aio.cli import main
-from tango_aio.discovery import PortProbe, discover, probe_ports
+from tango_aio.cli._main import main
+from tango_aio.group._discovery import PortProbe, discover, probe_ports
 
 
 @pytest.fixture
@@ -78,7 +78,7 @@ async def test_every_port_gets_a_result_in_a_few_words(silent: str, denied: str)
 
 async def test_discover_logs_why_a_port_could_not_be_probed(
         denied: str, caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level("INFO", "tango_aio.discovery")
+    caplog.set_level("INFO", "tango_aio.group._discovery")
     assert await discover(ports=[denied], timeout=0.2) == []
     assert f"{denied}: permission denied" in caplog.text
 

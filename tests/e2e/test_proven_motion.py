@@ -2,7 +2,7 @@
 
 In autostatus 0, 1 and 3 neither line owes an answer of its own, and the ``?err`` 0
 behind a lost line is what the line before it left (L2853-2867). The state read behind
-the line proves it (:func:`tango_aio.timing.acceptance`); else the call raises a
+the line proves it (:func:`tango_aio.moves._timing.acceptance`); else the call raises a
 :class:`~tango_aio.errors.MoveOutcomeUnknown` saying that the line may not have been
 applied and what still moves. Every outcome is checked against the emulator's state.
 """

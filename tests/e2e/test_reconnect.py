@@ -23,13 +23,13 @@ from helpers import (
     wait_until,
 )
 
-from tango_aio.connection import connect
+from tango_aio.controller._connection import connect
 from tango_aio.errors import (
     ConnectError,
     ConnectionLostError,
 )
 from tango_aio.events import ConnectionLost, Reconnected
-from tango_aio.reconnect import IdentityMismatchError, ReconnectPolicy
+from tango_aio.link._reconnect import IdentityMismatchError, ReconnectPolicy
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, WireConfig

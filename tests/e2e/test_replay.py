@@ -1,7 +1,7 @@
 """A recorded wire trace replays as a test (issue #32): :func:`tango_aio.testing.replay`
 plays the controller's side and checks that the driver writes the same lines; a trace
 edited to differ fails naming the first differing line. The trace format is the driver's
-wire log (:mod:`tango_aio.trace`)."""
+wire log (:mod:`tango_aio.fieldkit._trace`)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ import pytest
 
 import tango_aio
 from tango_aio.errors import TangoError
+from tango_aio.fieldkit._trace import format_record, parse_trace, read_trace, record_trace
 from tango_aio.testing import ReplayMismatch, replay
-from tango_aio.trace import format_record, parse_trace, read_trace, record_trace
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -95,7 +95,7 @@ def test_the_trace_format_is_the_wire_log(caplog: pytest.LogCaptureFixture) -> N
     assert not records[2].complete
     # The driver's own logger writes the same records.
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
-        from tango_aio.protocol import wire_log
+        from tango_aio.link._protocol import wire_log
 
         wire_log.debug("%.6f -> %s", 5.0, repr(b"?pos"))
     assert parse_trace(caplog.text)[-1].data == b"?pos"

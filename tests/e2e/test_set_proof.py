@@ -12,7 +12,7 @@ from helpers import INSTANT, EmulatorFactory
 
 import tango_aio.sync
 from tango_aio import SettingNotAppliedError
-from tango_aio.controller import Controller
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import ControllerError, ControllerTimeoutError
 from tango_aio.testing import Faults, faults
 

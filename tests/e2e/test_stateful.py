@@ -36,15 +36,15 @@ from hypothesis.stateful import (
     run_state_machine_as_test,
 )
 
-from tango_aio.connection import connect
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._connection import connect
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ControllerTimeoutError,
     MoveError,
     ProtocolError,
     RequestAbortedError,
 )
-from tango_aio.instructions import parse
 
 T = TypeVar("T")
 

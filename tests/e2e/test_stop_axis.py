@@ -11,7 +11,7 @@ from helpers import Emulated, EmulatorFactory, emulated_position, wait_moving
 import tango_aio.sync
 from tango_aio.errors import InvalidCommandError, MoveError
 from tango_aio.events import MoveAborted
-from tango_aio.group import ControllerGroup
+from tango_aio.group._group import ControllerGroup
 
 
 @pytest.fixture

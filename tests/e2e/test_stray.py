@@ -17,8 +17,8 @@ from collections.abc import Callable
 import pytest
 from helpers import VELS, Axes, EmulatorFactory, FakeLink
 
+from tango_aio.catalog._instructions import parse
 from tango_aio.errors import RequestAbortedError, TangoError
-from tango_aio.instructions import parse
 
 LinkFactory = Callable[..., FakeLink]
 

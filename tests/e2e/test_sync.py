@@ -21,8 +21,8 @@ from helpers import Emulated
 import tango_aio
 import tango_aio.sync
 from tango_aio import MoveError
-from tango_aio.controller import Controller as AsyncController
-from tango_aio.group import ControllerGroup as AsyncGroup
+from tango_aio.controller._controller import Controller as AsyncController
+from tango_aio.group._group import ControllerGroup as AsyncGroup
 from tango_aio.sim.motion import MotionModel
 
 INSTANT = "sim://?baud=0"

@@ -12,11 +12,11 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 
 import pytest
 
-from tango_aio.connection import _open_link
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller import _connection
 from tango_aio.errors import ControllerError
-from tango_aio.instructions import parse
-from tango_aio.protocol import TangoProtocol
-from tango_aio.reconnect import Closer
+from tango_aio.link._protocol import TangoProtocol
+from tango_aio.link._reconnect import Closer
 from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.wire import Wire
 
@@ -67,7 +67,7 @@ async def open_link() -> AsyncIterator[LinkOpener]:
 
     async def make(switches: str) -> Link:
         url = f"sim://?baud=0&{switches}" if switches else "sim://?baud=0"
-        protocol, closer = await _open_link(
+        protocol, closer = await _connection.open_link(
             url, lambda: TangoProtocol(detect=True, reply_timeout=5.0), {})
         link = Link(protocol, closer)
         opened.append(link)

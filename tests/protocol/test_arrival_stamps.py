@@ -1,6 +1,6 @@
 """The protocol stamps writes and arrivals with the loop's clock, and a line that started
 before its request could have been answered fails that request and resyncs (the core's
-timing rule, :func:`tango_aio.linktiming.earliest_reply`). The loop's clock is set by hand
+timing rule, :func:`tango_aio.sansio._linktiming.earliest_reply`). The loop's clock is set by hand
 here: the stamps are what the test controls, not the machine's speed."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from collections.abc import Callable
 import pytest
 from helpers import FakeLink
 
+from tango_aio.catalog._instructions import parse
 from tango_aio.errors import ProtocolError
-from tango_aio.instructions import parse
-from tango_aio.protocol import Submission
+from tango_aio.link._protocol import Submission
 
 LinkFactory = Callable[..., FakeLink]
 

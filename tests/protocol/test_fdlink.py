@@ -1,4 +1,4 @@
-"""Tier 2: :class:`tango_aio.fdlink.FdTransport` on a pseudo-terminal pair.
+"""Tier 2: :class:`tango_aio.transports._fdlink.FdTransport` on a pseudo-terminal pair.
 
 The transport's side of the pair stands for the serial port; the test reads and writes the
 other side as the controller would. A full kernel buffer, a close with bytes still
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import pytest
 from helpers import WINDOWS
 
-from tango_aio import portlink
-from tango_aio.fdlink import FdTransport
+from tango_aio.transports import _portlink as portlink
+from tango_aio.transports._fdlink import FdTransport
 
 pytestmark = pytest.mark.timeout(30)
 

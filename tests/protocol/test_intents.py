@@ -9,9 +9,9 @@ import pytest
 from helpers import INSTANT
 
 from tango_aio import connect
+from tango_aio.catalog._instructions import parse
 from tango_aio.errors import ControllerError, OutOfRangeError
-from tango_aio.instructions import parse
-from tango_aio.protocol import TangoProtocol
+from tango_aio.link._protocol import TangoProtocol
 
 pytestmark = pytest.mark.timeout(30)
 

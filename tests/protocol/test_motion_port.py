@@ -1,4 +1,4 @@
-""":class:`tango_aio.motion.Motion` through its six-intent port alone: a fake port, no
+""":class:`tango_aio.controller._motion.Motion` through its six-intent port alone: a fake port, no
 link, no controller. Each test records the intents a move used, in order."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from typing import Any, cast
 import pytest
 from helpers import true_within_ticks
 
-from tango_aio.core import Completed
+from tango_aio.catalog._instructions import Command, parse
+from tango_aio.controller._motion import Motion, MotionPort, MovePlan
 from tango_aio.errors import (
     ControllerError,
     LimitSwitchActiveError,
@@ -19,10 +20,9 @@ from tango_aio.errors import (
     MoveProtocolUnknownError,
 )
 from tango_aio.events import MoveFinished
-from tango_aio.instructions import Command, parse
-from tango_aio.motion import Motion, MotionPort, MovePlan
-from tango_aio.protocol import MoveHandle
-from tango_aio.timing import Budget
+from tango_aio.link._protocol import MoveHandle
+from tango_aio.moves._timing import Budget
+from tango_aio.sansio._core import Completed
 
 
 @dataclass(eq=False)

@@ -1,11 +1,11 @@
-"""The per-axis stop epoch of :class:`tango_aio.motion.Motion` (#26 item 3): a stop of
+"""The per-axis stop epoch of :class:`tango_aio.controller._motion.Motion` (#26 item 3): a stop of
 some axes counts against the moves of those axes only."""
 
 from __future__ import annotations
 
 from typing import cast
 
-from tango_aio.motion import Motion, MotionPort
+from tango_aio.controller._motion import Motion, MotionPort
 
 
 def test_a_one_axis_stop_counts_for_that_axis_only() -> None:

@@ -16,9 +16,9 @@ from typing import Any
 import pytest
 from helpers import FakeLink, done_within_ticks
 
-import tango_aio.protocol as protocol_module
-from tango_aio.controller import Controller
-from tango_aio.core import AckReads, Completed, Dropped, Unsolicited
+import tango_aio.link._protocol as protocol_module
+from tango_aio.catalog._instructions import parse
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     CommandRejectedError,
     ConnectionLostError,
@@ -30,8 +30,8 @@ from tango_aio.errors import (
     RequestAbortedError,
     UnknownControllerError,
 )
-from tango_aio.instructions import parse
-from tango_aio.protocol import Submission
+from tango_aio.link._protocol import Submission
+from tango_aio.sansio._core import AckReads, Completed, Dropped, Unsolicited
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -71,7 +71,7 @@ async def test_pipelined_replies_in_one_chunk_each_reach_their_request(
 async def test_look_alike_replies_are_never_in_flight_together(
         fake_link: LinkFactory) -> None:
     """``?vel x`` and ``?vel y`` both answer one number: the second is written only when
-    the first has its reply, so a lost reply can never shift them (tango_aio.patterns)."""
+    the first has its reply, so a lost reply can never shift them (tango_aio.sansio._patterns)."""
     link = fake_link()
     first, second = (link.protocol.submit(parse(line)) for line in ("?vel x", "?vel y"))
     assert link.transport.sent == b"?vel x\r"
@@ -192,7 +192,7 @@ async def test_over_long_line_is_logged_and_the_stream_recovers(
         fake_link: LinkFactory, caplog: pytest.LogCaptureFixture) -> None:
     link = fake_link()
     sub = link.protocol.submit(parse("?vel x"))
-    with caplog.at_level(logging.WARNING, logger="tango_aio.protocol"):
+    with caplog.at_level(logging.WARNING, logger="tango_aio.link._protocol"):
         link.feed(b"x" * 3000)
         link.feed(b"\r10.000\r")
     assert reply_of(sub) == ("10.000",)

@@ -1,4 +1,4 @@
-"""Tier 2: :class:`tango_aio.threadlink.ThreadTransport`, the Windows serial transport.
+"""Tier 2: :class:`tango_aio.transports._threadlink.ThreadTransport`, the Windows serial transport.
 
 Its logic runs against :class:`FakeWindowsSerial`, an object with the interface of
 pyserial's Windows ``Serial`` (``serialwin32``) as the transport uses it: ``read(size)``
@@ -24,10 +24,11 @@ import serial
 from helpers import make_model, posix_only, serve_pty
 
 import tango_aio
-import tango_aio.connection as connection_module
-from tango_aio import portlink, threadlink
+import tango_aio.controller._connection as connection_module
 from tango_aio.sim.serve import serve_tcp
-from tango_aio.threadlink import ThreadTransport
+from tango_aio.transports import _portlink as portlink
+from tango_aio.transports import _threadlink as threadlink
+from tango_aio.transports._threadlink import ThreadTransport
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -8,9 +8,9 @@ from typing import Any
 import pytest
 from helpers import FakeLink, as_axes
 
-from tango_aio.controller import Controller
+from tango_aio.catalog._instructions import Context
+from tango_aio.controller._controller import Controller
 from tango_aio.errors import InvalidCommandError
-from tango_aio.instructions import Context
 
 pytestmark = pytest.mark.timeout(10)
 

@@ -22,8 +22,7 @@ from typing import Any
 
 import pytest
 
-from tango_aio.core import expectation
-from tango_aio.instructions import (
+from tango_aio.catalog._instructions import (
     INSTRUCTIONS,
     AxisRule,
     Context,
@@ -31,7 +30,8 @@ from tango_aio.instructions import (
     Param,
     parse,
 )
-from tango_aio.patterns import reply_pattern
+from tango_aio.sansio._core import expectation
+from tango_aio.sansio._patterns import reply_pattern
 from tango_aio.sim.lists import MAX_SNAPSHOTS, MAX_TRIGGERS
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.state import StateFileError
@@ -326,7 +326,7 @@ def test_documented_reply_shape(name: str, line: int, cmd: str, reply: str) -> N
                          ids=[f"{n}-L{ln}-{i}" for i, (n, ln, _, _) in enumerate(EXAMPLES)])
 def test_documented_replies_fit_their_reply_pattern(name: str, line: int, cmd: str,
                                                     reply: str) -> None:
-    """The driver's reply check (tango_aio.patterns) accepts every one-line reply the
+    """The driver's reply check (tango_aio.sansio._patterns) accepts every one-line reply the
     manual documents and the emulator gives: it never rejects a real reply."""
     case = CASES.get((name, line), Case())
     sim = Sim(axes=case.axes)
@@ -680,7 +680,7 @@ def test_case_insensitive_and_upper_case() -> None:
 
 
 # ---------------------------------------------------------------------------------------
-# 4. Autostatus modes 0-4 (the shared decision of tango_aio.core.expectation)
+# 4. Autostatus modes 0-4 (the shared decision of tango_aio.sansio._core.expectation)
 
 
 def _expected_lines(line: str, mode: int, completion: str | None) -> list[str]:
@@ -742,7 +742,7 @@ _COMPLETION = re.compile(r"[@A-Z-]{4}\.")
 @pytest.mark.parametrize("mode", [0, 1, 2, 3, 4])
 def test_every_write_answers_what_core_expects(mode: int) -> None:
     """For every executing instruction: exactly the echo, data and acknowledgement lines
-    :func:`tango_aio.core.expectation` announces (completion reports aside)."""
+    :func:`tango_aio.sansio._core.expectation` announces (completion reports aside)."""
     for name in sorted(INSTRUCTIONS):
         entry = INSTRUCTIONS[name]
         if not entry.write or name in ("reset", "restore", "autostatus"):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from tango_aio.instructions import INSTRUCTIONS, ModeEffect
+from tango_aio.catalog._instructions import INSTRUCTIONS, ModeEffect
 from tango_aio.sim.inprocess import configs_from_url
 from tango_aio.sim.model import SimConfig
 from tango_aio.sim.profiles import PROFILES, SWITCHES, Firmware, switch_table, variants
@@ -97,19 +97,20 @@ def test_the_emulator_imports_nothing_of_the_driver() -> None:
 
 def test_the_import_scan_finds_driver_imports(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
-    sample.write_text("from ..core import expectation\nimport tango_aio.protocol\n"
+    sample.write_text("from ..core import expectation\nimport tango_aio.link._protocol\n"
                       "from tango_aio import controller\nfrom .. import patterns\n"
                       "from ..instructions import parse\n", encoding="utf-8")
     assert _driver_imports(sample) == [
-        "sample.py: tango_aio.controller", "sample.py: tango_aio.core",
-        "sample.py: tango_aio.patterns", "sample.py: tango_aio.protocol"]
+        "sample.py: tango_aio.controller._controller", "sample.py: tango_aio.sansio._core",
+        "sample.py: tango_aio.sansio._patterns", "sample.py: tango_aio.link._protocol"]
 
 
 def test_the_import_scan_follows_imports_through_other_modules(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
     sample.write_text("from ..connection import open_connection\n", encoding="utf-8")
     hits = _driver_imports(sample)
-    assert hits and all(hit.startswith("sample.py -> tango_aio.connection") for hit in hits)
+    assert hits and all(hit.startswith("sample.py -> tango_aio.controller._connection")
+                        for hit in hits)
 
 
 # ---------------------------------------------------------------------------------------

@@ -24,8 +24,8 @@ from helpers import serve_pty
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.cli import _parser, _sim_url, _tcp_address
-from tango_aio.cli import main as cli_main
+from tango_aio.cli._main import _parser, _sim_url, _tcp_address
+from tango_aio.cli._main import main as cli_main
 from tango_aio.sim.clock import EmulatorClock, ScaledHandler
 from tango_aio.sim.inprocess import configs_from_url, open_sim, speed_from_url
 from tango_aio.sim.model import ControllerModel, SimConfig
@@ -595,8 +595,8 @@ def test_importing_the_package_loads_none_of_its_modules() -> None:
     assert out.strip() == "['tango_aio.sim.wire']"
 
 
-DRIVER = frozenset({"tango_aio.core", "tango_aio.protocol", "tango_aio.patterns",
-                    "tango_aio.controller"})
+DRIVER = frozenset({"tango_aio.sansio._core", "tango_aio.link._protocol",
+                    "tango_aio.sansio._patterns", "tango_aio.controller._controller"})
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -636,7 +636,7 @@ def test_the_emulator_imports_nothing_of_the_driver() -> None:
         seen.add(module)
         todo.extend(_imports(module))
     assert len(seen) > 10
-    assert "tango_aio.instructions" in seen  # the catalog is shared data
+    assert "tango_aio.catalog._instructions" in seen  # the catalog is shared data
     assert not seen & DRIVER
 
 

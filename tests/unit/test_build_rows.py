@@ -11,10 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio import instructions
-from tango_aio.bulk import Column
-from tango_aio.errors import InvalidCommandError
-from tango_aio.instructions import (
+from tango_aio.catalog import _instructions as instructions
+from tango_aio.catalog._instructions import (
     Command,
     Context,
     Form,
@@ -23,6 +21,8 @@ from tango_aio.instructions import (
     check_rows,
     encode_rows,
 )
+from tango_aio.errors import InvalidCommandError
+from tango_aio.families._bulk import Column
 
 NUMBERS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),

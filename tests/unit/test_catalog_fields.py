@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tango_aio.instructions import INSTRUCTIONS, MAX_SNAPSHOTS, MAX_TRIGGERS, ModeEffect
+from tango_aio.catalog._instructions import INSTRUCTIONS, MAX_SNAPSHOTS, MAX_TRIGGERS, ModeEffect
 
 #: (name, default, indexed, digits, position_valued, cached)
 EXPECTED = [

@@ -1,4 +1,4 @@
-"""The committed ``tango_aio/_catalog.py`` is exactly what ``tools/gen_catalog.py`` makes."""
+"""The committed ``tango_aio/catalog/_table.py`` is exactly what ``tools/gen_catalog.py`` makes."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def test_committed_catalog_is_the_generated_one(
     expected = generator.render(entries).encode("utf-8")
     actual = CATALOG.read_bytes()
     assert actual == expected, (
-        "tango_aio/_catalog.py is out of date or was edited by hand: "
+        "tango_aio/catalog/_table.py is out of date or was edited by hand: "
         "run `.venv/bin/python tools/gen_catalog.py`"
     )
 
@@ -60,7 +60,7 @@ def test_override_tables_name_real_instructions(
 
 
 def test_reply_table_uses_real_shapes(generator: ModuleType) -> None:
-    from tango_aio.instructions import Shape
+    from tango_aio.catalog._instructions import Shape
 
     for name, shape in {**generator.REPLY, **generator.EXEC_REPLY}.items():
         assert shape in Shape.__members__, (name, shape)
@@ -70,7 +70,7 @@ def test_catalog_is_pure_data() -> None:
     # Only a docstring, imports and one assignment of constructor calls of schema types:
     # no function definitions, lambdas, comprehensions or control flow.
     tree = ast.parse(CATALOG.read_text(encoding="utf-8"))
-    import tango_aio.schema as schema
+    import tango_aio.catalog._schema as schema
 
     kinds = [type(node) for node in tree.body]
     assert kinds[0] is ast.Expr  # the docstring

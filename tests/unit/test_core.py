@@ -1,7 +1,7 @@
-"""Synchronous tests of the sans-IO protocol core (tango_aio.core).
+"""Synchronous tests of the sans-IO protocol core (tango_aio.sansio._core).
 
 The controller's byte streams are written by hand from the rules in core.py's docstring and
-:func:`tango_aio.core.expectation` (protocol_notes §3-§5, §9). Every test asserts the exact
+:func:`tango_aio.sansio._core.expectation` (protocol_notes §3-§5, §9). Every test asserts the exact
 event list, so a mis-routed line, a wrong ``done`` flag or a missing event fails it.
 """
 
@@ -16,7 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import (
+from tango_aio.catalog._instructions import Context, parse, parse_reply
+from tango_aio.errors import ProtocolError
+from tango_aio.sansio._core import (
     DEFAULT_MAX_LINE,
     LOCAL_ECHO,
     Acknowledged,
@@ -35,9 +37,7 @@ from tango_aio.core import (
     expectation,
     is_completion_line,
 )
-from tango_aio.errors import ProtocolError
-from tango_aio.instructions import Context, parse, parse_reply
-from tango_aio.patterns import reply_pattern
+from tango_aio.sansio._patterns import reply_pattern
 
 #: Context of a 3-axis controller in extmode 0: ``?lim`` without an axis spans two lines.
 EXT0 = Context(extmode=0, axes=3)

@@ -1,6 +1,6 @@
 """Fuzzing the sans-IO protocol core with arbitrary bytes.
 
-Whatever the controller (or line noise) sends, :class:`~tango_aio.core.ProtocolCore` must
+Whatever the controller (or line noise) sends, :class:`~tango_aio.sansio._core.ProtocolCore` must
 raise nothing but :class:`~tango_aio.errors.ProtocolError`, keep working after it, and keep
 its memory bounded: the assembler holds at most ``max_line`` bytes between reads (plus the
 chunk being processed), and received data never adds requests or moves to wait for.
@@ -16,7 +16,9 @@ from fuzzkit import CONTEXT, REQUESTS, TOKENS, noise, plausible_answer
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import (
+from tango_aio.catalog._instructions import parse
+from tango_aio.errors import ProtocolError
+from tango_aio.sansio._core import (
     Acknowledged,
     Completed,
     Dropped,
@@ -28,8 +30,6 @@ from tango_aio.core import (
     RequestLost,
     Unsolicited,
 )
-from tango_aio.errors import ProtocolError
-from tango_aio.instructions import parse
 
 MAX_LINE = 64
 

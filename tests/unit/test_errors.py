@@ -258,8 +258,12 @@ def test_every_tango_error_is_defined_in_errors() -> None:
 
 
 def test_the_surfaces_errors_keep_their_old_import_paths() -> None:
-    from tango_aio import bluesky, bulk, probe, protocol, reconnect
+    from tango_aio.bluesky import _devices as bluesky
     from tango_aio.epics import ioc
+    from tango_aio.families import _bulk as bulk
+    from tango_aio.fieldkit import _probe as probe
+    from tango_aio.link import _protocol as protocol
+    from tango_aio.link import _reconnect as reconnect
 
     assert protocol.WrongEventLoopError is errors.WrongEventLoopError
     assert bulk.UploadError is errors.UploadError

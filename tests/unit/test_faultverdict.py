@@ -23,13 +23,13 @@ from faultverdict import (
     running_verdict,
 )
 
+from tango_aio.controller._motion import annotate
 from tango_aio.errors import (
     ControllerTimeoutError,
     MoveProtocolUnknownError,
     NotExecutableError,
     ProtocolError,
 )
-from tango_aio.motion import annotate
 
 OTHERS = ("96.250", "97.125", "18.500")
 

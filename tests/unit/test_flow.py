@@ -1,11 +1,11 @@
-"""Sans-IO tests of the write-credit window (tango_aio.flow)."""
+"""Sans-IO tests of the write-credit window (tango_aio.sansio._flow)."""
 
 from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.flow import MARKER, CreditWindow
+from tango_aio.sansio._flow import MARKER, CreditWindow
 
 
 def test_reply_confirms_its_line_and_everything_before() -> None:

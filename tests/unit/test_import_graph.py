@@ -55,7 +55,7 @@ def _graph(typing_too: bool = False) -> dict[str, set[str]]:
 
 def test_the_import_graph_has_no_cycle() -> None:
     graph = _graph()
-    assert "tango_aio._catalog" in graph and "tango_aio.schema" in graph
+    assert "tango_aio.catalog._table" in graph and "tango_aio.catalog._schema" in graph
     order = list(graphlib.TopologicalSorter(graph).static_order())  # CycleError if any
     assert len(order) == len(graph)
 
@@ -73,9 +73,10 @@ def test_the_import_graph_has_no_cycle_counting_typing_imports() -> None:
 
 def test_schema_and_catalog_import_only_downwards() -> None:
     graph = _graph()
-    assert graph["tango_aio.schema"] == set()
-    assert graph["tango_aio.replyrules"] == {"tango_aio.schema"}
-    assert graph["tango_aio._catalog"] == {"tango_aio.schema", "tango_aio.replyrules"}
+    assert graph["tango_aio.catalog._schema"] == set()
+    assert graph["tango_aio.catalog._replyrules"] == {"tango_aio.catalog._schema"}
+    assert graph["tango_aio.catalog._table"] == {"tango_aio.catalog._schema",
+                                                 "tango_aio.catalog._replyrules"}
 
 
 def _fresh(code: str) -> None:
@@ -83,8 +84,10 @@ def _fresh(code: str) -> None:
                    capture_output=True, text=True)
 
 
-@pytest.mark.parametrize("module", ["tango_aio.schema", "tango_aio.replyrules",
-                                    "tango_aio._catalog", "tango_aio.instructions"])
+@pytest.mark.parametrize("module", ["tango_aio.catalog._schema",
+                                    "tango_aio.catalog._replyrules",
+                                    "tango_aio.catalog._table",
+                                    "tango_aio.catalog._instructions"])
 def test_module_imports_first_in_a_fresh_interpreter(module: str) -> None:
     _fresh(f"import {module}")
 
@@ -98,18 +101,24 @@ def test_every_module_imports_in_dependency_order() -> None:
 
 # ------------------------------------------------------------------ the layer rules -------
 # The layers are read from ARCHITECTURE.md's diagram (its first code block), so the page and
-# this test cannot drift apart: one line per layer, top first; ``epics/`` names a package.
+# this test cannot drift apart: one line per layer, top first, each naming top-level modules
+# (``errors.py``) and packages (``sansio/``). A module's home is its top-level package, or
+# itself when it is a top-level module. A module imports its own home, or a home of a layer
+# above its own; never another home of its own layer (no same-layer imports), never one
+# below, and never a private module (``_name``) of another home: only what that package's
+# ``__init__`` exports.
 
 PACKAGE_FACADE = "tango_aio"  # __init__.py: re-exports from every layer, lazily
 EMULATOR = "emulator"
-# The emulator shares the catalog (but not patterns.py, the driver's reading of a reply) and
-# the error table with the stack, and nothing else (ARCHITECTURE.md, "Rules of the layers").
-EMULATOR_MAY_IMPORT = {"tango_aio.schema", "tango_aio._catalog", "tango_aio.instructions",
-                       "tango_aio.replyrules", "tango_aio.errors"}
-# The documented exceptions, each named in ARCHITECTURE.md.
+# The emulator shares the catalog and the error table with the stack, and nothing else
+# (ARCHITECTURE.md, "Rules of the layers"); its one documented exception:
+EMULATOR_MAY_IMPORT = {"catalog/", "errors.py"}
 EMULATOR_EXCEPTIONS = {("tango_aio.sim.motion", "tango_aio.units")}
-STARTS_THE_EMULATOR = {"tango_aio.connection", "tango_aio.testing", "tango_aio.cli",
-                       "tango_aio._argtypes"}
+STARTS_THE_EMULATOR = {"controller/", "testing.py", "cli/", "_argtypes.py"}
+#: Layers whose code is sans-IO: no event loop, no clock, no thread, no port or socket.
+SANS_IO = ("catalog/", "sansio/", "moves/")
+NOT_SANS_IO = {"asyncio", "time", "threading", "socket", "select", "selectors", "serial",
+               "os", "subprocess", "concurrent"}
 
 
 def _layers() -> list[tuple[str, list[str]]]:
@@ -125,78 +134,106 @@ def _layers() -> list[tuple[str, list[str]]]:
     return layers
 
 
-def _layer_of() -> dict[str, tuple[int, str]]:
-    """Each module's (rank, layer): rank 0 is the top layer; the emulator has no rank."""
-    placed: dict[str, tuple[int, str]] = {}
+def _home(module: str) -> str:
+    """``sansio/`` for tango_aio.sansio._core, ``errors.py`` for tango_aio.errors."""
+    parts = module.split(".")[1:]
+    if (PACKAGE / parts[0]).is_dir():
+        return parts[0] + "/"
+    return parts[0] + ".py"
+
+
+def _rank_of() -> dict[str, tuple[int, str]]:
+    """Each home's (rank, layer): rank 0 is the top layer; the emulator has no rank."""
     ranked = [layer for layer in _layers() if layer[0] != EMULATOR]
-    files = [(f, (rank, name)) for rank, (name, fs) in enumerate(ranked) for f in fs]
-    files += [(f, (-1, EMULATOR)) for name, fs in _layers() if name == EMULATOR for f in fs]
-    for path in sorted(PACKAGE.rglob("*.py")):
-        module = _module_name(path)
-        if module == PACKAGE_FACADE:
-            continue
-        relative = path.relative_to(PACKAGE).as_posix()
-        exact = dict(files)  # a file named on its own line before the package holding it
-        packages = [where for entry, where in files
-                    if entry.endswith("/") and relative.startswith(entry)]
-        if relative in exact or packages:
-            placed[module] = exact.get(relative) or packages[0]
+    placed = {home: (rank, name) for rank, (name, homes) in enumerate(ranked)
+              for home in homes}
+    placed.update({home: (-1, EMULATOR) for name, homes in _layers()
+                   if name == EMULATOR for home in homes})
     return placed
 
 
-def _violations(graph: dict[str, set[str]], layer: dict[str, tuple[int, str]]) -> list[str]:
+def _violations(graph: dict[str, set[str]], rank: dict[str, tuple[int, str]]) -> list[str]:
     found = []
     for module, imported in sorted(graph.items()):
         if module == PACKAGE_FACADE:
             continue
-        (rank, name) = layer[module]
+        home = _home(module)
+        (my_rank, layer) = rank[home]
         for target in sorted(imported):
             if target == PACKAGE_FACADE:
                 continue  # the package's own __version__: checked below
-            (target_rank, target_name) = layer[target]
-            if name == EMULATOR:
-                ok = (target_name == EMULATOR or target in EMULATOR_MAY_IMPORT
+            there = _home(target)
+            (target_rank, target_layer) = rank[there]
+            if there == home:
+                continue
+            if any(part.startswith("_") for part in target.split(".")[2:]):
+                found.append(f"{module} reaches into {target}, private to {there}")
+                continue
+            if layer == EMULATOR:
+                ok = (there in EMULATOR_MAY_IMPORT
                       or (module, target) in EMULATOR_EXCEPTIONS)
-            elif target_name == EMULATOR:
-                ok = module in STARTS_THE_EMULATOR
+            elif target_layer == EMULATOR:
+                ok = home in STARTS_THE_EMULATOR
             else:
-                ok = target_rank <= rank
+                ok = target_rank < my_rank
             if not ok:
-                found.append(f"{module} ({name}) imports {target} ({target_name})")
+                found.append(f"{module} ({layer}) imports {target} ({target_layer})")
     return found
 
 
 def test_every_module_has_a_layer_in_the_page() -> None:
-    layer = _layer_of()
-    unplaced = sorted(set(_graph()) - set(layer) - {PACKAGE_FACADE})
+    rank = _rank_of()
+    homes = {_home(module) for module in _graph()} - {"__init__.py"}
+    unplaced = sorted(homes - set(rank))
     assert not unplaced, f"ARCHITECTURE.md's diagram places no layer for {unplaced}"
-    assert layer["tango_aio.epics.flush"][1] == "integrations"
-    assert layer["tango_aio.sim.wire"][1] == EMULATOR
+    assert rank["epics/"][1] == "integrations"
+    assert rank["sim/"][1] == EMULATOR
 
 
 def test_every_import_keeps_the_layer_rules() -> None:
-    """A module imports only its own layer or the layers above it, counting function-level
-    and ``TYPE_CHECKING`` imports; the emulator imports only the catalog and the errors."""
-    violations = _violations(_graph(typing_too=True), _layer_of())
+    """A module imports only its own home or the layers above its own, counting
+    function-level and ``TYPE_CHECKING`` imports; the emulator imports only the catalog and
+    the errors."""
+    violations = _violations(_graph(typing_too=True), _rank_of())
     assert not violations, "\n".join(violations)
 
 
-def test_the_layer_check_sees_a_violation() -> None:
-    layer = _layer_of()
-    graph = {"tango_aio.state": {"tango_aio.controller"},
-             "tango_aio.sim.model": {"tango_aio.core", "tango_aio.errors"},
-             "tango_aio.bluesky": {"tango_aio.sim.wire"}}
-    assert _violations(graph, layer) == [
-        "tango_aio.bluesky (integrations) imports tango_aio.sim.wire (emulator)",
-        "tango_aio.sim.model (emulator) imports tango_aio.core (core)",
-        "tango_aio.state (core) imports tango_aio.controller (controller)"]
+@pytest.mark.parametrize(("module", "target"), [
+    ("tango_aio.fieldkit._trace", "tango_aio.bluesky"),  # an integration, below
+    ("tango_aio.link._reconnect", "tango_aio.families"),  # bulk transfers, below
+    ("tango_aio.transports._portlink", "tango_aio.group"),  # coalescing, below
+    ("tango_aio.bluesky._devices", "tango_aio.epics"),  # another integration, same layer
+    ("tango_aio.moves._timing", "tango_aio.sansio"),  # the sans-IO link, below
+    ("tango_aio.controller._controller", "tango_aio.link._protocol"),  # a private module
+    ("tango_aio.sim.model", "tango_aio.sansio"),  # the driver's rules, in the emulator
+    ("tango_aio.bluesky._devices", "tango_aio.sim.wire"),  # the emulator, from the stack
+])
+def test_the_layer_check_sees_a_violation(module: str, target: str) -> None:
+    graph = _graph(typing_too=True)
+    assert not _violations({module: graph[module]}, _rank_of())
+    graph[module] = graph[module] | {target}
+    assert _violations({module: graph[module]}, _rank_of())
+
+
+def test_sans_io_layers_import_no_loop_clock_or_port() -> None:
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if _home(_module_name(path)) not in SANS_IO:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom)
+                     and node.level == 0 else [])
+            bad = [name for name in names if name.split(".")[0] in NOT_SANS_IO]
+            assert not bad, f"{path.relative_to(PACKAGE)} imports {bad}"
 
 
 def test_the_package_is_imported_only_for_its_version() -> None:
     for path in sorted(PACKAGE.rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and node.module is None and node.level == 1 \
-                    and path.parent == PACKAGE:
+            package = _module_name(path) if path.name == "__init__.py" else \
+                _module_name(path).rpartition(".")[0]
+            if isinstance(node, ast.ImportFrom) and node.module is None and node.level \
+                    and resolve_name("." * node.level, package) == PACKAGE_FACADE:
                 names = [alias.name for alias in node.names]
                 assert all(name == "__version__" or (PACKAGE / f"{name}.py").exists()
                            or (PACKAGE / name).is_dir() for name in names), (path, names)

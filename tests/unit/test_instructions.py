@@ -23,8 +23,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.errors import InvalidCommandError, ProtocolError, TangoError
-from tango_aio.instructions import (
+from tango_aio.catalog._instructions import (
     AXES,
     INSTRUCTIONS,
     MAX_LINE_BYTES,
@@ -49,6 +48,7 @@ from tango_aio.instructions import (
     parse_reply,
     reply_rule,
 )
+from tango_aio.errors import InvalidCommandError, ProtocolError, TangoError
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "reference" / "instructions.json"
@@ -1032,7 +1032,7 @@ def test_build_validates() -> None:
 def test_catalog_imports_in_a_fresh_interpreter() -> None:
     result = subprocess.run(
         [sys.executable, "-c",
-         "import tango_aio.instructions as i; print(len(i.INSTRUCTIONS))"],
+         "import tango_aio.catalog._instructions as i; print(len(i.INSTRUCTIONS))"],
         capture_output=True, text=True, check=True, cwd=ROOT, timeout=60,
     )
     assert result.stdout.strip() == "227"

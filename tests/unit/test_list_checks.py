@@ -11,7 +11,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from tango_aio import InvalidCommandError
-from tango_aio.bulk import (
+from tango_aio.families._bulk import (
     Column,
     _finite_and_monotonic,
     check_resolution,

@@ -14,8 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.errors import ProtocolError
-from tango_aio.instructions import (
+from tango_aio.catalog._instructions import (
     INSTRUCTIONS,
     Context,
     LineRule,
@@ -23,7 +22,8 @@ from tango_aio.instructions import (
     parse_reply,
     reply_rule,
 )
-from tango_aio.patterns import ReplyKind, reply_pattern
+from tango_aio.errors import ProtocolError
+from tango_aio.sansio._patterns import ReplyKind, reply_pattern
 
 CONTEXT = Context(axes=3)
 

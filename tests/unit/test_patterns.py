@@ -1,4 +1,4 @@
-"""Reply patterns (tango_aio.patterns) and the core's reply check (tier 1, sans-IO)."""
+"""Reply patterns (tango_aio.sansio._patterns) and the core's reply check (tier 1, sans-IO)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from fuzzkit import fitting_line
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import (
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, LineRule, parse, reply_rule
+from tango_aio.sansio._core import (
     AckReads,
     Completed,
     Dropped,
@@ -19,8 +20,7 @@ from tango_aio.core import (
     RequestLost,
     Unsolicited,
 )
-from tango_aio.instructions import INSTRUCTIONS, Context, LineRule, parse, reply_rule
-from tango_aio.patterns import (
+from tango_aio.sansio._patterns import (
     ACK_PATTERN,
     ANY_PATTERN,
     Edge,

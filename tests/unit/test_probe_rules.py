@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.probe import (
+from tango_aio.fieldkit._probe import (
     Exchange,
     _Link,
     decide_ack_case,

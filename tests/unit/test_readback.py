@@ -1,4 +1,4 @@
-"""The read-back that proves a set line (tango_aio.readback), synchronously: which read
+"""The read-back that proves a set line (tango_aio.sansio._readback), synchronously: which read
 each set gets, what its reply must hold, and that the emulator's own reading of the
 manual agrees for every instruction the rule covers."""
 
@@ -11,8 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.errors import SettingNotAppliedError, TangoError
-from tango_aio.instructions import (
+from tango_aio.catalog._instructions import (
     INSTRUCTIONS,
     AxisRule,
     Command,
@@ -23,7 +22,8 @@ from tango_aio.instructions import (
     build,
     parse,
 )
-from tango_aio.readback import NO_READ_BACK, ReadBack, mismatch, read_back
+from tango_aio.errors import SettingNotAppliedError, TangoError
+from tango_aio.sansio._readback import NO_READ_BACK, ReadBack, mismatch, read_back
 from tango_aio.sim.model import ControllerModel, SimConfig
 
 CONTEXT = Context.of((2, 2, 2, 2), axes=3)

@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from tango_aio.errors import ConnectionLostError
-from tango_aio.protocol import TangoProtocol
-from tango_aio.reconnect import (
+from tango_aio.link._protocol import TangoProtocol
+from tango_aio.link._reconnect import (
     Closer,
     IdentityMismatchError,
     Reconnect,

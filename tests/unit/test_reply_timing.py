@@ -1,5 +1,5 @@
 """Timing as evidence: a line that starts before its request could have been answered is
-not its reply (:func:`tango_aio.linktiming.earliest_reply`, the core's arrival stamps)."""
+not its reply (:func:`tango_aio.sansio._linktiming.earliest_reply`, the core's arrival stamps)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.core import LineAssembler, Mismatched, ProtocolCore, Replied
-from tango_aio.instructions import parse
-from tango_aio.linktiming import ARRIVAL_MARGIN, byte_time, earliest_reply
+from tango_aio.catalog._instructions import parse
+from tango_aio.sansio._core import LineAssembler, Mismatched, ProtocolCore, Replied
+from tango_aio.sansio._linktiming import ARRIVAL_MARGIN, byte_time, earliest_reply
 
 BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)  # !baud's rates (L1627)
 times = st.floats(min_value=0.0, max_value=1e6, allow_nan=False)

@@ -1,9 +1,16 @@
-"""The pure rules of tango_aio.restart and tango_aio.errors.outcome_unknown (#32 item 5)."""
+"""The pure rules of controller/_restart.py and tango_aio.errors.outcome_unknown."""
 
 from __future__ import annotations
 
 import pytest
 
+from tango_aio.controller._restart import (
+    changed_settings,
+    report_suggests_restart,
+    settings_of,
+    timeout_suggests_restart,
+    unreported_end_suggests_restart,
+)
 from tango_aio.errors import (
     ConnectionLostError,
     ControllerTimeoutError,
@@ -18,14 +25,7 @@ from tango_aio.errors import (
     TangoError,
     outcome_unknown,
 )
-from tango_aio.restart import (
-    changed_settings,
-    report_suggests_restart,
-    settings_of,
-    timeout_suggests_restart,
-    unreported_end_suggests_restart,
-)
-from tango_aio.timing import MoveTiming
+from tango_aio.moves._timing import MoveTiming
 
 
 @pytest.mark.parametrize(("mode", "letters", "suggests"), [

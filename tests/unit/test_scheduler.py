@@ -1,4 +1,4 @@
-"""Sans-IO tests of the write scheduler (tango_aio.scheduler), driven synchronously.
+"""Sans-IO tests of the write scheduler (tango_aio.sansio._scheduler), driven synchronously.
 
 A :class:`Link` joins a :class:`WriteScheduler` and its :class:`ProtocolCore` to the
 emulator's interpreter (``ControllerModel``, no event loop): bytes written land in the
@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import Acknowledged, AckReads, Echoed, ProtocolCore, Replied, wire_size
-from tango_aio.flow import MARKER
-from tango_aio.instructions import Command, build_rows, encode_rows, parse
-from tango_aio.patterns import ONE_NUMBER, Edge, ReplyKind, ReplyPattern, marker_pattern
-from tango_aio.scheduler import Line, WriteScheduler
+from tango_aio.catalog._instructions import Command, build_rows, encode_rows, parse
+from tango_aio.sansio._core import Acknowledged, AckReads, Echoed, ProtocolCore, Replied, wire_size
+from tango_aio.sansio._flow import MARKER
+from tango_aio.sansio._patterns import ONE_NUMBER, Edge, ReplyKind, ReplyPattern, marker_pattern
+from tango_aio.sansio._scheduler import Line, WriteScheduler
 from tango_aio.sim.model import ControllerModel, SimConfig
 
 #: The controller's input buffer (manual L129-131).

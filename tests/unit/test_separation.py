@@ -1,5 +1,5 @@
 """Two reads in a row never take each other's replies: the separator rule of the write
-scheduler (tango_aio.scheduler, rule 3) in every autostatus mode and on every firmware
+scheduler (tango_aio.sansio._scheduler, rule 3) in every autostatus mode and on every firmware
 variant, checked against the emulator's own replies under single faults.
 
 Each example feeds the scheduler two reads of the catalog (with a core set up as the
@@ -10,7 +10,7 @@ line came from. Then it replays that stream into a fresh core with one fault at 
 a reply line lost, a written line lost (none of its lines come), or one extra well-formed
 line (a copy of another line of the stream) anywhere. Whatever each read gets must be its
 own line or the extra line itself (a stray line that fits the request it reaches cannot
-be told by any protocol without ids: tango_aio.patterns), never the other read's, nor a
+be told by any protocol without ids: tango_aio.sansio._patterns), never the other read's, nor a
 separator's or marker's. When the second read is not written with the first (no separator
 fits), it must not be written until the first got the lines it was sure to get.
 """
@@ -25,10 +25,10 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import AckReads, HelpStyle, Mismatched, ProtocolCore, Replied
-from tango_aio.instructions import INSTRUCTIONS, Context, parse
-from tango_aio.patterns import ReplyKind, reply_pattern
-from tango_aio.scheduler import Line, WriteScheduler
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, parse
+from tango_aio.sansio._core import AckReads, HelpStyle, Mismatched, ProtocolCore, Replied
+from tango_aio.sansio._patterns import ReplyKind, reply_pattern
+from tango_aio.sansio._scheduler import Line, WriteScheduler
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import Firmware, variants
 
@@ -209,7 +209,7 @@ def _check(firmware: Firmware, view: View, separators: bool, first: str,
     own = {run.tags[0]: lines.index(first), run.tags[1]: len(lines) - 1 - lines[::-1].index(
         second)}
     # Free text (one line or several) fits any line: a read of it whose own reply or line
-    # is lost takes the next line, which no check can tell (tango_aio.patterns). What the
+    # is lost takes the next line, which no check can tell (tango_aio.sansio._patterns). What the
     # other read gets is checked all the same.
     free = {index for index, line in enumerate(lines)
             if reply_pattern(parse(line, view.context), view.context).kind is ReplyKind.ANY}

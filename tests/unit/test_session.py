@@ -1,6 +1,6 @@
-"""Sans-IO tests of the link session (tango_aio.session), driven synchronously.
+"""Sans-IO tests of the link session (tango_aio.sansio._session), driven synchronously.
 
-Every transition of :data:`~tango_aio.session.TRANSITIONS` is reached through the
+Every transition of :data:`~tango_aio.sansio._session.TRANSITIONS` is reached through the
 session's own methods (the calls the protocol makes), with time passed in. The exchanges
 run against the emulator's interpreter (``ControllerModel``, no event loop), its replies
 split at every point hypothesis picks on the way back.
@@ -16,11 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
+from tango_aio.catalog._instructions import parse
 from tango_aio.errors import ProtocolError
-from tango_aio.instructions import parse
-from tango_aio.linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
-from tango_aio.session import (
+from tango_aio.sansio._core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
+from tango_aio.sansio._linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
+from tango_aio.sansio._session import (
     QUIET_INTERVAL,
     REPLY_WAITS,
     STATUS_READ,
@@ -583,7 +583,7 @@ def test_a_mode_change_waits_until_every_line_before_is_answered() -> None:
     assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
 
 
-# -- link timing (tango_aio.linktiming) and the step-0 marker number ------------------------
+# -- link timing (sansio/_linktiming.py) and the step-0 marker number -------------------------
 
 def test_the_first_byte_after_an_exchange_measures_the_round_trip() -> None:
     """Three round trips at least (the link may deliver in bursts): a 0.4 s round trip

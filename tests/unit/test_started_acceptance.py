@@ -1,6 +1,6 @@
 """The proof of a ``speed`` or ``go`` line answered by ``?err`` 0 alone (autostatus 0,
-1, 3), from the state read behind it: :func:`tango_aio.timing.acceptance`,
-:func:`~tango_aio.timing.stop_time`, :func:`~tango_aio.timing.speed_shown`."""
+1, 3), from the state read behind it: :func:`tango_aio.moves._timing.acceptance`,
+:func:`~tango_aio.moves._timing.stop_time`, :func:`~tango_aio.moves._timing.speed_shown`."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.instructions import parse
-from tango_aio.timing import (
+from tango_aio.catalog._instructions import parse
+from tango_aio.moves._timing import (
     MARGIN,
     Acceptance,
     MoveTiming,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from tango_aio.instructions import INSTRUCTIONS, Context, build, parse
-from tango_aio.state import CACHED_SETTINGS, DriverState
-from tango_aio.timing import MoveTiming
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, build, parse
+from tango_aio.moves._timing import MoveTiming
+from tango_aio.sansio._state import CACHED_SETTINGS, DriverState
 
 
 def test_starts_at_the_power_on_timing_and_context() -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from tango_aio import cli, motion, timing
+from tango_aio.cli import _main as cli
+from tango_aio.controller import _motion as motion
+from tango_aio.moves import _timing as timing
 from tango_aio.status import ABSENT, ARRIVED_LETTERS, FAILED_LETTERS, MOVING, AxisStatus
 
 
@@ -24,7 +26,7 @@ def test_motion_and_the_shell_use_the_same_letters() -> None:
 
 
 def test_a_completion_report_may_hold_every_documented_letter_and_no_other() -> None:
-    from tango_aio.core import is_completion_line
+    from tango_aio.sansio._core import is_completion_line
     from tango_aio.status import LETTERS
 
     assert {*AxisStatus, ABSENT} == LETTERS

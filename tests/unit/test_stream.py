@@ -7,7 +7,7 @@ import asyncio
 import pytest
 
 from tango_aio.events import Subscription
-from tango_aio.group import GroupSubscription
+from tango_aio.group._group import GroupSubscription
 from tango_aio.stream import BoundedStream, check_maxsize
 
 pytestmark = pytest.mark.timeout(10)

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.instructions import parse
-from tango_aio.timing import (
+from tango_aio.catalog._instructions import parse
+from tango_aio.moves._timing import (
     CAL_LIMIT,
     MARGIN,
     MOC_LIMIT,
@@ -95,7 +95,7 @@ def test_the_tolerance_is_one_and_a_half_printed_digits(text: str, tolerance: fl
 
 
 def test_the_driver_state_is_a_move_timing() -> None:
-    from tango_aio import state
+    from tango_aio.sansio import _state as state
     assert issubclass(state.DriverState, MoveTiming)
 
 

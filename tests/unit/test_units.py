@@ -198,7 +198,7 @@ async def test_bad_values_and_units_are_refused_before_anything_is_sent() -> Non
 
 
 def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
-    from tango_aio.bluesky import DIM_UNITS as bluesky_units
+    from tango_aio.bluesky._devices import DIM_UNITS as bluesky_units
     from tango_aio.epics.record import EGU_BY_DIM
     from tango_aio.units import DIM_UNITS, user_per_rev
 
@@ -213,7 +213,7 @@ def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
 
 
 def test_the_velocity_unit_follows_the_dim() -> None:
-    from tango_aio.instructions import lookup, upper_bound
+    from tango_aio.catalog._instructions import lookup, upper_bound
     from tango_aio.units import DIM_MM_VEL, velocity_unit
 
     assert [velocity_unit(dim) for dim in (0, 2, 8, DIM_MM_VEL)] == [

@@ -1,4 +1,4 @@
-"""The sans-IO verdicts on a line (tango_aio.timing): what an ``?err`` reply or an
+"""The sans-IO verdicts on a line (tango_aio.moves._timing): what an ``?err`` reply or an
 autostatus-2 acknowledgement says of the line before it (accepted, refused, or garbled:
 it proves nothing), and whether the state read behind a refused or garbled verdict on a
 motion line contradicts it."""
@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tango_aio.errors import ERROR_DESCRIPTIONS
+from tango_aio.moves._timing import Verdict, ack_verdict, contest, err_verdict
 from tango_aio.sim.wire import flip_one_bit
-from tango_aio.timing import Verdict, ack_verdict, contest, err_verdict
 
 DOCUMENTED = sorted(ERROR_DESCRIPTIONS)
 REFUSALS = [n for n in DOCUMENTED if n]
@@ -135,7 +135,7 @@ def test_a_garbled_verdict_with_nothing_moving_says_the_fate_is_unknown() -> Non
 
 
 def test_a_report_of_e_for_every_axis_of_the_line_does_not_show_it_ran() -> None:
-    from tango_aio.timing import report_shows_run
+    from tango_aio.moves._timing import report_shows_run
 
     # Some firmware reports a refused move with E (switch refused_move_report=yes).
     assert not report_shows_run(("x",), {"x": "E", "y": "@"})

@@ -1,0 +1,11 @@
+"""cli."""
+
+from __future__ import annotations
+
+from ._main import (
+    main,
+)
+
+__all__ = [
+    "main",
+]

@@ -1,0 +1,57 @@
+"""fieldkit."""
+
+from __future__ import annotations
+
+from ._probe import (
+    FINGERPRINT_FORMAT,
+    MOVE_SWITCHES,
+    SAVE_SWITCHES,
+    SWITCH_NAMES,
+    Exchange,
+    Observation,
+    ProbeError,
+    ProbeOptions,
+    ProbeResult,
+    add_probe_command,
+    comparable,
+    probe,
+    write_fingerprint,
+)
+from ._replay import (
+    Replay,
+    ReplayMismatch,
+    replay,
+)
+from ._trace import (
+    TraceRecord,
+    format_record,
+    parse_trace,
+    read_trace,
+    record_trace,
+    trace_header,
+)
+
+__all__ = [
+    "FINGERPRINT_FORMAT",
+    "MOVE_SWITCHES",
+    "SAVE_SWITCHES",
+    "SWITCH_NAMES",
+    "Exchange",
+    "Observation",
+    "ProbeError",
+    "ProbeOptions",
+    "ProbeResult",
+    "Replay",
+    "ReplayMismatch",
+    "TraceRecord",
+    "add_probe_command",
+    "comparable",
+    "format_record",
+    "parse_trace",
+    "probe",
+    "read_trace",
+    "record_trace",
+    "replay",
+    "trace_header",
+    "write_fingerprint",
+]

@@ -1,0 +1,53 @@
+"""moves."""
+
+from __future__ import annotations
+
+from ._timing import (
+    POLL_GRACE,
+    Acceptance,
+    Budget,
+    MoveTiming,
+    Verdict,
+    acceptance,
+    ack_verdict,
+    contest,
+    cut_short,
+    describe_stop,
+    err_verdict,
+    move_budget,
+    moved_axes,
+    polled_during,
+    position_tolerance,
+    report_shows_run,
+    rest_budget,
+    shifted_axes,
+    speed_shown,
+    stop_time,
+    too_early,
+    verdict,
+)
+
+__all__ = [
+    "POLL_GRACE",
+    "Acceptance",
+    "Budget",
+    "MoveTiming",
+    "Verdict",
+    "acceptance",
+    "ack_verdict",
+    "contest",
+    "cut_short",
+    "describe_stop",
+    "err_verdict",
+    "move_budget",
+    "moved_axes",
+    "polled_during",
+    "position_tolerance",
+    "report_shows_run",
+    "rest_budget",
+    "shifted_axes",
+    "speed_shown",
+    "stop_time",
+    "too_early",
+    "verdict",
+]

@@ -1,0 +1,93 @@
+"""sansio."""
+
+from __future__ import annotations
+
+from ._core import (
+    LOCAL_ECHO,
+    Acknowledged,
+    Completed,
+    Dropped,
+    Echoed,
+    Event,
+    Mismatched,
+    ProtocolCore,
+    Replied,
+    RequestLost,
+    Unsolicited,
+    expectation,
+    is_completion_line,
+)
+from ._flow import (
+    DEFAULT_CHUNK,
+    DEFAULT_LIMIT,
+    CreditWindow,
+)
+from ._linktiming import (
+    LinkTiming,
+    byte_time,
+)
+from ._readback import (
+    ReadBack,
+    mismatch,
+    read_back,
+)
+from ._scheduler import (
+    Line,
+    Run,
+    WriteScheduler,
+)
+from ._session import (
+    DEAD_AFTER,
+    STATUS_READ,
+    Barrier,
+    Exchange,
+    LinkSession,
+    ModeVerdict,
+    Outcome,
+    Overdue,
+    Silence,
+    Until,
+)
+from ._state import (
+    CACHED_SETTINGS,
+    DriverState,
+)
+
+__all__ = [
+    "CACHED_SETTINGS",
+    "DEAD_AFTER",
+    "DEFAULT_CHUNK",
+    "DEFAULT_LIMIT",
+    "LOCAL_ECHO",
+    "STATUS_READ",
+    "Acknowledged",
+    "Barrier",
+    "Completed",
+    "CreditWindow",
+    "DriverState",
+    "Dropped",
+    "Echoed",
+    "Event",
+    "Exchange",
+    "Line",
+    "LinkSession",
+    "LinkTiming",
+    "Mismatched",
+    "ModeVerdict",
+    "Outcome",
+    "Overdue",
+    "ProtocolCore",
+    "ReadBack",
+    "Replied",
+    "RequestLost",
+    "Run",
+    "Silence",
+    "Unsolicited",
+    "Until",
+    "WriteScheduler",
+    "byte_time",
+    "expectation",
+    "is_completion_line",
+    "mismatch",
+    "read_back",
+]
