@@ -59,9 +59,9 @@ from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
 import anyio
 import anyio.from_thread
 
+from . import controller as _connection
 from .controller import Controller as AsyncController
 from .controller import Identity
-from .controller import _connection as _connection
 from .events import PositionUpdate, Subscription, TangoEvent
 from .group import ControllerGroup as AsyncGroup
 from .group import ControllerSpec, GroupEvent, GroupSubscription

@@ -40,7 +40,7 @@ from tango_aio.catalog import _schema as schema  # noqa: E402
 from tango_aio.catalog._schema import Form, Instruction, Param, Precision, Signature  # noqa: E402
 
 DEFAULT_JSON = ROOT / "reference" / "instructions.json"
-OUTPUT = ROOT / "tango_aio" / "_catalog.py"
+OUTPUT = ROOT / "tango_aio" / "catalog" / "_table.py"
 
 # --------------------------------------------------------------------------------------
 # Decisions the JSON leaves open. Keys are instruction names.
@@ -648,7 +648,7 @@ facts the driver and the emulator share (cached settings, defaults, reply digits
 
 from __future__ import annotations
 
-from . import replyrules
+from . import _replyrules as replyrules
 {imports}
 
 CATALOG: tuple[Instruction, ...] = (
@@ -659,7 +659,7 @@ def render(entries: list[dict[str, Any]]) -> str:
     """The full text of ``tango_aio/catalog/_table.py`` for the JSON ``entries``."""
     body = "\n".join(_entry_text(instruction(e)) for e in entries)
     used = [name for name in schema.__all__ if re.search(rf"\b{name}[(.]", body)]
-    imports = "from .schema import (\n" + "".join(f"    {name},\n" for name in used) + ")"
+    imports = "from ._schema import (\n" + "".join(f"    {name},\n" for name in used) + ")"
     return HEADER.replace("{imports}", imports) + body + "\n)\n"
 
 

@@ -43,7 +43,7 @@ def values_of(name: str) -> list[str]:
 # The emulator is an independent reading: it imports nothing of the driver
 
 
-DRIVER_MODULES = {"core", "protocol", "patterns", "controller"}
+DRIVER_MODULES = {"sansio", "moves", "transports", "link", "families", "controller", "group"}
 
 
 def _imports(path: Path, package: str) -> list[str]:
@@ -97,20 +97,19 @@ def test_the_emulator_imports_nothing_of_the_driver() -> None:
 
 def test_the_import_scan_finds_driver_imports(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
-    sample.write_text("from ..core import expectation\nimport tango_aio.link._protocol\n"
-                      "from tango_aio import controller\nfrom .. import patterns\n"
-                      "from ..instructions import parse\n", encoding="utf-8")
+    sample.write_text("from ..sansio import expectation\nimport tango_aio.link._protocol\n"
+                      "from tango_aio import controller\nfrom ..sansio import _patterns\n"
+                      "from ..catalog import parse\n", encoding="utf-8")
     assert _driver_imports(sample) == [
-        "sample.py: tango_aio.controller._controller", "sample.py: tango_aio.sansio._core",
-        "sample.py: tango_aio.sansio._patterns", "sample.py: tango_aio.link._protocol"]
+        "sample.py: tango_aio.controller", "sample.py: tango_aio.link",
+        "sample.py: tango_aio.sansio"]
 
 
 def test_the_import_scan_follows_imports_through_other_modules(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
-    sample.write_text("from ..connection import open_connection\n", encoding="utf-8")
+    sample.write_text("from ..testing import tango_emulator\n", encoding="utf-8")
     hits = _driver_imports(sample)
-    assert hits and all(hit.startswith("sample.py -> tango_aio.controller._connection")
-                        for hit in hits)
+    assert hits and all(hit.startswith("sample.py -> tango_aio.testing") for hit in hits)
 
 
 # ---------------------------------------------------------------------------------------

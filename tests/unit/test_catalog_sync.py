@@ -10,7 +10,7 @@ import pytest
 from helpers import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
-CATALOG = ROOT / "tango_aio" / "_catalog.py"
+CATALOG = ROOT / "tango_aio" / "catalog" / "_table.py"
 REFERENCE = ROOT / "reference" / "instructions.json"
 
 
@@ -87,4 +87,4 @@ def test_catalog_is_pure_data() -> None:
         if isinstance(node, ast.Attribute):  # Kind.FLOAT, replyrules.mrt_lines
             assert isinstance(node.value, ast.Name), ast.dump(node)
     imported = {node.module for node in tree.body if isinstance(node, ast.ImportFrom)}
-    assert imported <= {"__future__", "schema", None}  # None: 'from . import replyrules'
+    assert imported <= {"__future__", "_schema", None}  # None: the reply rules
