@@ -1,4 +1,10 @@
-"""catalog."""
+"""The instruction catalog: one table of the manual's instructions, and its parsing.
+
+Every instruction is data (``_table.py``, generated from the reference by
+``tools/gen_catalog.py``): its forms, parameters, ranges, per-axis shape and reply rule.
+``_instructions.py`` checks and builds command lines against it before a byte is written
+and parses their replies; the driver and the emulator both read it, each on its own.
+"""
 
 from __future__ import annotations
 

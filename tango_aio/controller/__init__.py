@@ -1,4 +1,10 @@
-"""controller."""
+"""The controller facade: identity, connection, moves and events.
+
+``connect`` opens a link (serial, ``socket://``, ``sim://``) and sets the controller up;
+``Controller`` checks each call's input before a byte is written, runs moves through
+``Motion`` (which sees it through ``MotionPort``), publishes events, and holds the family
+objects; ``RestartWatch`` notices a controller that restarted behind a live link.
+"""
 
 from __future__ import annotations
 

@@ -1,7 +1,13 @@
-"""families."""
+"""The manual's families of instructions, each an object of its own on the controller.
+
+Each family speaks to its controller through a :class:`FamilyPort` (read, proven write,
+raw line) and never imports the controller; list transfers run at wire speed through
+``ListTransfer``.
+"""
 
 from __future__ import annotations
 
+from ._base import Family, FamilyPort
 from ._bulk import (
     MAX_TRIGGERS,
     Column,
@@ -19,6 +25,8 @@ from ._bulk import (
 __all__ = [
     "MAX_TRIGGERS",
     "Column",
+    "Family",
+    "FamilyPort",
     "ListTransfer",
     "Progress",
     "UploadError",

@@ -1,4 +1,9 @@
-"""fieldkit."""
+"""The field kit: probing an unknown unit, recording its wire traffic, replaying it.
+
+``probe`` asks a unit the questions whose answers the manual leaves open and writes a
+fingerprint; ``record_trace`` and the ``tango_aio.wire`` log record a session's lines;
+``replay`` plays a trace back on loopback and checks a client's lines against it.
+"""
 
 from __future__ import annotations
 

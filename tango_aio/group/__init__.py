@@ -1,4 +1,4 @@
-"""group."""
+"""Many controllers at once: ``ControllerGroup``, ``discover`` and move coalescing."""
 
 from __future__ import annotations
 

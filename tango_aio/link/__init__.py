@@ -1,4 +1,10 @@
-"""link."""
+"""The asyncio link: one protocol per connection, carrying out the sans-IO decisions.
+
+``TangoProtocol`` feeds received bytes to the core, resolves each request's future with
+its reply, arms the timers the session asks for and writes what the scheduler releases;
+it holds no rule of its own. ``Reconnector`` reopens a lost link under a
+``ReconnectPolicy``, seeing the controller only through its ``ReconnectPort``.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,10 @@
-"""moves."""
+"""The sans-IO rules of a move: its timing, budget and verdict.
+
+``_timing.py`` computes how long a motion line may take (``move_budget``), which axes it
+moves, and judges what a state read shows afterwards (``verdict``; a refused or garbled
+verdict contested by ``?statusaxis``; the proofs that a ``speed`` or ``go`` line arrived).
+Pure functions of the line, the cached settings and the replies, tested synchronously.
+"""
 
 from __future__ import annotations
 

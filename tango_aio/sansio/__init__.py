@@ -1,4 +1,13 @@
-"""sansio."""
+"""The sans-IO link: what a line on the wire means, decided without any I/O.
+
+Bytes go in (``ProtocolCore.receive_data``), lines come out stamped with their arrival and
+matched against the FIFO of replies the written requests owe (``_core.py``, shapes from
+``_patterns.py``). ``_scheduler.py`` decides which request may be written next (credit from
+``_flow.py``, separators between look-alike reads), ``_session.py`` holds the link's state
+(an enum and one transition table: resync, mode exchange, overdue replies, keepalive), and
+``_readback.py`` the read that proves a set. Each decision is an answer the asyncio layer
+carries out; nothing here awaits, sleeps or reads a clock.
+"""
 
 from __future__ import annotations
 

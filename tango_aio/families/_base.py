@@ -1,0 +1,54 @@
+"""What every family object stands on: the port it reaches the controller through.
+
+A family (settings, joystick, I/O, encoders, closed loop, triggers, snapshots, ...) groups
+the instructions of one chapter of the manual behind named, typed methods. It holds no
+link of its own: it speaks in intents (read a setting, write a proven setting, send a
+line) through a :class:`FamilyPort`, which the controller fills with its own methods, so a
+family never imports the controller and the controller stays a thin facade.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from ..catalog import Context, Value
+
+
+class FamilyPort(Protocol):
+    """The intents a family sends to its controller."""
+
+    @property
+    def context(self) -> Context:
+        """The axes and settings a line is checked against."""
+        ...
+
+    async def get(self, name: str, *args: Value, axis: str | None = None,
+                  timeout: float | None = None) -> Any:
+        """Read instruction ``name`` and return its parsed reply."""
+        ...
+
+    async def set(self, name: str, /, *args: Value, axis: str | None = None,
+                  check: bool = True, **axes: Any) -> None:
+        """Write instruction ``name``, proven by the controller's answer or a read-back."""
+        ...
+
+    async def query(self, line: str, timeout: float | None = None) -> str:
+        """Send a read line and return its reply text."""
+        ...
+
+    async def command(self, line: str, *, check: bool = True,
+                      timeout: float | None = None) -> None:
+        """Send a set or execute line, its error state checked."""
+        ...
+
+
+class Family:
+    """The base of every family object: its port, and nothing else."""
+
+    __slots__ = ("_port",)
+
+    def __init__(self, port: FamilyPort) -> None:
+        self._port = port
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__}>"
