@@ -120,39 +120,14 @@ def _lines(exchanges: Iterable[Exchange]) -> list[str]:
 
 def is_ack(line: str) -> bool:
     """Whether ``line`` looks like a mode-2 acknowledgement in any case (``OK...``,
-    ``ERR``, ``ERR 5``).
-
-    Parameters
-    ----------
-    line
-        A received line.
-
-    Returns
-    -------
-    bool
-        Whether it is an acknowledgement.
-    """
+    ``ERR``, ``ERR 5``)."""
     return _ACK.match(line) is not None
 
 
 def exchange_end(got: Sequence[str], version: str) -> tuple[int, int] | None:
     """Where a mode-1 exchange that ends with ``?err`` and ``?version`` ends in ``got``:
     the index of the first ``version`` line whose last line before it, move reports
-    aside, is a number (``?err``'s answer), and that number's index.
-
-    Parameters
-    ----------
-    got
-        The lines received so far.
-    version
-        The ``?version`` line.
-
-    Returns
-    -------
-    tuple[int, int] or None
-        The indices of the ``?version`` line and of ``?err``'s answer; ``None`` while
-        the exchange has not ended.
-    """
+    aside, is a number (``?err``'s answer), and that number's index."""
     for index, line in enumerate(got):
         if line != version:
             continue
@@ -166,18 +141,7 @@ def exchange_end(got: Sequence[str], version: str) -> tuple[int, int] | None:
 
 def normalized(line: str) -> str:
     """``line`` re-printed the way ``echo_text=normalized`` describes: lower case, single
-    spaces, numbers without redundant zeros or ``+``.
-
-    Parameters
-    ----------
-    line
-        A line as sent.
-
-    Returns
-    -------
-    str
-        The line re-printed.
-    """
+    spaces, numbers without redundant zeros or ``+``."""
     words = []
     for word in line.lower().split():
         if _NUMBER.match(word):
@@ -190,20 +154,7 @@ def normalized(line: str) -> str:
 
 def echo_form(line: str, sent: str) -> str | None:
     """The ``echo_text`` value under which ``line`` is the echo of ``sent`` (``None``: it
-    is no echo of it).
-
-    Parameters
-    ----------
-    line
-        A received line.
-    sent
-        The line sent.
-
-    Returns
-    -------
-    str or None
-        The ``echo_text`` value, or ``None``.
-    """
+    is no echo of it)."""
     if line == sent:
         return "exact"
     if sent.startswith("!") and line == sent[1:]:
@@ -215,18 +166,7 @@ def echo_form(line: str, sent: str) -> str | None:
 
 def decide_local_echo(first: Exchange) -> Observation:
     """``local_echo`` from the first ``?version`` in mode 1, where the controller echoes
-    nothing (L2117): a copy of the line sent is the link's.
-
-    Parameters
-    ----------
-    first
-        The exchange of the first ``?version``.
-
-    Returns
-    -------
-    Observation
-        The value of ``local_echo``.
-    """
+    nothing (L2117): a copy of the line sent is the link's."""
     sent = first.sent[0]
     if first.got[:1] == [sent]:
         return _seen("yes", "the line sent in mode 1 came back first, the reply after it",
@@ -235,20 +175,7 @@ def decide_local_echo(first: Exchange) -> Observation:
 
 
 def decide_line_end(lf_lines: list[str], exchange: Exchange) -> Observation:
-    """``line_end``: ``crlf`` when the controller sent any LF.
-
-    Parameters
-    ----------
-    lf_lines
-        The lines that arrived with an LF.
-    exchange
-        An exchange to show as the evidence.
-
-    Returns
-    -------
-    Observation
-        The value of ``line_end``.
-    """
+    """``line_end``: ``crlf`` when the controller sent any LF."""
     if lf_lines:
         return Observation("crlf", "replies carry a LF after their CR",
                            [f"<- {line!r}" for line in lf_lines[:3]])
@@ -256,20 +183,7 @@ def decide_line_end(lf_lines: list[str], exchange: Exchange) -> Observation:
 
 
 def decide_version_format(exchange: Exchange, version: str) -> Observation:
-    """``version_format`` from the ``?version`` line (L1063-1107, old L414-426).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?version``.
-    version
-        Its answer.
-
-    Returns
-    -------
-    Observation
-        The value of ``version_format``.
-    """
+    """``version_format`` from the ``?version`` line (L1063-1107, old L414-426)."""
     if _VERSION_NEW.match(version):
         return _seen("new", "a space before the comma ahead of the time", exchange)
     if _VERSION_OLD.match(version):
@@ -280,20 +194,7 @@ def decide_version_format(exchange: Exchange, version: str) -> Observation:
 def decide_version_value(exchange: Exchange, version: str) -> Observation:
     """``version_value`` from ``?version 1``: the version number only (L1057-1059,
     L1107), or the whole ``?version`` line, the value ignored (as by a ``version`` that
-    takes none, old L416-418).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?version 1``.
-    version
-        The ``?version`` answer.
-
-    Returns
-    -------
-    Observation
-        The value of ``version_value``.
-    """
+    takes none, old L416-418)."""
     if exchange.got == [version] and exchange.err == 0:
         return _seen("line", "?version 1 answered the whole ?version line", exchange)
     if len(exchange.got) == 1 and exchange.err == 0 and "," not in exchange.got[0]:
@@ -310,22 +211,7 @@ def decide_instruction_set(version1: Exchange, help5: Exchange, version: str
     """``instruction_set`` from ``?version 1`` and ``?help 5``, values the older
     edition's ``version`` and ``help`` did not take (old L416-418, old L805-811): error 4
     for ``?version 1`` is the older edition's; where ``?version 1`` answers the whole
-    line (the value ignored), ``?help 5`` tells.
-
-    Parameters
-    ----------
-    version1
-        The exchange of ``?version 1``.
-    help5
-        The exchange of ``?help 5``.
-    version
-        The ``?version`` answer.
-
-    Returns
-    -------
-    Observation
-        The value of ``instruction_set``.
-    """
+    line (the value ignored), ``?help 5`` tells."""
     if not version1.got and version1.err == 4:
         return _seen("older", "?version 1 answered nothing and set error 4", version1)
     if version1.got == [version] and version1.err == 0:
@@ -343,18 +229,7 @@ def decide_instruction_set(version1: Exchange, help5: Exchange, version: str
 
 
 def decide_help_number(exchange: Exchange) -> Observation:
-    """``help_number`` from ``?help 5`` (L2915-2919).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?help 5``.
-
-    Returns
-    -------
-    Observation
-        The value of ``help_number``.
-    """
+    """``help_number`` from ``?help 5`` (L2915-2919)."""
     if not exchange.got and exchange.err == 4:
         return _unseen("moot: ?help N is refused with error 4 (help takes no value, as in "
                        "the older edition)", (), exchange)
@@ -368,18 +243,7 @@ def decide_help_number(exchange: Exchange) -> Observation:
 
 
 def decide_help_case(exchange: Exchange) -> Observation:
-    """``help_case`` from ``help`` (L2915-2919).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``help``.
-
-    Returns
-    -------
-    Observation
-        The value of ``help_case``.
-    """
+    """``help_case`` from ``help`` (L2915-2919)."""
     if len(exchange.got) == 1:
         line = exchange.got[0]
         if line.startswith("ERROR ") and "," in line:
@@ -390,18 +254,7 @@ def decide_help_case(exchange: Exchange) -> Observation:
 
 
 def decide_service_end(exchange: Exchange) -> Observation:
-    """``service_end`` from ``service`` (L2937-2943).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``service``.
-
-    Returns
-    -------
-    Observation
-        The value of ``service_end``.
-    """
+    """``service_end`` from ``service`` (L2937-2943)."""
     if exchange.err == 4 and not exchange.got:
         return _unseen("moot: service is refused with error 4", (), exchange)
     if exchange.got and exchange.got[-1] == "END_SERVICE_PRINT.":
@@ -415,22 +268,7 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
                       ) -> Observation:
     """``lim_cr_bug`` from ``?lim`` in extmode 0 and 1 (L2196-2232, L4559-4621): an extra
     CR splits the reply in two. ``extmode1`` is ``None`` when the unit has no extmode,
-    where ``both`` and ``extmode0`` are the same.
-
-    Parameters
-    ----------
-    axes
-        The unit's number of axes.
-    extmode0
-        The exchange of ``?lim`` in extmode 0.
-    extmode1
-        The exchange of ``?lim`` in extmode 1, or ``None``.
-
-    Returns
-    -------
-    Observation
-        The value of ``lim_cr_bug``.
-    """
+    where ``both`` and ``extmode0`` are the same."""
     if axes < 2:
         return _unseen("a 1-axis unit: the extra CR after the X pair cannot show",
                        ("extmode0", "none", "both"), extmode0)
@@ -454,20 +292,7 @@ def decide_lim_cr_bug(axes: int, extmode0: Exchange, extmode1: Exchange | None
 
 
 def status_letters(line: str) -> tuple[str, str] | None:
-    """The letters of an all-axes ``?statusaxis`` line and how it ends.
-
-    Parameters
-    ----------
-    line
-        A received line.
-
-    Returns
-    -------
-    tuple[str, str] or None
-        The letters and the ``status_tail`` value: ``"yes"`` (``.-``), ``"dot"`` (``.``
-        alone, the completion report's shape) or ``"no"`` (the letters alone); ``None``
-        if it is no such line.
-    """
+    """The letters of an all-axes ``?statusaxis`` line and how it ends."""
     if line.endswith(".-"):
         return line[:-2], "yes"
     if line.endswith(".") and "." not in line[:-1] and 1 <= len(line) - 1 <= 4:
@@ -480,22 +305,7 @@ def status_letters(line: str) -> tuple[str, str] | None:
 def decide_status(exchange: Exchange, axes: int, joy: int | None
                   ) -> dict[str, Observation]:
     """``status_tail``, ``absent_axes`` and ``joystick_letter`` from ``?statusaxis``
-    (L2662-2725) on a unit with ``axes`` axes, the joystick setting ``joy``.
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?statusaxis``.
-    axes
-        The unit's number of axes.
-    joy
-        The joystick setting (``?joy``), or ``None`` if it is unknown.
-
-    Returns
-    -------
-    dict[str, Observation]
-        The observation of each of the three switches, by switch name.
-    """
+    (L2662-2725) on a unit with ``axes`` axes, the joystick setting ``joy``."""
     out: dict[str, Observation] = {}
     parsed = status_letters(exchange.got[0]) if len(exchange.got) == 1 else None
     if parsed is None:
@@ -535,20 +345,7 @@ def decide_status(exchange: Exchange, axes: int, joy: int | None
 def decide_numbers(exchanges: Sequence[Exchange], below_zero: Exchange | None
                    ) -> Observation:
     """``numbers`` (L66-70, L94-96) from numeric reads, and ``below_zero``: a read of a
-    value just below zero (``-0.0000`` or ``0.0000``), when a move made one.
-
-    Parameters
-    ----------
-    exchanges
-        The exchanges of numeric reads.
-    below_zero
-        The read of a value just below zero, or ``None``.
-
-    Returns
-    -------
-    Observation
-        The value of ``numbers``.
-    """
+    value just below zero (``-0.0000`` or ``0.0000``), when a move made one."""
     words = [word for exchange in exchanges for line in exchange.got
              for word in line.replace(",", " ").split()]
     if any(word.startswith("+") for word in words):
@@ -571,20 +368,7 @@ def decide_numbers(exchanges: Sequence[Exchange], below_zero: Exchange | None
 def decide_mode_change_echo(into4: Exchange, back1: Exchange) -> Observation:
     """``echo`` from ``!autostatus 4`` sent in mode 1 and ``!autostatus 1`` sent in mode 4
     (L2117): echoed under the mode before (``before``, ``completion``) or after
-    (``after``) the line.
-
-    Parameters
-    ----------
-    into4
-        The exchange of ``!autostatus 4`` sent in mode 1.
-    back1
-        The exchange of ``!autostatus 1`` sent in mode 4.
-
-    Returns
-    -------
-    Observation
-        The value of ``echo``.
-    """
+    (``after``) the line."""
     echoed_into = [line for line in into4.got if echo_form(line, into4.sent[0])]
     echoed_back = [line for line in back1.got if echo_form(line, back1.sent[0])]
     if into4.got == [] and echoed_back and len(back1.got) == 1:
@@ -597,20 +381,7 @@ def decide_mode_change_echo(into4: Exchange, back1: Exchange) -> Observation:
 
 
 def decide_echo_all(exchange: Exchange, version: str) -> Observation:
-    """``echo_all`` from ``?version`` in mode 4 (L2117, old L723).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?version`` in mode 4.
-    version
-        The ``?version`` answer of mode 1.
-
-    Returns
-    -------
-    Observation
-        The value of ``echo_all``.
-    """
+    """``echo_all`` from ``?version`` in mode 4 (L2117, old L723)."""
     echoes = [line for line in exchange.got if line == exchange.sent[0]]
     rest = [line for line in exchange.got if line != exchange.sent[0]]
     if rest == [version] and not echoes:
@@ -622,18 +393,7 @@ def decide_echo_all(exchange: Exchange, version: str) -> Observation:
 
 
 def decide_echo_text(exchange: Exchange) -> Observation:
-    """``echo_text`` from a set line with a double space sent in mode 4 (L2168).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of the set line.
-
-    Returns
-    -------
-    Observation
-        The value of ``echo_text``.
-    """
+    """``echo_text`` from a set line with a double space sent in mode 4 (L2168)."""
     forms = {echo_form(line, exchange.sent[0]) for line in exchange.got}
     forms.discard(None)
     if len(exchange.got) == 1 and len(forms) == 1:
@@ -646,18 +406,7 @@ def decide_echo_text(exchange: Exchange) -> Observation:
 
 
 def decide_ack_case(exchanges: Sequence[Exchange]) -> Observation:
-    """``ack_case`` from every mode-2 ``OK...`` seen (L2099-2103).
-
-    Parameters
-    ----------
-    exchanges
-        The exchanges of mode 2.
-
-    Returns
-    -------
-    Observation
-        The value of ``ack_case``.
-    """
+    """``ack_case`` from every mode-2 ``OK...`` seen (L2099-2103)."""
     oks = {line for exchange in exchanges for line in exchange.got
            if line.lower() == "ok..."}
     table = {"OK...": "upper", "ok...": "lower", "Ok...": "title"}
@@ -671,20 +420,7 @@ def decide_ack_case(exchanges: Sequence[Exchange]) -> Observation:
 
 def decide_ack_mode_change(into2: Exchange, back1: Exchange) -> Observation:
     """``ack_mode_change`` (L2060-2103): ``!autostatus 2`` sent in mode 1 and
-    ``!autostatus 1`` sent in mode 2, acknowledged per the mode after or before.
-
-    Parameters
-    ----------
-    into2
-        The exchange of ``!autostatus 2`` sent in mode 1.
-    back1
-        The exchange of ``!autostatus 1`` sent in mode 2.
-
-    Returns
-    -------
-    Observation
-        The value of ``ack_mode_change``.
-    """
+    ``!autostatus 1`` sent in mode 2, acknowledged per the mode after or before."""
     into = [line for line in into2.got if is_ack(line)]
     back = [line for line in back1.got if is_ack(line)]
     if len(into) == 1 and not back and len(into2.got) == 1 and not back1.got:
@@ -695,20 +431,7 @@ def decide_ack_mode_change(into2: Exchange, back1: Exchange) -> Observation:
 
 
 def decide_ack_reads(exchange: Exchange, version: str) -> Observation:
-    """``ack_reads`` from ``?version`` in mode 2 (L2099-2103).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``?version`` in mode 2.
-    version
-        The ``?version`` answer of mode 1.
-
-    Returns
-    -------
-    Observation
-        The value of ``ack_reads``.
-    """
+    """``ack_reads`` from ``?version`` in mode 2 (L2099-2103)."""
     got = exchange.got
     if got == [version]:
         return _seen("no", "a read is not acknowledged", exchange)
@@ -720,18 +443,7 @@ def decide_ack_reads(exchange: Exchange, version: str) -> Observation:
 
 
 def decide_err_number(exchange: Exchange) -> Observation:
-    """``err_number`` from a refused set line in mode 2 (L2099, L2150-2152).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of the refused set line.
-
-    Returns
-    -------
-    Observation
-        The value of ``err_number``.
-    """
+    """``err_number`` from a refused set line in mode 2 (L2099, L2150-2152)."""
     if len(exchange.got) == 1:
         line = exchange.got[0]
         if re.match(r"(?i)^err \d+$", line):
@@ -742,18 +454,7 @@ def decide_err_number(exchange: Exchange) -> Observation:
 
 
 def decide_save_ack(exchange: Exchange) -> Observation:
-    """``save_ack`` from ``!save`` in mode 2 (L1738-1762, L2081).
-
-    Parameters
-    ----------
-    exchange
-        The exchange of ``!save``.
-
-    Returns
-    -------
-    Observation
-        The value of ``save_ack``.
-    """
+    """``save_ack`` from ``!save`` in mode 2 (L1738-1762, L2081)."""
     oks = [line for line in exchange.got if line.lower() == "ok..."]
     if len(oks) == len(exchange.got) == 1:
         return _seen("once", "!save answered one OK...", exchange)

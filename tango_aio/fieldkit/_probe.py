@@ -327,18 +327,7 @@ class _Prober:
         to ``?err`` are theirs (in mode 1 a read answers one line, L2087). The exchange
         ends at the ``?version`` line that follows a number (``?err``'s answer, move
         reports aside): a line of ``lines`` may be the ``?version`` line too (``?version
-        1`` on firmware that ignores the value).
-
-        Returns
-        -------
-        Exchange
-            The lines sent and their answer.
-
-        Raises
-        ------
-        ProbeError
-            No answer came in time.
-        """
+        1`` on firmware that ignores the value)."""
         self.leftovers()
         self.link.send(*lines, "?err", "?version")
         version = self.version
@@ -360,13 +349,7 @@ class _Prober:
 
     async def checked(self, line: str) -> Exchange:
         """:meth:`ask` for one instruction; one it answers with nothing and error 4
-        ("invalid instruction", L970) is recorded among those the unit lacks.
-
-        Returns
-        -------
-        Exchange
-            The line sent and its answer.
-        """
+        ("invalid instruction", L970) is recorded among those the unit lacks."""
         exchange = await self.ask(line)
         if not exchange.got and exchange.err == 4:
             self.lacks.add(line.lstrip("?").split()[0].lower())
@@ -694,13 +677,7 @@ class _Prober:
                      last: bool) -> bool:
         """``move_during_move``: a second move sent while the first runs (L6606). False
         (nothing recorded unless ``last``) when the first had ended before (its report
-        came before the answers to the lines after them).
-
-        Returns
-        -------
-        bool
-            Whether the second move was sent during the first.
-        """
+        came before the answers to the lines after them)."""
         first, second = p0 + step, p0 + 2 * step
         lines = (f"!moa x {first:.{decimals}f}", f"!moa x {second:.{decimals}f}")
         sent = await self.ask(*lines)
@@ -760,13 +737,7 @@ class _Prober:
         """``disable_during_move``: ``!axis x 0`` while X moves (L3919-3960 say nothing of
         a moving axis): refused (error 2), the move stopped, or the move going on to its
         target. X is enabled again afterwards. False (nothing recorded unless ``last``)
-        when the move had ended before the line arrived.
-
-        Returns
-        -------
-        bool
-            Whether the line arrived during the move.
-        """
+        when the move had ended before the line arrived."""
         target = p0 + step
         lines = (f"!moa x {target:.{decimals}f}", "!axis x 0")
         self.undo.append("!axis x 1")
@@ -811,13 +782,7 @@ class _Prober:
                     kind: str, last: bool) -> bool:
         """``a`` (``abort_letter``, ``abort_report``) or Ctrl+C (``ctrl_c``) during a
         move (L6808-6834). False (nothing recorded unless ``last``) when the move had
-        ended before the stop arrived.
-
-        Returns
-        -------
-        bool
-            Whether the stop arrived during the move.
-        """
+        ended before the stop arrived."""
         target = p0 + step
         line = f"!moa x {target:.{decimals}f}"
         self.link.take()

@@ -74,18 +74,7 @@ def _confirm(args: argparse.Namespace) -> bool:
 
 async def _probe_command(args: argparse.Namespace) -> int:
     """``tango-aio probe URL``: writes the fingerprint (0, also when it recorded unknown
-    behaviour, which it asks to send), or fails with the error (1).
-
-    Returns
-    -------
-    int
-        The exit status.
-
-    Raises
-    ------
-    ProbeError
-        The probe failed (after the trace so far was written, if asked).
-    """
+    behaviour, which it asks to send), or fails with the error (1)."""
     asks = (args.moves or args.save) and not args.yes and \
         not args.url.lower().startswith("sim://")
     if asks and not await asyncio.to_thread(_confirm, args):

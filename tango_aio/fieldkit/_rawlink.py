@@ -135,13 +135,7 @@ class _Link:
         """Wait until no line arrived for ``settle`` seconds.
 
         A few more loop turns after the silence let bytes already on their way in be read
-        (a busy event loop can run a due timer before the I/O that came meanwhile).
-
-        Raises
-        ------
-        ConnectionLostError
-            The link was lost meanwhile.
-        """
+        (a busy event loop can run a due timer before the I/O that came meanwhile)."""
         while True:
             if self._lost:
                 raise ConnectionLostError("the link to the controller was lost")
