@@ -2,11 +2,14 @@
 
 Each family speaks to its controller through a :class:`FamilyPort` (read, proven write,
 raw line) and never imports the controller; list transfers run at wire speed through
-``ListTransfer``.
+``ListTransfer``. The typed access of each chapter (``JoystickAccess``, ``IOAccess``...) is
+generated from the catalog by ``tools/gen_families.py``; the families add their semantics
+in subclasses.
 """
 
 from __future__ import annotations
 
+from ._access import ManualEnum
 from ._base import Family, FamilyPort
 from ._bulk import (
     MAX_TRIGGERS,
@@ -21,14 +24,49 @@ from ._bulk import (
     validate_rows,
     validate_trigger_positions,
 )
+from ._generated import (
+    ACCESS,
+    HAND_MADE,
+    AdjustmentsAccess,
+    CalibrationAccess,
+    ClosedLoopAccess,
+    CommunicationAccess,
+    ControllerInfoAccess,
+    EncoderAccess,
+    IOAccess,
+    JoystickAccess,
+    LimitSwitchAccess,
+    MREncoderAccess,
+    OperatingModesAccess,
+    SnapshotAccess,
+    SystemAccess,
+    TriggerAccess,
+)
 
 __all__ = [
+    "ACCESS",
+    "HAND_MADE",
     "MAX_TRIGGERS",
+    "AdjustmentsAccess",
+    "CalibrationAccess",
+    "ClosedLoopAccess",
     "Column",
+    "CommunicationAccess",
+    "ControllerInfoAccess",
+    "EncoderAccess",
     "Family",
     "FamilyPort",
+    "IOAccess",
+    "JoystickAccess",
+    "LimitSwitchAccess",
     "ListTransfer",
+    "MREncoderAccess",
+    "ManualEnum",
+    "OperatingModesAccess",
     "Progress",
+    "SnapshotAccess",
+    "SystemAccess",
+    "TriggerAccess",
     "UploadError",
     "check_axis",
     "check_resolution",
