@@ -22,7 +22,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[2] / "tango_aio"
 
 #: Generated from the reference data (tools/), not written by hand.
-GENERATED = {"catalog/_table.py"}
+GENERATED = {"catalog/_table.py", "families/_generated.py"}
 #: The emulator's instruction handlers: each ``i_<instruction>`` method takes the parsed
 #: line and returns the reply lines (``None``: no reply), as these modules' docstrings say
 #: once for all of them; the sections would repeat that on every handler.
