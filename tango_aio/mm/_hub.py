@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import threading
 import weakref
 from collections.abc import Sequence
@@ -87,6 +88,11 @@ class TangoHub(HubDevice):
             controller, self._controller = self._controller, None
         if controller is not None:
             controller.close()
+            # The closed link's reference cycles (its event loop, thread and transport)
+            # are collected here, in the caller's thread, rather than by a collection
+            # that pymmcore's callback thread may run while the interpreter exits, which
+            # aborts the process ("exception not rethrown"; see the how-to).
+            gc.collect()
 
     def get_installed_peripherals(self) -> Sequence[tuple[str, str]]:
         """The device classes a TANGO can carry (loadable by name, parent: this hub).

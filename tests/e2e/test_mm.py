@@ -6,8 +6,12 @@ from __future__ import annotations
 
 import concurrent.futures
 import gc
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -26,6 +30,7 @@ from tango_aio.sim.profiles import PROFILES, variants
 from tango_aio.testing import faults
 
 INSTANT = "sim://?baud=0"
+ROOT = Path(__file__).resolve().parents[2]
 
 #: Bound on a wait for the emulator: only a hang reaches it (seconds).
 HANG = 30.0
@@ -310,7 +315,7 @@ def _emulated_shutter(hub: TangoHub) -> int:
 def test_devices_find_their_hub_by_the_parent_label(core: UniMMCore) -> None:
     core.loadPyDevice("Hub", TangoHub(INSTANT))
     core.initializeDevice("Hub")
-    core.loadPyDevice("XY", TangoXYStage())
+    core.loadDevice("XY", "tango_aio.mm", "TangoXYStage")  # by name, as a config file does
     core.loadPyDevice("Shutter", TangoShutter())
     for label in ("XY", "Shutter"):
         core.setParentLabel(label, "Hub")
@@ -392,3 +397,28 @@ def test_the_blocking_controller_is_shared_by_the_devices(core: UniMMCore) -> No
     assert all(isinstance(device.controller, tango_aio.sync.Controller)  # type: ignore[attr-defined]
                and device.controller is hub.controller  # type: ignore[attr-defined]
                for device in devices)
+
+
+# ------------------------------------------------------------------ interpreter exit ------
+
+EXITS = """
+from pymmcore_plus.experimental.unicore import UniMMCore
+from tango_aio.mm import load_tango
+core = UniMMCore()
+load_tango(core, "sim://?baud=0")
+core.setXYPosition(10.0, 10.0)
+core.waitForSystem()
+core.unloadAllDevices()
+del core
+"""
+
+
+def test_a_program_that_releases_its_core_exits_cleanly(tmp_path: Path) -> None:
+    """pymmcore 12.5's callback thread may run a garbage collection while the interpreter
+    exits, and the process aborts ("FATAL: exception not rethrown", SIGABRT; a core and a
+    tango_aio.sync link alone are enough): the how-to's programs release the core first
+    (``del core``), which stops that thread."""
+    result = subprocess.run([sys.executable, "-c", EXITS], capture_output=True, text=True,
+                            timeout=120, cwd=tmp_path, check=False,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr[-2000:]
