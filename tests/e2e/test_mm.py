@@ -422,3 +422,21 @@ def test_a_program_that_releases_its_core_exits_cleanly(tmp_path: Path) -> None:
                             timeout=120, cwd=tmp_path, check=False,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_an_mda_stops_with_the_reason_at_a_move_that_ends_short(core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT)
+    hub = hub_of(core, labels)
+    make_fast(hub)
+    camera = Camera(hub)
+    core.loadPyDevice("Camera", camera)
+    core.initializeDevice("Camera")
+    core.setCameraDevice("Camera")
+    sequence = useq.MDASequence(stage_positions=(
+        useq.AbsolutePosition(x=100.0, y=0.0, z=0.0),
+        useq.AbsolutePosition(x=60_000.0, y=0.0, z=0.0),  # beyond the switch at +50 mm
+        useq.AbsolutePosition(x=200.0, y=0.0, z=0.0)))
+    with pytest.raises(MoveError, match="upper limit switch"):
+        core.mda.run(sequence)
+    assert len(camera.seen) == 1  # the first position only: none at the switch
+    assert camera.seen[0]["x"][0] == pytest.approx(100.0, abs=0.01)
