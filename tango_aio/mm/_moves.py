@@ -17,6 +17,7 @@ class Moves:
         self._running: list[concurrent.futures.Future[Any]] = []
         self._stopped: set[concurrent.futures.Future[Any]] = set()
         self._failure: BaseException | None = None
+        self._ended = False
 
     def add(self, future: concurrent.futures.Future[Any]) -> None:
         """Follow ``future`` (a move just started)."""
@@ -27,6 +28,7 @@ class Moves:
         """Forget the moves that ended; keep the first failure of one not stopped on
         purpose (held by the caller's lock)."""
         ended = [future for future in self._running if future.done()]
+        self._ended = self._ended or bool(ended)
         for future in ended:
             self._running.remove(future)
             stopped = future in self._stopped
@@ -64,6 +66,19 @@ class Moves:
         self.check()
         with self._lock:
             return bool(self._running)
+
+    def ended(self) -> bool:
+        """Whether a move has ended since the last call (the position changed): once.
+
+        Returns
+        -------
+        bool
+            ``True`` the first time it is asked after a move ended.
+        """
+        with self._lock:
+            self._collect()
+            ended, self._ended = self._ended, False
+        return ended
 
     def stopping(self) -> list[concurrent.futures.Future[Any]]:
         """Mark the running moves as stopped on purpose (their error is not a failure to

@@ -157,6 +157,9 @@ class _Axes(_Base):
     def busy(self) -> bool:
         """Whether a move of these axes has not ended with the driver's verdict yet.
 
+        The first call that finds the moves ended tells the core's listeners where the
+        axes stand (``XYStagePositionChanged``, ``stagePositionChanged``), read then.
+
         Returns
         -------
         bool
@@ -168,7 +171,19 @@ class _Axes(_Base):
             A move that ended since the last call stopped short (a limit switch, a
             disabled axis, ...): raised once, by the next call.
         """
-        return self._moves.busy()
+        busy = self._moves.busy()
+        if not busy and self._moves.ended():
+            self._announce()
+        return busy
+
+    def _announce(self) -> None:
+        """Tell the core's listeners (stage widgets) where the axes stand now."""
+        where = self._positions()
+        values = [where[axis] for axis in self._axes]
+        events = self.core.events
+        signal = events.XYStagePositionChanged if len(values) == 2 \
+            else events.stagePositionChanged
+        signal.emit(self.get_label(), *values)
 
     def home(self) -> None:
         """Calibrate the axes (``cal``, L5259: to the lower limit switch, which becomes 0);

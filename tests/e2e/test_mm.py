@@ -436,3 +436,18 @@ def test_an_mda_stops_with_the_reason_at_a_move_that_ends_short(core: UniMMCore)
         core.mda.run(sequence)
     assert len(camera.seen) == 1  # the first position only: none at the switch
     assert camera.seen[0]["x"][0] == pytest.approx(100.0, abs=0.01)
+
+
+def test_the_end_of_a_move_is_announced_to_the_core_listeners(core: UniMMCore) -> None:
+    load_tango(core, INSTANT, shutter=False)
+    xy_seen: list[tuple[str, float, float]] = []
+    z_seen: list[tuple[str, float]] = []
+    core.events.XYStagePositionChanged.connect(lambda *args: xy_seen.append(args))
+    core.events.stagePositionChanged.connect(lambda *args: z_seen.append(args))
+    core.setXYPosition(300.0, -400.0)
+    core.setPosition(25.0)
+    core.waitForSystem()
+    core.waitForSystem()  # once per move
+    assert [label for label, *_ in xy_seen] == ["TangoXY"]
+    assert xy_seen[0][1:] == pytest.approx((300.0, -400.0))
+    assert z_seen == [("TangoZ", 25.0)]

@@ -66,3 +66,15 @@ def test_a_move_stopped_on_purpose_is_no_failure() -> None:
     assert moves.busy()
     assert cancelled.cancel()  # e.g. a move whose line was never written
     assert not moves.busy()
+
+
+def test_the_end_of_moves_is_told_once() -> None:
+    moves = Moves()
+    assert not moves.ended()
+    first, second = started(moves), started(moves)
+    assert not moves.ended()
+    first.set_result({})
+    second.set_exception(MoveError("short", {"x": "S"}))
+    assert moves.ended() and not moves.ended()
+    with pytest.raises(MoveError):
+        moves.check()
