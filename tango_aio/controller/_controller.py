@@ -112,7 +112,14 @@ from ..sansio import (
     Unsolicited,
 )
 from ..status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
-from ..units import Measure, UnitScale, from_controller, plain, to_controller
+from ..units import (
+    DEFAULT_USTEPS,
+    Measure,
+    UnitScale,
+    from_controller,
+    plain,
+    to_controller,
+)
 from ._motion import (
     STOP_WAIT,
     Motion,
@@ -2105,15 +2112,19 @@ class Controller:
 
     async def unit_scales(self) -> dict[str, UnitScale]:
         """The unit conversion of every present axis: its ``dim``, ``pitch``, ``gear`` and
-        the global ``usteps``, read now (four pipelined reads).
+        the global ``usteps``, read now (four pipelined reads). The older edition has no
+        ``usteps`` (its dim 0 counts microsteps, old L863-900, without saying how many per
+        revolution): there the 1.71 default (40000, L4106) is taken.
 
         Returns
         -------
         dict[str, UnitScale]
             The unit scale of each present axis.
         """
+        older = self._identity is not None and self._identity.family == "older"
         dims, pitch, gear, usteps = await asyncio.gather(
-            self.get("dim"), self.get("pitch"), self.get("gear"), self.get("usteps"))
+            self.get("dim"), self.get("pitch"), self.get("gear"),
+            _value(DEFAULT_USTEPS) if older else self.get("usteps"))
         return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
                                 int(usteps)) for axis in dims}
 
@@ -2662,6 +2673,10 @@ class _Relink:
 
 class _SignatureOf(Protocol):
     def __call__(self, controller: Controller | None = None) -> Signature | None: ...
+
+
+async def _value(value: int) -> int:
+    return value
 
 
 def _ignore_outcome(future: asyncio.Future[Any]) -> None:

@@ -33,7 +33,8 @@ RAISES_ELSEWHERE = {"catalog/_instructions.py"}
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
                      re.MULTILINE)
-_DECORATORS_WITHOUT_SECTIONS = {"property", "cached_property", "overload", "setter", "deleter"}
+_DECORATORS_WITHOUT_SECTIONS = {"property", "cached_property", "overload", "setter", "deleter",
+                                "pymm_property"}
 
 
 def _relative(path: Path) -> str:
@@ -92,9 +93,10 @@ def _public_modules() -> dict[Path, set[str] | None]:
         found[_file_of(module)] = None
         for name in _exported_names(module):
             home = _defined_in(_file_of(module), name)
-            if home is not None and home != _file_of(module) and found.get(home, set()) \
-                    is not None:
-                found.setdefault(home, set()).add(name)
+            if home is not None and home != _file_of(module):
+                names = found.setdefault(home, set())
+                if names is not None:
+                    names.add(name)
     return found
 
 
