@@ -15,6 +15,7 @@ import as_windows  # first: TANGO_AIO_TEST_AS_WINDOWS=1 (issue #27)
 import pytest
 from helpers import INSTANT, ConnectOptions, Emulated, EmulatorFactory, FakeLink, FakeTransport
 from hypothesis import settings
+from virtualclock import VirtualClockLoop
 
 import tango_aio
 from tango_aio.connection import connect
@@ -84,7 +85,8 @@ def _write_rewritten(config: pytest.Config, files: list[Path]) -> None:
 
 
 # TANGO_AIO_TEST_LOOP=uvloop runs every async test on uvloop's event loop (tango-aio[uvloop]),
-# the way CI runs the end-to-end tier under it.
+# the way CI runs the end-to-end tier under it. Otherwise a test marked virtual_clock runs
+# on a loop whose clock jumps over waits that only its own timers can end (virtualclock.py).
 if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
     import uvloop
 
@@ -92,7 +94,16 @@ if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
                                       ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
         """Run the async tests on uvloop (a pytest-asyncio hook)."""
         return {"uvloop": uvloop.new_event_loop}
-elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") != "asyncio":
+elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") == "asyncio":
+
+    def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
+                                      ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+        """The virtual clock's loop for tests marked ``virtual_clock`` (a pytest-asyncio
+        hook), asyncio's own for the others."""
+        if item.get_closest_marker("virtual_clock") is not None:
+            return {"virtual_clock": VirtualClockLoop}
+        return {"asyncio": asyncio.new_event_loop}
+else:
     raise pytest.UsageError("TANGO_AIO_TEST_LOOP must be asyncio or uvloop")
 
 def pytest_report_header(config: pytest.Config) -> str | None:

@@ -47,7 +47,7 @@ from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Wire
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 #: Travel between the limit switches of the shortened emulated axes (mm).
 TRAVEL = 10.0

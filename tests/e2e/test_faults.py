@@ -61,7 +61,7 @@ from tango_aio.instructions import parse
 from tango_aio.protocol import Response, Submission, TangoProtocol
 from tango_aio.sim.wire import flip_one_bit
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.virtual_clock]
 
 #: outcome counters per fault, reported at the end of the module
 COUNTS: defaultdict[str, Counter[str]] = defaultdict(Counter)
