@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Executor
 from contextvars import Context
-from typing import TypeVar, TypeVarTuple, Unpack
+from typing import TypeVar, TypeVarTuple
 
 __all__ = ["VirtualClockLoop"]
 
@@ -92,14 +92,14 @@ class VirtualClockLoop(asyncio.SelectorEventLoop):
             return False
         return all(thread.ident in self._threads for thread in threading.enumerate())
 
-    def call_soon_threadsafe(self, callback: Callable[[Unpack[_Ts]], object],
-                             *args: Unpack[_Ts], context: Context | None = None
+    def call_soon_threadsafe(self, callback: Callable[[*_Ts], object],
+                             *args: *_Ts, context: Context | None = None
                              ) -> asyncio.Handle:
         self._outside = True
         return super().call_soon_threadsafe(callback, *args, context=context)
 
     def run_in_executor(self, executor: Executor | None,
-                        func: Callable[[Unpack[_Ts]], _T], *args: Unpack[_Ts]
+                        func: Callable[[*_Ts], _T], *args: *_Ts
                         ) -> asyncio.Future[_T]:
         self._outside = True
         return super().run_in_executor(executor, func, *args)
