@@ -47,7 +47,7 @@ from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import replay
 from tango_aio.trace import parse_trace
 
-pytestmark = [pytest.mark.timeout(120), pytest.mark.virtual_clock]
+pytestmark = pytest.mark.timeout(120)
 
 ROOT = Path(__file__).resolve().parents[2]
 
