@@ -35,10 +35,14 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 gc.disable()
 
 
-#: xdist workers per usable core for ``-n auto`` (pyproject addopts): most tests wait on
-#: the emulated wire or on subprocesses, so several per core pay (2 cores: 10 workers, the
-#: default run in about a minute). ``TANGO_AIO_TEST_WORKERS`` sets the count outright.
-WORKERS_PER_CORE = 5
+#: xdist workers per usable core for ``-n auto`` (pyproject addopts). The in-process
+#: end-to-end tests wait on the virtual clock (virtualclock.py), so the run is CPU-bound:
+#: two per core keep the cores busy while subprocesses start and real links wait, and
+#: each worker more costs its collection (about 3 s of CPU). ``TANGO_AIO_TEST_WORKERS``
+#: sets the count outright. Under uvloop (``TANGO_AIO_TEST_LOOP=uvloop``) there is no
+#: virtual clock and the waits are real: :data:`WAITING_WORKERS_PER_CORE` then.
+WORKERS_PER_CORE = 2
+WAITING_WORKERS_PER_CORE = 5
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
@@ -48,7 +52,9 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
         return max(1, int(chosen))
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
         os.cpu_count() or 1)
-    return max(2, min(WORKERS_PER_CORE * cores, 32))
+    per_core = (WAITING_WORKERS_PER_CORE if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop"
+                else WORKERS_PER_CORE)
+    return max(2, min(per_core * cores, 32))
 
 
 @pytest.hookimpl(tryfirst=True)
