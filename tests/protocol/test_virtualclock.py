@@ -5,6 +5,7 @@ loop's timers can end take no real time, and anything outside the loop that may 
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import threading
 import time
@@ -15,7 +16,9 @@ from virtualclock import VirtualClockLoop
 
 from tango_aio.errors import MoveError
 
-pytestmark = pytest.mark.virtual_clock
+pytestmark = [pytest.mark.virtual_clock, pytest.mark.skipif(
+    os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop",
+    reason="uvloop runs keep real time (the marker chooses no loop there)")]
 
 
 async def test_the_marker_gives_the_virtual_clock() -> None:
