@@ -4,6 +4,7 @@ every import keeps ARCHITECTURE.md's layer rules."""
 from __future__ import annotations
 
 import ast
+import functools
 import graphlib
 import re
 import subprocess
@@ -47,6 +48,7 @@ def _imports(path: Path, modules: set[str], typing_too: bool = False) -> set[str
     return {m for m in found if m in modules and not name.startswith(m + ".") and m != name}
 
 
+@functools.cache  # read once per process: each test only reads it
 def _graph(typing_too: bool = False) -> dict[str, set[str]]:
     paths = sorted(PACKAGE.rglob("*.py"))
     modules = {_module_name(path) for path in paths}
