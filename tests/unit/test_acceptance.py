@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from tango_aio.controller._motion import acceptance_shown
+from tango_aio.moves import acceptance_shown
 
 
 @pytest.mark.parametrize(("reported", "letters", "moved", "shown"), [
