@@ -1,8 +1,9 @@
 """Awaitable motion: completion, confirmation, timeouts, cancel and detached moves.
 
-:class:`Controller <tango_aio.Controller>` is the facade; this module decides
-when a move has ended and whether it ended well. The rule is **no false success**: a
-move returns normally only when every axis it moved stands still at its target.
+:class:`Controller <tango_aio.Controller>` is the facade; this module follows a move
+and the sans-IO tracker (:class:`~tango_aio.moves.Follow`) decides, read by read, when it
+has ended and whether it ended well. The rule is **no false success**: a move returns
+normally only when every axis it moved stands still at its target.
 
 How a move is followed
 ======================

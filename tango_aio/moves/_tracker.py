@@ -33,8 +33,8 @@ answer, as the link session (:mod:`tango_aio.sansio._session`) does for the link
   :func:`~tango_aio.moves._timing.acceptance` and
   :func:`~tango_aio.moves._timing.speed_shown`, until it is proven or not).
 * **Letters of a failure** (:func:`failed_letters`): the letters a failed move reports,
-  each axis that did not end well reading a failure letter, so that a caller that looks
-  at one axis of a merged move (the IOC) judges as the verdict did.
+  no axis that did not end well reading an arrival, so that a caller that looks at one
+  axis of a merged move (the IOC, by ``ARRIVED_LETTERS``) judges as the verdict did.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from dataclasses import dataclass, field, replace
 from typing import Final
 
 from ..catalog import Command
-from ..status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from ..status import ARRIVED_LETTERS, MOVING, AxisStatus
 from ._timing import (
     POLL_GRACE,
     Acceptance,
@@ -188,9 +188,9 @@ def optional_axes(command: Command, moved: Sequence[str]) -> tuple[str, ...]:
 
 
 def failed_letters(letters: Mapping[str, str], failed: Collection[str]) -> dict[str, str]:
-    """``letters`` with each failed axis that reads no failure letter read as ``E``."""
-    return {a: (AxisStatus.ERROR.value if a in failed and s not in FAILED_LETTERS else s)
-            for a, s in {**dict.fromkeys(failed, ABSENT), **letters}.items()}
+    """``letters``, each failed axis that reads an arrival (``@``, ``A``, ``D``) as ``E``."""
+    return {a: (AxisStatus.ERROR.value if a in failed and s in ARRIVED_LETTERS else s)
+            for a, s in letters.items()}
 
 
 class Phase(enum.Enum):

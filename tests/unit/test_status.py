@@ -18,7 +18,7 @@ def test_the_letter_sets_are_the_manuals() -> None:
 
 
 def test_motion_and_the_shell_use_the_same_letters() -> None:
-    assert vars(tracker)["FAILED_LETTERS"] is FAILED_LETTERS
+    assert vars(tracker)["ARRIVED_LETTERS"] is ARRIVED_LETTERS
     assert vars(timing)["FAILED_LETTERS"] is FAILED_LETTERS
     assert set(cli.LETTER_MEANINGS) == {*AxisStatus, ABSENT}
     assert cli.describe_letters({"x": "@", "y": "E", "z": "-"}) == (
