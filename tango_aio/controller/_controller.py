@@ -236,9 +236,6 @@ class Controller:
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
-        #: Whether a confirmation may read the letters with ``sa``: cleared for
-        #: good once an ``sa`` went unanswered (a firmware that does not know it).
-        self._short_status = True
         #: Whether the letters are read axis by axis: the unit's all-axes ``?statusaxis``
         #: ends with ``.`` alone (not ``.-``, L2668-2670), like a completion report.
         self._letters_by_axis = False
@@ -865,7 +862,7 @@ class Controller:
         order, so the move has started by then if it arrived, and its report (which
         carries the deferred ``OK...`` or echo) came before the reply if it already
         ended (L2087-2089). A moved axis moving, or the report, proves it
-        (:func:`~tango_aio.controller._motion.acceptance_shown`).
+        (:func:`~tango_aio.moves.acceptance_shown`).
 
         Parameters
         ----------
@@ -1552,26 +1549,6 @@ class Controller:
         if source is Start.KNOWN and timeout is None:
             extend = functools.partial(self._rest_budget, absolute, budget)
         return MovePlan(command, moved, absolute, budget, extend=extend, reports=reports)
-
-    def _status_command(self) -> Command:
-        """The letters read of a move's confirmation: ``sa``, the alias the 1.71 manual
-        gives ``?statusaxis`` (L2663: "?statusaxis or statusaxis or sa"), 3 bytes on the
-        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move);
-        ``?statusaxis`` where the alias is not known to work: a unit of the older
-        edition's family (its section has no alias, old L733), one that left an ``sa``
-        unanswered, and modes 2 and 4, whose acknowledgements and echoes the manual
-        describes for ``!`` lines and reads but not for a bare alias (L2099-2117).
-
-        Returns
-        -------
-        Command
-            ``sa`` or ``?statusaxis``.
-        """
-        identity = self._identity
-        if self._short_status and identity is not None and identity.family == "1.71" \
-                and self._protocol.autostatus in (0, 1, 3):
-            return _SHORT_STATUS
-        return _read_command("statusaxis", None, self.context)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
@@ -2402,15 +2379,15 @@ class Controller:
             The lines and their submissions.
         """
         context = self.context
-        present = AXES[: context.axes]
-        status = self._status_command() if axes else \
-            _read_command("statusaxis", None, context)
-        single = len(axes) == 1 and len(present) > 1 and axes[0] in present \
-            and self._exact_replies()
-        pos = _read_command("pos", axes[0] if single else None, context)
+        identity = self._identity
+        read = self._moves.confirmation(
+            axes, AXES[: context.axes], family="" if identity is None else identity.family,
+            autostatus=self._protocol.autostatus, exact_replies=self._exact_replies())
+        status = _SHORT_STATUS if read.short else _read_command("statusaxis", None, context)
+        pos = _read_command("pos", read.single, context)
         first, second = self._protocol.submit_together((status, pos),
                                                        separate_after=separate_after)
-        return _StateRead(status, axes[0] if single else None, first, second)
+        return _StateRead(status, read.single, first, second)
 
     async def _state_replies(self, read: _StateRead
                              ) -> tuple[dict[str, str], dict[str, str]]:
@@ -2434,7 +2411,7 @@ class Controller:
                 # Unanswered (or the position's reply came in its place): a firmware
                 # without the alias (error 4, no reply). The read is tried again
                 # (Motion._state) the long way, as from now on.
-                self._short_status = False
+                self._moves.alias_unanswered()
             raise
         texts = " ".join((await self._protocol.wait_reply(
             second, self.reply_timeout)).lines).split()

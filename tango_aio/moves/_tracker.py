@@ -60,7 +60,7 @@ from ._timing import (
     verdict,
 )
 
-__all__ = ["FOLLOW", "POLL_MAX", "POLL_MIN", "Follow", "FollowStateError", "Intent",
+__all__ = ["FOLLOW", "POLL_MAX", "POLL_MIN", "Confirmation", "Follow", "FollowStateError", "Intent",
            "MoveTracker", "Next", "Phase", "ProofStep", "Prove", "Start", "StartProof",
            "acceptance_shown", "failed_letters", "optional_axes"]
 
@@ -72,6 +72,16 @@ POLL_MAX: Final = 0.5
 _HDI_ON_AGAIN: Final = frozenset({"joy", "reset", "restore"})
 #: ``!`` lines after which whether the inputs are idle is read again.
 _INPUT_CHANGES: Final = _HDI_ON_AGAIN | {"snsm", "tvr"}
+
+
+@dataclass(frozen=True, slots=True)
+class Confirmation:
+    """The state read that confirms a move (:meth:`MoveTracker.confirmation`)."""
+
+    #: Whether the letters are read with ``sa`` (else ``?statusaxis``).
+    short: bool
+    #: The one axis whose position is read (``?pos x``); ``None``: ``?pos``, every axis.
+    single: str | None
 
 
 class Start(enum.Enum):
@@ -96,6 +106,9 @@ class MoveTracker:
     start_known: set[str] = field(default_factory=set)
     #: ``!`` lines written (not counting moves).
     executed: int = 0
+    #: Whether a confirmation may read the letters with ``sa``: cleared for good once an
+    #: ``sa`` went unanswered (a firmware that does not know it).
+    short_status: bool = True
 
     @property
     def still(self) -> bool:
@@ -147,6 +160,47 @@ class MoveTracker:
         if known is None or not set(targets) <= set(known):
             return Start.READ
         return Start.KNOWN
+
+    def confirmation(self, axes: Sequence[str], present: Sequence[str], *, family: str,
+                     autostatus: int, exact_replies: bool) -> Confirmation:
+        """The state read that confirms a move of ``axes`` (none: a read of every axis).
+
+        The letters are read with ``sa``, the alias the 1.71 manual gives ``?statusaxis``
+        (L2663: "?statusaxis or statusaxis or sa"), 3 bytes on the wire instead of 12;
+        ``?statusaxis`` where the alias is not known to work: a unit of the older
+        edition's family (its section has no alias, old L733), one that left an ``sa``
+        unanswered (:meth:`alias_unanswered`), and modes 2 and 4, whose acknowledgements
+        and echoes the manual describes for ``!`` lines and reads but not for a bare
+        alias (L2099-2117). The position of a move of one axis is read alone
+        (``?pos x``) on a unit whose per-axis reads answer one value (``exact_replies``).
+
+        Parameters
+        ----------
+        axes
+            The axes whose positions are wanted; empty: a read of every axis.
+        present
+            The axes the controller has.
+        family
+            The firmware family identified (``"1.71"``, ...; ``""``: not identified).
+        autostatus
+            The mode in force.
+        exact_replies
+            Whether per-axis replies were found to hold one value per axis.
+
+        Returns
+        -------
+        Confirmation
+            The letters' read and the position's.
+        """
+        short = bool(axes) and self.short_status and family == "1.71" \
+            and autostatus in (0, 1, 3)
+        single = len(axes) == 1 and len(present) > 1 and axes[0] in present \
+            and exact_replies
+        return Confirmation(short, axes[0] if single else None)
+
+    def alias_unanswered(self) -> None:
+        """An ``sa`` went unanswered (or met the position's reply): never again."""
+        self.short_status = False
 
     def confirmed(self, name: str, moved: Sequence[str], executed: int) -> None:
         """A move ended confirmed where it stands; ``executed``: :attr:`executed` when it

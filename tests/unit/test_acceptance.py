@@ -1,4 +1,4 @@
-"""motion.acceptance_shown: what proves a move line whose acceptance was deferred
+"""moves.acceptance_shown (the tracker): what proves a move line whose acceptance was deferred
 (its autostatus-2 OK... or autostatus-4 echo did not come where owed) arrived."""
 
 from __future__ import annotations

@@ -301,3 +301,26 @@ def test_a_reply_the_proof_did_not_ask_for_is_refused() -> None:
     proof.status({"x": "M", "y": "M"}, 0.0)
     with pytest.raises(FollowStateError):
         proof.speed("y", "5", 0.0)
+
+
+# -- the confirmation read ---------------------------------------------------------------
+
+def test_the_confirmation_reads_sa_and_one_position_only_where_known_to_work() -> None:
+    tracker = MoveTracker()
+    xyz = ("x", "y", "z")
+    read = tracker.confirmation(("x",), xyz, family="1.71", autostatus=1, exact_replies=True)
+    assert (read.short, read.single) == (True, "x")
+    assert tracker.confirmation(("x", "y"), xyz, family="1.71", autostatus=1,
+                                exact_replies=True).single is None
+    assert tracker.confirmation(("x",), ("x",), family="1.71", autostatus=1,
+                                exact_replies=True).single is None
+    assert tracker.confirmation(("x",), xyz, family="1.71", autostatus=1,
+                                exact_replies=False).single is None
+    for family, mode in (("1.71", 2), ("1.71", 4), ("old", 1)):
+        assert not tracker.confirmation(("x",), xyz, family=family, autostatus=mode,
+                                        exact_replies=True).short
+    assert not tracker.confirmation((), xyz, family="1.71", autostatus=1,
+                                    exact_replies=True).short
+    tracker.alias_unanswered()
+    assert not tracker.confirmation(("x",), xyz, family="1.71", autostatus=1,
+                                    exact_replies=True).short
