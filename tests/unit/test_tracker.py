@@ -22,6 +22,7 @@ from tango_aio.moves import (
     StartProof,
     failed_axes,
     failed_letters,
+    moved_axes,
     optional_axes,
     position_tolerance,
     verdict,
@@ -324,3 +325,35 @@ def test_the_confirmation_reads_sa_and_one_position_only_where_known_to_work() -
     tracker.alias_unanswered()
     assert not tracker.confirmation(("x",), xyz, family="1.71", autostatus=1,
                                     exact_replies=True).short
+
+
+_LINE = st.sampled_from(["!speed 5 0", "!speed 0 0", "!speed 5 5", "!go 1 2", "!go 1",
+                         "!speed 0 3"])
+
+
+@settings(max_examples=150, deadline=None)
+@given(line=_LINE, busy=st.sets(st.sampled_from(["x", "y"])),
+       replies=st.lists(st.tuples(
+           st.fixed_dictionaries({}, optional={"x": _LETTER, "y": _LETTER}),
+           st.sampled_from(["0.0", "3.0", "5.0"]), st.floats(0.0, 0.4)),
+           min_size=1, max_size=40))
+def test_a_start_proof_ends_by_its_deadline_and_stops_only_what_moved(
+        line: str, busy: set[str],
+        replies: list[tuple[dict[str, str], str, float]]) -> None:
+    proof = StartProof(parse(line), ("x", "y"), busy=busy, deadline=1.0, poll=0.01)
+    step, now, moving = proof.begin(), 0.0, set()
+    for letters, speed, dt in [*replies, *[({}, "0.0", 1.0)] * 8]:
+        if step.found is not None:
+            break
+        now += dt + step.wait
+        if step.next is Prove.READ_STATUS:
+            moving |= {axis for axis, letter in letters.items() if letter == MOVING}
+            step = proof.status(letters, now)
+        elif step.next is Prove.READ_POSITIONS:
+            step = proof.positions({"x": "0.000", "y": "0.000"}, now)
+        else:
+            step = proof.speed(step.axis, speed, now)
+    assert step.found is not None, "the proof did not end after its deadline"
+    # Only an axis of the line that a read showed moving is stopped.
+    assert set(step.running) <= moving & set(moved_axes(parse(line), ("x", "y")))
+    assert (step.next is Prove.PROVEN) == step.found.shown
