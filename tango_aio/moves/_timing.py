@@ -368,18 +368,8 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
 
     Parameters
     ----------
-    moved
-        The axes the move moved.
-    targets
-        Their absolute targets (``None``: ``cal``, ``rm``, ``moc`` have none).
-    tolerance
-        A wider tolerance per axis, where one applies.
-    letters
-        The status letters read.
-    texts
-        The positions read right behind them, as printed.
-    optional
-        Moved axes that may read ``-`` (see :func:`failed_axes`).
+    moved, targets, tolerance, letters, texts, optional
+        As for :func:`failed_axes`.
 
     Returns
     -------
