@@ -76,6 +76,7 @@ from .instructions import AXES, Form, Instruction, Signature, lookup, parse, sim
 from .instructions import Command as CommandLine
 from .probe import add_probe_command
 from .status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from .tango_controls import add_tango_server_command
 from .timing import describe_stop, moved_axes, position_tolerance
 from .units import DIM_UNITS, velocity_unit
 
@@ -1576,6 +1577,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_operator_commands(commands)
     add_ioc_command(commands)
     add_probe_command(commands)
+    add_tango_server_command(commands)
     return parser
 
 

@@ -1,0 +1,138 @@
+"""The ``tango-aio tango-server`` subcommand: serve a Märzhäuser TANGO controller's axes as
+Tango Controls devices.
+
+``tango-aio tango-server /dev/ttyUSB0`` registers and serves ``marzhauser/stage/x`` ...
+and ``marzhauser/stage/controller`` in the Tango database ``TANGO_HOST`` names;
+``--nodb --port 10000`` serves them without a database
+(``tango://127.0.0.1:10000/marzhauser/stage/x#dbase=no``). See
+``docs/howto/tango-controls.md``.
+
+This module does not import pytango (the ``tango-controls`` extra) until the command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import re
+import sys
+from typing import Any
+
+from .._argtypes import UsageError, number_type, seconds_type, url_type
+from ._server import DEFAULT_PREFIX, ServerOptions
+
+__all__ = ["add_tango_server_command", "prefix_type", "run_tango_server"]
+
+#: One field of a Tango Controls device name (``domain``, ``family``).
+_FIELD = r"[A-Za-z0-9_.\-]+"
+
+
+def prefix_type(text: str) -> str:
+    """argparse type of a device-name prefix: ``DOMAIN/FAMILY``.
+
+    Parameters
+    ----------
+    text
+        The value given.
+
+    Returns
+    -------
+    str
+        The prefix, without a trailing ``/``.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not two fields of letters, digits, ``_``, ``.`` or ``-``.
+    """
+    prefix = text.rstrip("/")
+    if not re.fullmatch(f"{_FIELD}/{_FIELD}", prefix):
+        raise argparse.ArgumentTypeError(
+            f"want DOMAIN/FAMILY (letters, digits, _ . -), got {text!r}")
+    return prefix
+
+
+def _port_type(text: str) -> int:
+    port = number_type(int, "a TCP port", allow_minimum=True)(text)
+    if port > 65535:
+        raise argparse.ArgumentTypeError(f"a TCP port is at most 65535, got {text!r}")
+    return port
+
+
+def add_tango_server_command(commands: Any) -> None:
+    """Register the ``tango-server`` subcommand on the ``tango-aio`` sub-parsers.
+
+    Parameters
+    ----------
+    commands
+        The CLI's subparsers (``argparse``'s ``add_subparsers()``).
+    """
+    server = commands.add_parser(
+        "tango-server", help="serve the axes as Tango Controls devices (needs "
+                             "tango-aio[tango-controls])",
+        description=run_tango_server.__doc__)
+    server.add_argument("url", type=url_type, help="controller URL, e.g. /dev/ttyUSB0")
+    server.add_argument("--prefix", type=prefix_type, default=DEFAULT_PREFIX,
+                        help=f"device names PREFIX/x ... (default {DEFAULT_PREFIX})")
+    server.add_argument("--instance", type=prefix_field,
+                        help="the server's instance name (default: FAMILY of --prefix)")
+    server.add_argument("--nodb", action="store_true",
+                        help="serve without a Tango database (clients add #dbase=no)")
+    server.add_argument("--port", type=_port_type, default=0,
+                        help="TCP port of the server (default: any free one; printed "
+                             "with --nodb)")
+    server.add_argument("--interface", default="127.0.0.1", metavar="ADDRESS",
+                        help="listen on this local address (default 127.0.0.1, this "
+                             "machine only)")
+    server.add_argument("--poll", type=seconds_type, default=0.1,
+                        help="seconds between state reads (default 0.1)")
+    server.set_defaults(run=run_tango_server)
+
+
+def prefix_field(text: str) -> str:
+    """argparse type of one name field (the instance name).
+
+    Parameters
+    ----------
+    text
+        The value given.
+
+    Returns
+    -------
+    str
+        The field.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not letters, digits, ``_``, ``.`` or ``-``.
+    """
+    if not re.fullmatch(_FIELD, text):
+        raise argparse.ArgumentTypeError(f"want letters, digits, _ . -, got {text!r}")
+    return text
+
+
+async def run_tango_server(args: argparse.Namespace) -> int:
+    """Serve a Märzhäuser TANGO controller as Tango Controls devices: one per axis
+    (PREFIX/x ...) and PREFIX/controller. With a Tango database (TANGO_HOST) the devices
+    are registered as TangoAio/INSTANCE; with --nodb clients reach them at
+    tango://ADDRESS:PORT/PREFIX/x#dbase=no. Runs until interrupted; moves it started are
+    stopped on exit."""  # noqa: DOC201, DOC501 - the command's --help text, no sections
+    if not args.nodb and not os.environ.get("TANGO_HOST"):
+        raise UsageError("no Tango database: set TANGO_HOST, or serve with --nodb")
+    try:
+        import tango  # noqa: F401 - pytango present?
+    except ImportError as exc:
+        from .._install import install_hint
+
+        print(f"error: the tango-server command needs pytango ({exc}); "
+              f"install it with: {install_hint('tango-controls')}", file=sys.stderr)
+        return 1
+    from ._server import serve
+
+    options = ServerOptions(url=args.url, prefix=args.prefix,
+                            instance=args.instance or args.prefix.rpartition("/")[2],
+                            nodb=args.nodb, port=args.port, interface=args.interface,
+                            interval=args.poll)
+    return await asyncio.to_thread(serve, options)
