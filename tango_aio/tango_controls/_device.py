@@ -7,6 +7,8 @@ its part by device name before the server starts.
 
 from __future__ import annotations
 
+import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,13 +22,46 @@ from ._state import Shown
 
 __all__ = ["SERVING", "MarzhauserAxis", "MarzhauserController", "Serving"]
 
+log = logging.getLogger("tango_aio.tango_controls")
+
 
 @dataclass
 class Serving:
-    """What the running server serves, by device name (lower case)."""
+    """What the running server serves, by device name (lower case), and the thread that
+    pushes its change events.
+
+    Events are pushed from a thread of their own, in the order they were published:
+    pushing takes the device's lock, which a request holds until it has answered (the
+    server runs with one request at a time per device), so a push never changes an
+    attribute's value while a request is reading it, and the event loop, which the
+    request may be waiting for, never waits for that lock.
+    """
 
     axes: dict[str, AxisCore] = field(default_factory=dict)
     controllers: dict[str, StageLink] = field(default_factory=dict)
+    pusher: ThreadPoolExecutor = field(
+        default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="tango-events"))
+
+    def push(self, device: Device, name: str, value: Any) -> None:
+        """Push a change event of ``device``'s attribute ``name`` (in order)."""
+        self.pusher.submit(_push, device, name, value)
+
+
+def _push(device: Device, name: str, value: Any) -> None:
+    try:
+        # Tango sends the device's own state and status in their events: both are set
+        # under the device's lock, with no request between them and the push.
+        with tango.AutoTangoMonitor(device):
+            if name == "State":
+                device.set_state(value)
+                device.push_change_event(name)
+            elif name == "Status":
+                device.set_status(value)
+                device.push_change_event(name)
+            else:
+                device.push_change_event(name, value)
+    except Exception:  # a deleted device, a server shutting down: nobody to tell
+        log.debug("%s: %s event not pushed", device.get_name(), name, exc_info=True)
 
 
 #: The one server this process runs.
@@ -50,6 +85,11 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
     ``State``: ``MOVING`` from the accepted move to the driver's verdict, ``ON`` once it
     arrived (``Position`` already shows the final value), ``ALARM`` when it ended short
     (why: ``Status``), ``FAULT`` while the link is lost, ``INIT`` while settings are read.
+
+    One request sees one moment: ``State``, ``Status``, ``Position`` and ``DialPosition``
+    are taken together when a request starts (``always_executed_hook``), so a
+    ``read_attributes`` of ``Position`` and ``State`` (which Tango reads after the others)
+    never pairs a position from the middle of a move with the ``ON`` of its end.
     """
 
     green_mode = GreenMode.Asyncio
@@ -57,34 +97,42 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
     async def init_device(self) -> None:
         await super().init_device()
         self._axis = SERVING.axes[self.get_name().lower()]
+        self._moment = self._now()
         for name in PUSHED:
             self.set_change_event(name, True, False)
         self._axis.publish = self._publish
-        self._show(self._axis.state)
+        self.set_state(getattr(DevState, self._moment[2][0].value))
 
     async def delete_device(self) -> None:
         self._axis.publish = _forget
         await super().delete_device()
 
+    def _now(self) -> tuple[float, float, tuple[Shown, str]]:
+        return self._axis.position, self._axis.dial, self._axis.state
+
+    async def always_executed_hook(self) -> None:
+        self._moment = self._now()
+
+    async def dev_state(self) -> DevState:
+        return getattr(DevState, self._moment[2][0].value)
+
+    async def dev_status(self) -> str:
+        return self._moment[2][1]
+
     def _publish(self, name: str, value: Any) -> None:
         if name == "State":
-            self._show(value)
+            shown, status = value
+            SERVING.push(self, "Status", status)
+            SERVING.push(self, "State", getattr(DevState, shown.value))
         else:
-            self.push_change_event(name, value)
-
-    def _show(self, state: tuple[Shown, str]) -> None:
-        shown, status = state
-        self.set_state(getattr(DevState, shown.value))
-        self.set_status(status)
-        self.push_change_event("Status")
-        self.push_change_event("State")
+            SERVING.push(self, name, value)
 
     # -- attributes ----------------------------------------------------------------------
 
     @attribute(dtype=float, access=AttrWriteType.READ_WRITE,
                doc="the confirmed position (user units); write: start a move there")
     async def Position(self) -> float:
-        return self._axis.position
+        return self._moment[0]
 
     @Position.write  # type: ignore[no-redef]
     async def Position(self, value: float) -> None:
@@ -95,7 +143,7 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
 
     @attribute(dtype=float, doc="the position in the controller's own terms (no Offset)")
     async def DialPosition(self) -> float:
-        return self._axis.dial
+        return self._moment[1]
 
     @attribute(dtype=float, access=AttrWriteType.READ_WRITE, memorized=True,
                hw_memorized=True, doc="Position = DialPosition + Offset")
@@ -105,7 +153,7 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
     @Offset.write  # type: ignore[no-redef]
     async def Offset(self, value: float) -> None:
         self._axis.offset = value
-        self.push_change_event("Position", self._axis.position)
+        SERVING.push(self, "Position", self._axis.position)
 
     @attribute(dtype=str, doc="the unit of the positions (the axis's dim)")
     async def Unit(self) -> str:

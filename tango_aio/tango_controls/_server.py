@@ -82,6 +82,7 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
     int
         0 once the server has shut down cleanly.
     """
+    import tango
     from tango import GreenMode
     from tango.asyncio_executor import AsyncioExecutor, set_global_executor
     from tango.server import run
@@ -101,6 +102,11 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
         SERVING.controllers[controller_name.lower()] = link
         running: list[asyncio.Task[None]] = []
 
+        async def one_request_at_a_time() -> None:
+            # pytango's asyncio mode lets requests run together; one at a time per device
+            # lets an event push wait until a request has answered (see Serving).
+            tango.Util.instance().set_serial_model(tango.SerialModel.BY_DEVICE)
+
         async def started() -> None:
             running.append(loop.create_task(link.run()))
             print(_announce(options, [*axes, controller_name]), file=out, flush=True)
@@ -108,7 +114,8 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
         set_global_executor(AsyncioExecutor(loop=loop))
         with _declared(options, axes, controller_name) as args:
             run((MarzhauserAxis, MarzhauserController), args=args, msg_stream=None,
-                green_mode=GreenMode.Asyncio, post_init_callback=started, raises=True)
+                green_mode=GreenMode.Asyncio, pre_init_callback=one_request_at_a_time,
+                post_init_callback=started, raises=True)
         loop.run_until_complete(_close(link, running))
     finally:
         loop.close()
@@ -119,12 +126,21 @@ async def _close(link: object, running: list[asyncio.Task[None]]) -> None:
     from ._axis import StageLink
 
     assert isinstance(link, StageLink)
+    for axis in link.axes.values():
+        axis.publish = _unpublished  # the devices are gone with the server
     for task in running:
         task.cancel()
     with contextlib.suppress(asyncio.CancelledError, Exception):
         await asyncio.gather(*running)
     await link.aclose()
     await link.controller.aclose()
+    from ._device import SERVING
+
+    SERVING.pusher.shutdown(wait=False, cancel_futures=True)
+
+
+def _unpublished(name: str, value: object) -> None:
+    """Where an axis publishes once the server has shut down."""
 
 
 def _announce(options: ServerOptions, names: Sequence[str]) -> str:

@@ -11,8 +11,16 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
-from helpers import FAST, INSTANT, Emulated, EmulatorFactory, abort_from_outside, \
-    emulated_position, wait_moving, wait_until
+from helpers import (
+    FAST,
+    INSTANT,
+    Emulated,
+    EmulatorFactory,
+    abort_from_outside,
+    emulated_position,
+    wait_moving,
+    wait_until,
+)
 
 from tango_aio.tango_controls import Shown
 from tango_aio.tango_controls._axis import AxisBusyError, AxisCore, LimitError, StageLink
@@ -104,7 +112,7 @@ async def test_a_move_beyond_a_limit_switch_shows_alarm(emulator: EmulatorFactor
     async with served(emu) as (_, recorder):
         await recorder.axis.move_to(8.0)
         assert await ended(recorder) is Shown.ALARM
-        state, status = recorder.axis.state
+        _, status = recorder.axis.state
         assert "move to 8 ended short" in status and "limit switch" in status.lower()
         assert recorder.axis.position == pytest.approx(emulated_position(emu, "x"), abs=1e-3)
         await recorder.axis.move_to(0.0)  # a move that arrives clears the alarm
@@ -169,7 +177,7 @@ async def test_a_second_motion_or_a_target_beyond_the_limits_is_refused_at_once(
     emu = await emulator(INSTANT)
     async with served(emu) as (_, recorder):
         axis = recorder.axis
-        low, high = await emu.tango.axis_limits("x")
+        _, high = await emu.tango.axis_limits("x")
         with pytest.raises(LimitError):
             await axis.move_to(high + 1)
         assert axis.state[0] is Shown.ON
