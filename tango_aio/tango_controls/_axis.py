@@ -257,6 +257,9 @@ class AxisCore:
     def _check_free(self) -> None:
         if not self.controller.connected:
             raise TangoError(f"{self.letter.upper()}: the link to the controller is lost")
+        if not self.view.ready:
+            raise TangoError(f"{self.letter.upper()}: the axis settings are being read; "
+                             "try again once State leaves INIT")
         if self.view.busy:
             raise AxisBusyError(f"{self.letter.upper()}: {self.view.last} is under way; "
                                 "Stop it first")
@@ -328,6 +331,8 @@ class StageLink:
         self.axes = {letter: AxisCore(controller, letter) for letter in "xyza"[:count]}
         self._wake = asyncio.Event()
         self._up = False
+        #: Set once the first read of the settings has been tried.
+        self.first_read = asyncio.Event()
 
     async def run(self) -> None:
         """Read and follow until cancelled."""
@@ -361,6 +366,7 @@ class StageLink:
             except TangoError as exc:
                 if self.controller.connected:
                     log.warning("state read failed: %s", exc)
+            self.first_read.set()
             count += 1
             self._wake.clear()
             with contextlib.suppress(TimeoutError):

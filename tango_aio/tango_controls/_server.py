@@ -108,7 +108,12 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
             tango.Util.instance().set_serial_model(tango.SerialModel.BY_DEVICE)
 
         async def started() -> None:
-            running.append(loop.create_task(link.run()))
+            task = loop.create_task(link.run())
+            running.append(task)
+            # The axes leave INIT before the line says "serving".
+            first = loop.create_task(link.first_read.wait())
+            await asyncio.wait([first, task], return_when=asyncio.FIRST_COMPLETED)
+            first.cancel()
             print(_announce(options, [*axes, controller_name]), file=out, flush=True)
 
         set_global_executor(AsyncioExecutor(loop=loop))

@@ -22,6 +22,7 @@ from helpers import (
     wait_until,
 )
 
+from tango_aio import TangoError
 from tango_aio.tango_controls import Shown
 from tango_aio.tango_controls._axis import AxisBusyError, AxisCore, LimitError, StageLink
 from tango_aio.testing import faults
@@ -189,6 +190,15 @@ async def test_a_second_motion_or_a_target_beyond_the_limits_is_refused_at_once(
         await wait_moving(emu, "x")
         await axis.stop()
         assert await ended(recorder) is Shown.ALARM
+
+
+async def test_no_motion_before_the_settings_are_read(emulator: EmulatorFactory) -> None:
+    emu = await emulator(INSTANT)
+    axis = StageLink(emu.tango).axes["x"]  # not running: nothing read yet
+    assert axis.state[0] is Shown.INIT
+    with pytest.raises(TangoError, match="settings are being read"):
+        await axis.move_to(1.0)
+    assert axis.state[0] is Shown.INIT and not emu.model.motion.is_moving("x")
 
 
 async def test_a_lost_link_shows_fault_then_the_move_as_unknown(
