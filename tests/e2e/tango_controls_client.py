@@ -1,7 +1,8 @@
 """A Tango Controls client in a process of its own, for ``test_tango_controls.py``: it
 reads one JSON request a line on stdin and answers each with one JSON line on stdout.
 
-``python tango_controls_client.py tango://127.0.0.1:PORT/marzhauser/stage/`` then, e.g.,
+``python tango_controls_client.py tango://127.0.0.1:PORT/marzhauser/stage/ [SUFFIX]`` (the
+suffix of each device's address, ``#dbase=no`` unless given) then, e.g.,
 ``{"op": "subscribe", "device": "x", "attrs": ["State", "Position"]}``. Change events are
 recorded as they arrive (``events`` hands them over), in arrival order.
 """
@@ -29,15 +30,15 @@ def plain(value: Any) -> Any:
 class Client:
     """The proxies and the events they delivered."""
 
-    def __init__(self, base: str) -> None:
-        self.base = base
+    def __init__(self, base: str, suffix: str = "#dbase=no") -> None:
+        self.base, self.suffix = base, suffix
         self.proxies: dict[str, tango.DeviceProxy] = {}
         self.events: list[list[Any]] = []
         self.lock = threading.Lock()
 
     def proxy(self, device: str) -> tango.DeviceProxy:
         if device not in self.proxies:
-            self.proxies[device] = tango.DeviceProxy(f"{self.base}{device}#dbase=no")
+            self.proxies[device] = tango.DeviceProxy(f"{self.base}{device}{self.suffix}")
         return self.proxies[device]
 
     def record(self, device: str, event: Any) -> None:
@@ -116,7 +117,7 @@ class Client:
 
 
 def main() -> None:
-    client = Client(sys.argv[1])
+    client = Client(*sys.argv[1:3])
     for line in sys.stdin:
         try:
             answer = client.handle(json.loads(line))

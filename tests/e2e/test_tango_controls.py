@@ -15,7 +15,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import re
+import socket
 import sys
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
@@ -85,9 +87,9 @@ class Served:
 
 
 @contextlib.asynccontextmanager
-async def client_of(served: Served) -> AsyncIterator[Client]:
+async def client_of(served: Served, suffix: str = "#dbase=no") -> AsyncIterator[Client]:
     process = await asyncio.create_subprocess_exec(
-        sys.executable, str(CLIENT), served.base, stdin=asyncio.subprocess.PIPE,
+        sys.executable, str(CLIENT), served.base, suffix, stdin=asyncio.subprocess.PIPE,
         stdout=asyncio.subprocess.PIPE)
     try:
         yield Client(process)
@@ -103,21 +105,31 @@ async def client_of(served: Served) -> AsyncIterator[Client]:
 
 
 @contextlib.asynccontextmanager
-async def serving(factory: Callable[[Emit], ControllerModel] = make_model
-                  ) -> AsyncIterator[Served]:
+async def serving(factory: Callable[[Emit], ControllerModel] = make_model, *,
+                  database: int | None = None) -> AsyncIterator[Served]:
+    """The emulator and the server (``database``: the port of a Tango database, else
+    ``--nodb``)."""
     emulator = await serve_tcp(factory)
     port = emulator.port
+    where = ["--nodb"] if database is None else ["--prefix", "lab/stage1"]
+    environment = {**os.environ, "TANGO_HOST": f"127.0.0.1:{database}"} \
+        if database is not None else None
     process = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "tango_aio", "tango-server", f"socket://127.0.0.1:{port}",
-        "--nodb", "--poll", "0.05", stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE)
+        *where, "--poll", "0.05", stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE, env=environment)
     try:
         assert process.stdout is not None
         async with asyncio.timeout(HANG):
             line = (await process.stdout.readline()).decode()
-        found = re.search(r"tango://127\.0\.0\.1:(\d+)/NAME#dbase=no", line)
-        assert found, line
-        served = Served(emulator, port, f"tango://127.0.0.1:{found[1]}/marzhauser/stage/")
+        if database is None:
+            found = re.search(r"tango://127\.0\.0\.1:(\d+)/NAME#dbase=no", line)
+            assert found, line
+            base = f"tango://127.0.0.1:{found[1]}/marzhauser/stage/"
+        else:
+            assert "as TangoAio/stage1" in line, line
+            base = f"tango://127.0.0.1:{database}/lab/stage1/"
+        served = Served(emulator, port, base)
         yield served
     finally:
         process.terminate()
@@ -294,3 +306,35 @@ async def test_an_ophyd_async_tango_scan_reads_no_position_from_mid_move() -> No
         assert process.returncode == 0
         scan = json.loads(out.decode().strip().splitlines()[-1])
         assert scan["readings"] == pytest.approx(scan["targets"])  # 0 mid-move readings
+
+
+@contextlib.asynccontextmanager
+async def tango_database(folder: Path) -> AsyncIterator[int]:
+    """pytango's own database server (SQLite, in ``folder``) on a free loopback port."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = int(probe.getsockname()[1])
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tango.databaseds.database", "--port", str(port), "2",
+        cwd=folder, env={**os.environ, "TANGO_HOST": f"127.0.0.1:{port}"},
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL)
+    try:
+        assert process.stdout is not None
+        async with asyncio.timeout(HANG):
+            while b"Ready to accept request" not in await process.stdout.readline():
+                pass
+        yield port
+    finally:
+        process.terminate()
+        await process.wait()
+
+
+@pytest.mark.slow
+async def test_with_a_tango_database_the_devices_are_found_by_name(tmp_path: Path) -> None:
+    async with tango_database(tmp_path) as port, serving(database=port) as served, \
+            client_of(served, suffix="") as client:
+        await client.ask(op="write", attr="Position", value=1.5)
+        result = await client.ask(op="until", leave=["MOVING"])
+        assert result["state"] == "ON" and result["position"] == pytest.approx(1.5)
+        answer = await client.ask(device="controller", op="read", attrs=["Model"])
+        assert answer["values"] == {"Model": "TANGO-DT"}
