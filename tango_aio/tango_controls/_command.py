@@ -22,35 +22,28 @@ from typing import Any
 from .._argtypes import UsageError, number_type, seconds_type, url_type
 from ._server import DEFAULT_PREFIX, ServerOptions
 
-__all__ = ["add_tango_server_command", "prefix_type", "run_tango_server"]
+__all__ = ["add_tango_server_command", "run_tango_server"]
 
 #: One field of a Tango Controls device name (``domain``, ``family``).
 _FIELD = r"[A-Za-z0-9_.\-]+"
 
 
-def prefix_type(text: str) -> str:
-    """argparse type of a device-name prefix: ``DOMAIN/FAMILY``.
+def _name(text: str, fields: int, want: str) -> str:
+    """``text`` as ``fields`` name fields joined by ``/`` (argparse's error if not)."""
+    name = text.rstrip("/")
+    if not re.fullmatch("/".join([_FIELD] * fields), name):
+        raise argparse.ArgumentTypeError(f"want {want} (letters, digits, _ . -), got {text!r}")
+    return name
 
-    Parameters
-    ----------
-    text
-        The value given.
 
-    Returns
-    -------
-    str
-        The prefix, without a trailing ``/``.
+def _prefix_type(text: str) -> str:
+    """argparse type of the device names' prefix, ``DOMAIN/FAMILY``."""
+    return _name(text, 2, "DOMAIN/FAMILY")
 
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        Not two fields of letters, digits, ``_``, ``.`` or ``-``.
-    """
-    prefix = text.rstrip("/")
-    if not re.fullmatch(f"{_FIELD}/{_FIELD}", prefix):
-        raise argparse.ArgumentTypeError(
-            f"want DOMAIN/FAMILY (letters, digits, _ . -), got {text!r}")
-    return prefix
+
+def _instance_type(text: str) -> str:
+    """argparse type of the server's instance name."""
+    return _name(text, 1, "one name")
 
 
 def _port_type(text: str) -> int:
@@ -73,9 +66,9 @@ def add_tango_server_command(commands: Any) -> None:
                              "tango-aio[tango-controls])",
         description=run_tango_server.__doc__)
     server.add_argument("url", type=url_type, help="controller URL, e.g. /dev/ttyUSB0")
-    server.add_argument("--prefix", type=prefix_type, default=DEFAULT_PREFIX,
+    server.add_argument("--prefix", type=_prefix_type, default=DEFAULT_PREFIX,
                         help=f"device names PREFIX/x ... (default {DEFAULT_PREFIX})")
-    server.add_argument("--instance", type=prefix_field,
+    server.add_argument("--instance", type=_instance_type,
                         help="the server's instance name (default: FAMILY of --prefix)")
     server.add_argument("--nodb", action="store_true",
                         help="serve without a Tango database (clients add #dbase=no)")
@@ -88,29 +81,6 @@ def add_tango_server_command(commands: Any) -> None:
     server.add_argument("--poll", type=seconds_type, default=0.1,
                         help="seconds between state reads (default 0.1)")
     server.set_defaults(run=run_tango_server)
-
-
-def prefix_field(text: str) -> str:
-    """argparse type of one name field (the instance name).
-
-    Parameters
-    ----------
-    text
-        The value given.
-
-    Returns
-    -------
-    str
-        The field.
-
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        Not letters, digits, ``_``, ``.`` or ``-``.
-    """
-    if not re.fullmatch(_FIELD, text):
-        raise argparse.ArgumentTypeError(f"want letters, digits, _ . -, got {text!r}")
-    return text
 
 
 async def run_tango_server(args: argparse.Namespace) -> int:

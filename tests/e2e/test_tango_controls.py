@@ -96,12 +96,17 @@ async def client_of(served: Served, suffix: str = "#dbase=no") -> AsyncIterator[
     finally:
         assert process.stdin is not None
         process.stdin.close()
-        try:
-            async with asyncio.timeout(HANG):
-                await process.wait()
-        except TimeoutError:
-            process.kill()
+        await ended(process)
+
+
+async def ended(process: asyncio.subprocess.Process) -> None:
+    """Wait until ``process`` has ended (killed if it hangs)."""
+    try:
+        async with asyncio.timeout(HANG):
             await process.wait()
+    except TimeoutError:
+        process.kill()
+        await process.wait()
 
 
 @contextlib.asynccontextmanager
@@ -109,15 +114,15 @@ async def serving(factory: Callable[[Emit], ControllerModel] = make_model, *,
                   database: int | None = None) -> AsyncIterator[Served]:
     """The emulator and the server (``database``: the port of a Tango database, else
     ``--nodb``)."""
-    emulator = await serve_tcp(factory)
-    port = emulator.port
+    served = Served(await serve_tcp(factory), 0, "")
+    port = served.port = served.emulator.port
     where = ["--nodb"] if database is None else ["--prefix", "lab/stage1"]
     environment = {**os.environ, "TANGO_HOST": f"127.0.0.1:{database}"} \
         if database is not None else None
     process = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "tango_aio", "tango-server", f"socket://127.0.0.1:{port}",
         *where, "--poll", "0.05", stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE, env=environment)
+        stderr=asyncio.subprocess.DEVNULL, env=environment)
     try:
         assert process.stdout is not None
         async with asyncio.timeout(HANG):
@@ -129,19 +134,13 @@ async def serving(factory: Callable[[Emit], ControllerModel] = make_model, *,
         else:
             assert "as TangoAio/stage1" in line, line
             base = f"tango://127.0.0.1:{database}/lab/stage1/"
-        served = Served(emulator, port, base)
+        served.base = base
         yield served
     finally:
         process.terminate()
-        try:
-            async with asyncio.timeout(HANG):
-                await process.wait()
-        except TimeoutError:
-            process.kill()
-            await process.wait()
-        served_emulator = served.emulator if "served" in locals() else emulator
-        served_emulator.close()
-        await served_emulator.wait_closed()
+        await ended(process)
+        served.emulator.close()  # the one serving now (a test may start a fresh one)
+        await served.emulator.wait_closed()
 
 
 def states(events: list[list[Any]], device: str = "x") -> list[str]:
@@ -326,7 +325,7 @@ async def tango_database(folder: Path) -> AsyncIterator[int]:
         yield port
     finally:
         process.terminate()
-        await process.wait()
+        await ended(process)
 
 
 @pytest.mark.slow
