@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -284,7 +283,10 @@ class AxisCore:
         confirmed = None if reason else (self.controller.last_positions or {}).get(
             self.letter)
         self.verdicts += 1  # reads under way now carry older news
-        dial = _number(confirmed)
+        dial: float | None = None
+        if confirmed is not None:
+            with contextlib.suppress(ValueError):
+                dial = float(confirmed)
         if dial is None:
             with contextlib.suppress(TangoError):
                 dial = float(await self.controller.get("pos", axis=self.letter))
@@ -300,14 +302,6 @@ class AxisCore:
             task.cancel()
         if self._tasks:
             await asyncio.wait(list(self._tasks))
-
-
-def _number(text: str | None) -> float | None:
-    try:
-        value = float(text) if text is not None else math.nan
-    except ValueError:
-        return None
-    return value if math.isfinite(value) else None
 
 
 class StageLink:

@@ -71,12 +71,18 @@ class Served:
     emulator: TcpServer
     port: int
     base: str
+    server: asyncio.subprocess.Process | None = None
+    _model: ControllerModel | None = None
+    _model_of: TcpServer | None = None
 
     @property
     def model(self) -> ControllerModel:
-        handler = self.emulator.wires[0].handler
-        assert isinstance(handler, ControllerModel)
-        return handler
+        """The emulated controller (the same for every connection: the server's)."""
+        if self._model is None or self._model_of is not self.emulator:
+            handler = self.emulator.wires[0].handler
+            assert isinstance(handler, ControllerModel)
+            self._model, self._model_of = handler, self.emulator
+        return self._model
 
     def moving(self) -> bool:
         return bool(self.emulator.wires) and self.model.motion.is_moving("x")
@@ -123,6 +129,7 @@ async def serving(factory: Callable[[Emit], ControllerModel] = make_model, *,
         sys.executable, "-m", "tango_aio", "tango-server", f"socket://127.0.0.1:{port}",
         *where, "--poll", "0.05", stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.DEVNULL, env=environment)
+    served.server = process
     try:
         assert process.stdout is not None
         async with asyncio.timeout(HANG):
@@ -137,7 +144,8 @@ async def serving(factory: Callable[[Emit], ControllerModel] = make_model, *,
         served.base = base
         yield served
     finally:
-        process.terminate()
+        if process.returncode is None:
+            process.terminate()
         await ended(process)
         served.emulator.close()  # the one serving now (a test may start a fresh one)
         await served.emulator.wait_closed()
@@ -337,3 +345,17 @@ async def test_with_a_tango_database_the_devices_are_found_by_name(tmp_path: Pat
         assert result["state"] == "ON" and result["position"] == pytest.approx(1.5)
         answer = await client.ask(device="controller", op="read", attrs=["Model"])
         assert answer["values"] == {"Model": "TANGO-DT"}
+
+
+@pytest.mark.slow
+async def test_a_terminated_server_stops_the_moves_it_started() -> None:
+    async with serving() as served, client_of(served) as client:
+        await client.ask(op="write", attr="Position", value=30.0)  # 10 mm/s: 3 s
+        await wait_until(served.moving, timeout=HANG)
+        assert served.server is not None
+        served.server.terminate()
+        await ended(served.server)
+        assert served.server.returncode == 0
+        await wait_until(lambda: not served.model.motion.is_moving("x"), timeout=HANG)
+        motion = served.model.motion
+        assert motion.to_user("x", motion.position("x")) < 29.0  # stopped on its way
