@@ -96,7 +96,7 @@ class Served:
 async def client_of(served: Served, suffix: str = "#dbase=no") -> AsyncIterator[Client]:
     process = await asyncio.create_subprocess_exec(
         sys.executable, str(CLIENT), served.base, suffix, stdin=asyncio.subprocess.PIPE,
-        stdout=asyncio.subprocess.PIPE)
+        stdout=asyncio.subprocess.PIPE, limit=1 << 24)  # a line holds every sample read
     try:
         yield Client(process)
     finally:
