@@ -76,6 +76,7 @@ from ..fieldkit import add_probe_command
 from ..moves import describe_stop, failed_axes, moved_axes, optional_axes
 from ..sansio import is_completion_line
 from ..status import ABSENT, MOVING, AxisStatus
+from ..tango_controls import add_tango_server_command
 from ..units import DIM_UNITS, velocity_unit
 
 __all__ = ["main"]
@@ -1575,6 +1576,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_operator_commands(commands)
     add_ioc_command(commands)
     add_probe_command(commands)
+    add_tango_server_command(commands)
     return parser
 
 

@@ -37,6 +37,10 @@ USAGE: dict[str, list[list[str]]] = {
               ["probe", "sim://", "--settle", "-1"], ["probe", "sim://", "--move-time", "-5"],
               ["probe", "sim://", "-o", "{tmp}/no/such/folder/f.json"],
               ["probe", "sim://", "--baudrate", "-1"]],
+    "tango-server": [["tango-server", "sim://?baud=abc", "--nodb"],
+                     ["tango-server", "sim://", "--nodb", "--prefix", "one"],
+                     ["tango-server", "sim://", "--nodb", "--port", "70000"],
+                     ["tango-server", "sim://", "--nodb", "--poll", "0"]],
 }
 
 #: An operation that fails (exit 1, one ``error:`` line on stderr, nothing on stdout).
@@ -49,6 +53,7 @@ FAILS: dict[str, list[list[str]]] = {
     "monitor": [["monitor", REFUSED, "--count", "1"]],
     "upload-trigp": [["upload-trigp", "sim://?baud=0", "{tmp}/empty.txt"]],
     "probe": [["probe", REFUSED, "-o", "{tmp}/f.json"]],
+    "tango-server": [["tango-server", REFUSED, "--nodb"]],
 }
 
 #: Commands that have no failure of their own to provoke: ``ports`` lists what it finds
