@@ -239,7 +239,7 @@ class StageLink:
         # Decimals as the controller prints them (resolution, dim: L4109-4162), detected
         # from a real reply rather than computed from settings.
         words = (await controller.query("?pos")).split()
-        scales = await controller.unit_scales()
+        scales = await controller.settings.unit_scales()
         for axis in self.axes:
             index = AXES.index(axis)
             dim = int(dims[index])
@@ -1473,7 +1473,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
             pair = list(await self._link.read_limits(self._axis))
             pair[which] = float(value)
             limits: dict[str, Any] = {self._axis: (pair[0], pair[1])}
-            await self._link.controller.set_limits(**limits)
+            await self._link.controller.settings.set_limits(**limits)
             await self._link.read_limits(self._axis)
 
     async def _dial(self, which: int) -> float:

@@ -42,6 +42,9 @@ from ._generated import (
     SystemAccess,
     TriggerAccess,
 )
+from ._info import ControllerInfo, Info
+from ._settings import Settings, convert_from, convert_to, reading_unit
+from ._snapshot import SettingDifference, SettingsSnapshot
 
 __all__ = [
     "ACCESS",
@@ -52,11 +55,13 @@ __all__ = [
     "ClosedLoopAccess",
     "Column",
     "CommunicationAccess",
+    "ControllerInfo",
     "ControllerInfoAccess",
     "EncoderAccess",
     "Family",
     "FamilyPort",
     "IOAccess",
+    "Info",
     "JoystickAccess",
     "LimitSwitchAccess",
     "ListTransfer",
@@ -64,12 +69,18 @@ __all__ = [
     "ManualEnum",
     "OperatingModesAccess",
     "Progress",
+    "SettingDifference",
+    "Settings",
+    "SettingsSnapshot",
     "SnapshotAccess",
     "SystemAccess",
     "TriggerAccess",
     "UploadError",
     "check_axis",
     "check_resolution",
+    "convert_from",
+    "convert_to",
+    "reading_unit",
     "snapshot_spec",
     "trigger_spec",
     "validate_rows",
