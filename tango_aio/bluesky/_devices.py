@@ -1375,9 +1375,9 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         return await self._link.position(self._axis)
 
     async def _scale(self) -> UnitScale:
-        """The axis' unit scale read now: ``dim``, ``pitch``, ``gear`` or ``usteps`` may
-        have changed through any path since the link opened (a raw line, a restore,
-        another device, another program)."""
+        """The axis' unit scale, read now."""
+        # dim, pitch, gear or usteps may have changed through any path since the link
+        # opened: a raw line, a restore, another device, another program.
         scale = (await self._link.controller.settings.unit_scales())[self._axis]
         self._link.scales[self._axis] = scale
         return scale
