@@ -329,17 +329,7 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         SettingsRestoreError
             Settings did not take (each named, with why); the others were written.
         """
-        identity = self._port.identity
-        if snapshot.model != identity.model:
-            raise SnapshotMismatchError(
-                f"the snapshot is of a {snapshot.model}, this controller is a "
-                f"{identity.model}: nothing was written")
-        present = AXES[: self._port.context.axes]
-        extra = sorted({key[1] for key in snapshot.values if key[1] and key[1] not in present})
-        if extra:
-            raise SnapshotMismatchError(
-                f"the snapshot has axes this controller lacks ({', '.join(extra).upper()}): "
-                "nothing was written")
+        self.check(snapshot)
         names = {key[0] for key in snapshot.values}
         now, _ = await self._read([INSTRUCTIONS[name] for name in names])
         lacking = sorted(label(key) for key in snapshot.values if key not in now)
@@ -370,6 +360,32 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         if failed:
             raise SettingsRestoreError(failed)
         return written
+
+    def check(self, snapshot: SettingsSnapshot) -> None:
+        """Refuse a snapshot of another model, or with axes this controller lacks,
+        without reading or writing anything.
+
+        Parameters
+        ----------
+        snapshot
+            The snapshot.
+
+        Raises
+        ------
+        SnapshotMismatchError
+            It does not fit this controller.
+        """
+        identity = self._port.identity
+        if snapshot.model != identity.model:
+            raise SnapshotMismatchError(
+                f"the snapshot is of a {snapshot.model}, this controller is a "
+                f"{identity.model}: nothing was written")
+        present = AXES[: self._port.context.axes]
+        extra = sorted({key[1] for key in snapshot.values if key[1] and key[1] not in present})
+        if extra:
+            raise SnapshotMismatchError(
+                f"the snapshot has axes this controller lacks ({', '.join(extra).upper()}): "
+                "nothing was written")
 
     async def _read(self, entries: list[Instruction]
                     ) -> tuple[dict[SettingKey, Any], dict[str, str]]:

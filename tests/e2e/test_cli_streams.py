@@ -37,6 +37,10 @@ USAGE: dict[str, list[list[str]]] = {
               ["probe", "sim://", "--settle", "-1"], ["probe", "sim://", "--move-time", "-5"],
               ["probe", "sim://", "-o", "{tmp}/no/such/folder/f.json"],
               ["probe", "sim://", "--baudrate", "-1"]],
+    "settings": [["settings", "dump", "sim://?baud=abc"], ["settings", "diff", "sim://"],
+                 ["settings", "diff", "sim://", "{tmp}/missing.json"],
+                 ["settings", "restore", "sim://", "{tmp}/empty.txt", "--yes"],
+                 ["settings", "dump", "sim://", "-o", "{tmp}/no/such/folder/f.json"]],
 }
 
 #: An operation that fails (exit 1, one ``error:`` line on stderr, nothing on stdout).
@@ -49,6 +53,7 @@ FAILS: dict[str, list[list[str]]] = {
     "monitor": [["monitor", REFUSED, "--count", "1"]],
     "upload-trigp": [["upload-trigp", "sim://?baud=0", "{tmp}/empty.txt"]],
     "probe": [["probe", REFUSED, "-o", "{tmp}/f.json"]],
+    "settings": [["settings", "dump", REFUSED]],
 }
 
 #: Commands that have no failure of their own to provoke: ``ports`` lists what it finds
