@@ -66,7 +66,28 @@ def _unit(port: Any, unit: str | None, measure: Measure) -> str | None:
 
 
 def reading_unit(port: Any, unit: str | None, measure: Measure) -> str | None:
-    """The unit a reading is given in (the caller's, else the connection's), checked."""
+    """The unit a reading is given in (the caller's, else the connection's), checked
+    before anything is read.
+
+    Parameters
+    ----------
+    port
+        The family port (its ``units``: the connection's unit of length).
+    unit
+        The caller's unit; ``None``: the connection's.
+    measure
+        What is read (position, velocity, acceleration).
+
+    Returns
+    -------
+    str | None
+        The unit; ``None``: the controller's own.
+
+    Raises
+    ------
+    InvalidCommandError
+        ``unit`` is not a unit of ``measure``.
+    """
     chosen = _unit(port, unit, measure)
     if chosen is not None:
         try:
@@ -78,7 +99,30 @@ def reading_unit(port: Any, unit: str | None, measure: Measure) -> str | None:
 
 async def convert_to(port: Any, values: Mapping[str, Any], unit: str | None,
                      measure: Measure) -> dict[str, Any]:
-    """Per-axis ``values`` of ``measure`` in the controller's unit (checked first)."""
+    """Per-axis ``values`` of ``measure`` in the controller's unit, checked before
+    anything is read or written (see :func:`tango_aio.units.to_controller`).
+
+    Parameters
+    ----------
+    port
+        The family port (the unit scales are read through it when a unit is given).
+    values
+        The value of each axis: numbers, or pint Quantities.
+    unit
+        Their unit; ``None``: the connection's, else the controller's own.
+    measure
+        What they are (position, velocity, acceleration).
+
+    Returns
+    -------
+    dict[str, Any]
+        The values by axis, in the controller's unit.
+
+    Raises
+    ------
+    InvalidCommandError
+        A value or the unit is not valid.
+    """
     chosen = _unit(port, unit, measure)
     if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
         return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
@@ -94,7 +138,24 @@ async def convert_to(port: Any, values: Mapping[str, Any], unit: str | None,
 
 async def convert_from(port: Any, values: Mapping[str, Any], chosen: str | None,
                        measure: Measure) -> dict[str, Any]:
-    """Per-axis readings (numbers or sequences) from the controller's unit to ``chosen``."""
+    """Per-axis readings (numbers or sequences) from the controller's unit to ``chosen``.
+
+    Parameters
+    ----------
+    port
+        The family port (the unit scales are read through it when a unit is chosen).
+    values
+        The reading of each axis, in the controller's unit.
+    chosen
+        The unit wanted (from :func:`reading_unit`); ``None``: the controller's own.
+    measure
+        What they are (position, velocity, acceleration).
+
+    Returns
+    -------
+    dict[str, Any]
+        The readings by axis, in ``chosen``.
+    """
     scales = await unit_scales(port) if chosen is not None else {}
 
     def convert(axis: str, value: float) -> float:
