@@ -445,6 +445,15 @@ class _Wrapper(Generic[A]):
         return self._portal
 
 
+def _passing(name: str) -> Callable[..., Any]:
+    """A method of a blocking twin that calls the async object's plain method ``name``."""
+    def call(self: _Wrapper[Any], *args: Any, **kwargs: Any) -> Any:
+        return getattr(self.aio, name)(*args, **kwargs)
+
+    call.__name__ = name
+    return call
+
+
 #: The blocking twin of each family class made so far.
 _TWINS: dict[str, type[_Wrapper[Any]]] = {}
 
@@ -473,8 +482,12 @@ def family_twin(cls: type[Family]) -> type[_Wrapper[Any]]:
         "__module__": __name__, "__qualname__": cls.__name__}
     for name in dir(cls):
         member = getattr(cls, name)
-        if not name.startswith("_") and inspect.iscoroutinefunction(member):
-            members[name] = _Blocking(member)
+        if name.startswith("_") or not inspect.isfunction(member):
+            continue
+        # A plain method (Settings.check) reads only what the family holds: it runs in
+        # the caller's thread, as validate_move does.
+        members[name] = _Blocking(member) if inspect.iscoroutinefunction(member) \
+            else _passing(name)
     twin: type[_Wrapper[Any]] = type(cls.__name__, (_Wrapper,), members)
     _TWINS[key] = twin
     return twin
