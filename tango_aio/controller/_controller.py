@@ -68,6 +68,7 @@ from ..events import (
     UnsolicitedLine,
 )
 from ..families import (
+    RESTART_QUIET,
     Column,
     ControllerInfo,
     Info,
@@ -155,8 +156,6 @@ _INPUT_CHANGES = _HDI_ON_AGAIN | {"snsm", "tvr"}
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
 CLOSE_SETTLE = 0.25
-#: Seconds a restarting controller does not answer: "more than 1 second" (L1837-1838).
-RESTART_QUIET = 1.5
 #: Autostatus modes in which a read's own text coming back need not show local echo:
 #: mode 4 may echo reads (old L723), mode 2 may acknowledge them before their data
 #: (L2099-2103). Setup checks the link in mode 1 first (:meth:`Controller.setup`).

@@ -43,13 +43,14 @@ from ._generated import (
     TriggerAccess,
 )
 from ._info import ControllerInfo, Info
-from ._settings import Settings, convert_from, convert_to, reading_unit
+from ._settings import RESTART_QUIET, Settings, convert_from, convert_to, reading_unit
 from ._snapshot import SettingDifference, SettingsSnapshot
 
 __all__ = [
     "ACCESS",
     "HAND_MADE",
     "MAX_TRIGGERS",
+    "RESTART_QUIET",
     "AdjustmentsAccess",
     "CalibrationAccess",
     "ClosedLoopAccess",

@@ -77,7 +77,7 @@ class FamilyPort(Protocol):
         """Read the settings the driver caches again."""
         ...
 
-    async def wait_restarted(self) -> None:
+    async def wait_restarted(self, *, quiet: float = ...) -> None:
         """After a line that restarts the controller: wait until it answers again, then
         select the driver's mode and read the cached settings again."""
         ...

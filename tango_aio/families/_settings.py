@@ -48,7 +48,11 @@ from ._snapshot import (
     snapshot_entries,
 )
 
-__all__ = ["Settings", "convert_from", "convert_to", "reading_unit", "unit_scales"]
+__all__ = ["RESTART_QUIET", "Settings", "convert_from", "convert_to", "reading_unit",
+           "unit_scales"]
+
+#: Seconds a restarting controller does not answer: "more than 1 second" (L1837-1838).
+RESTART_QUIET = 1.5
 
 
 async def unit_scales(port: Any) -> dict[str, UnitScale]:
@@ -520,7 +524,7 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         await self._port.command("!restore")
         await self._port.refresh_settings()
 
-    async def factory_reset(self, *, confirm: bool) -> None:
+    async def factory_reset(self, *, confirm: bool, quiet: float = RESTART_QUIET) -> None:
         """Delete the saved settings and restart with the firmware's defaults
         (``!restore -1``). The manual warns that the defaults may not suit the hardware
         and can damage it (overcurrent, wrong pitch, limit switch types, L1803-1808):
@@ -532,6 +536,8 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         confirm
             Must be ``True``: the explicit confirmation that the defaults may damage the
             hardware.
+        quiet
+            Seconds the controller takes to restart, before the first poll.
 
         Raises
         ------
@@ -540,9 +546,9 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         """
         _confirmed(confirm, "factory_reset")
         await self._port.command("!restore -1", check=False)
-        await self._port.wait_restarted()
+        await self._port.wait_restarted(quiet=quiet)
 
-    async def reset(self, *, confirm: bool) -> None:
+    async def reset(self, *, confirm: bool, quiet: float = RESTART_QUIET) -> None:
         """Restart the controller (``!reset``), like a power cycle: positions and unsaved
         settings are lost (L1832-1860). Returns once it answers again (it polls as the
         manual says, L1845-1860), in the driver's autostatus mode, with the cached
@@ -552,6 +558,8 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         ----------
         confirm
             Must be ``True``: the explicit confirmation that a restart is meant.
+        quiet
+            Seconds the controller takes to restart, before the first poll.
 
         Raises
         ------
@@ -560,7 +568,7 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         """
         _confirmed(confirm, "reset")
         await self._port.command("!reset", check=False)
-        await self._port.wait_restarted()
+        await self._port.wait_restarted(quiet=quiet)
 
 
 def _confirmed(confirm: object, what: str) -> None:

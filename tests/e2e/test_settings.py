@@ -103,19 +103,21 @@ async def test_another_models_snapshot_is_refused_before_a_byte() -> None:
 
 async def test_save_reload_reset_and_a_power_cycle(tmp_path: Path) -> None:
     async with tango_aio.connect(_url("manual", tmp_path / "eeprom.json")) as tango:
+        model = faults(tango).model  # restarts in 0.1 s (the manual: more than 1 s)
+        model.config = dataclasses.replace(model.config, reset_time=0.1)
         await tango.settings.set_vel(x=4.0)
         await tango.settings.save()
         await tango.settings.set_vel(x=5.0)
         await tango.settings.reload()
         assert await tango.settings.vel(axis="x") == 4.0
         await tango.settings.set_vel(x=6.0)
-        await tango.settings.reset(confirm=True)
+        await tango.settings.reset(confirm=True, quiet=0.2)
         assert tango.autostatus == 1 and await tango.settings.vel(axis="x") == 4.0
         await tango.settings.set_vel(x=7.0)
         faults(tango).power_cycle(0.05)
         await tango.wait_restarted(quiet=0.2)
         assert await tango.settings.vel(axis="x") == 4.0
-        await tango.settings.factory_reset(confirm=True)
+        await tango.settings.factory_reset(confirm=True, quiet=0.2)
         assert await tango.settings.vel(axis="x") == 10.0
         assert not (tmp_path / "eeprom.json").exists() or \
             "vel" not in (tmp_path / "eeprom.json").read_text()
