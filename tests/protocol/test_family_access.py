@@ -49,7 +49,7 @@ class Port:
     async def refresh_settings(self) -> None:
         raise AssertionError("the generated access reads no cached settings")
 
-    async def wait_restarted(self) -> None:
+    async def wait_restarted(self, *, quiet: float = 0.0) -> None:
         raise AssertionError("the generated access restarts nothing")
 
     @property
