@@ -91,6 +91,7 @@ __all__ = [
     "NoError",
     "NotConfiguredError",
     "NotExecutableError",
+    "NotSupportedByFirmwareError",
     "OutOfRangeError",
     "PortBusyError",
     "PortNotFoundError",
@@ -100,6 +101,8 @@ __all__ = [
     "RequestAbortedError",
     "SafetyCircuitError",
     "SettingNotAppliedError",
+    "SettingsRestoreError",
+    "SnapshotMismatchError",
     "StageLimitsError",
     "StateError",
     "TangoError",
@@ -788,6 +791,53 @@ class BrakeVoltageError(HardwareFaultError):
 
 
 # -- end of the generated error classes --
+
+
+class NotSupportedByFirmwareError(InvalidInstructionError):
+    """The controller's firmware does not know an instruction the manual (1.71) documents:
+    it answered error 4 (L970) to a line the catalog finds valid, or the older edition of
+    the manual lacks the instruction and the unit runs that firmware.
+
+    Parameters
+    ----------
+    instruction
+        The instruction (``'extmode'``).
+    command
+        The line that was refused (``None``: not sent, known beforehand).
+    """
+
+    def __init__(self, instruction: str, command: str | None = None) -> None:
+        super().__init__(4, command)
+        self.instruction = instruction
+        where = f" (command {command!r})" if command else ""
+        self.args = (f"{instruction!r} is not supported by this firmware{where}",)
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (type(self), (self.instruction, self.command))
+
+
+class SettingsRestoreError(TangoError):
+    """A settings restore did not bring every setting to the snapshot's value.
+
+    Parameters
+    ----------
+    failed
+        Each setting that did not take (``'vel X'``, ``'joyspeed 2'``) and why.
+    """
+
+    def __init__(self, failed: dict[str, str]) -> None:
+        self.failed = dict(failed)
+        listed = "; ".join(f"{name}: {why}" for name, why in self.failed.items())
+        super().__init__(f"{len(self.failed)} setting(s) did not take: {listed}")
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (type(self), (self.failed,))
+
+
+class SnapshotMismatchError(TangoError, ValueError):
+    """A settings snapshot does not fit this controller (another model, an axis or a
+    setting this unit lacks); nothing was written."""
+
 
 
 #: Documented error numbers and their manual texts.

@@ -63,10 +63,12 @@ from . import controller as _connection
 from .controller import Controller as AsyncController
 from .controller import Identity
 from .events import PositionUpdate, Subscription, TangoEvent
+from .families import Family
 from .group import ControllerGroup as AsyncGroup
 from .group import ControllerSpec, GroupEvent, GroupSubscription
 
-__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect", "stop_started"]
+__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect", "family_twin",
+           "stop_started"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -443,6 +445,54 @@ class _Wrapper(Generic[A]):
         return self._portal
 
 
+def _passing(name: str) -> Callable[..., Any]:
+    """A method of a blocking twin that calls the async object's plain method ``name``."""
+    def call(self: _Wrapper[Any], *args: Any, **kwargs: Any) -> Any:
+        return getattr(self.aio, name)(*args, **kwargs)
+
+    call.__name__ = name
+    return call
+
+
+#: The blocking twin of each family class made so far.
+_TWINS: dict[str, type[_Wrapper[Any]]] = {}
+
+
+def family_twin(cls: type[Family]) -> type[_Wrapper[Any]]:
+    """The blocking twin of a family class (:class:`tango_aio.families.Family`): each of
+    its public async methods made blocking by the same descriptor as the controller's.
+
+    Parameters
+    ----------
+    cls
+        The async family class (``type(tango.settings)``).
+
+    Returns
+    -------
+    type
+        A class whose instances wrap one family object: ``twin(family, portal,
+        owns_portal=False)``.
+    """
+    key = f"{cls.__module__}.{cls.__qualname__}"
+    if key in _TWINS:
+        return _TWINS[key]
+    members: dict[str, Any] = {
+        "__doc__": f"The blocking form of :class:`tango_aio.families.{cls.__name__}`: "
+                   "each method blocks until the driver's thread has run it.",
+        "__module__": __name__, "__qualname__": cls.__name__}
+    for name in dir(cls):
+        member = getattr(cls, name)
+        if name.startswith("_") or not inspect.isfunction(member):
+            continue
+        # A plain method (Settings.check) reads only what the family holds: it runs in
+        # the caller's thread, as validate_move does.
+        members[name] = _Blocking(member) if inspect.iscoroutinefunction(member) \
+            else _passing(name)
+    twin: type[_Wrapper[Any]] = type(cls.__name__, (_Wrapper,), members)
+    _TWINS[key] = twin
+    return twin
+
+
 class Controller(_Wrapper[AsyncController]):
     """A connected TANGO controller, blocking. Get one with :func:`connect`.
 
@@ -480,14 +530,9 @@ class Controller(_Wrapper[AsyncController]):
     set_trigger_range = _Blocking(AsyncController.set_trigger_range)
     upload_snapshot_positions = _Blocking(AsyncController.upload_snapshot_positions)
     read_snapshot_positions = _Blocking(AsyncController.read_snapshot_positions)
-    unit_scales = _Blocking(AsyncController.unit_scales)
-    velocity = _Blocking(AsyncController.velocity)
-    set_velocity = _Blocking(AsyncController.set_velocity)
-    acceleration = _Blocking(AsyncController.acceleration)
-    set_acceleration = _Blocking(AsyncController.set_acceleration)
-    limits = _Blocking(AsyncController.limits)
     axis_limits = _Blocking(AsyncController.axis_limits)
-    set_limits = _Blocking(AsyncController.set_limits)
+    read_info = _Blocking(AsyncController.read_info)
+    wait_restarted = _Blocking(AsyncController.wait_restarted)
     trigger_count = _Blocking(AsyncController.trigger_count)
     set_trigger_count = _Blocking(AsyncController.set_trigger_count)
     trigger_enabled = _Blocking(AsyncController.trigger_enabled)
@@ -591,6 +636,19 @@ class Controller(_Wrapper[AsyncController]):
             A target is not valid (see :meth:`tango_aio.Controller.validate_move`).
         """
         self.aio.validate_move(relative=relative, **axes)
+
+    @functools.cached_property
+    def settings(self) -> Any:
+        """The blocking twin of :attr:`tango_aio.Controller.settings`: every setting by
+        name, snapshot, diff, restore, save (each method blocks)."""
+        return family_twin(type(self.aio.settings))(self.aio.settings, self._portal,
+                                                    owns_portal=False)
+
+    @functools.cached_property
+    def info(self) -> Any:
+        """The blocking twin of :attr:`tango_aio.Controller.info` (each method blocks)."""
+        return family_twin(type(self.aio.info))(self.aio.info, self._portal,
+                                                owns_portal=False)
 
     @property
     def identity(self) -> Identity:

@@ -239,7 +239,7 @@ class StageLink:
         # Decimals as the controller prints them (resolution, dim: L4109-4162), detected
         # from a real reply rather than computed from settings.
         words = (await controller.query("?pos")).split()
-        scales = await controller.unit_scales()
+        scales = await controller.settings.unit_scales()
         for axis in self.axes:
             index = AXES.index(axis)
             dim = int(dims[index])
@@ -1374,9 +1374,13 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
     async def _read_position(self) -> float:
         return await self._link.position(self._axis)
 
-    @property
-    def _scale(self) -> UnitScale:
-        return self._link.scales[self._axis]
+    async def _scale(self) -> UnitScale:
+        """The axis' unit scale, read now."""
+        # dim, pitch, gear or usteps may have changed through any path since the link
+        # opened: a raw line, a restore, another device, another program.
+        scale = (await self._link.controller.settings.unit_scales())[self._axis]
+        self._link.scales[self._axis] = scale
+        return scale
 
     async def _controller_get(self, name: str) -> float:
         return float(await self._link.controller.get(name, axis=self._axis))
@@ -1387,12 +1391,14 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         await self._link.controller.set(name, float(value), axis=self._axis)
 
     async def _get_velocity(self) -> float:
-        return egu_velocity(await self._controller_get("vel"), self._scale)
+        scale, vel = await asyncio.gather(self._scale(), self._controller_get("vel"))
+        return egu_velocity(vel, scale)
 
     async def _put_velocity(self, value: float | None) -> None:
         if value is None:
             raise ValueError(f"{self.name}: velocity needs a number")
-        await self._controller_put("vel", controller_velocity(float(value), self._scale))
+        await self._controller_put("vel", controller_velocity(float(value),
+                                                              await self._scale()))
 
     async def acceleration_egu(self) -> float:
         """The acceleration in EGU/s² (``accel`` converted).
@@ -1402,10 +1408,11 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         float
             The acceleration, in EGU/s².
         """
-        return egu_acceleration(await self._controller_get("accel"), self._scale)
+        scale, accel = await asyncio.gather(self._scale(), self._controller_get("accel"))
+        return egu_acceleration(accel, scale)
 
     async def _max_velocity(self) -> float:
-        return max_velocity(self._scale)
+        return max_velocity(await self._scale())
 
     async def _acceleration_time(self) -> float:
         velocity, accel = await asyncio.gather(self._get_velocity(),
@@ -1417,7 +1424,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
             raise ValueError(f"{self.name}: acceleration_time must be positive, "
                              f"got {value!r}")
         velocity = await self._get_velocity()
-        per_m_s2 = egu_acceleration(1.0, self._scale)
+        per_m_s2 = egu_acceleration(1.0, await self._scale())
         await self._controller_put("accel", velocity / float(value) / per_m_s2)
 
     async def _egu(self) -> str:
@@ -1427,13 +1434,13 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
         return self._link.precision.get(self._axis, 0)
 
     async def _usteps(self) -> int:
-        return self._scale.usteps
+        return (await self._scale()).usteps
 
     async def _per_rev(self) -> float:
-        return self._scale.user_per_rev
+        return (await self._scale()).user_per_rev
 
     async def _resolution(self) -> float:
-        return self._scale.resolution
+        return (await self._scale()).resolution
 
     async def _done_move(self) -> int:
         letters = await self._link.controller.status()
@@ -1473,7 +1480,7 @@ class MarzhauserAxis(StandardReadable, StandardMovable[float],
             pair = list(await self._link.read_limits(self._axis))
             pair[which] = float(value)
             limits: dict[str, Any] = {self._axis: (pair[0], pair[1])}
-            await self._link.controller.set_limits(**limits)
+            await self._link.controller.settings.set_limits(**limits)
             await self._link.read_limits(self._axis)
 
     async def _dial(self, which: int) -> float:

@@ -78,6 +78,7 @@ from ..sansio import is_completion_line
 from ..status import ABSENT, MOVING, AxisStatus
 from ..tango_controls import add_tango_server_command
 from ..units import DIM_UNITS, velocity_unit
+from ._settings import add_settings_command, info_rows
 
 __all__ = ["main"]
 
@@ -266,7 +267,8 @@ async def _info(args: argparse.Namespace) -> int:
         _row(table, "firmware", ident.firmware)
         _row(table, "axes", str(ident.axes))
         _row(table, "options", ", ".join(sorted(ident.det.options)) or "-")
-        _row(table, "serial", await tango.query("?readsn"))
+        for name, value in info_rows(await tango.read_info()):
+            _row(table, name, value)
         dims = await tango.get("dim")
         units = {axis: DIM_UNITS[int(dim)].symbol if int(dim) in DIM_UNITS else f"dim {dim}"
                  for axis, dim in dims.items()}
@@ -1577,6 +1579,7 @@ def _parser() -> argparse.ArgumentParser:
     add_ioc_command(commands)
     add_probe_command(commands)
     add_tango_server_command(commands)
+    add_settings_command(commands)
     return parser
 
 

@@ -17,8 +17,6 @@ from collections.abc import (
     Sequence,
 )
 from dataclasses import dataclass, field
-from decimal import Decimal
-from fractions import Fraction
 from types import TracebackType
 from typing import Any, Final, NoReturn, Protocol
 
@@ -69,11 +67,18 @@ from ..events import (
     UnsolicitedLine,
 )
 from ..families import (
+    RESTART_QUIET,
     Column,
+    ControllerInfo,
+    Info,
     ListTransfer,
     Progress,
+    Settings,
     check_axis,
     check_resolution,
+    convert_from,
+    convert_to,
+    reading_unit,
     snapshot_spec,
     trigger_spec,
     validate_rows,
@@ -113,14 +118,7 @@ from ..sansio import (
     Unsolicited,
 )
 from ..status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
-from ..units import (
-    DEFAULT_USTEPS,
-    Measure,
-    UnitScale,
-    from_controller,
-    plain,
-    to_controller,
-)
+from ..units import Measure
 from ._motion import (
     STOP_WAIT,
     Motion,
@@ -269,6 +267,11 @@ class Controller:
         #: The physical position unit of this connection (``connect(url, units="mm")``);
         #: ``None``: the controller's dim unit. See :mod:`tango_aio.units`.
         self.units: str | None = None
+        #: Every setting by name, in physical units, and as a whole (snapshot, diff,
+        #: restore, save): :class:`~tango_aio.families.Settings`.
+        self.settings = Settings(self)
+        #: The controller's identity and condition (manual chapter 6).
+        self.info = Info(self)
         protocol.set_callbacks(self._on_protocol_event, self._on_connection_lost)
         #: Notices a controller that restarted behind the link and recovers
         #: (:mod:`tango_aio.controller._restart`).
@@ -2011,215 +2014,63 @@ class Controller:
         """
         return await self._transfer().download(snapshot_spec())
 
-    # -- physical units and typed settings ------------------------------------------------
+    # -- physical units (the settings family converts; moves and positions use it) --------
 
-    async def unit_scales(self) -> dict[str, UnitScale]:
-        """The unit conversion of every present axis: its ``dim``, ``pitch``, ``gear`` and
-        the global ``usteps``, read now (four pipelined reads). The older edition has no
-        ``usteps`` (its dim 0 counts microsteps, old L863-900, without saying how many per
-        revolution): there the 1.71 default (40000, L4106) is taken.
-
-        Returns
-        -------
-        dict[str, UnitScale]
-            The unit scale of each present axis.
-        """
-        older = self._identity is not None and self._identity.family == "older"
-        dims, pitch, gear, usteps = await asyncio.gather(
-            self.get("dim"), self.get("pitch"), self.get("gear"),
-            _value(DEFAULT_USTEPS) if older else self.get("usteps"))
-        return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
-                                int(usteps)) for axis in dims}
-
-    def _unit(self, unit: str | None, measure: Measure) -> str | None:
-        """The caller's unit, else the connection's ``units`` made a unit of ``measure``."""
-        if unit is not None or self.units is None:
-            return unit
-        return self.units + measure.suffix
+    def _reading_unit(self, unit: str | None, measure: Measure) -> str | None:
+        """The unit a reading is converted to, checked before anything is read."""
+        return reading_unit(self, unit, measure)
 
     async def _to_controller(self, values: Mapping[str, Any], unit: str | None,
                              measure: Measure) -> dict[str, Any]:
-        """Per-axis ``values`` of ``measure`` in the controller's unit (see
-        :func:`tango_aio.units.to_controller`). Without a unit and
-        without pint Quantities nothing is read and they are returned as they are, but
-        for Decimal and Fraction as floats (the move-time estimate computes with them).
-
-        Returns
-        -------
-        dict[str, Any]
-            The values by axis, in the controller's unit.
-
-        Raises
-        ------
-        InvalidCommandError
-            A value or the unit is not valid.
-        """
-        chosen = self._unit(unit, measure)
-        if chosen is None and not any(hasattr(v, "magnitude") for v in values.values()):
-            return {axis: float(value) if isinstance(value, Decimal | Fraction) else value
-                    for axis, value in values.items()}
-        try:  # checked before anything is read or written
-            given = {axis: plain(value, chosen, measure) for axis, value in values.items()}
-        except (TypeError, ValueError) as exc:
-            raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
-        scales = await self.unit_scales()
-        return {axis: to_controller(number, of, measure, scales[axis]) if axis in scales
-                else number for axis, (number, of) in given.items()}
-
-    def _reading_unit(self, unit: str | None, measure: Measure) -> str | None:
-        """The unit a reading is converted to (see :meth:`_unit`), checked before
-        anything is read.
-
-        Returns
-        -------
-        str | None
-            The unit; ``None``: the controller's unit.
-
-        Raises
-        ------
-        InvalidCommandError
-            The unit is not one of ``measure``.
-        """
-        chosen = self._unit(unit, measure)
-        if chosen is not None:
-            try:
-                plain(0.0, chosen, measure)
-            except ValueError as exc:
-                raise InvalidCommandError(f"{exc}", instruction=None, number=5) from exc
-        return chosen
+        """Per-axis ``values`` of ``measure`` in the controller's unit, checked first."""
+        return await convert_to(self, values, unit, measure)
 
     async def _from_controller(self, values: Mapping[str, Any], chosen: str | None,
                                measure: Measure) -> dict[str, Any]:
-        """Per-axis readings (numbers, or sequences of numbers) converted from the
-        controller's unit to ``chosen`` (from :meth:`_reading_unit`).
+        """Per-axis readings converted from the controller's unit to ``chosen``."""
+        return await convert_from(self, values, chosen, measure)
+
+    async def read_info(self) -> ControllerInfo:
+        """The controller's serial number, versions, temperature, uptime, axes, maximum
+        current and the serial numbers of connected stages (``?readsn``, ``?ver``, ...,
+        manual chapter 6).
 
         Returns
         -------
-        dict[str, Any]
-            The readings by axis, in ``chosen``.
+        ControllerInfo
+            What the unit answers; a field it lacks is ``None``.
         """
-        scales = await self.unit_scales() if chosen is not None else {}
+        return await self.info.read()
 
-        def convert(axis: str, value: float) -> float:
-            if chosen is None:
-                return float(value)
-            return from_controller(float(value), chosen, measure, scales[axis])
-
-        return {axis: tuple(convert(axis, v) for v in value)
-                if isinstance(value, list | tuple) else convert(axis, value)
-                for axis, value in values.items()}
-
-    async def velocity(self, *, unit: str | None = None) -> dict[str, float]:
-        """The ``vel`` of every present axis: rev/s (mm/s in dim 9), or in ``unit``
-        (``"mm/s"``; default: the connection's ``units`` per second).
+    async def wait_restarted(self, *, quiet: float = RESTART_QUIET) -> None:
+        """After a line that restarts the controller (``reset``, ``restore -1``): wait
+        ``quiet`` seconds while it reboots ("more than 1 second, where the controller is
+        not responding", manual L1837-1838), poll until it answers (L1845-1860), select
+        the driver's autostatus mode again (it restarts in mode 1, L2062) and read the
+        cached settings again.
 
         Parameters
         ----------
-        unit
-            The unit of the speeds (``"mm/s"``); ``None``: the connection's ``units`` per
-            second, else rev/s (mm/s in dim 9).
-
-        Returns
-        -------
-        dict[str, float]
-            The velocity of each present axis.
+        quiet
+            Seconds to wait before the first poll.
 
         Raises
         ------
-        InvalidCommandError
-            ``unit`` is not a unit of velocity.
+        ControllerTimeoutError
+            It did not answer in time.
+        ConnectionLostError
+            The link was declared lost meanwhile.
         """
-        chosen = self._reading_unit(unit, Measure.VELOCITY)
-        return await self._from_controller(await self.get("vel"), chosen, Measure.VELOCITY)
-
-    async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
-        """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`.
-
-        Parameters
-        ----------
-        unit
-            The unit of the speeds, as for :meth:`velocity`.
-        **axes
-            The velocity of each axis.
-        """
-        await self.set("vel", **await self._to_controller(axes, unit, Measure.VELOCITY))
-
-    async def acceleration(self, *, unit: str | None = None) -> dict[str, float]:
-        """The ``accel`` of every present axis: m/s², or in ``unit`` (``"mm/s2"``;
-        default: the connection's ``units`` per second squared).
-
-        Parameters
-        ----------
-        unit
-            The unit of the accelerations (``"mm/s2"``); ``None``: the connection's ``units``
-            per second squared, else m/s².
-
-        Returns
-        -------
-        dict[str, float]
-            The acceleration of each present axis.
-
-        Raises
-        ------
-        InvalidCommandError
-            ``unit`` is not a unit of acceleration.
-        """
-        chosen = self._reading_unit(unit, Measure.ACCELERATION)
-        return await self._from_controller(await self.get("accel"), chosen, Measure.ACCELERATION)
-
-    async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
-        """Set ``accel`` per axis, see :meth:`acceleration`.
-
-        Parameters
-        ----------
-        unit
-            The unit of the accelerations, as for :meth:`acceleration`.
-        **axes
-            The acceleration of each axis.
-        """
-        await self.set("accel", **await self._to_controller(axes, unit, Measure.ACCELERATION))
-
-    async def limits(self, *, unit: str | None = None) -> dict[str, tuple[float, float]]:
-        """The software limits (``lim``) of every present axis as ``(lower, upper)``, in
-        ``unit`` (default: the connection's ``units``, else the dim unit).
-
-        Parameters
-        ----------
-        unit
-            The unit of the limits, as for :meth:`position`.
-
-        Returns
-        -------
-        dict[str, tuple[float, float]]
-            The ``(lower, upper)`` limits of each present axis.
-
-        Raises
-        ------
-        InvalidCommandError
-            ``unit`` is not a unit of length.
-        """
-        chosen = self._reading_unit(unit, Measure.POSITION)
-        pairs = await self.get("lim")
-        return await self._from_controller(pairs, chosen, Measure.POSITION)
-
-    async def set_limits(self, /, *, unit: str | None = None,
-                         **axes: tuple[float, float]) -> None:
-        """Set the software limits per axis (``set_limits(x=(0, 100), unit="mm")``).
-
-        Parameters
-        ----------
-        unit
-            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
-            ``units``, else the controller's dim unit.
-        **axes
-            The ``(lower, upper)`` limits of each axis.
-        """
-        lower = await self._to_controller({a: p[0] for a, p in axes.items()}, unit,
-                                          Measure.POSITION)
-        upper = await self._to_controller({a: p[1] for a, p in axes.items()}, unit,
-                                          Measure.POSITION)
-        await self.set("lim", axis=None, check=True,
-                       **{axis: [lower[axis], upper[axis]] for axis in axes})
+        await asyncio.sleep(quiet)
+        for attempt in range(2):  # the link counts as dead after two unanswered polls
+            try:
+                await self._protocol.resync(timeout=self.reply_timeout)
+                break
+            except ControllerTimeoutError:
+                if attempt:
+                    raise
+        await self._protocol.verify_autostatus(timeout=self.reply_timeout)
+        await self._reload_settings()
 
     async def trigger_count(self) -> int:
         """The number of trigger events generated so far (``?trigcount``).
@@ -2578,8 +2429,7 @@ class _SignatureOf(Protocol):
     def __call__(self, controller: Controller | None = None) -> Signature | None: ...
 
 
-async def _value(value: int) -> int:
-    return value
+
 
 
 def _ignore_outcome(future: asyncio.Future[Any]) -> None:

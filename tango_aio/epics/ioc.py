@@ -982,6 +982,7 @@ class AxisServer:
             ``velo`` is not positive.
         """
         self._require_link()
+        await self._units_now()
         top = self._f.max_velocity.value if vmax is None else vmax
         if velo <= 0:
             raise MotorRefusedError(f"{self.record.pvname}.VELO must be > 0")
@@ -1011,6 +1012,7 @@ class AxisServer:
             ``accl`` is not a positive number of seconds.
         """
         self._require_link()
+        await self._units_now()
         try:
             accel = self.units.accel_from_accl(self._f.velocity.value, accl)
         except ValueError as exc:
@@ -1095,6 +1097,12 @@ class AxisServer:
             raise MotorRefusedError(f"{self.record.pvname}: the controller is not connected")
 
     # -- reading -------------------------------------------------------------------------
+
+    async def _units_now(self) -> None:
+        """Read the unit settings before a conversion: ``pitch`` or ``dim`` may have
+        changed through any path since the last poll read them."""
+        units, decimals = await self.server.read_units()
+        await self.units_read(units[self.letter], decimals)
 
     async def read_settings(self) -> None:
         """Read units, speeds, limits, enable state and position (at start, reconnect)."""

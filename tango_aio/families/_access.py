@@ -7,15 +7,21 @@ data (instruction, converter, arguments) and its behaviour is tested once here.
 
 from __future__ import annotations
 
+import contextlib
 import enum
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
-from ..catalog import AXES, Form, Value, build
-from ..errors import InvalidCommandError, ProtocolError
+from ..catalog import AXES, INSTRUCTIONS, Form, Value, build
+from ..errors import (
+    InvalidCommandError,
+    InvalidInstructionError,
+    NotSupportedByFirmwareError,
+    ProtocolError,
+)
 from ._base import FamilyPort
 
-__all__ = ["ManualEnum", "read", "read_axes", "to_bool", "write", "write_axes"]
+__all__ = ["ManualEnum", "read", "read_axes", "supported", "to_bool", "write", "write_axes"]
 
 T = TypeVar("T")
 
@@ -47,22 +53,54 @@ def _convert(convert: Callable[[Any], T], value: Any) -> T:
     return convert(value)
 
 
+def _older(port: FamilyPort) -> bool:
+    try:
+        return port.identity.family == "older"
+    except RuntimeError:  # not identified: the firmware answers for itself
+        return False
+
+
+@contextlib.contextmanager
+def supported(port: FamilyPort, name: str) -> Iterator[None]:
+    """Refuse ``name`` where the firmware lacks it, or answers error 4 (L970) to it."""
+    # The older edition does not document it; or error 4 to a line the catalog found
+    # valid: this firmware does not know the instruction.
+    entry = INSTRUCTIONS[name]
+    if not entry.in_older_manual and _older(port):
+        raise NotSupportedByFirmwareError(entry.name)
+    try:
+        yield
+    except NotSupportedByFirmwareError:
+        raise
+    except InvalidInstructionError as error:
+        raise NotSupportedByFirmwareError(entry.name, error.command) from error
+
+
 async def read(port: FamilyPort, name: str, convert: Callable[[Any], T],
                *args: Value | None, axis: str | None = None) -> T:
     """Read ``name`` (trailing ``None`` arguments left out) and convert its reply."""
-    value = await port.get(name, *_present(args), axis=axis)
+    present = _present(args)
+    with supported(port, name):
+        value = await port.get(name, *present, axis=axis)
     return _convert(convert, value)
 
 
 async def read_axes(port: FamilyPort, name: str, convert: Callable[[Any], T],
                     *args: Value | None, axis: str | None = None) -> Any:
     """Read a per-axis ``name``: one converted value for ``axis``, else a dict by axis."""
-    value = await port.get(name, *_present(args), axis=axis)
+    present = _present(args)
+    with supported(port, name):
+        value = await port.get(name, *present, axis=axis)
     if axis is not None:
         return _convert(convert, value)
     if not isinstance(value, Mapping):
         raise ProtocolError(f"{name}: expected a value per axis, got {value!r:.60}")
     return {letter: _convert(convert, item) for letter, item in value.items()}
+
+
+def _wire(value: Value) -> Value:
+    """A typed value as the catalog takes it: a bool or an enum member as a plain int."""
+    return int(value) if isinstance(value, int) and type(value) is not int else value
 
 
 def _present(args: Sequence[Value | None]) -> tuple[Value, ...]:
@@ -73,19 +111,21 @@ def _present(args: Sequence[Value | None]) -> tuple[Value, ...]:
     if any(value is None for value in values):
         raise InvalidCommandError("an optional argument is missing before a given one",
                                   number=5)
-    return tuple(value for value in values if value is not None)
+    return tuple(_wire(value) for value in values if value is not None)
 
 
 def _group(value: object) -> Value | tuple[Value, ...]:
     if isinstance(value, Sequence) and not isinstance(value, str):
         return tuple(_present(list(value)))
-    return value  # type: ignore[return-value]
+    return _wire(value)  # type: ignore[arg-type]
 
 
 async def write(port: FamilyPort, name: str, *args: Value | None,
                 axis: str | None = None) -> None:
     """Write ``name`` with its lead values (trailing ``None`` left out), proven."""
-    await port.set(name, *_present(args), axis=axis)
+    present = _present(args)
+    with supported(port, name):
+        await port.set(name, *present, axis=axis)
 
 
 async def write_axes(port: FamilyPort, name: str, lead: Sequence[Value | None],
@@ -99,17 +139,18 @@ async def write_axes(port: FamilyPort, name: str, lead: Sequence[Value | None],
         raise InvalidCommandError(f"{name}: no axis value given", instruction=name, number=5)
     head = _present(lead)
     letters = list(given)
-    if len(letters) == 1:
-        await port.set(name, *head, *_flat(given[letters[0]]), axis=letters[0])
-        return
-    if letters == list(AXES[: len(letters)]):
-        await port.set(name, *head, **given)
-        return
-    for letter in letters:  # every line proven valid before anything is written
-        build(name, *head, *_flat(given[letter]), form=Form.SET, axis=letter,
-              context=port.context)
-    for letter in letters:
-        await port.set(name, *head, *_flat(given[letter]), axis=letter)
+    if len(letters) > 1 and letters != list(AXES[: len(letters)]):
+        for letter in letters:  # every line proven valid before anything is written
+            build(name, *head, *_flat(given[letter]), form=Form.SET, axis=letter,
+                  context=port.context)
+    with supported(port, name):
+        if len(letters) == 1:
+            await port.set(name, *head, *_flat(given[letters[0]]), axis=letters[0])
+        elif letters == list(AXES[: len(letters)]):
+            await port.set(name, *head, **given)
+        else:
+            for letter in letters:
+                await port.set(name, *head, *_flat(given[letter]), axis=letter)
 
 
 def _flat(value: Value | tuple[Value, ...]) -> tuple[Value, ...]:

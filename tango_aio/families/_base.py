@@ -14,8 +14,40 @@ from typing import Any, ClassVar, Protocol
 from ..catalog import Context, Value
 
 
+class Identified(Protocol):
+    """What a family needs of the controller's identity."""
+
+    @property
+    def model(self) -> str:
+        """The model (``TANGO-DT``)."""
+        ...
+
+    @property
+    def firmware(self) -> str:
+        """The firmware version (``1.71``)."""
+        ...
+
+    @property
+    def axes(self) -> int:
+        """The number of axes."""
+        ...
+
+    @property
+    def family(self) -> str:
+        """``"1.71"``, or ``"older"`` for firmware of the manual's older edition."""
+        ...
+
+
 class FamilyPort(Protocol):
     """The intents a family sends to its controller."""
+
+    #: The connection's default unit of length (``None``: the controller's dim unit).
+    units: str | None
+
+    @property
+    def identity(self) -> Identified:
+        """The controller's identity, read at connect."""
+        ...
 
     @property
     def context(self) -> Context:
@@ -92,6 +124,21 @@ class FamilyPort(Protocol):
             Read the controller's error state after the line.
         timeout
             Seconds to wait for the answer; ``None``: the connection's default.
+        """
+        ...
+
+    async def refresh_settings(self) -> None:
+        """Read the settings the driver caches again."""
+        ...
+
+    async def wait_restarted(self, *, quiet: float = ...) -> None:
+        """After a line that restarts the controller: wait until it answers again, then
+        select the driver's mode and read the cached settings again.
+
+        Parameters
+        ----------
+        quiet
+            Seconds to wait before the first line, while the controller starts.
         """
         ...
 

@@ -89,12 +89,12 @@ class _Axes(_Base):
                                    limits=limits, property_type=float)
 
         prop(f"Velocity ({VELOCITY_UNIT})",
-             lambda dev: dev.controller.velocity(unit=VELOCITY_UNIT)[axis],
-             lambda dev, v: dev.controller.set_velocity(unit=VELOCITY_UNIT,
+             lambda dev: dev.controller.settings.velocity(unit=VELOCITY_UNIT)[axis],
+             lambda dev, v: dev.controller.settings.set_velocity(unit=VELOCITY_UNIT,
                                                         **_by_axis({axis: v})))
         prop("Acceleration (m/s^2)",
-             lambda dev: dev.controller.acceleration(unit=ACCELERATION_UNIT)[axis],
-             lambda dev, v: dev.controller.set_acceleration(unit=ACCELERATION_UNIT,
+             lambda dev: dev.controller.settings.acceleration(unit=ACCELERATION_UNIT)[axis],
+             lambda dev, v: dev.controller.settings.set_acceleration(unit=ACCELERATION_UNIT,
                                                             **_by_axis({axis: v})))
         if not older:
             prop("Backlash (um)",
@@ -120,7 +120,8 @@ class _Axes(_Base):
             The lower and upper limit.
         """
         self._moves.check()
-        return self.controller.limits()[axis]
+        lower, upper = self.controller.settings.limits()[axis]
+        return float(lower), float(upper)
 
     def set_limits_um(self, axis: str, lower: float, upper: float) -> None:
         """Set the software limits of ``axis`` (``!lim``) in µm.
@@ -133,7 +134,7 @@ class _Axes(_Base):
             The new limits.
         """
         self._moves.check()
-        self.controller.set_limits(**_by_axis({axis: (lower, upper)}))
+        self.controller.settings.set_limits(**_by_axis({axis: (lower, upper)}))
 
     # -- motion ---------------------------------------------------------------------------
 
@@ -209,7 +210,7 @@ class _Axes(_Base):
         unit, converted by :mod:`tango_aio.units`)."""
         self._moves.check()
         tango = self.controller
-        scales = tango.unit_scales()
+        scales = tango.settings.unit_scales()
         tango.set("pos", **_by_axis({
             axis: to_controller(value, UNIT, Measure.POSITION, scales[axis])
             for axis, value in where_um.items()}))

@@ -148,9 +148,7 @@ class Handlers(Peripherals):
     def i_restore(self, c: Command) -> Reply:
         if c.values == (-1,):
             # Factory reset: the saved set is deleted, then a software reset (L1805-1813).
-            path = self.m.config.state_file
-            if path is not None:
-                path.unlink(missing_ok=True)
+            self.m.forget_saved()
             self.m.reboot()
             return None
         self.m.restore()

@@ -29,7 +29,9 @@ choice is named first below:
 * a read whose catalog reply is "none" (``?flash``, "Response: None") answers nothing;
 * an empty line is ignored without touching the error state;
 * ``restore`` reloads the saved parameters only; ``reset`` and ``restore -1`` restart
-  (autostatus 1, moves stopped, counters 0 at the power-on position);
+  (autostatus 1, moves stopped, counters 0 at the power-on position); without a state
+  file, ``save`` keeps the saved parameters in memory, where reset, power cycles and
+  ``restore`` find them (``restore -1`` deletes them, L1803-1808);
 * the trigger list is handed to the motion model lazily, before the next instruction that
   is not a trigger-list instruction (see :meth:`ControllerModel.arm_triggers`);
 * an unexpected exception in a handler (an emulator bug) does not stop the controller:
@@ -46,11 +48,13 @@ choice is named first below:
 
 from __future__ import annotations
 
+import copy
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
+from typing import Any
 
 from ..catalog import (
     AXES,
@@ -111,7 +115,8 @@ class SimConfig:
     build: str = "Jun  4 2019 , 12:00:00"
     serial: str = "190604001"
     options: int = DEFAULT_OPTIONS
-    #: Where ``save`` persists the saved parameters (JSON, written atomically).
+    #: Where ``save`` persists the saved parameters (JSON, written atomically); ``None``:
+    #: in memory, for the life of this model.
     state_file: Path | None = None
     #: Extra interpreter time of blocking instructions, in seconds.
     reset_time: float = 1.0
@@ -200,6 +205,9 @@ class ControllerModel:
         self.last_job: int | None = None
         #: Unexpected exceptions raised by handlers (bugs), as ``line: exception`` texts.
         self.internal_errors: list[str] = []
+        #: The saved parameters when there is no state file (the eeprom kept in memory:
+        #: it outlives reset and power cycles of this model, not the process).
+        self._eeprom: tuple[dict[str, list[Any]], dict[str, Any]] | None = None
         self._handlers: dict[str, Handler] = build_handlers(self)
         # The servers run the wire on the running loop's clock (not time.monotonic()
         # under uvloop), so the default start time is that clock's now.
@@ -812,7 +820,21 @@ class ControllerModel:
                 and (n in self.params.axis_values or n in self.params.global_values)]
 
     def _load_saved(self) -> None:
+        if self.config.state_file is None:
+            if self._eeprom is not None:
+                axes, global_ = copy.deepcopy(self._eeprom)
+                self.params.axis_values.update(axes)
+                self.params.global_values.update(global_)
+            return
         load_state(self.config.state_file, self.params)  # choices: tango_aio/sim/state.py
+
+    def forget_saved(self) -> None:
+        """Delete the saved parameters (``restore -1``, L1803-1808): the state file, or
+        the ones kept in memory."""
+        self._eeprom = None
+        path = self.config.state_file
+        if path is not None:
+            path.unlink(missing_ok=True)
 
     def save(self) -> None:
         """Persist the saved parameters to :attr:`SimConfig.state_file` atomically.
@@ -828,6 +850,10 @@ class ControllerModel:
         """
         path = self.config.state_file
         if path is None:
+            names = self._saved_names()
+            self._eeprom = copy.deepcopy((
+                {n: v for n, v in self.params.axis_values.items() if n in names},
+                {n: v for n, v in self.params.global_values.items() if n in names}))
             return
         try:
             save_state(path, self.params, self._saved_names())

@@ -186,6 +186,9 @@ class ModelPort(Protocol):
     def restore(self) -> None:
         """``restore``: reload the saved parameters."""
 
+    def forget_saved(self) -> None:
+        """``restore -1``: delete the saved parameters."""
+
     def reboot(self) -> None:
         """Restart like a power cycle."""
 

@@ -163,20 +163,20 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
     @attribute(dtype=float, access=AttrWriteType.READ_WRITE,
                doc="the velocity, in Unit per second")
     async def Velocity(self) -> float:
-        return await self._read_setting(self._axis.controller.velocity, "/s")
+        return await self._read_setting(self._axis.controller.settings.velocity, "/s")
 
     @Velocity.write  # type: ignore[no-redef]
     async def Velocity(self, value: float) -> None:
-        await self._write_setting(self._axis.controller.set_velocity, "/s", value)
+        await self._write_setting(self._axis.controller.settings.set_velocity, "/s", value)
 
     @attribute(dtype=float, access=AttrWriteType.READ_WRITE,
                doc="the acceleration, in Unit per second squared")
     async def Acceleration(self) -> float:
-        return await self._read_setting(self._axis.controller.acceleration, "/s2")
+        return await self._read_setting(self._axis.controller.settings.acceleration, "/s2")
 
     @Acceleration.write  # type: ignore[no-redef]
     async def Acceleration(self, value: float) -> None:
-        await self._write_setting(self._axis.controller.set_acceleration, "/s2", value)
+        await self._write_setting(self._axis.controller.settings.set_acceleration, "/s2", value)
 
     @attribute(dtype=float, access=AttrWriteType.READ_WRITE,
                doc="the lower soft limit (user units)")
@@ -262,7 +262,7 @@ class MarzhauserAxis(Device):  # type: ignore[misc]
         old_low, old_high = await self._limits()
         pair = (old_low if low is None else low, old_high if high is None else high)
         limits: dict[str, Any] = {self._axis.letter: pair}
-        await self._do(self._axis.controller.set_limits(**limits))
+        await self._do(self._axis.controller.settings.set_limits(**limits))
 
 
 def _forget(name: str, value: Any) -> None:

@@ -157,6 +157,17 @@ def test_velocity_is_in_egu_per_second_side_by_side(RE: RunEngine, motors: Motor
             * PITCH == pytest.approx(5.0)
 
 
+def test_a_pitch_changed_through_the_controller_reaches_the_axis(
+        RE: RunEngine, stage: MarzhauserStage) -> None:
+    x = stage.x
+    run(stage.controller.command("!pitch x 4"))  # not through the stage
+    RE(bps.mv(x.velocity, 8))  # 8 mm/s at 4 mm per revolution: 2 rev/s
+    assert run(stage.controller.get("vel", axis="x")) == 2.0
+    assert run(x.velocity.get_value()) == 8.0
+    run(stage.controller.settings.set_pitch(x=PITCH))
+    assert run(x.velocity.get_value()) == 4.0
+
+
 def model_of_axis(axis: MarzhauserAxis) -> Any:
     return faults(axis._link.controller).model
 

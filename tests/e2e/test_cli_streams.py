@@ -41,6 +41,10 @@ USAGE: dict[str, list[list[str]]] = {
                      ["tango-server", "sim://", "--nodb", "--prefix", "one"],
                      ["tango-server", "sim://", "--nodb", "--port", "70000"],
                      ["tango-server", "sim://", "--nodb", "--poll", "0"]],
+    "settings": [["settings", "dump", "sim://?baud=abc"], ["settings", "diff", "sim://"],
+                 ["settings", "diff", "sim://", "{tmp}/missing.json"],
+                 ["settings", "restore", "sim://", "{tmp}/empty.txt", "--yes"],
+                 ["settings", "dump", "sim://", "-o", "{tmp}/no/such/folder/f.json"]],
 }
 
 #: An operation that fails (exit 1, one ``error:`` line on stderr, nothing on stdout).
@@ -54,6 +58,7 @@ FAILS: dict[str, list[list[str]]] = {
     "upload-trigp": [["upload-trigp", "sim://?baud=0", "{tmp}/empty.txt"]],
     "probe": [["probe", REFUSED, "-o", "{tmp}/f.json"]],
     "tango-server": [["tango-server", REFUSED, "--nodb"]],
+    "settings": [["settings", "dump", REFUSED]],
 }
 
 #: Commands that have no failure of their own to provoke: ``ports`` lists what it finds

@@ -302,6 +302,16 @@ async def test_velo_and_accl_set_the_controller(ca_env: dict[str, str]) -> None:
         assert await client.get("Z.ACCL") == pytest.approx(0.1)
 
 
+async def test_a_pitch_changed_behind_the_ioc_reaches_velo(ca_env: dict[str, str]) -> None:
+    async with one_stage() as (tango, _, client):
+        await client.put("Z.VMAX", 30.0)
+        await tango.command("!pitch z 2")  # through the controller, not the IOC
+        await client.put("Z.VELO", 8.0)  # 8 mm/s at 2 mm per revolution: 4 rev/s
+        assert await tango.get("vel", axis="z") == pytest.approx(4.0)
+        await client.put("Z.ACCL", 0.1)  # 8 mm/s in 0.1 s: 80 mm/s² = 0.08 m/s²
+        assert await tango.get("accel", axis="z") == pytest.approx(0.08)
+
+
 async def test_homing_forward_runs_a_range_measure(ca_env: dict[str, str]) -> None:
     async with one_stage() as (tango, _, client):
         await client.put("X.VMAX", 100.0)  # VMAX starts at the controller's speed

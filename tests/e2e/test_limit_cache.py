@@ -37,7 +37,7 @@ async def emu(emulator: EmulatorFactory) -> Emulated:
 async def test_limits_read_once_serve_every_later_move(
         emu: Emulated, caplog: pytest.LogCaptureFixture) -> None:
     tango = emu.tango
-    await tango.set_limits(x=(-4.0, 4.0))
+    await tango.settings.set_limits(x=(-4.0, 4.0))
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
         assert await tango.axis_limits("x") == (-4.0, 4.0)
         for target in (1.0, -1.0, 2.0):
@@ -50,7 +50,7 @@ async def test_limits_read_once_serve_every_later_move(
 
 
 async def _set_limits(tango: Controller) -> None:
-    await tango.set_limits(x=(-3.0, 3.0))
+    await tango.settings.set_limits(x=(-3.0, 3.0))
 
 
 async def _command_lim(tango: Controller) -> None:
@@ -91,7 +91,7 @@ PATHS: dict[str, Callable[[Controller], Awaitable[None]]] = {
 async def test_every_line_that_may_change_the_limits_is_seen(emu: Emulated,
                                                              path: str) -> None:
     tango = emu.tango
-    await tango.set_limits(x=(-4.5, 4.5))
+    await tango.settings.set_limits(x=(-4.5, 4.5))
     await tango.move_to(x=0.5)
     assert await tango.axis_limits("x") == (-4.5, 4.5)
     if path == "setup":
@@ -105,7 +105,7 @@ async def test_every_line_that_may_change_the_limits_is_seen(emu: Emulated,
 
 async def test_a_read_overtaken_by_a_limit_change_is_not_kept(emu: Emulated) -> None:
     tango = emu.tango
-    await tango.set_limits(x=(-4.0, 4.0))
+    await tango.settings.set_limits(x=(-4.0, 4.0))
     await tango.axis_limits("x", cached=False)
     await tango.command("!dim x 1")  # the unit changes: limits now in µm (L4555)
     read = asyncio.ensure_future(tango.axis_limits("x"))
@@ -118,7 +118,7 @@ async def test_a_read_overtaken_by_a_limit_change_is_not_kept(emu: Emulated) -> 
 async def test_limits_changed_behind_the_drivers_back_still_fail_the_move(
         emu: Emulated) -> None:
     tango = emu.tango
-    await tango.set_limits(x=(-4.0, 4.0))
+    await tango.settings.set_limits(x=(-4.0, 4.0))
     assert await tango.axis_limits("x") == (-4.0, 4.0)
     emu.model.motion.set_limits("x", -1.0, 1.0)  # not through the driver
     assert await tango.axis_limits("x") == (-4.0, 4.0)  # the cache cannot know
@@ -136,7 +136,7 @@ async def test_a_calibration_without_reports_is_seen_at_its_end(
     emu = await emulator(travel=20.0, autostatus=0)
     await emu.make_fast()
     tango = emu.tango
-    await tango.set_limits(x=(-4.5, 4.5))
+    await tango.settings.set_limits(x=(-4.5, 4.5))
     await tango.move_to(x=0.5)
     calibrating = asyncio.ensure_future(tango.calibrate("x"))
     for _ in range(1000):  # each read goes behind the lines written before it

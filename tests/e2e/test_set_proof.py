@@ -24,7 +24,7 @@ Setter = Callable[[Controller], Awaitable[None]]
 PATHS: dict[str, Setter] = {
     "set": lambda tango: tango.set("vel", 55.5, axis="x"),
     "set by keyword": lambda tango: tango.set("vel", x=55.5),
-    "set_velocity": lambda tango: tango.set_velocity(x=55.5),
+    "set_velocity": lambda tango: tango.settings.set_velocity(x=55.5),
     "command": lambda tango: tango.command("!vel x 55.5"),
 }
 
@@ -73,7 +73,7 @@ async def test_sets_that_arrive_return_and_are_held(emulator: EmulatorFactory,
     fault = faults(tango)
     model = fault.model
     await tango.set("vel", 55.5, axis="x")
-    await tango.set_acceleration(x=0.5, y=0.75)
+    await tango.settings.set_acceleration(x=0.5, y=0.75)
     await tango.command("!lim y -10 20.5")
     await tango.set("swtyp", 1, 0, 1)
     await tango.set("delay", 15)
@@ -135,9 +135,9 @@ def test_the_blocking_api_raises_too() -> None:
             faults(tango.aio).lose_line("!vel")
         tango.portal.call(lose)
         with pytest.raises(SettingNotAppliedError):
-            tango.set_velocity(x=55.5)
-        tango.set_velocity(x=33.5)
-        assert tango.velocity()["x"] == 33.5
+            tango.settings.set_velocity(x=55.5)
+        tango.settings.set_velocity(x=33.5)
+        assert tango.settings.velocity()["x"] == 33.5
 
 
 @pytest.mark.parametrize("mode", [0, 1, 3])

@@ -65,7 +65,13 @@ def test_blocking_moves_reads_and_units(tango: tango_aio.sync.Controller) -> Non
     assert tango.position(unit="um") == pytest.approx({"x": 1500.0, "y": 2000.0, "z": 0.0})
     tango.set("vel", x=3.5)
     assert tango.get("vel")["x"] == 3.5
-    assert tango.velocity(unit="mm/s")["x"] == 3.5
+    assert tango.settings.velocity(unit="mm/s")["x"] == 3.5
+    assert tango.info.readsn() == tango.read_info().serial_number
+    snapshot = tango.settings.snapshot()
+    tango.settings.check(snapshot)
+    tango.command("!vel y 2")
+    assert [str(d) for d in tango.settings.diff(snapshot)] == ["vel Y: snapshot 10.0, unit 2.0"]
+    assert tango.settings.restore(snapshot)[0].setting == "vel"
     updates = list(tango.watch_position(0.01))
     assert updates[-1].positions == {"x": 1.5, "y": 2.0, "z": 0.0}
     with pytest.raises(tango_aio.InvalidCommandError):

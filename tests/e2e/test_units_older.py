@@ -17,5 +17,5 @@ async def test_units_work_on_the_older_edition(emulator: EmulatorFactory) -> Non
     await tango.move_to(x=1500.0, y=-250.0)
     assert await tango.position() == pytest.approx({"x": 1500.0, "y": -250.0, "z": 0.0})
     assert (await tango.get("pos"))["x"] == pytest.approx(1.5)  # dim 2: mm
-    assert {scale.usteps for scale in (await tango.unit_scales()).values()} == {
+    assert {scale.usteps for scale in (await tango.settings.unit_scales()).values()} == {
         DEFAULT_USTEPS}

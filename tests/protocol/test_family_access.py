@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 
+from tango_aio import Controller
 from tango_aio.catalog import INSTRUCTIONS, Context, Value, build
 from tango_aio.errors import InvalidCommandError, ProtocolError
 from tango_aio.families import (
@@ -18,6 +19,7 @@ from tango_aio.families import (
     LimitSwitchAccess,
     ManualEnum,
     OperatingModesAccess,
+    Settings,
     TriggerAccess,
 )
 from tango_aio.families._generated import AxisState, DimUnit, JoyMode
@@ -29,9 +31,26 @@ FAMILY_CHAPTERS = {"6", "7", "8", "9", "11", "12", "13", "15", "17", "18", "19",
 class Port:
     """A family port that records every intent and answers reads from a table."""
 
-    def __init__(self, replies: dict[str, Any] | None = None) -> None:
+    units: str | None = None
+
+    def __init__(self, replies: dict[str, Any] | None = None, family: str = "1.71") -> None:
         self.replies = replies or {}
         self.sent: list[tuple[str, str, tuple[Value, ...], str | None, dict[str, Any]]] = []
+        self.family = family
+
+    @property
+    def identity(self) -> Port:
+        return self  # model, firmware, axes and family, as an identity has them
+
+    model = "TANGO-DT"
+    firmware = "1.71"
+    axes = 3
+
+    async def refresh_settings(self) -> None:
+        raise AssertionError("the generated access reads no cached settings")
+
+    async def wait_restarted(self, *, quiet: float = 0.0) -> None:
+        raise AssertionError("the generated access restarts nothing")
 
     @property
     def context(self) -> Context:
@@ -64,12 +83,24 @@ def test_every_family_instruction_has_a_named_api() -> None:
             for method in methods:
                 assert callable(getattr(cls, method)), (cls.__name__, method)
                 reachable.setdefault(name, []).append(f"{cls.__name__}.{method}")
+    homes = {"Settings": Settings, "Controller": Controller}
     for name, where in HAND_MADE.items():
+        for method in where:
+            home, _, attribute = method.partition(".")
+            assert inspect.iscoroutinefunction(getattr(homes[home], attribute)), method
         reachable.setdefault(name, []).extend(where)
     missing = sorted({entry.name for entry in INSTRUCTIONS.values()
                       if entry.section.split(".")[0] in FAMILY_CHAPTERS}
                      - set(reachable))
     assert not missing, f"instructions without a named API: {missing}"
+
+
+def test_the_controller_reaches_every_chapter_through_its_families() -> None:
+    # settings: chapters 7-13; info: chapter 6 (the others belong to their own families)
+    for chapter in ("7", "8", "9", "11", "12", "13"):
+        assert issubclass(Settings, ACCESS[chapter]), chapter
+    from tango_aio.families import Info
+    assert issubclass(Info, ACCESS["6"])
 
 
 def test_every_settable_instruction_has_a_setter_and_every_readable_a_reader() -> None:

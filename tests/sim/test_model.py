@@ -1296,6 +1296,22 @@ def test_reset_restarts_in_mode_1_and_takes_a_second(tmp_path: Path) -> None:
     assert sim.send("?err", "?autostatus", "?vel x", "?pos x") == ["0", "1", "3.000", "0.0000"]
 
 
+def test_without_a_state_file_the_saved_set_lives_in_memory() -> None:
+    sim = Sim()
+    sim.send("!vel 3", "!joyspeed 2 25", "save", "!vel 5", "!joyspeed 2 30")
+    sim.take()
+    assert sim.send("restore") == []
+    assert sim.send("?vel x", "?joyspeed 2") == ["3.000", "25.000"]
+    sim.send("!vel 6")
+    sim.write(b"reset\r")
+    sim.now += 2.0
+    assert sim.send("?err", "?vel x") == ["0", "3.000"]  # a reset loads it too
+    sim.write(b"restore -1\r")
+    sim.now += 2.0
+    assert sim.send("?err", "?vel x", "?joyspeed 2") == ["0", "10.000", "10.000"]
+    assert sim.send("restore") == [] and sim.send("?vel x") == ["10.000"]
+
+
 def test_saved_settings_sweep(tmp_path: Path) -> None:
     """Every saved setting the generic sweep writes survives save and a new boot."""
     state = tmp_path / "tango.json"

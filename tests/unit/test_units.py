@@ -89,25 +89,25 @@ async def test_moves_in_mm_whatever_dim_and_pitch() -> None:
 async def test_connection_wide_units_for_positions_and_velocities() -> None:
     async with tango_aio.connect(INSTANT, units="um") as tango:
         await tango.set("pitch", x=2.0)
-        await tango.set_velocity(x=4000)  # 4 mm/s with 2 mm per rev: 2 rev/s
+        await tango.settings.set_velocity(x=4000)  # 4 mm/s with 2 mm per rev: 2 rev/s
         assert (await tango.get("vel"))["x"] == pytest.approx(2.0)
-        assert (await tango.velocity())["x"] == pytest.approx(4000.0)
-        assert (await tango.velocity(unit="rev/s"))["x"] == pytest.approx(2.0)
+        assert (await tango.settings.velocity())["x"] == pytest.approx(4000.0)
+        assert (await tango.settings.velocity(unit="rev/s"))["x"] == pytest.approx(2.0)
         await tango.move_to(x=250)
         assert (await tango.position(unit="mm"))["x"] == pytest.approx(0.25)
         assert (await tango.get("pos"))["x"] == pytest.approx(0.25)  # dim 2 is mm
-        await tango.set_acceleration(x=200_000)  # µm/s² → 0.2 m/s²
+        await tango.settings.set_acceleration(x=200_000)  # µm/s² → 0.2 m/s²
         assert (await tango.get("accel"))["x"] == pytest.approx(0.2)
-        assert (await tango.acceleration(unit="mm/s2"))["x"] == pytest.approx(200.0)
+        assert (await tango.settings.acceleration(unit="mm/s2"))["x"] == pytest.approx(200.0)
 
 
 async def test_limits_in_units() -> None:
     async with tango_aio.connect(INSTANT) as tango:
         await tango.set("dim", x=1)
-        await tango.set_limits(x=(-1.0, 2.0), unit="mm")
-        limits = await tango.limits(unit="mm")
+        await tango.settings.set_limits(x=(-1.0, 2.0), unit="mm")
+        limits = await tango.settings.limits(unit="mm")
         assert limits["x"] == pytest.approx((-1.0, 2.0))
-        assert (await tango.limits())["x"] == pytest.approx((-1000.0, 2000.0))
+        assert (await tango.settings.limits())["x"] == pytest.approx((-1000.0, 2000.0))
 
 
 async def test_pint_quantities() -> None:
@@ -119,7 +119,7 @@ async def test_pint_quantities() -> None:
         position = await tango.position()
         assert position["x"] == pytest.approx(500.0)
         assert position["y"] == pytest.approx(0.2)  # Y stays in dim 2 (mm)
-        await tango.set_velocity(x=ureg.Quantity(3, "mm/s"))
+        await tango.settings.set_velocity(x=ureg.Quantity(3, "mm/s"))
         assert (await tango.get("vel"))["x"] == pytest.approx(3.0)  # pitch 1 mm
         with pytest.raises(ValueError, match="not a length"):
             await tango.move_to(x=ureg.Quantity(1, "s"))
@@ -190,7 +190,7 @@ async def test_bad_values_and_units_are_refused_before_anything_is_sent() -> Non
                      tango.move_to(x=True, unit="mm"),
                      tango.move_to(x=1.0, unit="furlong"),
                      tango.move_to(x=1.0, unit="mm/s"),
-                     tango.set_velocity(x=1.0, unit="mm"),
+                     tango.settings.set_velocity(x=1.0, unit="mm"),
                      tango.position(unit="parsec")):
             with pytest.raises(tango_aio.InvalidCommandError):
                 await call
