@@ -564,25 +564,6 @@ def test_another_mode_found_in_force_means_the_controller_restarted(
     assert LinkSession.mode_verified(driver, actual) is verdict
 
 
-def test_a_mode_change_waits_until_every_line_before_is_answered() -> None:
-    link = Link()
-    session = link.session
-    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
-    # Ctrl+C dropped the queue, but nothing the change follows is left: it goes.
-    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.CLEAR
-    assert session.barrier(queued_before=True, queue_dropped=False) is Barrier.WAIT
-    assert session.barrier(queued_before=True, queue_dropped=True) is Barrier.ABORTED
-    link.core.send(parse("?pos x"), tag="pos")  # written, its reply owed
-    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
-    link.feed(b"12.5\r")
-    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
-    link.resync()  # a resync under way holds it too
-    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
-    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.ABORTED
-    link.feed(link.marker_reply())
-    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
-
-
 @pytest.mark.parametrize("restarted", [False, True])
 def test_a_markers_owed_acknowledgement_does_not_hold_a_barrier(restarted: bool) -> None:
     """Mode 2 on firmware that acknowledges reads after their data: once the marker's
@@ -605,6 +586,26 @@ def test_a_markers_owed_acknowledgement_does_not_hold_a_barrier(restarted: bool)
     expected = Barrier.WAIT if restarted else Barrier.CLEAR
     assert session.barrier(queued_before=False, queue_dropped=False) is expected
     assert bool(link.core.pending_tags) is restarted
+
+
+def test_a_mode_change_waits_until_every_line_before_is_answered() -> None:
+    link = Link()
+    session = link.session
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+    # Ctrl+C dropped the queue, but nothing the change follows is left: it goes.
+    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.CLEAR
+    assert session.barrier(queued_before=True, queue_dropped=False) is Barrier.WAIT
+    assert session.barrier(queued_before=True, queue_dropped=True) is Barrier.ABORTED
+    link.core.send(parse("?pos x"), tag="pos")  # written, its reply owed
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    link.feed(b"12.5\r")
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+    link.resync()  # a resync under way holds it too
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    assert session.barrier(queued_before=False, queue_dropped=True) is Barrier.ABORTED
+    link.feed(link.marker_reply())
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+
 
 # -- link timing (tango_aio.linktiming) and the step-0 marker number ------------------------
 
