@@ -751,8 +751,8 @@ class LinkSession:
         (``queue_dropped``) aborts it, since a line it was meant to follow is gone.
 
         A resync marker whose reply came and which owes only the ``OK...`` behind it
-        (:attr:`~tango_aio.core.ProtocolCore.marker_acks_only`: mode 2 on firmware that
-        acknowledges reads after their data) does not hold it. The stream is in step up
+        (the core's ``marker_acks_only``: mode 2 on firmware that acknowledges reads
+        after their data) does not hold it. The stream is in step up
         to that reply; a controller that restarted is back in its power-on mode 1
         (L2062), which acknowledges nothing (L2099-2103), so that ``OK...`` never comes,
         and waiting for it would keep the read of the mode that finds the restart from
