@@ -889,6 +889,15 @@ class ProtocolCore:
                 if (not p.internal and not p.settled) or p.verdict is not None]
 
     @property
+    def marker_acks_only(self) -> bool:
+        """Whether every request still owed a reply (:attr:`pending_tags`) is a resync
+        marker whose reply came and which owes only the acknowledgement behind it (mode 2
+        on firmware that acknowledges reads after their data)."""
+        return all(p.marker is not None and _Item.DATA not in p.items
+                   for p in self._pending
+                   if (not p.internal and not p.settled) or p.verdict is not None)
+
+    @property
     def awaiting_completion(self) -> list[Hashable]:
         """Tags of moves still waiting for their completion report, oldest first."""
         return list(self._moves)

@@ -750,6 +750,16 @@ class LinkSession:
         a resync under way, hold it; Ctrl+C discarding the queue meanwhile
         (``queue_dropped``) aborts it, since a line it was meant to follow is gone.
 
+        A resync marker whose reply came and which owes only the ``OK...`` behind it
+        (the core's ``marker_acks_only``: mode 2 on firmware that acknowledges reads
+        after their data) does not hold it. The stream is in step up
+        to that reply; a controller that restarted is back in its power-on mode 1
+        (L2062), which acknowledges nothing (L2099-2103), so that ``OK...`` never comes,
+        and waiting for it would keep the read of the mode that finds the restart from
+        ever being written. The exchange behind the barrier drops every line: an
+        ``OK...`` that does come arrives before the exchange's own replies (the
+        controller answers in order) and is dropped with the rest.
+
         Parameters
         ----------
         queued_before
@@ -762,7 +772,8 @@ class LinkSession:
         Barrier
             :attr:`Barrier.CLEAR`, :attr:`Barrier.ABORTED` or :attr:`Barrier.WAIT`.
         """
-        if not (self.core.pending_tags or self.core.resyncing or queued_before):
+        owed = bool(self.core.pending_tags) and not self.core.marker_acks_only
+        if not (owed or self.core.resyncing or queued_before):
             return Barrier.CLEAR
         return Barrier.ABORTED if queue_dropped else Barrier.WAIT
 

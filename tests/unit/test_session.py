@@ -564,6 +564,30 @@ def test_another_mode_found_in_force_means_the_controller_restarted(
     assert LinkSession.mode_verified(driver, actual) is verdict
 
 
+@pytest.mark.parametrize("restarted", [False, True])
+def test_a_markers_owed_acknowledgement_does_not_hold_a_barrier(restarted: bool) -> None:
+    """Mode 2 on firmware that acknowledges reads after their data: once the marker's
+    reply came, the ``OK...`` behind it (never sent by a unit back in mode 1) holds no
+    barrier; what the barrier's exchange then collects still reads the mode."""
+    link = Link()
+    session = link.session
+    link.core.autostatus, link.core.ack_reads = 2, AckReads.AFTER
+    link.resync()
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    link.feed(link.marker_reply())
+    assert link.markers_answered and link.core.pending_tags  # its OK... still owed
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.CLEAR
+    # Anything else still owed holds it as before: a line written behind the marker.
+    link.core.send(parse("?pos x"), tag="pos")
+    assert session.barrier(queued_before=False, queue_dropped=False) is Barrier.WAIT
+    # Restarted: the read's data alone; its own OK... still holds the barrier (the
+    # read's caller has a deadline). Else both OK... come, and nothing is owed.
+    link.feed(b"12.5\r" if restarted else b"OK...\r12.5\rOK...\r")
+    expected = Barrier.WAIT if restarted else Barrier.CLEAR
+    assert session.barrier(queued_before=False, queue_dropped=False) is expected
+    assert bool(link.core.pending_tags) is restarted
+
+
 def test_a_mode_change_waits_until_every_line_before_is_answered() -> None:
     link = Link()
     session = link.session
