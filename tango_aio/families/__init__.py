@@ -21,14 +21,41 @@ from ._bulk import (
     validate_rows,
     validate_trigger_positions,
 )
+from ._closed_loop import ClosedLoop, ClosedLoopMode
+from ._encoders import Encoders
+from ._io import IO
+from ._joystick import Joystick
+from ._reach import DevicePort
+from ._snapshots import SnapshotConfig, SnapshotMode, Snapshots
+from ._triggers import (
+    MAX_TRIGGER_POSITION,
+    TriggerConfig,
+    TriggerMode,
+    TriggerOutput,
+    Triggers,
+)
 
 __all__ = [
+    "IO",
     "MAX_TRIGGERS",
+    "MAX_TRIGGER_POSITION",
+    "ClosedLoop",
+    "ClosedLoopMode",
     "Column",
+    "DevicePort",
+    "Encoders",
     "Family",
     "FamilyPort",
+    "Joystick",
     "ListTransfer",
     "Progress",
+    "SnapshotConfig",
+    "SnapshotMode",
+    "Snapshots",
+    "TriggerConfig",
+    "TriggerMode",
+    "TriggerOutput",
+    "Triggers",
     "UploadError",
     "check_axis",
     "check_resolution",

@@ -64,9 +64,10 @@ from ..catalog import (
 )
 from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
 from .clock import host_now
+from .devices import TAKT_OUT, TRIGGER_OUT, Devices, Pulse
 from .handlers import build_handlers
 from .lists import ListError, SnapshotList, TriggerList
-from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
+from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished, TriggerFired
 from .params import ParamStore
 from .profiles import Firmware
 from .state import StateFileError, load_state, save_state
@@ -218,6 +219,10 @@ class ControllerModel:
         self.session = _Session(booted=now)
         self.triggers = TriggerList()
         self.snapshots = SnapshotList()
+        #: I/O levels, encoders fitted and the pulses sent (:mod:`tango_aio.sim.devices`).
+        self.devices = Devices()
+        #: Axes the joystick drives now.
+        self._joystick_axes: set[int | str] = set()
         #: Where the last cal of each axis completed, user frame, revolutions.
         self.cal_zero = [0.0] * len(AXES)
         self._triggers_dirty = False
@@ -397,7 +402,56 @@ class ControllerModel:
                 if event.kind == "cal":
                     self._record_cal_zero(event.letters)
                 self._report_completion(event.letters, event.job_id)
+            elif isinstance(event, TriggerFired):
+                self.trigger_pulses(event.time, 1,
+                                    self.motion.to_user(event.axis, event.position))
         self._send_stop_report()
+
+    def deflect(self, axis: str, fraction: float, now: float | None = None) -> None:
+        """Hold the joystick deflected along ``axis`` (``fraction`` of full deflection,
+        -1..1; 0 releases it). While the HDI is enabled (``joy`` not 0, L7101-7118) and the
+        axis is assigned to it (``joydir`` not 0, L7175-7253), the axis travels at
+        ``fraction`` times ``joyvel`` (L7319-7355), in ``joydir``'s sense, like ``speed``.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        fraction
+            The deflection, -1..1.
+        now
+            The time (default: the host clock).
+
+        Raises
+        ------
+        ValueError
+            ``fraction`` is not -1..1.
+        """
+        if not -1.0 <= fraction <= 1.0:
+            raise ValueError(f"a deflection is -1..1, not {fraction}")
+        self.poll(host_now() if now is None else now)
+        index = AXES.index(axis)
+        if fraction == 0.0:
+            self.devices.deflection.pop(index, None)
+        else:
+            self.devices.deflection[index] = fraction
+        self.follow_joystick()
+
+    def follow_joystick(self) -> None:
+        """Drive the deflected axes as the HDI settings allow (nothing while it is off)."""
+        enabled = int(self.params.first("joy")) != 0
+        velocities: dict[int | str, float] = {}
+        for index in range(self.axes):
+            fraction = self.devices.deflection.get(index, 0.0) if enabled else 0.0
+            sense = int(self.params.first("joydir", index))
+            if fraction == 0.0 and index not in self._joystick_axes:
+                continue
+            value = self.params.number("joyvel", index) * fraction * (1 if sense > 0 else
+                                                                      -1 if sense < 0 else 0)
+            velocities[index] = self.motion.vel_from_user(index, value)
+        self._joystick_axes = {i for i, v in velocities.items() if v}
+        if velocities:
+            self.motion.speed(velocities)
 
     def next_deadline(self) -> float | None:
         """When the motion model next changes state.
@@ -989,6 +1043,38 @@ class ControllerModel:
                 axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
         except MotionRefused:
             self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
+        """Record ``count`` trigger pulses on the outputs ``trigo`` selects (L12860-12949:
+        bit 0 TRIGGER_OUT, bit 1 TAKT_OUT; 0 and 4, 8, 12 send nothing), ``trigs`` µs long
+        (L12950-12970), spaced by ``1/trigf`` (L13414-13440). The polarity is ``trigl``'s in
+        the list modes 20 and 21 (L14177-14212) and the mode's own otherwise: modes 3-5,
+        9-11 and the odd ones from 101 are active low (L12595-12836).
+
+        Parameters
+        ----------
+        time
+            When the first pulse begins.
+        count
+            How many pulses.
+        position
+            The trigger axis' position where they fired; ``None``: not by position.
+        """
+        outputs = int(self.params.first("trigo"))
+        width = int(self.params.first("trigs")) / 1e6
+        mode = int(self.params.first("trigm"))
+        if mode in (20, 21):
+            high = int(self.params.first("trigl")) == 1
+        elif mode >= 100:
+            high = mode % 2 == 0
+        else:
+            high = mode % 6 < 3
+        period = 1.0 / float(self.params.first("trigf"))
+        for n in range(count):
+            for bit, output in ((1, TRIGGER_OUT), (2, TAKT_OUT)):
+                if outputs & bit:
+                    self.devices.pulses.append(
+                        Pulse(time + n * period, output, width, high, position))
 
     def trigger_axis(self) -> int:
         """Index of the trigger axis (``triga``, or the axis the list was written for).
