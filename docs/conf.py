@@ -24,7 +24,6 @@ version = release
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
-    "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "tango_docs",  # docs/_ext: tables generated from the code (errors, CLI help)
@@ -36,16 +35,14 @@ exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
-# API reference: one page per module, generated at build time (reference/api/, ignored by
-# git). Optional extras (bluesky, caproto, ophyd_async) need not be installed: their
+# API reference: one page per public module, generated at build time (reference/api/,
+# ignored by git). Optional extras (bluesky, caproto, ophyd_async) need not be installed: their
 # imports are mocked, so autodoc never fails for a missing extra.
-autosummary_generate = True
-autosummary_imported_members = False
 autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython"]
-# "ignore-module-all": a module's page documents what the module defines, not what it
-# re-exports (tango_aio.sim re-exports tango_aio.sim.model's classes, tango_aio.catalog._instructions
-# tango_aio.catalog._schema's): an object documented twice gets its source page's back-link
-# pointed at the wrong page (broken anchors, tools/check_links.py).
+# "ignore-module-all": a module's page documents what the module defines; what a public
+# package exports from its private modules is listed by _module_page below, each object
+# once (an object documented twice gets its source page's back-link pointed at the wrong
+# page: broken anchors, tools/check_links.py).
 autodoc_default_options = {"members": True, "show-inheritance": True,
                            "ignore-module-all": True}
 autodoc_member_order = "bysource"
@@ -64,62 +61,83 @@ suppress_warnings = ["myst.xref_missing", "ref.python"]
 
 
 
-def _public_modules() -> list[str]:
-    """Every public module of the package, found in its files (nothing is imported, so
-    a module that needs a missing extra is still listed; autodoc mocks the extra)."""
-    package = HERE.parent / "tango_aio"
-    names = []
-    for path in sorted(package.rglob("*.py")):
-        parts = path.relative_to(package.parent).with_suffix("").parts
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        if len(parts) > 1 and not any(part.startswith("_") for part in parts):
-            names.append(".".join(parts))
-    return names
-
-
-#: The modules a program uses (imports, or gets objects of); every other module is one of
-#: the driver's inner layers and is listed apart, under "Internals".
+#: The public API: the modules and packages a program imports. This list is the one home of
+#: that fact (tests/unit/test_docstrings.py reads it): each gets a page of the reference
+#: that documents the names it exports, and nothing else of the package is documented (the
+#: layers' private modules are described in ARCHITECTURE.md, for contributors).
 PUBLIC_API = [
-    "tango_aio.controller._connection", "tango_aio.controller._controller", "tango_aio.sync", "tango_aio.errors",
-    "tango_aio.events", "tango_aio.status", "tango_aio.units", "tango_aio.group._group",
-    "tango_aio.group._discovery", "tango_aio.families._bulk", "tango_aio.link._reconnect", "tango_aio.catalog._instructions",
+    "tango_aio", "tango_aio.sync", "tango_aio.errors", "tango_aio.events", "tango_aio.status",
+    "tango_aio.units", "tango_aio.families", "tango_aio.catalog", "tango_aio.fieldkit",
     "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.sim",
     "tango_aio.sim.inprocess", "tango_aio.sim.serve", "tango_aio.sim.model",
     "tango_aio.sim.profiles", "tango_aio.sim.wire",
 ]
 
 
-def _autosummary(names: list[str]) -> list[str]:
-    return [".. autosummary::", "   :toctree: api", "", *(f"   {name}" for name in names), ""]
+_DOCUMENTED: set[int] = set()
 
 
-def _write_module_index() -> None:
-    """reference/modules.rst: an autosummary of every module (generated, ignored by git),
-    the public API first and the internals apart, so that a module added to the package
-    is documented without editing here (as an internal one until listed in PUBLIC_API)."""
-    modules = _public_modules()
-    public = [name for name in PUBLIC_API if name in modules]
-    internal = [name for name in modules if name not in PUBLIC_API]
-    lines = ["Modules", "=======", "", "Public API", "----------", "",
-             "What programs use: connecting, moving, settings, lists, events, errors, "
-             "units, the emulator and the integrations.", "", *_autosummary(public),
-             "Internals", "---------", "",
-             "The driver's inner layers (the sans-IO core, the scheduler, the reply rules, "
-             "the transports, the emulator's parts), for contributors; see "
-             "ARCHITECTURE.md in the repository. They may change without notice.", "",
-             *_autosummary(internal)]
-    text = "\n".join(lines) + "\n"
-    target = HERE / "reference" / "modules.rst"
+def _exported(module_name: str) -> list[tuple[str, str]]:
+    """(directive, dotted name) for each name ``module_name`` exports but defines in a
+    private module: a name defined in another public module is documented there, and one
+    that two public modules re-export, in the first of them."""
+    import importlib
+    import inspect
+
+    from sphinx.ext.autodoc.mock import mock
+
+    with mock(autodoc_mock_imports):
+        module = importlib.import_module(module_name)
+        found = []
+        for name in getattr(module, "__all__", ()):
+            value = getattr(module, name)
+            home = getattr(value, "__module__", None) or module_name
+            if home == module_name or home in PUBLIC_API or not home.startswith("tango_aio") \
+                    or id(value) in _DOCUMENTED:
+                continue
+            _DOCUMENTED.add(id(value))
+            kind = ("autoexception" if inspect.isclass(value) and issubclass(value, BaseException)
+                    else "autoclass" if inspect.isclass(value)
+                    else "autofunction" if callable(value) else "autodata")
+            found.append((kind, f"{module_name}.{name}"))
+    return found
+
+
+def _module_page(name: str) -> str:
+    lines = [name, "=" * len(name), "", f".. automodule:: {name}", ""]
+    for kind, target in _exported(name):
+        lines += [f".. {kind}:: {target}"]
+        lines += ["   :members:", "   :show-inheritance:"] if kind != "autofunction" \
+            and kind != "autodata" else []
+        lines += [""]
+    return "\n".join(lines)
+
+
+def _write_if_changed(target: Path, text: str) -> None:
     if not target.exists() or target.read_text() != text:
         target.write_text(text)
-    names = set(_public_modules())
-    for stale in (HERE / "reference" / "api").glob("*.rst"):  # of a module now gone
-        if stale.stem not in names:
+
+
+def _write_reference() -> None:
+    """reference/modules.rst and one page per public module under reference/api/ (both
+    generated, ignored by git)."""
+    pages = HERE / "reference" / "api"
+    pages.mkdir(exist_ok=True)
+    for name in PUBLIC_API:
+        _write_if_changed(pages / f"{name}.rst", _module_page(name))
+    for stale in pages.glob("*.rst"):
+        if stale.stem not in PUBLIC_API:
             stale.unlink()
+    lines = ["Modules", "=======", "",
+             "What programs use: connecting, moving, the families of settings, events, "
+             "errors, units, the emulator and the integrations. Everything else in the "
+             "package is a private layer of the driver (ARCHITECTURE.md in the "
+             "repository).", "", ".. toctree::", "   :maxdepth: 1", "",
+             *(f"   api/{name}" for name in PUBLIC_API), ""]
+    _write_if_changed(HERE / "reference" / "modules.rst", "\n".join(lines))
 
 
-_write_module_index()
+_write_reference()
 
 # furo: made for API references (an "On this page" contents beside every long page, code
 # blocks that scroll instead of being clipped, a light and a dark scheme).

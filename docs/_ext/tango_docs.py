@@ -63,7 +63,7 @@ class CliHelp(Directive):
     """The ``--help`` output of ``tango-aio`` and of each of its commands."""
 
     def run(self) -> list[nodes.Node]:
-        from tango_aio.cli import _parser
+        from tango_aio.cli._main import _parser
 
         previous = os.environ.get("COLUMNS")
         os.environ["COLUMNS"] = "88"  # argparse wraps at the terminal width
