@@ -33,9 +33,6 @@ class ClosedLoop(Family):
 
     _port: DevicePort
 
-    def __init__(self, port: DevicePort) -> None:
-        super().__init__(port)
-
     async def enable(self, /, mode: ClosedLoopMode = ClosedLoopMode.ALWAYS,
                      **axes: bool) -> None:
         """Switch closed loop on (``True``) or off (``False``) per axis (``!ctr axis

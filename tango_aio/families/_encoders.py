@@ -20,9 +20,6 @@ class Encoders(Family):
 
     _port: DevicePort
 
-    def __init__(self, port: DevicePort) -> None:
-        super().__init__(port)
-
     async def mask(self) -> dict[str, bool]:
         """The encoder enable mask per axis (``?encmask``, L10485-10526): the controller
         activates an encoder whose bit is set at the next ``cal`` or power-up.

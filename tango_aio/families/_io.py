@@ -63,9 +63,6 @@ class IO(Family):
 
     _port: DevicePort
 
-    def __init__(self, port: DevicePort) -> None:
-        super().__init__(port)
-
     # -- the shutter line and the LED strobe ------------------------------------------
 
     async def set_shutter(self, level: bool) -> None:

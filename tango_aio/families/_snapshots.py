@@ -88,9 +88,6 @@ class Snapshots(Family):
 
     _port: DevicePort
 
-    def __init__(self, port: DevicePort) -> None:
-        super().__init__(port)
-
     async def read_config(self) -> SnapshotConfig:
         """Read the whole configuration (``?sns ?snsl ?snsf ?snsm``).
 

@@ -205,9 +205,6 @@ class Triggers(Family):
 
     _port: DevicePort
 
-    def __init__(self, port: DevicePort) -> None:
-        super().__init__(port)
-
     # -- the configuration as a whole ---------------------------------------------------
 
     async def read_config(self) -> TriggerConfig:
