@@ -316,3 +316,14 @@ def test_blocking_twins() -> None:
         assert tango.triggers.read_positions() == [1.0, 2.0]
         assert tango.snapshots.read_config().enabled is True
         assert tango.io.set_shutter.__doc__ == tango.aio.io.set_shutter.__doc__
+
+
+def test_every_family_method_has_a_blocking_twin() -> None:
+    import inspect
+
+    from tango_aio import families
+    for name in ("Joystick", "IO", "Encoders", "ClosedLoop", "Triggers", "Snapshots"):
+        async_cls, sync_cls = getattr(families, name), getattr(tango_aio.sync, name)
+        methods = {m for m, value in vars(async_cls).items() if not m.startswith("_") and (
+            inspect.iscoroutinefunction(value) or inspect.isasyncgenfunction(value))}
+        assert methods and not {m for m in methods if not hasattr(sync_cls, m)}, name
