@@ -115,7 +115,7 @@ def test_a_deflection_moves_the_axis_while_the_hdi_is_on() -> None:
     released = sim.x()
     sim.wait(1.0)
     assert sim.x() == released
-    with pytest.raises(ValueError, match="-1..1"):
+    with pytest.raises(ValueError, match=r"-1\.\.1"):
         sim.model.deflect("x", 1.5)
 
 
