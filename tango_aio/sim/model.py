@@ -66,7 +66,7 @@ from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
 from .clock import host_now
 from .devices import TAKT_OUT, TRIGGER_OUT, Devices, Pulse
 from .handlers import build_handlers
-from .lists import ListError, SnapshotList, TriggerList
+from .lists import MAX_TRIGGERS, ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished, TriggerFired
 from .params import ParamStore
 from .profiles import Firmware
@@ -142,7 +142,13 @@ _GLOBAL_SETTINGS: dict[str, str] = {
     "delay": "delay_ms", "extmode": "extmode",
 }
 #: Instructions that change the trigger list or whether it fires (re-armed lazily).
-_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr"})
+_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr",
+                           "trigd"})
+#: The distance modes the emulator generates (L12595-12836): the sense of travel (+1
+#: forward, -1 backward) and the shift in distances; the bidirectional modes (1, 4, 7,
+#: 10) are not modelled (they arm nothing).
+_DISTANCE_MODES = {0: (1, 0.0), 3: (1, 0.0), 2: (-1, 0.0), 5: (-1, 0.0),
+                   6: (1, 0.5), 9: (1, 0.5), 8: (-1, 0.5), 11: (-1, 0.5)}
 #: Reads/writes of these instructions never change the error state (manual L2837).
 _ERROR_NEUTRAL = frozenset({"err", "status", "help"})
 
@@ -1029,9 +1035,12 @@ class ControllerModel:
         ``!trigi n`` moved it; the list then re-arms by travelling back behind that entry.
         """
         self._triggers_dirty = False
+        mode = int(self.params.first("trigm"))
+        if int(self.params.first("trig")) == 1 and mode in _DISTANCE_MODES:
+            self._arm_distance(*_DISTANCE_MODES[mode])
+            return
         entries = self.triggers.entries
-        enabled = int(self.params.first("trig")) == 1 and \
-            int(self.params.first("trigm")) in (20, 21)
+        enabled = int(self.params.first("trig")) == 1 and mode in (20, 21)
         if not entries or not enabled:
             self.motion.clear_triggers()
             return
@@ -1043,6 +1052,21 @@ class ControllerModel:
                 axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
         except MotionRefused:
             self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def _arm_distance(self, sense: int, shift: float) -> None:
+        """Distance modes: a pulse every ``trigd`` from where the axis stands when they are
+        armed (``!trig 1`` defines the start, L12565-12572), the first as the move starts
+        ("First pulse when move starts") or half a distance on (modes 6-11), in the mode's
+        sense; as many as a list holds at most."""
+        axis = min(AXES.index(str(self.params.first("triga"))), self.axes - 1)
+        units = self.motion.units(axis)
+        start = self.motion.to_user(axis, self.motion.position(axis))
+        step = float(self.params.first("trigd")) * sense
+        # The first level a hair beyond the start: the move's first step crosses it.
+        first = max(shift, 1e-9 / abs(step)) if step else shift
+        levels = [start + (k + first) * step for k in range(MAX_TRIGGERS)]
+        self._trigger_base = 0
+        self.motion.set_trigger_positions(axis, [units.pos_from_user(p) for p in levels])
 
     def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
         """Record ``count`` trigger pulses on the outputs ``trigo`` selects (L12860-12949:

@@ -293,13 +293,15 @@ class Peripherals:
         return [self._per_axis(c, "0.0" if c.values else "0")]
 
     def i_enc(self, c: Command) -> Reply:
-        """Active where ``encmask`` is set and an encoder is fitted (encoders are activated
-        by the controller, not by ``!enc 1``, L10485-10545). Choice: ``!enc`` changes
-        nothing."""
+        """Active where ``encmask`` is set and an encoder is fitted (the controller
+        activates encoders, L10485-10545), or where ``!enc 1`` forced it (the manual
+        advises against it, L10527-10545, but allows it)."""
         if not c.is_read:
+            self.m.store(c)
             return None
         devices = self.m.devices
-        return [" ".join(str(int(i in devices.encoders and self._masked(i)))
+        return [" ".join(str(int(int(self.m.params.first("enc", i)) == 1
+                                 or (i in devices.encoders and self._masked(i))))
                          for i in self.m.present(c))]
 
     def _masked(self, axis: int) -> bool:

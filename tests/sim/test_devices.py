@@ -125,3 +125,20 @@ def test_an_axis_the_joystick_is_not_assigned_to_stays() -> None:
     sim.model.deflect("y", -1.0, now=sim.now)
     sim.wait(1.0)
     assert float(sim.send("?pos y")) == 0.0
+
+
+@pytest.mark.parametrize(("mode", "target", "expected"), [
+    (0, 2.2, [0.0, 0.5, 1.0, 1.5, 2.0]),  # forward, the first as the move starts
+    (6, 2.2, [0.25, 0.75, 1.25, 1.75]),   # shifted by half a distance
+    (2, -1.2, [0.0, -0.5, -1.0]),         # backward
+    (0, -1.2, []),                       # forward only: nothing backward
+])
+def test_distance_modes_pulse_every_distance_from_the_start(
+        mode: int, target: float, expected: list[float]) -> None:
+    sim = Model()
+    for line in ("!vel x 20", f"!trigm {mode}", "!trigd 0.5", "!triga x", "!trig 1",
+                 f"!moa x {target}"):
+        sim.send(line)
+    sim.wait(2.0)
+    fired = [p.position for p in sim.model.devices.pulses_of(TRIGGER_OUT)]
+    assert fired == pytest.approx(expected, abs=1e-6)
