@@ -25,23 +25,7 @@ T = TypeVar("T")
 
 
 def check_maxsize(maxsize: object) -> int:
-    """``maxsize`` if it is an integer of at least 1, else :class:`ValueError`.
-
-    Parameters
-    ----------
-    maxsize
-        The buffer size to check.
-
-    Returns
-    -------
-    int
-        ``maxsize``.
-
-    Raises
-    ------
-    ValueError
-        ``maxsize`` is not an integer of at least 1.
-    """
+    """``maxsize`` if it is an integer of at least 1, else :class:`ValueError`."""
     if isinstance(maxsize, bool) or not isinstance(maxsize, int) or maxsize < 1:
         raise ValueError(f"maxsize must be an integer of at least 1, got {maxsize!r}")
     return maxsize
@@ -49,13 +33,7 @@ def check_maxsize(maxsize: object) -> int:
 
 class BoundedStream(Generic[T]):
     """An async-iterable buffer of at most ``maxsize`` items that drops its oldest item
-    on overflow (see the module documentation).
-
-    Parameters
-    ----------
-    maxsize
-        The most items held.
-    """
+    on overflow (see the module documentation)."""
 
     def __init__(self, maxsize: int) -> None:
         self._maxsize = check_maxsize(maxsize)
@@ -81,13 +59,7 @@ class BoundedStream(Generic[T]):
 
     def offer(self, item: T) -> None:
         """Buffer ``item`` (never blocks); drop the oldest item if the buffer is full.
-        Ignored once the stream has ended.
-
-        Parameters
-        ----------
-        item
-            The item.
-        """
+        Ignored once the stream has ended."""
         if self._ended:
             return
         if len(self._buffer) >= self._maxsize:
@@ -107,13 +79,7 @@ class BoundedStream(Generic[T]):
         self.end()
 
     def get_nowait(self) -> T | None:
-        """The next buffered item, or ``None`` if there is none.
-
-        Returns
-        -------
-        T or None
-            The item, or ``None``.
-        """
+        """The next buffered item, or ``None`` if there is none."""
         return self._buffer.popleft() if self._buffer else None
 
     def __aiter__(self) -> AsyncIterator[T]:

@@ -450,7 +450,31 @@ class _Wrapper(Generic[A]):
         return self._portal
 
 
-class Joystick(_Wrapper[AsyncJoystick]):
+class _Family(_Wrapper[A]):
+    """A blocking family: its own methods are declared; any other coroutine method of
+    the async family (the generated typed access, ``tango.io.set_anamode(...)``) is
+    made blocking when first looked up."""
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name == "aio":
+            raise AttributeError(name)
+        method = getattr(self.aio, name)
+        if not inspect.iscoroutinefunction(method):
+            raise AttributeError(f"{type(self).__name__} has no blocking {name!r}")
+
+        @functools.wraps(method)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            return self._portal.call(method, *args, **kwargs)
+
+        return call
+
+    def __dir__(self) -> list[str]:
+        return sorted({*super().__dir__(), *(
+            name for name in dir(self.aio) if not name.startswith("_")
+            and inspect.iscoroutinefunction(getattr(self.aio, name)))})
+
+
+class Joystick(_Family[AsyncJoystick]):
     """The blocking twin of :class:`tango_aio.families.Joystick` (``tango.joystick``)."""
 
     enable = _Blocking(AsyncJoystick.enable)
@@ -458,7 +482,7 @@ class Joystick(_Wrapper[AsyncJoystick]):
     is_enabled = _Blocking(AsyncJoystick.is_enabled)
 
 
-class IO(_Wrapper[AsyncIO]):
+class IO(_Family[AsyncIO]):
     """The blocking twin of :class:`tango_aio.families.IO` (``tango.io``)."""
 
     set_shutter = _Blocking(AsyncIO.set_shutter)
@@ -470,10 +494,6 @@ class IO(_Wrapper[AsyncIO]):
     digital_in = _Blocking(AsyncIO.digital_in)
     set_digital_out = _Blocking(AsyncIO.set_digital_out)
     digital_out = _Blocking(AsyncIO.digital_out)
-    brake = _Blocking(AsyncIO.brake)
-    set_brake = _Blocking(AsyncIO.set_brake)
-    pump = _Blocking(AsyncIO.pump)
-    set_pump = _Blocking(AsyncIO.set_pump)
 
     def watch_inputs(self, interval: float = 0.1) -> Iterator[InputsChanged | JoystickMoved]:
         """Blocking iterator over :meth:`tango_aio.families.IO.watch_inputs`.
@@ -491,7 +511,7 @@ class IO(_Wrapper[AsyncIO]):
         return self._portal.iterate(self.aio.watch_inputs(interval))
 
 
-class Encoders(_Wrapper[AsyncEncoders]):
+class Encoders(_Family[AsyncEncoders]):
     """The blocking twin of :class:`tango_aio.families.Encoders` (``tango.encoders``)."""
 
     mask = _Blocking(AsyncEncoders.mask)
@@ -501,7 +521,7 @@ class Encoders(_Wrapper[AsyncEncoders]):
     position_error = _Blocking(AsyncEncoders.position_error)
 
 
-class ClosedLoop(_Wrapper[AsyncClosedLoop]):
+class ClosedLoop(_Family[AsyncClosedLoop]):
     """The blocking twin of :class:`tango_aio.families.ClosedLoop` (``tango.closed_loop``)."""
 
     enable = _Blocking(AsyncClosedLoop.enable)
@@ -509,7 +529,7 @@ class ClosedLoop(_Wrapper[AsyncClosedLoop]):
     settle = _Blocking(AsyncClosedLoop.settle)
 
 
-class Triggers(_Wrapper[AsyncTriggers]):
+class Triggers(_Family[AsyncTriggers]):
     """The blocking twin of :class:`tango_aio.families.Triggers` (``tango.triggers``)."""
 
     read_config = _Blocking(AsyncTriggers.read_config)
@@ -524,7 +544,7 @@ class Triggers(_Wrapper[AsyncTriggers]):
     set_range = _Blocking(AsyncTriggers.set_range)
 
 
-class Snapshots(_Wrapper[AsyncSnapshots]):
+class Snapshots(_Family[AsyncSnapshots]):
     """The blocking twin of :class:`tango_aio.families.Snapshots` (``tango.snapshots``)."""
 
     read_config = _Blocking(AsyncSnapshots.read_config)

@@ -37,7 +37,7 @@ motion settings; ``real`` - 57600 Bd pacing and the controller's own settings.
 
 :func:`replay` plays a recorded wire trace back (a session on a real unit, recorded with
 :func:`tango_aio.fieldkit.record_trace` or ``tango-aio probe --trace``) and checks that the
-driver writes the same lines: see :mod:`tango_aio.fieldkit._replay`.
+driver writes the same lines: see :mod:`tango_aio.fieldkit`.
 """
 
 from __future__ import annotations

@@ -173,7 +173,7 @@ async def _demo(args: argparse.Namespace) -> int:
     """Identify the controller, calibrate and measure the range of every axis, then run a
     raster scan over a 10 x 10 mm field with a trigger list on X. On a real controller
     (any URL but sim://) every axis, Z/focus included, moves to its limit switches: the
-    demo asks first unless --yes is given."""  # noqa: DOC201 - --help text, no sections
+    demo asks first unless --yes is given."""
     started = time.monotonic()
     async with connect(args.url) as tango:
         ident = tango.identity
@@ -1190,7 +1190,7 @@ async def _shell(args: argparse.Namespace) -> int:
     still move. Lines piped into the shell run as a script, whose exit status is 1 if any
     line failed; in both modes it is 1 if a move did not end at its target (a move still
     running at the end is stopped and counts as failed). History is kept
-    in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""  # noqa: DOC201 - --help text, no sections
+    in ~/.tango_aio_history ($TANGO_AIO_HISTORY)."""
     async with connect(args.url) as tango:
         ident = tango.identity
         # On stderr: stdout holds the replies only (a script's).
@@ -1289,7 +1289,7 @@ async def _move(args: argparse.Namespace) -> int:
     """Move axes to absolute positions (x=10 y=5), or by distances with --relative,
     showing the distance covered; prints the final status letters in words. Values are in
     the controller's unit, or carry their own (x=1.5mm, y=-500um; nm um mm cm m in mil
-    rev ustep). Ctrl+C stops the axes."""  # noqa: DOC201 - --help text, no sections
+    rev ustep). Ctrl+C stops the axes."""
     targets, unit = _one_unit(args.targets)
     async with connect(args.url, units=unit) as tango:
         start = await tango.position()
@@ -1327,7 +1327,7 @@ def _monitor_table(url: str, positions: Mapping[str, float],
 
 async def _monitor(args: argparse.Namespace) -> int:
     """Show a live table of the positions and status letters of every axis, refreshed
-    every --interval seconds, until Ctrl+C (exit code 130) or --count refreshes (0)."""  # noqa: DOC201 - --help text, no sections
+    every --interval seconds, until Ctrl+C (exit code 130) or --count refreshes (0)."""
     stop = asyncio.Event()
     async with connect(args.url) as tango:
         with _sigint_calls(stop.set), Live(console=console, auto_refresh=False) as live:
@@ -1366,7 +1366,7 @@ async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
 async def _ports(args: argparse.Namespace) -> int:
     """List the serial ports; with --probe, ask each one for ?version to find the TANGO
     controllers (this writes a line to every port probed) and say for each port what it
-    found: TANGO model firmware, no answer, permission denied, busy or not found."""  # noqa: DOC201 - --help text, no sections
+    found: TANGO model firmware, no answer, permission denied, busy or not found."""
     from serial.tools import list_ports
 
     infos = await asyncio.to_thread(list_ports.comports)
@@ -1396,7 +1396,7 @@ _MAX_POSITION_LINES = 10 * MAX_TRIGGERS
 
 async def _upload_trigp(args: argparse.Namespace) -> int:
     """Upload a trigger position list (one position per line; blank lines and lines
-    starting with # are ignored) at wire speed, with a progress bar."""  # noqa: DOC201, DOC501 - --help text, no sections
+    starting with # are ignored) at wire speed, with a progress bar."""
     lines: list[int] = []
     positions = read_positions(args.file, lines)
     if not positions:

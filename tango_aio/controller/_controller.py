@@ -1762,7 +1762,7 @@ class Controller:
         TangoError
             The line's answer was lost; its note says whether the running axes were
             stopped.
-        """  # noqa: DOC501 - `raise annotate(exc, ...)` raises exc, a TangoError
+        """
         axes = await self._to_controller(axes, unit, Measure.VELOCITY)
         command = build_axes("speed", axes, context=self.context)
         self._check_axes(command, axes)

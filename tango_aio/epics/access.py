@@ -45,28 +45,7 @@ class AccessPolicy:
     @classmethod
     def build(cls, *, read_only: bool = False, hosts: Iterable[str] = (),
               users: Iterable[str] = ()) -> AccessPolicy:
-        """Build a policy from command-line values (empty names are refused).
-
-        Parameters
-        ----------
-        read_only
-            No client may write.
-        hosts
-            The client hosts that may write (``--allow-host``); empty for any.
-        users
-            The client users that may write (``--allow-user``); empty for any.
-
-        Returns
-        -------
-        AccessPolicy
-            The policy.
-
-        Raises
-        ------
-        ValueError
-            A host or user name is empty or has blanks around it (names are compared
-            whole, so such a name would never match what a client reports).
-        """
+        """Build a policy from command-line values (empty names are refused)."""
         host_set, user_set = frozenset(hosts), frozenset(users)
         for name in host_set | user_set:
             if not name or name != name.strip():
@@ -80,20 +59,7 @@ class AccessPolicy:
         return self.read_only or bool(self.hosts) or bool(self.users)
 
     def may_write(self, hostname: str | None, username: str | None) -> bool:
-        """Whether a client reporting ``hostname`` and ``username`` may write.
-
-        Parameters
-        ----------
-        hostname
-            The host the client reported, or ``None``.
-        username
-            The user the client reported, or ``None``.
-
-        Returns
-        -------
-        bool
-            Whether it may write.
-        """
+        """Whether a client reporting ``hostname`` and ``username`` may write."""
         if self.read_only:
             return False
         if self.hosts:
@@ -103,13 +69,7 @@ class AccessPolicy:
         return not self.users or (username or "") in self.users
 
     def describe(self) -> str:
-        """One line saying who may write, for the IOC's start-up message.
-
-        Returns
-        -------
-        str
-            The line.
-        """
+        """One line saying who may write, for the IOC's start-up message."""
         if self.read_only:
             return "read-only: no client may write"
         if not self.restricted:

@@ -24,13 +24,7 @@ SAVED = ("DLLM", "DHLM", "OFF", "VMAX", "VELO")
 
 
 class Autosave:
-    """The autosave file of one IOC: :meth:`load` at start, :meth:`store` after a put.
-
-    Parameters
-    ----------
-    path
-        The autosave file.
-    """
+    """The autosave file of one IOC: :meth:`load` at start, :meth:`store` after a put."""
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
@@ -38,18 +32,7 @@ class Autosave:
 
     def load(self) -> dict[str, dict[str, float]]:
         """Read the file (``{}`` if it does not exist); raises ``ValueError`` for a file
-        that is not an autosave file.
-
-        Returns
-        -------
-        dict[str, dict[str, float]]
-            The saved fields of each record, by record name.
-
-        Raises
-        ------
-        ValueError
-            The file is not an autosave file.
-        """
+        that is not an autosave file."""
         try:
             text = self.path.read_text(encoding="utf-8")
         except FileNotFoundError:
@@ -73,15 +56,7 @@ class Autosave:
         return values
 
     def store(self, record: str, fields: dict[str, float]) -> None:
-        """Record ``fields`` of ``record`` and rewrite the file atomically.
-
-        Parameters
-        ----------
-        record
-            The record's name.
-        fields
-            The values to keep, by field name.
-        """
+        """Record ``fields`` of ``record`` and rewrite the file atomically."""
         self.values[record] = {name: float(fields[name]) for name in SAVED if name in fields}
         temporary = self.path.with_name(self.path.name + ".tmp")
         temporary.write_text(json.dumps(self.values, indent=1, sort_keys=True) + "\n",

@@ -168,7 +168,7 @@ def _environment(interfaces: list[str], port: int | None) -> None:
 async def run_ioc(args: argparse.Namespace) -> int:
     """Serve TANGO controllers over EPICS Channel Access: one motor record per axis
     (PREFIX X, Y, Z, A) and controller PVs (PREFIX CONNECTED, ERROR, AUTOSTATUS,
-    TRIGCOUNT). Runs until interrupted; moves this IOC started are stopped on exit."""  # noqa: DOC201, DOC501 - the ioc command's --help text, no sections
+    TRIGCOUNT). Runs until interrupted; moves this IOC started are stopped on exit."""
     try:
         controllers = parse_controllers(args.url, args.controller)
         policy = AccessPolicy.build(read_only=args.read_only, hosts=args.allow_host,

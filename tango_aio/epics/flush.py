@@ -98,13 +98,7 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
 
     def flushed(self) -> bool:
         """Whether everything queued to this circuit was sent: its loop waits for the next
-        update with nothing collected, and nothing is queued or awaits release.
-
-        Returns
-        -------
-        bool
-            True if a flush marker would be released without anything to send.
-        """
+        update with nothing collected, and nothing is queued or awaits release."""
         return self._idle and self.subscription_queue.empty() and not self._released
 
     def _no_delay(self) -> None:
@@ -164,13 +158,7 @@ class _FlushingCircuit(VirtualCircuit):  # type: ignore[misc]
 
 class FlushingContext(Context):  # type: ignore[misc]
     """caproto's asyncio server :class:`~caproto.asyncio.server.Context` with
-    :meth:`flush`.
-
-    Parameters
-    ----------
-    *args, **kwargs
-        caproto's arguments of a server context (the PV database, the interfaces).
-    """
+    :meth:`flush`."""
 
     CircuitClass = _FlushingCircuit
 

@@ -2,11 +2,14 @@
 
 Each family speaks to its controller through a :class:`FamilyPort` (read, proven write,
 raw line) and never imports the controller; list transfers run at wire speed through
-``ListTransfer``.
+``ListTransfer``. The typed access of each chapter (``JoystickAccess``, ``IOAccess``...) is
+generated from the catalog by ``tools/gen_families.py``; the families add their semantics
+in subclasses.
 """
 
 from __future__ import annotations
 
+from ._access import ManualEnum
 from ._base import Family, FamilyPort
 from ._bulk import (
     MAX_TRIGGERS,
@@ -23,6 +26,24 @@ from ._bulk import (
 )
 from ._closed_loop import ClosedLoop, ClosedLoopMode
 from ._encoders import Encoders
+from ._generated import (
+    ACCESS,
+    HAND_MADE,
+    AdjustmentsAccess,
+    CalibrationAccess,
+    ClosedLoopAccess,
+    CommunicationAccess,
+    ControllerInfoAccess,
+    EncoderAccess,
+    IOAccess,
+    JoystickAccess,
+    LimitSwitchAccess,
+    MREncoderAccess,
+    OperatingModesAccess,
+    SnapshotAccess,
+    SystemAccess,
+    TriggerAccess,
+)
 from ._io import IO
 from ._joystick import Joystick
 from ._reach import DevicePort
@@ -36,22 +57,39 @@ from ._triggers import (
 )
 
 __all__ = [
+    "ACCESS",
+    "HAND_MADE",
     "IO",
     "MAX_TRIGGERS",
     "MAX_TRIGGER_POSITION",
+    "AdjustmentsAccess",
+    "CalibrationAccess",
     "ClosedLoop",
+    "ClosedLoopAccess",
     "ClosedLoopMode",
     "Column",
+    "CommunicationAccess",
+    "ControllerInfoAccess",
     "DevicePort",
+    "EncoderAccess",
     "Encoders",
     "Family",
     "FamilyPort",
+    "IOAccess",
     "Joystick",
+    "JoystickAccess",
+    "LimitSwitchAccess",
     "ListTransfer",
+    "MREncoderAccess",
+    "ManualEnum",
+    "OperatingModesAccess",
     "Progress",
+    "SnapshotAccess",
     "SnapshotConfig",
     "SnapshotMode",
     "Snapshots",
+    "SystemAccess",
+    "TriggerAccess",
     "TriggerConfig",
     "TriggerMode",
     "TriggerOutput",

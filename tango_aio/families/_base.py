@@ -9,7 +9,7 @@ family never imports the controller and the controller stays a thin facade.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from ..catalog import Context, Value
 
@@ -106,6 +106,9 @@ class Family:
     """
 
     __slots__ = ("_port",)
+
+    #: The manual's instructions this family reaches, and the methods that reach each.
+    ROUTES: ClassVar[dict[str, tuple[str, ...]]] = {}
 
     def __init__(self, port: FamilyPort) -> None:
         self._port = port

@@ -7,7 +7,7 @@ import enum
 
 from ..catalog import AXES, build
 from ..errors import ClosedLoopPreconditionError, InvalidCommandError
-from ._base import Family
+from ._generated import ClosedLoopAccess
 from ._reach import DevicePort
 
 __all__ = ["ClosedLoop", "ClosedLoopMode"]
@@ -23,8 +23,10 @@ class ClosedLoopMode(enum.IntEnum):
     ALWAYS = 2
 
 
-class ClosedLoop(Family):
-    """Closed-loop position control (``tango.closed_loop``; manual chapter 20).
+class ClosedLoop(ClosedLoopAccess):
+    """Closed-loop position control (``tango.closed_loop``; manual chapter 20): the typed
+    access of every closed-loop instruction (:class:`ClosedLoopAccess`), and closed loop
+    switched on once its preconditions hold.
 
     A move in closed loop is reported arrived only when the controller says the position
     is in its target window (``twi``) for ``ctrd`` ms; the driver waits for that report as

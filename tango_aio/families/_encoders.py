@@ -3,9 +3,9 @@ and the difference between motor and encoder position."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
-from ._base import Family
+from ._generated import EncoderAccess, MREncoderAccess
 from ._reach import DevicePort
 
 __all__ = ["Encoders"]
@@ -15,8 +15,14 @@ def _by_axis(values: Any) -> dict[str, int]:
     return {axis: int(value) for axis, value in values.items()}
 
 
-class Encoders(Family):
-    """The stage's encoders (``tango.encoders``; manual chapter 18)."""
+class Encoders(EncoderAccess, MREncoderAccess):
+    """The stage's encoders (``tango.encoders``; manual chapters 18 and 19): the typed
+    access of every encoder and MR encoder instruction (:class:`EncoderAccess`,
+    :class:`MREncoderAccess`), and the mask, activity and position error by axis."""
+
+    #: The instructions of both chapters and the methods that reach them.
+    ROUTES: ClassVar[dict[str, tuple[str, ...]]] = {**EncoderAccess.ROUTES,
+                                                    **MREncoderAccess.ROUTES}
 
     _port: DevicePort
 

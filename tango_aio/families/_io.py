@@ -1,4 +1,4 @@
-"""Digital and analogue I/O, the shutter line, the LED strobe, brakes and the pump, and a
+"""Digital and analogue I/O, the shutter line, the LED strobe, and a
 polling watch of the inputs and of the joystick's moves."""
 
 from __future__ import annotations
@@ -6,13 +6,12 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import AsyncGenerator, Mapping
-from typing import Any
 
 from .._checks import check_timeout
 from ..catalog import Form, build, wire_number
 from ..errors import InvalidCommandError, SettingNotAppliedError
 from ..events import InputsChanged, JoystickMoved, PositionUpdate
-from ._base import Family
+from ._generated import IOAccess
 from ._reach import DevicePort
 
 __all__ = ["IO"]
@@ -53,8 +52,10 @@ def _number(value: object, low: float, high: float, name: str, what: str) -> flo
     return number
 
 
-class IO(Family):
-    """Digital and analogue I/O (``tango.io``; manual chapter 17).
+class IO(IOAccess):
+    """Digital and analogue I/O (``tango.io``; manual chapter 17): the typed access of
+    every I/O instruction (:class:`IOAccess`: input types and polarities, the stop input,
+    brakes, the dispenser, ...) and the lines a microscope uses, with their checks.
 
     Every set is proven like any set of the driver (its error state, and a read-back
     where the controller can show the value); bad values raise
@@ -232,56 +233,6 @@ class IO(Family):
         """
         reply = await self._port.query("?digout")
         return tuple(char == "1" for char in reply.strip())
-
-    # -- brakes and the pump ---------------------------------------------------------------
-
-    async def brake(self) -> dict[str, int]:
-        """The brake output assigned to each axis (``?brake``, L9972-10084; 0: none).
-
-        Returns
-        -------
-        dict[str, int]
-            The setting of each present axis.
-        """
-        values = await self._port.get("brake")
-        return {axis: int(value) for axis, value in values.items()}
-
-    async def set_brake(self, /, **axes: int) -> None:
-        """Assign brake outputs per axis (``!brake``, -255..8 as the manual's table says,
-        L9972-10084), proven by its read-back.
-
-        Parameters
-        ----------
-        **axes
-            The setting of each axis (``x=1``).
-        """
-        values: dict[str, Any] = dict(axes)
-        await self._port.set("brake", **values)
-
-    async def pump(self) -> bool:
-        """Whether the dispenser's pump adds air pressure (``?pump``, L10281-10342).
-
-        Returns
-        -------
-        bool
-            ``True`` while it runs.
-        """
-        return int(await self._port.get("pump")) == 1
-
-    async def set_pump(self, on: bool) -> None:
-        """Switch the dispenser's pump (``!pump``, L10281-10342), proven by its read-back.
-
-        Parameters
-        ----------
-        on
-            ``True`` runs it.
-
-        Raises
-        ------
-        InvalidCommandError
-            ``on`` is not a bool.
-        """
-        await self._port.set("pump", int(_flag(on, "pump")))
 
     # -- a watch of the inputs and the joystick -----------------------------------------------
 

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from ._base import Family
+from ._generated import JoystickAccess
 
 __all__ = ["Joystick"]
 
 
-class Joystick(Family):
-    """The controller's HDI device (``tango.joystick``; manual chapter 15).
+class Joystick(JoystickAccess):
+    """The controller's HDI device (``tango.joystick``; manual chapter 15): the typed
+    access of every HDI instruction (speeds, directions, curves, key modes:
+    :class:`JoystickAccess`) and the switch around automated moves.
 
     While it is enabled, a deflection moves the axes; the positions it leaves reach
     ``position()`` (always read), and ``watch_inputs()`` of ``tango.io`` publishes them

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 from ..catalog import Command, build
 from ..errors import InvalidCommandError
-from ._base import Family
 from ._bulk import Progress, check_resolution, snapshot_spec, validate_rows
+from ._generated import SnapshotAccess
 from ._reach import DevicePort
 
 __all__ = ["SnapshotConfig", "SnapshotMode", "Snapshots"]
@@ -83,8 +83,10 @@ class SnapshotConfig:
                 build("snsm", int(self.mode)), build("sns", int(self.enabled))]
 
 
-class Snapshots(Family):
-    """The snapshot input and array (``tango.snapshots``; manual chapter 23)."""
+class Snapshots(SnapshotAccess):
+    """The snapshot input and array (``tango.snapshots``; manual chapter 23): the typed
+    access of every snapshot instruction (:class:`SnapshotAccess`), the configuration as a
+    whole, and the array."""
 
     _port: DevicePort
 

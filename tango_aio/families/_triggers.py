@@ -11,7 +11,6 @@ from typing import Any, TypeVar
 
 from ..catalog import AXES, Command, build, wire_number
 from ..errors import InvalidCommandError
-from ._base import Family
 from ._bulk import (
     Column,
     Progress,
@@ -20,6 +19,7 @@ from ._bulk import (
     trigger_spec,
     validate_trigger_positions,
 )
+from ._generated import TriggerAccess
 from ._reach import DevicePort
 
 __all__ = ["MAX_TRIGGER_POSITION", "TriggerConfig", "TriggerMode", "TriggerOutput", "Triggers"]
@@ -200,8 +200,10 @@ def _checked(name: str, value: object, low: float, high: float, *, integer: bool
             f"{' up to ' if above else ''}{high:g}", instruction=name, number=5)
 
 
-class Triggers(Family):
-    """The trigger output (``tango.triggers``; manual chapter 21)."""
+class Triggers(TriggerAccess):
+    """The trigger output (``tango.triggers``; manual chapter 21): the typed access of
+    every trigger instruction (:class:`TriggerAccess`), the configuration as a whole, and
+    the position list."""
 
     _port: DevicePort
 

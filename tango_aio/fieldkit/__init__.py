@@ -7,20 +7,24 @@ fingerprint; ``record_trace`` and the ``tango_aio.wire`` log record a session's 
 
 from __future__ import annotations
 
-from ._probe import (
+from ..errors import ProbeError
+from ._decide import (
     FINGERPRINT_FORMAT,
     MOVE_SWITCHES,
     SAVE_SWITCHES,
     SWITCH_NAMES,
     Exchange,
     Observation,
-    ProbeError,
+)
+from ._probe import (
     ProbeOptions,
     ProbeResult,
-    add_probe_command,
     comparable,
     probe,
     write_fingerprint,
+)
+from ._probecmd import (
+    add_probe_command,
 )
 from ._replay import (
     Replay,

@@ -133,13 +133,7 @@ class Replay:
 
     def _same_marker(self, expected: bytes, line: bytes) -> bool:
         """Whether ``line`` is the trace's ``?help K`` with the client's number for K
-        (binding K to it the first time, one to one).
-
-        Returns
-        -------
-        bool
-            Whether the line matches.
-        """
+        (binding K to it the first time, one to one)."""
         ours, theirs = _HELP.match(expected), _HELP.match(line)
         if ours is None or theirs is None or ours[1] != theirs[1]:
             return False

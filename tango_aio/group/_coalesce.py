@@ -114,23 +114,7 @@ class _Batch:
 
 class MoveCoalescer:
     """Merges moves of different axes of one Controller that arrive within `window`
-    seconds into one `move_to` (one `!moa` line).
-
-    Parameters
-    ----------
-    controller
-        The controller whose moves are merged.
-    window
-        Seconds to collect moves (``collect="window"``), or the longest wait for announced
-        ones (``"announced"``).
-    collect
-        ``"window"`` or ``"announced"`` (see :meth:`announce`).
-
-    Raises
-    ------
-    ValueError
-        ``window`` is not a finite number >= 0, or ``collect`` is unknown.
-    """
+    seconds into one `move_to` (one `!moa` line)."""
 
     def __init__(self, controller: Controller, *, window: float = 0.02,
                  collect: str = "window") -> None:
@@ -151,13 +135,7 @@ class MoveCoalescer:
     def announce(self) -> Callable[[], None]:
         """Announce a request that is on its way (``collect="announced"``): the batch
         being collected waits for it. Returns the function that ends the announcement
-        (call it once the request was made, or given up; later calls do nothing).
-
-        Returns
-        -------
-        Callable[[], None]
-            Ends the announcement.
-        """
+        (call it once the request was made, or given up; later calls do nothing)."""
         self._announced += 1
         done = False
 
@@ -176,36 +154,7 @@ class MoveCoalescer:
         """Move one axis as part of the next merged move; return its status letter,
         raise the merged move's MoveError/TangoError. A second request for an axis that is
         already in the batch being collected closes that batch and starts the next one.
-        Cancelling one caller stops the merged move (all axes), as Controller.move_to does.
-
-        Parameters
-        ----------
-        axis
-            The axis letter.
-        target
-            Its target.
-        arrived
-            Called once the request has joined a batch (or failed before); ends an
-            announcement (:meth:`announce`).
-        positions
-            If given, receives the positions (as printed) that the merged move's own
-            confirmations read behind their reports, once its lines have returned
-            (:attr:`Controller.last_positions <tango_aio.Controller.last_positions>`
-            right after each ``move_to``): a caller that must publish where the axis
-            stands needs no read of its own.
-
-        Returns
-        -------
-        str
-            The axis's status letter after the merged move.
-
-        Raises
-        ------
-        MoveError
-            The merged move failed, or another caller cancelled it.
-        CancelledError
-            This caller was cancelled (its axis withdrawn, or the merged move stopped).
-        """
+        Cancelling one caller stops the merged move (all axes), as Controller.move_to does."""
         try:
             value = self._checked(axis, target)
             batch = self._batch_for(axis)
@@ -234,18 +183,7 @@ class MoveCoalescer:
 
     def pending(self, axis: str) -> bool:
         """Whether a move of ``axis`` waits in a batch not yet sent (cancelling its
-        caller then only withdraws it; nothing has moved).
-
-        Parameters
-        ----------
-        axis
-            The axis letter.
-
-        Returns
-        -------
-        bool
-            Whether a move of it waits unsent.
-        """
+        caller then only withdraws it; nothing has moved)."""
         return any(batch.state is not _State.MOVING and axis in batch.targets
                    for batch in self._batches)
 
@@ -353,13 +291,7 @@ def _lines(targets: dict[str, float]) -> list[dict[str, float]]:
     the manual shows no way to skip an axis in between. So the run of axes from X without
     a gap travels together in one line, and each other axis gets a line of its own (run
     one after another). Filling a gap with the gap axis's current position is avoided: a
-    read-back rounded to the reply's decimals would move that axis slightly.
-
-    Returns
-    -------
-    list[dict[str, float]]
-        The targets of each line, in order.
-    """
+    read-back rounded to the reply's decimals would move that axis slightly."""
     ordered: list[str] = [axis for axis in AXES if axis in targets]
     prefix = 0
     while prefix < len(ordered) and ordered[prefix] == AXES[prefix]:

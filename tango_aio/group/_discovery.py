@@ -108,13 +108,7 @@ def _probe(port: str, baudrate: int, timeout: float) -> VersionInfo | None:
 
     Runs in a worker thread. ``?version`` is sent again halfway through, in case a stale
     partial line in the controller's input buffer swallowed the first one. Lines that are
-    not a version reply (autostatus reports, noise) are skipped.
-
-    Returns
-    -------
-    VersionInfo or None
-        The version reply, or ``None`` if none came.
-    """
+    not a version reply (autostatus reports, noise) are skipped."""
     import serial
 
     start = time.monotonic()

@@ -712,18 +712,7 @@ class ControllerGroup(Mapping[str, Controller]):
     async def _run(self, op: str, calls: Mapping[str, Callable[[Controller], Awaitable[T]]],
                    fail_fast: bool) -> dict[str, T]:
         """Run ``calls`` concurrently; raise a :class:`GroupError` after all finished if
-        any failed (with ``fail_fast``, at the first failure, cancelling the others).
-
-        Returns
-        -------
-        dict[str, T]
-            The result of each call, by member name.
-
-        Raises
-        ------
-        GroupError
-            A call failed.
-        """
+        any failed (with ``fail_fast``, at the first failure, cancelling the others)."""
         results: dict[str, T] = {}
         failures: dict[str, Exception] = {}
         controllers = {name: self[name] for name in calls}
@@ -762,18 +751,7 @@ async def _cancel_once(awaitable: Awaitable[T],
     that hosts a task group) cancel every await of a cancelled task, which would also cut
     short a controller's own reaction to the cancellation: stopping the axes and waiting
     until they stand still. ``orphan`` receives a result that arrived anyway, for which
-    the caller is gone (e.g. a controller that finished connecting: it is closed).
-
-    Returns
-    -------
-    T
-        What ``awaitable`` returned.
-
-    Raises
-    ------
-    CancelledError
-        Re-raised once the task's clean-up has ended.
-    """
+    the caller is gone (e.g. a controller that finished connecting: it is closed)."""
     task: asyncio.Future[T] = asyncio.ensure_future(awaitable)
     try:
         return await asyncio.shield(task)

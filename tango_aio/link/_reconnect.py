@@ -112,15 +112,7 @@ class Stageable(Protocol):
     :class:`~tango_aio.Controller`)."""
 
     async def setup(self, *, autostatus: int | None = 1, identify: bool = True) -> None:
-        """Bring the controller on the new link into a known state.
-
-        Parameters
-        ----------
-        autostatus
-            The autostatus mode to select; ``None`` keeps the controller's.
-        identify
-            Read the controller's identity.
-        """
+        """Bring the controller on the new link into a known state."""
 
     async def aclose(self) -> None:
         """Close the new link (the set-up failed)."""
@@ -137,67 +129,23 @@ class ReconnectPort(Protocol[StagedT]):
         """The URL that is opened again (for messages)."""
 
     def signature(self, controller: StagedT | None = None) -> Signature | None:
-        """The identity of ``controller`` (``None``: the owner), ``None`` if unknown.
-
-        Parameters
-        ----------
-        controller
-            A staged controller; ``None`` for the owner.
-
-        Returns
-        -------
-        Signature or None
-            Its model and firmware, or ``None``.
-        """
+        """The identity of ``controller`` (``None``: the owner), ``None`` if unknown."""
 
     async def release_link(self) -> None:
         """Shut down what the lost link started besides its transport (``sim://``)."""
 
     def stage(self, protocol: TangoProtocol, closer: Closer | None) -> StagedT:
         """A throw-away controller on the new link, not yet set up: calls made on the
-        owner meanwhile still fail at once instead of reaching a half-set-up link.
-
-        Parameters
-        ----------
-        protocol
-            The new link's protocol.
-        closer
-            What closes the new link's emulator, if any.
-
-        Returns
-        -------
-        StagedT
-            The staged controller.
-        """
+        owner meanwhile still fail at once instead of reaching a half-set-up link."""
 
     def adopt(self, staged: StagedT, closer: Closer | None) -> None:
-        """Take over the set-up link of ``staged`` (no await: atomic).
-
-        Parameters
-        ----------
-        staged
-            The staged controller, set up.
-        closer
-            What closes the new link's emulator, if any.
-        """
+        """Take over the set-up link of ``staged`` (no await: atomic)."""
 
     def reconnected(self, attempt: int) -> None:
-        """The link is up again after ``attempt`` attempts.
-
-        Parameters
-        ----------
-        attempt
-            How many attempts it took.
-        """
+        """The link is up again after ``attempt`` attempts."""
 
     def give_up(self, lost: ConnectionLostError) -> None:
-        """Reconnecting stopped for good; ``lost`` fails everything from now on.
-
-        Parameters
-        ----------
-        lost
-            The error that fails every call from now on.
-        """
+        """Reconnecting stopped for good; ``lost`` fails everything from now on."""
 
 
 class Reconnector(Generic[StagedT]):
@@ -205,15 +153,7 @@ class Reconnector(Generic[StagedT]):
 
     It is armed (:meth:`arm`) once the controller's first set-up has succeeded: a first
     connect that fails just raises. :meth:`start` begins an outage's attempts; the owner
-    stops them with :meth:`stop` (``aclose``).
-
-    Parameters
-    ----------
-    reconnect
-        How to open and set up the link again.
-    port
-        What the controller offers the reconnector.
-    """
+    stops them with :meth:`stop` (``aclose``)."""
 
     def __init__(self, reconnect: Reconnect, port: ReconnectPort[StagedT]) -> None:
         self.reconnect = reconnect
@@ -234,18 +174,7 @@ class Reconnector(Generic[StagedT]):
 
     def start(self, mode: int) -> bool:
         """Begin reconnecting after a loss, restoring autostatus ``mode``. Returns whether
-        it started (not armed, or already running: no).
-
-        Parameters
-        ----------
-        mode
-            The autostatus mode in force at the loss.
-
-        Returns
-        -------
-        bool
-            Whether reconnecting started.
-        """
+        it started (not armed, or already running: no)."""
         if not self._armed or self.running:
             return False
         self.attempt = 0

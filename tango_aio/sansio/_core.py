@@ -171,18 +171,7 @@ _CASED_LEADS: Final = frozenset("oOeE ")
 def canonical_case(line: str) -> str:
     """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
     ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
-    range``); every other line as it is.
-
-    Parameters
-    ----------
-    line
-        A line received, without its CR.
-
-    Returns
-    -------
-    str
-        The line, its ``OK``, ``ERR`` or ``ERROR`` in capitals.
-    """
+    range``); every other line as it is."""
     if line[:1] not in _CASED_LEADS or line.startswith(("OK", "ERR")):
         return line
     match = _CASED_RE.match(line)
@@ -194,18 +183,7 @@ def canonical_case(line: str) -> str:
 
 
 def is_completion_line(line: str) -> bool:
-    """Whether ``line`` is an autostatus completion report such as ``@@@-.``.
-
-    Parameters
-    ----------
-    line
-        A line received, stripped.
-
-    Returns
-    -------
-    bool
-        Whether it is one status letter per axis then ``.`` (L2087-2089, L6337-6343).
-    """
+    """Whether ``line`` is an autostatus completion report such as ``@@@-.``."""
     return bool(_COMPLETION_RE.match(line))
 
 
@@ -216,13 +194,7 @@ class LineAssembler:
     :class:`ProtocolError` once, and its bytes are discarded up to the next CR. Each byte
     is scanned once (the CR search resumes where the previous one stopped). LF bytes are
     dropped, so a terminal server that turns CR into CR LF does no harm; the controller
-    itself never sends LF (manual L82). Bytes are decoded as Latin-1, one char per byte.
-
-    Parameters
-    ----------
-    max_line
-        Longest line, in bytes, the buffer holds.
-    """
+    itself never sends LF (manual L82). Bytes are decoded as Latin-1, one char per byte."""
 
     def __init__(self, max_line: int = DEFAULT_MAX_LINE) -> None:
         self._buffer = bytearray()
@@ -249,15 +221,7 @@ class LineAssembler:
         return len(self._buffer)
 
     def feed(self, data: bytes, at: float | None = None) -> None:
-        """Add received bytes; collect the lines with :meth:`next_line`.
-
-        Parameters
-        ----------
-        data
-            Bytes as they were read, any fragment of the stream.
-        at
-            When they were read (any monotonic clock; ``None``: not known).
-        """
+        """Add received bytes; collect the lines with :meth:`next_line`."""
         if data and (at is not None or self._stamps):
             self.feeds += 1
             self._stamps.append((self._offset + len(self._buffer), self.feeds,
@@ -265,19 +229,7 @@ class LineAssembler:
         self._buffer += data
 
     def next_line(self) -> str | None:
-        """Return the next complete line (without CR), or ``None`` if there is none yet.
-
-        Returns
-        -------
-        str or None
-            The line, LF bytes removed; ``None`` until its CR has arrived.
-
-        Raises
-        ------
-        ProtocolError
-            A line exceeds the limit (its bytes are discarded up to the next CR; the next
-            call carries on).
-        """
+        """Return the next complete line (without CR), or ``None`` if there is none yet."""
         end = self._buffer.find(_CR, self._scanned)
         if end < 0:
             self._scanned = len(self._buffer)
@@ -314,13 +266,7 @@ class LineAssembler:
 
     def _started(self, raw: bytes) -> tuple[float, float]:
         """The chunk that brought the first byte of ``raw`` (at the buffer's start, led by
-        blanks) that is not blank (the line's own first if it is all blank).
-
-        Returns
-        -------
-        tuple of (float, float)
-            The chunk's number and the time given with it (``inf``: not known).
-        """
+        blanks) that is not blank (the line's own first if it is all blank)."""
         lead = len(raw) - len(raw.decode("latin-1").lstrip())
         position = self._offset + (lead if lead < len(raw) else 0)
         stamps = self._stamps
@@ -346,23 +292,7 @@ class LineAssembler:
         raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
 
     def lines(self, data: bytes) -> list[str]:
-        """Feed ``data`` and return every complete line (raises on an over-long line).
-
-        Parameters
-        ----------
-        data
-            Bytes as they were read.
-
-        Returns
-        -------
-        list of str
-            The lines ``data`` completed, in order.
-
-        Raises
-        ------
-        ProtocolError
-            A line exceeds the limit.
-        """
+        """Feed ``data`` and return every complete line (raises on an over-long line)."""
         self.feed(data)
         out: list[str] = []
         while (line := self.next_line()) is not None:
@@ -610,26 +540,7 @@ def owed_edge(command: Command, expect: Expectation, mode: int,
 
     A move whose acknowledgement may come with its report (mode 2) is sure of the reply
     of the ``?err`` the core writes behind it (:meth:`ProtocolCore.send`), which then
-    ends the edge.
-
-    Parameters
-    ----------
-    command
-        The line.
-    expect
-        What it owes in ``mode`` (:func:`expectation`).
-    mode
-        The autostatus mode in force when it is written.
-    context
-        Controller state that shapes the reply (dims, axes, extmode).
-    ack_reads
-        Whether reads are acknowledged in mode 2 (``None``: not known).
-
-    Returns
-    -------
-    Edge or None
-        The front edge.
-    """
+    ends the edge."""
     items = _owed_items(command, expect, mode, ack_reads)
     echo = echo_pattern(command)
     pattern = reply_pattern(command, context) if _has_data(expect.rule) else ACK_PATTERN
@@ -692,23 +603,7 @@ def expectation(command: Command, mode: int, context: Context | None = None) -> 
     * A line that already answers with ``OK...``/``ERR`` (``save``) is not acknowledged a
       second time in mode 2.
     * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
-      the echo first and the report when the move ends, as in mode 1.
-
-    Parameters
-    ----------
-    command
-        The line.
-    mode
-        The autostatus mode in force when the line reaches the controller.
-    context
-        Controller state that shapes the reply (dims, axes, extmode).
-
-    Returns
-    -------
-    Expectation
-        The echo, data, acknowledgement and completion report it owes, and the mode in
-        force after it.
-    """
+      the echo first and the report when the move ends, as in mode 1."""
     entry = command.instruction
     # Most lines owe what their instruction, form and the mode say, whatever their values:
     # those expectations are computed once (the protocol asks twice per line written).
@@ -809,13 +704,7 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
       (``ack_mode_change``): a line entering or leaving mode 2 may or may not be.
 
     A mode change is then a barrier: :meth:`TangoProtocol.execute
-    <tango_aio.link._protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it.
-
-    Returns
-    -------
-    deque of _Item
-        The items owed, in the order they come.
-    """
+    <tango_aio.link._protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it."""
     items: deque[_Item] = deque()
     setter = command.name == "autostatus" and command.form is Form.SET
     after = expect.mode_after
@@ -851,13 +740,7 @@ def _acks_itself(command: Command, after: int) -> bool:
     ``restore``: L1738-1762, L2081) written where mode 2 acknowledges ``!`` lines: that
     answer may be its acknowledgement, or a second ``OK...`` may follow (switch
     ``save_ack``; L2081 and L2099-2103 do not say). The core writes an ``?err`` behind it,
-    so that the second is told from the next line's acknowledgement by what follows.
-
-    Returns
-    -------
-    bool
-        Whether it is such a line, written where mode ``after`` is in force.
-    """
+    so that the second is told from the next line's acknowledgement by what follows."""
     return after == 2 and command.form is Form.SET and command.executes \
         and command.instruction.exec_reply is Shape.ACK
 
@@ -891,20 +774,7 @@ _FOLLOW_UP_ECHO: Final = echo_pattern(_FOLLOW_UP_COMMAND)
 
 def wire_size(command: Command, expect: Expectation) -> int:
     """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
-    and the internal ``?err`` follow-up of a read whose end only the next line shows.
-
-    Parameters
-    ----------
-    command
-        The line to be written.
-    expect
-        What it owes in the mode it will be written in.
-
-    Returns
-    -------
-    int
-        The bytes, the follow-up's included wherever one may be written.
-    """
+    and the internal ``?err`` follow-up of a read whose end only the next line shows."""
     size = len(command.to_bytes())
     # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
     # bytes are reserved whether or not it is written.
@@ -930,24 +800,7 @@ class ProtocolCore:
     """Routes the controller's lines to requests, acknowledgements and events.
 
     Call :meth:`send` for every command line written (it returns the bytes to write) and
-    :meth:`receive_data` with every chunk read; then drain :meth:`next_event`.
-
-    Parameters
-    ----------
-    autostatus
-        The autostatus mode in force when the first line reaches the controller.
-    context
-        Controller state that shapes replies (dims, axes, extmode).
-    max_line
-        Longest line, in bytes, the assembler buffers.
-    check_replies
-        Whether each data reply is checked against its instruction's pattern.
-    max_reply_lines, max_reply_bytes
-        Most lines and bytes one multi-line reply may hold before its request fails.
-    marker_seed
-        Index of the first marker number (``None``: a random one; fixed for reproducible
-        tests).
-    """
+    :meth:`receive_data` with every chunk read; then drain :meth:`next_event`."""
 
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
                  max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True,
@@ -1073,23 +926,7 @@ class ProtocolCore:
         A read whose end can only be seen from the next line (``detext``) is followed by an
         internal ``?err`` whose reply closes it; its bytes are included. ``known`` is an
         expectation the caller already computed and the mode it computed it for: it is
-        used when that is the mode in force (and the reply does not depend on the context).
-
-        Parameters
-        ----------
-        command
-            The line.
-        tag
-            The tag its events are reported under.
-        known
-            The mode and the expectation the caller computed for it, if any.
-
-        Returns
-        -------
-        tuple of (bytes, Expectation)
-            The bytes to write (the line and any internal ``?err`` behind it) and what the
-            line owes.
-        """
+        used when that is the mode in force (and the reply does not depend on the context)."""
         if known is not None and known[0] == self._autostatus \
                 and command.instruction.lines is None:  # else it depends on the context
             expect = known[1]
@@ -1152,33 +989,12 @@ class ProtocolCore:
 
     def _deferring(self) -> bool:
         """Whether a move's OK... may still come with its completion report: one proved
-        deferred, or a move line's acknowledgement not yet known.
-
-        Returns
-        -------
-        bool
-            Whether an acknowledged line gets an ``?err`` behind it.
-        """
+        deferred, or a move line's acknowledgement not yet known."""
         return bool(self._deferred) or any(p.follow is not None for p in self._pending)
 
     def owed(self, command: Command, expect: Expectation, mode: int) -> Edge | None:
         """:func:`owed_edge` of ``command`` written in ``mode``, as reads are acknowledged
-        here (cached for reads like what :meth:`send` registers).
-
-        Parameters
-        ----------
-        command
-            The line.
-        expect
-            What it owes in ``mode`` (:func:`expectation`).
-        mode
-            The autostatus mode in force when it is written.
-
-        Returns
-        -------
-        Edge or None
-            The front edge of its reply (``None``: it is sure to get no line).
-        """
+        here (cached for reads like what :meth:`send` registers)."""
         if not expect.expects_reply:
             return None  # nothing but optional lines (and not computed twice: a set)
         return self._line_facts(command, expect, mode)[4]
@@ -1188,16 +1004,7 @@ class ProtocolCore:
         """What a line written in ``mode`` owes: its bytes, the items owed, its echo's
         and its data's pattern. Pure for a given line text, instruction, expectation, mode
         and :attr:`ack_reads` when the reply does not depend on the context: those of
-        reads (the per-request path) are cached (tests/unit/test_core_cache.py).
-
-        Returns
-        -------
-        tuple
-            The line's bytes, the items it owes, its echo's pattern (``None``: no echo),
-            its data's pattern and its reply's front and rear edges (the rear one of a
-            move whose echo or acknowledgement may come late is computed by
-            :meth:`send`).
-        """
+        reads (the per-request path) are cached (tests/unit/test_core_cache.py)."""
         entry = command.instruction
         cacheable = command.is_read and entry.lines is None
         if cacheable:
@@ -1248,18 +1055,7 @@ class ProtocolCore:
             pending.earliest = earliest
 
     def forget_completion(self, tag: Hashable) -> bool:
-        """Stop waiting for the completion report of ``tag`` (e.g. the move was refused).
-
-        Parameters
-        ----------
-        tag
-            The move's tag.
-
-        Returns
-        -------
-        bool
-            Whether the move was waiting for one.
-        """
+        """Stop waiting for the completion report of ``tag`` (e.g. the move was refused)."""
         try:
             self._moves.remove(tag)
         except ValueError:
@@ -1267,13 +1063,7 @@ class ProtocolCore:
         return True
 
     def drop_completions(self) -> list[Hashable]:
-        """Stop waiting for every completion report; return the tags that were waiting.
-
-        Returns
-        -------
-        list
-            The tags of the moves that were waiting, oldest first.
-        """
+        """Stop waiting for every completion report; return the tags that were waiting."""
         tags = list(self._moves)
         self._moves.clear()
         return tags
@@ -1286,21 +1076,7 @@ class ProtocolCore:
         controller discard its input buffer (manual L6808-6814). The marker ``?help N`` is
         registered under ``tag``; its :class:`Replied` event ends the resync. Without
         markers (:attr:`HelpStyle.NONE`) ``help`` is written and every line dropped until
-        :meth:`end_resync` (:attr:`quiet`).
-
-        Parameters
-        ----------
-        tag
-            The tag the marker's :class:`Replied` event is reported under.
-        ctrl_c
-            Whether 0x03 goes first.
-
-        Returns
-        -------
-        bytes
-            The bytes to write: the marker ``?help N`` (or ``help``), behind 0x03 with
-            ``ctrl_c``.
-        """
+        :meth:`end_resync` (:attr:`quiet`)."""
         for pending in self._pending:
             if pending.verdict is not None:
                 self._events.append(RequestLost(pending.verdict))
@@ -1340,13 +1116,7 @@ class ProtocolCore:
         self._deferred_echoes.clear()
 
     def pick_marker_code(self) -> int:
-        """A marker number for this session (see :data:`_MARKER_CODES`).
-
-        Returns
-        -------
-        int
-            The next of this session's marker numbers.
-        """
+        """A marker number for this session (see :data:`_MARKER_CODES`)."""
         return self._next_marker_code()
 
     @property
@@ -1388,20 +1158,7 @@ class ProtocolCore:
         else ``?help`` (``ERROR n,text`` of the current state, which "is not cleared",
         L2882-2919), else ``?help N``, whose reply holds a number of this session's (or
         the text learned for it) and looks like nothing else. ``None`` when none fits and
-        this controller has no ``?help N``: the next line then waits for the reply.
-
-        Parameters
-        ----------
-        before
-            The rear edge of the request right before it (:attr:`tail`).
-        after
-            The front edge of the request right after it.
-
-        Returns
-        -------
-        tuple of (bytes, ReplyPattern) or None
-            The separator's bytes and its reply's pattern; ``None`` when none fits.
-        """
+        this controller has no ``?help N``: the next line then waits for the reply."""
         # The edges are the cached ones of the lines' facts, so the choice among the fixed
         # separators is cached by their identity (kept alive, checked on a hit).
         key = (id(before), id(after), self._autostatus, self.ack_reads)
@@ -1444,20 +1201,7 @@ class ProtocolCore:
         return not edges[0].overlaps(before) and not edges[1].overlaps(after)
 
     def separate(self, tag: Hashable, separator: tuple[bytes, ReplyPattern]) -> bytes:
-        """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes.
-
-        Parameters
-        ----------
-        tag
-            The tag its reply is reported under.
-        separator
-            Its bytes and its reply's pattern, from :meth:`separator`.
-
-        Returns
-        -------
-        bytes
-            The bytes to write.
-        """
+        """Register ``separator`` (from :meth:`separator`) under ``tag``; return its bytes."""
         data, pattern = separator
         pending = _Pending(tag, _read_items(self._autostatus, self.ack_reads),
                            _echo_of(data.decode()), pattern=pattern).seal()
@@ -1471,31 +1215,11 @@ class ProtocolCore:
     # -- receiving ------------------------------------------------------------------------
 
     def receive_data(self, data: bytes, at: float | None = None) -> None:
-        """Feed bytes read from the controller.
-
-        Parameters
-        ----------
-        data
-            Bytes as they were read, any fragment of the stream.
-        at
-            When they were read, on the clock of :attr:`write_time` (``None``: not known;
-            a line that starts in them is never judged by its timing).
-        """
+        """Feed bytes read from the controller."""
         self._assembler.feed(data, at)
 
     def next_event(self) -> Event | None:
-        """Return the next event, or ``None`` when more bytes are needed.
-
-        Returns
-        -------
-        Event or None
-            The next event; ``None`` when more bytes are needed.
-
-        Raises
-        ------
-        ProtocolError
-            A line is over-long (the following call carries on with the next line).
-        """
+        """Return the next event, or ``None`` when more bytes are needed."""
         while not self._events:
             line = self._assembler.next_line()
             if line is None:
@@ -1506,23 +1230,7 @@ class ProtocolCore:
 
     def events(self, data: bytes = b"") -> list[Event]:
         """Feed ``data`` and return every event it completes (raises on an over-long
-        line; use :meth:`next_event` to carry on past one).
-
-        Parameters
-        ----------
-        data
-            Bytes read from the controller (empty: only the lines already buffered).
-
-        Returns
-        -------
-        list of Event
-            The events ``data`` completes, in order.
-
-        Raises
-        ------
-        ProtocolError
-            A line is over-long.
-        """
+        line; use :meth:`next_event` to carry on past one)."""
         self.receive_data(data)
         out: list[Event] = []
         while (event := self.next_event()) is not None:
@@ -1617,13 +1325,7 @@ class ProtocolCore:
 
     def _deferred_echo(self, text: str) -> bool:
         """Consume ``text`` if it is the echo of a move that came with its report, and
-        not the echo the head waits for (the same text: then it does not matter whose).
-
-        Returns
-        -------
-        bool
-            Whether ``text`` was consumed.
-        """
+        not the echo the head waits for (the same text: then it does not matter whose)."""
         if self._pending:
             head = self._pending[0]
             if head.items[0] in (_Item.ECHO, _Item.ECHO_OPT) and head.echo is not None \
@@ -1658,13 +1360,7 @@ class ProtocolCore:
     def _takes_deferred(self) -> bool:
         """Whether an ``OK...`` arriving now can only be a deferred one: no request waits
         for an acknowledgement at the head (none waits, or the head owes data or an
-        optional line; only ``save``'s data is an ``OK...``).
-
-        Returns
-        -------
-        bool
-            Whether the ``OK...`` is a deferred move's.
-        """
+        optional line; only ``save``'s data is an ``OK...``)."""
         if not self._pending:
             return True
         head = self._pending[0]

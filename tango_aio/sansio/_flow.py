@@ -50,25 +50,7 @@ class _Written:
 
 
 class CreditWindow:
-    """Counts outstanding bytes and says when a marker is needed.
-
-    Parameters
-    ----------
-    limit
-        The most bytes outstanding.
-    chunk
-        The most reply-less bytes between two markers (capped to fit ``limit``).
-    reserve
-        The bytes a line written right before a marker may take (the scheduler's
-        separator): a full ``chunk`` of reply-less bytes, that line and the marker must
-        fit in ``limit``, or nothing could ever confirm them, so ``chunk`` is cut down to
-        fit (to 1 byte at least).
-
-    Raises
-    ------
-    ValueError
-        ``limit`` leaves no room for a marker.
-    """
+    """Counts outstanding bytes and says when a marker is needed."""
 
     def __init__(self, limit: int = DEFAULT_LIMIT, chunk: int = DEFAULT_CHUNK,
                  reserve: int = 0) -> None:
@@ -88,20 +70,7 @@ class CreditWindow:
 
         A reply-less line must also leave room for the marker that will confirm it. A line
         too long for that is written only when nothing is outstanding (it can only happen
-        for lines of more than ``limit - 4`` bytes, which no typed API produces).
-
-        Parameters
-        ----------
-        size
-            The line's length in bytes.
-        has_reply
-            Whether the line owes a reply (which confirms it).
-
-        Returns
-        -------
-        bool
-            Whether it may be written.
-        """
+        for lines of more than ``limit - 4`` bytes, which no typed API produces)."""
         reserve = 0 if has_reply else len(MARKER)
         if size + reserve > self.limit:
             return self.outstanding == 0
@@ -109,20 +78,7 @@ class CreditWindow:
 
     def marker_due(self, next_size: int | None, next_has_reply: bool) -> bool:
         """Whether a marker should be written before the next line (``None``: the queue
-        is empty).
-
-        Parameters
-        ----------
-        next_size
-            The next line's length, or ``None``.
-        next_has_reply
-            Whether the next line owes a reply.
-
-        Returns
-        -------
-        bool
-            Whether a marker is due.
-        """
+        is empty)."""
         if self.unmarked == 0:
             return False
         if self.unmarked >= self.chunk:
@@ -141,28 +97,14 @@ class CreditWindow:
 
         Also when it overshoots the limit but nothing in flight could ever confirm the
         outstanding bytes: that only follows a reply-less line longer than
-        ``limit - 4`` bytes, and waiting would never end.
-
-        Returns
-        -------
-        bool
-            Whether it may be written.
-        """
+        ``limit - 4`` bytes, and waiting would never end."""
         if self.outstanding + len(MARKER) <= self.limit:
             return True
         return all(item.tag is None for item in self._written)
 
     def wrote(self, size: int, tag: Hashable | None) -> None:
         """Record ``size`` bytes written; ``tag`` is the request whose reply confirms them
-        (``None`` for a reply-less line).
-
-        Parameters
-        ----------
-        size
-            The bytes written.
-        tag
-            The request whose reply confirms them, or ``None``.
-        """
+        (``None`` for a reply-less line)."""
         written = self._written
         if tag is None and written and written[-1].tag is None:
             # Reply-less lines in a row are confirmed together: one entry (a list upload
@@ -182,20 +124,7 @@ class CreditWindow:
 
         The same counts as :meth:`wrote` line by line with those checks between
         (tests/unit/test_flow.py compares them), in one pass of local arithmetic: a
-        list upload takes tens of lines at a time.
-
-        Parameters
-        ----------
-        ends
-            Where each line of the run ends in its bytes.
-        first
-            The index of the first line to take.
-
-        Returns
-        -------
-        int
-            The index after the last line taken.
-        """
+        list upload takes tens of lines at a time."""
         start = ends[first - 1] if first else 0
         self.wrote(ends[first] - start, None)
         unmarked, outstanding = self.unmarked, self.outstanding
@@ -217,15 +146,7 @@ class CreditWindow:
 
     def confirm(self, tag: Hashable, *, inclusive: bool = True) -> None:
         """The reply of ``tag`` arrived: its line (with ``inclusive``) and all before it
-        are processed. Unknown tags confirm nothing.
-
-        Parameters
-        ----------
-        tag
-            The request whose reply arrived.
-        inclusive
-            Count its own line as processed too.
-        """
+        are processed. Unknown tags confirm nothing."""
         if not any(item.tag == tag for item in self._written):
             return
         while self._written:

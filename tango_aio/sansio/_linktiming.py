@@ -61,23 +61,7 @@ ARRIVAL_MARGIN = 0.002
 
 
 def byte_time(baudrate: int) -> float:
-    """Seconds one byte takes on the line at ``baudrate`` (11 bits, 8N2: L8-10).
-
-    Parameters
-    ----------
-    baudrate
-        The rate the port is opened with, in Bd.
-
-    Returns
-    -------
-    float
-        Seconds per byte.
-
-    Raises
-    ------
-    ValueError
-        ``baudrate`` is not positive.
-    """
+    """Seconds one byte takes on the line at ``baudrate`` (11 bits, 8N2: L8-10)."""
     if baudrate <= 0:
         raise ValueError(f"baudrate must be positive, got {baudrate}")
     return BITS_PER_BYTE / baudrate
@@ -86,25 +70,7 @@ def byte_time(baudrate: int) -> float:
 def quiet_interval(byte_seconds: float, round_trip: float) -> float:
     """Seconds without a byte after which a link is taken as quiet: at least
     :data:`MIN_QUIET`, :data:`QUIET_BYTES` byte times and :data:`QUIET_ROUND_TRIPS`
-    measured round trips, at most :data:`MAX_QUIET`.
-
-    Parameters
-    ----------
-    byte_seconds
-        Seconds one byte takes on the line (0 when the baud rate is not known).
-    round_trip
-        The longest round trip measured, in seconds (0 before any).
-
-    Returns
-    -------
-    float
-        The quiet interval, in seconds.
-
-    Raises
-    ------
-    ValueError
-        A time is negative or not finite.
-    """
+    measured round trips, at most :data:`MAX_QUIET`."""
     for value in (byte_seconds, round_trip):
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"times must be finite and not negative, got {value}")
@@ -136,27 +102,7 @@ def earliest_reply(sent_at: float, wire_free: float, size: int, byte_seconds: fl
       run "much higher baudrates" whatever the port is opened with (L10, L1645-1653), so
       the driver passes 0 there; only the emulator's paced ``sim://`` wire is known.
       That part is lowered by ``margin`` (:data:`ARRIVAL_MARGIN`), and never below
-      ``sent_at``.
-
-    Parameters
-    ----------
-    sent_at
-        The loop time the line was handed to the transport (or earlier).
-    wire_free
-        When the bytes written before it have passed (0 before any).
-    size
-        The line's bytes, CR included.
-    byte_seconds
-        Seconds per byte of a wire known to keep that rate; 0: not known.
-    margin
-        Seconds the arrival stamps may precede the bytes' arrival.
-
-    Returns
-    -------
-    tuple of (float, float)
-        The earliest time a reply's first byte can be stamped with, and when the line's
-        last byte has passed (the next line's ``wire_free``).
-    """
+      ``sent_at``."""
     start = max(sent_at, wire_free)
     passed = start + size * byte_seconds
     if byte_seconds <= 0.0:
@@ -173,18 +119,7 @@ class LinkTiming:
     round_trip: float = 0.0
 
     def observe(self, round_trip: float) -> bool:
-        """Record a measured round trip.
-
-        Parameters
-        ----------
-        round_trip
-            Seconds from writing an exchange to its first byte back.
-
-        Returns
-        -------
-        bool
-            Whether the quiet interval grew.
-        """
+        """Record a measured round trip."""
         if not (math.isfinite(round_trip) and round_trip > self.round_trip):
             return False
         before = self.quiet_interval

@@ -90,18 +90,7 @@ class ReplyPattern:
     text: str = ""
 
     def accepts(self, line: str) -> bool:
-        """Whether ``line`` (CR removed) can be this reply.
-
-        Parameters
-        ----------
-        line
-            A received line, CR removed.
-
-        Returns
-        -------
-        bool
-            Whether it fits.
-        """
+        """Whether ``line`` (CR removed) can be this reply."""
         kind = self.kind
         if kind is ReplyKind.NUMBERS:
             # A comma only ever ends a value ('?lim' in extmode 0: "-2600 2600,",
@@ -124,18 +113,7 @@ class ReplyPattern:
         return True
 
     def overlaps(self, other: ReplyPattern) -> bool:
-        """Whether some line fits both patterns (conservatively: ``True`` when unsure).
-
-        Parameters
-        ----------
-        other
-            Another pattern.
-
-        Returns
-        -------
-        bool
-            Whether a line may fit both.
-        """
+        """Whether some line fits both patterns (conservatively: ``True`` when unsure)."""
         # (As sorted() by _ORDER, stable; without its key function: a hot path. The
         # kinds' order: NUMBERS WORDS STATUS HELP ACK ECHO MARKER ANY.)
         a, b = (self, other) if _ORDER[self.kind] <= _ORDER[other.kind] else (other, self)
@@ -188,18 +166,7 @@ class Edge:
     patterns: tuple[ReplyPattern, ...]
 
     def overlaps(self, other: Edge) -> bool:
-        """Whether some line may fit both edges.
-
-        Parameters
-        ----------
-        other
-            The edge it faces.
-
-        Returns
-        -------
-        bool
-            Whether a line of one may be taken for a line of the other.
-        """
+        """Whether some line may fit both edges."""
         for mine in self.patterns:  # (loops, not any(): a hot path)
             for theirs in other.patterns:
                 if mine.overlaps(theirs):
@@ -236,18 +203,7 @@ def normal_line(text: str) -> str:
     """The form in which a command line and its mode-4 echo are compared: the echo is
     matched by instruction, not by exact text (some firmware re-formats it, e.g.
     ``!MOA 1.50`` echoed as ``!moa 1.5``). Case, blanks and the way numbers are written
-    do not count; the instruction, axis and values do.
-
-    Parameters
-    ----------
-    text
-        A command line, or an echo of one.
-
-    Returns
-    -------
-    str
-        Its normal form.
-    """
+    do not count; the instruction, axis and values do."""
     return " ".join(_normal_token(token) for token in text.lower().split())
 
 
@@ -255,13 +211,7 @@ def _unbanged(text: str) -> str:
     """An echo without its leading ``!``: L2117 says only that mode 4 "echoes the
     instruction", and some firmware may print it without the prefix (switch
     ``echo_text=nobang``: ``!moa 1`` echoed as ``moa 1``). The bare form executes the
-    same instruction (L2154), so the two echoes stand for the same line.
-
-    Returns
-    -------
-    str
-        ``text`` without a leading ``!``.
-    """
+    same instruction (L2154), so the two echoes stand for the same line."""
     return text[1:] if text.startswith("!") else text
 
 
@@ -275,34 +225,12 @@ def _normal_token(token: str) -> str:
 
 
 def marker_pattern(text: str) -> ReplyPattern:
-    """The reply of a marker: any line that holds ``text``.
-
-    Parameters
-    ----------
-    text
-        The marker's text.
-
-    Returns
-    -------
-    ReplyPattern
-        The pattern.
-    """
+    """The reply of a marker: any line that holds ``text``."""
     return ReplyPattern(ReplyKind.MARKER, text=text)
 
 
 def echo_pattern(command: Command) -> ReplyPattern:
-    """The autostatus-4 echo of ``command``.
-
-    Parameters
-    ----------
-    command
-        The command written.
-
-    Returns
-    -------
-    ReplyPattern
-        The pattern.
-    """
+    """The autostatus-4 echo of ``command``."""
     return ReplyPattern(ReplyKind.ECHO, text=normal_line(command.line))
 
 
@@ -311,20 +239,7 @@ def reply_pattern(command: Command, context: Context | None = None) -> ReplyPatt
     of ``save``); :data:`ANY_PATTERN` for free text and replies of several lines.
 
     Per-axis replies name the axes present, so without an axis letter they hold between one
-    and four axes' values (the driver's idea of the axis count may be stale).
-
-    Parameters
-    ----------
-    command
-        The command written.
-    context
-        What the driver knows of the controller; ``None`` if nothing.
-
-    Returns
-    -------
-    ReplyPattern
-        The pattern.
-    """
+    and four axes' values (the driver's idea of the axis count may be stale)."""
     entry = command.instruction
     shape = entry.reply if command.is_read else entry.exec_reply
     rule = reply_rule(command, context)

@@ -107,20 +107,7 @@ class ReadBack:
 
 def read_back(command: Command, context: Context) -> ReadBack | None:
     """The read that proves the set line ``command``, or ``None`` where none does (see
-    :data:`NO_READ_BACK` and the module's text).
-
-    Parameters
-    ----------
-    command
-        The line (a set, ``!`` form).
-    context
-        What the driver knows of the controller (dims, axes, extmode).
-
-    Returns
-    -------
-    ReadBack or None
-        The read and what its reply must hold; ``None``: no read proves the line.
-    """
+    :data:`NO_READ_BACK` and the module's text)."""
     entry = command.instruction
     if command.form is not Form.SET or not entry.allows(Form.READ) or not command.tokens \
             or entry.completion is not None or entry.name in NO_READ_BACK \
@@ -176,21 +163,7 @@ def mismatch(proof: ReadBack, lines: Sequence[str]) -> str | None:
     A number matches when the reply, at the digits it prints, is the value written
     rounded (``55.500`` for 55.5 or 55.4999; ``2`` for a factor the controller prints as
     an integer, L11904-11908), or the documented step's multiple nearest to it
-    (:data:`STEPS`); a word matches ignoring case; flags match character by character.
-
-    Parameters
-    ----------
-    proof
-        The read-back.
-    lines
-        The read's reply lines.
-
-    Returns
-    -------
-    str or None
-        ``None`` when the reply shows the values written; else what the controller holds,
-        in words (its reply as printed).
-    """
+    (:data:`STEPS`); a word matches ignoring case; flags match character by character."""
     text = " ".join(line.strip() for line in lines)
     expected = proof.expected
     if proof.flags:

@@ -170,18 +170,7 @@ class Run(Line):
         self.size = self.ends[0] if self.ends else 0
 
     def line_at(self, index: int) -> str:
-        """The text of line ``index`` (no CR).
-
-        Parameters
-        ----------
-        index
-            The line's index in the run (0: the first).
-
-        Returns
-        -------
-        str
-            The line as written, without its CR.
-        """
+        """The text of line ``index`` (no CR)."""
         start = self.ends[index - 1] if index else 0
         return self.blob[start:self.ends[index] - 1].decode("ascii")
 
@@ -191,20 +180,7 @@ class Run(Line):
 
 class WriteScheduler:
     """The write queue, the credit window, credit markers and separators (see the module
-    docstring). ``core`` registers every line written.
-
-    Parameters
-    ----------
-    core
-        The protocol core that registers the lines written and knows the mode in force.
-    credit_limit
-        Bytes that may be written and not yet confirmed (:mod:`tango_aio.sansio._flow`).
-    marker_chunk
-        Reply-less bytes written between two credit markers (at most).
-    separators
-        Write a separator between two look-alike lines (``False``: the second waits for
-        the first's reply instead).
-    """
+    docstring). ``core`` registers every line written."""
 
     def __init__(self, core: ProtocolCore, *, credit_limit: int = DEFAULT_LIMIT,
                  marker_chunk: int = DEFAULT_CHUNK, separators: bool = True) -> None:
@@ -238,30 +214,13 @@ class WriteScheduler:
     # -- queueing ---------------------------------------------------------------------
 
     def next_tag(self) -> int:
-        """A fresh tag (for lines the caller registers with the core itself).
-
-        Returns
-        -------
-        int
-            A tag no line has had.
-        """
+        """A fresh tag (for lines the caller registers with the core itself)."""
         return next(self._tags)
 
     def plan(self, command: Command) -> tuple[int, int, Expectation]:
         """A tag for ``command``, the mode it will reach the controller in (the mode in
         force, carried through the queued lines) and what it owes there. Pass them to a
-        :class:`Line` and :meth:`submit` it next.
-
-        Parameters
-        ----------
-        command
-            The line to plan.
-
-        Returns
-        -------
-        tuple[int, int, Expectation]
-            The tag, the autostatus mode and the expectation.
-        """
+        :class:`Line` and :meth:`submit` it next."""
         tag = self._last_tag = next(self._tags)
         mode = self._queued_mode if self._queue else self.core.autostatus
         return tag, mode, expectation(command, mode, self.core.context)
@@ -271,20 +230,7 @@ class WriteScheduler:
         owes nothing in the mode they would now be written in (no reply, no report, no
         mode change: the core need not register them one by one); ``None`` otherwise, or
         for no command. A run written in another mode after all is unrolled into its
-        lines then (:meth:`_unroll`).
-
-        Parameters
-        ----------
-        commands
-            The lines of the run, in writing order.
-        batch
-            The all-or-nothing batch the lines belong to (``None``: none).
-
-        Returns
-        -------
-        Run | None
-            The run, or ``None`` when a line owes something or there is none.
-        """
+        lines then (:meth:`_unroll`)."""
         mode = self._queued_mode if self._queue else self.core.autostatus
         context = self.core.context
         first: tuple[Command, Expectation] | None = None
@@ -307,23 +253,7 @@ class WriteScheduler:
         :func:`~tango_aio.catalog._instructions.encode_rows` gives: a list upload without a
         Command per entry). What a line owes depends only on its instruction and
         form in a mode (:func:`~tango_aio.sansio._core.expectation`), so ``template`` speaks for
-        all; a line that does not start like it gives ``None``.
-
-        Parameters
-        ----------
-        template
-            A command of the lines' instruction and form.
-        lines
-            The lines' bytes, each with its CR.
-        batch
-            The all-or-nothing batch the lines belong to (``None``: none).
-
-        Returns
-        -------
-        Run | None
-            The run, or ``None`` when the lines owe something, do not match ``template`` or
-            are none.
-        """
+        all; a line that does not start like it gives ``None``."""
         mode = self._queued_mode if self._queue else self.core.autostatus
         expect = expectation(template, mode, self.core.context)
         head = (template.form.value + template.name + " ").encode("ascii")
@@ -335,18 +265,7 @@ class WriteScheduler:
     def submit(self, line: Line) -> bool:
         """Queue ``line`` (from :meth:`plan`, or a run from :meth:`pack`); return whether
         the queue was empty before (otherwise the head waits for credit or a reply, and
-        nothing could be written).
-
-        Parameters
-        ----------
-        line
-            The planned line or packed run.
-
-        Returns
-        -------
-        bool
-            ``True`` if the queue was empty before (a write may be due now).
-        """
+        nothing could be written)."""
         was_empty = not self._queue
         if isinstance(line, Run):
             line.tag = self._last_tag = next(self._tags)  # runs change no mode
@@ -363,34 +282,12 @@ class WriteScheduler:
         return len(self._queue)
 
     def queued_up_to(self, tag: int) -> bool:
-        """Whether a line planned no later than ``tag`` still waits in the queue.
-
-        Parameters
-        ----------
-        tag
-            The tag to compare with.
-
-        Returns
-        -------
-        bool
-            ``True`` if such a line is still queued.
-        """
+        """Whether a line planned no later than ``tag`` still waits in the queue."""
         return any(line.tag <= tag for line in self._queue)
 
     def withdraw(self, lines: Iterable[Line]) -> list[Line]:
         """Take the lines of ``lines`` that are still queued out of the queue; return
-        them. Lines already written are not affected.
-
-        Parameters
-        ----------
-        lines
-            The lines to take out (written ones are ignored).
-
-        Returns
-        -------
-        list[Line]
-            The lines taken out of the queue, in queue order.
-        """
+        them. Lines already written are not affected."""
         doomed = {id(line) for line in lines if not line.written}
         # A run unrolled into lines (see _unroll) lives on in lines of its tag.
         unrolled = {line.tag for line in lines if isinstance(line, Run) and line.written}
@@ -408,13 +305,7 @@ class WriteScheduler:
         return removed
 
     def drop_queue(self) -> list[Line]:
-        """Forget every line not yet written; return them.
-
-        Returns
-        -------
-        list[Line]
-            The dropped lines, in queue order.
-        """
+        """Forget every line not yet written; return them."""
         dropped = list(self._queue)
         self._queue.clear()
         self._unrolled.clear()
@@ -431,13 +322,7 @@ class WriteScheduler:
 
     def hold(self) -> int:
         """Write no line submitted from now on until :meth:`release`; return the tag of
-        the last line that may still go.
-
-        Returns
-        -------
-        int
-            The tag of the last line that may still go.
-        """
+        the last line that may still go."""
         self._hold_after = self._last_tag
         return self._last_tag
 
@@ -450,13 +335,7 @@ class WriteScheduler:
     def next_write(self) -> bytes:
         """The bytes to write now (empty: nothing may go yet): queued lines while the
         credit allows, with the markers and separators due before them. Each line is
-        registered with the core as it is taken.
-
-        Returns
-        -------
-        bytes
-            What to write, in one write; empty when nothing may go.
-        """
+        registered with the core as it is taken."""
         if self.core.resyncing:
             # During a resync nothing is written until its marker is answered: the lines
             # queued behind it go out once the stream is in step.
@@ -512,13 +391,7 @@ class WriteScheduler:
         as always, so skipping this one never weakens rule 3). Written in the same write
         as the line, its bytes are on the wire while the controller still answers that
         line, instead of in front of the next request (6 bytes, about 1.1 ms at
-        57600 Bd, before every move).
-
-        Returns
-        -------
-        bytes
-            The separator's bytes, or none.
-        """
+        57600 Bd, before every move)."""
         last = self._last_owed
         probe = self._edge_of(_PROBE)
         if not self.separators or last is None or probe is None:
@@ -537,13 +410,7 @@ class WriteScheduler:
         """Write the next line of ``run`` (at the head of the queue, checked by the caller)
         and the lines after it that the credit takes at once, with no marker due: the
         bytes the core would have written for them one by one. The run leaves the queue
-        after its last line.
-
-        Returns
-        -------
-        bytes
-            The bytes of the lines taken (empty: the run was unrolled).
-        """
+        after its last line."""
         if run.mode != self.core.autostatus:
             # The mode in force is not the one the run was planned for (rare: a mode
             # read adopted another): its lines go out one by one, as planned now.
@@ -587,13 +454,7 @@ class WriteScheduler:
     def _must_wait(self, owes: Edge | None, batch: object | None) -> bool:
         """Without a separator: whether a line whose reply's front edge is ``owes`` must
         wait for the newest line in flight to get the lines it is sure to get (their
-        replies could be taken for each other).
-
-        Returns
-        -------
-        bool
-            ``True`` if the line must wait.
-        """
+        replies could be taken for each other)."""
         if owes is None:
             return False
         tail = self.core.tail
@@ -614,13 +475,7 @@ class WriteScheduler:
         (:mod:`tango_aio.sansio._patterns`). The edges are
         those of the lines each is sure to get, with the optional ones around them, in
         every mode: a read's optional echo in mode 4 hides nothing. Lines of one batch
-        need none: it fails as a whole.
-
-        Returns
-        -------
-        _Separation
-            What goes before the line.
-        """
+        need none: it fails as a whole."""
         last = self._last_owed
         if owes is None or last is None or not last.overlaps(owes):
             return _APART
@@ -648,13 +503,7 @@ class WriteScheduler:
 
     def _marker_batch(self) -> object:
         """A credit marker joins the batch of the lines it confirms; markers after lines
-        of no batch form a batch of their own (their replies only return credit).
-
-        Returns
-        -------
-        object
-            The batch of the next credit marker.
-        """
+        of no batch form a batch of their own (their replies only return credit)."""
         last = self._unmarked[-1].batch if self._unmarked else None
         return last if last is not None else _MARKERS
 
@@ -683,18 +532,7 @@ class WriteScheduler:
 
     def owns(self, tag: Hashable) -> bool:
         """Whether ``tag`` is a line the scheduler wrote on its own (a separator or a
-        credit marker) and nobody awaits.
-
-        Parameters
-        ----------
-        tag
-            The tag a reply came for.
-
-        Returns
-        -------
-        bool
-            ``True`` for a separator or credit marker still awaiting its reply.
-        """
+        credit marker) and nobody awaits."""
         return tag in self._separators or tag in self._credit_markers
 
     # -- what came back ---------------------------------------------------------------
@@ -705,22 +543,7 @@ class WriteScheduler:
         acknowledgement or echo). ``confirms``: it was sent after the line was processed
         (not an echo of mode 4, sent before), so it returns the credit of every line up
         to this one. Returns whether ``tag`` was the scheduler's own line (a separator or
-        a credit marker): then the caller has nothing more to do with it.
-
-        Parameters
-        ----------
-        tag
-            The tag of the line the reply part belongs to.
-        lines
-            The reply's data lines; ``None`` for an acknowledgement or an echo.
-        confirms
-            The reply was sent after the line was processed (it returns credit).
-
-        Returns
-        -------
-        bool
-            ``True`` if the line was the scheduler's own.
-        """
+        a credit marker): then the caller has nothing more to do with it."""
         if confirms:
             self.credit.confirm(tag)
         if tag in self._separators:
@@ -748,15 +571,7 @@ class WriteScheduler:
         """The caller wrote a resync marker of ``size`` bytes under ``tag`` (registered
         with :meth:`ProtocolCore.resync`): what was in flight is forgotten (after Ctrl+C
         the controller's buffer is empty; after a timeout it is assumed to have caught
-        up, or a lost reply would never return its credit).
-
-        Parameters
-        ----------
-        tag
-            The tag the resync marker was registered under.
-        size
-            The marker's size in bytes.
-        """
+        up, or a lost reply would never return its credit)."""
         self.credit.cleared()
         self._credit_markers.clear()
         self._separators.clear()
@@ -768,18 +583,7 @@ class WriteScheduler:
     def exchanged(self, count: int) -> int:
         """The caller wrote ``count`` lines of an exchange of its own, outside the queue
         and the credit (:meth:`TangoProtocol._exchange
-        <tango_aio.link._protocol.TangoProtocol._exchange>`).
-
-        Parameters
-        ----------
-        count
-            The lines written.
-
-        Returns
-        -------
-        int
-            The serial of the last (the count of lines written so far).
-        """
+        <tango_aio.link._protocol.TangoProtocol._exchange>`)."""
         self.written_lines += count
         return self.written_lines
 
@@ -792,13 +596,7 @@ class WriteScheduler:
 
 def _replyless(expect: Expectation, mode: int) -> bool:
     """Whether a line owing ``expect`` in ``mode`` may go into a :class:`Run`: no reply,
-    no report, no mode change, no continuation.
-
-    Returns
-    -------
-    bool
-        ``True`` if the line may go into a run.
-    """
+    no report, no mode change, no continuation."""
     return not (expect.expects_reply or expect.completion is not None
                 or expect.mode_after != mode or expect.rule.continuation is not None)
 

@@ -49,18 +49,7 @@ class DriverState(MoveTiming):
     def observe(self, command: Command) -> bool:
         """Take in a set or executing ``command`` the controller accepted. Returns whether
         it changed a setting the validation context is made of (:attr:`context`: ``dim``
-        or ``extmode``), so that the caller builds the context again only then.
-
-        Parameters
-        ----------
-        command
-            The accepted command.
-
-        Returns
-        -------
-        bool
-            Whether a setting of the context changed.
-        """
+        or ``extmode``), so that the caller builds the context again only then."""
         entry = command.instruction
         if not entry.cached or not command.values or command.is_read:
             return False
@@ -75,22 +64,7 @@ class DriverState(MoveTiming):
     def load(self, entry: Instruction, value: object) -> None:
         """Store the value of the cached setting ``entry`` read back from the controller:
         ``{axis: value}`` for a per-axis setting (axes left out keep their value), one
-        number for a global one.
-
-        Parameters
-        ----------
-        entry
-            The cached setting's instruction.
-        value
-            ``{axis: value}`` for a per-axis setting, a number for a global one.
-
-        Raises
-        ------
-        ValueError
-            ``entry`` is not a cached setting.
-        TypeError
-            A per-axis setting's value is not a mapping.
-        """
+        number for a global one."""
         if not entry.cached:
             raise ValueError(f"{entry.name} is not a cached setting")
         if not entry.per_axis:

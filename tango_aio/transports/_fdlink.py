@@ -42,17 +42,7 @@ log = logging.getLogger("tango_aio.transports._fdlink")
 #: Bytes taken per read (a 256-byte input buffer on the controller; replies are short).
 READ_SIZE = 4096
 class FdTransport(PortTransport):
-    """An open pyserial port's descriptor as a transport (see the module docstring).
-
-    Parameters
-    ----------
-    loop
-        The event loop.
-    protocol
-        The protocol the received bytes go to.
-    port
-        The open pyserial port.
-    """
+    """An open pyserial port's descriptor as a transport (see the module docstring)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
@@ -76,23 +66,11 @@ class FdTransport(PortTransport):
             self._loop.add_reader(self._fd, self._read_ready)
 
     def get_write_buffer_size(self) -> int:
-        """The bytes written but not yet handed to the file descriptor.
-
-        Returns
-        -------
-        int
-            Their number.
-        """
+        """The bytes written but not yet handed to the file descriptor."""
         return len(self._buffer)
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        """Write ``data`` to the file descriptor, buffering what it does not take now.
-
-        Parameters
-        ----------
-        data
-            The bytes (ignored once the transport is closing).
-        """
+        """Write ``data`` to the file descriptor, buffering what it does not take now."""
         if self._closing or not data:
             return
         if self._buffer:

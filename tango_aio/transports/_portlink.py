@@ -34,17 +34,7 @@ CLOSE_DRAIN = 2.0
 
 class PortTransport(asyncio.Transport):
     """An open pyserial port as a transport: the part both serial transports share (see
-    the module docstring). Subclasses do the reading and writing.
-
-    Parameters
-    ----------
-    loop
-        The event loop.
-    protocol
-        The protocol the received bytes go to.
-    port
-        The open pyserial port.
-    """
+    the module docstring). Subclasses do the reading and writing."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
@@ -62,54 +52,24 @@ class PortTransport(asyncio.Transport):
     # -- asyncio.Transport --------------------------------------------------------------
 
     def get_protocol(self) -> asyncio.BaseProtocol:
-        """The protocol the received bytes go to.
-
-        Returns
-        -------
-        asyncio.BaseProtocol
-            The protocol.
-        """
+        """The protocol the received bytes go to."""
         return self._protocol
 
     def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
-        """Hand the received bytes to ``protocol`` from now on.
-
-        Parameters
-        ----------
-        protocol
-            The new protocol.
-        """
+        """Hand the received bytes to ``protocol`` from now on."""
         assert isinstance(protocol, asyncio.Protocol)
         self._protocol = protocol
 
     def is_closing(self) -> bool:
-        """Whether the transport is closing or closed.
-
-        Returns
-        -------
-        bool
-            Whether it is closing.
-        """
+        """Whether the transport is closing or closed."""
         return self._closing
 
     def is_reading(self) -> bool:
-        """Whether received bytes are being delivered.
-
-        Returns
-        -------
-        bool
-            Whether it is reading.
-        """
+        """Whether received bytes are being delivered."""
         return self._reading and not self._closing
 
     def can_write_eof(self) -> bool:
-        """A serial port has no end of file to send.
-
-        Returns
-        -------
-        bool
-            False.
-        """
+        """A serial port has no end of file to send."""
         return False
 
     def close(self) -> None:

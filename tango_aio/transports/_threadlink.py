@@ -69,17 +69,7 @@ class ThreadTransport(PortTransport):
     """An open pyserial port as a transport, through a reader and a writer thread (see
     the module docstring). ``port`` is any object with pyserial's blocking ``Serial``
     interface: ``read``, ``write``, ``in_waiting``, ``timeout``, ``close``, and optionally
-    ``cancel_read``/``cancel_write``.
-
-    Parameters
-    ----------
-    loop
-        The event loop.
-    protocol
-        The protocol the received bytes go to.
-    port
-        The open port (pyserial's blocking interface).
-    """
+    ``cancel_read``/``cancel_write``."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
                  port: Any) -> None:
@@ -118,23 +108,11 @@ class ThreadTransport(PortTransport):
             self._protocol.data_received(data)
 
     def get_write_buffer_size(self) -> int:
-        """The bytes written but not yet written to the port by its thread.
-
-        Returns
-        -------
-        int
-            Their number.
-        """
+        """The bytes written but not yet written to the port by its thread."""
         return self._pending
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        """Hand ``data`` to the port's writer thread (never blocks).
-
-        Parameters
-        ----------
-        data
-            The bytes (ignored once the transport is closing).
-        """
+        """Hand ``data`` to the port's writer thread (never blocks)."""
         if self._closing or not data:
             return
         self._pending += len(data)

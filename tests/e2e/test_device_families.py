@@ -316,14 +316,37 @@ def test_blocking_twins() -> None:
         assert tango.triggers.read_positions() == [1.0, 2.0]
         assert tango.snapshots.read_config().enabled is True
         assert tango.io.set_shutter.__doc__ == tango.aio.io.set_shutter.__doc__
+        # the generated typed access, blocking too
+        assert tango.joystick.joy() == 2
+        tango.io.set_pump(True)
+        assert tango.io.pump() is True
+        with pytest.raises(AttributeError):
+            tango.io.no_such_method()
 
 
 def test_every_family_method_has_a_blocking_twin() -> None:
     import inspect
 
     from tango_aio import families
-    for name in ("Joystick", "IO", "Encoders", "ClosedLoop", "Triggers", "Snapshots"):
-        async_cls, sync_cls = getattr(families, name), getattr(tango_aio.sync, name)
-        methods = {m for m, value in vars(async_cls).items() if not m.startswith("_") and (
-            inspect.iscoroutinefunction(value) or inspect.isasyncgenfunction(value))}
-        assert methods and not {m for m in methods if not hasattr(sync_cls, m)}, name
+    attributes = {"Joystick": "joystick", "IO": "io", "Encoders": "encoders",
+                  "ClosedLoop": "closed_loop", "Triggers": "triggers",
+                  "Snapshots": "snapshots"}
+    with tango_aio.sync.connect(INSTANT) as tango:
+        for name, attribute in attributes.items():
+            async_cls = getattr(families, name)
+            methods = {m for m in dir(async_cls) if not m.startswith("_") and (
+                inspect.iscoroutinefunction(getattr(async_cls, m))
+                or inspect.isasyncgenfunction(getattr(async_cls, m)))}
+            blocking = getattr(tango, attribute)
+            assert isinstance(blocking, getattr(tango_aio.sync, name))
+            assert len(methods) > 3 and not {m for m in methods
+                                              if not hasattr(blocking, m)}, name
+
+
+async def test_generated_bool_setters_reach_the_controller(emulator: EmulatorFactory) -> None:
+    # A bool goes on the wire as 0/1, for one value and per axis alike.
+    emu = await emulator()
+    await emu.tango.triggers.set_trig(True)
+    assert emu.model.params.first("trig") == 1
+    await emu.tango.encoders.set_encmask(x=True, y=False)
+    assert [emu.model.params.first("encmask", i) for i in (0, 1)] == [1, 0]

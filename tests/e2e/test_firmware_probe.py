@@ -25,18 +25,20 @@ import pytest
 
 import tango_aio
 from tango_aio.catalog._instructions import lookup
-from tango_aio.fieldkit._probe import (
+from tango_aio.fieldkit._decide import (
     MOVE_SWITCHES,
     SAVE_SWITCHES,
     SWITCH_NAMES,
     Exchange,
-    ProbeOptions,
-    ProbeResult,
-    comparable,
     decide_ack_case,
     decide_echo_text,
     decide_help_number,
     decide_lim_cr_bug,
+)
+from tango_aio.fieldkit._probe import (
+    ProbeOptions,
+    ProbeResult,
+    comparable,
     probe,
     write_fingerprint,
 )

@@ -27,6 +27,9 @@ GENERATED = {"catalog/_table.py"}
 #: line and returns the reply lines (``None``: no reply), as these modules' docstrings say
 #: once for all of them; the sections would repeat that on every handler.
 HANDLER_MODULES = {"sim/handlers.py", "sim/peripherals.py"}
+#: ``raise _fail(...)``: a helper builds the error, and the Raises sections name the class
+#: it builds (InvalidCommandError), not the helper.
+RAISES_ELSEWHERE = {"catalog/_instructions.py"}
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
                      re.MULTILINE)
@@ -159,6 +162,23 @@ def _yields(node: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
     return False
 
 
+def _raised(node: ast.FunctionDef | ast.AsyncFunctionDef) -> set[str]:
+    """The exception classes the function itself raises by name (``raise X(...)``)."""
+    found: set[str] = set()
+    stack: list[ast.AST] = list(node.body)
+    while stack:
+        child = stack.pop()
+        if isinstance(child, ast.Raise) and child.exc is not None:
+            target = child.exc.func if isinstance(child.exc, ast.Call) else child.exc
+            name = ast.unparse(target).rpartition(".")[2]
+            if name[:1].isupper():
+                found.add(name)
+        if not isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda
+                          | ast.ClassDef):
+            stack.extend(ast.iter_child_nodes(child))
+    return found
+
+
 def sections(docstring: str) -> dict[str, list[str]]:
     """The numpydoc sections of a docstring: header to the names its entries list (an
     entry is a line at the header's indent, ``name : type`` or ``a, b : type``)."""
@@ -184,8 +204,8 @@ def _help_texts(tree: ast.Module) -> set[str]:
             and isinstance(node.value, ast.Name)}
 
 
-def problems(source: str, *, handlers: bool = False,
-             only: set[str] | None = None) -> list[str]:
+def problems(source: str, *, handlers: bool = False, only: set[str] | None = None,
+             raises_elsewhere: bool = False) -> list[str]:
     """What each public function and method of a module's source lacks (``handlers``:
     instruction handler methods, ``i_<instruction>``, are left out; ``only``: just these
     top-level names and their methods)."""
@@ -221,6 +241,10 @@ def problems(source: str, *, handlers: bool = False,
                 found.append(f"{name}: no Yields section")
         elif returns not in {"None", "NoReturn", "Never"} and "Returns" not in documented:
             found.append(f"{name}: no Returns section (returns {returns})")
+        unlisted = sorted(_raised(node) - {entry.rpartition(".")[2]
+                                           for entry in documented.get("Raises", [])})
+        if unlisted and not raises_elsewhere:
+            found.append(f"{name}: Raises lacks {', '.join(unlisted)}")
     return found
 
 
@@ -232,7 +256,8 @@ def _checked() -> list[Path]:
 def test_public_functions_document_parameters_and_results(path: Path) -> None:
     handlers = _relative(path) in HANDLER_MODULES
     only = _public_modules()[path]
-    assert problems(path.read_text(encoding="utf-8"), handlers=handlers, only=only) == []
+    assert problems(path.read_text(encoding="utf-8"), handlers=handlers, only=only,
+                    raises_elsewhere=_relative(path) in RAISES_ELSEWHERE) == []
 
 
 def test_the_public_api_includes_what_packages_export_from_private_modules() -> None:
@@ -315,6 +340,11 @@ class Axis:
                                  "Handlers.i_pos: no Returns section (returns Reply)"]
     assert sections("Summary.\n\nReturns\n-------\nfloat\n    The value.\n") \
         == {"Returns": ["float"]}
+    raising = ('def stop() -> None:\n    """Stop.\n\n    Raises\n    ------\n    MoveError\n'
+               '        Still moving.\n    """\n    raise errors.MoveError("x")\n'
+               '    raise TimeoutError\n')
+    assert problems(raising) == ["stop: Raises lacks TimeoutError"]
+    assert problems(raising, raises_elsewhere=True) == []
 
 
 def test_a_start_method_keeps_the_sections_but_not_the_result() -> None:

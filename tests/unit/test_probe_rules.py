@@ -7,9 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tango_aio.fieldkit._probe import (
+from tango_aio.fieldkit._decide import (
     Exchange,
-    _Link,
     decide_ack_case,
     decide_ack_mode_change,
     decide_ack_reads,
@@ -32,6 +31,7 @@ from tango_aio.fieldkit._probe import (
     exchange_end,
     normalized,
 )
+from tango_aio.fieldkit._rawlink import _Link
 
 V = "TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00"
 

@@ -1,0 +1,120 @@
+"""The few moves every generated accessor is made of: read through the port and convert,
+write one value group per axis, and name the manual's values.
+
+The generated classes (:mod:`._generated`) call only these, so an accessor is one line of
+data (instruction, converter, arguments) and its behaviour is tested once here.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
+
+from ..catalog import AXES, Form, Value, build
+from ..errors import InvalidCommandError, ProtocolError
+from ._base import FamilyPort
+
+__all__ = ["ManualEnum", "read", "read_axes", "to_bool", "write", "write_axes"]
+
+T = TypeVar("T")
+
+
+class ManualEnum(enum.IntEnum):
+    """The values the manual lists for a setting; a value it does not list (a newer
+    firmware's) reads as a pseudo-member ``UNDOCUMENTED_<n>`` instead of failing."""
+
+    @classmethod
+    def _missing_(cls, value: object) -> ManualEnum | None:
+        if not isinstance(value, int) or isinstance(value, bool):
+            return None
+        member = int.__new__(cls, value)
+        member._name_ = f"UNDOCUMENTED_{value}".replace("-", "MINUS_")
+        member._value_ = value
+        return member
+
+
+def to_bool(value: object) -> bool:
+    """A ``0``/``1`` reply as a bool; anything else is a protocol error."""
+    if value in (0, 1) and not isinstance(value, float | str):
+        return bool(value)
+    raise ProtocolError(f"expected 0 or 1, got {value!r:.40}")
+
+
+def _convert(convert: Callable[[Any], T], value: Any) -> T:
+    if isinstance(value, tuple):
+        return tuple(convert(item) for item in value)  # type: ignore[return-value]
+    return convert(value)
+
+
+async def read(port: FamilyPort, name: str, convert: Callable[[Any], T],
+               *args: Value | None, axis: str | None = None) -> T:
+    """Read ``name`` (trailing ``None`` arguments left out) and convert its reply."""
+    value = await port.get(name, *_present(args), axis=axis)
+    return _convert(convert, value)
+
+
+async def read_axes(port: FamilyPort, name: str, convert: Callable[[Any], T],
+                    *args: Value | None, axis: str | None = None) -> Any:
+    """Read a per-axis ``name``: one converted value for ``axis``, else a dict by axis."""
+    value = await port.get(name, *_present(args), axis=axis)
+    if axis is not None:
+        return _convert(convert, value)
+    if not isinstance(value, Mapping):
+        raise ProtocolError(f"{name}: expected a value per axis, got {value!r:.60}")
+    return {letter: _convert(convert, item) for letter, item in value.items()}
+
+
+def _present(args: Sequence[Value | None]) -> tuple[Value, ...]:
+    """``args`` without their trailing ``None`` (optional arguments not given)."""
+    values = list(args)
+    while values and values[-1] is None:
+        values.pop()
+    if any(value is None for value in values):
+        raise InvalidCommandError("an optional argument is missing before a given one",
+                                  number=5)
+    # A bool setting goes on the wire as 0 or 1 (the catalog refuses a bool as a number).
+    return tuple(int(value) if isinstance(value, bool) else value
+                 for value in values if value is not None)
+
+
+def _group(value: object) -> Value | tuple[Value, ...]:
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        return tuple(_present(list(value)))
+    return value  # type: ignore[return-value]
+
+
+async def write(port: FamilyPort, name: str, *args: Value | None,
+                axis: str | None = None) -> None:
+    """Write ``name`` with its lead values (trailing ``None`` left out), proven."""
+    await port.set(name, *_present(args), axis=axis)
+
+
+async def write_axes(port: FamilyPort, name: str, lead: Sequence[Value | None],
+                     values: Mapping[str, object]) -> None:
+    """Write one value group per given axis (``None``: not given), all checked first."""
+    # Axes that run from X, or a single axis, go in one line; any other set (the wire
+    # cannot skip an axis) goes axis by axis.
+    given: dict[str, Any] = {axis: _group(value) for axis, value in values.items()
+                             if value is not None}
+    if not given:
+        raise InvalidCommandError(f"{name}: no axis value given", instruction=name, number=5)
+    head = _present(lead)
+    letters = list(given)
+    if len(letters) == 1:
+        await port.set(name, *head, *_flat(given[letters[0]]), axis=letters[0])
+        return
+    if letters == list(AXES[: len(letters)]):
+        await port.set(name, *head, **given)
+        return
+    for letter in letters:  # every line proven valid before anything is written
+        build(name, *head, *_flat(given[letter]), form=Form.SET, axis=letter,
+              context=port.context)
+    for letter in letters:
+        await port.set(name, *head, *_flat(given[letter]), axis=letter)
+
+
+def _flat(value: Value | tuple[Value, ...]) -> tuple[Value, ...]:
+    return value if isinstance(value, tuple) else (value,)
