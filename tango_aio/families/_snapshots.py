@@ -35,10 +35,14 @@ class SnapshotMode(enum.IntEnum):
     TRIGGERED_START = 6
     #: Custom HDI mode with prehome, home and auto increment.
     CUSTOM_HDI = 7
-    MODE_8 = 8
-    MODE_9 = 9
-    MODE_10 = 10
-    MODE_11 = 11
+    #: A trigger-out event captures the positions and ANIN0.
+    CAPTURE_ON_TRIGGER = 8
+    #: Relative jumps of ``snsj`` with F2 (F1 back).
+    RELATIVE_JUMPS = 9
+    #: As 9, the snapshot input instead of F2.
+    RELATIVE_JUMPS_INPUT = 10
+    #: Z follows an X-Z position list (focus during a scan).
+    Z_FOLLOWS_X = 11
 
 
 @dataclass(frozen=True, slots=True)
