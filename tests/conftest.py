@@ -15,6 +15,7 @@ import as_windows  # first: TANGO_AIO_TEST_AS_WINDOWS=1 (issue #27)
 import pytest
 from helpers import INSTANT, ConnectOptions, Emulated, EmulatorFactory, FakeLink, FakeTransport
 from hypothesis import settings
+from virtualclock import VirtualClockLoop
 
 import tango_aio
 from tango_aio.controller._connection import connect
@@ -34,10 +35,14 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 gc.disable()
 
 
-#: xdist workers per usable core for ``-n auto`` (pyproject addopts): most tests wait on
-#: the emulated wire or on subprocesses, so several per core pay (2 cores: 10 workers, the
-#: default run in about a minute). ``TANGO_AIO_TEST_WORKERS`` sets the count outright.
-WORKERS_PER_CORE = 5
+#: xdist workers per usable core for ``-n auto`` (pyproject addopts). The in-process
+#: end-to-end tests wait on the virtual clock (virtualclock.py), so the run is CPU-bound:
+#: two per core keep the cores busy while subprocesses start and real links wait, and
+#: each worker more costs its collection (about 3 s of CPU). ``TANGO_AIO_TEST_WORKERS``
+#: sets the count outright. Under uvloop (``TANGO_AIO_TEST_LOOP=uvloop``) there is no
+#: virtual clock and the waits are real: :data:`WAITING_WORKERS_PER_CORE` then.
+WORKERS_PER_CORE = 2
+WAITING_WORKERS_PER_CORE = 5
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
@@ -47,7 +52,9 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
         return max(1, int(chosen))
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
         os.cpu_count() or 1)
-    return max(2, min(WORKERS_PER_CORE * cores, 32))
+    per_core = (WAITING_WORKERS_PER_CORE if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop"
+                else WORKERS_PER_CORE)
+    return max(2, min(per_core * cores, 32))
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -84,7 +91,8 @@ def _write_rewritten(config: pytest.Config, files: list[Path]) -> None:
 
 
 # TANGO_AIO_TEST_LOOP=uvloop runs every async test on uvloop's event loop (tango-aio[uvloop]),
-# the way CI runs the end-to-end tier under it.
+# the way CI runs the end-to-end tier under it. Otherwise a test marked virtual_clock runs
+# on a loop whose clock jumps over waits that only its own timers can end (virtualclock.py).
 if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
     import uvloop
 
@@ -92,7 +100,16 @@ if os.environ.get("TANGO_AIO_TEST_LOOP") == "uvloop":
                                       ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
         """Run the async tests on uvloop (a pytest-asyncio hook)."""
         return {"uvloop": uvloop.new_event_loop}
-elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") != "asyncio":
+elif os.environ.get("TANGO_AIO_TEST_LOOP", "asyncio") == "asyncio":
+
+    def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
+                                      ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+        """The virtual clock's loop for tests marked ``virtual_clock`` (a pytest-asyncio
+        hook), asyncio's own for the others."""
+        if item.get_closest_marker("virtual_clock") is not None:
+            return {"virtual_clock": VirtualClockLoop}
+        return {"asyncio": asyncio.new_event_loop}
+else:
     raise pytest.UsageError("TANGO_AIO_TEST_LOOP must be asyncio or uvloop")
 
 def pytest_report_header(config: pytest.Config) -> str | None:

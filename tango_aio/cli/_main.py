@@ -73,9 +73,9 @@ from ..events import (
 )
 from ..families import MAX_TRIGGERS, validate_trigger_positions
 from ..fieldkit import add_probe_command
-from ..moves import describe_stop, moved_axes, position_tolerance
+from ..moves import describe_stop, failed_axes, moved_axes, optional_axes
 from ..sansio import is_completion_line
-from ..status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from ..status import ABSENT, MOVING, AxisStatus
 from ..units import DIM_UNITS, velocity_unit
 
 __all__ = ["main"]
@@ -931,7 +931,7 @@ class Shell:
         self._lost = asyncio.Event()
         #: Moves the shell's lines started and not judged yet: axis -> (serial, target;
         #: ``None`` where the line gives no absolute target: mor, cal, rm, moc).
-        self._moves: dict[str, tuple[int, float | None]] = {}
+        self._moves: dict[str, tuple[int, float | None, bool]] = {}
         self._serial = 0
         self._judging = asyncio.Lock()
         #: How many judged moves did not end at their target.
@@ -1071,15 +1071,16 @@ class Shell:
         targets: dict[str, float] = {}
         if command.name in ("moa", "go") and command.values:
             targets = dict(zip(axes, (float(v) for v in command.values), strict=False))
+        optional = optional_axes(command, axes)
         for axis in axes:
             self._serial += 1
-            self._moves[axis] = (self._serial, targets.get(axis))
+            self._moves[axis] = (self._serial, targets.get(axis), axis in optional)
 
     async def _judge(self, *, leaving: bool = False) -> None:
-        """Judge the moves the shell's lines started whose axes stand now: each must
-        stand at its target without a failure letter (``E``, ``S``, ``T``; ``-``: a
-        disabled axis). ``leaving``: an axis still moving counts as failed (it is stopped
-        next). Failures are printed in words and counted."""
+        """Judge the moves the shell's lines started whose axes stand now, by the
+        driver's own rule (:func:`~tango_aio.moves.failed_axes`). ``leaving``: an axis
+        still moving counts as failed (it is stopped next). Failures are printed in words
+        and counted."""
         async with self._judging:
             pending = dict(self._moves)
             if not pending:
@@ -1095,19 +1096,18 @@ class Shell:
             texts = dict(zip(AXES[: self.tango.context.axes], reply.split(),
                              strict=False))
             failed = []
-            for axis, (serial, target) in pending.items():
+            for axis, (serial, target, optional) in pending.items():
                 letter = letters.get(axis, ABSENT)
                 if letter == MOVING and not leaving:
                     continue  # not ended yet
-                if self._moves.get(axis, (0, None))[0] == serial:
+                if self._moves.get(axis, (0, None, False))[0] == serial:
                     del self._moves[axis]
                 text = texts.get(axis)
                 if letter == MOVING:
                     failed.append(describe_stop(axis, letter, text, target,
                                                 why="still moving when the shell was left"))
-                elif letter in FAILED_LETTERS or letter == ABSENT or (
-                        target is not None and (text is None or abs(float(text) - target)
-                                                > position_tolerance(text))):
+                elif failed_axes((axis,), None if target is None else {axis: target}, {},
+                                 letters, texts, optional=(axis,) if optional else ()):
                     failed.append(describe_stop(axis, letter, text, target))
             if failed:
                 self.move_failures += 1

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import functools
 import logging
 from collections.abc import (
@@ -93,15 +92,17 @@ from ..link import (
     TangoProtocol,
 )
 from ..moves import (
-    Acceptance,
     Budget,
-    acceptance,
+    MoveTracker,
+    Prove,
+    Start,
+    StartProof,
+    acceptance_shown,
     contest,
     move_budget,
     moved_axes,
     position_tolerance,
     rest_budget,
-    speed_shown,
     stop_time,
 )
 from ..sansio import (
@@ -114,12 +115,18 @@ from ..sansio import (
     Unsolicited,
 )
 from ..status import CALIBRATED_FLAG, FAILED_LETTERS, MOVING, AxisStatus, axis_statuses
-from ..units import Measure, UnitScale, from_controller, plain, to_controller
+from ..units import (
+    DEFAULT_USTEPS,
+    Measure,
+    UnitScale,
+    from_controller,
+    plain,
+    to_controller,
+)
 from ._motion import (
     STOP_WAIT,
     Motion,
     MovePlan,
-    acceptance_shown,
     annotate,
     contested,
     report_came,
@@ -145,10 +152,6 @@ AXIS_BY_AXIS = frozenset({"lim", "swtyp"})
 #: saved parameters (``restore``/``reset``, power-on, L1296) and print in the ``dim``
 #: unit (L4555): every other ``!`` line empties the cache of :meth:`Controller.axis_limits`.
 _LIMIT_NEUTRAL = frozenset({"moa", "mor"})
-#: ``!`` lines after which the HDI is on again (until a ``!joy 0`` is accepted).
-_HDI_ON_AGAIN = frozenset({"joy", "reset", "restore"})
-#: ``!`` lines after which whether the inputs are idle is read again.
-_INPUT_CHANGES = _HDI_ON_AGAIN | {"snsm", "tvr"}
 #: Seconds :meth:`Controller.aclose` waits at most for the replies to the driver's own
 #: lines still in flight (a separator behind a move's confirmation: a few milliseconds
 #: at 57600 Bd), so that the next program on the port does not read them.
@@ -242,22 +245,12 @@ class Controller:
         #: Held by a move with its own velocity/acceleration (set, moved, restored).
         self._move_settings_lock = asyncio.Lock()
         self._identity: Identity | None = None
-        #: Whether a confirmation may read the letters with ``sa``: cleared for
-        #: good once an ``sa`` went unanswered (a firmware that does not know it).
-        self._short_status = True
         #: Whether the letters are read axis by axis: the unit's all-axes ``?statusaxis``
         #: ends with ``.`` alone (not ``.-``, L2668-2670), like a completion report.
         self._letters_by_axis = False
-        # A move_by's start without a read: see _still() and _plan().
-        #: ``!joy 0`` was accepted on this link (the HDI is off, L7101-7144).
-        self._hdi_off = False
-        #: ``?snsm`` read 0 and ``?tvr`` 0 for every axis since (None: not read yet).
-        self._inputs_idle: bool | None = None
-        #: ``!`` lines written through this Controller (not counting moves).
-        self._executed = 0
-        #: Axes whose remembered position was read after their last move while nothing
-        #: could move the stage; emptied by every other ``!`` line.
-        self._start_known: set[str] = set()
+        #: What this connection knows of its moves: where a move_by's start comes from
+        #: (the HDI, the inputs, the positions confirmed since; tango_aio.moves).
+        self._moves = MoveTracker()
         #: The software limits (``?lim``, dim unit) per axis as last read, for
         #: :meth:`axis_limits`; ``_limits_epoch`` counts what may have changed them.
         self._limits: dict[str, tuple[float, float]] = {}
@@ -787,12 +780,8 @@ class Controller:
         self._track(command)
         if starts:
             self._turned(command)
-        if command.name == "joy" and not command.is_read:
-            self._hdi_off = [float(v) for v in command.values
-                             if isinstance(v, int | float)] == [0.0]
-        if self._hdi_off and self._inputs_idle is None and not command.is_read \
-                and command.name in ("joy", "snsm", "tvr"):
-            self._inputs_idle = await self._inputs_are_idle()
+        if self._moves.accepted(command):
+            self._moves.inputs_read(await self._inputs_are_idle())
         return response
 
     def _turned(self, command: Command) -> None:
@@ -843,60 +832,43 @@ class Controller:
     async def _prove_started(self, command: Command, busy: frozenset[str],
                              timeout: float) -> None:
         """Prove from the state behind it that a speed or go line arrived, or stop it."""
-        # timing.acceptance judges ?statusaxis; an axis the line stops that still moves
-        # is waited for (timing.stop_time); an axis a speed line set running that moved
-        # before must show the speed written in ?speed (timing.speed_shown). Unproven:
-        # the line's axes that move are stopped, and the MoveProtocolUnknownError says
-        # so and that the line may not have been applied.
+        # The tracker's StartProof says which read comes next and judges it (timing's
+        # acceptance, stop_time, speed_shown). Unproven: the line's axes that move are
+        # stopped, and the MoveProtocolUnknownError says so and that the line may not
+        # have been applied.
         present = AXES[: self.context.axes]
-        deadline = asyncio.get_running_loop().time() + stop_time(self._settings, present)
+        loop = asyncio.get_running_loop()
+        proof = StartProof(command, present, busy=busy, poll=_STOP_POLL,
+                           deadline=loop.time() + stop_time(self._settings, present))
+        step = proof.begin()
         try:
-            letters = await self.status()
-            found = acceptance(command, letters, present, busy=busy)
-            if found.unshown and command.name == "go":
-                found = acceptance(command, letters, present, busy=busy,
-                                   positions=await self._position_texts())
-            if found.unshown and set(found.unshown) <= busy:
-                found = await self._speed_in_force(command, found, deadline, timeout)
-            stopping = found.stopping
-            while stopping and asyncio.get_running_loop().time() < deadline:
-                await asyncio.sleep(_STOP_POLL)
-                letters = await self.status()
-                stopping = tuple(a for a in stopping if letters.get(a) == MOVING)
-            found = dataclasses.replace(found, stopping=stopping)
+            while step.found is None:
+                if step.wait:
+                    await asyncio.sleep(step.wait)
+                if step.next is Prove.READ_STATUS:
+                    step = proof.status(await self.status(), loop.time())
+                elif step.next is Prove.READ_POSITIONS:
+                    step = proof.positions(await self._position_texts(), loop.time())
+                else:
+                    reply = await self._request(
+                        _read_command("speed", step.axis, self.context), timeout)
+                    step = proof.speed(step.axis, " ".join(reply.lines), loop.time())
         except TangoError as exc:
             raise contested(ProtocolError(f"{command.line!r} was answered without an "
                                           "error, but the state behind it could not be "
                                           "read: it may not have been applied"),
                             command.line, "", (), moved_axes(command, present)) from exc
-        if found.shown:
+        if step.next is Prove.PROVEN:
             return
         cause = ProtocolError(f"{command.line!r} was answered without an error, yet "
                               f"nothing shows that it arrived: it may not have been applied")
-        running = tuple(dict.fromkeys((*found.moving, *found.stopping)))
+        running, reason = step.running, step.found.reason
         try:
             if running:
                 await self.stop(*running)
         except TangoError:
-            raise contested(cause, command.line, found.reason, (), running) from None
-        raise contested(cause, command.line, found.reason or "nothing of it moves",
-                        running, ())
-
-    async def _speed_in_force(self, command: Command, found: Acceptance, deadline: float,
-                              timeout: float) -> Acceptance:
-        """``found`` without the axes whose ``?speed`` comes to show the speed written."""
-        values = dict(zip(moved_axes(command, AXES[: self.context.axes]), command.values,
-                          strict=False))
-        left = list(found.unshown)
-        while True:
-            for axis in list(left):
-                reply = await self._request(_read_command("speed", axis, self.context),
-                                            timeout)
-                if speed_shown(float(values[axis]), " ".join(reply.lines)):
-                    left.remove(axis)
-            if not left or asyncio.get_running_loop().time() >= deadline:
-                return dataclasses.replace(found, unshown=tuple(left))
-            await asyncio.sleep(_STOP_POLL)
+            raise contested(cause, command.line, reason, (), running) from None
+        raise contested(cause, command.line, reason or "nothing of it moves", running, ())
 
     async def _prove_accepted(self, handle: MoveHandle, timeout: float) -> None:
         """Prove that a move line whose acceptance rests only on the ``?err`` behind it
@@ -912,7 +884,7 @@ class Controller:
         order, so the move has started by then if it arrived, and its report (which
         carries the deferred ``OK...`` or echo) came before the reply if it already
         ended (L2087-2089). A moved axis moving, or the report, proves it
-        (:func:`~tango_aio.controller._motion.acceptance_shown`).
+        (:func:`~tango_aio.moves.acceptance_shown`).
 
         Parameters
         ----------
@@ -953,23 +925,15 @@ class Controller:
         """A ``!`` line other than a move: any of them may move the stage or change what
         ``?pos`` prints (``go``, ``speed``, ``pos``, ``cal``, a list...), so no remembered
         position is a move_by's start any more until a move confirms it again."""
-        self._executed += 1
-        if self._start_known:
-            self._start_known.clear()
-        name = command.name
-        if name not in _LIMIT_NEUTRAL:
+        self._moves.written(command.name)
+        if command.name not in _LIMIT_NEUTRAL:
             self._forget_limits()
-        if name in _INPUT_CHANGES:
-            if name in _HDI_ON_AGAIN:
-                self._hdi_off = False  # until a !joy 0 is accepted
-            self._inputs_idle = None  # read again once the HDI is off
 
     def _forget_power_state(self) -> None:
         """What a power cycle may have changed behind the link: the HDI is on again, the
         saved limits are back, positions may differ; no remembered start or limit
         survives it (setup, and a restart noticed on a live link)."""
-        self._hdi_off, self._inputs_idle = False, None
-        self._start_known.clear()
+        self._moves.power_cycled()
         self._forget_limits()
 
     def _forget_limits(self) -> None:
@@ -1033,19 +997,6 @@ class Controller:
             return False
         modes = tvr.values() if isinstance(tvr, dict) else [tvr]
         return snsm == 0 and all(mode == 0 for mode in modes)
-
-    def _still(self) -> bool:
-        """Whether nothing but this driver's own lines can move the stage: the HDI was
-        disabled on this link (``!joy 0``; while it is on, a joystick deflection moves
-        the axes, L6318-6323, and cannot be stopped by ``a``, L6826) and neither the
-        snapshot input nor the pulse/direction input moves it (:meth:`_inputs_are_idle`).
-
-        Returns
-        -------
-        bool
-            ``True`` if nothing else can move the stage.
-        """
-        return self._hdi_off and self._inputs_idle is True
 
     def _send(self, command: Command, *, check: bool, batch: object | None = None
               ) -> MoveHandle:
@@ -1569,12 +1520,10 @@ class Controller:
             return await self._plan(line, targets, timeout, known)
 
         moved = moved_axes(command, AXES[: self.context.axes])
-        executed = self._executed
+        executed = self._moves.executed
         letters = await self._motion.run(command, plan, stop_on_cancel)
-        if command.name in ("moa", "mor") and self._still() and executed == self._executed:
-            # Confirmed where they stand (read after the report), and no other line was
-            # written through this Controller meanwhile: the next move_by's start.
-            self._start_known.update(moved)
+        # Confirmed where they stand: the next move_by's start, if nothing else went out.
+        self._moves.confirmed(command.name, moved, executed)
         return letters
 
     async def _plan(self, command: Command, targets: Mapping[str, float] | None,
@@ -1590,77 +1539,38 @@ class Controller:
             The line's moved axes, targets and time budget.
         """
         relative = command.name == "mor"
-        present = AXES[: self.context.axes]
-        moved = moved_axes(command, present)
-        remembered = set(self._start_known)
-        self._start_known.difference_update(moved)  # until this move is confirmed
+        moved = moved_axes(command, AXES[: self.context.axes])
         reports = self.autostatus != 0
         timeout = check_timeout(timeout)
+        # Where the start comes from is the tracker's (tango_aio.moves.MoveTracker.start).
+        # A move_to does not read ?pos first (a whole round trip per move): its budget is
+        # provisional, sized from the latest state read (motion.py "Timeouts"), extended
+        # once from the positions read at its end. A move_by's target is start + distance:
+        # its ?pos is written right before the line, in the same write (BATCH), or read
+        # first, unless the remembered position is known to be where the axes stand.
+        source = self._moves.start(moved, None if targets is None else set(targets),
+                                   relative=relative, last=last,
+                                   exact_replies=self._exact_replies())
         if targets is None:  # cal, rm, moc: the distance is not known here
             return MovePlan(command, moved, None,
                             move_budget(self._settings, command, None, timeout),
                             reports=reports)
-        # A move_to does not read ?pos first (a whole round trip per move). Its distance is
-        # taken from the positions of the driver's latest state read, as a provisional
-        # budget (motion.py "Timeouts"): a stale one only shifts the first poll and is
-        # extended once from the positions read at its end. What is confirmed does not
-        # depend on it: the target is the caller's, and success needs ?statusaxis and ?pos
-        # read after the move (L2662-2721). A move_by reads the start: its target is start
-        # + distance, and a stale start would make the driver confirm the wrong target:
-        # its ?pos is written right before the line, in the same write (the targets are
-        # added once the reply is in, before the move is confirmed), so it costs bytes but
-        # no round trip. Without a known position (the first move of a connection) the
-        # start is read first.
-        #
-        # A move_by takes the remembered position as its start only while nothing else
-        # can have moved the stage since it was read: the HDI is off (``!joy 0`` on this
-        # link: a joystick moves the axes, L6318-6323, and its motion cannot be stopped
-        # by ``a``, L6826), the snapshot and pulse/direction inputs move nothing
-        # (L14520-14530, L9914-9930), the position was read by the confirmation of this
-        # link's last move of that axis after the HDI was turned off, and no other ``!``
-        # line went out since (_start_known). Anything else (the HDI on or unknown, a line
-        # that may move or redefine) reads it; another program on the same link is
-        # impossible: the driver owns the link.
-        known = last
-        if relative and not set(targets) <= remembered:
-            known = None
-        if relative and known is None and last is not None and self._exact_replies():
+        if source is Start.BATCH:
             batch = object()
             return MovePlan(command, moved, dict(targets),
                             move_budget(self._settings, command, targets, timeout),
                             start=self._start_reader(batch), batch=batch, reports=reports)
-        if known is None or not set(targets) <= set(known):
-            known = None
-            start = {a: float(t) for a, t in (await self._position_texts()).items()}
+        if source is Start.KNOWN and last is not None:
+            start = {a: float(last[a]) for a in targets}
         else:
-            start = {a: float(known[a]) for a in targets}
+            start = {a: float(t) for a, t in (await self._position_texts()).items()}
         absolute = {a: (start[a] + v if relative else float(v)) for a, v in targets.items()}
         budget = move_budget(self._settings, command,
                              {a: absolute[a] - start[a] for a in absolute}, timeout)
         extend: Callable[[Mapping[str, str]], float] | None = None
-        if known is not None and timeout is None:
+        if source is Start.KNOWN and timeout is None:
             extend = functools.partial(self._rest_budget, absolute, budget)
         return MovePlan(command, moved, absolute, budget, extend=extend, reports=reports)
-
-    def _status_command(self) -> Command:
-        """The letters read of a move's confirmation: ``sa``, the alias the 1.71 manual
-        gives ``?statusaxis`` (L2663: "?statusaxis or statusaxis or sa"), 3 bytes on the
-        wire instead of 12 (about 1.7 ms at 57600 Bd, on the path of every move);
-        ``?statusaxis`` where the alias is not known to work: a unit of the older
-        edition's family (its section has no alias, old L733), one that left an ``sa``
-        unanswered, and modes 2 and 4, whose acknowledgements and echoes the manual
-        describes for ``!`` lines and reads but not for a bare alias (L2099-2117).
-
-        Returns
-        -------
-        Command
-            ``sa`` or ``?statusaxis``.
-        """
-        identity = self._identity
-        if self._short_status and identity is not None and identity.family == "1.71" \
-                and self._protocol.autostatus in (0, 1, 3):
-            return _SHORT_STATUS
-        return _read_command("statusaxis", None, self.context)
 
     def _exact_replies(self) -> bool:
         """Whether per-axis replies were found to have one value per axis (identify)."""
@@ -1992,15 +1902,19 @@ class Controller:
 
     async def unit_scales(self) -> dict[str, UnitScale]:
         """The unit conversion of every present axis: its ``dim``, ``pitch``, ``gear`` and
-        the global ``usteps``, read now (four pipelined reads).
+        the global ``usteps``, read now (four pipelined reads). The older edition has no
+        ``usteps`` (its dim 0 counts microsteps, old L863-900, without saying how many per
+        revolution): there the 1.71 default (40000, L4106) is taken.
 
         Returns
         -------
         dict[str, UnitScale]
             The unit scale of each present axis.
         """
+        older = self._identity is not None and self._identity.family == "older"
         dims, pitch, gear, usteps = await asyncio.gather(
-            self.get("dim"), self.get("pitch"), self.get("gear"), self.get("usteps"))
+            self.get("dim"), self.get("pitch"), self.get("gear"),
+            _value(DEFAULT_USTEPS) if older else self.get("usteps"))
         return {axis: UnitScale(int(dims[axis]), float(pitch[axis]), float(gear[axis]),
                                 int(usteps)) for axis in dims}
 
@@ -2315,15 +2229,15 @@ class Controller:
             The lines and their submissions.
         """
         context = self.context
-        present = AXES[: context.axes]
-        status = self._status_command() if axes else \
-            _read_command("statusaxis", None, context)
-        single = len(axes) == 1 and len(present) > 1 and axes[0] in present \
-            and self._exact_replies()
-        pos = _read_command("pos", axes[0] if single else None, context)
+        identity = self._identity
+        read = self._moves.confirmation(
+            axes, AXES[: context.axes], family="" if identity is None else identity.family,
+            autostatus=self._protocol.autostatus, exact_replies=self._exact_replies())
+        status = _SHORT_STATUS if read.short else _read_command("statusaxis", None, context)
+        pos = _read_command("pos", read.single, context)
         first, second = self._protocol.submit_together((status, pos),
                                                        separate_after=separate_after)
-        return _StateRead(status, axes[0] if single else None, first, second)
+        return _StateRead(status, read.single, first, second)
 
     async def _state_replies(self, read: _StateRead
                              ) -> tuple[dict[str, str], dict[str, str]]:
@@ -2347,7 +2261,7 @@ class Controller:
                 # Unanswered (or the position's reply came in its place): a firmware
                 # without the alias (error 4, no reply). The read is tried again
                 # (Motion._state) the long way, as from now on.
-                self._short_status = False
+                self._moves.alias_unanswered()
             raise
         texts = " ".join((await self._protocol.wait_reply(
             second, self.reply_timeout)).lines).split()
@@ -2501,6 +2415,10 @@ class _Relink:
 
 class _SignatureOf(Protocol):
     def __call__(self, controller: Controller | None = None) -> Signature | None: ...
+
+
+async def _value(value: int) -> int:
+    return value
 
 
 def _ignore_outcome(future: asyncio.Future[Any]) -> None:

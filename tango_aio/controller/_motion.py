@@ -1,8 +1,9 @@
 """Awaitable motion: completion, confirmation, timeouts, cancel and detached moves.
 
-:class:`Controller <tango_aio.Controller>` is the facade; this module decides
-when a move has ended and whether it ended well. The rule is **no false success**: a
-move returns normally only when every axis it moved stands still at its target.
+:class:`Controller <tango_aio.Controller>` is the facade; this module follows a move
+and the sans-IO tracker (:class:`~tango_aio.moves.Follow`) decides, read by read, when it
+has ended and whether it ended well. The rule is **no false success**: a move returns
+normally only when every axis it moved stands still at its target.
 
 How a move is followed
 ======================
@@ -117,31 +118,28 @@ from ..errors import (
 from ..events import MoveFinished
 from ..link import MoveHandle, Submission
 from ..moves import (
-    POLL_GRACE,
+    POLL_MAX,
+    POLL_MIN,
     Budget,
+    Follow,
+    Next,
     contest,
-    cut_short,
     describe_stop,
-    polled_during,
+    failed_letters,
+    optional_axes,
     report_shows_run,
     shifted_axes,
-    too_early,
-    verdict,
 )
 from ..sansio import Completed
-from ..status import ABSENT, FAILED_LETTERS, MOVING, AxisStatus
+from ..status import ABSENT, MOVING
 
 __all__ = ["POLL_MAX", "POLL_MIN", "STOP_WAIT", "Motion", "MotionPort", "MovePlan",
-           "acceptance_shown", "annotate", "contested", "report_came"]
+           "annotate", "contested", "report_came"]
 
 log = logging.getLogger("tango_aio")
 
 #: Longest wait for the axes to stop after a cancelled or aborted move (seconds).
 STOP_WAIT = 10.0
-
-#: First and longest interval between two state polls once the expected end has passed.
-POLL_MIN = 0.05
-POLL_MAX = 0.5
 
 #: A state read that failed but left the link usable (ConnectionLostError is not one).
 _LOST_READ = (RequestAbortedError, ControllerTimeoutError, ProtocolError)
@@ -319,8 +317,6 @@ class _Job:
     #: The hint count when the state was last read (at first: when the line was written;
     #: a hint from before it says nothing about this move).
     hints: int
-    #: Whether :attr:`MovePlan.extend` has been used.
-    extended: bool = False
     #: When the line's check came back: the controller had taken the line by then, so
     #: its ``!delay`` ends at the latest :attr:`MovePlan.delay` later.
     checked: float = 0.0
@@ -588,75 +584,57 @@ class Motion:
 
     async def _follow(self, job: _Job) -> dict[str, str]:
         """Wait for hints and confirm them until the move has ended (see module doc)."""
+        # The tracker's Follow judges each read; this carries out its intents.
         loop = asyncio.get_running_loop()
         plan = job.plan
-        expected_end = job.started + plan.expected
-        deadline = job.started + plan.limit
-        # Without completion reports (autostatus 0), or for a move of several axes (its
-        # report waits for all of them), nothing tells of an early end (a limit switch,
-        # an abort by someone else): the state is polled during the move too.
-        polled = polled_during(plan.moved, plan.reports)
-        next_poll = (min(job.started + POLL_MAX, expected_end + POLL_GRACE) if polled
-                     else expected_end + POLL_GRACE)
-        interval = POLL_MIN
+        follow = Follow(plan.moved, plan.targets, plan.tolerance, plan.budget, job.started,
+                        reports=plan.reports, extend=plan.extend,
+                        optional=optional_axes(plan.command, plan.moved))
+        follow.check_came(job.checked)
         while True:
-            delay = min(next_poll, deadline) - loop.time()
+            delay = follow.wake - loop.time()
             if delay > 0 and not self._was_stopped(job) and job.hints == self._hints:
                 await self._wait_hint(job, delay)
             early, job.early = job.early, None
             if early is None:
                 job.hints = self._hints  # hints from now on come after this state read
+            follow.reading()
+            texts: dict[str, str] = {}
             try:
                 letters, texts = await self._state(plan.moved, early)
             except _LOST_READ:
                 if not self._was_stopped(job):
                     raise
                 # The driver's stop (e.g. an ignored Ctrl+C) disturbed the read.
-                letters, texts = {}, {}
-            now = loop.time()
-            if self._was_stopped(job):
-                return await self._aborted(job, letters)
-            if any(letters.get(axis) == MOVING for axis in plan.moved):
-                ended = cut_short(plan.budget, plan.moved, letters, job.checked, now,
-                                  expected_end)
-                if ended:
-                    await self._cut_short(job, ended, letters, texts)
-                if now >= deadline:
-                    if plan.extend is None or job.extended:
-                        await self._timed_out(job)
-                    # The limit was sized from a position known before the move, which
-                    # may be stale (joystick, another program): once, size the rest from
-                    # where the axes are now (bounded: at most limit + this budget).
-                    job.extended = True
-                    deadline = now + plan.extend(texts)
-                if now < expected_end:
-                    # A false hint (e.g. !joy 0): the real report or the expected end
-                    # comes next (without reports: the next poll of the move).
-                    next_poll = (min(now + POLL_MAX, expected_end + POLL_GRACE) if polled
-                                 else expected_end + POLL_GRACE)
-                else:
-                    next_poll = now + interval
-                    interval = min(interval * 1.5, POLL_MAX)
-                continue
-            letters = _with_report(job, letters)
-            failure = verdict(plan.moved, plan.targets, plan.tolerance, letters, texts)
-            if failure is None:
+                intent = follow.read_lost(loop.time(), stopped=True)
+            else:
                 report = job.sent.submission.completion
-                if report is not None and not report.done():
-                    log.warning("no completion report for %r; axes at the target, settled "
-                                "by polling ?statusaxis", plan.command.line)
-                self._finished(job, letters, ok=True)
-                return letters
-            wait_until = too_early(plan.budget, plan.moved, letters, job.checked, now,
-                                   expected_end)
-            if wait_until is not None:
-                next_poll = wait_until
-                continue
-            self._finished(job, letters, ok=False)
-            report = job.sent.submission.completion
-            if report is not None and not report.done():
-                self._port.unreported()
-            raise MoveError(f"{plan.command.line!r} {failure}", letters)
+                intent = follow.read(
+                    letters, texts, loop.time(), stopped=self._was_stopped(job),
+                    report=report.result().letters if report_came(report) and report
+                    else None,
+                    report_owed=report is not None and not report.done())
+            match intent.next:
+                case Next.WAIT:
+                    continue
+                case Next.ARRIVED:
+                    if intent.unreported:
+                        log.warning("no completion report for %r; axes at the target, "
+                                    "settled by polling ?statusaxis", plan.command.line)
+                    self._finished(job, intent.letters, ok=True)
+                    return dict(intent.letters)
+                case Next.ABORTED:
+                    return await self._aborted(job, dict(intent.letters))
+                case Next.CUT_SHORT:
+                    await self._cut_short(job, intent.ended, intent.letters, texts)
+                case Next.TIMED_OUT:
+                    await self._timed_out(job)
+                case Next.FAILED:
+                    self._finished(job, intent.letters, ok=False)
+                    if intent.unreported:
+                        self._port.unreported()
+                    raise MoveError(f"{plan.command.line!r} {intent.message}",
+                                    intent.letters)
 
     async def _wait_hint(self, job: _Job, delay: float) -> None:
         """Wait up to ``delay`` seconds for a hint; a read :meth:`reported` wrote meanwhile
@@ -724,8 +702,7 @@ class Motion:
                               None if plan.targets is None else plan.targets.get(a),
                               why="was stopped by this program (a stop, abort or cancel)")
                 for a in plan.moved),
-            {a: (AxisStatus.ERROR if a in plan.moved and s not in FAILED_LETTERS else s)
-             for a, s in letters.items()})
+            failed_letters(letters, plan.moved))
 
     async def _cut_short(self, job: _Job, ended: Sequence[str], letters: Mapping[str, str],
                          texts: Mapping[str, str]) -> NoReturn:
@@ -752,6 +729,8 @@ class Motion:
                                 why=f"was stopped by this program when "
                                     f"{' '.join(ended).upper()} stopped")
                   if stopped else f"{a.upper()} may still move" for a in others]
+        # Every moved axis failed: those that ended it, and the others stopped short.
+        final = failed_letters(final, plan.moved)
         self._finished(job, final, ok=False)
         raise MoveError(f"{plan.command.line!r} did not end at its target: "
                         + "; ".join(parts), final)
@@ -816,32 +795,6 @@ class Motion:
 
     def _finished(self, job: _Job, letters: Mapping[str, str], ok: bool) -> None:
         self._port.finished(MoveFinished(job.plan.kind, dict(letters), ok))
-
-
-def acceptance_shown(reported: bool, letters: Mapping[str, str],
-                     moved: Sequence[str]) -> bool:
-    """Whether a move line whose acceptance was deferred (its autostatus-2 ``OK...`` or
-    autostatus-4 echo did not come where owed, the ``?err`` behind it answered 0) is
-    proven to have arrived, from what came by the reply of a ``?statusaxis`` read
-    written behind it: its completion report, or a moved axis moving (``M``, L2695).
-    Every moved axis standing with no report leaves it unproven: the line may have been
-    lost (see :meth:`tango_aio.Controller.command`).
-
-    Parameters
-    ----------
-    reported
-        Whether the line's completion report arrived.
-    letters
-        The ``?statusaxis`` letter of each present axis.
-    moved
-        The axes the line moves.
-
-    Returns
-    -------
-    bool
-        Whether the line is proven to have arrived.
-    """
-    return reported or any(letters.get(axis) == MOVING for axis in moved)
 
 
 def annotate(exc: TangoError, text: str) -> TangoError:
@@ -928,29 +881,3 @@ def _with_stop(exc: TangoError, job: _Job, stopped: bool) -> TangoError:
     """``exc`` saying whether the axes of ``job`` were seen to stop after it."""
     return annotate(exc, "axes stopped" if stopped else
                     f"axes {' '.join(job.plan.moved).upper()} may still move")
-
-
-
-
-def _with_report(job: _Job, letters: dict[str, str]) -> dict[str, str]:
-    """The letters to return: the confirmed ``?statusaxis`` letters of the moved axes, and
-    for the other axes those of the completion report the move got, when it has one
-    letter per present axis (``statusaxis`` keeps e.g. the ``D`` of an earlier ``rm``,
-    which says nothing about this move, L2676-2711). A report with fewer letters cannot
-    be assigned to axes and is not used.
-
-    Returns
-    -------
-    dict[str, str]
-        The letters, per axis.
-    """
-    report = job.sent.submission.completion
-    if report is None or not report.done() or report.cancelled() \
-            or report.exception() is not None:
-        return letters
-    reported = report.result().letters
-    if not reported or set(reported) != set(letters):
-        return letters
-    merged = dict(reported)
-    merged.update({axis: letters[axis] for axis in job.plan.moved if axis in letters})
-    return merged

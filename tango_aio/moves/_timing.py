@@ -317,13 +317,17 @@ def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[s
     return 2.0 * travel + MARGIN + (timing.pause_ms + timing.settle_ms) / 1000.0
 
 
-def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
-            tolerance: Mapping[str, float], letters: Mapping[str, str],
-            texts: Mapping[str, str]) -> str | None:
-    """Judge one state read of a move whose axes stopped.
+def failed_axes(moved: Sequence[str], targets: Mapping[str, float] | None,
+                tolerance: Mapping[str, float], letters: Mapping[str, str],
+                texts: Mapping[str, str], *, optional: Collection[str] = ()
+                ) -> tuple[str, ...]:
+    """The moved axes that did not end well, in the order of ``moved``.
 
-    An axis ended well when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711)
-    and stands within :func:`position_tolerance` (or its ``tolerance``) of its target.
+    An axis ended well when it reads no failure letter (``E``, ``S``, ``T``, L2689-2711),
+    is not disabled or absent (``-``, L2711: it did not move at all; unless it is in
+    ``optional``, the axes an all-axes ``cal``, ``rm`` or ``moc`` takes in only when
+    enabled) and stands within :func:`position_tolerance` (or its ``tolerance``) of its
+    target. The one rule of a move's end: the driver, the shell and the IOC judge by it.
 
     Parameters
     ----------
@@ -334,9 +338,38 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
     tolerance
         A wider tolerance per axis, where one applies.
     letters
-        The status letters read.
+        The status letters read (an axis not read counts as ``-``).
     texts
         The positions read right behind them, as printed.
+    optional
+        Moved axes that may read ``-`` (they took no part).
+
+    Returns
+    -------
+    tuple[str, ...]
+        The axes that failed; empty if every moved axis ended well.
+    """
+    bad = []
+    for axis in moved:
+        letter = letters.get(axis, ABSENT)
+        target = None if targets is None else targets.get(axis)
+        text = texts.get(axis)
+        if letter in FAILED_LETTERS or (letter == ABSENT and axis not in optional) or (
+                target is not None and (text is None or abs(float(text) - target) > max(
+                    position_tolerance(text), tolerance.get(axis, 0.0)))):
+            bad.append(axis)
+    return tuple(bad)
+
+
+def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
+            tolerance: Mapping[str, float], letters: Mapping[str, str],
+            texts: Mapping[str, str], *, optional: Collection[str] = ()) -> str | None:
+    """Judge one state read of a move whose axes stopped (:func:`failed_axes`).
+
+    Parameters
+    ----------
+    moved, targets, tolerance, letters, texts, optional
+        As for :func:`failed_axes`.
 
     Returns
     -------
@@ -344,16 +377,9 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
         ``None`` if every moved axis ended well; else what went wrong, in words: which
         axis, where it stopped, its target and why.
     """
-    failed = [a for a in moved if letters.get(a, ABSENT) in FAILED_LETTERS]
-    off = []
-    for axis, target in (targets or {}).items():
-        text = texts.get(axis)
-        if text is None or abs(float(text) - target) > max(
-                position_tolerance(text), tolerance.get(axis, 0.0)):
-            off.append(axis)
-    if not failed and not off:
+    bad = failed_axes(moved, targets, tolerance, letters, texts, optional=optional)
+    if not bad:
         return None
-    bad = [a for a in moved if a in failed or a in off]
     return "did not end at its target: " + "; ".join(
         describe_stop(axis, letters.get(axis, ABSENT), texts.get(axis),
                       None if targets is None else targets.get(axis))

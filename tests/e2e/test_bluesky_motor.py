@@ -337,7 +337,7 @@ def test_home_fails_when_the_controller_reports_failure(
         RE: RunEngine, stage: MarzhauserStage) -> None:
     _shorten(stage)
     run(stage.controller.set("axis", 0, axis="x"))  # a disabled axis cannot calibrate
-    with pytest.raises(MoveError, match="status '-'"):
+    with pytest.raises(MoveError, match=r"status '?-"):
         RE(home(stage.x))
     with pytest.raises(MoveError):
         RE(measure_range(stage.x))

@@ -16,6 +16,8 @@ from tango_aio.catalog._instructions import Command, parse
 from tango_aio.families._bulk import Column, UploadError, trigger_spec
 from tango_aio.sim.lists import ListError
 
+pytestmark = pytest.mark.virtual_clock
+
 REALTIME = "sim://?baud=57600&latency=0.002&processing=0.0005"
 
 

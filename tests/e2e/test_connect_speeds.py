@@ -15,7 +15,7 @@ import tango_aio
 from tango_aio.sansio._linktiming import BITS_PER_BYTE, LinkTiming, quiet_interval
 from tango_aio.sim.profiles import PROFILES
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.timeout(600), pytest.mark.virtual_clock]
 
 #: The rates ``!baud`` offers (L1624-1669), as the issue lists them.
 BAUDS = (1200, 4800, 9600, 19200, 57600, 115200)

@@ -13,6 +13,8 @@ import tango_aio
 from tango_aio import MoveOutcomeUnknown, TangoError
 from tango_aio.testing import faults
 
+pytestmark = pytest.mark.virtual_clock
+
 
 @pytest.mark.parametrize("mode", [2, 4])
 async def test_a_lost_move_line_is_not_taken_as_accepted(mode: int,

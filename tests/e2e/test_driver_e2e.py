@@ -47,7 +47,7 @@ from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Wire
 from tango_aio.transports._fdlink import FdTransport
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 #: Travel between the limit switches of the shortened emulated axes (mm).
 TRAVEL = 10.0

@@ -20,7 +20,7 @@ from tango_aio.events import (
     UnsolicitedLine,
 )
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = [pytest.mark.timeout(30), pytest.mark.virtual_clock]
 
 
 def line(text: str) -> UnsolicitedLine:

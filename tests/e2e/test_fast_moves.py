@@ -40,7 +40,7 @@ from test_matrix import (
 from tango_aio.errors import MoveError, TangoError
 from tango_aio.link._protocol import TangoProtocol
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.virtual_clock]
 
 # The default run takes one instant run (6 s); the other profile, seed and baud rate are
 # slow.

@@ -81,7 +81,7 @@ from tango_aio.sim.profiles import PROFILES, Firmware, variants
 from tango_aio.sim.wire import Wire, WireConfig, flip_one_bit
 from tango_aio.testing import faults
 
-pytestmark = pytest.mark.timeout(3600)
+pytestmark = [pytest.mark.timeout(3600), pytest.mark.virtual_clock]
 
 T = TypeVar("T")
 

@@ -61,7 +61,7 @@ from tango_aio.link._protocol import Response, Submission, TangoProtocol
 from tango_aio.sansio._core import Completed, ProtocolCore, Replied, is_completion_line
 from tango_aio.sim.wire import flip_one_bit
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.virtual_clock]
 
 #: outcome counters per fault, reported at the end of the module
 COUNTS: defaultdict[str, Counter[str]] = defaultdict(Counter)

@@ -21,7 +21,7 @@ from tango_aio.sim.profiles import Firmware
 from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import faults
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 
 @pytest.mark.parametrize("mode", [0, 1, 2, 3, 4])

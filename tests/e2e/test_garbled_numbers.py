@@ -17,6 +17,8 @@ import tango_aio
 from tango_aio import ProtocolError
 from tango_aio.testing import faults
 
+pytestmark = pytest.mark.virtual_clock
+
 
 def point_to_comma(data: bytes, rng: random.Random) -> bytes:
     """The first decimal point of the reply becomes a comma (one bit)."""

@@ -31,6 +31,8 @@ from tango_aio import (
 )
 from tango_aio.testing import Faults, faults
 
+pytestmark = pytest.mark.virtual_clock
+
 #: Autostatus modes in which an ``?err`` probe follows a motion line (mode 2 acknowledges
 #: it instead).
 ERR_MODES = [0, 1, 3, 4]

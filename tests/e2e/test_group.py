@@ -43,7 +43,7 @@ from tango_aio.testing import faults
 if TYPE_CHECKING:
     from tango_aio.sim.ptyserve import PtyServer
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = [pytest.mark.timeout(30), pytest.mark.virtual_clock]
 
 INSTANT = "sim://?baud=0"
 #: Travel between the limit switches of the shortened emulated axes (mm).

@@ -19,6 +19,8 @@ from helpers import Emulated, EmulatorFactory, emulated_position
 from tango_aio import Controller
 from tango_aio.errors import ControllerError, MoveError
 
+pytestmark = pytest.mark.virtual_clock
+
 
 def _lim_reads(caplog: pytest.LogCaptureFixture) -> int:
     return sum(1 for r in caplog.records if r.name == "tango_aio.wire"

@@ -22,7 +22,7 @@ from tango_aio.errors import (
 )
 from tango_aio.sim.serve import serve_tcp
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = [pytest.mark.timeout(30), pytest.mark.virtual_clock]
 
 
 class _NoInput:

@@ -20,7 +20,7 @@ from tango_aio.errors import TangoError
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.wire import Emit
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.virtual_clock]
 
 #: Distinct values: no two reads below can answer the same text.
 VALUES = {

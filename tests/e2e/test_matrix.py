@@ -46,7 +46,7 @@ from tango_aio.sim.serve import serve_tcp
 from tango_aio.sim.wire import Emit, WireConfig
 from tango_aio.testing import faults
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.virtual_clock]
 
 T = TypeVar("T")
 

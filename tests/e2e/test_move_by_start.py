@@ -16,6 +16,8 @@ import logging
 import pytest
 from helpers import Emulated, EmulatorFactory, emulated_position
 
+pytestmark = pytest.mark.virtual_clock
+
 
 def _written(caplog: pytest.LogCaptureFixture) -> list[str]:
     return [r.getMessage().split(" ", 2)[2] for r in caplog.records

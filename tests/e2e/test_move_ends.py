@@ -16,6 +16,8 @@ from helpers import (
 
 from tango_aio.errors import MoveError
 
+pytestmark = pytest.mark.virtual_clock
+
 
 @pytest.fixture
 async def emu(emulator: EmulatorFactory) -> Emulated:

@@ -16,6 +16,8 @@ from tango_aio.controller._controller import Controller
 from tango_aio.errors import ProtocolError
 from tango_aio.sim.wire import Wire
 
+pytestmark = pytest.mark.virtual_clock
+
 PACED = "sim://?baud=57600"
 
 

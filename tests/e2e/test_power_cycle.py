@@ -15,7 +15,7 @@ from tango_aio import Controller, ControllerRestarted, MoveOutcomeUnknown, Tango
 from tango_aio.events import Subscription
 from tango_aio.testing import Faults, faults
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.timeout(600), pytest.mark.virtual_clock]
 
 #: Moves tried after each power cycle: the first may fail (its answer cannot come), the
 #: next one works (#37 item 4: in modes 2 and 4 it was written in the power-on mode).

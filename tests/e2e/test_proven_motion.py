@@ -15,6 +15,8 @@ import tango_aio
 from tango_aio import Controller, MoveOutcomeUnknown
 from tango_aio.testing import Faults, faults
 
+pytestmark = pytest.mark.virtual_clock
+
 #: The modes whose speed and go lines owe no answer of their own.
 UNANSWERED = [0, 1, 3]
 

@@ -18,7 +18,7 @@ from tango_aio.errors import TangoError
 from tango_aio.fieldkit._trace import format_record, parse_trace, read_trace, record_trace
 from tango_aio.testing import ReplayMismatch, replay
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 ROOT = Path(__file__).resolve().parents[2]
 

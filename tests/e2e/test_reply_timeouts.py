@@ -24,7 +24,7 @@ from tango_aio.errors import (
 )
 from tango_aio.events import ConnectionLost, Reconnected
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = [pytest.mark.timeout(30), pytest.mark.virtual_clock]
 
 
 async def test_default_reply_timeout_is_five_seconds(emulator: EmulatorFactory) -> None:

@@ -16,6 +16,8 @@ from tango_aio.controller._controller import Controller
 from tango_aio.errors import ControllerError, ControllerTimeoutError
 from tango_aio.testing import Faults, faults
 
+pytestmark = pytest.mark.virtual_clock
+
 Setter = Callable[[Controller], Awaitable[None]]
 
 #: Each path that sets ``vel`` of X to 55.5 rev/s.

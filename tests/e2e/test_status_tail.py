@@ -11,6 +11,8 @@ from helpers import EmulatorFactory, emulated_position
 
 from tango_aio.errors import MoveError
 
+pytestmark = pytest.mark.virtual_clock
+
 DOT = "sim://?baud=0&status_tail=dot"
 
 

@@ -13,6 +13,8 @@ from tango_aio.errors import InvalidCommandError, MoveError
 from tango_aio.events import MoveAborted
 from tango_aio.group._group import ControllerGroup
 
+pytestmark = pytest.mark.virtual_clock
+
 
 @pytest.fixture
 async def emu(emulator: EmulatorFactory) -> Emulated:

@@ -22,7 +22,7 @@ from tango_aio.errors import RequestAbortedError, TangoError
 
 LinkFactory = Callable[..., FakeLink]
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 ACCELS: Axes = {"x": 1.5, "y": 2.25, "z": 3.75}
 TRUTH = {("vel", a): v for a, v in VELS.items()} | {("accel", a): v for a, v in ACCELS.items()}

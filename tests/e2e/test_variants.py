@@ -20,7 +20,7 @@ from tango_aio.link._reconnect import Closer
 from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.wire import Wire
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.virtual_clock]
 
 #: (switches, what ?help N detection must find).
 VARIANTS = [

@@ -191,3 +191,20 @@ async def test_a_move_that_stopped_short_without_its_report_says_so(reported: bo
     with pytest.raises(MoveError, match="X stopped short"):
         await motion.run(parse("!moa x 10"), _planner({"x": 10.0}), True)
     assert ("unreported" in port.calls) is not reported
+
+
+async def test_an_axis_that_stood_short_of_its_target_reads_as_failed_in_the_error() -> None:
+    """A merged move's error names, per axis, whether it ended well: an axis that stands
+    short of its target with ``@`` reads ``E`` in ``statuses`` (the IOC judges its axis
+    by that letter), the one that arrived keeps its ``@``."""
+    port = _Port(reads=[({"x": "@", "y": "@"}, {"x": "4.000", "y": "2.000"})])
+    motion = Motion(cast(MotionPort, port))
+
+    async def plan(command: Command, known: Mapping[str, str] | None) -> MovePlan:
+        return MovePlan(command, ("x", "y"), {"x": 10.0, "y": 2.0},
+                        Budget(delay=0.0, travel=0.0, after=0.0, settle=0.0, limit=5.0))
+
+    with pytest.raises(MoveError, match="X stopped short of its target") as raised:
+        await motion.run(parse("!moa 10 2"), plan, True)
+    assert raised.value.statuses == {"x": "E", "y": "@"}
+    assert port.finished_events[0].statuses == {"x": "E", "y": "@"}

@@ -1,14 +1,14 @@
-"""Tier 2: :class:`tango_aio.transports._threadlink.ThreadTransport`, the Windows serial transport.
+"""Tier 2: what only :class:`tango_aio.transports._threadlink.ThreadTransport`, the Windows serial
+transport, has; the contract it shares with the POSIX transport (bytes both ways, writes
+that never block, close, abort, a device that goes away, paused reading) is
+``test_transports.py``'s, run against both.
 
-Its logic runs against :class:`FakeWindowsSerial`, an object with the interface of
-pyserial's Windows ``Serial`` (``serialwin32``) as the transport uses it: ``read(size)``
-blocks until ``size`` bytes arrived or ``timeout`` passed and returns what it has (maybe
-``b""``), ``in_waiting``, ``write`` returns once the bytes are handed over (write
-completion), ``cancel_read``/``cancel_write`` end a blocked call, and a read raises
-``SerialException`` once the device is unplugged. Then the public API: ``connect("COM3")``
-over pyserial's ``socket://`` port to a TCP emulator (a real blocking port on every
-platform), a port another program holds ("Access is denied"), and, where there are ptys,
-the real transport over a pty against the pty emulator.
+Its logic runs against :class:`~fakeserial.FakeWindowsSerial` (pyserial's Windows
+``Serial`` as the transport uses it): reads that time out, reads that take what waits,
+write completion, the threads and where the port is closed. Then the public API:
+``connect("COM3")`` over pyserial's ``socket://`` port to a TCP emulator (a real blocking
+port on every platform), a port another program holds ("Access is denied"), and, where
+there are ptys, the real transport over a pty against the pty emulator.
 """
 
 from __future__ import annotations
@@ -21,112 +21,16 @@ from typing import Any
 
 import pytest
 import serial
+from fakeserial import FakeWindowsSerial
 from helpers import make_model, posix_only, serve_pty
 
 import tango_aio
 import tango_aio.controller._connection as connection_module
 from tango_aio.sim.serve import serve_tcp
-from tango_aio.transports import _portlink as portlink
 from tango_aio.transports import _threadlink as threadlink
 from tango_aio.transports._threadlink import ThreadTransport
 
 pytestmark = pytest.mark.timeout(60)
-
-
-class FakeWindowsSerial:
-    """pyserial's Windows ``Serial`` as far as the transport sees it (see the module
-    docstring); the test plays the device through :meth:`arrive`, :meth:`unplug`,
-    :attr:`hold_writes` and :attr:`written`."""
-
-    def __init__(self, port: str = "COM3") -> None:
-        self.port = port
-        self.timeout: float | None = None
-        self.is_open = True
-        self.written = bytearray()
-        self.reads: list[int] = []  # the size of each read call
-        self.timeouts = 0  # reads that returned b"" because the timeout passed
-        self.hold_writes = threading.Event()  # set: write() blocks until it is cleared
-        self.write_started = threading.Event()
-        self.closed_in: str | None = None  # the thread that called close()
-        self.cancelled_reads = 0
-        self._incoming = bytearray()
-        self._unplugged: Exception | None = None
-        self._cancel = False
-        self._changed = threading.Condition()
-        self._write_error: Exception | None = None
-
-    # -- the device ---------------------------------------------------------------------
-
-    def arrive(self, data: bytes) -> None:
-        """Bytes arrive from the controller (into the driver's input buffer)."""
-        with self._changed:
-            self._incoming += data
-            self._changed.notify_all()
-
-    def unplug(self) -> None:
-        """The USB adapter is pulled: a blocked or later read raises."""
-        with self._changed:
-            self._unplugged = serial.SerialException(
-                "ClearCommError failed (PermissionError(13, 'The device does not "
-                "recognize the command.', None, 22))")
-            self._changed.notify_all()
-
-    def fail_writes(self, exc: Exception) -> None:
-        self._write_error = exc
-
-    # -- pyserial's interface -----------------------------------------------------------
-
-    @property
-    def in_waiting(self) -> int:
-        with self._changed:
-            if self._unplugged is not None:
-                raise self._unplugged
-            return len(self._incoming)
-
-    def read(self, size: int = 1) -> bytes:
-        self.reads.append(size)
-        with self._changed:
-            timed_out = not self._changed.wait_for(
-                lambda: len(self._incoming) >= size or self._unplugged is not None
-                or self._cancel or not self.is_open, self.timeout)
-            if self._unplugged is not None:
-                raise self._unplugged
-            if not self.is_open:
-                raise serial.PortNotOpenError()
-            self._cancel = False
-            data = bytes(self._incoming[:size])
-            del self._incoming[:size]
-            if timed_out and not data:
-                self.timeouts += 1
-            return data
-
-    def write(self, data: bytes) -> int:
-        self.write_started.set()
-        if self._write_error is not None:
-            raise self._write_error
-        while self.hold_writes.is_set() and self.is_open:
-            threading.Event().wait(0.001)
-        self.written += data
-        return len(data)
-
-    def reset_input_buffer(self) -> None:
-        with self._changed:
-            self._incoming.clear()
-
-    def cancel_read(self) -> None:
-        with self._changed:
-            self.cancelled_reads += 1
-            self._cancel = True
-            self._changed.notify_all()
-
-    def cancel_write(self) -> None:
-        self.hold_writes.clear()
-
-    def close(self) -> None:
-        self.closed_in = threading.current_thread().name
-        with self._changed:
-            self.is_open = False
-            self._changed.notify_all()
 
 
 @dataclass
@@ -205,29 +109,13 @@ async def test_read_timeouts_return_nothing_and_the_link_goes_on(link: Link) -> 
     await link.protocol.until(lambda: link.protocol.data == b"10288\r")
 
 
-async def test_writes_return_at_once_and_count_until_completed(link: Link) -> None:
-    link.port.hold_writes.set()  # the driver has not completed the write yet
-    link.transport.write(b"?pos\r")
-    assert link.transport.get_write_buffer_size() == 5  # write() did not block
-    await _until(link.port.write_started.is_set)
-    link.transport.write(b"?vel\r")
-    link.transport.write(b"")  # nothing
-    assert link.transport.get_write_buffer_size() == 10
-    link.port.hold_writes.clear()  # completed
-    await _until(lambda: link.transport.get_write_buffer_size() == 0)
-    assert link.port.written == b"?pos\r?vel\r"
-
-
-async def test_an_unplugged_device_ends_the_link_with_the_cause(link: Link) -> None:
+async def test_an_unplug_during_a_blocked_read_ends_both_threads(link: Link) -> None:
     link.port.arrive(b"@@@-.\r")
     await link.protocol.until(lambda: bool(link.protocol.data))
     link.port.unplug()  # while the reader thread is blocked in read()
     await asyncio.wait_for(link.protocol.gone.wait(), 10)
     [cause] = link.protocol.lost
     assert isinstance(cause, serial.SerialException) and "ClearCommError" in str(cause)
-    assert link.transport.is_closing() and not link.port.is_open
-    link.transport.write(b"?pos\r")  # ignored, as on asyncio's transports
-    assert link.port.written == b""
     assert not link.transport._reader.is_alive() and not link.transport._writer.is_alive()
 
 
@@ -239,55 +127,17 @@ async def test_a_failed_write_ends_the_link_with_the_cause(link: Link) -> None:
     assert not link.port.is_open
 
 
-async def test_close_writes_what_is_buffered_then_closes_the_port_in_a_worker(
-        link: Link) -> None:
+async def test_close_closes_the_port_in_a_worker_and_ends_both_threads(link: Link) -> None:
     link.port.hold_writes.set()
     link.transport.write(b"!moa 1 2\r")
     link.transport.close()
-    assert link.transport.is_closing() and link.port.is_open
-    link.transport.write(b"?pos\r")  # after close(): ignored
     link.port.hold_writes.clear()
     await asyncio.wait_for(link.protocol.gone.wait(), 10)
-    assert link.protocol.lost == [None]
-    assert link.port.written == b"!moa 1 2\r" and not link.port.is_open
+    assert link.protocol.lost == [None] and link.port.written == b"!moa 1 2\r"
     assert link.port.closed_in is not None
     assert link.port.closed_in != threading.current_thread().name  # not on the loop
     assert link.port.cancelled_reads >= 1  # the blocked read ended at once
     assert not link.transport._reader.is_alive() and not link.transport._writer.is_alive()
-
-
-async def test_close_gives_up_on_a_write_that_never_completes(
-        link: Link, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(portlink, "CLOSE_DRAIN", 0.05)
-    link.port.hold_writes.set()  # e.g. hardware flow control holds the output back
-    link.transport.write(b"?pos\r")
-    link.transport.close()
-    await asyncio.wait_for(link.protocol.gone.wait(), 10)
-    assert link.protocol.lost == [None] and not link.port.is_open
-
-
-async def test_abort_drops_the_buffer(link: Link) -> None:
-    link.port.hold_writes.set()
-    link.transport.write(b"?pos\r")
-    await _until(link.port.write_started.is_set)
-    link.transport.write(b"?vel\r")
-    link.transport.abort()
-    await asyncio.wait_for(link.protocol.gone.wait(), 10)
-    assert link.protocol.lost == [None]
-    assert b"?vel" not in link.port.written
-    assert link.transport.get_write_buffer_size() == 0  # dropped, not pending
-
-
-async def test_paused_reading_holds_the_bytes_until_resumed(link: Link) -> None:
-    link.transport.pause_reading()
-    assert not link.transport.is_reading()
-    link.port.arrive(b"@@@-.\r")
-    await _until(lambda: link.port.in_waiting == 0 or link.transport._held != [])
-    await asyncio.sleep(0.05)
-    assert link.protocol.data == b""
-    link.transport.resume_reading()
-    await link.protocol.until(lambda: link.protocol.data == b"@@@-.\r")
-    assert link.transport.is_reading()
 
 
 async def test_close_before_the_threads_started() -> None:

@@ -1,11 +1,11 @@
-"""motion.acceptance_shown: what proves a move line whose acceptance was deferred
+"""moves.acceptance_shown (the tracker): what proves a move line whose acceptance was deferred
 (its autostatus-2 OK... or autostatus-4 echo did not come where owed) arrived."""
 
 from __future__ import annotations
 
 import pytest
 
-from tango_aio.controller._motion import acceptance_shown
+from tango_aio.moves import acceptance_shown
 
 
 @pytest.mark.parametrize(("reported", "letters", "moved", "shown"), [

@@ -22,7 +22,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[2] / "tango_aio"
 
 #: Generated from the reference data (tools/), not written by hand.
-GENERATED = {"catalog/_table.py"}
+GENERATED = {"catalog/_table.py", "families/_generated.py"}
 #: The emulator's instruction handlers: each ``i_<instruction>`` method takes the parsed
 #: line and returns the reply lines (``None``: no reply), as these modules' docstrings say
 #: once for all of them; the sections would repeat that on every handler.
@@ -33,7 +33,8 @@ RAISES_ELSEWHERE = {"catalog/_instructions.py"}
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
                      re.MULTILINE)
-_DECORATORS_WITHOUT_SECTIONS = {"property", "cached_property", "overload", "setter", "deleter"}
+_DECORATORS_WITHOUT_SECTIONS = {"property", "cached_property", "overload", "setter", "deleter",
+                                "pymm_property"}
 
 
 def _relative(path: Path) -> str:
@@ -92,9 +93,10 @@ def _public_modules() -> dict[Path, set[str] | None]:
         found[_file_of(module)] = None
         for name in _exported_names(module):
             home = _defined_in(_file_of(module), name)
-            if home is not None and home != _file_of(module) and found.get(home, set()) \
-                    is not None:
-                found.setdefault(home, set()).add(name)
+            if home is not None and home != _file_of(module):
+                names = found.setdefault(home, set())
+                if names is not None:
+                    names.add(name)
     return found
 
 

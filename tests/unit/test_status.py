@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from tango_aio.cli import _main as cli
-from tango_aio.controller import _motion as motion
 from tango_aio.moves import _timing as timing
+from tango_aio.moves import _tracker as tracker
 from tango_aio.status import ABSENT, ARRIVED_LETTERS, FAILED_LETTERS, MOVING, AxisStatus
 
 
@@ -18,7 +18,7 @@ def test_the_letter_sets_are_the_manuals() -> None:
 
 
 def test_motion_and_the_shell_use_the_same_letters() -> None:
-    assert vars(motion)["FAILED_LETTERS"] is FAILED_LETTERS
+    assert vars(tracker)["ARRIVED_LETTERS"] is ARRIVED_LETTERS
     assert vars(timing)["FAILED_LETTERS"] is FAILED_LETTERS
     assert set(cli.LETTER_MEANINGS) == {*AxisStatus, ABSENT}
     assert cli.describe_letters({"x": "@", "y": "E", "z": "-"}) == (

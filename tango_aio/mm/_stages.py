@@ -1,0 +1,362 @@
+"""TANGO axes as Micro-Manager stages: moves followed to the driver's verdict."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
+
+from pymmcore_plus.experimental.unicore import Device, StageDevice, XYStageDevice
+
+import tango_aio.sync
+from tango_aio.units import Measure, to_controller
+
+from ._hub import UNIT, TangoHub, hub_of
+from ._moves import Moves
+
+AXES = "xyza"
+
+#: The velocity and acceleration units of the properties (the controller's own
+#: acceleration unit; velocities in µm/s as Micro-Manager's stages give them).
+VELOCITY_UNIT = "um/s"
+ACCELERATION_UNIT = "m/s2"
+
+#: ``backlash`` is µm whatever the dim (L4168-4180); the older edition lacks it.
+BACKLASH_RANGE = (-100.0, 100.0)
+
+if TYPE_CHECKING:
+    _Base = Device
+else:
+    _Base = object
+
+
+class _Axes(_Base):
+    """What both stage types share: the hub, the axes, the moves and the properties (a
+    mixin before the stage's device class, whose methods it uses)."""
+
+    def __init__(self, hub: TangoHub | None, axes: tuple[str, ...]) -> None:
+        super().__init__()
+        for axis in axes:
+            if axis not in AXES:
+                raise ValueError(f"not a TANGO axis: {axis!r} (one of x, y, z, a)")
+        if len(set(axes)) != len(axes):
+            raise ValueError(f"an axis given twice: {axes!r}")
+        self._hub = hub
+        self._axes = axes
+        self._moves = Moves()
+
+    # -- wiring ---------------------------------------------------------------------------
+
+    @property
+    def hub(self) -> TangoHub:
+        """The hub whose controller moves these axes."""
+        if self._hub is None:
+            self._hub = hub_of(self.get_parent_label())
+        return self._hub
+
+    @property
+    def controller(self) -> tango_aio.sync.Controller:
+        """The hub's blocking controller."""
+        return self.hub.controller
+
+    def initialize(self) -> None:
+        """Check the axes against the controller and add the per-axis properties.
+
+        Raises
+        ------
+        ValueError
+            An axis the controller does not have.
+        """
+        identity = self.controller.identity
+        present = AXES[: identity.axes]
+        missing = [axis for axis in self._axes if axis not in present]
+        if missing:
+            raise ValueError(f"the controller has axes {', '.join(present)} only, "
+                             f"not {', '.join(missing)}")
+        for axis in self._axes:
+            self._add_properties(axis, older=identity.family == "older")
+
+    def _add_properties(self, axis: str, *, older: bool) -> None:
+        """Velocity, acceleration, backlash (not in the older edition) and the software
+        limits of ``axis``, read and written through the driver's units (each accessor
+        takes the device it is called on, so that the device holds no cycle)."""
+        tag = axis.upper()
+
+        def prop(name: str, getter: Callable[[_Axes], float],
+                 setter: Callable[[_Axes, float], None],
+                 limits: tuple[float, float] | None = None) -> None:
+            self.register_property(f"{tag} {name}", getter=getter,
+                                   setter=lambda dev, v: setter(dev, float(v)),
+                                   limits=limits, property_type=float)
+
+        prop(f"Velocity ({VELOCITY_UNIT})",
+             lambda dev: dev.controller.velocity(unit=VELOCITY_UNIT)[axis],
+             lambda dev, v: dev.controller.set_velocity(unit=VELOCITY_UNIT,
+                                                        **_by_axis({axis: v})))
+        prop("Acceleration (m/s^2)",
+             lambda dev: dev.controller.acceleration(unit=ACCELERATION_UNIT)[axis],
+             lambda dev, v: dev.controller.set_acceleration(unit=ACCELERATION_UNIT,
+                                                            **_by_axis({axis: v})))
+        if not older:
+            prop("Backlash (um)",
+                 lambda dev: float(dev.controller.get("backlash", axis=axis)),
+                 lambda dev, v: dev.controller.set("backlash", **_by_axis({axis: v})),
+                 BACKLASH_RANGE)
+        prop("Lower limit (um)", lambda dev: dev.limits_um(axis)[0],
+             lambda dev, v: dev.set_limits_um(axis, v, dev.limits_um(axis)[1]))
+        prop("Upper limit (um)", lambda dev: dev.limits_um(axis)[1],
+             lambda dev, v: dev.set_limits_um(axis, dev.limits_um(axis)[0], v))
+
+    def limits_um(self, axis: str) -> tuple[float, float]:
+        """The software limits of ``axis`` (``?lim``) in µm: the stage's travel range.
+
+        Parameters
+        ----------
+        axis
+            One of this device's axes.
+
+        Returns
+        -------
+        tuple[float, float]
+            The lower and upper limit.
+        """
+        self._moves.check()
+        return self.controller.limits()[axis]
+
+    def set_limits_um(self, axis: str, lower: float, upper: float) -> None:
+        """Set the software limits of ``axis`` (``!lim``) in µm.
+
+        Parameters
+        ----------
+        axis
+            One of this device's axes.
+        lower, upper
+            The new limits.
+        """
+        self._moves.check()
+        self.controller.set_limits(**_by_axis({axis: (lower, upper)}))
+
+    # -- motion ---------------------------------------------------------------------------
+
+    def _start(self, method: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+        """Start a motion call of the driver; followed until its verdict."""
+        self._moves.check()
+        tango = self.controller
+        self._moves.add(tango.portal.start(method, *args, **kwargs))
+
+    def _move_to(self, targets: dict[str, float]) -> None:
+        self._start(self.controller.aio.move_to, **targets)
+
+    def _move_by(self, distances: dict[str, float]) -> None:
+        self._start(self.controller.aio.move_by, **distances)
+
+    def _positions(self) -> dict[str, float]:
+        self._moves.check()
+        where = self.controller.position()
+        return {axis: where[axis] for axis in self._axes}
+
+    def busy(self) -> bool:
+        """Whether a move of these axes has not ended with the driver's verdict yet.
+
+        The first call that finds the moves ended tells the core's listeners where the
+        axes stand (``XYStagePositionChanged``, ``stagePositionChanged``), read then.
+
+        Returns
+        -------
+        bool
+            ``True`` from the set until every moved axis stands at its target.
+
+        Raises
+        ------
+        MoveError
+            A move that ended since the last call stopped short (a limit switch, a
+            disabled axis, ...): raised once, by the next call.
+        """
+        busy = self._moves.busy()
+        if not busy and self._moves.ended():
+            self._announce()
+        return busy
+
+    def _announce(self) -> None:
+        """Tell the core's listeners (stage widgets) where the axes stand now."""
+        where = self._positions()
+        values = [where[axis] for axis in self._axes]
+        events = self.core.events
+        signal = events.XYStagePositionChanged if len(values) == 2 \
+            else events.stagePositionChanged
+        signal.emit(self.get_label(), *values)
+
+    def home(self) -> None:
+        """Calibrate the axes (``cal``, L5259: to the lower limit switch, which becomes 0);
+        :meth:`busy` until they stand there."""
+        self._start(self.controller.aio.calibrate, *self._axes)
+
+    def stop(self) -> None:
+        """Stop the axes and wait until they stand: the moves started here are cancelled
+        (one whose line is not written yet never is; a running one stops its axes), then
+        ``a x``... stops the axes whoever moves them. The stopped moves end without an
+        error to report."""
+        for move in self._moves.stopping():
+            move.cancel()
+        self.controller.stop(*self._axes)
+
+    def _zero(self, *axes: str) -> None:
+        """Make the current position of ``axes`` 0 (``!pos``, L6900-6920)."""
+        self._moves.check()
+        self.controller.set("pos", **_by_axis(dict.fromkeys(axes, 0.0)))
+
+    def _call_position(self, where_um: dict[str, float]) -> None:
+        """Make the current position of each axis ``where_um`` µm (``!pos`` in its dim
+        unit, converted by :mod:`tango_aio.units`)."""
+        self._moves.check()
+        tango = self.controller
+        scales = tango.unit_scales()
+        tango.set("pos", **_by_axis({
+            axis: to_controller(value, UNIT, Measure.POSITION, scales[axis])
+            for axis, value in where_um.items()}))
+
+    def shutdown(self) -> None:
+        """Stop following the moves (the hub closes the link)."""
+        self._moves.stopping()
+
+
+def _by_axis(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Per-axis values as keyword arguments of the driver's calls."""
+    return dict(values)
+
+
+class TangoXYStage(_Axes, XYStageDevice):
+    """Two axes of a TANGO (X and Y by default) as a Micro-Manager XY stage, in µm.
+
+    :meth:`busy` is true from :meth:`set_position_um` until the driver's verdict that
+    both axes stand at their targets; a move that ends short (limit switch, disabled
+    axis, ...) makes the next call raise the driver's error, which says why.
+
+    Parameters
+    ----------
+    hub
+        The hub of the controller; ``None``: the initialised hub named by the device's
+        parent label.
+    x, y
+        The controller's axes that move the stage's X and Y.
+    """
+
+    def __init__(self, hub: TangoHub | None = None, *, x: str = "x", y: str = "y") -> None:
+        super().__init__(hub, (x, y))
+
+    def set_position_um(self, x: float, y: float) -> None:
+        """Start the move to ``(x, y)`` µm; returns at once, :meth:`busy` follows it.
+
+        Parameters
+        ----------
+        x, y
+            The target, in µm.
+        """
+        ax, ay = self._axes
+        self._move_to({ax: x, ay: y})
+
+    def set_relative_position_um(self, dx: float, dy: float) -> None:
+        """Start a move by ``(dx, dy)`` µm.
+
+        Parameters
+        ----------
+        dx, dy
+            The distances, in µm.
+        """
+        ax, ay = self._axes
+        self._move_by({ax: dx, ay: dy})
+
+    def get_position_um(self) -> tuple[float, float]:
+        """The position read now (``?pos``), in µm; never a target.
+
+        Returns
+        -------
+        tuple[float, float]
+            X and Y.
+        """
+        ax, ay = self._axes
+        where = self._positions()
+        return where[ax], where[ay]
+
+    def set_origin_x(self) -> None:
+        """Make the current X position 0."""
+        self._zero(self._axes[0])
+
+    def set_origin_y(self) -> None:
+        """Make the current Y position 0."""
+        self._zero(self._axes[1])
+
+    def set_origin(self) -> None:
+        """Make the current position (0, 0), in one line."""
+        self._zero(*self._axes)
+
+    def set_adapter_origin_um(self, x: float, y: float) -> None:
+        """Make the current position ``(x, y)`` µm (on the controller, ``!pos``).
+
+        Parameters
+        ----------
+        x, y
+            The new coordinates of the current position, in µm.
+        """
+        ax, ay = self._axes
+        self._call_position({ax: x, ay: y})
+
+
+class TangoZStage(_Axes, StageDevice):
+    """One axis of a TANGO (Z by default, or any) as a Micro-Manager stage, in µm; busy
+    and errors as for :class:`TangoXYStage`.
+
+    Parameters
+    ----------
+    hub
+        The hub of the controller; ``None``: the initialised hub named by the device's
+        parent label.
+    axis
+        The controller's axis.
+    """
+
+    def __init__(self, hub: TangoHub | None = None, *, axis: str = "z") -> None:
+        super().__init__(hub, (axis,))
+
+    def set_position_um(self, val: float) -> None:
+        """Start the move to ``val`` µm; returns at once, :meth:`busy` follows it.
+
+        Parameters
+        ----------
+        val
+            The target, in µm.
+        """
+        self._move_to({self._axes[0]: val})
+
+    def set_relative_position_um(self, d: float) -> None:
+        """Start a move by ``d`` µm.
+
+        Parameters
+        ----------
+        d
+            The distance, in µm.
+        """
+        self._move_by({self._axes[0]: d})
+
+    def get_position_um(self) -> float:
+        """The position read now (``?pos``), in µm; never a target.
+
+        Returns
+        -------
+        float
+            The position.
+        """
+        return self._positions()[self._axes[0]]
+
+    def set_origin(self) -> None:
+        """Make the current position 0."""
+        self._zero(self._axes[0])
+
+    def set_adapter_origin_um(self, newZUm: float) -> None:
+        """Make the current position ``newZUm`` µm (on the controller, ``!pos``).
+
+        Parameters
+        ----------
+        newZUm
+            The new coordinate of the current position, in µm.
+        """
+        self._call_position({self._axes[0]: newZUm})
