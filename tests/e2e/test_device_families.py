@@ -210,7 +210,7 @@ async def test_disabling_the_joystick_during_a_move(emulator: EmulatorFactory) -
     # ends on its own report, where it was going.
     emu = await emulator()
     tango = emu.tango
-    await tango.set("vel", x=20)
+    await tango.set("vel", x=4)
     move = asyncio.ensure_future(tango.move_to(x=3.0))
     await wait_moving(emu, "x")
     await tango.joystick.disable()
