@@ -182,19 +182,7 @@ class MovePlan:
     batch: object | None = None
 
     async def resolved(self) -> MovePlan:
-        """The plan with absolute targets.
-
-        Returns
-        -------
-        MovePlan
-            Itself when it has them already; else a copy with the start (read by
-            :attr:`start`) added to each distance.
-
-        Raises
-        ------
-        ProtocolError
-            The start read did not print a position of every moved axis.
-        """
+        """The plan with absolute targets."""
         if self.start is None or self.targets is None:
             return self
         start = await self.start()
@@ -225,36 +213,11 @@ class MotionPort(Protocol):
     step of a move (the controller keeps the link, the settings and the subscribers)."""
 
     def start(self, command: Command, batch: object | None) -> MoveHandle:
-        """Write a motion line and its check; return at once.
-
-        Parameters
-        ----------
-        command
-            The motion line.
-        batch
-            The protocol batch it joins (see :attr:`MovePlan.batch`), if any.
-
-        Returns
-        -------
-        MoveHandle
-            The line in flight.
-        """
+        """Write a motion line and its check; return at once."""
         ...
 
     async def accepted(self, sent: MoveHandle) -> ControllerError | None:
-        """Wait (up to the reply timeout) for the check of a line.
-
-        Parameters
-        ----------
-        sent
-            The line in flight.
-
-        Returns
-        -------
-        ControllerError | None
-            The controller's error if it refused the line; else ``None``, and the
-            settings the line sets are taken over.
-        """
+        """Wait (up to the reply timeout) for the check of a line."""
         ...
 
     async def stop(self) -> None:
@@ -268,34 +231,11 @@ class MotionPort(Protocol):
         <tango_aio.Controller._status_and_positions>`). The lines are
         submitted by the time the awaitable is first awaited (the controller's: when
         this is called, so that :meth:`Motion.reported` writes them in the loop turn the
-        report arrived); one that is never awaited is a coroutine, closed unstarted.
-
-        Parameters
-        ----------
-        axes
-            The axes whose positions are wanted at least.
-
-        Returns
-        -------
-        Awaitable[tuple[dict[str, str], dict[str, str]]]
-            What reads the status letters of every present axis and the positions of
-            at least ``axes``, as printed.
-
-        Raises
-        ------
-        ConnectionLostError
-            At once, when the link is gone.
-        """
+        report arrived); one that is never awaited is a coroutine, closed unstarted."""
         ...
 
     def finished(self, event: MoveFinished) -> None:
-        """A followed move has ended: hand its event to the subscribers.
-
-        Parameters
-        ----------
-        event
-            The move's end.
-        """
+        """A followed move has ended: hand its event to the subscribers."""
         ...
 
     def unreported(self) -> None:
@@ -327,13 +267,7 @@ class _Job:
 
 
 class Motion:
-    """Runs and follows the moves of one controller (serialised: one at a time).
-
-    Parameters
-    ----------
-    port
-        The controller as this class sees it.
-    """
+    """Runs and follows the moves of one controller (serialised: one at a time)."""
 
     def __init__(self, port: MotionPort) -> None:
         self._port = port
@@ -358,13 +292,7 @@ class Motion:
         self._waiting: _Job | None = None
 
     def saw(self, texts: Mapping[str, str]) -> None:
-        """Record the positions of one read of some or all axes.
-
-        Parameters
-        ----------
-        texts
-            The positions read, per axis, as printed.
-        """
+        """Record the positions of one read of some or all axes."""
         self.latest = dict(texts)
         self.positions = {**(self.positions or {}), **texts}
 
@@ -377,47 +305,18 @@ class Motion:
                                        and not self._detached.done())
 
     def follows(self, submission: Submission) -> bool:
-        """Whether a line is a move this module follows (and confirms).
-
-        Parameters
-        ----------
-        submission
-            The line.
-
-        Returns
-        -------
-        bool
-            Whether it is followed: its completion report is then only a hint, and
-            :class:`MoveFinished` is published once the move is confirmed.
-        """
+        """Whether a line is a move this module follows (and confirms)."""
         return submission in self._followed
 
     def stopped(self, axes: Sequence[str] | None = None) -> None:
         """The driver stopped axes: no move in flight that moves one of them may succeed;
-        wake every move.
-
-        Parameters
-        ----------
-        axes
-            The axes stopped (``a x``); ``None``: every axis (``a`` or Ctrl+C).
-        """
+        wake every move."""
         for axis in AXES if axes is None else axes:
             self._stops[axis] += 1
         self.hint()
 
     def epoch(self, axes: Sequence[str]) -> int:
-        """How often the driver stopped any of some axes so far.
-
-        Parameters
-        ----------
-        axes
-            The axes.
-
-        Returns
-        -------
-        int
-            A count that grows with each stop of one of them, and only then.
-        """
+        """How often the driver stopped any of some axes so far."""
         return sum(self._stops.get(axis, 0) for axis in axes)
 
     def _was_stopped(self, job: _Job) -> bool:
@@ -461,34 +360,7 @@ class Motion:
         ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
         queued move's timeout and targets are computed from where its axes really start;
         it gets the line and :attr:`positions` (the positions last read, ``None`` before
-        the first read).
-
-        Parameters
-        ----------
-        command
-            The motion line.
-        plan_for
-            Makes the line's :class:`MovePlan`.
-        stop_on_cancel
-            Whether cancelling the call stops the axes; else the move goes on detached.
-
-        Returns
-        -------
-        dict[str, str]
-            The status letters of every present axis.
-
-        Raises
-        ------
-        ControllerError
-            The controller refused the line.
-        MoveError
-            A moved axis did not end at its target, or the driver stopped it.
-        ControllerTimeoutError
-            An axis still moved when the budget was spent (the axes are stopped).
-        asyncio.CancelledError
-            The call was cancelled: after the axes were stopped, or with the move left to
-            go on detached (``stop_on_cancel=False``).
-        """
+        the first read)."""
         async with self._lock:
             await self._join_detached()
             plan = await plan_for(command, self.positions)
@@ -659,13 +531,7 @@ class Motion:
         to back: one round trip), read again (up to 3 times) when the read was lost:
         discarded by a Ctrl+C resync, unanswered, or met by a line that is not its reply
         (the stream is resynchronised each time, so the next read is in step).
-        ``early``: the first read, already written (:meth:`reported`).
-
-        Returns
-        -------
-        tuple[dict[str, str], dict[str, str]]
-            The letters and the positions, as :meth:`MotionPort.read_state` gives them.
-        """
+        ``early``: the first read, already written (:meth:`reported`)."""
         for _ in range(2):
             with contextlib.suppress(*_LOST_READ):
                 read = early if early is not None else self._port.read_state(axes)
@@ -680,13 +546,7 @@ class Motion:
 
     async def _aborted(self, job: _Job, letters: dict[str, str]) -> dict[str, str]:
         """The driver stopped the axes during this move: wait until they stand still,
-        then fail (never a success, whatever the letters say).
-
-        Raises
-        ------
-        MoveError
-            Always, with each moved axis in words.
-        """
+        then fail (never a success, whatever the letters say)."""
         texts: Mapping[str, str] = {}
         # After a one-axis stop (``a x``) the line's other axes go on to their targets:
         # wait for them within the move's own budget, at least STOP_WAIT.
@@ -707,14 +567,7 @@ class Motion:
     async def _cut_short(self, job: _Job, ended: Sequence[str], letters: Mapping[str, str],
                          texts: Mapping[str, str]) -> NoReturn:
         """Axes of a move ended it early (:func:`~tango_aio.moves._timing.cut_short`) while the
-        others still move: stop those, wait until they stand, and fail.
-
-        Raises
-        ------
-        MoveError
-            Always: the axes that ended it in words, and the others stopped, or said to
-            move still.
-        """
+        others still move: stop those, wait until they stand, and fail."""
         idle = await self._stop_and_wait(job)
         stopped = idle is not None
         # The letters seen when they stood, the ended axes' letters of the read that
@@ -750,14 +603,7 @@ class Motion:
             "axes stopped")
 
     async def _stop_and_wait(self, job: _Job) -> dict[str, str] | None:
-        """Write ``a`` and wait (bounded) until the moved axes stand still.
-
-        Returns
-        -------
-        dict[str, str] | None
-            The letters read once they were seen to stand still; ``None`` if they were
-            not.
-        """
+        """Write ``a`` and wait (bounded) until the moved axes stand still."""
         with contextlib.suppress(TangoError):
             await self._port.stop()
             self.stopped()
@@ -799,22 +645,7 @@ class Motion:
 
 def annotate(exc: TangoError, text: str) -> TangoError:
     """``exc`` (a driver error raised by a call that had set axes moving) saying whether
-    they were stopped.
-
-    Parameters
-    ----------
-    exc
-        The error the call raises.
-    text
-        What became of the axes (``"axes stopped"``, ``"axes X may still move"``).
-
-    Returns
-    -------
-    TangoError
-        A copy of ``exc`` whose message ends with ``text``; a copy, because the same
-        error may be raised to other callers too (a lost link). Raise it ``from
-        exc.__cause__`` (e.g. a link's reset).
-    """
+    they were stopped."""
     new = copy.copy(exc)
     if exc.args and isinstance(exc.args[0], str):
         new.args = (f"{exc.args[0]}; {text}", *exc.args[1:])
@@ -828,28 +659,7 @@ def contested(cause: TangoError, line: str, reason: str, stopped: Sequence[str],
     """The error of a motion line whose verdict (a refusal, or a garbled reply) the
     state contradicted or could not settle (:func:`~tango_aio.moves._timing.contest`): a
     :class:`~tango_aio.errors.MoveProtocolUnknownError` saying what the state showed,
-    which axes were stopped and which may still move.
-
-    Parameters
-    ----------
-    cause
-        The verdict's error: a :class:`ControllerError`, a
-        :class:`~tango_aio.errors.GarbledVerdictError`, or the error that took the
-        verdict (a timeout, a resync).
-    line
-        The motion line.
-    reason
-        What the state read showed, in words.
-    stopped
-        The axes seen to stand still after the driver stopped them.
-    moving
-        The axes that may still move (the stop failed, or the state was not read).
-
-    Returns
-    -------
-    TangoError
-        The error to raise.
-    """
+    which axes were stopped and which may still move."""
     error = ProtocolError(str(cause)) if isinstance(cause, ControllerError) else cause
     if reason:
         error = annotate(error, reason)
@@ -861,18 +671,7 @@ def contested(cause: TangoError, line: str, reason: str, stopped: Sequence[str],
 
 
 def report_came(completion: asyncio.Future[Completed] | None) -> bool:
-    """Whether a move's completion report arrived (not: its wait was cancelled or failed).
-
-    Parameters
-    ----------
-    completion
-        The move's completion future (``None``: none is awaited).
-
-    Returns
-    -------
-    bool
-        Whether it holds a report.
-    """
+    """Whether a move's completion report arrived (not: its wait was cancelled or failed)."""
     return completion is not None and completion.done() and not completion.cancelled() \
         and completion.exception() is None
 

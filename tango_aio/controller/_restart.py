@@ -63,38 +63,14 @@ CHECK_ATTEMPTS = 3
 def report_suggests_restart(mode: int, letters: bool) -> bool:
     """Whether a completion report (``letters``: with status letters, not a bare CR) is
     one the driver's mode ``mode`` never sends, so the controller is in another mode: in
-    mode 0 none comes (L2079-2081), in mode 3 a bare CR (L2107-2110).
-
-    Parameters
-    ----------
-    mode
-        The autostatus mode the driver has in force.
-    letters
-        Whether the report holds status letters.
-
-    Returns
-    -------
-    bool
-        Whether the report suggests a restart.
-    """
+    mode 0 none comes (L2079-2081), in mode 3 a bare CR (L2107-2110)."""
     return mode == 0 or (mode == 3 and letters)
 
 
 def timeout_suggests_restart(mode: int) -> bool:
     """Whether a request that got no answer in time, in the driver's mode ``mode``, may
     be a restart: in modes 2 and 4 the acknowledgement or echo the driver waits for
-    (L2099-2103, L2117) never comes from a controller back in mode 1.
-
-    Parameters
-    ----------
-    mode
-        The autostatus mode the driver has in force.
-
-    Returns
-    -------
-    bool
-        Whether the timeout suggests a restart.
-    """
+    (L2099-2103, L2117) never comes from a controller back in mode 1."""
     return mode in (2, 4)
 
 
@@ -105,51 +81,18 @@ def unreported_end_suggests_restart(mode: int) -> bool:
     controller back in mode 1 leaves every later set unanswered (L2099-2103, L2117), and
     in mode 3 it sends letters where the driver expects a bare CR (L2107-2110): read the
     mode now, before the next line meets it. Mode 0 sends no report (L2079-2081); in
-    mode 1, the power-on mode, a read cannot tell.
-
-    Parameters
-    ----------
-    mode
-        The autostatus mode the driver has in force.
-
-    Returns
-    -------
-    bool
-        Whether the missing report suggests a restart.
-    """
+    mode 1, the power-on mode, a read cannot tell."""
     return mode in (2, 3, 4)
 
 
 def settings_of(timing: MoveTiming) -> dict[str, Any]:
-    """The cached settings' values by field name (lists copied).
-
-    Parameters
-    ----------
-    timing
-        The driver's cached settings.
-
-    Returns
-    -------
-    dict[str, Any]
-        Each field's value.
-    """
+    """The cached settings' values by field name (lists copied)."""
     return {f.name: _copied(getattr(timing, f.name)) for f in dataclasses.fields(MoveTiming)}
 
 
 def changed_settings(before: Mapping[str, Any], after: Mapping[str, Any]
                      ) -> dict[str, tuple[object, object]]:
-    """The settings whose value differs.
-
-    Parameters
-    ----------
-    before, after
-        Two :func:`settings_of` results.
-
-    Returns
-    -------
-    dict[str, tuple[object, object]]
-        ``{name: (before, after)}`` for each setting that differs.
-    """
+    """The settings whose value differs."""
     return {name: (before[name], after.get(name)) for name in before
             if before[name] != after.get(name)}
 
@@ -169,53 +112,16 @@ class Restartable(Protocol):
         """The mode the driver has in force."""
 
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
-        """Read the mode in force; restore the driver's if it differs.
-
-        Parameters
-        ----------
-        timeout
-            Seconds each step may take.
-
-        Returns
-        -------
-        bool
-            Whether the mode had to be restored.
-        """
+        """Read the mode in force; restore the driver's if it differs."""
 
     async def execute(self, command: Command, *, timeout: float | None,
                       check: bool = True) -> Any:
-        """Write a set line (here ``!autostatus n``) and wait until it is confirmed.
-
-        Parameters
-        ----------
-        command
-            The line.
-        timeout
-            Seconds it may take.
-        check
-            Whether the controller's verdict is read.
-
-        Returns
-        -------
-        Any
-            The response.
-        """
+        """Write a set line (here ``!autostatus n``) and wait until it is confirmed."""
 
 
 class RestartWatch:
     """Reads the mode in force when something suggests a restart, and recovers from one:
-    see the module's docstring.
-
-    Parameters
-    ----------
-    reload
-        Reads the cached settings again and returns them before and after
-        (:func:`settings_of`).
-    publish
-        Publishes an event.
-    reply_timeout
-        Seconds a mode read or mode change may take.
-    """
+    see the module's docstring."""
 
     def __init__(self, reload: Callable[[], Awaitable[tuple[dict[str, Any], dict[str, Any]]]],
                  publish: Callable[[ControllerRestarted], None], reply_timeout: float) -> None:
@@ -229,13 +135,7 @@ class RestartWatch:
         self.restarts = 0
 
     def attach(self, protocol: Restartable) -> None:
-        """Watch ``protocol`` (the link in use; a reconnect attaches the new one).
-
-        Parameters
-        ----------
-        protocol
-            The protocol whose hooks the watch sets.
-        """
+        """Watch ``protocol`` (the link in use; a reconnect attaches the new one)."""
         self._protocol = protocol
         protocol.on_unanswered = self._unanswered
         protocol.on_restored = self.restored
@@ -253,15 +153,7 @@ class RestartWatch:
             self.suspect()
 
     def restored(self, found: int, autostatus: int) -> None:
-        """The protocol found another mode in force and selected its own again.
-
-        Parameters
-        ----------
-        found
-            The mode found in force.
-        autostatus
-            The driver's mode, selected again.
-        """
+        """The protocol found another mode in force and selected its own again."""
         log.warning("the controller restarted (autostatus %d, the driver had %d); "
                     "autostatus %d restored, reading the settings again",
                     found, autostatus, autostatus)

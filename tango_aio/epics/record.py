@@ -74,34 +74,12 @@ class AxisUnits:
         return EGU_BY_DIM.get(self.dim, "")
 
     def velo_from_vel(self, vel: float) -> float:
-        """VELO (EGU/s) from the controller's ``vel`` (rev/s, or mm/s in dim 9).
-
-        Parameters
-        ----------
-        vel
-            The controller's ``vel``.
-
-        Returns
-        -------
-        float
-            VELO, in EGU/s.
-        """
+        """VELO (EGU/s) from the controller's ``vel`` (rev/s, or mm/s in dim 9)."""
         scale = self.scale
         return scale.pos_to_user(scale.vel_from_user(vel))
 
     def vel_from_velo(self, velo: float) -> float:
-        """The controller's ``vel`` from VELO (EGU/s).
-
-        Parameters
-        ----------
-        velo
-            VELO, in EGU/s.
-
-        Returns
-        -------
-        float
-            The controller's ``vel``.
-        """
+        """The controller's ``vel`` from VELO (EGU/s)."""
         scale = self.scale
         return scale.vel_to_user(scale.pos_from_user(velo))
 
@@ -121,33 +99,11 @@ class AxisUnits:
         return self.usteps
 
     def rdbd(self, decimals: int) -> float:
-        """RDBD: how far from its target a move counts as arrived, in EGU.
-
-        Parameters
-        ----------
-        decimals
-            The decimals the controller prints positions with (its ``resolution``).
-
-        Returns
-        -------
-        float
-            The driver's tolerance for positions printed so, and at least MRES.
-        """
+        """RDBD: how far from its target a move counts as arrived, in EGU."""
         return max(self.mres, position_tolerance(f"{0:.{max(decimals, 0)}f}"))
 
     def accs_from_accel(self, accel: float) -> float:
-        """ACCS (EGU/s²) from the controller's ``accel`` (m/s²).
-
-        Parameters
-        ----------
-        accel
-            The controller's ``accel``, in m/s².
-
-        Returns
-        -------
-        float
-            ACCS, in EGU/s².
-        """
+        """ACCS (EGU/s²) from the controller's ``accel`` (m/s²)."""
         return max(accel, 0.0) * self._egu_per_m()
 
     def _egu_per_m(self) -> float:
@@ -155,44 +111,13 @@ class AxisUnits:
         return 1000.0 * scale.user_per_rev / scale.mm_per_rev
 
     def accl_from_accel(self, velo: float, accel: float) -> float:
-        """ACCL (seconds to VELO) from VELO (EGU/s) and ``accel`` (m/s²).
-
-        Parameters
-        ----------
-        velo
-            VELO, in EGU/s.
-        accel
-            The controller's ``accel``, in m/s².
-
-        Returns
-        -------
-        float
-            ACCL, in seconds.
-        """
+        """ACCL (seconds to VELO) from VELO (EGU/s) and ``accel`` (m/s²)."""
         if accel <= 0.0:
             return 0.0
         return abs(velo) / (accel * self._egu_per_m())
 
     def accel_from_accl(self, velo: float, accl: float) -> float:
-        """The controller's ``accel`` (m/s²) that reaches VELO (EGU/s) in ACCL seconds.
-
-        Parameters
-        ----------
-        velo
-            VELO, in EGU/s.
-        accl
-            ACCL, in seconds (positive).
-
-        Returns
-        -------
-        float
-            The controller's ``accel``, in m/s².
-
-        Raises
-        ------
-        ValueError
-            ``accl`` is not a positive number.
-        """
+        """The controller's ``accel`` (m/s²) that reaches VELO (EGU/s) in ACCL seconds."""
         if not (math.isfinite(accl) and accl > 0.0):
             raise ValueError(f"ACCL must be a positive number of seconds, got {accl!r}")
         return abs(velo) / accl / self._egu_per_m()
@@ -209,20 +134,7 @@ class LimitSwitches:
 def limit_switches(readsw: str, axis: str) -> LimitSwitches:
     """Read the E0 (lower) and EE (upper) switch of ``axis`` from a ``?readsw`` reply.
 
-    A reply of unexpected length is read as "no switch actuated" (nothing is assumed).
-
-    Parameters
-    ----------
-    readsw
-        The ``?readsw`` reply.
-    axis
-        The axis letter.
-
-    Returns
-    -------
-    LimitSwitches
-        The state of the two switches.
-    """
+    A reply of unexpected length is read as "no switch actuated" (nothing is assumed)."""
     text = readsw.strip()
     index = AXES.index(axis)
     if len(text) < 12:
@@ -231,20 +143,7 @@ def limit_switches(readsw: str, axis: str) -> LimitSwitches:
 
 
 def calibrated(statuslimit: str, axis: str) -> bool:
-    """Whether ``?statuslimit`` says ``axis`` was calibrated (``A`` in group 1, L5136).
-
-    Parameters
-    ----------
-    statuslimit
-        The ``?statuslimit`` reply.
-    axis
-        The axis letter.
-
-    Returns
-    -------
-    bool
-        Whether the axis was calibrated.
-    """
+    """Whether ``?statuslimit`` says ``axis`` was calibrated (``A`` in group 1, L5136)."""
     index = AXES.index(axis)
     return len(statuslimit) > index and statuslimit[index] == CALIBRATED_FLAG
 
@@ -264,28 +163,7 @@ class Msta:
 
 def msta(*, moving: bool, switches: LimitSwitches, problem: bool, comm_error: bool,
          homed: bool, positive: bool) -> int:
-    """The MSTA word of an axis from what the controller reported.
-
-    Parameters
-    ----------
-    moving
-        The axis moves (MOVING, else DONE).
-    switches
-        The state of its limit switches.
-    problem
-        Set PROBLEM (a move or command failed).
-    comm_error
-        Set COMM_ERR (the link is down).
-    homed
-        Set HOMED (the axis was calibrated).
-    positive
-        Set DIRECTION (the last move went the positive way).
-
-    Returns
-    -------
-    int
-        The MSTA bits.
-    """
+    """The MSTA word of an axis from what the controller reported."""
     word = Msta.MOVING if moving else Msta.DONE
     flags = ((positive, Msta.DIRECTION), (switches.high, Msta.PLUS_LS),
              (switches.low, Msta.MINUS_LS), (problem, Msta.PROBLEM),
@@ -327,21 +205,7 @@ class Ending(Enum):
 
 
 def fault_after(fault: Alarm, ending: Ending) -> Alarm:
-    """The fault alarm of an axis after a request ended as ``ending``.
-
-    Parameters
-    ----------
-    fault
-        The fault alarm before (:data:`NO_ALARM` for none).
-    ending
-        How the request ended.
-
-    Returns
-    -------
-    Alarm
-        The fault alarm after: raised by a failed or refused move, cleared only by a move
-        that arrived, unchanged by a stop.
-    """
+    """The fault alarm of an axis after a request ended as ``ending``."""
     if ending is Ending.ARRIVED:
         return NO_ALARM
     if ending is Ending.FAILED:
@@ -354,38 +218,12 @@ def fault_after(fault: Alarm, ending: Ending) -> Alarm:
 
 
 def shown_alarm(fault: Alarm, *, link_up: bool) -> Alarm:
-    """The alarm every PV of an axis shows.
-
-    Parameters
-    ----------
-    fault
-        The axis's fault alarm (:func:`fault_after`).
-    link_up
-        Whether the link to the controller is up.
-
-    Returns
-    -------
-    Alarm
-        INVALID/COMM while the link is down, else the fault alarm.
-    """
+    """The alarm every PV of an axis shows."""
     return fault if link_up else LINK_DOWN
 
 
 def limit_violation(dial: float, low: float, high: float) -> Ending | None:
-    """Whether a dial target violates the soft limits ``[low, high]`` (dial units).
-
-    Parameters
-    ----------
-    dial
-        The target, in dial units.
-    low, high
-        The dial soft limits (DLLM, DHLM); both 0 means no limits, as in the motor record.
-
-    Returns
-    -------
-    Ending | None
-        :attr:`Ending.ABOVE_LIMIT` or :attr:`Ending.BELOW_LIMIT`, or ``None`` inside.
-    """
+    """Whether a dial target violates the soft limits ``[low, high]`` (dial units)."""
     if low == high == 0.0:
         return None
     if dial > high:

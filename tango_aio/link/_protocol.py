@@ -175,50 +175,12 @@ class MoveHandle:
 
     async def error(self, timeout: float | None) -> ControllerError | None:
         """Wait for the line's check; the controller's error, ``None`` if it was accepted
-        (or unchecked).
-
-        Parameters
-        ----------
-        timeout
-            Seconds the check's reply may take (``None``: no limit).
-
-        Returns
-        -------
-        ControllerError or None
-            The error the controller reported for the line; ``None`` if it was accepted
-            (or unchecked).
-
-        Raises
-        ------
-        ControllerTimeoutError
-            The check got no reply within ``timeout`` seconds.
-        RequestAbortedError
-            The check was lost to a resync.
-        ConnectionLostError
-            The link is gone.
-        SettingNotAppliedError
-            A set line's read-back shows another value than the one written.
-        """
+        (or unchecked)."""
         return await self.protocol._error_of(self.submission, self.probe, self.check,
                                              timeout, self.proof)
 
     async def confirm(self, timeout: float | None) -> None:
-        """Like :meth:`error`, but raise the controller's error (and forget the report).
-
-        Parameters
-        ----------
-        timeout
-            Seconds the check's reply may take (``None``: no limit).
-
-        Raises
-        ------
-        ControllerError
-            The controller reported an error for the line.
-        SettingNotAppliedError
-            A set line's read-back shows another value than the one written.
-        ControllerTimeoutError, RequestAbortedError, ConnectionLostError
-            The check itself was lost (see :meth:`error`).
-        """
+        """Like :meth:`error`, but raise the controller's error (and forget the report)."""
         error = await self.error(timeout)
         if error is not None:
             self.forget()
@@ -226,18 +188,7 @@ class MoveHandle:
 
     async def report(self) -> Completed:
         """Wait for the completion report (only when :attr:`expects_report`); cancelling
-        the wait leaves the report awaited.
-
-        Returns
-        -------
-        Completed
-            The completion report.
-
-        Raises
-        ------
-        RuntimeError
-            The line expects no completion report.
-        """
+        the wait leaves the report awaited."""
         completion = self.submission.completion
         if completion is None:
             raise RuntimeError(f"{self.command.line!r} expects no completion report")
@@ -264,41 +215,7 @@ EventCallback = Callable[[Event, "Submission | None"], None]
 
 
 class TangoProtocol(asyncio.Protocol):
-    """Routes the controller's lines to awaiting requests, moves and the event callback.
-
-    Parameters
-    ----------
-    autostatus
-        The autostatus mode in force when the first line reaches the controller.
-    context
-        Controller state that shapes replies and validates lines (dims, axes, extmode).
-    on_event
-        Called with each unsolicited event, completion report and dropped line.
-    on_lost
-        Called once when the link is lost, with the transport's error.
-    credit_limit
-        Bytes written but not yet confirmed by a reply, at most (:mod:`tango_aio.sansio._flow`).
-    marker_chunk
-        Bytes of reply-less lines one credit marker confirms at most.
-    reply_timeout
-        Seconds a resync marker or keepalive read the protocol writes itself may take.
-    dead_after
-        Consecutive unanswered requests, with no line in between, that declare the link
-        dead (at least 2).
-    keepalive
-        Seconds of silence after which an idle link is probed (``None``: never).
-    separators
-        Whether a separator is written between two requests whose replies look alike
-        (:attr:`separators`).
-    detect
-        Whether the first resync runs :meth:`detect` instead (set by ``connect``).
-
-    Raises
-    ------
-    ValueError
-        ``reply_timeout`` or ``keepalive`` is not a positive number, or ``dead_after`` is
-        less than 2.
-    """
+    """Routes the controller's lines to awaiting requests, moves and the event callback."""
 
     def __init__(
         self,
@@ -381,13 +298,7 @@ class TangoProtocol(asyncio.Protocol):
         """The link carries bytes at ``byte_seconds`` per byte or slower, both ways (the
         emulator's paced wire): a reply that starts before its request's bytes could have
         passed is not its reply (:func:`~tango_aio.sansio._linktiming.earliest_reply`). Not for a
-        serial port's opened rate, which USB and PCI units do not keep (L10, L1645-1653).
-
-        Parameters
-        ----------
-        byte_seconds
-            Seconds per byte (:func:`~tango_aio.sansio._linktiming.byte_time`).
-        """
+        serial port's opened rate, which USB and PCI units do not keep (L10, L1645-1653)."""
         self.core.wire_seconds = byte_seconds
 
     @property
@@ -399,33 +310,14 @@ class TangoProtocol(asyncio.Protocol):
 
     def set_callbacks(self, on_event: EventCallback | None,
                       on_lost: Callable[[BaseException | None], None] | None) -> None:
-        """Set where unsolicited events and the connection loss are reported.
-
-        Parameters
-        ----------
-        on_event
-            Called with each unsolicited event, completion report and dropped line.
-        on_lost
-            Called once when the link is lost, with the transport's error.
-        """
+        """Set where unsolicited events and the connection loss are reported."""
         self._on_event = on_event
         self._on_lost = on_lost
 
     # -- connection ------------------------------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Called by asyncio when the link is up.
-
-        Parameters
-        ----------
-        transport
-            The link's transport.
-
-        Raises
-        ------
-        TypeError
-            The transport has no ``write``.
-        """
+        """Called by asyncio when the link is up."""
         write = getattr(transport, "write", None)
         if not callable(write):
             raise TypeError(f"{type(transport).__name__} cannot write")
@@ -447,13 +339,7 @@ class TangoProtocol(asyncio.Protocol):
         await self._connected
 
     def eof_received(self) -> bool | None:
-        """Called by asyncio when the other end closed a stream (TCP): close as well.
-
-        Returns
-        -------
-        None
-            The transport closes itself.
-        """
+        """Called by asyncio when the other end closed a stream (TCP): close as well."""
         self._peer_eof = True
         return None
 
@@ -461,13 +347,7 @@ class TangoProtocol(asyncio.Protocol):
         """Called by asyncio when the link is gone: fail everything that waits.
 
         The error's ``__cause__`` is ``exc``; when the other end closed the link without
-        an error, a :class:`ConnectionResetError` saying so stands in for it.
-
-        Parameters
-        ----------
-        exc
-            The transport's error (``None``: closed without one).
-        """
+        an error, a :class:`ConnectionResetError` saying so stands in for it."""
         if self._keepalive_task is not None:
             self._keepalive_task.cancel()
         if self._lost is not None:
@@ -520,13 +400,7 @@ class TangoProtocol(asyncio.Protocol):
         own (separators, credit markers), so that whoever opens the port next does not
         read their replies (:meth:`Controller.aclose`; a move's confirmation leaves a
         separator behind it). Returns at once when the link is gone, a resync runs, or a
-        caller's request is in flight (closing fails that one anyway).
-
-        Parameters
-        ----------
-        timeout
-            Seconds to wait at most.
-        """
+        caller's request is in flight (closing fails that one anyway)."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
         owns = self.scheduler.owns
@@ -538,13 +412,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def give_up(self, error: ConnectionLostError) -> None:
         """Record why a lost link will not come back: later calls raise ``error``'s class
-        with its message and cause (used when an automatic reconnect gives up).
-
-        Parameters
-        ----------
-        error
-            Why the link will not come back.
-        """
+        with its message and cause (used when an automatic reconnect gives up)."""
         if self._lost is not None:
             self._lost = error
 
@@ -552,15 +420,7 @@ class TangoProtocol(asyncio.Protocol):
         """Raise the connection error if the link is gone; raise
         :class:`WrongEventLoopError` when called from another event loop than the one the
         link was opened on (its callbacks run there; a future made here would never be
-        resolved).
-
-        Raises
-        ------
-        WrongEventLoopError
-            Called from another event loop than the link's.
-        ConnectionLostError
-            The link is gone, or was never made.
-        """
+        resolved)."""
         try:
             running = asyncio.get_running_loop()
         except RuntimeError:
@@ -599,25 +459,7 @@ class TangoProtocol(asyncio.Protocol):
         return tuple(self.core.awaiting_completion)
 
     async def query(self, command: Command, *, timeout: float | None) -> Response:
-        """Write the read ``command`` and return its reply lines.
-
-        Parameters
-        ----------
-        command
-            The read.
-        timeout
-            Seconds the reply may take (``None``: no limit).
-
-        Returns
-        -------
-        Response
-            The reply, its data lines in :attr:`Response.lines`.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            No reply within ``timeout`` seconds (the stream is resynchronised).
-        """
+        """Write the read ``command`` and return its reply lines."""
         return await self.request(command, timeout)
 
     async def execute(self, command: Command, *, timeout: float | None,
@@ -627,31 +469,7 @@ class TangoProtocol(asyncio.Protocol):
         With ``check`` the controller's verdict is read right behind it (the autostatus-2
         acknowledgement, else an ``?err`` probe written back to back with the line) and an
         error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
-        a completion report go through :meth:`start_move` instead.
-
-        Parameters
-        ----------
-        command
-            The set/execute line.
-        timeout
-            Seconds its confirmation may take (``None``: no limit).
-        check
-            Whether the controller's verdict is read and an error raised.
-
-        Returns
-        -------
-        Response
-            What the line got back (empty for a mode change).
-
-        Raises
-        ------
-        UnknownControllerError
-            A mode change left the controller in another mode (that mode is adopted).
-        ControllerError
-            With ``check``: the controller reported an error for the line.
-        ControllerTimeoutError
-            The confirmation got no reply within ``timeout`` seconds.
-        """
+        a completion report go through :meth:`start_move` instead."""
         if command.name == "autostatus" and command.form is Form.SET and command.values:
             return await self._change_mode(command, int(command.values[0]), timeout)
         handle = self._send_checked(command, check)
@@ -665,18 +483,7 @@ class TangoProtocol(asyncio.Protocol):
         executing?) or acknowledged (per the old or the new mode?), and whether mode 2
         acknowledges reads, the manual leaves open (L2079-2161): see
         :meth:`_mode_exchange`. A controller that kept another mode raises
-        :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted.
-
-        Returns
-        -------
-        Response
-            An empty response.
-
-        Raises
-        ------
-        UnknownControllerError
-            The controller kept another mode.
-        """
+        :class:`~tango_aio.errors.UnknownControllerError`; that mode is adopted."""
         _, actual = await self._mode_exchange([command.line], timeout)
         if self.session.mode_changed(mode, actual) is ModeVerdict.KEPT_ANOTHER:
             raise UnknownControllerError(None, command.line)
@@ -697,21 +504,7 @@ class TangoProtocol(asyncio.Protocol):
         restarted, :meth:`~tango_aio.sansio._session.LinkSession.mode_verified`) is replaced by
         the driver's in a second exchange before any held line goes out: those lines
         were submitted for the driver's mode (a mode-2 move relies on its ``OK...``),
-        so they are written in it.
-
-        Returns
-        -------
-        tuple of (int, int)
-            The mode the driver had in force once every line before was answered, and the
-            mode in force (with ``restore``: the mode found, before it was replaced).
-
-        Raises
-        ------
-        ControllerTimeoutError
-            The lines before got no reply within ``timeout`` seconds.
-        UnknownControllerError
-            With ``restore``: the controller kept another mode (that mode is adopted).
-        """
+        so they are written in it."""
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             hold = self.scheduler.hold()
@@ -757,18 +550,7 @@ class TangoProtocol(asyncio.Protocol):
     async def _idle(self, hold: int, timeout: float | None) -> bool:
         """Wait until every line up to ``hold`` (:meth:`Scheduler.hold
         <tango_aio.sansio._scheduler.Scheduler.hold>`: later lines are held) is written and
-        answered (polled: mode changes are rare).
-
-        Returns
-        -------
-        bool
-            Whether they were; false if that took more than ``timeout`` seconds.
-
-        Raises
-        ------
-        RequestAbortedError
-            Ctrl+C discarded the queued lines: the mode change is not sent.
-        """
+        answered (polled: mode changes are rare)."""
         dropped = self._queue_drops
         deadline = None if timeout is None else self._loop.time() + timeout
         while (barrier := self.session.barrier(
@@ -786,13 +568,7 @@ class TangoProtocol(asyncio.Protocol):
     async def _resync_held(self, hold: int, timeout: float | None) -> None:
         """The lines up to ``hold`` went unanswered: resync (their callers get
         :class:`~tango_aio.errors.RequestAbortedError`) while the later lines stay held,
-        then wait for the lines up to ``hold`` once more.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            The marker, or the lines before, got no reply within ``timeout`` seconds.
-        """
+        then wait for the lines up to ``hold`` once more."""
         limit = timeout if timeout is not None else self.reply_timeout
         marker = self._background_resync(limit)
         try:
@@ -812,23 +588,7 @@ class TangoProtocol(asyncio.Protocol):
         :meth:`MoveHandle.confirm`, then :meth:`MoveHandle.report`. ``batch``: the line
         and its check join the batch of the line submitted right before them (see
         :meth:`submit`; the caller treats the lines as one, e.g. a ``move_by`` whose start
-        ``?pos`` fails is stopped and fails).
-
-        Parameters
-        ----------
-        command
-            The motion line.
-        check
-            Whether the controller's verdict is read (the autostatus-2 acknowledgement,
-            else an ``?err`` probe written back to back with the line).
-        batch
-            The batch the line and its check join, if any.
-
-        Returns
-        -------
-        MoveHandle
-            The line's handle.
-        """
+        ``?pos`` fails is stopped and fails)."""
         return self._send_checked(command, check, batch)
 
     def _send_checked(self, command: Command, check: bool,
@@ -876,18 +636,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def answers(self, command: Command) -> bool:
         """Whether ``command`` owes an answer of its own in the mode in force (the
-        autostatus-2 ``OK...``, the autostatus-4 echo), which proves that it arrived.
-
-        Parameters
-        ----------
-        command
-            A set or execute line.
-
-        Returns
-        -------
-        bool
-            Whether it is acknowledged or echoed.
-        """
+        autostatus-2 ``OK...``, the autostatus-4 echo), which proves that it arrived."""
         expect = expectation(command, self.core.autostatus, self.core.context)
         return expect.ack or expect.echo
 
@@ -895,20 +644,7 @@ class TangoProtocol(asyncio.Protocol):
         """Read the setting the set line ``command`` wrote, where the line owes no answer
         of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
         :mod:`tango_aio.sansio._readback`; no read: nothing to do). For a line whose ``?err``
-        answered only a standing internal error (L2853-2867), which proves nothing.
-
-        Parameters
-        ----------
-        command
-            The set line, already written and answered.
-        timeout
-            Seconds the read may take (``None``: no limit).
-
-        Raises
-        ------
-        SettingNotAppliedError
-            The read shows another value.
-        """
+        answered only a standing internal error (L2853-2867), which proves nothing."""
         expect = expectation(command, self.core.autostatus, self.core.context)
         back = None if expect.ack or expect.echo else read_back(command, self.core.context)
         if back is not None:
@@ -916,13 +652,7 @@ class TangoProtocol(asyncio.Protocol):
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``
-        per axis, stopping only those (L6785-6844). Returns once the lines are queued.
-
-        Parameters
-        ----------
-        axes
-            The axes to stop (empty: every axis).
-        """
+        per axis, stopping only those (L6785-6844). Returns once the lines are queued."""
         for axis in axes:
             self.submit(build("a", form=Form.SET, axis=axis))
         if not axes:
@@ -933,36 +663,14 @@ class TangoProtocol(asyncio.Protocol):
         buffer (L6808-6814): requests in flight fail with
         :class:`~tango_aio.errors.RequestAbortedError`, the stream is resynchronised and
         the mode in force is read again (a discarded line may have changed it). Returns
-        once the stream is in step.
-
-        Parameters
-        ----------
-        timeout
-            Seconds the resync and the read of the mode may take, each.
-        """
+        once the stream is in step."""
         await self.resync(ctrl_c=True, timeout=timeout)
         await self.read_autostatus(timeout=timeout)
 
     async def read_autostatus(self, *, timeout: float | None, status: bool = False) -> int:
         """Read the mode in force and adopt it; return it. Any mode may be in force (an
         earlier session's), and how reads are answered in it is not known yet: read the
-        way a mode change is confirmed (:meth:`_mode_exchange`).
-
-        Parameters
-        ----------
-        timeout
-            Seconds the exchange may take (``None``: no limit).
-        status
-            Also write ``?statusaxis`` in front, and record in :attr:`detected` how its
-            reply ends (``status_tail``, :func:`~tango_aio.sansio._session.status_tail`): the
-            exchange sees the raw lines, which the core would route a reply shaped like
-            a completion report away from.
-
-        Returns
-        -------
-        int
-            The mode in force.
-        """
+        way a mode change is confirmed (:meth:`_mode_exchange`)."""
         return (await self._mode_exchange([STATUS_READ] if status else [], timeout))[1]
 
     # -- liveness and the mode -----------------------------------------------------------
@@ -989,18 +697,7 @@ class TangoProtocol(asyncio.Protocol):
         """Read the mode in force (the way a mode change is confirmed, so that whatever
         the controller's mode, its reply is understood) and compare it with the mode the
         driver has in force; if they differ (the controller restarted: power-on mode 1,
-        L2062), restore the driver's mode before any later line.
-
-        Parameters
-        ----------
-        timeout
-            Seconds each exchange may take (``None``: no limit).
-
-        Returns
-        -------
-        bool
-            Whether the mode had to be restored.
-        """
+        L2062), restore the driver's mode before any later line."""
         expected, actual = await self._mode_exchange([], timeout, restore=True)
         if self.session.mode_verified(expected, actual) is ModeVerdict.IN_FORCE:
             return False
@@ -1044,30 +741,7 @@ class TangoProtocol(asyncio.Protocol):
         The line is written at once when the credit allows, else as soon as replies free
         enough credit; lines are always written in submission order. A line whose reply
         could be taken for the reply of the line written before it gets a separator
-        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.sansio._patterns`).
-
-        Parameters
-        ----------
-        command
-            The line.
-        batch
-            Lines of one batch get no separator between them (``None``: no batch).
-        hold
-            Whether to leave the writing to the caller's next flush (lines that belong
-            together are queued first).
-
-        Returns
-        -------
-        Submission
-            The line's submission.
-
-        Raises
-        ------
-        ConnectionLostError
-            The link is gone.
-        InvalidCommandError
-            The line holds a control or non-ASCII character.
-        """
+        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.sansio._patterns`)."""
         self.check()
         check_framing(command)
         tag, mode, expect = self.scheduler.plan(command)
@@ -1090,21 +764,7 @@ class TangoProtocol(asyncio.Protocol):
                         separate_after: bool = False) -> list[Submission]:
         """:meth:`submit` each of ``commands`` and write them in one write where the
         credit allows (e.g. reads whose replies cannot be taken for each other: one write
-        instead of one per line).
-
-        Parameters
-        ----------
-        commands
-            The lines, in order.
-        separate_after
-            Whether a separator follows the last one in the same write (see
-            :attr:`~tango_aio.sansio._scheduler.Line.separate_after`).
-
-        Returns
-        -------
-        list of Submission
-            Their submissions, in order.
-        """
+        instead of one per line)."""
         submissions = [self.submit(command, hold=True) for command in commands]
         if submissions:
             submissions[-1].separate_after = separate_after
@@ -1136,18 +796,7 @@ class TangoProtocol(asyncio.Protocol):
     def withdraw(self, submissions: Iterable[Line]) -> int:
         """Take lines that are still queued out of the queue; return how many were.
 
-        Their futures are cancelled. Lines already written are not affected.
-
-        Parameters
-        ----------
-        submissions
-            The lines (submissions or runs) to take back.
-
-        Returns
-        -------
-        int
-            How many were still queued.
-        """
+        Their futures are cancelled. Lines already written are not affected."""
         removed = self.scheduler.withdraw(submissions)
         for submission in removed:
             if isinstance(submission, Submission):
@@ -1160,25 +809,7 @@ class TangoProtocol(asyncio.Protocol):
              ) -> Run | None:
         """Reply-less lines (list entries) as one record to :meth:`submit_run`: one bytes
         blob, not one object per line (:class:`~tango_aio.sansio._scheduler.Run`); ``None`` when
-        a line would owe something in the mode in force (then :meth:`submit` each).
-
-        Parameters
-        ----------
-        commands
-            The lines, in order.
-        batch
-            The batch the lines belong to, if any.
-
-        Returns
-        -------
-        Run or None
-            The run; ``None`` when a line owes something.
-
-        Raises
-        ------
-        InvalidCommandError
-            A line holds a control or non-ASCII character.
-        """
+        a line would owe something in the mode in force (then :meth:`submit` each)."""
         for command in commands:
             check_framing(command)
         return self.scheduler.pack(commands, batch)
@@ -1186,29 +817,7 @@ class TangoProtocol(asyncio.Protocol):
     def pack_lines(self, template: Command, lines: Sequence[bytes], *,
                    batch: object | None = None) -> Run | None:
         """:meth:`pack` for list entries given as bytes, each a line of ``template``'s
-        instruction and form (:func:`~tango_aio.catalog._instructions.encode_rows`), framing
-        checked on the whole blob (:meth:`~tango_aio.sansio._scheduler.WriteScheduler.pack_lines`).
-
-        Parameters
-        ----------
-        template
-            A line of the entries' instruction and form.
-        lines
-            The encoded lines, each CR-terminated.
-        batch
-            As for :meth:`pack`.
-
-        Returns
-        -------
-        Run or None
-            As for :meth:`pack`.
-
-        Raises
-        ------
-        InvalidCommandError
-            A line holds a control or non-ASCII character, or the blob is not one line
-            per entry.
-        """
+        instruction and form (``encode_rows``), framing checked on the whole blob."""
         check_framing(template)
         run = self.scheduler.pack_lines(template, lines, batch)
         if run is not None:
@@ -1218,23 +827,7 @@ class TangoProtocol(asyncio.Protocol):
     def submit_run(self, run: Run) -> Run:
         """Queue a run from :meth:`pack`. On the wire the same bytes, credit markers and
         separators as one :meth:`submit` per line; :meth:`withdraw` takes back the lines
-        of the run not yet written.
-
-        Parameters
-        ----------
-        run
-            The run, from :meth:`pack` or :meth:`pack_lines`.
-
-        Returns
-        -------
-        Run
-            The same run.
-
-        Raises
-        ------
-        ConnectionLostError
-            The link is gone.
-        """
+        of the run not yet written."""
         self.check()
         if self.scheduler.submit(run):
             self._flush()
@@ -1267,25 +860,7 @@ class TangoProtocol(asyncio.Protocol):
     async def request(self, command: Command, timeout: float | None = 5.0) -> Response:
         """Write ``command`` and wait for its reply (an empty Response if it owes none).
 
-        On timeout the stream is resynchronised and :class:`ControllerTimeoutError` raised.
-
-        Parameters
-        ----------
-        command
-            The line.
-        timeout
-            Seconds the reply may take (``None``: no limit).
-
-        Returns
-        -------
-        Response
-            The reply (empty if the line owes none).
-
-        Raises
-        ------
-        ControllerTimeoutError
-            No reply within ``timeout`` seconds.
-        """
+        On timeout the stream is resynchronised and :class:`ControllerTimeoutError` raised."""
         submission = self.submit(command)
         if submission.reply is None:
             return submission.response
@@ -1299,29 +874,7 @@ class TangoProtocol(asyncio.Protocol):
         (its marker gets ``timeout`` too) and holds the lines queued behind it until the
         stream is in step. The timeout counts towards declaring a dead link lost
         (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
-        the timeout as its cause.
-
-        Parameters
-        ----------
-        submission
-            The submission whose reply is awaited (it owes one).
-        timeout
-            Seconds from now the reply may take (``None``: no limit); a line that was
-            still queued when the wait began and went out during it gets them once more,
-            from then.
-
-        Returns
-        -------
-        Response
-            Its echo, data lines and acknowledgement.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            No reply within ``timeout`` seconds.
-        ConnectionLostError
-            The link is gone, or this timeout declared it dead.
-        """
+        the timeout as its cause."""
         reply = submission.reply
         assert reply is not None
         queued = not submission.written
@@ -1335,20 +888,7 @@ class TangoProtocol(asyncio.Protocol):
                              queued: bool, timeout: float | None) -> Response:
         """``submission``'s reply did not come within ``timeout``: do what the session
         says (:meth:`~tango_aio.sansio._session.LinkSession.reply_overdue`), waiting once more if
-        it says so.
-
-        Returns
-        -------
-        Response
-            The reply, when it came during a second wait.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            No reply in time.
-        ConnectionLostError
-            The link is gone, or this timeout declared it dead.
-        """
+        it says so."""
         waits = 1
         while (overdue := self.session.reply_overdue(
                 queued=queued, written=submission.written, waits=waits,
@@ -1386,14 +926,7 @@ class TangoProtocol(asyncio.Protocol):
         power-cycled behind one). ``serial`` numbers the line among those written: lines
         that were in flight together count once (they time out together when one reply is
         lost), so each count is a line written after the previous count. ``marker``: the
-        tag of an overdue resync marker (the session may ask for a new one).
-
-        Returns
-        -------
-        Silence
-            What the session concluded (:attr:`~tango_aio.sansio._session.Silence.DEAD`: the link
-            was declared lost).
-        """
+        tag of an overdue resync marker (the session may ask for a new one)."""
         if self.on_unanswered is not None and self._lost is None:
             self.on_unanswered()
         written = self.scheduler.written_lines
@@ -1413,13 +946,7 @@ class TangoProtocol(asyncio.Protocol):
     def _background_resync(self, timeout: float) -> asyncio.Future[Response] | None:
         """Resync without anybody awaiting it: lines still queued wait for its end; if its
         marker is not answered within ``timeout`` it counts as unanswered and the next
-        resync starts.
-
-        Returns
-        -------
-        asyncio.Future[Response] | None
-            The marker's future; ``None``: the link is gone, nothing was written.
-        """
+        resync starts."""
         if self._lost is not None or self._transport is None:
             return None
         tag, marker = self._begin_resync(keep_queue=True)
@@ -1445,23 +972,7 @@ class TangoProtocol(asyncio.Protocol):
 
         Every pending request fails with :class:`RequestAbortedError`; the call returns
         when the marker's reply has arrived. The first resync of a link opened by
-        ``connect`` runs :meth:`detect` instead.
-
-        Parameters
-        ----------
-        ctrl_c
-            Whether Ctrl+C goes first (it stops all axes and empties the controller's input
-            buffer, L6808-6814).
-        timeout
-            Seconds the marker's reply may take.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            The marker got no reply within ``timeout`` seconds.
-        ConnectionLostError
-            The link is gone, or this timeout declared it dead.
-        """
+        ``connect`` runs :meth:`detect` instead."""
         self.check()
         if self.session.detects_first(ctrl_c=ctrl_c):
             await self.detect(timeout=timeout)
@@ -1518,18 +1029,7 @@ class TangoProtocol(asyncio.Protocol):
         2. ``?help N`` then ``?err``. The lines before the ``?err`` number tell:
            ``ERROR N,...`` (firmware 1.71, L2919), the text alone (some firmware: then
            the markers use N and wait for that text), or nothing (older firmware, whose
-           ``help`` takes no parameter: resyncs wait for quiet).
-
-        Parameters
-        ----------
-        timeout
-            Seconds each exchange may take.
-
-        Returns
-        -------
-        dict of str to str
-            What the driver found out (:attr:`detected`).
-        """
+           ``help`` takes no parameter: resyncs wait for quiet)."""
         # The barrier lock keeps a keepalive's mode exchange from starting in between (one
         # exchange at a time: the session refuses a second).
         async with self._barrier_lock:
@@ -1552,13 +1052,7 @@ class TangoProtocol(asyncio.Protocol):
         collected up to what ends the exchange (:class:`~tango_aio.sansio._session.Until`).
         Only call it when nothing is owed. ``adopt`` learns from the lines collected
         before the lines held behind the exchange are written; when it returns true,
-        they stay held (the caller releases them).
-
-        Returns
-        -------
-        Exchange
-            The lines collected.
-        """
+        they stay held (the caller releases them)."""
         data = self.session.begin_exchange(lines, until, marker, now=self._loop.time())
         collected = self.session.exchange
         assert collected is not None
@@ -1636,13 +1130,7 @@ class TangoProtocol(asyncio.Protocol):
     def _begin_resync(self, ctrl_c: bool = False, *, keep_queue: bool = False
                       ) -> tuple[Hashable, asyncio.Future[Response]]:
         """Write the resync marker (see :meth:`resync`); return its tag and future. Lines
-        still queued are dropped, or with ``keep_queue`` written after the marker.
-
-        Returns
-        -------
-        tuple
-            The marker's tag and the future its reply resolves.
-        """
+        still queued are dropped, or with ``keep_queue`` written after the marker."""
         tag = self.scheduler.next_tag()
         marker: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
         if not keep_queue:
@@ -1656,13 +1144,7 @@ class TangoProtocol(asyncio.Protocol):
         return tag, marker
 
     def forget_completion(self, submission: Submission) -> None:
-        """Stop waiting for ``submission``'s completion (e.g. the move was refused).
-
-        Parameters
-        ----------
-        submission
-            The move's submission.
-        """
+        """Stop waiting for ``submission``'s completion (e.g. the move was refused)."""
         for tag, known in list(self._submissions.items()):
             if known is submission:
                 self.core.forget_completion(tag)
@@ -1673,13 +1155,7 @@ class TangoProtocol(asyncio.Protocol):
     # -- receiving ------------------------------------------------------------------------
 
     def data_received(self, data: bytes) -> None:
-        """Called by asyncio with bytes from the controller.
-
-        Parameters
-        ----------
-        data
-            Bytes as they were read, any fragment of the stream.
-        """
+        """Called by asyncio with bytes from the controller."""
         self._trace_received(data)
         # Read after the bytes were: never earlier than they arrived (linktiming).
         now = self._loop.time()
@@ -1825,15 +1301,7 @@ class TangoProtocol(asyncio.Protocol):
 
     def fail_completions(self, error: BaseException,
                          only: Collection[Hashable] | None = None) -> None:
-        """Fail every move still waiting for its completion report (or those of ``only``).
-
-        Parameters
-        ----------
-        error
-            The error their futures fail with.
-        only
-            Tags of the moves to fail (from :attr:`moves_awaiting`); ``None``: every move.
-        """
+        """Fail every move still waiting for its completion report (or those of ``only``)."""
         if only is None:
             tags = self.core.drop_completions()
         else:
@@ -1860,18 +1328,7 @@ def _fail(future: asyncio.Future[Any] | None, error: BaseException) -> None:
 
 def _judged(reply: str, err: bool, line: str) -> int | None:
     """The error number a verdict on ``line`` gives; ``err``: the reply of an ``?err``
-    (else an acknowledgement).
-
-    Returns
-    -------
-    int | None
-        0: accepted; else the error number (``None``: a bare ``ERR``).
-
-    Raises
-    ------
-    GarbledVerdictError
-        The reply is not a clean verdict: it proves nothing about the line.
-    """
+    (else an acknowledgement)."""
     verdict, code = err_verdict(reply) if err else ack_verdict(reply)
     if verdict is Verdict.GARBLED:
         raise GarbledVerdictError(line, reply)

@@ -131,20 +131,7 @@ class MoveTiming:
     settle_ms: float = 0.0
 
     def travel(self, axis: str, distance: float) -> float:
-        """How long a single-axis move takes at the slowest plausible speed.
-
-        Parameters
-        ----------
-        axis
-            The axis letter (``"x"`` ... ``"a"``).
-        distance
-            The distance, in the axis's user unit (its ``dim``); the sign is ignored.
-
-        Returns
-        -------
-        float
-            Seconds of a trapezoid move at ``vel`` capped by ``secvel``, with ``accel``.
-        """
+        """How long a single-axis move takes at the slowest plausible speed."""
         index = AXES.index(axis)
         scale = UnitScale(dim=self.dims[index], pitch=self.pitch[index])
         return travel_time(abs(scale.pos_from_user(distance)),
@@ -154,23 +141,7 @@ class MoveTiming:
 
 
 def travel_time(revs: float, speed: float, accel: float) -> float:
-    """How long a trapezoid move of ``revs`` motor revolutions takes.
-
-    Parameters
-    ----------
-    revs
-        The distance, in motor revolutions (not negative).
-    speed
-        The top speed, in revolutions per second.
-    accel
-        The acceleration, in revolutions per second squared.
-
-    Returns
-    -------
-    float
-        Seconds; :data:`UNKNOWN_TRAVEL` when the speed or acceleration is not a positive
-        finite number.
-    """
+    """How long a trapezoid move of ``revs`` motor revolutions takes."""
     if speed <= 0 or accel <= 0 or not math.isfinite(speed + accel):
         return UNKNOWN_TRAVEL
     ramp = speed / accel
@@ -180,21 +151,7 @@ def travel_time(revs: float, speed: float, accel: float) -> float:
 
 
 def moved_axes(command: Command, present: Sequence[str]) -> tuple[str, ...]:
-    """The axes a motion line moves.
-
-    Parameters
-    ----------
-    command
-        The motion line.
-    present
-        The axes the controller has.
-
-    Returns
-    -------
-    tuple[str, ...]
-        Its axis, the leading axes it has values for, or every present axis (``cal``,
-        ``rm``, ``moc`` without an axis).
-    """
+    """The axes a motion line moves."""
     if command.axis is not None:
         return (command.axis,)
     if command.values:
@@ -206,18 +163,7 @@ def position_tolerance(text: str) -> float:
     """How far a position read as ``text`` may be from its target.
 
     The controller prints positions rounded to its ``resolution`` (L4080-4100), and a
-    ``move_by`` target carries the rounding of the start position too.
-
-    Parameters
-    ----------
-    text
-        The position as printed.
-
-    Returns
-    -------
-    float
-        One and a half units of its last printed digit.
-    """
+    ``move_by`` target carries the rounding of the start position too."""
     digits = len(text.rsplit(".", 1)[1]) if "." in text else 0
     return 1.5 * 10.0 ** -digits
 
@@ -256,25 +202,7 @@ def _travel(timing: MoveTiming, distances: Mapping[str, float]) -> float:
 
 def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, float] | None,
                 timeout: float | None = None) -> Budget:
-    """The budget of one motion line.
-
-    Parameters
-    ----------
-    timing
-        The settings in force.
-    command
-        The motion line.
-    distances
-        How far it moves each axis, in user units (``None``: not known, ``cal``, ``rm``
-        and ``moc``).
-    timeout
-        The caller's timeout, which replaces the computed limit.
-
-    Returns
-    -------
-    Budget
-        Its ``!delay``, travel, pause and settling, and its limit.
-    """
+    """The budget of one motion line."""
     delayed = command.name in _DELAYED
     delay = timing.delay_ms / 1000.0 if delayed else 0.0
     settle = timing.settle_ms / 1000.0
@@ -293,24 +221,7 @@ def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[s
                 fallback: float) -> float:
     """How long a move may still take from where its axes stand.
 
-    The limit rule of :func:`move_budget` without the delay (the move has started).
-
-    Parameters
-    ----------
-    timing
-        The settings in force.
-    targets
-        The move's absolute targets, per axis.
-    now
-        The positions printed now, per axis.
-    fallback
-        What to give when a position of ``targets`` was not read.
-
-    Returns
-    -------
-    float
-        Seconds from now.
-    """
+    The limit rule of :func:`move_budget` without the delay (the move has started)."""
     if not set(targets) <= set(now):
         return fallback
     travel = _travel(timing, {a: t - float(now[a]) for a, t in targets.items()})
@@ -327,28 +238,7 @@ def failed_axes(moved: Sequence[str], targets: Mapping[str, float] | None,
     is not disabled or absent (``-``, L2711: it did not move at all; unless it is in
     ``optional``, the axes an all-axes ``cal``, ``rm`` or ``moc`` takes in only when
     enabled) and stands within :func:`position_tolerance` (or its ``tolerance``) of its
-    target. The one rule of a move's end: the driver, the shell and the IOC judge by it.
-
-    Parameters
-    ----------
-    moved
-        The axes the move moved.
-    targets
-        Their absolute targets (``None``: ``cal``, ``rm``, ``moc`` have none).
-    tolerance
-        A wider tolerance per axis, where one applies.
-    letters
-        The status letters read (an axis not read counts as ``-``).
-    texts
-        The positions read right behind them, as printed.
-    optional
-        Moved axes that may read ``-`` (they took no part).
-
-    Returns
-    -------
-    tuple[str, ...]
-        The axes that failed; empty if every moved axis ended well.
-    """
+    target. The one rule of a move's end: the driver, the shell and the IOC judge by it."""
     bad = []
     for axis in moved:
         letter = letters.get(axis, ABSENT)
@@ -364,19 +254,7 @@ def failed_axes(moved: Sequence[str], targets: Mapping[str, float] | None,
 def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
             tolerance: Mapping[str, float], letters: Mapping[str, str],
             texts: Mapping[str, str], *, optional: Collection[str] = ()) -> str | None:
-    """Judge one state read of a move whose axes stopped (:func:`failed_axes`).
-
-    Parameters
-    ----------
-    moved, targets, tolerance, letters, texts, optional
-        As for :func:`failed_axes`.
-
-    Returns
-    -------
-    str | None
-        ``None`` if every moved axis ended well; else what went wrong, in words: which
-        axis, where it stopped, its target and why.
-    """
+    """Judge one state read of a move whose axes stopped (:func:`failed_axes`)."""
     bad = failed_axes(moved, targets, tolerance, letters, texts, optional=optional)
     if not bad:
         return None
@@ -400,28 +278,7 @@ def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
     * closed-loop settling (``ctrt``, L11616-11631): an axis that stopped short of its
       target with a letter that does not say it failed (``@``) may still be settling;
       until the expected end. A failure letter (``E``, ``S``, ``T``) or ``-`` (the axis
-      is disabled, L2711: it does not move at all) is final.
-
-    Parameters
-    ----------
-    budget
-        The move's budget (its ``!delay`` and settling).
-    moved
-        The axes the move moved.
-    letters
-        The status letters of the failed read.
-    checked
-        When the line's check came back (the controller had taken the line by then).
-    now
-        When the state was read.
-    expected_end
-        When the move should have ended.
-
-    Returns
-    -------
-    float | None
-        When to read the state again; ``None``: the verdict stands, the move fails now.
-    """
+      is disabled, L2711: it does not move at all) is final."""
     if budget.delay > 0:
         started_by = checked + budget.delay + POLL_GRACE
         if now < started_by:
@@ -440,20 +297,7 @@ def polled_during(moved: Sequence[str], reports: bool) -> bool:
     end. A move of several axes sends its report only once all of them stand (one report
     per move line, L2085-2089); the manual does not say that an axis stopped by a limit
     switch or an error (L2699, L2705-2707) stops the others of the line, so the report
-    may come only when they end, the whole planned travel later.
-
-    Parameters
-    ----------
-    moved
-        The axes the line moves.
-    reports
-        Whether the mode in force sends completion reports.
-
-    Returns
-    -------
-    bool
-        Whether to poll during the travel.
-    """
+    may come only when they end, the whole planned travel later."""
     return not reports or len(moved) > 1
 
 
@@ -464,30 +308,7 @@ def cut_short(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
     An axis that reads a failure letter (``E``, ``S``, ``T``) or ``-`` (disabled, L2711)
     has not reached its target and will not (:func:`too_early`: such a letter is final
     once any ``!delay`` is over): the move has failed, whatever the other axes do. The
-    caller stops them and raises at once instead of waiting for them to end.
-
-    Parameters
-    ----------
-    budget
-        The move's budget (its ``!delay``).
-    moved
-        The axes the move moved.
-    letters
-        The status letters read.
-    checked
-        When the line's check came back.
-    now
-        When the state was read.
-    expected_end
-        When the move should have ended.
-
-    Returns
-    -------
-    tuple[str, ...]
-        The moved axes that ended it, in order; empty when none did, when no moved axis
-        still moves (:func:`verdict` judges that read), or while the read may come too
-        early.
-    """
+    caller stops them and raises at once instead of waiting for them to end."""
     ended = tuple(a for a in moved if letters.get(a, ABSENT) in _FINAL)
     if not ended or not any(letters.get(a) == MOVING for a in moved):
         return ()
@@ -510,26 +331,7 @@ def describe_stop(axis: str, letter: str, text: str | None, target: float | None
 
     Which limit switch is told from the direction of travel: an axis that stopped below
     its target was moving up, towards its upper switch (EE), and the reverse (the
-    manual's letter ``S`` does not say which, L2699).
-
-    Parameters
-    ----------
-    axis
-        The axis letter.
-    letter
-        Its status letter.
-    text
-        Its position as read (``None``: not read).
-    target
-        Its target (``None``: the move has none).
-    why
-        Said instead of what the letter says (e.g. an abort by this program).
-
-    Returns
-    -------
-    str
-        E.g. ``"X stopped at its upper limit switch (EE) (status S), at 50.05, target 60"``.
-    """
+    manual's letter ``S`` does not say which, L2699)."""
     name = axis.upper()
     where = "position not read" if text is None else f"at {text}"
     aim = "" if target is None else f", target {target:g}"
@@ -574,18 +376,7 @@ def err_verdict(line: str) -> tuple[Verdict, int | None]:
 
     Clean is the error number as a decimal value (L2847), one the manual documents
     (chapter 5, L961-1034), with no leading zero: a glued or flipped byte that still
-    makes a number (``07``, ``50``) is garbled; ``0`` accepts.
-
-    Parameters
-    ----------
-    line
-        The reply, CR removed.
-
-    Returns
-    -------
-    tuple[Verdict, int | None]
-        The verdict and the number read (``None``: no number).
-    """
+    makes a number (``07``, ``50``) is garbled; ``0`` accepts."""
     match = _ERR_REPLY.fullmatch(line)
     if match is None:
         return Verdict.GARBLED, None
@@ -595,19 +386,7 @@ def err_verdict(line: str) -> tuple[Verdict, int | None]:
 
 def ack_verdict(line: str) -> tuple[Verdict, int | None]:
     """Judge an autostatus-2 acknowledgement: ``OK...`` accepts, ``ERR n`` with a
-    documented non-zero ``n`` (or a bare ``ERR``) refuses, anything else is garbled.
-
-    Parameters
-    ----------
-    line
-        The acknowledgement, CR removed.
-
-    Returns
-    -------
-    tuple[Verdict, int | None]
-        The verdict and the error number (0 for ``OK...``; ``None``: a bare ``ERR``,
-        or none read).
-    """
+    documented non-zero ``n`` (or a bare ``ERR``) refuses, anything else is garbled."""
     match = _ACK_REPLY.fullmatch(line)
     if match is None:
         return Verdict.GARBLED, None
@@ -637,20 +416,7 @@ def report_shows_run(moved: Sequence[str], letters: Mapping[str, str] | None) ->
     """Whether a motion line's completion report shows that the line ran: any report
     does, but one with ``E`` for every axis of the line, which some firmware sends for a
     refused move (switch ``refused_move_report``; the manual is silent: L2690-2705 name
-    ``E`` "error response, move aborted or not executed").
-
-    Parameters
-    ----------
-    moved
-        The axes the line moves.
-    letters
-        The report's letters by axis (``None``: the bare CR of autostatus 3).
-
-    Returns
-    -------
-    bool
-        Whether the report proves the line ran.
-    """
+    ``E`` "error response, move aborted or not executed")."""
     if letters is None or not moved:
         return True
     return any(letters.get(axis, AxisStatus.ERROR) != AxisStatus.ERROR for axis in moved)
@@ -666,32 +432,7 @@ def contest(moved: Sequence[str], letters: Mapping[str, str], *, clean: bool,
     ``8``), so even a clean refusal may be a garbled acceptance: the line's axes
     moving (``M``, L2695), or its completion report, show that it ran. A garbled
     verdict with nothing moving leaves the line's fate unknown (a short move may have
-    ended already).
-
-    Parameters
-    ----------
-    moved
-        The axes the line moves.
-    letters
-        The ``?statusaxis`` letters read behind the verdict (the interpreter executes
-        lines in order, so the line had started by then if it ran).
-    clean
-        Whether the verdict was a clean refusal (else garbled).
-    reported
-        Whether the line's completion report came.
-    busy
-        The axes that may have been moving before the line (the driver's own motion
-        in flight): their motion does not contradict a clean refusal (e.g. a move
-        refused because its axis is busy).
-    shifted
-        The line's axes that stand elsewhere than before it (:func:`shifted_axes`): a
-        short move may have ended before the letters were read.
-
-    Returns
-    -------
-    Contest
-        The moving axes, whether the refusal stands, and why not in words.
-    """
+    ended already)."""
     moving = tuple(a for a in moved
                    if letters.get(a) == MOVING and not (clean and a in busy))
     named = " ".join(moving).upper()
@@ -715,22 +456,7 @@ def shifted_axes(axes: Sequence[str], before: Mapping[str, str] | None,
                  now: Mapping[str, str]) -> tuple[str, ...]:
     """The axes whose position, as printed, moved between two reads: by more than three
     times the larger :func:`position_tolerance` of the two (a count or two of encoder
-    jitter is no move).
-
-    Parameters
-    ----------
-    axes
-        The axes to compare.
-    before
-        The positions read before (``None``: none known).
-    now
-        The positions read now.
-
-    Returns
-    -------
-    tuple[str, ...]
-        The axes that moved, of those read both times.
-    """
+    jitter is no move)."""
     if not before:
         return ()
     return tuple(a for a in axes if a in before and a in now and abs(
@@ -790,26 +516,7 @@ def acceptance(command: Command, letters: Mapping[str, str], present: Sequence[s
     for it, :func:`stop_time`); one a ``go`` sends stands at its target (``positions``,
     as printed: a short go may be done). An axis that stands where the line sets it
     running (at a switch or a soft limit in its direction, L6724, or not enabled), or
-    moves as before it, shows nothing: the line may not have arrived.
-
-    Parameters
-    ----------
-    command
-        The ``speed`` or ``go`` line, answered without an error.
-    letters
-        The ``?statusaxis`` letters read behind it.
-    present
-        The axes the controller has.
-    busy
-        The line's axes that moved before it.
-    positions
-        ``?pos`` read behind the line, as printed (``None``: not read).
-
-    Returns
-    -------
-    Acceptance
-        Which axes show nothing of the line, which are still stopping, which move.
-    """
+    moves as before it, shows nothing: the line may not have arrived."""
     moved = moved_axes(command, present)
     values = [float(v) for v in command.values if isinstance(v, int | float)]
     runs: dict[str, float] = {}
@@ -841,41 +548,14 @@ def _at(target: float, printed: str | None) -> bool:
 
 def speed_shown(value: float, printed: str) -> bool:
     """Whether ``?speed`` of an axis, as printed, shows the speed ``value`` a line set:
-    the speed in force (L6758), within one and a half units of its last digit.
-
-    Parameters
-    ----------
-    value
-        The speed written.
-    printed
-        The reply of ``?speed`` for that axis.
-
-    Returns
-    -------
-    bool
-        Whether it shows ``value``.
-    """
+    the speed in force (L6758), within one and a half units of its last digit."""
     return _at(value, printed.strip())
 
 
 def stop_time(timing: MoveTiming, axes: Iterable[str]) -> float:
     """How long axes that a ``speed`` 0 or a ``go`` without target stops may still move:
     the ramp from the fastest speed (:data:`MAX_SPEED`, or ``vel`` if faster) down at
-    ``accel`` (L6728), and :data:`MARGIN`.
-
-    Parameters
-    ----------
-    timing
-        The cached settings.
-    axes
-        The axes that stop.
-
-    Returns
-    -------
-    float
-        Seconds; :data:`UNKNOWN_TRAVEL` and :data:`MARGIN` when an acceleration is not a
-        positive finite number.
-    """
+    ``accel`` (L6728), and :data:`MARGIN`."""
     longest = 0.0
     for axis in axes:
         index = AXES.index(axis)

@@ -172,26 +172,7 @@ class MoveTracker:
         unanswered (:meth:`alias_unanswered`), and modes 2 and 4, whose acknowledgements
         and echoes the manual describes for ``!`` lines and reads but not for a bare
         alias (L2099-2117). The position of a move of one axis is read alone
-        (``?pos x``) on a unit whose per-axis reads answer one value (``exact_replies``).
-
-        Parameters
-        ----------
-        axes
-            The axes whose positions are wanted; empty: a read of every axis.
-        present
-            The axes the controller has.
-        family
-            The firmware family identified (``"1.71"``, ...; ``""``: not identified).
-        autostatus
-            The mode in force.
-        exact_replies
-            Whether per-axis replies were found to hold one value per axis.
-
-        Returns
-        -------
-        Confirmation
-            The letters' read and the position's.
-        """
+        (``?pos x``) on a unit whose per-axis reads answer one value (``exact_replies``)."""
         short = bool(axes) and self.short_status and family == "1.71" \
             and autostatus in (0, 1, 3)
         single = len(axes) == 1 and len(present) > 1 and axes[0] in present \
@@ -216,22 +197,7 @@ def acceptance_shown(reported: bool, letters: Mapping[str, str],
     proven to have arrived, from what came by the reply of a ``?statusaxis`` read
     written behind it: its completion report, or a moved axis moving (``M``, L2695).
     Every moved axis standing with no report leaves it unproven: the line may have been
-    lost.
-
-    Parameters
-    ----------
-    reported
-        Whether the line's completion report arrived.
-    letters
-        The ``?statusaxis`` letter of each present axis.
-    moved
-        The axes the line moves.
-
-    Returns
-    -------
-    bool
-        Whether the line is proven to have arrived.
-    """
+    lost."""
     return reported or any(letters.get(axis) == MOVING for axis in moved)
 
 
@@ -305,28 +271,7 @@ class Intent:
 
 
 class Follow:
-    """One motion line followed to its end (see the module).
-
-    Parameters
-    ----------
-    moved
-        The axes the line moves.
-    targets
-        Their absolute targets (``None``: ``cal``, ``rm``, ``moc``).
-    tolerance
-        A wider position tolerance per axis, where one applies.
-    budget
-        The line's budget.
-    started
-        Loop time the line was written.
-    reports
-        Whether the mode in force sends completion reports.
-    extend
-        Seconds the move may still take from the positions printed now, once, when a
-        provisional limit is spent (``None``: the limit is final).
-    optional
-        Moved axes that may read ``-`` (an all-axes ``cal``, ``rm``, ``moc``).
-    """
+    """One motion line followed to its end (see the module)."""
 
     def __init__(self, moved: Sequence[str], targets: Mapping[str, float] | None,
                  tolerance: Mapping[str, float], budget: Budget, started: float, *,
@@ -381,28 +326,7 @@ class Follow:
     def read(self, letters: Mapping[str, str], texts: Mapping[str, str], now: float, *,
              stopped: bool = False, report: Mapping[str, str] | None = None,
              report_owed: bool = False) -> Intent:
-        """A state read replied.
-
-        Parameters
-        ----------
-        letters
-            The status letters of every present axis.
-        texts
-            The positions, as printed (at least of the moved axes).
-        now
-            Loop time the read replied.
-        stopped
-            Whether the driver stopped one of the moved axes since the line was written.
-        report
-            The letters of the line's completion report, if it came.
-        report_owed
-            Whether the line owes a completion report that has not come.
-
-        Returns
-        -------
-        Intent
-            What to do next.
-        """
+        """A state read replied."""
         self._go(_Event.REPLIED)
         if stopped:
             return self._end(Intent(Next.ABORTED, letters=dict(letters)))
@@ -510,21 +434,7 @@ class StartProof:
     done); an axis a ``speed`` line sets running that moved before it must come to show
     the speed written in ``?speed``; an axis the line stops that still moves is read
     again until it stands. Each of those waits ends at ``deadline`` (from
-    :func:`~tango_aio.moves._timing.stop_time`), every ``poll`` seconds.
-
-    Parameters
-    ----------
-    command
-        The ``speed`` or ``go`` line.
-    present
-        The axes the controller has.
-    busy
-        The line's axes that moved before it.
-    deadline
-        Loop time at which the waits end.
-    poll
-        Seconds between two reads of the same axes.
-    """
+    :func:`~tango_aio.moves._timing.stop_time`), every ``poll`` seconds."""
 
     def __init__(self, command: Command, present: Sequence[str], *,
                  busy: Collection[str], deadline: float, poll: float) -> None:

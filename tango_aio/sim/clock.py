@@ -25,13 +25,7 @@ __all__ = ["EmulatorClock", "ScaledHandler", "check_speed", "host_now", "scaled_
 
 
 def host_now() -> float:
-    """The host's clock: the running event loop's time, else ``time.monotonic()``.
-
-    Returns
-    -------
-    float
-        The time, in seconds.
-    """
+    """The host's clock: the running event loop's time, else ``time.monotonic()``."""
     try:
         return asyncio.get_running_loop().time()
     except RuntimeError:
@@ -39,23 +33,7 @@ def host_now() -> float:
 
 
 def check_speed(speed: float) -> float:
-    """``speed`` as a float if it is a finite number > 0, else a ValueError saying so.
-
-    Parameters
-    ----------
-    speed
-        The speed factor.
-
-    Returns
-    -------
-    float
-        ``speed`` as a float.
-
-    Raises
-    ------
-    ValueError
-        ``speed`` is not a finite number > 0.
-    """
+    """``speed`` as a float if it is a finite number > 0, else a ValueError saying so."""
     value = float(speed)
     if not math.isfinite(value) or value <= 0.0:
         raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
@@ -63,15 +41,7 @@ def check_speed(speed: float) -> float:
 
 
 class EmulatorClock:
-    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``.
-
-    Parameters
-    ----------
-    speed
-        Emulator seconds per host second (finite, > 0).
-    origin
-        The instant where both clocks agree.
-    """
+    """Converts host time to emulator time and back: ``speed`` times as fast from ``origin``."""
 
     def __init__(self, speed: float, origin: float) -> None:
         self.speed = check_speed(speed)
@@ -80,36 +50,14 @@ class EmulatorClock:
         """The instant (both clocks) where they agree."""
 
     def to_emulator(self, host: float) -> float:
-        """The emulator time at host time ``host``.
-
-        Parameters
-        ----------
-        host
-            A host time.
-
-        Returns
-        -------
-        float
-            The emulator time then.
-        """
+        """The emulator time at host time ``host``."""
         return self.origin + (host - self.origin) * self.speed
 
     def to_host(self, emulator: float) -> float:
         """The earliest host time whose emulator time is not before ``emulator``.
 
         Rounded up to the next representable float where needed, so that polling the
-        controller at the returned time never finds its deadline still in the future.
-
-        Parameters
-        ----------
-        emulator
-            An emulator time.
-
-        Returns
-        -------
-        float
-            The host time.
-        """
+        controller at the returned time never finds its deadline still in the future."""
         host = self.origin + (emulator - self.origin) / self.speed
         while self.to_emulator(host) < emulator:
             host = math.nextafter(host, math.inf)
@@ -121,19 +69,7 @@ class ScaledHandler:
     ``make_handler`` on emulator time (see the module docstring).
 
     Build it on the host clock at ``origin`` (default: :func:`host_now` once the logic is
-    built, so the logic's own start time is not later than the origin).
-
-    Parameters
-    ----------
-    make_handler
-        Makes the controller logic.
-    emit
-        Where the logic's output goes.
-    speed
-        Emulator seconds per host second.
-    origin
-        The instant where both clocks agree; ``None`` as described above.
-    """
+    built, so the logic's own start time is not later than the origin)."""
 
     def __init__(self, make_handler: HandlerFactory, emit: Emit, speed: float,
                  origin: float | None = None) -> None:
@@ -149,119 +85,44 @@ class ScaledHandler:
         """Whether the link echoes every byte sent (the logic's answer)."""
 
     def reboots(self, line: bytes) -> bool:
-        """Whether ``line`` restarts the controller (the logic's answer, if it has one).
-
-        Parameters
-        ----------
-        line
-            A command line.
-
-        Returns
-        -------
-        bool
-            Whether it restarts the controller.
-        """
+        """Whether ``line`` restarts the controller (the logic's answer, if it has one)."""
         ask = getattr(self.handler, "reboots", None)
         return bool(ask(line)) if ask is not None else False
 
     def reboot(self, now: float) -> None:
-        """Restart the logic as at power-on (if it can), at emulator time.
-
-        Parameters
-        ----------
-        now
-            The wire's (host) time of the restart.
-        """
+        """Restart the logic as at power-on (if it can), at emulator time."""
         restart = getattr(self.handler, "reboot", None)
         if restart is not None:
             restart(self.clock.to_emulator(now))
 
     def handle_line(self, line: bytes, now: float) -> None:
-        """Execute one line at emulator time.
-
-        Parameters
-        ----------
-        line
-            The command line.
-        now
-            The host time.
-        """
+        """Execute one line at emulator time."""
         self.handler.handle_line(line, self.clock.to_emulator(now))
 
     def line_too_long(self, head: bytes, now: float) -> None:
-        """Report an over-long line at emulator time.
-
-        Parameters
-        ----------
-        head
-            The line's start.
-        now
-            The host time.
-        """
+        """Report an over-long line at emulator time."""
         self.handler.line_too_long(head, self.clock.to_emulator(now))
 
     def ctrl_c(self, now: float) -> None:
-        """Ctrl+C at emulator time.
-
-        Parameters
-        ----------
-        now
-            The host time.
-        """
+        """Ctrl+C at emulator time."""
         self.handler.ctrl_c(self.clock.to_emulator(now))
 
     def processing_time(self, line: bytes) -> float:
-        """The logic's extra interpreter time (e.g. a reset), in host seconds.
-
-        Parameters
-        ----------
-        line
-            The command line.
-
-        Returns
-        -------
-        float
-            Host seconds.
-        """
+        """The logic's extra interpreter time (e.g. a reset), in host seconds."""
         return self.handler.processing_time(line) / self.clock.speed
 
     def poll(self, now: float) -> None:
-        """Advance the logic to emulator time.
-
-        Parameters
-        ----------
-        now
-            The host time.
-        """
+        """Advance the logic to emulator time."""
         self.handler.poll(self.clock.to_emulator(now))
 
     def next_deadline(self) -> float | None:
-        """The logic's next deadline, in host time.
-
-        Returns
-        -------
-        float or None
-            The deadline, or ``None`` if nothing is pending.
-        """
+        """The logic's next deadline, in host time."""
         deadline = self.handler.next_deadline()
         return None if deadline is None else self.clock.to_host(deadline)
 
 
 def scaled_factory(make_handler: HandlerFactory, speed: float) -> HandlerFactory:
-    """``make_handler`` with its logic on emulator time; unchanged at speed 1.
-
-    Parameters
-    ----------
-    make_handler
-        Makes the controller logic.
-    speed
-        How many times as fast as the host's clock the logic runs.
-
-    Returns
-    -------
-    HandlerFactory
-        The factory of the scaled logic.
-    """
+    """``make_handler`` with its logic on emulator time; unchanged at speed 1."""
     speed = check_speed(speed)
     if speed == 1.0:
         return make_handler

@@ -29,15 +29,7 @@ __all__ = ["MAX_SNAPSHOTS", "MAX_TRIGGERS", "ListError", "SnapshotList", "Trigge
 
 
 class ListError(Exception):
-    """A list operation was refused; ``code`` is the controller error number.
-
-    Parameters
-    ----------
-    code
-        The controller error number.
-    message
-        What was refused.
-    """
+    """A list operation was refused; ``code`` is the controller error number."""
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(message)
@@ -58,13 +50,7 @@ def _check_slot(entries: list[float], slot: int, position: float) -> None:
     """Check writing ``position`` to 1-based ``slot`` in constant time where possible.
 
     Only a write to one of the first two entries (which set the direction) rechecks the
-    whole list, so uploading a long list entry by entry stays linear.
-
-    Raises
-    ------
-    ListError
-        The list would no longer be strictly monotonic.
-    """
+    whole list, so uploading a long list entry by entry stays linear."""
     if slot <= 2:
         candidate = list(entries)
         candidate[slot - 1: slot] = [position]
@@ -127,45 +113,18 @@ class TriggerList:
     span: tuple[float, float, int] = (0.0, 0.0, 0)
 
     def count(self) -> int:
-        """Number of entries (``?trigc``).
-
-        Returns
-        -------
-        int
-            The number of entries.
-        """
+        """Number of entries (``?trigc``)."""
         return len(self.entries)
 
     def clear(self, axis: str | None = None) -> None:
-        """Discard the list (``!trigp 0``); an axis letter also selects the trigger axis.
-
-        Parameters
-        ----------
-        axis
-            The trigger axis to select, or ``None``.
-        """
+        """Discard the list (``!trigp 0``); an axis letter also selects the trigger axis."""
         self.entries.clear()
         self.pointer = 1
         if axis is not None:
             self.axis = axis
 
     def write(self, index: int, position: float, axis: str | None = None) -> None:
-        """``!trigp [axis] index position``: -1 or count+1 appends, 1..count overwrites.
-
-        Parameters
-        ----------
-        index
-            The 1-based entry; -1 or count + 1 appends.
-        position
-            The trigger position.
-        axis
-            The trigger axis named in the line, or ``None``.
-
-        Raises
-        ------
-        ListError
-            An axis is named while the list is not empty (L13838), or the entry is invalid.
-        """
+        """``!trigp [axis] index position``: -1 or count+1 appends, 1..count overwrites."""
         if axis is not None and self.entries:
             # "!trigp x -1 9: Only possible if the list is empty" (L13838).
             raise ListError(1, f"trigger axis is {self.axis}; clear the list to name it")
@@ -176,15 +135,7 @@ class TriggerList:
             self.axis = axis
 
     def fill(self, positions: list[float], axis: str | None = None) -> None:
-        """Replace the whole list (``!trigr``); an axis letter selects the trigger axis.
-
-        Parameters
-        ----------
-        positions
-            The new entries.
-        axis
-            The trigger axis to select, or ``None``.
-        """
+        """Replace the whole list (``!trigr``); an axis letter selects the trigger axis."""
         _check_monotonic(positions)
         self.entries = list(positions)
         self.pointer = 1
@@ -192,44 +143,16 @@ class TriggerList:
             self.axis = axis
 
     def read(self, index: int) -> float:
-        """``?trigp n`` (1-based) or ``?trigp -1`` (last).
-
-        Parameters
-        ----------
-        index
-            The 1-based entry, or -1 for the last.
-
-        Returns
-        -------
-        float
-            The entry.
-        """
+        """``?trigp n`` (1-based) or ``?trigp -1`` (last)."""
         return _read(self.entries, index, "trigger list")
 
     def shorten(self, count: int) -> None:
-        """``!trigc n``: keep the first n entries (0 clears).
-
-        Parameters
-        ----------
-        count
-            The entries to keep.
-        """
+        """``!trigc n``: keep the first n entries (0 clears)."""
         _truncate(self.entries, count, "list")
         self.pointer = min(self.pointer, max(1, count))
 
     def set_pointer(self, index: int) -> None:
-        """``!trigi n``: the 1-based list pointer.
-
-        Parameters
-        ----------
-        index
-            The 1-based pointer.
-
-        Raises
-        ------
-        ListError
-            The pointer is outside the list.
-        """
+        """``!trigi n``: the 1-based list pointer."""
         if not 1 <= index <= max(1, len(self.entries)):
             raise ListError(5, f"pointer {index} outside 1..{len(self.entries)}")
         self.pointer = index
@@ -245,13 +168,7 @@ class SnapshotList:
     voltages: dict[int, int] = field(default_factory=dict)
 
     def count(self) -> int:
-        """Number of entries (``?snsc``).
-
-        Returns
-        -------
-        int
-            The number of entries.
-        """
+        """Number of entries (``?snsc``)."""
         return len(self.entries)
 
     def clear(self) -> None:
@@ -260,68 +177,26 @@ class SnapshotList:
         self.pointer = 0
 
     def write(self, index: int, row: tuple[float, ...]) -> None:
-        """``!snsa index pos...``: -1 or count+1 appends, 1..count overwrites.
-
-        Parameters
-        ----------
-        index
-            The 1-based entry; -1 or count + 1 appends.
-        row
-            The position of each axis.
-        """
+        """``!snsa index pos...``: -1 or count+1 appends, 1..count overwrites."""
         _put(self.entries, _write_slot(self.entries, index, MAX_SNAPSHOTS, "array"), row)
 
     def capture(self, row: tuple[float, ...]) -> None:
-        """A snapshot event: append the current position (captures always append).
-
-        Parameters
-        ----------
-        row
-            The current position of each axis.
-        """
+        """A snapshot event: append the current position (captures always append)."""
         self.last = row
         if len(self.entries) < MAX_SNAPSHOTS:
             self.entries.append(row)
 
     def read(self, index: int) -> tuple[float, ...]:
-        """``?snsa n`` (1-based) or ``?snsa -1`` (last).
-
-        Parameters
-        ----------
-        index
-            The 1-based entry, or -1 for the last.
-
-        Returns
-        -------
-        tuple[float, ...]
-            The entry.
-        """
+        """``?snsa n`` (1-based) or ``?snsa -1`` (last)."""
         return _read(self.entries, index, "snapshot array")
 
     def shorten(self, count: int) -> None:
-        """``!snsc n``: keep the first n entries.
-
-        Parameters
-        ----------
-        count
-            The entries to keep.
-        """
+        """``!snsc n``: keep the first n entries."""
         _truncate(self.entries, count, "array")
         self.pointer = min(self.pointer, max(0, count - 1))
 
     def set_pointer(self, index: int) -> None:
-        """``!snsi n``: the 0-based move pointer.
-
-        Parameters
-        ----------
-        index
-            The 0-based pointer.
-
-        Raises
-        ------
-        ListError
-            The pointer is outside the list.
-        """
+        """``!snsi n``: the 0-based move pointer."""
         if not 0 <= index <= max(0, len(self.entries) - 1):
             raise ListError(5, f"pointer {index} outside 0..{len(self.entries) - 1}")
         self.pointer = index

@@ -146,15 +146,7 @@ _P_REPORT = 4
 
 
 class MotionRefused(Exception):
-    """A command was not executed; ``code`` is the controller error number to report.
-
-    Parameters
-    ----------
-    code
-        The controller error number.
-    message
-        What was refused.
-    """
+    """A command was not executed; ``code`` is the controller error number to report."""
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(f"error {code}: {message}")
@@ -294,18 +286,7 @@ class Phase:
     accel: float
 
     def scaled(self, factor: float) -> Phase:
-        """Return the phase with velocity and acceleration multiplied by ``factor``.
-
-        Parameters
-        ----------
-        factor
-            The factor.
-
-        Returns
-        -------
-        Phase
-            The scaled phase.
-        """
+        """Return the phase with velocity and acceleration multiplied by ``factor``."""
         return Phase(self.duration, self.v0 * factor, self.accel * factor)
 
 
@@ -328,49 +309,16 @@ class Segment:
         return math.copysign(1.0, self.accel) if self.accel != 0.0 else 0.0
 
     def position(self, t: float) -> float:
-        """Position at time ``t`` (``t0 <= t <= t1``).
-
-        Parameters
-        ----------
-        t
-            The time.
-
-        Returns
-        -------
-        float
-            The position.
-        """
+        """Position at time ``t`` (``t0 <= t <= t1``)."""
         dt = t - self.t0
         return self.x0 + dt * (self.v0 + 0.5 * self.accel * dt)
 
     def velocity(self, t: float) -> float:
-        """Velocity at time ``t`` (``t0 <= t <= t1``).
-
-        Parameters
-        ----------
-        t
-            The time.
-
-        Returns
-        -------
-        float
-            The velocity.
-        """
+        """Velocity at time ``t`` (``t0 <= t <= t1``)."""
         return self.v0 + self.accel * (t - self.t0)
 
     def time_at(self, level: float) -> float:
-        """Time at which the segment reaches ``level`` (which must lie on the segment).
-
-        Parameters
-        ----------
-        level
-            A position on the segment.
-
-        Returns
-        -------
-        float
-            The time.
-        """
+        """Time at which the segment reaches ``level`` (which must lie on the segment)."""
         if level == self.x1:
             return self.t1
         sign = self.direction
@@ -392,20 +340,7 @@ class Trajectory:
 
     @staticmethod
     def rest(t: float, x: float) -> Trajectory:
-        """A trajectory standing still at ``x`` from ``t`` on.
-
-        Parameters
-        ----------
-        t
-            The start time.
-        x
-            The position.
-
-        Returns
-        -------
-        Trajectory
-            The trajectory.
-        """
+        """A trajectory standing still at ``x`` from ``t`` on."""
         return Trajectory(t, x)
 
     @staticmethod
@@ -414,22 +349,7 @@ class Trajectory:
     ) -> Trajectory:
         """Chain ``phases`` starting at ``(t, x)``; snap the final position to ``end_pos``.
 
-        Snapping removes rounding so a move ends exactly on its target.
-
-        Parameters
-        ----------
-        t, x
-            The start time and position.
-        phases
-            The phases, in order.
-        end_pos
-            The exact final position; ``None`` keeps the computed one.
-
-        Returns
-        -------
-        Trajectory
-            The trajectory.
-        """
+        Snapping removes rounding so a move ends exactly on its target."""
         segs: list[Segment] = []
         t_cur, x_cur = t, x
         for ph in phases:
@@ -457,36 +377,14 @@ class Trajectory:
         return self.segments[-1].x1 if self.segments else self.start_pos
 
     def position(self, t: float) -> float:
-        """Position at time ``t``.
-
-        Parameters
-        ----------
-        t
-            The time.
-
-        Returns
-        -------
-        float
-            The position.
-        """
+        """Position at time ``t``."""
         for seg in self.segments:
             if t < seg.t1:
                 return seg.position(t) if t > seg.t0 else seg.x0
         return self.end_pos
 
     def velocity(self, t: float) -> float:
-        """Velocity at time ``t`` (0 after the end).
-
-        Parameters
-        ----------
-        t
-            The time.
-
-        Returns
-        -------
-        float
-            The velocity.
-        """
+        """Velocity at time ``t`` (0 after the end)."""
         for seg in self.segments:
             if t < seg.t1:
                 return seg.velocity(max(t, seg.t0))
@@ -499,24 +397,7 @@ class Trajectory:
 
         The region is ``x >= level`` (``upward``, ``closed``), ``x > level`` (``upward``,
         open), ``x <= level`` or ``x < level``.  Entering means: the segment starts outside
-        and ends inside, so touching the boundary from inside never counts twice.
-
-        Parameters
-        ----------
-        level
-            The boundary.
-        upward
-            The region lies above ``level``.
-        closed
-            The region includes ``level``.
-        t_min
-            The earliest time.
-
-        Returns
-        -------
-        float or None
-            The time, or ``None`` if the position never enters.
-        """
+        and ends inside, so touching the boundary from inside never counts twice."""
 
         def inside(x: float) -> bool:
             if upward:
@@ -535,13 +416,7 @@ class Trajectory:
 def _forward(u: float, dist: float, vmax: float, amax: float) -> list[Phase]:
     """Phases covering ``dist >= 0`` forward from speed ``u >= 0``, ending at rest.
 
-    The caller guarantees that the stopping distance ``u²/2a`` fits into ``dist``.
-
-    Returns
-    -------
-    list[Phase]
-        The phases.
-    """
+    The caller guarantees that the stopping distance ``u²/2a`` fits into ``dist``."""
     if u == 0.0 and dist <= 0.0:
         return []
     if u > vmax:  # slow down to vmax first, then cruise and stop
@@ -565,29 +440,7 @@ def plan_to_target(x0: float, v0: float, target: float, vmax: float, amax: float
 
     Trapezoidal (or triangular when short) from rest; from a moving start it first brakes
     when heading away or when it cannot stop in time (and comes back), or slows down to
-    ``vmax`` when faster.  Used for moves (in normalised form), ``go`` and ``speed``.
-
-    Parameters
-    ----------
-    x0, v0
-        The start position and velocity.
-    target
-        Where to stop.
-    vmax
-        The top speed (positive).
-    amax
-        The acceleration (positive).
-
-    Returns
-    -------
-    list[Phase]
-        The phases.
-
-    Raises
-    ------
-    ValueError
-        ``vmax`` or ``amax`` is not positive.
-    """
+    ``vmax`` when faster.  Used for moves (in normalised form), ``go`` and ``speed``."""
     if not (vmax > 0.0 and amax > 0.0):
         raise ValueError(f"vmax and amax must be positive, got {vmax!r}, {amax!r}")
     delta = target - x0
@@ -613,22 +466,7 @@ def plan_to_target(x0: float, v0: float, target: float, vmax: float, amax: float
 
 
 def plan_velocity(v0: float, v_target: float, amax: float) -> list[Phase]:
-    """Ramp from ``v0`` to ``v_target`` at ``amax``; endless cruise if ``v_target != 0``.
-
-    Parameters
-    ----------
-    v0
-        The start velocity.
-    v_target
-        The velocity to reach.
-    amax
-        The acceleration.
-
-    Returns
-    -------
-    list[Phase]
-        The phases.
-    """
+    """Ramp from ``v0`` to ``v_target`` at ``amax``; endless cruise if ``v_target != 0``."""
     phases: list[Phase] = []
     if v0 * v_target < 0.0:  # reverse: brake to zero first (keeps segments monotonic)
         phases.append(Phase(abs(v0) / amax, v0, -math.copysign(amax, v0)))
@@ -641,20 +479,7 @@ def plan_velocity(v0: float, v_target: float, amax: float) -> list[Phase]:
 
 
 def plan_stop(v0: float, decel: float) -> list[Phase]:
-    """Brake from ``v0`` to a standstill at ``decel``.
-
-    Parameters
-    ----------
-    v0
-        The start velocity.
-    decel
-        The deceleration.
-
-    Returns
-    -------
-    list[Phase]
-        The phases.
-    """
+    """Brake from ``v0`` to a standstill at ``decel``."""
     return plan_velocity(v0, 0.0, decel)
 
 
@@ -731,20 +556,7 @@ class _Action:
 
 
 class MotionModel:
-    """Deterministic virtual-time motion model of a TANGO controller (see module doc).
-
-    Parameters
-    ----------
-    config
-        The axes' configuration; ``None`` for the default.
-    start_time
-        The model's start time.
-
-    Raises
-    ------
-    ValueError
-        The configuration has no 1-4 axes.
-    """
+    """Deterministic virtual-time motion model of a TANGO controller (see module doc)."""
 
     def __init__(self, config: MotionConfig | None = None, *, start_time: float = 0.0) -> None:
         self._config = config if config is not None else MotionConfig()
@@ -784,25 +596,7 @@ class MotionModel:
         return len(self._axes)
 
     def advance(self, now: float) -> list[MotionEvent]:
-        """Move time forward to ``now``; return the events up to ``now`` in time order.
-
-        Parameters
-        ----------
-        now
-            The new time (not before the model's).
-
-        Returns
-        -------
-        list[MotionEvent]
-            The events.
-
-        Raises
-        ------
-        ValueError
-            ``now`` is before the model's time.
-        RuntimeError
-            The model made no progress (a bug).
-        """
+        """Move time forward to ``now``; return the events up to ``now`` in time order."""
         if now < self._time:
             raise ValueError(f"time must not go backwards ({now!r} < {self._time!r})")
         self._out = []
@@ -818,201 +612,64 @@ class MotionModel:
         return self._out
 
     def next_event_time(self) -> float | None:
-        """Exact time of the next state change (move end, pause, trigger ...), or None.
-
-        Returns
-        -------
-        float or None
-            The time, or ``None``.
-        """
+        """Exact time of the next state change (move end, pause, trigger ...), or None."""
         action = self._next_action()
         return action.time if action is not None else None
 
     # ---------------------------------------------------------------- units ---------
 
     def settings(self, axis: AxisRef) -> AxisSettings:
-        """Live per-axis parameters of ``axis``.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        AxisSettings
-            Its parameters.
-        """
+        """Live per-axis parameters of ``axis``."""
         return self._axis(axis).settings
 
     def units(self, axis: AxisRef) -> UnitScale:
-        """Unit conversion of ``axis`` for its current dim/pitch/gear and ``usteps``.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        UnitScale
-            Its unit conversion.
-        """
+        """Unit conversion of ``axis`` for its current dim/pitch/gear and ``usteps``."""
         s = self._axis(axis).settings
         return UnitScale(s.dim, s.pitch, s.gear, self.global_settings.usteps)
 
     def to_user(self, axis: AxisRef, value: float) -> float:
-        """Convert a position/distance in revolutions to the axis's ``dim`` unit.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        value
-            A position or distance in revolutions.
-
-        Returns
-        -------
-        float
-            The converted value.
-        """
+        """Convert a position/distance in revolutions to the axis's ``dim`` unit."""
         return self.units(axis).pos_to_user(value)
 
     def from_user(self, axis: AxisRef, value: float) -> float:
-        """Convert a position/distance in the axis's ``dim`` unit to revolutions.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        value
-            A position or distance in the ``dim`` unit.
-
-        Returns
-        -------
-        float
-            The converted value.
-        """
+        """Convert a position/distance in the axis's ``dim`` unit to revolutions."""
         return self.units(axis).pos_from_user(value)
 
     def vel_to_user(self, axis: AxisRef, value: float) -> float:
-        """Convert rev/s to the axis's velocity unit (mm/s in dim 9).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        value
-            A velocity in rev/s.
-
-        Returns
-        -------
-        float
-            The converted value.
-        """
+        """Convert rev/s to the axis's velocity unit (mm/s in dim 9)."""
         return self.units(axis).vel_to_user(value)
 
     def vel_from_user(self, axis: AxisRef, value: float) -> float:
-        """Convert the axis's velocity unit (mm/s in dim 9) to rev/s.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        value
-            A velocity in the axis's velocity unit.
-
-        Returns
-        -------
-        float
-            The converted value.
-        """
+        """Convert the axis's velocity unit (mm/s in dim 9) to rev/s."""
         return self.units(axis).vel_from_user(value)
 
     # ---------------------------------------------------------------- queries -------
 
     def position(self, axis: AxisRef) -> float:
-        """User-frame position in revolutions (what ``?pos`` shows, before unit scaling).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        float
-            The position, in revolutions.
-        """
+        """User-frame position in revolutions (what ``?pos`` shows, before unit scaling)."""
         ax = self._axis(axis)
         return self._user_frame(ax, self._phys(ax))
 
     def velocity(self, axis: AxisRef) -> float:
-        """Momentary signed velocity in rev/s (``?isvel``, ``?speed``).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        float
-            The velocity, in rev/s.
-        """
+        """Momentary signed velocity in rev/s (``?isvel``, ``?speed``)."""
         ax = self._axis(axis)
         return ax.traj.velocity(self._time) if ax.mode != "idle" else 0.0
 
     def observe(self, axis: AxisRef, t: float) -> tuple[float, float]:
         """Where the axis is at time ``t`` (not before the model's own time), without
         advancing the model: ``(position in its dim unit, velocity in rev/s)``. For an
-        observer (a test's assertion) that must not change when the model steps.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        t
-            The time.
-
-        Returns
-        -------
-        tuple[float, float]
-            The position and the velocity.
-        """
+        observer (a test's assertion) that must not change when the model steps."""
         ax = self._axis(axis)
         t = max(t, self._time)
         revs = self._user_frame(ax, ax.traj.position(t))
         return self.to_user(axis, revs), ax.traj.velocity(t)
 
     def is_moving(self, axis: AxisRef) -> bool:
-        """True while the axis status letter is ``M`` (moving, delayed start or pause).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        bool
-            Whether it moves.
-        """
+        """True while the axis status letter is ``M`` (moving, delayed start or pause)."""
         return self._busy(self._axis(axis))
 
     def status_letter(self, axis: AxisRef) -> str:
-        """Status letter of one axis for ``?statusaxis``.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        str
-            The letter.
-        """
+        """Status letter of one axis for ``?statusaxis``."""
         ax = self._axis(axis)
         if ax.settings.enable != 1:
             return "-"
@@ -1023,39 +680,16 @@ class MotionModel:
         return ax.letter
 
     def status_letters(self) -> str:
-        """Four status letters X Y Z A (``-`` for absent or disabled axes).
-
-        Returns
-        -------
-        str
-            The letters.
-        """
+        """Four status letters X Y Z A (``-`` for absent or disabled axes)."""
         return "".join(self.status_letter(i) if i < self.n_axes else "-" for i in range(4))
 
     def calst(self, axis: AxisRef) -> int:
-        """``calst`` bits: 1 = cal done, 2 = rm (or vrm) done.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        int
-            The bits.
-        """
+        """``calst`` bits: 1 = cal done, 2 = rm (or vrm) done."""
         ax = self._axis(axis)
         return (1 if ax.cal_done else 0) | (2 if ax.rm_done else 0)
 
     def statuslimit(self) -> str:
-        """16 characters: cal ``A`` ×4, rm ``D`` ×4, lower ``L`` ×4, upper ``L`` ×4.
-
-        Returns
-        -------
-        str
-            The characters.
-        """
+        """16 characters: cal ``A`` ×4, rm ``D`` ×4, lower ``L`` ×4, upper ``L`` ×4."""
         axes: list[_AxisState | None] = [*self._axes, *[None] * (4 - self.n_axes)]
 
         def group(char: str, test: Callable[[_AxisState], bool]) -> str:
@@ -1073,69 +707,25 @@ class MotionModel:
 
         Rule (L3627-3641, L4944): every *enabled* switch must have been used, E0 by cal and
         EE by rm/vrm.  No switch → never capped; only E0 → after cal; both → cal and rm.
-        Only EE enabled (not covered by the manual) → after rm.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        bool
-            Whether it is released.
-        """
+        Only EE enabled (not covered by the manual) → after rm."""
         ax = self._axis(axis)
         e0, _, ee = ax.settings.swact
         return (not e0 or ax.cal_done) and (not ee or ax.rm_done)
 
     def switch_state(self, axis: AxisRef) -> tuple[bool, bool]:
-        """Raw physical state of the (E0, EE) switches, ignoring ``swact``.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        tuple[bool, bool]
-            Whether the axis is on E0 and on EE.
-        """
+        """Raw physical state of the (E0, EE) switches, ignoring ``swact``."""
         ax = self._axis(axis)
         x = self._phys(ax)
         return x <= ax.config.e0_position, x >= ax.config.ee_position
 
     def limits(self, axis: AxisRef) -> tuple[float, float]:
-        """Soft limits (lower, upper) in the user frame; unset limits read ±maxpos.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        tuple[float, float]
-            The lower and upper limit.
-        """
+        """Soft limits (lower, upper) in the user frame; unset limits read ±maxpos."""
         ax = self._axis(axis)
         lo, hi = self._stored_limits(ax)
         return self._user_frame(ax, lo), self._user_frame(ax, hi)
 
     def position_offset(self, axis: AxisRef) -> float:
-        """Offset added by ``!pos`` (``?posclr``): user position minus counter.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-
-        Returns
-        -------
-        float
-            The offset.
-        """
+        """Offset added by ``!pos`` (``?posclr``): user position minus counter."""
         return self._axis(axis).offset
 
     # ---------------------------------------------------------------- settings ------
@@ -1144,20 +734,7 @@ class MotionModel:
         """Set ``vel`` (rev/s).  A running ``go`` adopts it at once; 0 ends a go.
 
         ``vel 0`` is not stored (the documented range starts at 0.000001): it only stops a
-        running go (L3495), and is refused with error 5 when no go runs.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        vel
-            The velocity, in rev/s.
-
-        Raises
-        ------
-        MotionRefused
-            ``vel`` is 0 while no go runs (error 5).
-        """
+        running go (L3495), and is refused with error 5 when no go runs."""
         ax = self._axis(axis)
         if vel < 0.0 or (vel == 0.0 and ax.mode != "go"):
             raise MotionRefused(ERR_OUT_OF_RANGE, f"vel {vel!r} out of range")
@@ -1169,20 +746,7 @@ class MotionModel:
             self._plan_go(ax)
 
     def set_limits(self, axis: AxisRef, lower: float | None, upper: float | None) -> None:
-        """``!lim``: set soft limits in the user frame (``None`` keeps that limit).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        lower, upper
-            The new limits; ``None`` keeps one.
-
-        Raises
-        ------
-        MotionRefused
-            The lower limit would exceed the upper one (error 5).
-        """
+        """``!lim``: set soft limits in the user frame (``None`` keeps that limit)."""
         ax = self._axis(axis)
         cur_lo, cur_hi = self.limits(axis)
         new_lo = cur_lo if lower is None else lower
@@ -1195,34 +759,13 @@ class MotionModel:
             ax.lim_hi, ax.lim_hi_set = upper - ax.offset, True
 
     def set_position(self, axis: AxisRef, value: float) -> None:
-        """``!pos``: redefine the current user position (changes only the offset).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        value
-            The new user position.
-        """
+        """``!pos``: redefine the current user position (changes only the offset)."""
         ax = self._axis(axis)
         ax.offset = value - (self._phys(ax) - ax.origin)
 
     def displace(self, axis: AxisRef, revs: float) -> bool:
         """Move a standing axis by ``revs`` at once, as a hand on the HDI would (joystick,
-        handwheel).
-
-        Parameters
-        ----------
-        axis
-            The axis.
-        revs
-            How far, in motor revolutions.
-
-        Returns
-        -------
-        bool
-            ``False`` (nothing moved) if the axis is moving.
-        """
+        handwheel)."""
         ax = self._axis(axis)
         if ax.mode != "idle":
             return False
@@ -1230,54 +773,23 @@ class MotionModel:
         return True
 
     def clear_position_offset(self, axis: AxisRef) -> None:
-        """``!posclr``: remove the ``!pos`` offset.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        """
+        """``!posclr``: remove the ``!pos`` offset."""
         self._axis(axis).offset = 0.0
 
     def zero(self, axis: AxisRef) -> None:
-        """``!zero``/``!clearpos``: counter and position become 0 here; limits stay numeric.
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        """
+        """``!zero``/``!clearpos``: counter and position become 0 here; limits stay numeric."""
         ax = self._axis(axis)
         ax.origin = self._phys(ax)
         ax.offset = 0.0
 
     def set_distance(self, axis: AxisRef, distance: float) -> None:
-        """``!distance``: set the ``m`` distance of one axis (revolutions).
-
-        Parameters
-        ----------
-        axis
-            The axis (index or letter).
-        distance
-            The distance, in revolutions.
-        """
+        """``!distance``: set the ``m`` distance of one axis (revolutions)."""
         self._axis(axis).settings.distance = distance
 
     # ---------------------------------------------------------------- moves ---------
 
     def move_absolute(self, targets: Mapping[AxisRef, float]) -> int:
-        """``moa``: vector move to user-frame targets; returns the job id.
-
-        Parameters
-        ----------
-        targets
-            The target of each axis, by axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        """``moa``: vector move to user-frame targets; returns the job id."""
         phys = {}
         for ref, target in targets.items():
             ax = self._axis(ref)
@@ -1285,18 +797,7 @@ class MotionModel:
         return self._submit_move(phys, timed=True)
 
     def move_relative(self, distances: Mapping[AxisRef, float]) -> int:
-        """``mor``: vector move by distances; stores them as ``m`` distances.
-
-        Parameters
-        ----------
-        distances
-            The distance of each axis, by axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        """``mor``: vector move by distances; stores them as ``m`` distances."""
         resolved = {self._axis(ref).index: d for ref, d in distances.items()}
         phys = {i: self._end_pos(self._axes[i]) + d for i, d in resolved.items()}
         job_id = self._submit_move(phys, timed=True, relative=resolved)
@@ -1306,31 +807,14 @@ class MotionModel:
         return job_id
 
     def move_repeat(self) -> int:
-        """``m``: relative vector move by the stored distances of all enabled axes.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        """``m``: relative vector move by the stored distances of all enabled axes."""
         distances = {ax.index: ax.settings.distance for ax in self._axes
                      if ax.settings.enable == 1 and ax.settings.distance != 0.0}
         phys = {i: self._end_pos(self._axes[i]) + d for i, d in distances.items()}
         return self._submit_move(phys, timed=True, relative=distances)
 
     def move_center(self, axes: Iterable[AxisRef] | None = None) -> int:
-        """``moc``: move to the centre between the soft limits (cal+rm recommended).
-
-        Parameters
-        ----------
-        axes
-            The axes; ``None`` for every enabled axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        """``moc``: move to the centre between the soft limits (cal+rm recommended)."""
         phys = {}
         for ax in self._select(axes):
             lo, hi = self._stored_limits(ax)
@@ -1341,18 +825,7 @@ class MotionModel:
         """``mol``: move to the transport lock position (needs cal and a lock position).
 
         Axes without cal or without a lock position do not move and report ``E``; mol has
-        no delay and no pause (the manual lists moa/mor/m/moc only).
-
-        Parameters
-        ----------
-        axes
-            The axes; ``None`` for every enabled axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        no delay and no pause (the manual lists moa/mor/m/moc only)."""
         phys: dict[int, float] = {}
         failed: list[int] = []
         for ax in self._select(axes):
@@ -1364,13 +837,7 @@ class MotionModel:
         return self._submit_move(phys, timed=False, failed=failed)
 
     def go(self, targets: Mapping[AxisRef, float]) -> None:
-        """``go``: independent absolute moves (own vel/accel), re-targetable, no report.
-
-        Parameters
-        ----------
-        targets
-            The target of each axis, by axis.
-        """
+        """``go``: independent absolute moves (own vel/accel), re-targetable, no report."""
         plan: list[tuple[_AxisState, float]] = []
         for ref, target in targets.items():
             ax = self._axis(ref)
@@ -1387,13 +854,7 @@ class MotionModel:
             self._plan_go(ax)
 
     def go_stop(self, axes: Iterable[AxisRef] | None = None) -> None:
-        """``go`` without target: stop go/speed motion of the axes at normal accel.
-
-        Parameters
-        ----------
-        axes
-            The axes; ``None`` for every enabled axis.
-        """
+        """``go`` without target: stop go/speed motion of the axes at normal accel."""
         for ax in self._select(axes):
             self._stop_continuous(ax)
 
@@ -1401,13 +862,7 @@ class MotionModel:
         """``speed``: constant signed velocity (rev/s); 0 stops speed or go; no report.
 
         The axis brakes so that it stops exactly at the soft limit ahead (or travels on
-        without limit when ``limctr`` is 0); an enabled switch stops it with ``S``.
-
-        Parameters
-        ----------
-        velocities
-            The velocity of each axis (rev/s), by axis.
-        """
+        without limit when ``limctr`` is 0); an enabled switch stops it with ``S``."""
         plan: list[tuple[_AxisState, float]] = []
         for ref, vel in velocities.items():
             ax = self._axis(ref)
@@ -1427,15 +882,7 @@ class MotionModel:
     def abort(self, axis: AxisRef | None = None, *, use_accel: bool = False) -> None:
         """``a`` / ``a x`` / ``a -1``: stop with stopaccel (or accel); letters become ``E``
         (:attr:`abort_letter`). Queued moves of the stopped axes are cancelled: they
-        report :attr:`abort_letter` for their axes at once.
-
-        Parameters
-        ----------
-        axis
-            The axis to stop; ``None`` for every axis.
-        use_accel
-            Brake with ``accel`` instead of ``stopaccel``.
-        """
+        report :attr:`abort_letter` for their axes at once."""
         chosen = self._select(None if axis is None else [axis], enabled_only=False)
         for ax in chosen:
             self._abort_axis(ax, use_accel)
@@ -1448,31 +895,14 @@ class MotionModel:
             job.report_time = self._time
 
     def mark_not_executed(self, axes: Iterable[AxisRef]) -> None:
-        """A move for ``axes`` was refused: idle axes show ``E`` ("not executed", L2705).
-
-        Parameters
-        ----------
-        axes
-            The axes of the refused move.
-        """
+        """A move for ``axes`` was refused: idle axes show ``E`` ("not executed", L2705)."""
         for ref in axes:
             ax = self._axis(ref)
             if not self._busy(ax) and ax.settings.enable == 1:
                 ax.letter = "E"
 
     def has_job(self, job_id: int) -> bool:
-        """Whether job ``job_id`` still owes its report.
-
-        Parameters
-        ----------
-        job_id
-            The job.
-
-        Returns
-        -------
-        bool
-            Whether it still owes its report.
-        """
+        """Whether job ``job_id`` still owes its report."""
         return any(job.id == job_id for job in self._jobs)
 
     def emergency_stop(self) -> None:
@@ -1492,51 +922,18 @@ class MotionModel:
         the ``!pos`` offset is cleared) and, with ``nosetlimit`` 0, the lower soft limit.
         Letter ``A``; ``T`` when ``caltimeout`` (counted from the command) runs out first;
         ``E`` when aborted.  With E0 disabled by ``swact`` nothing happens and the axis
-        reports ``@``.  Cal/rm flags change only on success.
-
-        Parameters
-        ----------
-        axes
-            The axes; ``None`` for every enabled axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        reports ``@``.  Cal/rm flags change only on success."""
         return self._submit_cal("cal", axes)
 
     def range_measure(self, axes: Iterable[AxisRef] | None = None) -> int:
-        """``rm``: like :meth:`calibrate` towards EE; sets the upper limit, letter ``D``.
-
-        Parameters
-        ----------
-        axes
-            The axes; ``None`` for every enabled axis.
-
-        Returns
-        -------
-        int
-            The job id.
-        """
+        """``rm``: like :meth:`calibrate` towards EE; sets the upper limit, letter ``D``."""
         return self._submit_cal("rm", axes)
 
     def virtual_range_measure(self, lengths: Mapping[AxisRef, float]) -> None:
         """``vrm``: declare axis lengths without moving (needs cal, else error 2).
 
         Marks rm as done (releases secvel, statuslimit ``D``) and, with ``nosetlimit`` 0,
-        sets the upper limit to the cal position plus the length (manual example 2, L5518).
-
-        Parameters
-        ----------
-        lengths
-            The length of each axis, by axis.
-
-        Raises
-        ------
-        MotionRefused
-            An axis is not calibrated (error 2).
-        """
+        sets the upper limit to the cal position plus the length (manual example 2, L5518)."""
         resolved = [(self._axis(ref), length) for ref, length in lengths.items()]
         for ax, _ in resolved:
             if not ax.cal_done:
@@ -1554,23 +951,11 @@ class MotionModel:
         return self._trigger_count
 
     def set_trigger_count(self, value: int = 0) -> None:
-        """``!trigcount n``: set (usually clear) the trigger counter.
-
-        Parameters
-        ----------
-        value
-            The new count.
-        """
+        """``!trigcount n``: set (usually clear) the trigger counter."""
         self._trigger_count = value
 
     def trigger_index(self) -> int:
-        """``?trigi``: 1-based index of the next trigger entry (N+1 when all passed; 0 = none).
-
-        Returns
-        -------
-        int
-            The index.
-        """
+        """``?trigi``: 1-based index of the next trigger entry (N+1 when all passed; 0 = none)."""
         return self._trigger.index + 1 if self._trigger is not None else 0
 
     def set_trigger_positions(self, axis: AxisRef, positions: Sequence[float]) -> None:
@@ -1579,20 +964,7 @@ class MotionModel:
         Positions are fixed in the physical frame when set (a later ``!pos`` does not move
         them).  An entry fires when the axis reaches it travelling in list direction; the
         list re-arms when the axis goes back strictly behind the first entry.  With one
-        entry the direction follows from the current position (L13814).
-
-        Parameters
-        ----------
-        axis
-            The trigger axis (index or letter).
-        positions
-            The positions, in the user frame.
-
-        Raises
-        ------
-        MotionRefused
-            The positions are not monotonic (error 5).
-        """
+        entry the direction follows from the current position (L13814)."""
         ax = self._axis(axis)
         if not positions:
             self._trigger = None
@@ -1606,22 +978,7 @@ class MotionModel:
         self._trigger = _TriggerList(ax.index, levels, increasing)
 
     def set_trigger_range(self, axis: AxisRef, start: float, end: float, count: int) -> None:
-        """``trigr``: ``count`` equidistant triggers from ``start`` to ``end`` inclusive.
-
-        Parameters
-        ----------
-        axis
-            The trigger axis (index or letter).
-        start, end
-            The first and last trigger position.
-        count
-            The number of triggers.
-
-        Raises
-        ------
-        MotionRefused
-            ``count`` is out of range (error 5).
-        """
+        """``trigr``: ``count`` equidistant triggers from ``start`` to ``end`` inclusive."""
         if not 1 <= count <= MAX_TRIGGERS:
             raise MotionRefused(ERR_OUT_OF_RANGE, f"trigger count {count} not in 1..{MAX_TRIGGERS}")
         if count == 1 or start == end:
@@ -1661,13 +1018,7 @@ class MotionModel:
 
     def _end_pos(self, ax: _AxisState) -> float:
         """Where the axis will stop (where it is, for an endless ``speed``): the base of a
-        relative move (a queued or retargeted one starts from there).
-
-        Returns
-        -------
-        float
-            The position.
-        """
+        relative move (a queued or retargeted one starts from there)."""
         end = ax.traj.end_pos
         return end if math.isfinite(end) else self._phys(ax)
 
@@ -1697,13 +1048,7 @@ class MotionModel:
     def _effective_limits(self, ax: _AxisState) -> tuple[float, float]:
         """Limits a move may use: ignores them with limctr 0, widened to the axis position.
 
-        Choice (L4585): an axis beyond a limit may travel back towards the allowed range.
-
-        Returns
-        -------
-        tuple[float, float]
-            The lower and upper limit.
-        """
+        Choice (L4585): an axis beyond a limit may travel back towards the allowed range."""
         if not ax.settings.limctr:
             return -math.inf, math.inf
         lo, hi = self._stored_limits(ax)
@@ -1778,18 +1123,7 @@ class MotionModel:
         travelling in a move leave that move (which reports without them, or not at all
         when none is left) and head for the new target from where they are, each with its
         own vel/accel (no vector move). Targets are checked against the limits at once,
-        for a queued relative move from where the axes will stop.
-
-        Returns
-        -------
-        int
-            The job id.
-
-        Raises
-        ------
-        MotionRefused
-            The move is not allowed or not executable.
-        """
+        for a queued relative move from where the axes will stop."""
         active = {i: t for i, t in targets.items() if self._axes[i].settings.enable == 1}
         policy = self.move_during_move
         busy = [i for i in active if self._busy(self._axes[i])]
@@ -1904,13 +1238,7 @@ class MotionModel:
         """Scale a common profile so that no axis exceeds its (capped) vel and accel.
 
         scanmode 1 (and 2 with >= 2 travelling axes): the path speed in mm space is
-        ``scanvel`` (L2375-2403), still limited per axis by secvel (L2467) and accel.
-
-        Returns
-        -------
-        dict[int, list[Phase]]
-            The phases of each axis, by index.
-        """
+        ``scanvel`` (L2375-2403), still limited per axis by secvel (L2467) and accel."""
         gs = self.global_settings
         use_scanvel = gs.scanmode == 1 or (gs.scanmode == 2 and len(moving) >= 2)
         v_lim = a_lim = math.inf

@@ -33,20 +33,7 @@ def format_value(value: Value, digits: int) -> str:
     """Format one reply value: ints as ints, floats with ``digits`` fractional digits.
 
     A float that rounds to zero from below prints ``-0.0000`` here; the model prints it
-    as ``0.0000`` unless the firmware switch ``numbers`` is ``negzero``.
-
-    Parameters
-    ----------
-    value
-        The value.
-    digits
-        The fractional digits of a float.
-
-    Returns
-    -------
-    str
-        The text.
-    """
+    as ``0.0000`` unless the firmware switch ``numbers`` is ``negzero``."""
     if isinstance(value, str):
         return value
     if isinstance(value, int):
@@ -56,20 +43,7 @@ def format_value(value: Value, digits: int) -> str:
 
 def position_digits(resolution: int, dim: int) -> int:
     """Digits of a position reply: ``resolution``, but at most 2 in dim 1 and none in
-    dim 0 (manual L4109-4162, L3120-3126).
-
-    Parameters
-    ----------
-    resolution
-        The axis's ``resolution`` setting.
-    dim
-        The axis's ``dim``.
-
-    Returns
-    -------
-    int
-        The fractional digits.
-    """
+    dim 0 (manual L4109-4162, L3120-3126)."""
     if dim == 0:
         return 0
     if dim == 1:
@@ -117,98 +91,33 @@ class ParamStore:
     # -- access ---------------------------------------------------------------------------
 
     def axis(self, name: str, axis: int) -> tuple[Value, ...]:
-        """The value group of ``name`` for axis index ``axis``.
-
-        Parameters
-        ----------
-        name
-            The instruction's name.
-        axis
-            The axis index (0 for X).
-
-        Returns
-        -------
-        tuple[Value, ...]
-            The values.
-        """
+        """The value group of ``name`` for axis index ``axis``."""
         return self.axis_values[name][axis]
 
     def first(self, name: str, axis: int = 0) -> Value:
-        """The first value of ``name`` (of axis ``axis`` for per-axis instructions).
-
-        Parameters
-        ----------
-        name
-            The instruction's name.
-        axis
-            The axis index (0 for X).
-
-        Returns
-        -------
-        Value
-            The value.
-        """
+        """The first value of ``name`` (of axis ``axis`` for per-axis instructions)."""
         if name in self.axis_values:
             return self.axis_values[name][axis][0]
         return self.global_values[name][0]
 
     def number(self, name: str, axis: int = 0) -> float:
-        """:meth:`first` as a float.
-
-        Parameters
-        ----------
-        name
-            The instruction's name.
-        axis
-            The axis index (0 for X).
-
-        Returns
-        -------
-        float
-            The value.
-        """
+        """:meth:`first` as a float."""
         return float(self.first(name, axis))
 
     def put_axis(self, name: str, axis: int, values: Sequence[Value]) -> None:
-        """Replace the leading values of the group of ``name`` on axis ``axis``.
-
-        Parameters
-        ----------
-        name
-            The instruction's name.
-        axis
-            The axis index (0 for X).
-        values
-            The new leading values.
-        """
+        """Replace the leading values of the group of ``name`` on axis ``axis``."""
         old = self.axis_values[name][axis]
         self.axis_values[name][axis] = tuple(values) + old[len(values):]
 
     def put_global(self, name: str, values: Sequence[Value]) -> None:
-        """Replace the leading values of global ``name``.
-
-        Parameters
-        ----------
-        name
-            The instruction's name.
-        values
-            The new leading values.
-        """
+        """Replace the leading values of global ``name``."""
         old = self.global_values[name]
         self.global_values[name] = tuple(values) + old[len(values):]
 
     # -- commands -------------------------------------------------------------------------
 
     def apply(self, command: Command, axes: int) -> None:
-        """Store the values of a set command (generic semantics of chapter 2).
-
-        Parameters
-        ----------
-        command
-            The set command.
-        axes
-            The number of axes.
-        """
+        """Store the values of a set command (generic semantics of chapter 2)."""
         name = command.name
         if name in self.axis_values:
             self._apply_axes(command, axes)
@@ -230,22 +139,7 @@ class ParamStore:
                 self.put_axis(name, index, values[index * size:(index + 1) * size])
 
     def read(self, command: Command, axes: int, digits: int | None = None) -> str:
-        """Format the stored value(s) for a read command.
-
-        Parameters
-        ----------
-        command
-            The read command.
-        axes
-            The number of axes.
-        digits
-            Fractional digits of floats; ``None`` for the instruction's own.
-
-        Returns
-        -------
-        str
-            The reply text.
-        """
+        """Format the stored value(s) for a read command."""
         name = command.name
         if name in self.axis_values:
             indices = [AXES.index(command.axis)] if command.axis else range(axes)

@@ -39,13 +39,7 @@ class PtyServer:
     A host opens :attr:`path` (e.g. ``serial.Serial(server.path, 57600)``). The pty serves
     one session: after a disconnect fault or :meth:`close` the master is closed and the
     host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
-    and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`.
-
-    Parameters
-    ----------
-    wire
-        The emulated link.
-    """
+    and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`."""
 
     def __init__(self, wire: Wire) -> None:
         self._loop = asyncio.get_running_loop()

@@ -145,13 +145,7 @@ class WireRunner:
 
     def _next_wakeup(self) -> float | None:
         """The wire's next wake-up, or earlier when paused input will be down to the
-        resume level (the bytes reach the controller one byte time apart).
-
-        Returns
-        -------
-        float or None
-            The host time, or ``None``.
-        """
+        resume level (the bytes reach the controller one byte time apart)."""
         wakeup = self.wire.next_wakeup()
         if not self.input_paused:
             return wakeup

@@ -54,15 +54,7 @@ _LEGACY_KEYS = frozenset({"axes", "global"})
 
 
 class StateFileError(ValueError):
-    """The state file cannot be used: it is not ours, or its content is not valid.
-
-    Parameters
-    ----------
-    path
-        The file concerned.
-    reason
-        What is wrong with it.
-    """
+    """The state file cannot be used: it is not ours, or its content is not valid."""
 
     def __init__(self, path: Path, reason: str) -> None:
         super().__init__(f"state file {path}: {reason}")
@@ -76,22 +68,7 @@ def load_state(path: Path | None, store: ParamStore) -> None:
     """Put the parameters saved in ``path`` into ``store``; nothing if there is no file.
 
     Raises :class:`StateFileError` (before changing ``store``) if the file is not a valid
-    state file, and :class:`OSError` if it cannot be read.
-
-    Parameters
-    ----------
-    path
-        The state file; ``None`` for none.
-    store
-        The parameters to update.
-
-    Raises
-    ------
-    StateFileError
-        The file is not a valid state file.
-    OSError
-        The file cannot be read.
-    """
+    state file, and :class:`OSError` if it cannot be read."""
     if path is None:
         return
     data = _read(path)
@@ -107,22 +84,7 @@ def save_state(path: Path, store: ParamStore, names: Iterable[str]) -> None:
 
     Raises :class:`StateFileError` if ``path`` exists and is not ours (it is left
     untouched) or a value cannot be stored (not finite), and :class:`OSError` if writing
-    fails (the previous file is then intact).
-
-    Parameters
-    ----------
-    path
-        The state file.
-    store
-        The parameters.
-    names
-        The instructions whose values to save.
-
-    Raises
-    ------
-    StateFileError
-        The file is not ours, or a value cannot be stored.
-    """
+    fails (the previous file is then intact)."""
     if path.exists():
         _read(path)  # raises if the existing file is not ours
     chosen = list(names)

@@ -506,13 +506,7 @@ class Wire:
 
     def _rx_wakeup(self) -> float | None:
         """Due time of the first pending input byte that can run the handler, or of the
-        last pending one.
-
-        Returns
-        -------
-        float or None
-            The time, or ``None`` if no input is pending.
-        """
+        last pending one."""
         if not self._rx:
             return None
         bt = self._bt
@@ -676,13 +670,7 @@ class Wire:
         """Run the earliest event due by ``until``; False if there is none.
 
         Ties go to the interpreter finishing a line, then the handler, then input bytes,
-        so a byte arriving exactly as a line completes finds the freed space.
-
-        Returns
-        -------
-        bool
-            Whether an event ran.
-        """
+        so a byte arriving exactly as a line completes finds the freed space."""
         busy, handler, rx = self._busy_until, self._handler_due(), self._rx_next()
         candidates = [(t, rank) for rank, t in enumerate((busy, handler, rx)) if t is not None]
         if not candidates:
@@ -710,13 +698,7 @@ class Wire:
         """The handler's deadline, ignoring one it already had its poll for.
 
         A deadline at or before the last poll would make the loop spin; the poll that ends
-        every :meth:`_advance` covers it.
-
-        Returns
-        -------
-        float or None
-            The deadline, or ``None``.
-        """
+        every :meth:`_advance` covers it."""
         deadline = self._handler_deadline
         if deadline is None or deadline <= self._handler_polled_at:
             return None
@@ -755,13 +737,7 @@ class Wire:
 
     def _due_end(self, seg: _Segment, until: float, before: float) -> int:
         """End (exclusive index into ``seg.data``) of the bytes that :meth:`_rx_run` would
-        take one by one now: due by ``until`` and before ``before``. The next byte is due.
-
-        Returns
-        -------
-        int
-            The end index.
-        """
+        take one by one now: due by ``until`` and before ``before``. The next byte is due."""
         bt, start, size, pos = self._bt, seg.start, len(seg.data), seg.pos
 
         def due(index: int) -> bool:  # the very test _rx_run applies to each byte
@@ -783,13 +759,7 @@ class Wire:
         (or count as lost) without running anything: no Ctrl+C, and while the interpreter
         is idle no CR, no byte that fills the buffer and no over-long line being skipped.
         They are taken in one go (:meth:`_take_plain`), which is what makes a busy link
-        cheap to emulate; the result is the same as byte by byte.
-
-        Returns
-        -------
-        int
-            The number of bytes.
-        """
+        cheap to emulate; the result is the same as byte by byte."""
         data, pos = seg.data, seg.pos
         end = self._due_end(seg, until, before)
         stop = data.find(_CTRL_C_BYTE, pos, end) if self._ctrl_c_stops else -1
@@ -824,13 +794,7 @@ class Wire:
         """One byte reaches the controller's UART; True if the handler was called.
 
         Ctrl+C is taken by the receive interrupt before anything is buffered, so it is
-        never lost, even with a full buffer (the manual says it bypasses the parser).
-
-        Returns
-        -------
-        bool
-            Whether the handler was called.
-        """
+        never lost, even with a full buffer (the manual says it bypasses the parser)."""
         if self._deaf:
             self.lost_bytes += 1
             return False
@@ -878,13 +842,7 @@ class Wire:
         * An empty line (a lone CR) is passed to the handler like any other.
         * The buffer full without a CR means the line cannot fit: the parser keeps its
           first 255 characters, frees the buffer and skips input up to the next CR, then
-          reports the line with :meth:`LineHandler.line_too_long` (error 3).
-
-        Returns
-        -------
-        bool
-            Whether the handler ran.
-        """
+          reports the line with :meth:`LineHandler.line_too_long` (error 3)."""
         ran = False
         while self._busy_until is None and not self.closed:
             cr = self._buffer.find(CR)
