@@ -56,30 +56,9 @@ class Devices:
     deflection: dict[int, float] = field(default_factory=dict)
 
     def set_input(self, group: str, index: int, level: bool) -> None:
-        """Set one digital input's level.
-
-        Parameters
-        ----------
-        group
-            ``digin``, ``edigin`` or ``adigin``.
-        index
-            The input, from 0.
-        level
-            Its level.
-        """
+        """Set input ``index`` (from 0) of ``group`` (``digin``, ``edigin``, ``adigin``)."""
         self.inputs[group][index] = int(level)
 
     def pulses_of(self, output: str) -> list[Pulse]:
-        """The pulses one output sent, in order.
-
-        Parameters
-        ----------
-        output
-            :data:`TRIGGER_OUT` or :data:`TAKT_OUT`.
-
-        Returns
-        -------
-        list[Pulse]
-            Its pulses.
-        """
+        """The pulses ``output`` (:data:`TRIGGER_OUT`, :data:`TAKT_OUT`) sent, in order."""
         return [pulse for pulse in self.pulses if pulse.output == output]
