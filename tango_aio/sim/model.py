@@ -408,6 +408,7 @@ class ControllerModel:
                 if event.kind == "cal":
                     self._record_cal_zero(event.letters)
                 self._report_completion(event.letters, event.job_id)
+                self._arrival_pulse(event.time)
             elif isinstance(event, TriggerFired):
                 self.trigger_pulses(event.time, 1,
                                     self.motion.to_user(event.axis, event.position))
@@ -1052,6 +1053,15 @@ class ControllerModel:
                 axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
         except MotionRefused:
             self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def _arrival_pulse(self, time: float) -> None:
+        """Modes 104 and 105: a pulse with the completion report, which autostatus 0 does
+        not send (L12595-12836). Choice: every completed move counts, the trigger axis'
+        or another's (the emulator does not tell the moves of one axis apart here)."""
+        if int(self.params.first("trig")) == 1 and self.session.autostatus != 0 \
+                and int(self.params.first("trigm")) in (104, 105):
+            self.trigger_pulses(time, 1)
+            self.motion.set_trigger_count(self.motion.trigger_count + 1)
 
     def _arm_distance(self, sense: int, shift: float) -> None:
         """Distance modes: a pulse every ``trigd`` from where the axis stands when they are

@@ -142,3 +142,19 @@ def test_distance_modes_pulse_every_distance_from_the_start(
     sim.wait(2.0)
     fired = [p.position for p in sim.model.devices.pulses_of(TRIGGER_OUT)]
     assert fired == pytest.approx(expected, abs=1e-6)
+
+
+def test_the_arrival_modes_pulse_with_the_completion_report() -> None:
+    sim = Model()
+    for line in ("!vel x 20", "!trigm 105", "!trig 1", "!moa x 1"):
+        sim.send(line)
+    sim.wait(1.0)
+    assert b"".join(sim.out) == b"@@@-.\r"  # the report the pulse comes with
+    sim.out.clear()
+    pulses = sim.model.devices.pulses_of(TRIGGER_OUT)
+    assert len(pulses) == 1 and not pulses[0].active_high
+    assert sim.send("?trigcount") == "1"
+    sim.send("!autostatus 0")  # no report, no pulse (L12595-12836)
+    sim.send("!moa x 2")
+    sim.wait(1.0)
+    assert len(sim.model.devices.pulses_of(TRIGGER_OUT)) == 1
