@@ -481,7 +481,7 @@ async def run(count: int, entries: int, per_process: int,
 
             async def upload(tango: tango_aio.Controller) -> None:
                 start = time.perf_counter()
-                await tango.upload_trigger_positions(values)
+                await tango.triggers.upload_positions(values)
                 link_seconds.append(time.perf_counter() - start)
 
             lags: list[float] = []

@@ -4,10 +4,10 @@ Runs against the in-process emulator in real-time wire mode (57600 Bd 8N2, 2 ms 
 latency, 0.5 ms processing per line, a 50 ms stall every 1000 lines) and measures, in one
 run, side by side:
 
-* uploading N trigger positions with ``upload_trigger_positions`` (pipelined, credit-limited);
+* uploading N trigger positions with ``triggers.upload_positions`` (pipelined, credit-limited);
 * the same upload stop-and-wait: write a line, ``?err``, wait for the reply, next line, which
   is what the manual recommends and what existing drivers do;
-* downloading 1024 snapshot rows with ``read_snapshot_positions`` (pipelined) and one row at
+* downloading 1024 snapshot rows with ``snapshots.read_positions`` (pipelined) and one row at
   a time.
 
 Each is compared with its wire-time lower bound: payload bytes x 11 / baud (host to
@@ -131,7 +131,7 @@ def pty_comparison(entries: int, latencies: tuple[float, ...] = (0.0, 0.002),
 
 
 async def upload_pipelined(values: list[float], tango: tango_aio.Controller) -> None:
-    await tango.upload_trigger_positions(values)
+    await tango.triggers.upload_positions(values)
 
 
 async def upload_stop_and_wait(values: list[float], tango: tango_aio.Controller) -> None:
@@ -147,7 +147,7 @@ def snapshot_rows(count: int) -> list[list[float]]:
 
 
 async def download_pipelined(tango: tango_aio.Controller, count: int) -> None:
-    rows = await tango.read_snapshot_positions()
+    rows = await tango.snapshots.read_positions()
     assert len(rows) == count
 
 
@@ -161,7 +161,7 @@ async def snapshot_case(name: str, rows: list[list[float]], chunk: int | None,
     async with tango_aio.connect(URL, reply_timeout=30.0) as tango:
         if chunk:
             tango.protocol.credit.chunk = chunk
-        await tango.upload_snapshot_positions(rows)
+        await tango.snapshots.upload_positions(rows)
         # Reply bytes (CR included) of every row, read once before the timed run.
         reply_bytes = sum([len(await tango.query(f"?snsa {i}")) + 1
                            for i in range(1, len(rows) + 1)])

@@ -26,11 +26,11 @@ async def main(url: str) -> None:
         await tango.move_to(x=0.0)  # start in front of the first position
 
         started = time.monotonic()
-        await tango.upload_trigger_positions(
+        await tango.triggers.upload_positions(
             POSITIONS, axis="x",
             progress=lambda done, total: print(f"uploaded {done}/{total} positions"))
         print(f"upload took {time.monotonic() - started:.3f} s")
-        read_back = await tango.read_trigger_positions()
+        read_back = await tango.triggers.read_positions()
         assert read_back == POSITIONS, read_back
         print(f"read back {len(read_back)} positions: {read_back[0]} ... {read_back[-1]} mm")
 

@@ -48,6 +48,7 @@ __all__ = [
     "AxisCorrectionError",
     "BrakeVoltageError",
     "ClosedLoopOffError",
+    "ClosedLoopPreconditionError",
     "CommandRejectedError",
     "ConnectError",
     "ConnectionLostError",
@@ -439,6 +440,27 @@ class StageLimitsError(InvalidCommandError):
 
 class MissingAxisError(TangoError, LookupError):
     """The controller does not have an axis the device was asked to provide."""
+
+
+class ClosedLoopPreconditionError(TangoError):
+    """Closed loop cannot be switched on for an axis: what it needs is missing (the
+    encoder's enable mask ``encmask`` or an active encoder ``enc``; manual L11761-11800).
+    Nothing was written.
+
+    Parameters
+    ----------
+    message
+        What is missing, in words.
+    axis
+        The axis.
+    missing
+        The instruction whose setting is missing (``"encmask"`` or ``"enc"``).
+    """
+
+    def __init__(self, message: str, *, axis: str, missing: str) -> None:
+        super().__init__(message)
+        self.axis = axis
+        self.missing = missing
 
 
 class ControllerError(TangoError):

@@ -28,6 +28,8 @@ __all__ = [
     "ControllerFault",
     "ControllerRestarted",
     "EventHub",
+    "InputsChanged",
+    "JoystickMoved",
     "MoveAborted",
     "MoveFinished",
     "PositionUpdate",
@@ -93,6 +95,27 @@ class PositionUpdate:
 
 
 @dataclass(frozen=True, slots=True)
+class InputsChanged:
+    """Digital input levels changed, from the I/O family's ``watch_inputs()``."""
+
+    #: Every input's level now (``?digin``: input 0 first).
+    levels: tuple[bool, ...]
+    #: The inputs whose level changed since the previous read.
+    changed: tuple[int, ...]
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
+class JoystickMoved:
+    """The stage moved while no move of this driver ran and the joystick was enabled,
+    from the I/O family's ``watch_inputs()``: its positions (as :class:`PositionUpdate`,
+    which is published with it)."""
+
+    positions: Mapping[str, float]
+    time: float = field(default_factory=_now)
+
+
+@dataclass(frozen=True, slots=True)
 class ConnectionLost:
     """The link to the controller is gone; ``cause`` says why, when known."""
 
@@ -144,6 +167,8 @@ TangoEvent = (
     | StatusReport
     | UnsolicitedLine
     | PositionUpdate
+    | InputsChanged
+    | JoystickMoved
     | ConnectionLost
     | Reconnected
 )

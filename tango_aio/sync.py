@@ -62,12 +62,19 @@ import anyio.from_thread
 from . import controller as _connection
 from .controller import Controller as AsyncController
 from .controller import Identity
-from .events import PositionUpdate, Subscription, TangoEvent
+from .events import InputsChanged, JoystickMoved, PositionUpdate, Subscription, TangoEvent
+from .families import IO as AsyncIO
+from .families import ClosedLoop as AsyncClosedLoop
+from .families import Encoders as AsyncEncoders
 from .families import Family
+from .families import Joystick as AsyncJoystick
+from .families import Snapshots as AsyncSnapshots
+from .families import Triggers as AsyncTriggers
 from .group import ControllerGroup as AsyncGroup
 from .group import ControllerSpec, GroupEvent, GroupSubscription
 
-__all__ = ["STOP_WAIT", "Controller", "ControllerGroup", "Portal", "connect", "family_twin",
+__all__ = ["IO", "STOP_WAIT", "ClosedLoop", "Controller", "ControllerGroup", "Encoders",
+           "Joystick", "Portal", "Snapshots", "Triggers", "connect", "family_twin",
            "stop_started"]
 
 P = ParamSpec("P")
@@ -493,6 +500,110 @@ def family_twin(cls: type[Family]) -> type[_Wrapper[Any]]:
     return twin
 
 
+class _Family(_Wrapper[A]):
+    """A blocking family: its own methods are declared; any other coroutine method of
+    the async family (the generated typed access, ``tango.io.set_anamode(...)``) is
+    made blocking when first looked up."""
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name == "aio":
+            raise AttributeError(name)
+        method = getattr(self.aio, name)
+        if not inspect.iscoroutinefunction(method):
+            raise AttributeError(f"{type(self).__name__} has no blocking {name!r}")
+
+        @functools.wraps(method)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            return self._portal.call(method, *args, **kwargs)
+
+        return call
+
+    def __dir__(self) -> list[str]:
+        return sorted({*super().__dir__(), *(
+            name for name in dir(self.aio) if not name.startswith("_")
+            and inspect.iscoroutinefunction(getattr(self.aio, name)))})
+
+
+class Joystick(_Family[AsyncJoystick]):
+    """The blocking twin of :class:`tango_aio.families.Joystick` (``tango.joystick``)."""
+
+    enable = _Blocking(AsyncJoystick.enable)
+    disable = _Blocking(AsyncJoystick.disable)
+    is_enabled = _Blocking(AsyncJoystick.is_enabled)
+
+
+class IO(_Family[AsyncIO]):
+    """The blocking twin of :class:`tango_aio.families.IO` (``tango.io``)."""
+
+    set_shutter = _Blocking(AsyncIO.set_shutter)
+    shutter = _Blocking(AsyncIO.shutter)
+    flash = _Blocking(AsyncIO.flash)
+    set_analog_out = _Blocking(AsyncIO.set_analog_out)
+    analog_out = _Blocking(AsyncIO.analog_out)
+    analog_in = _Blocking(AsyncIO.analog_in)
+    digital_in = _Blocking(AsyncIO.digital_in)
+    set_digital_out = _Blocking(AsyncIO.set_digital_out)
+    digital_out = _Blocking(AsyncIO.digital_out)
+
+    def watch_inputs(self, interval: float = 0.1) -> Iterator[InputsChanged | JoystickMoved]:
+        """Blocking iterator over :meth:`tango_aio.families.IO.watch_inputs`.
+
+        Parameters
+        ----------
+        interval
+            Seconds between two reads.
+
+        Returns
+        -------
+        Iterator[InputsChanged | JoystickMoved]
+            What changed, read in the driver's thread.
+        """
+        return self._portal.iterate(self.aio.watch_inputs(interval))
+
+
+class Encoders(_Family[AsyncEncoders]):
+    """The blocking twin of :class:`tango_aio.families.Encoders` (``tango.encoders``)."""
+
+    mask = _Blocking(AsyncEncoders.mask)
+    set_mask = _Blocking(AsyncEncoders.set_mask)
+    active = _Blocking(AsyncEncoders.active)
+    set_position_source = _Blocking(AsyncEncoders.set_position_source)
+    position_error = _Blocking(AsyncEncoders.position_error)
+
+
+class ClosedLoop(_Family[AsyncClosedLoop]):
+    """The blocking twin of :class:`tango_aio.families.ClosedLoop` (``tango.closed_loop``)."""
+
+    enable = _Blocking(AsyncClosedLoop.enable)
+    mode = _Blocking(AsyncClosedLoop.mode)
+    settle = _Blocking(AsyncClosedLoop.settle)
+
+
+class Triggers(_Family[AsyncTriggers]):
+    """The blocking twin of :class:`tango_aio.families.Triggers` (``tango.triggers``)."""
+
+    read_config = _Blocking(AsyncTriggers.read_config)
+    write_config = _Blocking(AsyncTriggers.write_config)
+    enabled = _Blocking(AsyncTriggers.enabled)
+    set_enabled = _Blocking(AsyncTriggers.set_enabled)
+    count = _Blocking(AsyncTriggers.count)
+    set_count = _Blocking(AsyncTriggers.set_count)
+    fire = _Blocking(AsyncTriggers.fire)
+    upload_positions = _Blocking(AsyncTriggers.upload_positions)
+    read_positions = _Blocking(AsyncTriggers.read_positions)
+    set_range = _Blocking(AsyncTriggers.set_range)
+
+
+class Snapshots(_Family[AsyncSnapshots]):
+    """The blocking twin of :class:`tango_aio.families.Snapshots` (``tango.snapshots``)."""
+
+    read_config = _Blocking(AsyncSnapshots.read_config)
+    write_config = _Blocking(AsyncSnapshots.write_config)
+    count = _Blocking(AsyncSnapshots.count)
+    upload_positions = _Blocking(AsyncSnapshots.upload_positions)
+    read_positions = _Blocking(AsyncSnapshots.read_positions)
+
+
 class Controller(_Wrapper[AsyncController]):
     """A connected TANGO controller, blocking. Get one with :func:`connect`.
 
@@ -525,18 +636,9 @@ class Controller(_Wrapper[AsyncController]):
     abort = _Blocking(AsyncController.abort)
     check_fault = _Blocking(AsyncController.check_fault)
     is_calibrated = _Blocking(AsyncController.is_calibrated)
-    upload_trigger_positions = _Blocking(AsyncController.upload_trigger_positions)
-    read_trigger_positions = _Blocking(AsyncController.read_trigger_positions)
-    set_trigger_range = _Blocking(AsyncController.set_trigger_range)
-    upload_snapshot_positions = _Blocking(AsyncController.upload_snapshot_positions)
-    read_snapshot_positions = _Blocking(AsyncController.read_snapshot_positions)
     axis_limits = _Blocking(AsyncController.axis_limits)
     read_info = _Blocking(AsyncController.read_info)
     wait_restarted = _Blocking(AsyncController.wait_restarted)
-    trigger_count = _Blocking(AsyncController.trigger_count)
-    set_trigger_count = _Blocking(AsyncController.set_trigger_count)
-    trigger_enabled = _Blocking(AsyncController.trigger_enabled)
-    set_trigger_enabled = _Blocking(AsyncController.set_trigger_enabled)
 
     # -- non-blocking starts (Zaber's wait_until_idle=False)
     start_move_to = _Starter(AsyncController.move_to)
@@ -616,6 +718,36 @@ class Controller(_Wrapper[AsyncController]):
         """
         subscription: Subscription = self._portal.call(_subscribe, self.aio, maxsize)
         return self._portal.iterate(subscription)
+
+    @functools.cached_property
+    def joystick(self) -> Joystick:
+        """The HDI, blocking (:attr:`tango_aio.Controller.joystick`)."""
+        return Joystick(self.aio.joystick, self._portal, owns_portal=False)
+
+    @functools.cached_property
+    def io(self) -> IO:
+        """Digital and analogue I/O, blocking (:attr:`tango_aio.Controller.io`)."""
+        return IO(self.aio.io, self._portal, owns_portal=False)
+
+    @functools.cached_property
+    def encoders(self) -> Encoders:
+        """The encoders, blocking (:attr:`tango_aio.Controller.encoders`)."""
+        return Encoders(self.aio.encoders, self._portal, owns_portal=False)
+
+    @functools.cached_property
+    def closed_loop(self) -> ClosedLoop:
+        """Closed loop, blocking (:attr:`tango_aio.Controller.closed_loop`)."""
+        return ClosedLoop(self.aio.closed_loop, self._portal, owns_portal=False)
+
+    @functools.cached_property
+    def triggers(self) -> Triggers:
+        """The trigger output and list, blocking (:attr:`tango_aio.Controller.triggers`)."""
+        return Triggers(self.aio.triggers, self._portal, owns_portal=False)
+
+    @functools.cached_property
+    def snapshots(self) -> Snapshots:
+        """The snapshot input and array, blocking (:attr:`tango_aio.Controller.snapshots`)."""
+        return Snapshots(self.aio.snapshots, self._portal, owns_portal=False)
 
     def validate_move(self, /, *, relative: bool = False, **axes: float) -> None:
         """Check move targets without moving (see

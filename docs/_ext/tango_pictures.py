@@ -139,7 +139,7 @@ async def record_raster() -> RasterRun:
 
         await tango.move_to(x=0.0, y=0.0)
         await point()
-        await tango.upload_trigger_positions(POSITIONS, axis="x")
+        await tango.triggers.upload_positions(POSITIONS, axis="x")
         await tango.command("!trigcount 0")
         await tango.command("!trig 1")
         for row in range(ROWS):

@@ -1822,10 +1822,10 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
         if not await self._move(ctx, scan.start):
             return ctx  # stopped with success (RunEngine pause): nothing armed
         if scan.positions is not None:
-            await controller.upload_trigger_positions(scan.positions, axis=scan.axis)
+            await controller.triggers.upload_positions(scan.positions, axis=scan.axis)
         else:
             assert scan.trigger_range is not None
-            await controller.set_trigger_range(*scan.trigger_range, axis=scan.axis)
+            await controller.triggers.set_range(*scan.trigger_range, axis=scan.axis)
         ctx.uploaded = time.time()
         await controller.set("trigcount", 0)
         if scan.snapshots:
@@ -1872,7 +1872,7 @@ class _FlyLogic(FlyableLogic[TriggerScan, _Pass]):
         ended = time.time()
         rows: list[list[float]] = []
         if ctx.scan.snapshots:
-            rows = await controller.read_snapshot_positions()
+            rows = await controller.snapshots.read_positions()
         if count != ctx.scan.expected:
             log.warning("fly pass of %s gave %d trigger pulses, expected %d",
                         ctx.scan.axis, count, ctx.scan.expected)

@@ -1410,7 +1410,7 @@ async def _upload_trigp(args: argparse.Namespace) -> int:
         async with connect(args.url) as tango:
             with _progress() as progress:
                 task = progress.add_task(f"trigp {args.axis}", total=len(positions))
-                await tango.upload_trigger_positions(
+                await tango.triggers.upload_positions(
                     positions, axis=args.axis,
                     progress=lambda done, total: progress.update(task, completed=done))
             count = int(await tango.get("trigc"))

@@ -23,6 +23,7 @@ from typing import Any, Final, NoReturn, Protocol
 from .._checks import check_count, check_timeout
 from ..catalog import (
     AXES,
+    INSTRUCTIONS,
     Command,
     Completion,
     Context,
@@ -46,6 +47,7 @@ from ..errors import (
     GarbledVerdictError,
     InternalControllerError,
     InvalidCommandError,
+    InvalidInstructionError,
     MoveOutcomeUnknown,
     ProtocolError,
     RequestAbortedError,
@@ -64,25 +66,25 @@ from ..events import (
     Reconnected,
     StatusReport,
     Subscription,
+    TangoEvent,
     UnsolicitedLine,
 )
 from ..families import (
+    IO,
     RESTART_QUIET,
-    Column,
+    ClosedLoop,
     ControllerInfo,
+    Encoders,
     Info,
+    Joystick,
     ListTransfer,
-    Progress,
     Settings,
-    check_axis,
+    Snapshots,
+    Triggers,
     check_resolution,
     convert_from,
     convert_to,
     reading_unit,
-    snapshot_spec,
-    trigger_spec,
-    validate_rows,
-    validate_trigger_positions,
 )
 from ..link import (
     Closer,
@@ -277,6 +279,19 @@ class Controller:
         #: (:mod:`tango_aio.controller._restart`).
         self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
         self._restarts.attach(protocol)
+        devices = _Devices(self)
+        #: The HDI: on and off around automated moves (:class:`~tango_aio.families.Joystick`).
+        self.joystick = Joystick(devices)
+        #: Digital and analogue I/O, shutter, LED strobe (:class:`~tango_aio.families.IO`).
+        self.io = IO(devices)
+        #: Encoders (:class:`~tango_aio.families.Encoders`).
+        self.encoders = Encoders(devices)
+        #: Closed loop (:class:`~tango_aio.families.ClosedLoop`).
+        self.closed_loop = ClosedLoop(devices)
+        #: The trigger output and its list (:class:`~tango_aio.families.Triggers`).
+        self.triggers = Triggers(devices)
+        #: The snapshot input and array (:class:`~tango_aio.families.Snapshots`).
+        self.snapshots = Snapshots(devices)
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -663,7 +678,7 @@ class Controller:
                                       instruction=command.name)
         if command.name in _LIST_POSITIONS:
             # A non-zero list position below the resolution is stored as 0.0 (L4080-4100),
-            # as upload_trigger_positions() refuses it.
+            # as triggers.upload_positions() refuses it.
             tiny = [v for v in command.values if isinstance(v, float) and 0 < abs(v) < 0.5]
             if tiny:
                 check_resolution([tiny], [min(await self._resolution())], command.name)
@@ -1869,7 +1884,7 @@ class Controller:
                 raise ControllerTimeoutError(
                     f"axes still moving {STOP_WAIT:.0f} s after the abort") from None
 
-    # -- trigger and snapshot lists ---------------------------------------------------------
+    # -- trigger and snapshot lists (tango.triggers, tango.snapshots) -----------------------
 
     def _transfer(self) -> ListTransfer:
         return ListTransfer(self._protocol, self.reply_timeout, self._list_lock)
@@ -1885,134 +1900,6 @@ class Controller:
         """
         texts = await self._position_texts()
         return [position_tolerance(text) / 1.5 for text in texts.values()]
-
-    async def upload_trigger_positions(self, positions: Sequence[float], axis: str = "x",
-                                       progress: Progress | None = None) -> None:
-        """Replace the trigger position list of ``axis`` with ``positions`` at wire speed.
-
-        Every entry is validated first (at most 10000 finite, strictly monotonic values the
-        catalog accepts, none non-zero below the position resolution, which would read
-        back as 0.0); only then is the list cleared with ``!trigp axis 0`` and every entry
-        appended through the write-credit limiter, the count checked along the way. A bad
-        entry raises :class:`~tango_aio.errors.InvalidCommandError` and leaves the list
-        untouched. Uploads (and list reads) of one controller run one at a time.
-        ``progress(done, total)`` is called at each checkpoint. An entry the controller
-        rejects raises :class:`~tango_aio.UploadError` with its index and error code.
-        Cancelling stops sending and leaves the driver in sync (the list then holds what
-        was sent so far).
-
-        Parameters
-        ----------
-        positions
-            The trigger positions, in the controller's dim unit.
-        axis
-            The axis whose list is replaced.
-        progress
-            Called as ``progress(done, total)`` at each checkpoint.
-
-        Raises
-        ------
-        InvalidCommandError
-            An entry or the axis is not valid (the list is left untouched).
-        UploadError
-            The controller rejected an entry.
-        """
-        letter = check_axis(axis)
-        values = validate_trigger_positions(positions)
-        self._check_axes(build("trigp", 0, axis=letter))  # an axis it has, before any byte
-        resolution = await self._resolution()
-        rows = Column(values)
-        check_resolution(rows, [resolution[AXES.index(letter)]], "trigp")
-        await self._transfer().replace(
-            trigger_spec(), lambda: self.command(f"!trigp {letter} 0"), rows, progress)
-
-    async def read_trigger_positions(self) -> list[float]:
-        """Read the whole trigger position list with pipelined ``?trigp n`` reads.
-
-        Returns
-        -------
-        list[float]
-            The trigger positions, in list order.
-        """
-        rows = await self._transfer().download(trigger_spec())
-        return [row[0] for row in rows]
-
-    async def set_trigger_range(self, start: float, end: float, count: int,
-                                axis: str | None = None) -> None:
-        """Set equidistant trigger positions (``!trigr [axis] start end count``); ``count``
-        includes both ends. ``start`` above ``end`` triggers while the axis travels in the
-        negative direction (L13529-13532), so both orders are accepted; a position whose
-        magnitude exceeds :data:`MAX_TRIGGER_POSITION` (no stage travels that far in any
-        ``dim`` unit) or a non-zero one below the position resolution (it would be stored
-        as 0.0) is refused before anything is written, as is an axis the controller does
-        not have.
-
-        Parameters
-        ----------
-        start
-            The first trigger position.
-        end
-            The last trigger position.
-        count
-            The number of positions, both ends included.
-        axis
-            The axis (``"x"``...); ``None``: the axis set before (``!triga`` or an earlier
-            ``!trigr``, L13686-13688).
-
-        Raises
-        ------
-        InvalidCommandError
-            A value or the axis is not valid, before anything is written.
-        ControllerError
-            The controller refused the line.
-        """
-        command = build("trigr", start, end, count, axis=axis, context=self.context)
-        self._check_axes(command)
-        for value in (start, end):
-            if abs(float(value)) > MAX_TRIGGER_POSITION:
-                raise InvalidCommandError(
-                    f"trigr: position {value!r} is beyond any stage's travel (at most "
-                    f"{MAX_TRIGGER_POSITION:g} in the dim unit)", instruction="trigr",
-                    parameter="position", number=5)
-        quantum = min(await self._resolution())
-        check_resolution([[float(start), float(end)]], [quantum], "trigr")
-        await self._execute(command, check=True)
-
-    async def upload_snapshot_positions(self, rows: Sequence[Sequence[float]],
-                                        progress: Progress | None = None) -> None:
-        """Replace the snapshot array with ``rows`` (at most 1024 rows, each with one
-        position per axis, X first), like :meth:`upload_trigger_positions`.
-
-        Parameters
-        ----------
-        rows
-            The snapshot rows: one position per axis, X first.
-        progress
-            Called as ``progress(done, total)`` at each checkpoint.
-
-        Raises
-        ------
-        InvalidCommandError
-            A row is not valid (the array is left untouched).
-        UploadError
-            The controller rejected an entry.
-        """
-        axes = self._identity.axes if self._identity else self.context.axes
-        values = validate_rows(rows, axes)
-        check_resolution(values, await self._resolution(), "snsa")
-        await self._transfer().replace(snapshot_spec(), lambda: self.command("!snsa 0"),
-                                       values, progress)
-
-    async def read_snapshot_positions(self) -> list[list[float]]:
-        """Read every snapshot entry (``?snsc`` of them) with pipelined ``?snsa n`` reads;
-        each row holds the positions of the present axes.
-
-        Returns
-        -------
-        list[list[float]]
-            The snapshot rows, in array order.
-        """
-        return await self._transfer().download(snapshot_spec())
 
     # -- physical units (the settings family converts; moves and positions use it) --------
 
@@ -2071,54 +1958,6 @@ class Controller:
                     raise
         await self._protocol.verify_autostatus(timeout=self.reply_timeout)
         await self._reload_settings()
-
-    async def trigger_count(self) -> int:
-        """The number of trigger events generated so far (``?trigcount``).
-
-        Returns
-        -------
-        int
-            The trigger counter.
-        """
-        return int(await self.get("trigcount"))
-
-    async def set_trigger_count(self, count: int = 0) -> None:
-        """Set (usually reset) the trigger event counter (``!trigcount``).
-
-        Parameters
-        ----------
-        count
-            The new value of the counter.
-        """
-        await self.set("trigcount", count)
-
-    async def trigger_enabled(self) -> bool:
-        """Whether the trigger output is switched on (``?trig``).
-
-        Returns
-        -------
-        bool
-            ``True`` if the trigger output is on.
-        """
-        return bool(await self.get("trig"))
-
-    async def set_trigger_enabled(self, enabled: bool) -> None:
-        """Switch the trigger output on or off (``!trig 1`` / ``!trig 0``); the trigger
-        setup must be complete before switching it on.
-
-        Parameters
-        ----------
-        enabled
-            ``True`` switches the output on, ``False`` off.
-
-        Raises
-        ------
-        TypeError
-            ``enabled`` is not a bool.
-        """
-        if not isinstance(enabled, bool):
-            raise TypeError(f"enabled must be True or False, got {enabled!r}")
-        await self.set("trig", int(enabled))
 
     async def axis_status(self) -> dict[str, AxisStatus]:
         """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members.
@@ -2494,10 +2333,90 @@ _STOP_POLL = 0.01
 #: Instructions whose float values are list positions (checked against the resolution).
 _LIST_POSITIONS = frozenset({"trigp", "trigr", "snsa"})
 
-#: The largest trigger position magnitude :meth:`Controller.set_trigger_range` accepts,
-#: in the controller's ``dim`` unit: a kilometre in mm, a metre in nm (the manual gives no
-#: bound; a larger value is a caller's mistake, e.g. 1e200 would be a 230-byte line).
-MAX_TRIGGER_POSITION = 1e9
+
+class _Devices:
+    """The port of the device families: the controller's own methods."""
+
+    __slots__ = ("_controller",)
+
+    def __init__(self, controller: Controller) -> None:
+        self._controller = controller
+
+    @property
+    def context(self) -> Context:
+        return self._controller.context
+
+    @property
+    def identity(self) -> Identity:
+        return self._controller.identity
+
+    @property
+    def units(self) -> str | None:
+        return self._controller.units
+
+    @units.setter
+    def units(self, value: str | None) -> None:
+        self._controller.units = value
+
+    async def refresh_settings(self) -> None:
+        await self._controller.refresh_settings()
+
+    async def wait_restarted(self, *, quiet: float = RESTART_QUIET) -> None:
+        await self._controller.wait_restarted(quiet=quiet)
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        known = self._controller._identity
+        return tuple(AXES[: known.axes if known else self._controller.context.axes])
+
+    async def get(self, name: str, *args: Value, axis: str | None = None,
+                  timeout: float | None = None) -> Any:
+        return await self._controller.get(name, *args, axis=axis, timeout=timeout)
+
+    async def set(self, name: str, /, *args: Value, axis: str | None = None,
+                  check: bool = True, **axes: Any) -> None:
+        await self._controller.set(name, *args, axis=axis, check=check, **axes)
+
+    async def query(self, line: str, timeout: float | None = None) -> str:
+        return await self._controller.query(line, timeout)
+
+    async def command(self, line: str, *, check: bool = True,
+                      timeout: float | None = None) -> None:
+        await self._controller.command(line, check=check, timeout=timeout)
+
+    async def read_if_known(self, name: str) -> Any:
+        controller = self._controller
+        known = controller._identity
+        if known is not None and known.family == "older" \
+                and not INSTRUCTIONS[name].in_older_manual:
+            return None
+        try:
+            return await controller._read_or_absent(name)
+        except (InvalidInstructionError, ProtocolError):
+            return None
+
+    async def state(self) -> tuple[dict[str, str], dict[str, str]]:
+        return await self._controller._status_and_positions()
+
+    async def user_positions(self, texts: Mapping[str, str]) -> dict[str, float]:
+        controller = self._controller
+        return await controller._from_controller(
+            texts, controller._reading_unit(None, Measure.POSITION), Measure.POSITION)
+
+    def publish(self, event: TangoEvent) -> None:
+        self._controller._hub.publish(event)
+
+    def moving(self) -> bool:
+        return self._controller._motion.busy or bool(self._controller._motion_calls)
+
+    def list_transfer(self) -> ListTransfer:
+        return self._controller._transfer()
+
+    async def resolution(self) -> list[float]:
+        return await self._controller._resolution()
+
+    def check_axes(self, command: Command) -> None:
+        self._controller._check_axes(command)
 
 
 def _spelled(line: str) -> Command:

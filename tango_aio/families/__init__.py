@@ -24,6 +24,8 @@ from ._bulk import (
     validate_rows,
     validate_trigger_positions,
 )
+from ._closed_loop import ClosedLoop, ClosedLoopMode
+from ._encoders import Encoders
 from ._generated import (
     ACCESS,
     HAND_MADE,
@@ -43,26 +45,44 @@ from ._generated import (
     TriggerAccess,
 )
 from ._info import ControllerInfo, Info
+from ._io import IO
+from ._joystick import Joystick
+from ._reach import DevicePort
 from ._settings import RESTART_QUIET, Settings, convert_from, convert_to, reading_unit
 from ._snapshot import SettingDifference, SettingsSnapshot
+from ._snapshots import SnapshotConfig, SnapshotMode, Snapshots
+from ._triggers import (
+    MAX_TRIGGER_POSITION,
+    TriggerConfig,
+    TriggerMode,
+    TriggerOutput,
+    Triggers,
+)
 
 __all__ = [
     "ACCESS",
     "HAND_MADE",
+    "IO",
     "MAX_TRIGGERS",
+    "MAX_TRIGGER_POSITION",
     "RESTART_QUIET",
     "AdjustmentsAccess",
     "CalibrationAccess",
+    "ClosedLoop",
     "ClosedLoopAccess",
+    "ClosedLoopMode",
     "Column",
     "CommunicationAccess",
     "ControllerInfo",
     "ControllerInfoAccess",
+    "DevicePort",
     "EncoderAccess",
+    "Encoders",
     "Family",
     "FamilyPort",
     "IOAccess",
     "Info",
+    "Joystick",
     "JoystickAccess",
     "LimitSwitchAccess",
     "ListTransfer",
@@ -74,8 +94,15 @@ __all__ = [
     "Settings",
     "SettingsSnapshot",
     "SnapshotAccess",
+    "SnapshotConfig",
+    "SnapshotMode",
+    "Snapshots",
     "SystemAccess",
     "TriggerAccess",
+    "TriggerConfig",
+    "TriggerMode",
+    "TriggerOutput",
+    "Triggers",
     "UploadError",
     "check_axis",
     "check_resolution",

@@ -387,6 +387,7 @@ class Handlers(Peripherals):
         before = int(self.m.params.first("joy"))
         mode = int(c.values[0])
         self.m.params.put_global("joy", (mode,))
+        self.m.follow_joystick()
         if mode == 0 and before != 0:
             # Disabling an enabled joystick sends a completion report (manual L7124-7154).
             self.m.report(self.completion_letters())

@@ -68,9 +68,10 @@ from ..catalog import (
 )
 from ..errors import ERROR_DESCRIPTIONS, InvalidCommandError
 from .clock import host_now
+from .devices import TAKT_OUT, TRIGGER_OUT, Devices, Pulse
 from .handlers import build_handlers
-from .lists import ListError, SnapshotList, TriggerList
-from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished
+from .lists import MAX_TRIGGERS, ListError, SnapshotList, TriggerList
+from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished, TriggerFired
 from .params import ParamStore
 from .profiles import Firmware
 from .state import StateFileError, load_state, save_state
@@ -146,7 +147,13 @@ _GLOBAL_SETTINGS: dict[str, str] = {
     "delay": "delay_ms", "extmode": "extmode",
 }
 #: Instructions that change the trigger list or whether it fires (re-armed lazily).
-_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr"})
+_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr",
+                           "trigd"})
+#: The distance modes the emulator generates (L12595-12836): the sense of travel (+1
+#: forward, -1 backward) and the shift in distances; the bidirectional modes (1, 4, 7,
+#: 10) are not modelled (they arm nothing).
+_DISTANCE_MODES = {0: (1, 0.0), 3: (1, 0.0), 2: (-1, 0.0), 5: (-1, 0.0),
+                   6: (1, 0.5), 9: (1, 0.5), 8: (-1, 0.5), 11: (-1, 0.5)}
 #: Reads/writes of these instructions never change the error state (manual L2837).
 _ERROR_NEUTRAL = frozenset({"err", "status", "help"})
 
@@ -226,6 +233,10 @@ class ControllerModel:
         self.session = _Session(booted=now)
         self.triggers = TriggerList()
         self.snapshots = SnapshotList()
+        #: I/O levels, encoders fitted and the pulses sent (:mod:`tango_aio.sim.devices`).
+        self.devices = Devices()
+        #: Axes the joystick drives now.
+        self._joystick_axes: set[int | str] = set()
         #: Where the last cal of each axis completed, user frame, revolutions.
         self.cal_zero = [0.0] * len(AXES)
         self._triggers_dirty = False
@@ -405,7 +416,57 @@ class ControllerModel:
                 if event.kind == "cal":
                     self._record_cal_zero(event.letters)
                 self._report_completion(event.letters, event.job_id)
+                self._arrival_pulse(event.time)
+            elif isinstance(event, TriggerFired):
+                self.trigger_pulses(event.time, 1,
+                                    self.motion.to_user(event.axis, event.position))
         self._send_stop_report()
+
+    def deflect(self, axis: str, fraction: float, now: float | None = None) -> None:
+        """Hold the joystick deflected along ``axis`` (``fraction`` of full deflection,
+        -1..1; 0 releases it). While the HDI is enabled (``joy`` not 0, L7101-7118) and the
+        axis is assigned to it (``joydir`` not 0, L7175-7253), the axis travels at
+        ``fraction`` times ``joyvel`` (L7319-7355), in ``joydir``'s sense, like ``speed``.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        fraction
+            The deflection, -1..1.
+        now
+            The time (default: the host clock).
+
+        Raises
+        ------
+        ValueError
+            ``fraction`` is not -1..1.
+        """
+        if not -1.0 <= fraction <= 1.0:
+            raise ValueError(f"a deflection is -1..1, not {fraction}")
+        self.poll(host_now() if now is None else now)
+        index = AXES.index(axis)
+        if fraction == 0.0:
+            self.devices.deflection.pop(index, None)
+        else:
+            self.devices.deflection[index] = fraction
+        self.follow_joystick()
+
+    def follow_joystick(self) -> None:
+        """Drive the deflected axes as the HDI settings allow (nothing while it is off)."""
+        enabled = int(self.params.first("joy")) != 0
+        velocities: dict[int | str, float] = {}
+        for index in range(self.axes):
+            fraction = self.devices.deflection.get(index, 0.0) if enabled else 0.0
+            sense = int(self.params.first("joydir", index))
+            if fraction == 0.0 and index not in self._joystick_axes:
+                continue
+            value = self.params.number("joyvel", index) * fraction * (1 if sense > 0 else
+                                                                      -1 if sense < 0 else 0)
+            velocities[index] = self.motion.vel_from_user(index, value)
+        self._joystick_axes = {i for i, v in velocities.items() if v}
+        if velocities:
+            self.motion.speed(velocities)
 
     def next_deadline(self) -> float | None:
         """When the motion model next changes state.
@@ -1001,9 +1062,12 @@ class ControllerModel:
         ``!trigi n`` moved it; the list then re-arms by travelling back behind that entry.
         """
         self._triggers_dirty = False
+        mode = int(self.params.first("trigm"))
+        if int(self.params.first("trig")) == 1 and mode in _DISTANCE_MODES:
+            self._arm_distance(*_DISTANCE_MODES[mode])
+            return
         entries = self.triggers.entries
-        enabled = int(self.params.first("trig")) == 1 and \
-            int(self.params.first("trigm")) in (20, 21)
+        enabled = int(self.params.first("trig")) == 1 and mode in (20, 21)
         if not entries or not enabled:
             self.motion.clear_triggers()
             return
@@ -1015,6 +1079,62 @@ class ControllerModel:
                 axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
         except MotionRefused:
             self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def _arrival_pulse(self, time: float) -> None:
+        """Modes 104 and 105: a pulse with the completion report, which autostatus 0 does
+        not send (L12595-12836). Choice: every completed move counts, the trigger axis'
+        or another's (the emulator does not tell the moves of one axis apart here)."""
+        if int(self.params.first("trig")) == 1 and self.session.autostatus != 0 \
+                and int(self.params.first("trigm")) in (104, 105):
+            self.trigger_pulses(time, 1)
+            self.motion.set_trigger_count(self.motion.trigger_count + 1)
+
+    def _arm_distance(self, sense: int, shift: float) -> None:
+        """Distance modes: a pulse every ``trigd`` from where the axis stands when they are
+        armed (``!trig 1`` defines the start, L12565-12572), the first as the move starts
+        ("First pulse when move starts") or half a distance on (modes 6-11), in the mode's
+        sense; as many as a list holds at most."""
+        axis = min(AXES.index(str(self.params.first("triga"))), self.axes - 1)
+        units = self.motion.units(axis)
+        start = self.motion.to_user(axis, self.motion.position(axis))
+        step = float(self.params.first("trigd")) * sense
+        # The first level a hair beyond the start: the move's first step crosses it.
+        first = max(shift, 1e-9 / abs(step)) if step else shift
+        levels = [start + (k + first) * step for k in range(MAX_TRIGGERS)]
+        self._trigger_base = 0
+        self.motion.set_trigger_positions(axis, [units.pos_from_user(p) for p in levels])
+
+    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
+        """Record ``count`` trigger pulses on the outputs ``trigo`` selects (L12860-12949:
+        bit 0 TRIGGER_OUT, bit 1 TAKT_OUT; 0 and 4, 8, 12 send nothing), ``trigs`` µs long
+        (L12950-12970), spaced by ``1/trigf`` (L13414-13440). The polarity is ``trigl``'s in
+        the list modes 20 and 21 (L14177-14212) and the mode's own otherwise: modes 3-5,
+        9-11 and the odd ones from 101 are active low (L12595-12836).
+
+        Parameters
+        ----------
+        time
+            When the first pulse begins.
+        count
+            How many pulses.
+        position
+            The trigger axis' position where they fired; ``None``: not by position.
+        """
+        outputs = int(self.params.first("trigo"))
+        width = int(self.params.first("trigs")) / 1e6
+        mode = int(self.params.first("trigm"))
+        if mode in (20, 21):
+            high = int(self.params.first("trigl")) == 1
+        elif mode >= 100:
+            high = mode % 2 == 0
+        else:
+            high = mode % 6 < 3
+        period = 1.0 / float(self.params.first("trigf"))
+        for n in range(count):
+            for bit, output in ((1, TRIGGER_OUT), (2, TAKT_OUT)):
+                if outputs & bit:
+                    self.devices.pulses.append(
+                        Pulse(time + n * period, output, width, high, position))
 
     def trigger_axis(self) -> int:
         """Index of the trigger axis (``triga``, or the axis the list was written for).

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 
 from ..catalog import AXES, Command
+from .devices import TAKT_OUT, Pulse
 from .params import INDEXED, format_value, position_digits
 from .port import ModelPort
 
@@ -23,12 +24,6 @@ __all__ = ["Peripherals"]
 
 Reply = list[str] | None
 
-#: Width of the digital input strings: the highest documented input index plus one
-#: (``?digin`` 24 characters L8573, ``?edigin`` 12 L8825, ``?adigin`` 4 L9120).
-_INPUT_WIDTH = {"digin": 24, "edigin": 12, "adigin": 4}
-#: ``anain c 15`` is the 2.5 V reference, half of the 0..1023 range (L9340-9380); every
-#: other channel reads 0 (nothing connected).
-_ANAIN_COUNTS = {15: 512}
 
 
 class Peripherals:
@@ -150,14 +145,14 @@ class Peripherals:
     # -- digital and analogue I/O -----------------------------------------------------------
 
     def _inputs(self, c: Command) -> Reply:
-        levels = "0" * _INPUT_WIDTH[c.name]
+        levels = "".join(str(level) for level in self.m.devices.inputs[c.name])
         return [levels[int(c.values[0])]] if c.values else [levels]
 
     i_digin = i_edigin = i_adigin = _inputs
 
     def i_anain(self, c: Command) -> Reply:
         """``c``: the 10-bit count; ``v``: the same with two decimals (L9448-9450)."""
-        counts = _ANAIN_COUNTS.get(int(c.values[1]), 0)
+        counts = self.m.devices.analog.get(int(c.values[1]), 0)
         return [str(counts)] if c.values[0] == "c" else [format_value(float(counts), 2)]
 
     def i_anaout(self, c: Command) -> Reply:
@@ -174,6 +169,26 @@ class Peripherals:
         else:
             levels[: len(c.values)] = [float(v) for v in c.values]
         self.m.params.put_global("anaout", tuple(levels))
+        return None
+
+    def i_flash(self, c: Command) -> Reply:
+        """A pulse on TAKT_OUT, ``|ms|`` long, active high for a positive value, low for a
+        negative one (L9861-9913); ``?flash`` answers nothing ("Response: None")."""
+        if not c.is_read:
+            ms = float(c.values[0])
+            self.m.devices.pulses.append(Pulse(self.m.motion.now, TAKT_OUT, abs(ms) / 1000,
+                                               ms > 0))
+        return None
+
+    def i_trigger(self, c: Command) -> Reply:
+        """Pulses forced by hand, in the manual trigger modes 102 and 103 only; none or 0
+        sends one, ``n`` sends n (L13414-13440). Choice: in another mode it sends nothing
+        and the line is accepted (the manual names no error)."""
+        if int(self.m.params.first("trigm")) in (102, 103) \
+                and int(self.m.params.first("trig")) == 1:
+            count = max(1, int(c.values[0])) if c.values else 1
+            self.m.trigger_pulses(self.m.motion.now, count)
+            self.m.motion.set_trigger_count(self.m.motion.trigger_count + count)
         return None
 
     def i_adiginfunc(self, c: Command) -> Reply:
@@ -277,6 +292,27 @@ class Peripherals:
         """No signal: 0 per axis, one decimal with ``1`` (L11157-11192)."""
         return [self._per_axis(c, "0.0" if c.values else "0")]
 
+    def i_enc(self, c: Command) -> Reply:
+        """Active where ``encmask`` is set and an encoder is fitted (the controller
+        activates encoders, L10485-10545), or where ``!enc 1`` forced it (the manual
+        advises against it, L10527-10545, but allows it)."""
+        if not c.is_read:
+            self.m.store(c)
+            return None
+        devices = self.m.devices
+        return [" ".join(str(int(int(self.m.params.first("enc", i)) == 1
+                                 or (i in devices.encoders and self._masked(i))))
+                         for i in self.m.present(c))]
+
+    def _masked(self, axis: int) -> bool:
+        return int(self.m.params.first("encmask", axis)) == 1
+
+    def _closed_loop(self, axis: int) -> bool:
+        # An active encoder and ctr 1-4 ("Preconditions ... having ctr and encmask
+        # set", L11761-11800).
+        return axis in self.m.devices.encoders and self._masked(axis) \
+            and int(self.m.params.first("ctr", axis)) != 0
+
     def i_encerr(self, c: Command) -> Reply:
         """No encoder error: ``0`` per axis; ``!encerr 0`` clears nothing (L11116-11151)."""
         return [self._per_axis(c, "0")] if c.is_read else None
@@ -293,8 +329,14 @@ class Peripherals:
         return [self._per_axis(c, "0 0" if c.values == (0,) else "0")]
 
     def i_ctrdiff(self, c: Command) -> Reply:
-        """No position difference, printed as a position (L12396-12443)."""
-        return [self.axes_text(self.m.present(c), lambda i: self.position_text(i, 0.0))]
+        """The difference between motor and encoder position, printed as a position
+        (L12396-12443): what a test set in ``devices.position_error`` on an axis in closed
+        loop, else 0."""
+        def difference(axis: int) -> str:
+            error = self.m.devices.position_error.get(axis, 0.0) \
+                if self._closed_loop(axis) else 0.0
+            return self.position_text(axis, self.m.motion.from_user(axis, error))
+        return [self.axes_text(self.m.present(c), difference)]
 
     def i_mrt(self, c: Command) -> Reply:
         """``n`` lines (10 by default, ``-n`` the same) of sine/cosine pairs, one pair per

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Protocol
 
 from ..catalog import Command
+from .devices import Devices
 from .lists import SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel
 from .params import ParamStore
@@ -78,6 +79,8 @@ class ModelPort(Protocol):
     params: ParamStore
     triggers: TriggerList
     snapshots: SnapshotList
+    #: I/O levels, encoders fitted and the pulses sent.
+    devices: Devices
     #: Where the last cal of each axis completed, user frame, revolutions.
     cal_zero: list[float]
     #: The job id of the move the current line started.
@@ -102,6 +105,22 @@ class ModelPort(Protocol):
     @property
     def error(self) -> int:
         """The current error number."""
+
+    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
+        """Record ``count`` trigger pulses as the trigger settings shape them.
+
+        Parameters
+        ----------
+        time
+            When the first pulse begins.
+        count
+            How many pulses.
+        position
+            The trigger axis' position where they fired; ``None``: not by position.
+        """
+
+    def follow_joystick(self) -> None:
+        """Drive the deflected axes as the HDI settings allow."""
 
     def present(self, command: Command) -> list[int]:
         """Axis indices a command addresses.

@@ -385,7 +385,7 @@ def test_fly_scan_counts_the_uploaded_trigger_list(
     RE(plan())
     assert events(documents, "flyer") == [
         {"flyer-trigger_count": 5, "flyer-triggers_expected": 5}]
-    assert run(stage.controller.read_trigger_positions()) == positions
+    assert run(stage.controller.triggers.read_positions()) == positions
     assert model_of(stage).motion.trigger_count == 5
     assert emulated(stage)["x"] == 3.0
 

@@ -616,7 +616,7 @@ def test_fly_documents_carry_the_trigger_positions_and_axis_keys(
     triggers = events(documents, "flyer_triggers")
     assert [row["flyer-trigger_position"] for row in triggers] == positions
     assert [row["flyer-trigger_index"] for row in triggers] == list(range(5))
-    assert positions == run(stage.controller.read_trigger_positions())
+    assert positions == run(stage.controller.triggers.read_positions())
     descriptors = {doc["name"]: doc for name, doc in documents if name == "descriptor"}
     key = descriptors["flyer_triggers"]["data_keys"]["flyer-trigger_position"]
     assert key["units"] == "mm" and "x" in key["source"]

@@ -134,15 +134,15 @@ async def test_axis_status() -> None:
 
 async def test_trigger_helpers() -> None:
     async with tango_aio.connect(INSTANT) as tango:
-        assert await tango.trigger_count() == 0
-        assert await tango.trigger_enabled() is False
-        await tango.set_trigger_enabled(True)
-        assert await tango.trigger_enabled() is True
-        await tango.set_trigger_enabled(False)
-        await tango.set_trigger_count(5)
-        assert await tango.trigger_count() == 5
+        assert await tango.triggers.count() == 0
+        assert await tango.triggers.enabled() is False
+        await tango.triggers.set_enabled(True)
+        assert await tango.triggers.enabled() is True
+        await tango.triggers.set_enabled(False)
+        await tango.triggers.set_count(5)
+        assert await tango.triggers.count() == 5
         with pytest.raises(TypeError):
-            await tango.set_trigger_enabled(1)  # type: ignore[arg-type]
+            await tango.triggers.set_enabled(1)  # type: ignore[arg-type]
 
 
 async def test_the_loop_under_test() -> None:

@@ -397,12 +397,12 @@ async def op_upload(rig: Rig, second: bool, what: str) -> None:
     tango = rig.tango
     if _triggers(rig):
         values = [round(base + 0.0137 * i, 4) for i in range(24)]
-        result = await outcome(tango.upload_trigger_positions(values))
+        result = await outcome(tango.triggers.upload_positions(values))
         rows = [[value] for value in values]
         held = [[value] for value in rig.model.triggers.entries]
     else:
         rows = [[base + i, -float(i), 0.25] for i in range(1, 9)]
-        result = await outcome(tango.upload_snapshot_positions(rows))
+        result = await outcome(tango.snapshots.upload_positions(rows))
         held = [list(row) for row in rig.model.snapshots.entries]
     same = len(held) == len(rows) and all(
         len(h) == len(r) and all(math.isclose(a, b) for a, b in zip(h, r, strict=True))

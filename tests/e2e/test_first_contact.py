@@ -36,25 +36,25 @@ def _watch_writes(tango: Controller, monkeypatch: pytest.MonkeyPatch) -> list[An
 
 
 @pytest.mark.parametrize(("call", "message"), [
-    (lambda t: t.upload_trigger_positions([1.0, 2.0], axis="a"),
+    (lambda t: t.triggers.upload_positions([1.0, 2.0], axis="a"),
      "the controller has no A axis"),
-    (lambda t: t.upload_trigger_positions("123"), "must be a sequence of numbers"),
-    (lambda t: t.upload_snapshot_positions(["123"]), "must be a sequence of numbers"),
-    (lambda t: t.upload_snapshot_positions("123"), "must be a sequence of rows"),
-    (lambda t: t.upload_trigger_positions([False, True]), "entry 0 is not a number"),
-    (lambda t: t.upload_snapshot_positions([[True, 1.0, 2.0]]), "entry 0 is not a number"),
-    (lambda t: t.upload_trigger_positions([1.0], axis=1), "1 is not an axis"),
-    (lambda t: t.upload_trigger_positions([None]), "entry 0 is not a number"),
-    (lambda t: t.upload_snapshot_positions([[None, 1.0, 2.0]]), "entry 0 is not a number"),
+    (lambda t: t.triggers.upload_positions("123"), "must be a sequence of numbers"),
+    (lambda t: t.snapshots.upload_positions(["123"]), "must be a sequence of numbers"),
+    (lambda t: t.snapshots.upload_positions("123"), "must be a sequence of rows"),
+    (lambda t: t.triggers.upload_positions([False, True]), "entry 0 is not a number"),
+    (lambda t: t.snapshots.upload_positions([[True, 1.0, 2.0]]), "entry 0 is not a number"),
+    (lambda t: t.triggers.upload_positions([1.0], axis=1), "1 is not an axis"),
+    (lambda t: t.triggers.upload_positions([None]), "entry 0 is not a number"),
+    (lambda t: t.snapshots.upload_positions([[None, 1.0, 2.0]]), "entry 0 is not a number"),
     (lambda t: t.calibrate(""), "axis must be one of x, y, z, a, got ''"),
     (lambda t: t.measure_range(""), "axis must be one of"),
     (lambda t: t.set("vel", 5, axis=""), "axis must be one of"),
     (lambda t: t.get("vel", axis="y 5"), "got 'y 5'"),
     (lambda t: t.get("vel", axis=1), "got 1"),
-    (lambda t: t.set_trigger_range(0, 10, 5, axis=""), "axis must be one of"),
-    (lambda t: t.set_trigger_range(0, 10, 5, axis="a"), "no A axis"),
-    (lambda t: t.set_trigger_range(0, 1e200, 5), "beyond any stage's travel"),
-    (lambda t: t.set_trigger_range(0, 0.0000001, 2), "below the position resolution"),
+    (lambda t: t.triggers.set_range(0, 10, 5, axis=""), "axis must be one of"),
+    (lambda t: t.triggers.set_range(0, 10, 5, axis="a"), "no A axis"),
+    (lambda t: t.triggers.set_range(0, 1e200, 5), "beyond any stage's travel"),
+    (lambda t: t.triggers.set_range(0, 0.0000001, 2), "below the position resolution"),
     (lambda t: t.command("!trigp x 0.0000001"), "below the position resolution"),
     (lambda t: t.command("!trigp -1 0.00000001"), "below the position resolution"),
     (lambda t: t.is_calibrated("a"), "no A axis"),
@@ -72,14 +72,14 @@ async def test_input_that_only_looks_valid_is_refused_before_any_byte(
 
 async def test_trigger_range_in_both_directions_is_accepted(tango: Controller) -> None:
     # start > end triggers while moving down (manual L13529-13532).
-    await tango.set_trigger_range(10, 0, 5)
+    await tango.triggers.set_range(10, 0, 5)
     assert await tango.query("?trigr") == "10.0000 0.0000 5"
 
 
 async def test_an_axis_the_two_axis_controller_lacks_is_refused() -> None:
     async with tango_aio.connect("sim://?baud=0&axes=2") as tango:
         with pytest.raises(InvalidCommandError, match="no Z axis"):
-            await tango.upload_trigger_positions([1.0, 2.0], axis="z")
+            await tango.triggers.upload_positions([1.0, 2.0], axis="z")
 
 
 async def test_wait_idle_waits_for_a_move_that_was_only_scheduled(tango: Controller) -> None:

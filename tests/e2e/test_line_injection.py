@@ -59,8 +59,9 @@ ENTRY_POINTS: dict[str, Callable[[Controller, str], Awaitable[object]]] = {
     "calibrate": lambda t, c: t.calibrate(f"x{c}"),
     "measure_range": lambda t, c: t.measure_range(f"y{c}"),
     "move_to_center": lambda t, c: t.move_to_center(f"z{c}"),
-    "set_trigger_range": lambda t, c: t.set_trigger_range(0, 1, 2, axis=f"x{c}"),
-    "upload_trigger_positions": lambda t, c: t.upload_trigger_positions([1.0], axis=f"x{c}"),
+    "triggers.set_range": lambda t, c: t.triggers.set_range(0, 1, 2, axis=f"x{c}"),
+    "triggers.upload_positions":
+        lambda t, c: t.triggers.upload_positions([1.0], axis=f"x{c}"),
     "shell": lambda t, c: Shell(t, _NoInput()).execute(f"?pos{c}!moa 9 9"),
     "protocol-submit": _hand_built,
 }

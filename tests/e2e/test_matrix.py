@@ -497,13 +497,13 @@ async def test_list_upload(emulator: EmulatorFactory, variant: str, baud: int) -
     if variant in OLDER_INSTRUCTION_SET:
         # The older edition has no trigger position list (trigp, trigc): error 4.
         with pytest.raises(ControllerError):
-            await bounded(emu.tango.upload_trigger_positions(values))
+            await bounded(emu.tango.triggers.upload_positions(values))
     else:
-        await bounded(emu.tango.upload_trigger_positions(values))
-        assert await bounded(emu.tango.read_trigger_positions()) == values
+        await bounded(emu.tango.triggers.upload_positions(values))
+        assert await bounded(emu.tango.triggers.read_positions()) == values
     rows = [[float(i), -float(i), 0.5] for i in range(1, 30)]
-    await bounded(emu.tango.upload_snapshot_positions(rows))
-    assert await bounded(emu.tango.read_snapshot_positions()) == rows
+    await bounded(emu.tango.snapshots.upload_positions(rows))
+    assert await bounded(emu.tango.snapshots.read_positions()) == rows
 
 
 def _buffered(subscription: Subscription) -> list[TangoEvent]:

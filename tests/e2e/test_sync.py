@@ -51,7 +51,7 @@ def test_every_async_method_has_a_blocking_twin() -> None:
 
 
 def test_same_signatures_and_docstrings(tango: tango_aio.sync.Controller) -> None:
-    for name in ("move_to", "get", "set", "position", "calibrate", "upload_trigger_positions"):
+    for name in ("move_to", "get", "set", "position", "calibrate"):
         blocking, aio = getattr(tango, name), getattr(tango.aio, name)
         assert blocking.__doc__ == aio.__doc__
         assert inspect.signature(blocking) == inspect.signature(aio)

@@ -65,8 +65,8 @@ async def test_moves_and_settings_take_lab_numbers(tango: Controller, value: Any
 
 
 async def test_numpy_positions_upload(tango: Controller) -> None:
-    await tango.upload_trigger_positions(list(np.linspace(0.0, 1.0, 5, dtype=np.float32)))
-    assert await tango.read_trigger_positions() == pytest.approx([0, 0.25, 0.5, 0.75, 1])
+    await tango.triggers.upload_positions(list(np.linspace(0.0, 1.0, 5, dtype=np.float32)))
+    assert await tango.triggers.read_positions() == pytest.approx([0, 0.25, 0.5, 0.75, 1])
 
 
 @pytest.mark.parametrize("bad", ["1 2", "5", "", [1.0, 2.0], (1,), True, None,

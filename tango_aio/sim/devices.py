@@ -1,0 +1,64 @@
+"""The emulated controller's I/O lines, encoders and trigger outputs: what a test sets
+(input levels, encoders fitted, a joystick deflection) and what it reads back (the pulses
+the trigger and TAKT outputs sent).
+
+The model keeps one :class:`Devices`, cleared by a restart like the rest of its state.
+The handlers change it through the model (:mod:`tango_aio.sim.port`); a test reaches it
+as ``model.devices``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["TAKT_OUT", "TRIGGER_OUT", "Devices", "Pulse"]
+
+#: The primary trigger output (TRIGGER_OUT, L12860-12949).
+TRIGGER_OUT = "trigger"
+#: The AUX I/O TAKT_OUT pin: the secondary trigger output and ``!flash`` (L9861-9913).
+TAKT_OUT = "takt"
+
+
+@dataclass(frozen=True, slots=True)
+class Pulse:
+    """One pulse an output sent."""
+
+    #: When it began (the emulator's clock, seconds).
+    time: float
+    #: Which output: :data:`TRIGGER_OUT` or :data:`TAKT_OUT`.
+    output: str
+    #: Its length in seconds.
+    width: float
+    #: ``True``: an active-high pulse; ``False``: active low.
+    active_high: bool
+    #: The trigger axis' position where it fired (user frame); ``None``: not by position.
+    position: float | None = None
+
+
+@dataclass(slots=True)
+class Devices:
+    """The levels and records of the emulated I/O, encoders and trigger outputs."""
+
+    #: Input levels by input group (``digin`` 24, ``edigin`` 12, ``adigin`` 4: L8573,
+    #: L8825, L9120), 0 or 1 per input.
+    inputs: dict[str, list[int]] = field(default_factory=lambda: {
+        "digin": [0] * 24, "edigin": [0] * 12, "adigin": [0] * 4})
+    #: ``anain`` counts (0..1023) by channel; channel 15 is the 2.5 V reference
+    #: (L9340-9380). A channel not listed reads 0.
+    analog: dict[int, int] = field(default_factory=lambda: {15: 512})
+    #: Axes (indices) with an encoder fitted: ``encmask`` activates only these.
+    encoders: set[int] = field(default_factory=set)
+    #: Closed-loop position difference (motor minus encoder) by axis, in user units.
+    position_error: dict[int, float] = field(default_factory=dict)
+    #: Every pulse sent, in order.
+    pulses: list[Pulse] = field(default_factory=list)
+    #: The joystick's deflection per axis (-1..1), while held.
+    deflection: dict[int, float] = field(default_factory=dict)
+
+    def set_input(self, group: str, index: int, level: bool) -> None:
+        """Set input ``index`` (from 0) of ``group`` (``digin``, ``edigin``, ``adigin``)."""
+        self.inputs[group][index] = int(level)
+
+    def pulses_of(self, output: str) -> list[Pulse]:
+        """The pulses ``output`` (:data:`TRIGGER_OUT`, :data:`TAKT_OUT`) sent, in order."""
+        return [pulse for pulse in self.pulses if pulse.output == output]
