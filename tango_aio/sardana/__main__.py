@@ -1,0 +1,5 @@
+"""``python -m tango_aio.sardana``: print the folder to add to a pool's ``PoolPath``."""
+
+from tango_aio.sardana import POOL_PATH
+
+print(POOL_PATH)
