@@ -6,7 +6,7 @@ import enum
 from dataclasses import dataclass
 
 from tango_aio.errors import TangoError
-from tango_aio.status import AxisStatus
+from tango_aio.status import ABSENT, AxisStatus
 
 #: Sardana's limit-switch bits (``MotorController.HomeLimitSwitch`` and the others).
 HOME, UPPER, LOWER = 1, 2, 4
@@ -123,6 +123,9 @@ def axis_state(outcome: Outcome | None, *, letter: str | None = None, switches: 
     if switches & (LOWER | UPPER):
         return AxisState(State.ALARM, f"on the {touching}", switches)
     stopped = outcome is not None and outcome.stopped_on_request
+    if letter == ABSENT:
+        return AxisState(State.ALARM, "status -: the axis is not enabled or not present "
+                         "(manual L2711)", switches)
     if letter is not None and not stopped:
         try:
             member = AxisStatus.of(letter)

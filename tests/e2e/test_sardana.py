@@ -14,11 +14,6 @@ from typing import Any, ClassVar
 
 import pytest
 
-pytest.importorskip("sardana.pool.test", reason="Sardana is not installed (tango-aio[sardana])")
-
-from sardana import State
-from sardana.pool.test import BasePoolTestCase, FakePool, createPoolMotorGroup
-
 from tango_aio.sardana import POOL_PATH
 from tango_aio.testing import Faults, emulator_url
 
@@ -31,23 +26,42 @@ pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning:taurus"),
 HANG = 60.0
 
 
-class Pool(BasePoolTestCase):  # type: ignore[misc]
-    """A FakePool holding one TANGO controller (not the base's dummy controllers)."""
+class _States:
+    """``sardana.State``, imported when a test first looks at it."""
 
-    POOLPATH: ClassVar[list[str]] = [POOL_PATH]
+    def __getattr__(self, name: str) -> Any:
+        from sardana import State as States
 
-    def setUp(self) -> None:
-        self.pool = FakePool(self.POOLPATH, self.LOGLEVEL)
-        self.ctrls: dict[str, Any] = {}
-        self.mots: dict[str, Any] = {}
-        self.cts: dict[str, Any] = {}
-        self.tgs: dict[str, Any] = {}
+        return getattr(States, name)
+
+
+State = _States()
+
+
+def pool_case() -> Any:
+    """Sardana's ``BasePoolTestCase`` on a ``FakePool`` holding only this project's
+    controller library (not the base's dummy controllers). Skips without Sardana, which is
+    imported here and not at collection (it takes a second in every worker)."""
+    test = pytest.importorskip("sardana.pool.test",
+                               reason="Sardana is not installed (tango-aio[sardana])")
+
+    class Pool(test.BasePoolTestCase):  # type: ignore[misc,name-defined]
+        POOLPATH: ClassVar[list[str]] = [POOL_PATH]
+
+        def setUp(self) -> None:
+            self.pool = test.FakePool(self.POOLPATH, self.LOGLEVEL)
+            self.ctrls: dict[str, Any] = {}
+            self.mots: dict[str, Any] = {}
+            self.cts: dict[str, Any] = {}
+            self.tgs: dict[str, Any] = {}
+
+    return Pool()
 
 
 class Stage:
     """The pool, its TANGO controller element and motors, and the emulator behind them."""
 
-    def __init__(self, case: Pool, element: Any) -> None:
+    def __init__(self, case: Any, element: Any) -> None:
         self.case = case
         self.element = element
         self.ctrl = element.ctrl
@@ -74,7 +88,7 @@ class Stage:
 
 @pytest.fixture
 def stage() -> Iterator[Stage]:
-    case = Pool()
+    case = pool_case()
     case.setUp()
     element = case.createController("tango", "MarzhauserMotorController",
                                     "MarzhauserMotorCtrl.py", {"URL": emulator_url(axes=3)})
@@ -201,6 +215,8 @@ def xy_group(stage: Stage) -> Any:
     """A motor group of X and Y in the pool."""
     pool = stage.case.pool
     m1, m2, _ = stage.motors
+    from sardana.pool.test import createPoolMotorGroup
+
     group = createPoolMotorGroup(pool, {"id": pool.get_free_id(), "name": "xy",
                                         "full_name": "xy"}, [m1.id, m2.id])
     pool.add_element(group)
