@@ -37,11 +37,12 @@ myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
 # API reference: one page per module, generated at build time (reference/api/, ignored by
-# git). Optional extras (bluesky, caproto, ophyd_async) need not be installed: their
+# git). Optional extras (bluesky, caproto, ophyd_async, sardana) need not be installed: their
 # imports are mocked, so autodoc never fails for a missing extra.
 autosummary_generate = True
 autosummary_imported_members = False
-autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython"]
+autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython",
+                        "sardana"]
 # "ignore-module-all": a module's page documents what the module defines, not what it
 # re-exports (tango_aio.sim re-exports tango_aio.sim.model's classes, tango_aio.instructions
 # tango_aio.schema's): an object documented twice gets its source page's back-link
@@ -84,7 +85,8 @@ PUBLIC_API = [
     "tango_aio.connection", "tango_aio.controller", "tango_aio.sync", "tango_aio.errors",
     "tango_aio.events", "tango_aio.status", "tango_aio.units", "tango_aio.group",
     "tango_aio.discovery", "tango_aio.bulk", "tango_aio.reconnect", "tango_aio.instructions",
-    "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.sim",
+    "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.sardana",
+    "tango_aio.sim",
     "tango_aio.sim.inprocess", "tango_aio.sim.serve", "tango_aio.sim.model",
     "tango_aio.sim.profiles", "tango_aio.sim.wire",
 ]

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 __all__ = ["POOL_PATH", "MarzhauserMotorController"]
 
 #: The folder to add to the pool's ``PoolPath``: it holds ``MarzhauserMotorCtrl.py``.
-POOL_PATH = str(Path(__file__).with_name("poolpath"))
+POOL_PATH = str(Path(__file__).with_name("_poolpath"))
 
 
 def __getattr__(name: str) -> Any:

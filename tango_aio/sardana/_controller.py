@@ -419,15 +419,15 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         elif parameter == "deceleration":
             if not math.isclose(value, self._ramp_time(letter), rel_tol=_SAME_TIME):
                 raise ValueError("the TANGO decelerates with the acceleration of its moves "
-                                 "(accel, manual L3298-3370): set Acceleration; "
+                                 "(accel, manual L3298-3399): set Acceleration; "
                                  "Deceleration follows it")
         elif parameter == "base_rate":
             if value != 0:
-                raise ValueError("the TANGO ramps from standstill: no base rate to set "
-                                 "(manual L3298-3370)")
+                raise ValueError("the TANGO ramps from standstill: none of its axis "
+                                 "settings is a start speed (manual L3061-4521)")
         elif parameter == "step_per_unit":
             raise ValueError("Step_per_unit follows from the axis' motorsteps, gear and "
-                             "pitch (manual L3145-3290), which describe the mechanics: "
+                             "pitch (manual L3145-3297), which describe the mechanics: "
                              "it is read-only here")
         else:
             raise ValueError(f"no axis parameter {name!r}")
@@ -470,7 +470,7 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         raise ValueError(f"no axis attribute {name!r}")
 
     def SetAxisExtraPar(self, axis: int, name: str, value: Any) -> None:
-        """Write ``ControllerBacklash`` (µm, -100 to 100, manual L4168-4190).
+        """Write ``ControllerBacklash`` (µm, -100 to 100, manual L4168-4221).
 
         Raises
         ------
