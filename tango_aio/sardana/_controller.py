@@ -88,6 +88,8 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
     """
 
     MaxDevice = 4
+    model = "Märzhäuser TANGO"
+    organization = "tango_aio"
 
     ctrl_properties: ClassVar[dict[str, dict[Any, Any]]] = {
         "URL": {
@@ -128,8 +130,15 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         #: One round's reads (``PreStateAll``/``PreReadAll`` to the last ``...One``), by
         #: thread: a read begun before another thread's round never serves that round.
         self._round = threading.local()
+        #: The axes of the pool's motors (AddDevice, DeleteDevice).
+        self._axes: set[int] = set()
         self._tango: tango_aio.sync.Controller | None = None
+        self._open()
+
+    def _open(self) -> None:
         self._tango = tango_aio.sync.connect(self.URL, units=self.Units)
+        with self._lock:
+            self._moves = {}  # outcomes of a link closed since: not this link's
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -140,14 +149,15 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         Raises
         ------
         TangoError
-            The controller has been closed.
+            The link is closed (the pool has no motor of this controller).
         """
         if self._tango is None:
-            raise TangoError("the Sardana controller has been closed")
+            raise TangoError("the link to the TANGO controller is closed: the pool has no "
+                             "motor of this controller")
         return self._tango
 
     def close(self) -> None:
-        """Close the link to the TANGO controller (the pool drops the object with it)."""
+        """Close the link to the TANGO controller; ``AddDevice`` opens it again."""
         tango, self._tango = self._tango, None
         if tango is not None:
             tango.close()
@@ -157,14 +167,26 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
             self.close()
 
     def AddDevice(self, axis: int) -> None:
-        """A motor of this axis was created in the pool.
+        """A motor of this axis was created in the pool (the link is opened again if the
+        last motor's deletion closed it).
 
         Raises
         ------
         ValueError
             The controller has no such axis.
         """
+        if self._tango is None:
+            self._open()
         self._letter(axis)
+        self._axes.add(axis)
+
+    def DeleteDevice(self, axis: int) -> None:
+        """The motor of this axis was deleted; with the last one the link is closed, so
+        that a controller the pool initialises again (which deletes every motor first)
+        finds the serial port free (ports are opened exclusively)."""
+        self._axes.discard(axis)
+        if not self._axes:
+            self.close()
 
     def _letter(self, axis: int) -> str:
         """The axis letter of a Sardana axis number (1 is X)."""
@@ -303,7 +325,8 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
             raise
         finally:
             if scope.cancelled_caught and move.error is None:
-                move.error = TangoError("stopped on request")
+                move.error = TangoError("the move was cancelled in the driver (its axes "
+                                        "were stopped)")
             move.done.set()
 
     # -- stop and abort --------------------------------------------------------------------

@@ -7,14 +7,19 @@ its axis runs or before its final position can be read."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+from helpers import PTY_EMULATOR, make_model, posix_only
 
 from tango_aio.sardana import POOL_PATH
+from tango_aio.sync import Portal
 from tango_aio.testing import Faults, emulator_url
 
 # Sardana and taurus call deprecated functions (in the pool's threads too, where an error
@@ -302,3 +307,47 @@ def test_the_axis_parameters(stage: Stage) -> None:
 def test_an_axis_the_controller_lacks_is_refused(stage: Stage) -> None:
     with pytest.raises(ValueError, match="axes 1-3"):
         stage.ctrl.AddDevice(4)
+
+
+def test_initialising_the_controller_again_frees_its_serial_port() -> None:
+    """The pool initialises a controller again (its Init) by deleting every motor and
+    making a new controller object while the old one may still live: the last motor's
+    deletion closes the link, so the new object can open the port (opened exclusively)."""
+    posix_only(PTY_EMULATOR)
+    from tango_aio.sim.ptyserve import serve_pty
+
+    portal = Portal()
+    server = portal.call(serve_pty, make_model)
+    case = pool_case()
+    case.setUp()
+    try:
+        element = case.createController("tango", "MarzhauserMotorController",
+                                        "MarzhauserMotorCtrl.py", {"URL": server.path})
+        assert element.is_online(), element.get_ctrl_error_str()
+        motor = case.createMotorElement(element, "m1", 1)
+        old = element.ctrl
+        element.re_init()
+        assert element.is_online(), element.get_ctrl_error_str()
+        assert element.ctrl is not old
+        motor.position = 0.5
+        wait_idle(motor)
+        assert motor.state == State.On, motor.status
+        assert motor.position.value == pytest.approx(0.5, abs=1e-3)
+        element.ctrl.close()
+    finally:
+        case.tearDown()
+
+        async def close() -> None:
+            server.close()
+            await server.wait_closed()
+
+        portal.call(close)
+        portal.stop()
+
+
+def test_the_package_prints_the_folder_for_the_pool_path() -> None:
+    root = Path(__file__).resolve().parents[2]
+    result = subprocess.run([sys.executable, "-m", "tango_aio.sardana"], cwd=root,
+                            capture_output=True, text=True, timeout=120, check=True)
+    assert result.stdout.strip() == POOL_PATH
+    assert (Path(POOL_PATH) / "MarzhauserMotorCtrl.py").is_file()
