@@ -20,9 +20,10 @@ from sardana.pool.controller import (
 
 import tango_aio.sync
 from tango_aio.errors import TangoError
+from tango_aio.status import switch_states
 from tango_aio.units import LENGTH_UNITS
 
-from ._state import AxisState, Outcome, State, axis_state, switches_of
+from ._state import AxisState, Outcome, State, axis_state, switch_bits
 
 _AXES = "xyza"
 
@@ -245,8 +246,12 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
                 raise TangoError("the link to the TANGO controller is lost (reconnecting)")
             letters = tango.status()
             reply = tango.query("?readsw")
-            return {axis: AxisState(State.ON, letters[axis], switches_of(reply, axis))
-                    for axis in present}
+            switches = {axis: switch_states(reply, axis) for axis in present}
+            if None in switches.values():
+                raise TangoError(f"?readsw replied {reply!r}, not 12 switch states "
+                                 "(manual L5057-5066)")
+            return {axis: AxisState(State.ON, letters[axis], switch_bits(states))
+                    for axis, states in switches.items() if states is not None}
         except TangoError as exc:
             reason = f"the TANGO controller cannot be read: {exc}"
             return dict.fromkeys(present, AxisState(State.FAULT, reason))

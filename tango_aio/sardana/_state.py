@@ -5,13 +5,10 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from tango_aio.errors import TangoError
 from tango_aio.status import ABSENT, AxisStatus
 
 #: Sardana's limit-switch bits (``MotorController.HomeLimitSwitch`` and the others).
 HOME, UPPER, LOWER = 1, 2, 4
-
-_AXES = "xyza"
 
 
 class State(enum.Enum):
@@ -44,37 +41,10 @@ class AxisState:
     switches: int = 0
 
 
-def switches_of(reply: str, axis: str) -> int:
-    """Sardana's limit-switch bits of ``axis`` from a ``?readsw`` reply: 12 characters,
-    E0 (lower) of X Y Z A, then Ref of X Y Z A, then EE (upper) of X Y Z A (manual
-    L5027-5078; Ref is "not available with TANGO, always 0" and maps to home).
-
-    Parameters
-    ----------
-    reply
-        The ``?readsw`` reply.
-    axis
-        The axis letter (``"x"``...).
-
-    Returns
-    -------
-    int
-        ``LOWER | UPPER | HOME`` bits of the actuated switches.
-
-    Raises
-    ------
-    TangoError
-        The reply is not 12 switch states.
-    """
-    text = reply.strip()
-    if len(text) != 12 or set(text) - {"0", "1"}:
-        raise TangoError(f"?readsw replied {reply!r}, not 12 switch states (L5057-5066)")
-    index = _AXES.index(axis)
-    bits = 0
-    for offset, bit in ((0, LOWER), (4, HOME), (8, UPPER)):
-        if text[offset + index] == "1":
-            bits |= bit
-    return bits
+def switch_bits(states: tuple[bool, bool, bool]) -> int:
+    """Sardana's bits of (lower, reference, upper); reference (always 0) maps to home."""
+    lower, reference, upper = states
+    return (LOWER if lower else 0) | (HOME if reference else 0) | (UPPER if upper else 0)
 
 
 def describe_switches(bits: int) -> str:

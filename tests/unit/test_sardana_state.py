@@ -11,7 +11,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import tango_aio.sardana
-from tango_aio.errors import TangoError
 from tango_aio.sardana._state import (
     HOME,
     LOWER,
@@ -20,7 +19,7 @@ from tango_aio.sardana._state import (
     State,
     axis_state,
     describe_switches,
-    switches_of,
+    switch_bits,
 )
 from tango_aio.status import LETTERS
 
@@ -90,22 +89,15 @@ def test_an_actuated_limit_switch_reads_alarm() -> None:
     assert found.state is State.ALARM and "lower limit switch" in found.status
 
 
-def test_readsw_is_read_per_axis() -> None:
-    # E0 of X Y Z A, Ref of X Y Z A, EE of X Y Z A (manual L5027-5078)
-    reply = "0100" "0010" "1001"
-    assert switches_of(reply, "x") == UPPER
-    assert switches_of(reply, "y") == LOWER
-    assert switches_of(reply, "z") == HOME
-    assert switches_of(reply, "a") == UPPER
-    assert switches_of("000000000000\r", "x") == 0
+def test_switch_bits_are_sardanas() -> None:
+    assert switch_bits((False, False, True)) == UPPER
+    assert switch_bits((True, False, False)) == LOWER
+    assert switch_bits((False, True, False)) == HOME
+    assert switch_bits((True, True, True)) == LOWER | UPPER | HOME
+    assert switch_bits((False, False, False)) == 0
     assert describe_switches(LOWER | UPPER) == "lower and upper limit switches"
+    assert describe_switches(UPPER) == "upper limit switch"
     assert describe_switches(0) == ""
-
-
-@pytest.mark.parametrize("reply", ["", "00000000000", "0000000000000", "00000000000x"])
-def test_a_readsw_reply_of_another_shape_is_refused(reply: str) -> None:
-    with pytest.raises(TangoError, match="12 switch states"):
-        switches_of(reply, "x")
 
 
 def test_without_sardana_the_controller_asks_for_the_extra(
