@@ -356,9 +356,9 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
             moves = {id(m): m for a, m in self._moves.items() if a in chosen}.values()
         if not chosen:
             return
+        rest = sorted(a for a in chosen if not any(
+            a in m.axes and m.axes <= chosen and not m.done.is_set() for m in moves))
         self._call(lambda: self._cancel(moves, chosen))
-        rest = sorted(a for a in chosen
-                      if not any(a in m.axes and m.axes <= chosen for m in moves))
         if rest:
             self.tango.stop(*rest, wait=False)
 

@@ -216,6 +216,21 @@ def test_stop_leaves_the_motor_on_where_it_stands(stage: Stage) -> None:
     assert m1.position.value == pytest.approx(position, abs=1e-3)
 
 
+def test_stop_stops_an_axis_moved_outside_the_pool(stage: Stage) -> None:
+    m1 = stage.motors[0]
+    m1.position = 1.0  # a move of the pool first, ended well
+    wait_idle(m1)
+    stage.slow(2)
+    elsewhere = stage.tango.start_move_to(x=40.0)  # another client's move
+    wait_true(lambda: stage.truth()["x"][1] != 0.0)
+    assert m1.get_state(cache=False) == State.Moving
+    assert "not started by this pool" in m1.get_status(cache=False)
+    m1.stop()
+    wait_true(elsewhere.done)
+    assert stage.truth()["x"][1] == 0.0 and stage.truth()["x"][0] < 40.0
+    assert m1.get_state(cache=False) != State.Moving
+
+
 def xy_group(stage: Stage) -> Any:
     """A motor group of X and Y in the pool."""
     pool = stage.case.pool
