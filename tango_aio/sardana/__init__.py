@@ -1,4 +1,4 @@
-"""A Sardana motor controller for Märzhäuser TANGO stage controllers (``tango-aio[sardana]``).
+"""A Sardana motor controller for Märzhäuser TANGO stage controllers (the ``sardana`` extra).
 
 Sardana (the scan and motor-pool layer over the Tango Controls toolkit, which is not the
 Märzhäuser TANGO) loads controller classes from the files in its ``PoolPath``: add
@@ -29,6 +29,7 @@ def __getattr__(name: str) -> Any:
     except ModuleNotFoundError as exc:
         if exc.name is None or exc.name.partition(".")[0] not in ("sardana", "tango", "taurus"):
             raise
-        raise ImportError("tango_aio.sardana's controller needs Sardana: pip install "
-                          "'tango-aio[sardana]'") from exc
+        raise ImportError("tango_aio.sardana's controller needs Sardana: install the "
+                          "sardana extra (pip install -e '.[sardana]' in the checkout, "
+                          "or pip install '/path/to/tango_aio[sardana]')") from exc
     return MarzhauserMotorController

@@ -2,4 +2,5 @@
 
 from tango_aio.sardana import POOL_PATH
 
-print(POOL_PATH)
+if __name__ == "__main__":
+    print(POOL_PATH)

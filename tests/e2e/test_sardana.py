@@ -48,7 +48,7 @@ def pool_case() -> Any:
     controller library (not the base's dummy controllers). Skips without Sardana, which is
     imported here and not at collection (it takes a second in every worker)."""
     test = pytest.importorskip("sardana.pool.test",
-                               reason="Sardana is not installed (tango-aio[sardana])")
+                               reason="Sardana is not installed (the sardana extra)")
 
     class Pool(test.BasePoolTestCase):  # type: ignore[misc,name-defined]
         POOLPATH: ClassVar[list[str]] = [POOL_PATH]

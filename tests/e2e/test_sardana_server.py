@@ -60,7 +60,7 @@ def _answers(call: Callable[[], Any], failure: type[BaseException]) -> bool:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    pytest.importorskip("sardana", reason="Sardana is not installed (tango-aio[sardana])")
+    pytest.importorskip("sardana", reason="Sardana is not installed (the sardana extra)")
     tango = pytest.importorskip("tango", reason="pytango is not installed")
     folder = tmp_path_factory.mktemp("sardana_server")
     port = _free_port()
