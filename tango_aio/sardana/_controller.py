@@ -105,6 +105,12 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
                          "second",
             DefaultValue: "mm",
         },
+        "Reconnect": {
+            Type: bool,
+            Description: "Reconnect by itself when the link is lost (motors read Fault "
+                         "meanwhile); false: the controller must be initialised again",
+            DefaultValue: True,
+        },
     }
 
     axis_attributes: ClassVar[dict[str, dict[Any, Any]]] = {
@@ -137,7 +143,8 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         self._open()
 
     def _open(self) -> None:
-        self._tango = tango_aio.sync.connect(self.URL, units=self.Units)
+        self._tango = tango_aio.sync.connect(self.URL, units=self.Units,
+                                             reconnect=bool(self.Reconnect))
         with self._lock:
             self._moves = {}  # outcomes of a link closed since: not this link's
 

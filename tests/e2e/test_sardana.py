@@ -92,11 +92,13 @@ class Stage:
 
 
 @pytest.fixture
-def stage() -> Iterator[Stage]:
+def stage(request: pytest.FixtureRequest) -> Iterator[Stage]:
+    """The pool and its TANGO controller (extra properties: ``indirect`` parameters)."""
     case = pool_case()
     case.setUp()
+    properties = {"URL": emulator_url(axes=3), **getattr(request, "param", {})}
     element = case.createController("tango", "MarzhauserMotorController",
-                                    "MarzhauserMotorCtrl.py", {"URL": emulator_url(axes=3)})
+                                    "MarzhauserMotorCtrl.py", properties)
     assert element.is_online(), element.get_ctrl_error_str()
     try:
         built = Stage(case, element)
@@ -287,6 +289,7 @@ def test_a_limit_switch_ends_the_move_in_alarm(stage: Stage) -> None:
     assert m1.state == State.On and m1.limit_switches.value == (False, False, False)
 
 
+@pytest.mark.parametrize("stage", [{"Reconnect": False}], indirect=True)
 def test_a_lost_link_reads_fault_with_the_reason(stage: Stage) -> None:
     ctrl = stage.ctrl
     stage.faults.disconnect()
@@ -294,6 +297,16 @@ def test_a_lost_link_reads_fault_with_the_reason(stage: Stage) -> None:
     ctrl.PreStateAll()
     state, status, _ = ctrl.StateOne(1)
     assert state == State.Fault and "lost" in status
+
+
+def test_the_link_comes_back_by_itself(stage: Stage) -> None:
+    m1 = stage.motors[0]
+    stage.faults.disconnect()
+    wait_true(lambda: stage.tango.connected and stage.tango.aio.reconnect_attempt > 0)
+    m1.position = 0.5
+    wait_idle(m1)
+    assert m1.state == State.On, m1.status
+    assert m1.position.value == pytest.approx(0.5, abs=1e-3)
 
 
 def test_the_axis_parameters(stage: Stage) -> None:
