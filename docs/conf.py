@@ -39,7 +39,7 @@ myst_heading_anchors = 3
 # ignored by git). Optional extras (bluesky, caproto, ophyd_async) need not be installed: their
 # imports are mocked, so autodoc never fails for a missing extra.
 autodoc_mock_imports = ["bluesky", "ophyd", "ophyd_async", "caproto", "numpy", "IPython",
-                        "pymmcore_plus", "useq", "tango"]
+                        "pymmcore_plus", "useq", "tango", "sardana"]
 # "ignore-module-all": a module's page documents what the module defines; what a public
 # package exports from its private modules is listed by _module_page below, each object
 # once (an object documented twice gets its source page's back-link pointed at the wrong
@@ -70,7 +70,7 @@ PUBLIC_API = [
     "tango_aio", "tango_aio.sync", "tango_aio.errors", "tango_aio.events", "tango_aio.status",
     "tango_aio.units", "tango_aio.families", "tango_aio.catalog", "tango_aio.fieldkit",
     "tango_aio.testing", "tango_aio.bluesky", "tango_aio.epics", "tango_aio.mm",
-    "tango_aio.tango_controls", "tango_aio.sim",
+    "tango_aio.tango_controls", "tango_aio.sardana", "tango_aio.sim",
     "tango_aio.sim.inprocess", "tango_aio.sim.serve", "tango_aio.sim.model",
     "tango_aio.sim.profiles", "tango_aio.sim.wire",
 ]

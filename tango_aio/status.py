@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import Final
 
 __all__ = ["ABSENT", "ARRIVED_LETTERS", "CALIBRATED_FLAG", "FAILED_LETTERS", "LETTERS",
-           "MOVING", "AxisStatus", "axis_statuses"]
+           "MOVING", "AxisStatus", "axis_statuses", "switch_states"]
 
 
 class AxisStatus(enum.StrEnum):
@@ -138,3 +138,29 @@ def axis_statuses(letters: Mapping[str, str]) -> dict[str, AxisStatus]:
         The member of each axis, by axis letter.
     """
     return {axis: AxisStatus.of(letter) for axis, letter in letters.items()}
+
+
+def switch_states(readsw: str, axis: str) -> tuple[bool, bool, bool] | None:
+    """The (lower, reference, upper) limit switches of ``axis`` in a ``?readsw`` reply:
+    12 characters, E0 (lower, ``cal``'s) of X Y Z A, then Ref of X Y Z A ("not available
+    with TANGO, always 0"), then EE (upper, ``rm``'s) of X Y Z A, ``1`` for actuated
+    (L5027-5078).
+
+    Parameters
+    ----------
+    readsw
+        The ``?readsw`` reply.
+    axis
+        The axis letter (``"x"``...).
+
+    Returns
+    -------
+    tuple[bool, bool, bool] | None
+        Whether each switch is actuated; ``None`` for a reply that is not 12 switch
+        states (the caller decides what that means).
+    """
+    text = readsw.strip()
+    if len(text) != 12 or set(text) - {"0", "1"}:
+        return None
+    index = "xyza".index(axis)
+    return text[index] == "1", text[4 + index] == "1", text[8 + index] == "1"

@@ -67,7 +67,7 @@ from ..errors import (
 from ..events import MoveAborted, MoveFinished, PositionUpdate, Reconnected, StatusReport
 from ..group import MoveCoalescer
 from ..moves import position_tolerance
-from ..status import ABSENT, ARRIVED_LETTERS, MOVING, AxisStatus
+from ..status import ABSENT, ARRIVED_LETTERS, MOVING, AxisStatus, switch_states
 from ..units import DIM_MM_VEL, UnitScale
 from ..units import DIM_UNITS as _DIM_UNITS
 
@@ -705,11 +705,10 @@ def _switches(reply: str, axis: str) -> tuple[int, int]:
     TangoError
         The reply is not 12 switch states.
     """
-    text = reply.strip()
-    if len(text) != 12 or set(text) - {"0", "1"}:
+    states = switch_states(reply, axis)
+    if states is None:
         raise TangoError(f"?readsw replied {reply!r}, not 12 switch states (L5057-5066)")
-    index = AXES.index(axis)
-    return int(text[index]), int(text[8 + index])
+    return int(states[0]), int(states[2])
 
 
 @dataclasses.dataclass

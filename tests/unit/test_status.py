@@ -5,7 +5,14 @@ from __future__ import annotations
 from tango_aio.cli import _main as cli
 from tango_aio.moves import _timing as timing
 from tango_aio.moves import _tracker as tracker
-from tango_aio.status import ABSENT, ARRIVED_LETTERS, FAILED_LETTERS, MOVING, AxisStatus
+from tango_aio.status import (
+    ABSENT,
+    ARRIVED_LETTERS,
+    FAILED_LETTERS,
+    MOVING,
+    AxisStatus,
+    switch_states,
+)
 
 
 def test_the_letter_sets_are_the_manuals() -> None:
@@ -34,3 +41,14 @@ def test_a_completion_report_may_hold_every_documented_letter_and_no_other() -> 
         assert is_completion_line(f"{letter}@.") and is_completion_line(f"{letter}.")
     for other in "BFGKNOPQRVWXYZ0 ":
         assert not is_completion_line(f"{other}@.")
+
+
+def test_switch_states_reads_one_axis_of_readsw() -> None:
+    # E0 of X Y Z A, Ref of X Y Z A, EE of X Y Z A (L5027-5078)
+    reply = "0100" "0010" "1001\r"
+    assert switch_states(reply, "x") == (False, False, True)
+    assert switch_states(reply, "y") == (True, False, False)
+    assert switch_states(reply, "z") == (False, True, False)
+    assert switch_states(reply, "a") == (False, False, True)
+    for other in ("", "0" * 11, "0" * 13, "00000000000x", "ERROR 0"):
+        assert switch_states(other, "x") is None
