@@ -89,7 +89,9 @@ def _fresh(code: str) -> None:
 @pytest.mark.parametrize("module", ["tango_aio.catalog._schema",
                                     "tango_aio.catalog._replyrules",
                                     "tango_aio.catalog._table",
-                                    "tango_aio.catalog._instructions"])
+                                    "tango_aio.catalog._instructions",
+                                    "tango_aio.catalog._encode",
+                                    "tango_aio.catalog._replies"])
 def test_module_imports_first_in_a_fresh_interpreter(module: str) -> None:
     _fresh(f"import {module}")
 
