@@ -56,7 +56,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 
 import tango_aio
-from tango_aio.catalog._instructions import build
+from tango_aio.catalog._encode import build
 from tango_aio.sansio._flow import DEFAULT_CHUNK
 
 BAUD = 57600

@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import tango_aio
-from tango_aio.catalog._instructions import build
+from tango_aio.catalog._encode import build
 
 try:  # python -m benchmarks / python benchmarks/upload.py
     from benchmarks.moves import emulator_pty

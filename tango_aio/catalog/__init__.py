@@ -2,12 +2,24 @@
 
 Every instruction is data (``_table.py``, generated from the reference by
 ``tools/gen_catalog.py``): its forms, parameters, ranges, per-axis shape and reply rule.
-``_instructions.py`` checks and builds command lines against it before a byte is written
-and parses their replies; the driver and the emulator both read it, each on its own.
+``_instructions.py`` parses command lines against it, ``_encode.py`` builds them before a
+byte is written and ``_replies.py`` parses their replies; the driver and the emulator both
+read it, each on its own.
 """
 
 from __future__ import annotations
 
+from ._encode import (
+    Value,
+    build,
+    build_axes,
+    build_rows,
+    check_axis_word,
+    check_framing,
+    check_rows,
+    check_rows_framing,
+    encode_rows,
+)
 from ._instructions import (
     INSTRUCTIONS,
     MAX_SNAPSHOTS,
@@ -16,7 +28,6 @@ from ._instructions import (
     Command,
     Completion,
     Context,
-    DetInfo,
     Form,
     Instruction,
     Kind,
@@ -25,25 +36,19 @@ from ._instructions import (
     Param,
     Shape,
     Signature,
-    Value,
-    VersionInfo,
-    build,
-    build_axes,
-    build_rows,
-    check_axis_word,
-    check_framing,
-    check_rows,
-    check_rows_framing,
     encode,
-    encode_rows,
     lookup,
     parse,
-    parse_reply,
-    reply_group,
-    reply_rule,
     similar_names,
     upper_bound,
     wire_number,
+)
+from ._replies import (
+    DetInfo,
+    VersionInfo,
+    parse_reply,
+    reply_group,
+    reply_rule,
 )
 from ._schema import (
     AXES,

@@ -2,9 +2,10 @@
 signatures and its reply look like, as plain data.
 
 The generated table :mod:`tango_aio.catalog._table` is made of these types only; the logic that
-uses them (parsing, encoding, reply parsing) lives in :mod:`tango_aio.catalog._instructions`, which
-re-exports every name defined here. This module imports nothing from the package, so the
-catalog can be loaded on its own (``python -c "import tango_aio.catalog._table"``).
+uses them lives in :mod:`tango_aio.catalog._instructions` (parsing; it re-exports every name
+defined here), :mod:`tango_aio.catalog._encode` (building) and
+:mod:`tango_aio.catalog._replies` (reply parsing). This module imports nothing from the
+package, so the catalog can be loaded on its own (``python -c "import tango_aio.catalog._table"``).
 """
 
 from __future__ import annotations

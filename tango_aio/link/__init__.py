@@ -14,8 +14,6 @@ from ._protocol import (
     Response,
     Submission,
     TangoProtocol,
-    traced,
-    wire_log,
 )
 from ._reconnect import (
     Closer,
@@ -24,6 +22,7 @@ from ._reconnect import (
     ReconnectPolicy,
     Signature,
 )
+from ._router import traced, wire_log
 
 __all__ = [
     "DEAD_AFTER",

@@ -250,7 +250,7 @@ class WriteScheduler:
                    batch: object | None = None) -> Run | None:
         """:meth:`pack` for lines given as bytes (CR included), every one a line of
         ``template``'s instruction in its form (what
-        :func:`~tango_aio.catalog._instructions.encode_rows` gives: a list upload without a
+        :func:`~tango_aio.catalog._encode.encode_rows` gives: a list upload without a
         Command per entry). What a line owes depends only on its instruction and
         form in a mode (:func:`~tango_aio.sansio._core.expectation`), so ``template`` speaks for
         all; a line that does not start like it gives ``None``."""

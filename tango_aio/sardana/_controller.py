@@ -470,7 +470,8 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
     def _ramp_time(self, letter: str) -> float:
         """Seconds to reach the axis' velocity: ``vel`` / ``accel``."""
         tango = self.tango
-        return float(tango.settings.velocity()[letter]) / float(tango.settings.acceleration()[letter])
+        settings = tango.settings
+        return float(settings.velocity()[letter]) / float(settings.acceleration()[letter])
 
     def _steps_per_unit(self, letter: str) -> float:
         """Full motor steps per ``Units``: motorsteps × gear / pitch (per mm)."""

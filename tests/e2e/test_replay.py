@@ -95,7 +95,7 @@ def test_the_trace_format_is_the_wire_log(caplog: pytest.LogCaptureFixture) -> N
     assert not records[2].complete
     # The driver's own logger writes the same records.
     with caplog.at_level(logging.DEBUG, logger="tango_aio.wire"):
-        from tango_aio.link._protocol import wire_log
+        from tango_aio.link._router import wire_log
 
         wire_log.debug("%.6f -> %s", 5.0, repr(b"?pos"))
     assert parse_trace(caplog.text)[-1].data == b"?pos"

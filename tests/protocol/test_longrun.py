@@ -17,7 +17,7 @@ from tango_aio.catalog._instructions import parse
 from tango_aio.controller._controller import Controller
 from tango_aio.errors import ProtocolError, WrongEventLoopError
 from tango_aio.events import EventHub, StatusReport
-from tango_aio.link._protocol import TRACE_LINE
+from tango_aio.link._router import TRACE_LINE
 from tango_aio.sansio._core import Mismatched, ProtocolCore
 
 pytestmark = pytest.mark.timeout(30)

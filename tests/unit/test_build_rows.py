@@ -11,16 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.catalog import _instructions as instructions
-from tango_aio.catalog._instructions import (
-    Command,
-    Context,
-    Form,
-    build,
-    build_rows,
-    check_rows,
-    encode_rows,
-)
+from tango_aio.catalog import _encode as encoding
+from tango_aio.catalog._encode import build, build_rows, check_rows, encode_rows
+from tango_aio.catalog._instructions import Command, Context, Form
 from tango_aio.errors import InvalidCommandError
 from tango_aio.families._bulk import Column
 
@@ -124,13 +117,13 @@ def test_rows_after_the_first_take_the_fast_path(monkeypatch: pytest.MonkeyPatch
     """Not a timing test: only the first row (and a row that fails the direct check) is
     built in full."""
     full: list[tuple[object, ...]] = []
-    original = instructions._build
+    original = encoding._build
 
     def recorded(*args: Any) -> Command:
         full.append(args)
         return original(*args)
 
-    monkeypatch.setattr(instructions, "_build", recorded)
+    monkeypatch.setattr(encoding, "_build", recorded)
     rows: list[list[float]] = [[0.5 + i / 1000] for i in range(50)]
     commands = list(build_rows("trigp", [-1], rows))
     assert len(full) == 1

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.catalog._instructions import Context, parse, parse_reply
+from tango_aio.catalog._instructions import Context, parse
+from tango_aio.catalog._replies import parse_reply
 from tango_aio.errors import ProtocolError
 from tango_aio.sansio._core import (
     DEFAULT_MAX_LINE,

@@ -32,7 +32,7 @@ HANDLER_MODULES = {"sim/handlers.py", "sim/peripherals.py"}
 FRAMEWORK_OVERRIDES = {"sardana/_controller.py"}
 #: ``raise _fail(...)``: a helper builds the error, and the Raises sections name the class
 #: it builds (InvalidCommandError), not the helper.
-RAISES_ELSEWHERE = {"catalog/_instructions.py"}
+RAISES_ELSEWHERE = {"catalog/_instructions.py", "catalog/_encode.py"}
 
 _HEADER = re.compile(r"^(?P<indent> *)(?P<name>[A-Z][a-z]+(?: [A-Z][a-z]+)?)\n(?P=indent)-{3,}$",
                      re.MULTILINE)

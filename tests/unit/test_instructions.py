@@ -23,6 +23,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tango_aio.catalog._encode import build, check_framing, check_rows_framing
 from tango_aio.catalog._instructions import (
     AXES,
     INSTRUCTIONS,
@@ -30,24 +31,18 @@ from tango_aio.catalog._instructions import (
     AxisRule,
     Command,
     Context,
-    DetInfo,
     Form,
     Instruction,
     Kind,
     Param,
     Shape,
     Signature,
-    VersionInfo,
-    build,
-    check_framing,
-    check_rows_framing,
     encode,
     format_number,
     lookup,
     parse,
-    parse_reply,
-    reply_rule,
 )
+from tango_aio.catalog._replies import DetInfo, VersionInfo, parse_reply, reply_rule
 from tango_aio.errors import InvalidCommandError, ProtocolError, TangoError
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -14,14 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.catalog._instructions import (
-    INSTRUCTIONS,
-    Context,
-    LineRule,
-    parse,
-    parse_reply,
-    reply_rule,
-)
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, LineRule, parse
+from tango_aio.catalog._replies import parse_reply, reply_rule
 from tango_aio.errors import ProtocolError
 from tango_aio.sansio._patterns import ReplyKind, reply_pattern
 

@@ -18,7 +18,8 @@ from helpers import INSTANT, wire_of
 
 import tango_aio
 from tango_aio import Controller, InvalidCommandError
-from tango_aio.catalog._instructions import build, format_number, parse, wire_number
+from tango_aio.catalog._encode import build
+from tango_aio.catalog._instructions import format_number, parse, wire_number
 
 np = pytest.importorskip("numpy")
 

@@ -9,7 +9,8 @@ from fuzzkit import fitting_line
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.catalog._instructions import INSTRUCTIONS, Context, LineRule, parse, reply_rule
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, LineRule, parse
+from tango_aio.catalog._replies import reply_rule
 from tango_aio.sansio._core import (
     AckReads,
     Completed,

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tango_aio.catalog._encode import build
 from tango_aio.catalog._instructions import (
     INSTRUCTIONS,
     AxisRule,
@@ -19,7 +20,6 @@ from tango_aio.catalog._instructions import (
     Form,
     Kind,
     Param,
-    build,
     parse,
 )
 from tango_aio.errors import SettingNotAppliedError, TangoError

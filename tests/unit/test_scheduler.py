@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from tango_aio.catalog._instructions import Command, build_rows, encode_rows, parse
+from tango_aio.catalog._encode import build_rows, encode_rows
+from tango_aio.catalog._instructions import Command, parse
 from tango_aio.sansio._core import Acknowledged, AckReads, Echoed, ProtocolCore, Replied, wire_size
 from tango_aio.sansio._flow import MARKER
 from tango_aio.sansio._patterns import ONE_NUMBER, Edge, ReplyKind, ReplyPattern, marker_pattern

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tango_aio.catalog._instructions import INSTRUCTIONS, Context, build, parse
+from tango_aio.catalog._encode import build
+from tango_aio.catalog._instructions import INSTRUCTIONS, Context, parse
 from tango_aio.moves._timing import MoveTiming
 from tango_aio.sansio._state import CACHED_SETTINGS, DriverState
 
