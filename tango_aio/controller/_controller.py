@@ -993,6 +993,10 @@ class Controller:
         bool
             ``True`` if both are off; ``False`` if one is on or cannot be read.
         """
+        known = self._identity
+        if known is not None and known.family == "older" and not all(
+                INSTRUCTIONS[name].in_older_manual for name in ("snsm", "tvr")):
+            return False  # the older edition lacks them: a read would wait out its timeout
         try:
             snsm = await self.get("snsm")
             tvr = await self.get("tvr")
