@@ -18,12 +18,7 @@ tested range). See docs/howto/micro-manager.md.
 
 from __future__ import annotations
 
-try:
-    import pymmcore_plus.experimental.unicore  # noqa: F401
-except ImportError as exc:  # pragma: no cover - depends on the environment
-    raise ImportError("tango_aio.mm needs pymmcore-plus: pip install 'tango-aio[mm]'"
-                      ) from exc
-
+from . import _unicore  # noqa: F401 - first: pymmcore-plus, the root logger's level kept
 from ._hub import TangoHub
 from ._load import load_tango
 from ._shutter import TangoShutter

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import gc
+import logging
 import os
 import subprocess
 import sys
@@ -16,7 +17,7 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pymmcore_plus.experimental.unicore")
+pytest.importorskip("tango_aio.mm")  # first: it keeps the root logger's level
 pytest.importorskip("useq")
 
 import numpy as np
@@ -451,3 +452,12 @@ def test_the_end_of_a_move_is_announced_to_the_core_listeners(core: UniMMCore) -
     assert [label for label, *_ in xy_seen] == ["TangoXY"]
     assert xy_seen[0][1:] == pytest.approx((300.0, -400.0))
     assert z_seen == [("TangoZ", 25.0)]
+
+
+def test_importing_keeps_the_root_loggers_level() -> None:
+    """pymmcore-plus sets the root logger to DEBUG on import; tango_aio.mm puts it back,
+    so the driver's wire trace stays off unless asked for."""
+    code = "import logging, tango_aio.mm; print(logging.getLogger().level)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120).stdout
+    assert out.strip() == str(logging.WARNING)

@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pymmcore_plus.experimental.unicore")
+pytest.importorskip("tango_aio.mm")  # first: it keeps the root logger's level
 
 from tango_aio import MoveError
 from tango_aio.mm._moves import Moves
