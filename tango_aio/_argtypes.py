@@ -72,18 +72,7 @@ def writable_path(text: str) -> str:
 
 def url_type(text: str) -> str:
     """argparse type of a controller URL: ``SIM://`` and ``SOCKET://`` in any case; a
-    ``sim://`` URL is checked here, so that a bad option is named and nothing opens.
-
-    Returns
-    -------
-    str
-        The URL.
-
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        The ``sim://`` URL's query is not valid.
-    """
+    ``sim://`` URL is checked here, so that a bad option is named and nothing opens."""
     scheme, sep, rest = text.partition("://")
     if sep and scheme.lower() in ("sim", "socket"):
         text = f"{scheme.lower()}://{rest}"
@@ -101,18 +90,7 @@ def url_type(text: str) -> str:
 
 def check_sim_url(url: str) -> None:
     """Raise ValueError, naming the option, if the ``sim://`` URL's query is invalid:
-    an option given twice, an unknown option or a value the emulator refuses.
-
-    Parameters
-    ----------
-    url
-        The URL.
-
-    Raises
-    ------
-    ValueError
-        An option is given twice, unknown, or refused.
-    """
+    an option given twice, an unknown option or a value the emulator refuses."""
     from .sim.inprocess import configs_from_url
 
     pairs = urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query, keep_blank_values=True)

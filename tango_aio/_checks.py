@@ -15,33 +15,7 @@ __all__ = ["check_count", "check_timeout"]
 
 def check_timeout(value: float | None, name: str = "timeout", *,
                   zero: bool = False) -> float | None:
-    """``value`` as seconds (``None`` stays ``None``: no limit, or the default).
-
-    Refuses NaN, infinities, zero and negative values: a zero or negative time limit would
-    fail every request before its reply could come, and would still have written the line.
-    ``zero=True`` allows 0 where it means "do not wait" (``wait_connected(timeout=0)``).
-
-    Parameters
-    ----------
-    value
-        The time limit in seconds, or ``None``.
-    name
-        The argument's name, for the error message.
-    zero
-        Allow 0.
-
-    Returns
-    -------
-    float or None
-        ``value`` as a float, or ``None``.
-
-    Raises
-    ------
-    TypeError
-        ``value`` is not a number (a bool is not one).
-    ValueError
-        ``value`` is NaN, infinite, negative, or zero without ``zero=True``.
-    """
+    """``value`` as seconds (``None`` stays ``None``: no limit, or the default)."""
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, numbers.Real):

@@ -15,18 +15,7 @@ DISTRIBUTION = "tango-aio"
 
 
 def install_hint(extra: str) -> str:
-    """The ``pip`` command that adds ``extra`` to this installation.
-
-    Parameters
-    ----------
-    extra
-        The optional extra's name (``epics``, ``bluesky``, ...).
-
-    Returns
-    -------
-    str
-        A command to copy, e.g. ``pip install -e '/home/me/tango_aio[epics]'``.
-    """
+    """The ``pip`` command that adds ``extra`` to this installation."""
     origin = _origin()
     if origin is None:
         return f"pip install '{DISTRIBUTION}[{extra}]'"

@@ -35,27 +35,7 @@ POSIX: bool = os.name == "posix" and not WINDOWS
 @contextlib.contextmanager
 def signal_calls(sig: int, callback: Callable[[], None]) -> Iterator[bool]:
     """Run ``callback`` on the running loop when ``sig`` arrives, for the block; yields
-    whether a handler is installed.
-
-    ``loop.add_signal_handler`` where the loop has it (POSIX). Windows' event loops raise
-    NotImplementedError there; then a plain ``signal.signal`` handler is installed, which
-    only schedules ``callback`` with ``call_soon_threadsafe`` (it runs in the main thread
-    between two bytecodes, possibly inside the loop's own code; the call also wakes a
-    loop waiting for I/O). Nothing is installed outside the main thread. The previous
-    handler is put back at the end.
-
-    Parameters
-    ----------
-    sig
-        The signal number (``signal.SIGINT``).
-    callback
-        What to run on the loop when the signal arrives.
-
-    Yields
-    ------
-    bool
-        Whether a handler is installed.
-    """
+    whether a handler is installed."""
     loop = asyncio.get_running_loop()
     previous = signal.getsignal(sig)
     try:

@@ -42,13 +42,7 @@ def install() -> bool:
     """This process is the command: from now until :func:`finished`, Ctrl+C exits quietly
     with 130. Only the command's own start calls it, never an import: a program or a test
     process that merely imports :mod:`tango_aio.cli` keeps its own Ctrl+C. Returns whether
-    it was installed (not outside the main thread, nor over someone else's handler).
-
-    Returns
-    -------
-    bool
-        Whether the quiet Ctrl+C handler was installed.
-    """
+    it was installed (not outside the main thread, nor over someone else's handler)."""
     global _installed
     if threading.current_thread() is not threading.main_thread():
         return False

@@ -215,13 +215,7 @@ def check_axis_word(axis: object, name: str) -> None:
 
 def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> None:
     """Positional values are the lead (global) parameters only: with per-axis keywords,
-    ``set("vel", 5, x=3)`` would otherwise send ``!vel 5 3`` and set Y to 3.
-
-    Raises
-    ------
-    InvalidCommandError
-        Positional values are mixed with per-axis keywords.
-    """
+    ``set("vel", 5, x=3)`` would otherwise send ``!vel 5 3`` and set Y to 3."""
     most = max((len(sig.lead) for sig in entry.signatures(form)), default=0)
     if len(args) > most:
         raise _fail(f"{entry.name}: positional values {list(args)} cannot be mixed with "
@@ -231,13 +225,7 @@ def _check_lead_count(entry: Instruction, form: Form, args: Sequence[Value]) -> 
 def _check_words(command: Command, given: Sequence[Value]) -> None:
     """A string value must be one whole token of a word or bit-pattern parameter: where
     a number goes, ``"5"`` is a caller's bug and ``"1 2"`` would smuggle in a second
-    value (``move_to(x="1 2")`` sending ``!moa 1 2`` moves Y).
-
-    Raises
-    ------
-    InvalidCommandError
-        A string stands where a number goes.
-    """
+    value (``move_to(x="1 2")`` sending ``!moa 1 2`` moves Y)."""
     for value, parsed in zip(given, command.values, strict=False):
         if isinstance(value, str) and not isinstance(parsed, str):
             raise _fail(f"{command.name}: {value!r} is a string where a number goes",
@@ -387,13 +375,7 @@ def _rows(name: str, lead: Sequence[Value], rows: Iterable[Sequence[float | int]
           full: Callable[[Command], _Made]) -> Iterator[_Made]:
     """What :func:`build_rows`, :func:`encode_rows` and :func:`check_rows` share:
     ``fast`` makes a row from
-    the plan of the first row of its length, ``full`` from a command built in full.
-
-    Yields
-    ------
-    _Made
-        What ``fast`` or ``full`` made of each row.
-    """
+    the plan of the first row of its length, ``full`` from a command built in full."""
     ctx = context or DEFAULT_CONTEXT
     plans: dict[int, _RowPlan | None] = {}
     for row in rows:
@@ -458,13 +440,7 @@ class _RowPlan:
 
     def _checked(self, row: Sequence[float | int]) -> list[float | int] | None:
         """The row's values typed as :func:`build` types them, or ``None`` when the row
-        needs the full path.
-
-        Returns
-        -------
-        list[float | int] or None
-            The typed values, or ``None``.
-        """
+        needs the full path."""
         name = self.template.instruction.name
         try:
             return [_checked_number(param, value, name, hi)
@@ -487,13 +463,7 @@ class _RowPlan:
 
     def encode(self, row: Sequence[float | int]) -> bytes | None:
         """The bytes of the command for ``row`` (CR included), or ``None`` when it needs
-        the full path.
-
-        Returns
-        -------
-        bytes or None
-            The bytes, or ``None``.
-        """
+        the full path."""
         if self.floats and _plain_row(self.bounds, row):
             # What _checked and format_number give for such a row, a third of the time.
             texts = [self.head, *map(repr, row)]
@@ -507,13 +477,7 @@ class _RowPlan:
     def passes(self, row: Sequence[float | int]) -> bool | None:
         """``True`` when ``row`` passes :meth:`encode`'s shortcut with a line that cannot
         be too long (:func:`check_rows`), without making its words; ``None`` when it
-        needs the full check.
-
-        Returns
-        -------
-        bool or None
-            ``True``, or ``None``.
-        """
+        needs the full check."""
         return True if self.short and _plain_row(self.bounds, row) else None
 
 
@@ -522,13 +486,7 @@ def _plain_row(bounds: Sequence[tuple[float, float, float]],
     """Whether every value of ``row`` is a finite ``float`` within its ``bounds`` (what
     :func:`_check_range` allows) whose ``repr()`` has no exponent, so that
     :func:`format_number` writes exactly that ``repr()``: what an upload passes. One call
-    per row, not per value (the hot path of a list upload).
-
-    Returns
-    -------
-    bool
-        Whether the row is plain.
-    """
+    per row, not per value (the hot path of a list upload)."""
     low_plain, high_plain = _PLAIN_FLOATS
     for (lowest, highest, least), value in zip(bounds, row, strict=True):
         # NaN fails the first comparison; an infinity the magnitude test.
@@ -570,18 +528,7 @@ def _checked_number(param: Param, value: float | int, name: str,
 
 def _format_value(value: object, name: str | None = None) -> str:
     """The wire text of one value given by the caller (a word, or a number of any real
-    type, see :func:`wire_number`); InvalidCommandError for anything else.
-
-    Returns
-    -------
-    str
-        The wire text.
-
-    Raises
-    ------
-    InvalidCommandError
-        ``value`` is not one word or number.
-    """
+    type, see :func:`wire_number`); InvalidCommandError for anything else."""
     if isinstance(value, str):
         if not value or value.split() != [value]:
             raise _fail(f"{name}: {value!r} is not one value", name, None, 5)
@@ -618,18 +565,7 @@ def _axis_part(
 def _as_list(entry: Instruction, group: int, value: AxisValues) -> list[Value]:
     """The values of one axis: one value, or a sequence of at most ``group`` values for
     instructions that take several per axis. A list where one number goes is refused
-    (``move_to(x=[1, 2])`` would send ``!moa 1 2``).
-
-    Returns
-    -------
-    list[Value]
-        The axis's values.
-
-    Raises
-    ------
-    InvalidCommandError
-        A sequence where one value goes, or too many values.
-    """
+    (``move_to(x=[1, 2])`` would send ``!moa 1 2``)."""
     if isinstance(value, str) or not isinstance(value, Sequence):
         return [value]
     if group < 2 or len(value) > group:

@@ -91,31 +91,7 @@ _INT_RE: Final = re.compile(r"^[+-]?\d+$")
 
 
 def format_number(value: float | int | Decimal | Fraction) -> str:
-    """Format a number for the wire: decimal point, never exponent notation.
-
-    Integers are written without a fraction; floats use the shortest decimal that round
-    trips (``1e-06`` → ``0.000001``, ``10.0`` → ``10.0``). Any real number type is
-    accepted as labs have them (:func:`wire_number`): numpy scalars, :class:`Decimal`
-    (written exactly), :class:`Fraction`. ``TypeError`` for a non-number (``bool``
-    included), ``ValueError`` for NaN and infinities.
-
-    Parameters
-    ----------
-    value
-        A real number of any type (:func:`wire_number`).
-
-    Returns
-    -------
-    str
-        Its text on the wire.
-
-    Raises
-    ------
-    TypeError
-        ``value`` is not a number (a bool is not one).
-    ValueError
-        ``value`` is NaN or infinite.
-    """
+    """Format a number for the wire: decimal point, never exponent notation."""
     number = wire_number(value)
     if isinstance(number, int):
         return str(number)
@@ -243,18 +219,7 @@ _BY_ALIAS: Final[dict[str, Instruction]] = {
 
 def list_capacity(name: str) -> int:
     """How many entries the controller list indexed by instruction ``name`` holds: the
-    upper bound of the index (first lead parameter) of its write form.
-
-    Parameters
-    ----------
-    name
-        The instruction of the list (``"trigp"``, ``"snsa"``).
-
-    Returns
-    -------
-    int
-        The number of entries.
-    """
+    upper bound of the index (first lead parameter) of its write form."""
     index = INSTRUCTIONS[name].write[0].lead[0]
     assert index.name == "index" and index.hi is not None, index
     return int(index.hi)
@@ -504,13 +469,7 @@ def _checked_length(command: Command) -> Command:
 def _canonical(token: str, value: float | int | str) -> str:
     """The token as it goes on the wire: words in lower case, integers (counts, modes,
     enumerated choices) in their plain form (``-0`` → ``0``, ``+1`` → ``1``, ``007`` →
-    ``7``). Floats keep their text: its digits are the precision the caller chose.
-
-    Returns
-    -------
-    str
-        The token's wire text.
-    """
+    ``7``). Floats keep their text: its digits are the precision the caller chose."""
     if isinstance(value, int):
         return str(value)
     return token.lower() if token.isalpha() else token

@@ -19,20 +19,7 @@ __all__ = ["detext_lines", "grouped_lines", "mrt_lines", "service_lines"]
 
 def service_lines(command: Command, context: Context) -> LineRule:
     """``?service``: from firmware 1.60C/1.61 the last line is ``END_SERVICE_PRINT.``
-    (L2937-2943).
-
-    Parameters
-    ----------
-    command
-        The ``?service`` command.
-    context
-        What the driver knows of the controller.
-
-    Returns
-    -------
-    LineRule
-        How many lines the reply has.
-    """
+    (L2937-2943)."""
     return LineRule(count=0, terminator="END_SERVICE_PRINT.")
 
 
@@ -41,39 +28,13 @@ _DETEXT_MORE: Final = re.compile(r"^=")
 
 def detext_lines(command: Command, context: Context) -> LineRule:
     """``?detext``: the hex configuration, then one ``= feature`` line each; no end marker
-    (L1189-1220).
-
-    Parameters
-    ----------
-    command
-        The ``?detext`` command.
-    context
-        What the driver knows of the controller.
-
-    Returns
-    -------
-    LineRule
-        How many lines the reply has.
-    """
+    (L1189-1220)."""
     return LineRule(count=1, continuation=_DETEXT_MORE)
 
 
 def mrt_lines(command: Command, context: Context) -> LineRule:
     """``?mrt n``: one line per sample, 10 by default; a negative count means the same
-    number (L11474).
-
-    Parameters
-    ----------
-    command
-        The ``?mrt`` command.
-    context
-        What the driver knows of the controller.
-
-    Returns
-    -------
-    LineRule
-        How many lines the reply has.
-    """
+    number (L11474)."""
     samples = abs(int(command.values[0])) if command.values else 10
     return LineRule(count=samples)
 
@@ -83,20 +44,7 @@ _GROUP_MORE: Final = re.compile(r"^[-+\d.,]+[ ,][-+\d., ]*$")
 
 def grouped_lines(command: Command, context: Context) -> LineRule:
     """``?lim`` and ``?swtyp`` without an axis print an extra CR between axes in extmode 0
-    (L4559-4619, L4818-4822): read until the next request's reply.
-
-    Parameters
-    ----------
-    command
-        The ``?lim`` or ``?swtyp`` command.
-    context
-        What the driver knows of the controller.
-
-    Returns
-    -------
-    LineRule
-        How many lines the reply has.
-    """
+    (L4559-4619, L4818-4822): read until the next request's reply."""
     if command.axis is not None or context.extmode != 0 or context.axes < 2:
         return LineRule()
     return LineRule(count=1, continuation=_GROUP_MORE)

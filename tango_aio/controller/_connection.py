@@ -139,20 +139,7 @@ def port_error(url: str, exc: BaseException) -> ConnectError:
     """The :class:`ConnectError` for a failure to open the serial port ``url``, in the
     user's terms with the next step. pyserial repeats the errno in its messages ("[Errno
     2] could not open port ...: [Errno 2] ..."), so only the operating system's words are
-    kept.
-
-    Parameters
-    ----------
-    url
-        The serial port's name or URL.
-    exc
-        What opening it raised.
-
-    Returns
-    -------
-    ConnectError
-        The error to raise (a subclass where the cause is known).
-    """
+    kept."""
     number = getattr(exc, "errno", None)
     if not isinstance(number, int):
         number = next((arg for arg in getattr(exc, "args", ()) if isinstance(arg, int)), None)
@@ -187,18 +174,7 @@ def _permission_advice(url: str) -> str:
 def check_url(url: str) -> None:
     """Raise ValueError for a URL that names a scheme the driver does not open (before
     anything is opened): ``tcp://`` and the like suggest ``socket://``; ``sim:/`` and
-    other almost-URLs are not taken for device paths.
-
-    Parameters
-    ----------
-    url
-        The URL or device path given to :func:`connect`.
-
-    Raises
-    ------
-    ValueError
-        The URL names a scheme the driver does not open.
-    """
+    other almost-URLs are not taken for device paths."""
     match = re.match(r"([A-Za-z][A-Za-z0-9+.-]+):(/*)", url)
     if match is None:
         return
@@ -248,13 +224,7 @@ def _watch_release(port: Any, loop: asyncio.AbstractEventLoop) -> asyncio.Future
 
 def _check_pollable(port: Any) -> None:
     """pyserial-asyncio watches the port's file descriptor on POSIX; URL handlers without
-    one (``loop://``, ``spy://`` of such) would fail later inside the event loop.
-
-    Raises
-    ------
-    OSError
-        The port has no file descriptor.
-    """
+    one (``loop://``, ``spy://`` of such) would fail later inside the event loop."""
     if not POSIX:
         return
     try:
@@ -269,18 +239,7 @@ async def _in_thread(open_port: Callable[[], Any]) -> Any:
     still finishes (threads cannot be interrupted), and the port it opened is closed
     before the cancellation goes on: a connect() to the same port right after must not
     find it locked. Cancelled again while it waits, it leaves the closing to the thread's
-    end.
-
-    Returns
-    -------
-    Any
-        What ``open_port`` returned (the port).
-
-    Raises
-    ------
-    CancelledError
-        The caller was cancelled (the port, once opened, is closed first).
-    """
+    end."""
     task = asyncio.ensure_future(asyncio.to_thread(open_port))
     try:
         return await asyncio.shield(task)
@@ -333,13 +292,7 @@ async def _open(url: str, factory: ProtocolFactory, options: dict[str, Any]
 async def open_link(url: str, make: ProtocolFactory, options: dict[str, Any]
                      ) -> tuple[TangoProtocol, Closer | None]:
     """Open ``url`` and wait until the protocol is connected; on any failure, including
-    cancellation, close whatever was opened (no leaked port, socket or emulator task).
-
-    Returns
-    -------
-    tuple[TangoProtocol, Closer | None]
-        The connected protocol, and what closes the emulator behind a ``sim://`` link.
-    """
+    cancellation, close whatever was opened (no leaked port, socket or emulator task)."""
     made: list[TangoProtocol] = []
 
     def factory() -> TangoProtocol:
@@ -449,13 +402,7 @@ async def _connect(url: str, options: ConnectOptions) -> Controller:
 
 def _no_controller(url: str, options: ConnectOptions) -> NoControllerError:
     """Nothing answered while :func:`connect` set the controller up: said in the user's
-    terms (not the lines the driver sent).
-
-    Returns
-    -------
-    NoControllerError
-        The error to raise.
-    """
+    terms (not the lines the driver sent)."""
     where = url if url.startswith(("sim://", "socket://", "rfc2217://")) \
         else f"{url} at {options.baudrate} Bd"
     return NoControllerError(f"no TANGO answered on {where}: is it switched on, is this "

@@ -355,12 +355,7 @@ class Motion:
     async def run(self, command: Command,
                   plan_for: Callable[[Command, Mapping[str, str] | None], Awaitable[MovePlan]],
                   stop_on_cancel: bool) -> dict[str, str]:
-        """Write a motion line once no other move is in flight and follow it to its end.
-
-        ``plan_for`` is awaited inside the lock, after the previous move ended, so that a
-        queued move's timeout and targets are computed from where its axes really start;
-        it gets the line and :attr:`positions` (the positions last read, ``None`` before
-        the first read)."""
+        """Write a motion line once no other move is in flight and follow it to its end."""
         async with self._lock:
             await self._join_detached()
             plan = await plan_for(command, self.positions)
@@ -614,11 +609,7 @@ class Motion:
         return idle
 
     async def _stop_after_cancel(self, job: _Job) -> None:
-        """The awaiting task was cancelled: stop the axes and wait for them to stop.
-
-        Shielded (with a time limit) so that the stop is awaited even when the cancellation
-        comes from a level-triggered anyio scope that would otherwise cancel every await of
-        this clean-up at once."""
+        """The awaiting task was cancelled: stop the axes and wait for them to stop."""
         with contextlib.suppress(TangoError):
             await self._port.stop()
             self.stopped()

@@ -36,25 +36,7 @@ DEFAULT_INTERFACE = "127.0.0.1"
 
 def parse_controllers(url: str | None, named: list[str]) -> dict[str, str]:
     """``URL`` and ``--controller NAME=URL`` values as ``{name: url}`` (``""``: the one
-    unnamed controller). Exactly one of the two forms must be used.
-
-    Parameters
-    ----------
-    url
-        The positional URL, or ``None``.
-    named
-        The ``--controller`` values.
-
-    Returns
-    -------
-    dict[str, str]
-        The URL of each controller, by name.
-
-    Raises
-    ------
-    ValueError
-        Both forms or neither were given, a value is not ``NAME=URL``, or a name repeats.
-    """
+    unnamed controller). Exactly one of the two forms must be used."""
     if url and named:
         raise ValueError("give either URL or --controller NAME=URL, not both")
     if url:
@@ -74,18 +56,7 @@ def parse_controllers(url: str | None, named: list[str]) -> dict[str, str]:
 
 
 def loopback_only(interfaces: list[str]) -> bool:
-    """Whether every interface address is a loopback address.
-
-    Parameters
-    ----------
-    interfaces
-        The interface addresses.
-
-    Returns
-    -------
-    bool
-        Whether all of them are loopback addresses.
-    """
+    """Whether every interface address is a loopback address."""
     try:
         return all(ipaddress.ip_address(i).is_loopback for i in interfaces)
     except ValueError:
@@ -93,13 +64,7 @@ def loopback_only(interfaces: list[str]) -> bool:
 
 
 def add_ioc_command(commands: Any) -> None:
-    """Register the ``ioc`` subcommand on the ``tango-aio`` sub-parsers.
-
-    Parameters
-    ----------
-    commands
-        The CLI's subparsers (``argparse``'s ``add_subparsers()``).
-    """
+    """Register the ``ioc`` subcommand on the ``tango-aio`` sub-parsers."""
     ioc = commands.add_parser(
         "ioc", help="serve controllers as EPICS motor records (needs tango-aio[epics])",
         description=run_ioc.__doc__)
@@ -199,13 +164,7 @@ async def run_ioc(args: argparse.Namespace) -> int:
 def _terminated_by_sigterm() -> Iterator[list[bool]]:
     """SIGTERM (a service manager stopping the IOC) cancels the IOC like Ctrl+C does, so
     the moves it started are stopped and the ports closed; yields ``[True]`` once it
-    came.
-
-    Yields
-    ------
-    list[bool]
-        ``[True]`` once SIGTERM came, else empty.
-    """
+    came."""
     task = asyncio.current_task()
     came: list[bool] = []
 

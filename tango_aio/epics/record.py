@@ -132,9 +132,7 @@ class LimitSwitches:
 
 
 def limit_switches(readsw: str, axis: str) -> LimitSwitches:
-    """Read the E0 (lower) and EE (upper) switch of ``axis`` from a ``?readsw`` reply.
-
-    A reply of unexpected length is read as "no switch actuated" (nothing is assumed)."""
+    """Read the E0 (lower) and EE (upper) switch of ``axis`` from a ``?readsw`` reply."""
     text = readsw.strip()
     index = AXES.index(axis)
     if len(text) < 12:

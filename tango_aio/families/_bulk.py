@@ -136,18 +136,7 @@ class Column(Sequence[Sequence[float]]):
 def _positions(values: object, what: str, name: str) -> list[float]:
     """``values`` as floats, refusing what only looks like a sequence of numbers: a string
     (``"123"`` would be the positions 1, 2, 3), booleans, ``None`` and other non-numbers
-    (:func:`~tango_aio.catalog._instructions.wire_number` decides what a number is).
-
-    Returns
-    -------
-    list[float]
-        The values as floats.
-
-    Raises
-    ------
-    InvalidCommandError
-        ``values`` is not a sequence of numbers.
-    """
+    (:func:`~tango_aio.catalog._instructions.wire_number` decides what a number is)."""
     if isinstance(values, str | bytes | bytearray) or not isinstance(values, Iterable):
         raise InvalidCommandError(f"{name}: {what} must be a sequence of numbers, got "
                                   f"{type(values).__name__} {values!r:.40}",
@@ -211,13 +200,7 @@ def _finite_and_monotonic(values: list[float]) -> bool:
     """Whether every value is finite and the list strictly rising or strictly falling: what
     :func:`validate_trigger_positions` checks value by value, in C (``map``), so that a
     good list costs no Python loop; ``False`` sends the caller to its loops, which name
-    the first bad entry.
-
-    Returns
-    -------
-    bool
-        ``True`` when the loops would raise nothing.
-    """
+    the first bad entry."""
     if not all(map(math.isfinite, values)):
         return False
     if len(values) < 2:
@@ -228,68 +211,19 @@ def _finite_and_monotonic(values: list[float]) -> bool:
 
 def prepare(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[Command]:
     """Build (and so validate against the catalog) every append line before anything is
-    sent; raises :class:`InvalidCommandError` naming the first bad entry.
-
-    Parameters
-    ----------
-    spec
-        The list (which instruction appends, counts and reads).
-    rows
-        The entries, one sequence of numbers each.
-
-    Returns
-    -------
-    list[Command]
-        The append commands, in order.
-
-    Raises
-    ------
-    InvalidCommandError
-        An entry is not valid (the first one is named).
-    """
+    sent; raises :class:`InvalidCommandError` naming the first bad entry."""
     return list(_numbered(spec.append(rows)))
 
 
 def prepare_lines(spec: ListSpec, rows: Sequence[Sequence[float]]) -> list[bytes]:
     """:func:`prepare`, the lines as bytes (CR included) without a :class:`Command` per
-    entry (:func:`~tango_aio.catalog._instructions.encode_rows`): the same checks and errors.
-
-    Parameters
-    ----------
-    spec
-        The list (which instruction appends, counts and reads).
-    rows
-        The entries, one sequence of numbers each.
-
-    Returns
-    -------
-    list[bytes]
-        The append lines, in order.
-
-    Raises
-    ------
-    InvalidCommandError
-        An entry is not valid (the first one is named).
-    """
+    entry (:func:`~tango_aio.catalog._instructions.encode_rows`): the same checks and errors."""
     return list(_numbered(spec.encode(rows)))
 
 
 def check_entries(spec: ListSpec, rows: Sequence[Sequence[float]]) -> None:
     """Raise what :func:`prepare` raises for the first bad entry, without making the
-    lines (:func:`~tango_aio.catalog._instructions.check_rows`).
-
-    Parameters
-    ----------
-    spec
-        The list (which instruction appends, counts and reads).
-    rows
-        The entries, one sequence of numbers each.
-
-    Raises
-    ------
-    InvalidCommandError
-        An entry is not valid (the first one is named).
-    """
+    lines (:func:`~tango_aio.catalog._instructions.check_rows`)."""
     for _ in _numbered(spec.check(rows)):
         pass
 
@@ -425,13 +359,7 @@ class ListTransfer:
         when it is asked for: as one row value (a :class:`~tango_aio.sansio._scheduler.Run`: its
         bytes, no Command per entry) where its lines owe no reply in the mode they will be
         written in, else as the commands :func:`prepare` builds (mode 2, or a mode change
-        since the upload began).
-
-        Yields
-        ------
-        Run or list[Command]
-            The pieces, in order.
-        """
+        since the upload began)."""
         runs = True  # whether the last piece went as a run
         for start in range(0, len(rows), CHECKPOINT):
             part = rows[start:start + CHECKPOINT]
@@ -503,17 +431,7 @@ class ListTransfer:
 
     async def _locate_rejection(self, spec: ListSpec, commands: list[Command],
                                 count: int) -> None:
-        """Find the first entry that did not make it, get its error and raise.
-
-        ``commands`` are the lines sent, at least ``count + 1`` of them when there are.
-        The reads below are answered only after every line already written was processed,
-        so the list no longer changes when it is truncated to the accepted entries.
-
-        Raises
-        ------
-        UploadError
-            Always: naming the first entry that was not taken, and its error.
-        """
+        """Find the first entry that did not make it, get its error and raise."""
         if count > len(commands):
             # More entries than this upload sent: something else wrote to the list (uploads
             # of this driver are serialised, so another program, or a lost clear).
@@ -573,13 +491,7 @@ class ListTransfer:
 
 def _commands(sent: list[Run | list[Command]], limit: int) -> list[Command]:
     """The first ``limit`` lines of ``sent`` (or all) as commands (a run's parsed back:
-    only when an upload failed).
-
-    Returns
-    -------
-    list[Command]
-        The lines as commands.
-    """
+    only when an upload failed)."""
     commands: list[Command] = []
     for chunk in sent:
         if len(commands) >= limit:

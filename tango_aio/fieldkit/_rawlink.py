@@ -132,10 +132,7 @@ class _Link:
                 await asyncio.wait_for(self._arrived.wait(), remaining)
 
     async def quiet(self, settle: float) -> None:
-        """Wait until no line arrived for ``settle`` seconds.
-
-        A few more loop turns after the silence let bytes already on their way in be read
-        (a busy event loop can run a due timer before the I/O that came meanwhile)."""
+        """Wait until no line arrived for ``settle`` seconds."""
         while True:
             if self._lost:
                 raise ConnectionLostError("the link to the controller was lost")

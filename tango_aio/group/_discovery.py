@@ -104,11 +104,7 @@ def _version_of(raw: bytes) -> VersionInfo | None:
 
 
 def _probe(port: str, baudrate: int, timeout: float) -> VersionInfo | None:
-    """Open ``port``, ask ``?version`` and wait up to ``timeout`` s for a version reply.
-
-    Runs in a worker thread. ``?version`` is sent again halfway through, in case a stale
-    partial line in the controller's input buffer swallowed the first one. Lines that are
-    not a version reply (autostatus reports, noise) are skipped."""
+    """Open ``port``, ask ``?version`` and wait up to ``timeout`` s for a version reply."""
     import serial
 
     start = time.monotonic()

@@ -745,13 +745,7 @@ async def _cancel_once(awaitable: Awaitable[T],
                        orphan: Callable[[T], Awaitable[None]] | None = None) -> T:
     """Await ``awaitable`` in its own task, and turn a cancellation into a single
     ``Task.cancel()`` of that task whose clean-up is awaited (shielded, within
-    :data:`CANCEL_CLEANUP_TIMEOUT`).
-
-    anyio cancel scopes (``fail_fast``, an anyio timeout, or any cancellation of a task
-    that hosts a task group) cancel every await of a cancelled task, which would also cut
-    short a controller's own reaction to the cancellation: stopping the axes and waiting
-    until they stand still. ``orphan`` receives a result that arrived anyway, for which
-    the caller is gone (e.g. a controller that finished connecting: it is closed)."""
+    :data:`CANCEL_CLEANUP_TIMEOUT`)."""
     task: asyncio.Future[T] = asyncio.ensure_future(awaitable)
     try:
         return await asyncio.shield(task)

@@ -210,12 +210,7 @@ class TangoProtocol(LineRouter):
 
     async def execute(self, command: Command, *, timeout: float | None,
                       check: bool = True) -> Response:
-        """Write a set/execute line and wait until it is confirmed.
-
-        With ``check`` the controller's verdict is read right behind it (the autostatus-2
-        acknowledgement, else an ``?err`` probe written back to back with the line) and an
-        error raises the typed :class:`~tango_aio.errors.ControllerError`. Lines that owe
-        a completion report go through :meth:`start_move` instead."""
+        """Write a set/execute line and wait until it is confirmed."""
         if command.name == "autostatus" and command.form is Form.SET and command.values:
             return await self._change_mode(command, int(command.values[0]), timeout)
         handle = self._send_checked(command, check)
@@ -244,13 +239,7 @@ class TangoProtocol(LineRouter):
         :func:`~tango_aio.sansio._session.nothing_trails_help`). The session reads the mode in
         force (adopted before the lines held behind the exchange are written) and, in
         mode 2, how reads are acknowledged from those lines
-        (:meth:`~tango_aio.sansio._session.LinkSession.mode_read`).
-
-        With ``restore``, a mode found that is not the driver's (the controller
-        restarted, :meth:`~tango_aio.sansio._session.LinkSession.mode_verified`) is replaced by
-        the driver's in a second exchange before any held line goes out: those lines
-        were submitted for the driver's mode (a mode-2 move relies on its ``OK...``),
-        so they are written in it."""
+        (:meth:`~tango_aio.sansio._session.LinkSession.mode_read`)."""
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
             hold = self.scheduler.hold()
@@ -456,23 +445,14 @@ class TangoProtocol(LineRouter):
     # -- requests and their replies --------------------------------------------------------
 
     async def request(self, command: Command, timeout: float | None = 5.0) -> Response:
-        """Write ``command`` and wait for its reply (an empty Response if it owes none).
-
-        On timeout the stream is resynchronised and :class:`ControllerTimeoutError` raised."""
+        """Write ``command`` and wait for its reply (an empty Response if it owes none)."""
         submission = self.submit(command)
         if submission.reply is None:
             return submission.response
         return await self.wait_reply(submission, timeout)
 
     async def wait_reply(self, submission: Submission, timeout: float | None) -> Response:
-        """Wait for ``submission``'s reply.
-
-        After ``timeout`` seconds raise :class:`ControllerTimeoutError` naming the line,
-        at once: the reply may be lost for good, so a resync starts in the background
-        (its marker gets ``timeout`` too) and holds the lines queued behind it until the
-        stream is in step. The timeout counts towards declaring a dead link lost
-        (:meth:`_unanswered`); then :class:`ConnectionLostError` is raised instead, with
-        the timeout as its cause."""
+        """Wait for ``submission``'s reply."""
         reply = submission.reply
         assert reply is not None
         queued = not submission.written
@@ -517,11 +497,7 @@ class TangoProtocol(LineRouter):
         return {tag for tag, s in self._submissions.items() if s.waiter is not None}
 
     async def resync(self, *, ctrl_c: bool = False, timeout: float = 2.0) -> None:
-        """Resynchronise the reply stream (optionally sending Ctrl+C first).
-
-        Every pending request fails with :class:`RequestAbortedError`; the call returns
-        when the marker's reply has arrived. The first resync of a link opened by
-        ``connect`` runs :meth:`detect` instead."""
+        """Resynchronise the reply stream (optionally sending Ctrl+C first)."""
         self.check()
         if self.session.detects_first(ctrl_c=ctrl_c):
             await self.detect(timeout=timeout)
@@ -670,13 +646,7 @@ async def _until_done(future: asyncio.Future[Any], timeout: float | None,
                       submission: Submission) -> None:
     """Wait until ``future`` (``submission``'s reply) is done or ``timeout`` seconds have
     passed, whichever comes first; cancelling the wait leaves ``future`` alone (it may
-    have other waiters).
-
-    The effect of ``asyncio.timeout`` around ``asyncio.shield``, with one helper future,
-    one callback and one timer instead of a shield's future and two callbacks and a
-    timeout context: this is the per-request path of every read. The protocol wakes the
-    helper itself when it resolves the reply (:attr:`Submission.waiter`), in the same
-    loop turn; the callback covers every other way the reply ends (failed, cancelled)."""
+    have other waiters)."""
     loop = future.get_loop()
     waiter = loop.create_future()
 

@@ -149,11 +149,7 @@ class ReconnectPort(Protocol[StagedT]):
 
 
 class Reconnector(Generic[StagedT]):
-    """Reconnects one controller after a loss, in a background task, by :class:`Reconnect`.
-
-    It is armed (:meth:`arm`) once the controller's first set-up has succeeded: a first
-    connect that fails just raises. :meth:`start` begins an outage's attempts; the owner
-    stops them with :meth:`stop` (``aclose``)."""
+    """Reconnects one controller after a loss, in a background task, by :class:`Reconnect`."""
 
     def __init__(self, reconnect: Reconnect, port: ReconnectPort[StagedT]) -> None:
         self.reconnect = reconnect

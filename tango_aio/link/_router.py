@@ -82,12 +82,7 @@ class Response:
 @dataclass(eq=False, slots=True)
 class Submission(Line):
     """A command written to the controller: the scheduler's ``Line``
-    with the futures of its caller.
-
-    ``reply`` resolves with the :class:`Response` when the request owes a reply (else it
-    is ``None``); ``completion`` resolves with the :class:`~tango_aio.sansio._core.Completed`
-    report of a move, ``cal`` or ``rm``.
-    """
+    with the futures of its caller."""
 
     reply: asyncio.Future[Response] | None = None
     completion: asyncio.Future[Completed] | None = None
@@ -217,10 +212,7 @@ class LineRouter(asyncio.Protocol):
         return None
 
     def connection_lost(self, exc: Exception | None) -> None:
-        """Called by asyncio when the link is gone: fail everything that waits.
-
-        The error's ``__cause__`` is ``exc``; when the other end closed the link without
-        an error, a :class:`ConnectionResetError` saying so stands in for it."""
+        """Called by asyncio when the link is gone: fail everything that waits."""
         if self._keepalive_task is not None:
             self._keepalive_task.cancel()
         if self._lost is not None:
@@ -336,12 +328,7 @@ class LineRouter(asyncio.Protocol):
     def submit(self, command: Command, *, batch: object | None = None,
                hold: bool = False) -> Submission:
         """Queue ``command`` for writing and return its :class:`Submission` (futures for
-        the reply and the completion report, where the line owes them).
-
-        The line is written at once when the credit allows, else as soon as replies free
-        enough credit; lines are always written in submission order. A line whose reply
-        could be taken for the reply of the line written before it gets a separator
-        first, unless both belong to the same ``batch`` (see :mod:`tango_aio.sansio._patterns`)."""
+        the reply and the completion report, where the line owes them)."""
         self.check()
         check_framing(command)
         tag, mode, expect = self.scheduler.plan(command)
@@ -394,9 +381,7 @@ class LineRouter(asyncio.Protocol):
         self.scheduler.separators = value
 
     def withdraw(self, submissions: Iterable[Line]) -> int:
-        """Take lines that are still queued out of the queue; return how many were.
-
-        Their futures are cancelled. Lines already written are not affected."""
+        """Take lines that are still queued out of the queue; return how many were."""
         removed = self.scheduler.withdraw(submissions)
         for submission in removed:
             if isinstance(submission, Submission):

@@ -219,9 +219,7 @@ def move_budget(timing: MoveTiming, command: Command, distances: Mapping[str, fl
 
 def rest_budget(timing: MoveTiming, targets: Mapping[str, float], now: Mapping[str, str],
                 fallback: float) -> float:
-    """How long a move may still take from where its axes stand.
-
-    The limit rule of :func:`move_budget` without the delay (the move has started)."""
+    """How long a move may still take from where its axes stand."""
     if not set(targets) <= set(now):
         return fallback
     travel = _travel(timing, {a: t - float(now[a]) for a, t in targets.items()})
@@ -267,11 +265,6 @@ def verdict(moved: Sequence[str], targets: Mapping[str, float] | None,
 def too_early(budget: Budget, moved: Sequence[str], letters: Mapping[str, str],
               checked: float, now: float, expected_end: float) -> float | None:
     """When a failed verdict may not be the move's end yet.
-
-    A move that ends at a limit switch, an error or an abort ends the call at once: the
-    state was read after the controller had taken the line, so the moved axes are moving
-    or have ended. Only two things the driver knows of let a stopped axis read like that
-    before the move really ended:
 
     * ``!delay`` (L6845-6868): the move has not started yet; until the delay is over
       (counted from the check, a bound on when the controller took the line);

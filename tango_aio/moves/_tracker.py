@@ -427,14 +427,7 @@ class _Proving(enum.Enum):
 
 
 class StartProof:
-    """The proof that a ``speed`` or ``go`` line answered by ``?err`` 0 alone arrived.
-
-    ``?statusaxis`` is read behind the line (:func:`~tango_aio.moves._timing.acceptance`
-    judges it); a ``go`` that shows nothing has ``?pos`` read too (a short go may be
-    done); an axis a ``speed`` line sets running that moved before it must come to show
-    the speed written in ``?speed``; an axis the line stops that still moves is read
-    again until it stands. Each of those waits ends at ``deadline`` (from
-    :func:`~tango_aio.moves._timing.stop_time`), every ``poll`` seconds."""
+    """The proof that a ``speed`` or ``go`` line answered by ``?err`` 0 alone arrived."""
 
     def __init__(self, command: Command, present: Sequence[str], *,
                  busy: Collection[str], deadline: float, poll: float) -> None:

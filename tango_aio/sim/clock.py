@@ -54,10 +54,7 @@ class EmulatorClock:
         return self.origin + (host - self.origin) * self.speed
 
     def to_host(self, emulator: float) -> float:
-        """The earliest host time whose emulator time is not before ``emulator``.
-
-        Rounded up to the next representable float where needed, so that polling the
-        controller at the returned time never finds its deadline still in the future."""
+        """The earliest host time whose emulator time is not before ``emulator``."""
         host = self.origin + (emulator - self.origin) / self.speed
         while self.to_emulator(host) < emulator:
             host = math.nextafter(host, math.inf)
@@ -66,10 +63,7 @@ class EmulatorClock:
 
 class ScaledHandler:
     """A :class:`~tango_aio.sim.wire.LineHandler` that runs the controller logic built by
-    ``make_handler`` on emulator time (see the module docstring).
-
-    Build it on the host clock at ``origin`` (default: :func:`host_now` once the logic is
-    built, so the logic's own start time is not later than the origin)."""
+    ``make_handler`` on emulator time (see the module docstring)."""
 
     def __init__(self, make_handler: HandlerFactory, emit: Emit, speed: float,
                  origin: float | None = None) -> None:

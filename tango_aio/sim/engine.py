@@ -88,12 +88,7 @@ class MotionRefused(Exception):
 
 @dataclass(frozen=True, slots=True)
 class MoveFinished:
-    """A move, cal or rm job finished; ``letters`` holds one status letter per axis X Y Z A.
-
-    Letters: ``@`` done, ``A`` calibrated, ``D`` range measured, ``E`` aborted/not executed,
-    ``S`` stopped by a limit switch, ``T`` cal/rm timeout, ``-`` axis not present.  The
-    command layer appends the ``.`` of the autostatus string.
-    """
+    """A move, cal or rm job finished; ``letters`` holds one status letter per axis X Y Z A."""
 
     time: float
     kind: JobKind
@@ -122,13 +117,7 @@ MotionEvent = MoveFinished | TriggerFired
 
 @dataclass(frozen=True, slots=True)
 class AxisConfig:
-    """Static physical description of one axis (motor revolutions, physical frame).
-
-    With the default pitch of 1 mm/rev the defaults are a 100 mm axis with switches at
-    -50 mm (E0, cal) and +50 mm (EE, rm) and the power-on position in the middle.
-    ``lock_position`` is the transport lock position for ``mol`` in the counter frame
-    (as stored in the ETS, relative to the cal origin); ``None`` means none stored.
-    """
+    """Static physical description of one axis (motor revolutions, physical frame)."""
 
     e0_position: float = -50.0
     ee_position: float = 50.0
@@ -148,14 +137,7 @@ class MotionConfig:
 
 @dataclass(slots=True)
 class AxisSettings:
-    """Per-axis parameters (mutable; the command layer writes them).
-
-    Units: lengths in motor revolutions, ``vel``/``calvel``/``rmvel`` in rev/s,
-    ``accel``/``stopaccel`` in m/s², ``secvel`` in mm/s, ``calbspeed`` in 1/100 rev/s,
-    ``caltimeout`` in s.  Change ``vel`` through :meth:`MotionModel.set_vel` so that a
-    running ``go`` picks it up.  The manual gives no defaults for vel/accel/stopaccel/
-    calbspeed; these match the emulator's parameter store (:mod:`tango_aio.sim.params`).
-    """
+    """Per-axis parameters (mutable; the command layer writes them)."""
 
     enable: int = 1
     """``axis``: 1 enabled, 0 disabled, -1 power stage off."""
@@ -475,15 +457,7 @@ class MotionEngine:
         self, targets: dict[int, float], *, timed: bool, failed: Iterable[int] = (),
         relative: dict[int, float] | None = None,
     ) -> int:
-        """Validate, then create a move job (delayed by ``delay`` when ``timed``).
-
-        Axes still busy: refused with error 2 (``move_during_move=refuse``); with
-        ``queue`` the job waits until none of its axes is busy, then starts (relative
-        moves from where the axes stopped) and reports on its own; with ``retarget`` axes
-        travelling in a move leave that move (which reports without them, or not at all
-        when none is left) and head for the new target from where they are, each with its
-        own vel/accel (no vector move). Targets are checked against the limits at once,
-        for a queued relative move from where the axes will stop."""
+        """Validate, then create a move job (delayed by ``delay`` when ``timed``)."""
         active = {i: t for i, t in targets.items() if self._axes[i].settings.enable == 1}
         policy = self.move_during_move
         busy = [i for i in active if self._busy(self._axes[i])]

@@ -26,13 +26,7 @@ _STATUS_TAILS = {"yes": ".-", "no": "", "dot": "."}
 
 
 class Handlers(Peripherals):
-    """The special instructions of one emulated controller.
-
-    Parameters
-    ----------
-    model
-        The emulated controller (a :class:`~tango_aio.sim.model.ControllerModel`).
-    """
+    """The special instructions of one emulated controller."""
 
     def __init__(self, model: ModelPort) -> None:
         self.m = model
@@ -178,13 +172,7 @@ class Handlers(Peripherals):
     def i_axis(self, c: Command) -> Reply:
         """``!axis``/``?axis``: 1 enabled, 0 disabled, -1 power stage off (L3919-3960).
         What disabling or switching off a moving axis does to its move the manual does
-        not say: switch ``disable_during_move``.
-
-        Raises
-        ------
-        MotionRefused
-            ``refuse``: a moving axis is to be disabled (error 2).
-        """
+        not say: switch ``disable_during_move``."""
         if c.is_read:
             return [self.m.params.read(c, self.m.axes)]
         motion = self.m.motion
@@ -546,18 +534,7 @@ OLDER_HELP: dict[int, str] = {**HELP, 4: "unknown keyword"}
 
 
 def build_handlers(model: ModelPort) -> dict[str, Callable[[Command], Reply]]:
-    """Map instruction names to the bound ``i_<name>`` methods.
-
-    Parameters
-    ----------
-    model
-        The emulated controller the handlers act on.
-
-    Returns
-    -------
-    dict[str, Callable[[Command], Reply]]
-        The handler of each special instruction, by instruction name.
-    """
+    """Map instruction names to the bound ``i_<name>`` methods."""
     handlers = Handlers(model)
     return {name[2:]: getattr(handlers, name) for name in dir(Handlers)
             if name.startswith("i_")}

@@ -47,10 +47,7 @@ def _check_monotonic(entries: list[float]) -> None:
 
 
 def _check_slot(entries: list[float], slot: int, position: float) -> None:
-    """Check writing ``position`` to 1-based ``slot`` in constant time where possible.
-
-    Only a write to one of the first two entries (which set the direction) rechecks the
-    whole list, so uploading a long list entry by entry stays linear."""
+    """Check writing ``position`` to 1-based ``slot`` in constant time where possible."""
     if slot <= 2:
         candidate = list(entries)
         candidate[slot - 1: slot] = [position]

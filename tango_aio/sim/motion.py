@@ -333,10 +333,7 @@ class MotionModel(MotionEngine):
         return self._submit_move(phys, timed=True)
 
     def move_lock(self, axes: Iterable[AxisRef] | None = None) -> int:
-        """``mol``: move to the transport lock position (needs cal and a lock position).
-
-        Axes without cal or without a lock position do not move and report ``E``; mol has
-        no delay and no pause (the manual lists moa/mor/m/moc only)."""
+        """``mol``: move to the transport lock position (needs cal and a lock position)."""
         phys: dict[int, float] = {}
         failed: list[int] = []
         for ax in self._select(axes):
@@ -370,10 +367,7 @@ class MotionModel(MotionEngine):
             self._stop_continuous(ax)
 
     def speed(self, velocities: Mapping[AxisRef, float]) -> None:
-        """``speed``: constant signed velocity (rev/s); 0 stops speed or go; no report.
-
-        The axis brakes so that it stops exactly at the soft limit ahead (or travels on
-        without limit when ``limctr`` is 0); an enabled switch stops it with ``S``."""
+        """``speed``: constant signed velocity (rev/s); 0 stops speed or go; no report."""
         plan: list[tuple[_AxisState, float]] = []
         for ref, vel in velocities.items():
             ax = self._axis(ref)
@@ -423,17 +417,7 @@ class MotionModel(MotionEngine):
     # ---------------------------------------------------------------- cal / rm ------
 
     def calibrate(self, axes: Iterable[AxisRef] | None = None) -> int:
-        """``cal``: find E0 on the axes (all enabled when None); returns the job id.
-
-        Sequence per axis (all axes at the same time): travel towards E0 at ``vel``
-        (extmode 1: ``calvel[0]``), capped by ``secvel`` unless released; at the switch brake
-        with ``stopaccel``; leave it at ``calbspeed``/100 rev/s (extmode 1: ``calvel[1]``);
-        once free travel on to ``max(caliboffset, stopping distance)`` beyond the switch
-        point at the approach speed and stop.  That stop becomes the origin (calmode 0/2,
-        the ``!pos`` offset is cleared) and, with ``nosetlimit`` 0, the lower soft limit.
-        Letter ``A``; ``T`` when ``caltimeout`` (counted from the command) runs out first;
-        ``E`` when aborted.  With E0 disabled by ``swact`` nothing happens and the axis
-        reports ``@``.  Cal/rm flags change only on success."""
+        """``cal``: find E0 on the axes (all enabled when None); returns the job id."""
         return self._submit_cal("cal", axes)
 
     def range_measure(self, axes: Iterable[AxisRef] | None = None) -> int:

@@ -30,10 +30,7 @@ INDEXED: Final[dict[str, tuple[Value, ...]]] = {
 
 
 def format_value(value: Value, digits: int) -> str:
-    """Format one reply value: ints as ints, floats with ``digits`` fractional digits.
-
-    A float that rounds to zero from below prints ``-0.0000`` here; the model prints it
-    as ``0.0000`` unless the firmware switch ``numbers`` is ``negzero``."""
+    """Format one reply value: ints as ints, floats with ``digits`` fractional digits."""
     if isinstance(value, str):
         return value
     if isinstance(value, int):

@@ -38,64 +38,21 @@ class Peripherals:
     # -- helpers of every handler ------------------------------------------------------
 
     def to_revs(self, values: Mapping[int, float]) -> dict[int | str, float]:
-        """Convert user-unit positions to motor revolutions.
-
-        Parameters
-        ----------
-        values
-            Positions in user units, by axis index.
-
-        Returns
-        -------
-        dict[int | str, float]
-            The same in motor revolutions.
-        """
+        """Convert user-unit positions to motor revolutions."""
         return {axis: self.m.motion.from_user(axis, value) for axis, value in values.items()}
 
     def position_text(self, axis: int, revs: float) -> str:
-        """Format a position (revolutions) in the axis' dim units with resolution digits.
-
-        Parameters
-        ----------
-        axis
-            The axis index.
-        revs
-            The position, in revolutions.
-
-        Returns
-        -------
-        str
-            The text.
-        """
+        """Format a position (revolutions) in the axis' dim units with resolution digits."""
         digits = position_digits(int(self.m.params.first("resolution")),
                                  int(self.m.params.first("dim", axis)))
         return format_value(self.m.motion.to_user(axis, revs), digits)
 
     def axes_text(self, indices: Iterable[int], value: Callable[[int], str]) -> str:
-        """Join per-axis texts.
-
-        Parameters
-        ----------
-        indices
-            The axis indices.
-        value
-            The text of an axis, by index.
-
-        Returns
-        -------
-        str
-            The texts, separated by spaces.
-        """
+        """Join per-axis texts."""
         return " ".join(value(index) for index in indices)
 
     def completion_letters(self) -> str:
-        """A completion report with ``@`` for every present axis (``!joy 0``).
-
-        Returns
-        -------
-        str
-            The letters.
-        """
+        """A completion report with ``@`` for every present axis (``!joy 0``)."""
         return "".join("@" if i < self.m.axes else "-" for i in range(len(AXES)))
 
     # -- motor current and lock state -------------------------------------------------
@@ -261,9 +218,7 @@ class Peripherals:
 
     def i_clim(self, c: Command) -> Reply:
         """Circular limit: ``?clim`` → centre X, centre Y, radius; ``?clim 1`` → 0/1;
-        ``!clim 0`` disables; ``!clim r`` centres on the current X Y (L4622-4671).
-
-        The limit is stored and read back; moves do not honour it (not modelled)."""
+        ``!clim 0`` disables; ``!clim r`` centres on the current X Y (L4622-4671)."""
         session = self.m.session
         if c.is_read:
             if c.values:
@@ -354,18 +309,7 @@ class Peripherals:
 
     def swtyp_text(self, c: Command) -> str | None:
         """``?swtyp`` without an axis in extmode 0 prints the axis groups without the
-        separating space, ``1 1 11 1 11 1 1`` (L4818-4822); None: the normal reply.
-
-        Parameters
-        ----------
-        c
-            The ``?swtyp`` line.
-
-        Returns
-        -------
-        str or None
-            The reply text, or ``None`` for the normal reply.
-        """
+        separating space, ``1 1 11 1 11 1 1`` (L4818-4822); None: the normal reply."""
         if c.axis is not None or int(self.m.params.first("extmode")) != 0:
             return None
         groups = self.m.params.axis_values["swtyp"][: self.m.axes]

@@ -107,97 +107,34 @@ class ModelPort(Protocol):
         """The current error number."""
 
     def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
-        """Record ``count`` trigger pulses as the trigger settings shape them.
-
-        Parameters
-        ----------
-        time
-            When the first pulse begins.
-        count
-            How many pulses.
-        position
-            The trigger axis' position where they fired; ``None``: not by position.
-        """
+        """Record ``count`` trigger pulses as the trigger settings shape them."""
 
     def follow_joystick(self) -> None:
         """Drive the deflected axes as the HDI settings allow."""
 
     def present(self, command: Command) -> list[int]:
-        """Axis indices a command addresses.
-
-        Parameters
-        ----------
-        command
-            The command.
-
-        Returns
-        -------
-        list[int]
-            The axis indices.
-        """
+        """Axis indices a command addresses."""
 
     def axis_map(self, command: Command, skip_lead: int = 0) -> dict[int, float]:
-        """A command's values by axis index, in user units.
-
-        Parameters
-        ----------
-        command
-            The command.
-        skip_lead
-            Lead values to skip.
-
-        Returns
-        -------
-        dict[int, float]
-            The values.
-        """
+        """A command's values by axis index, in user units."""
 
     def joystick_letters(self, letters: str) -> str:
-        """Status letters as ``sa`` shows them while the joystick is on.
-
-        Parameters
-        ----------
-        letters
-            The motion model's letters.
-
-        Returns
-        -------
-        str
-            The letters shown.
-        """
+        """Status letters as ``sa`` shows them while the joystick is on."""
 
     def report(self, letters: str) -> None:
-        """Send a report that is not a move's.
-
-        Parameters
-        ----------
-        letters
-            The status letters.
-        """
+        """Send a report that is not a move's."""
 
     def owe_stop_report(self) -> None:
         """Report once the axes stand (``a``)."""
 
     def set_autostatus(self, mode: int) -> None:
-        """Switch the autostatus mode.
-
-        Parameters
-        ----------
-        mode
-            The new mode.
-        """
+        """Switch the autostatus mode."""
 
     def clear_error(self) -> None:
         """``!err``: clear the error state."""
 
     def store(self, command: Command) -> None:
-        """Keep a plain set command's values in the settings store.
-
-        Parameters
-        ----------
-        command
-            The command.
-        """
+        """Keep a plain set command's values in the settings store."""
 
     def save(self) -> None:
         """``save``: persist the saved parameters."""
@@ -212,19 +149,7 @@ class ModelPort(Protocol):
         """Restart like a power cycle."""
 
     def trigger_axis(self) -> int:
-        """The trigger axis's index.
-
-        Returns
-        -------
-        int
-            The axis index.
-        """
+        """The trigger axis's index."""
 
     def trigger_pointer(self) -> int:
-        """``?trigi``: the list pointer (1-based).
-
-        Returns
-        -------
-        int
-            The pointer.
-        """
+        """``?trigi``: the list pointer (1-based)."""

@@ -34,12 +34,7 @@ __all__ = ["PtyServer", "serve_pty"]
 
 
 class PtyServer:
-    """One emulated controller behind a pseudo-terminal.
-
-    A host opens :attr:`path` (e.g. ``serial.Serial(server.path, 57600)``). The pty serves
-    one session: after a disconnect fault or :meth:`close` the master is closed and the
-    host sees EOF/EIO. Our own slave descriptor stays open meanwhile, so a host may open
-    and close the path repeatedly without the master reporting EIO. Use :func:`serve_pty`."""
+    """One emulated controller behind a pseudo-terminal."""
 
     def __init__(self, wire: Wire) -> None:
         self._loop = asyncio.get_running_loop()
@@ -82,13 +77,7 @@ class PtyServer:
             self._close_fds()
 
     async def _drain(self) -> None:
-        """Before a disconnect, wait (up to :data:`DRAIN_GRACE`) until the host has read all.
-
-        Linux discards unread slave input when the master closes, so without this a host
-        would never see the partial reply of a mid-reply disconnect. The kernel moves
-        written bytes to the slave's input queue asynchronously, so the queue must stay
-        empty for :data:`_DRAIN_QUIET` polls in a row; there is no event for "read".
-        """
+        """Before a disconnect, wait (up to :data:`DRAIN_GRACE`) until the host has read all."""
         quiet = 0
         for _ in range(int(DRAIN_GRACE / _DRAIN_POLL)):
             quiet = quiet + 1 if not self._out and self._unread() == 0 else 0

@@ -159,11 +159,7 @@ class WireRunner:
         return resume if wakeup is None else min(wakeup, resume)
 
     async def _sleep(self, deadline: float | None) -> None:
-        """Sleep until ``deadline`` (None: indefinitely) or until woken by input or a fault.
-
-        The loop's timer resolution (about 1 ms with epoll) batches reply bytes into chunks
-        of a few bytes at 57600 Bd; the wire still computes exact byte times.
-        """
+        """Sleep until ``deadline`` (None: indefinitely) or until woken by input or a fault."""
         if deadline is None:
             await self._wake.wait()
             return
@@ -251,12 +247,7 @@ class SharedController:
 
 
 class _TcpSession(asyncio.BufferedProtocol):
-    """One TCP connection: its own wire, and the shared or its own controller logic.
-
-    Reads at most :data:`_READ_SIZE` bytes at a time (a buffered protocol; asyncio reads
-    up to 256 KiB otherwise), so the replies to one read stay small and a client that does
-    not read them is stopped after a few reads.
-    """
+    """One TCP connection: its own wire, and the shared or its own controller logic."""
 
     def __init__(self, server: TcpServer) -> None:
         self._server = server

@@ -65,10 +65,7 @@ class StateFileError(ValueError):
 
 
 def load_state(path: Path | None, store: ParamStore) -> None:
-    """Put the parameters saved in ``path`` into ``store``; nothing if there is no file.
-
-    Raises :class:`StateFileError` (before changing ``store``) if the file is not a valid
-    state file, and :class:`OSError` if it cannot be read."""
+    """Put the parameters saved in ``path`` into ``store``; nothing if there is no file."""
     if path is None:
         return
     data = _read(path)
@@ -80,11 +77,7 @@ def load_state(path: Path | None, store: ParamStore) -> None:
 
 
 def save_state(path: Path, store: ParamStore, names: Iterable[str]) -> None:
-    """Write the parameters ``names`` of ``store`` to ``path`` atomically.
-
-    Raises :class:`StateFileError` if ``path`` exists and is not ours (it is left
-    untouched) or a value cannot be stored (not finite), and :class:`OSError` if writing
-    fails (the previous file is then intact)."""
+    """Write the parameters ``names`` of ``store`` to ``path`` atomically."""
     if path.exists():
         _read(path)  # raises if the existing file is not ours
     chosen = list(names)

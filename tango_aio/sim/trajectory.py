@@ -91,9 +91,7 @@ class Trajectory:
     def from_phases(
         t: float, x: float, phases: Iterable[Phase], end_pos: float | None = None
     ) -> Trajectory:
-        """Chain ``phases`` starting at ``(t, x)``; snap the final position to ``end_pos``.
-
-        Snapping removes rounding so a move ends exactly on its target."""
+        """Chain ``phases`` starting at ``(t, x)``; snap the final position to ``end_pos``."""
         segs: list[Segment] = []
         t_cur, x_cur = t, x
         for ph in phases:
@@ -137,11 +135,7 @@ class Trajectory:
     def first_entry(
         self, level: float, *, upward: bool, closed: bool, t_min: float
     ) -> float | None:
-        """First time >= ``t_min`` at which the position enters a half line.
-
-        The region is ``x >= level`` (``upward``, ``closed``), ``x > level`` (``upward``,
-        open), ``x <= level`` or ``x < level``.  Entering means: the segment starts outside
-        and ends inside, so touching the boundary from inside never counts twice."""
+        """First time >= ``t_min`` at which the position enters a half line."""
 
         def inside(x: float) -> bool:
             if upward:
@@ -158,9 +152,7 @@ class Trajectory:
 
 
 def _forward(u: float, dist: float, vmax: float, amax: float) -> list[Phase]:
-    """Phases covering ``dist >= 0`` forward from speed ``u >= 0``, ending at rest.
-
-    The caller guarantees that the stopping distance ``u²/2a`` fits into ``dist``."""
+    """Phases covering ``dist >= 0`` forward from speed ``u >= 0``, ending at rest."""
     if u == 0.0 and dist <= 0.0:
         return []
     if u > vmax:  # slow down to vmax first, then cruise and stop
@@ -180,11 +172,7 @@ def _forward(u: float, dist: float, vmax: float, amax: float) -> list[Phase]:
 
 
 def plan_to_target(x0: float, v0: float, target: float, vmax: float, amax: float) -> list[Phase]:
-    """Time-optimal linear-ramp profile from ``(x0, v0)`` to rest at ``target``.
-
-    Trapezoidal (or triangular when short) from rest; from a moving start it first brakes
-    when heading away or when it cannot stop in time (and comes back), or slows down to
-    ``vmax`` when faster.  Used for moves (in normalised form), ``go`` and ``speed``."""
+    """Time-optimal linear-ramp profile from ``(x0, v0)`` to rest at ``target``."""
     if not (vmax > 0.0 and amax > 0.0):
         raise ValueError(f"vmax and amax must be positive, got {vmax!r}, {amax!r}")
     delta = target - x0

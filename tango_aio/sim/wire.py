@@ -281,11 +281,7 @@ class Faults:
 
 @dataclass
 class _Segment:
-    """A run of bytes on the line: byte ``i`` of ``data`` passes at ``start + (i+1)*bt``.
-
-    ``pos`` bytes have already been consumed. A ``close`` segment is a disconnect marker
-    that takes effect at ``start``.
-    """
+    """A run of bytes on the line: byte ``i`` of ``data`` passes at ``start + (i+1)*bt``."""
 
     start: float
     data: bytes
@@ -667,10 +663,7 @@ class Wire:
             self._poll_handler(self._now)
 
     def _step(self, until: float) -> bool:
-        """Run the earliest event due by ``until``; False if there is none.
-
-        Ties go to the interpreter finishing a line, then the handler, then input bytes,
-        so a byte arriving exactly as a line completes finds the freed space."""
+        """Run the earliest event due by ``until``; False if there is none."""
         busy, handler, rx = self._busy_until, self._handler_due(), self._rx_next()
         candidates = [(t, rank) for rank, t in enumerate((busy, handler, rx)) if t is not None]
         if not candidates:
@@ -695,10 +688,7 @@ class Wire:
         self._handler_deadline = self.handler.next_deadline()
 
     def _handler_due(self) -> float | None:
-        """The handler's deadline, ignoring one it already had its poll for.
-
-        A deadline at or before the last poll would make the loop spin; the poll that ends
-        every :meth:`_advance` covers it."""
+        """The handler's deadline, ignoring one it already had its poll for."""
         deadline = self._handler_deadline
         if deadline is None or deadline <= self._handler_polled_at:
             return None
@@ -714,10 +704,7 @@ class Wire:
         return self._rx[0].due_at(self._bt) if self._rx else None
 
     def _rx_run(self, until: float, before: float) -> None:
-        """Deliver input bytes due by ``until`` and before ``before`` (the next other event).
-
-        Stops early when a byte made the handler run, since that can change deadlines.
-        """
+        """Deliver input bytes due by ``until`` and before ``before`` (the next other event)."""
         while self._rx:
             seg = self._rx[0]
             when = seg.due_at(self._bt)
@@ -791,10 +778,7 @@ class Wire:
             self._rx.popleft()
 
     def _receive(self, byte: int) -> bool:
-        """One byte reaches the controller's UART; True if the handler was called.
-
-        Ctrl+C is taken by the receive interrupt before anything is buffered, so it is
-        never lost, even with a full buffer (the manual says it bypasses the parser)."""
+        """One byte reaches the controller's UART; True if the handler was called."""
         if self._deaf:
             self.lost_bytes += 1
             return False
@@ -813,13 +797,7 @@ class Wire:
         return False
 
     def _ctrl_c(self) -> None:
-        """Clear everything not yet taken by the interpreter, then tell the handler.
-
-        Choice: the line the interpreter is already working on has executed (the handler
-        ran when processing started) and still completes, and its reply is still sent;
-        Ctrl+C clears only the unprocessed input, partial line included, and ends the
-        skipping of an over-long line. Pending output is not touched.
-        """
+        """Clear everything not yet taken by the interpreter, then tell the handler."""
         self._buffer.clear()
         self._discard_head = None
         self.ctrl_c_count += 1
@@ -829,20 +807,7 @@ class Wire:
     # ------------------------------------------------------------------ interpreter
 
     def _try_start(self) -> bool:
-        """Let an idle interpreter take lines from the buffer; True if the handler ran.
-
-        Choices where the manual is silent:
-
-        * The bytes of a line stay in the buffer (and count against its 256 bytes) until
-          processing of that line *ends*. With this, a host that keeps its unanswered
-          bytes within 256 never loses data, and one that does not loses data as soon as
-          processing slows down.
-        * LF is stored in the buffer like any byte (the receive interrupt does not filter
-          it) but the parser skips it: it neither ends a line nor is part of it.
-        * An empty line (a lone CR) is passed to the handler like any other.
-        * The buffer full without a CR means the line cannot fit: the parser keeps its
-          first 255 characters, frees the buffer and skips input up to the next CR, then
-          reports the line with :meth:`LineHandler.line_too_long` (error 3)."""
+        """Let an idle interpreter take lines from the buffer; True if the handler ran."""
         ran = False
         while self._busy_until is None and not self.closed:
             cr = self._buffer.find(CR)
@@ -868,12 +833,7 @@ class Wire:
         return ran
 
     def _begin_line(self, line: bytes, size: int, *, too_long: bool) -> None:
-        """Start processing one line that occupied ``size`` buffer bytes.
-
-        Choice: the handler runs at the *start* of processing (so a move starts before a
-        Ctrl+C that arrives during processing stops it), but what it emits is held until
-        processing ends, so every reply includes the processing time.
-        """
+        """Start processing one line that occupied ``size`` buffer bytes."""
         lose = self.faults.lose_line
         if lose is not None and not too_long and line.startswith(lose):
             self.faults.lose_line = None
@@ -933,12 +893,7 @@ class Wire:
     # ------------------------------------------------------------------ output side
 
     def _schedule_reply(self, data: bytes, ready: float) -> None:
-        """Put one reply on the line, applying faults, latency and fragmentation.
-
-        The UART sends bytes back to back; a reply starts when it is ready and the previous
-        one has left. Latency shifts every byte equally (like a USB adapter), so order is
-        kept. A delayed reply holds back everything after it, as on a serial line.
-        """
+        """Put one reply on the line, applying faults, latency and fragmentation."""
         faults = self.faults
         if faults.drop_replies > 0:
             faults.drop_replies -= 1
