@@ -198,8 +198,12 @@ async def test_joystick_switch(emulator: EmulatorFactory, profile: str,
     emu = await emulator(url(profile))
     seen: list[bytes] = []
     handle = emu.model.handle_line
-    monkeypatch.setattr(emu.model, "handle_line",
-                        lambda line, now: (seen.append(bytes(line)), handle(line, now))[1])
+
+    def recording(line: bytes, now: float) -> Any:
+        seen.append(bytes(line))
+        return handle(line, now)
+
+    monkeypatch.setattr(emu.model, "handle_line", recording)
     joystick = emu.tango.joystick
     assert await joystick.is_enabled() is True  # on at power-on (L7111)
     await joystick.disable()
