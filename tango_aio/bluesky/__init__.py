@@ -61,24 +61,18 @@ Behaviour that follows from the controller:
 
 from __future__ import annotations
 
-from ._devices import (
-    MarzhauserAxis,
-    MarzhauserFlyer,
-    MarzhauserStage,
-    MissingAxisError,
-    StageLimitsError,
-    StageLink,
-    TriggerScan,
-    close_stage,
+from ..errors import MissingAxisError, StageLimitsError
+from ._axis import MarzhauserAxis
+from ._flyer import MarzhauserFlyer, TriggerScan, fly_raster
+from ._link import StageLink
+from ._speeds import (
     controller_velocity,
     egu_acceleration,
     egu_velocity,
-    fly_raster,
-    home,
     max_velocity,
-    measure_range,
     run_up_distance,
 )
+from ._stage import MarzhauserStage, close_stage, home, measure_range
 
 __all__ = [
     "MarzhauserAxis",

@@ -8,11 +8,14 @@ controller PVs (``P:CONNECTED``, ``P:ERROR``, ``P:AUTOSTATUS``, ``P:TRIGCOUNT``)
 * :mod:`tango_aio.epics.access` - who may write (pure, no caproto);
 * :mod:`tango_aio.epics.record` - motor-record arithmetic: units, MSTA bits, switches
   (pure, no caproto);
-* :mod:`tango_aio.epics.ioc` - the caproto PV groups and the polling that feeds them;
+* :mod:`tango_aio.epics.ioc` - the IOC (:func:`~tango_aio.epics.ioc.build_ioc`), served by
+  :mod:`~tango_aio.epics.fields` (the record's fields and PV groups),
+  :mod:`~tango_aio.epics.axis` (one axis behind its record) and
+  :mod:`~tango_aio.epics.server` (the controllers' pollers and the IOC);
 * :mod:`tango_aio.epics.command` - the ``ioc`` subcommand of ``tango-aio``.
 
-Only :mod:`~tango_aio.epics.ioc` imports caproto, so the command line and the pure parts
-work without it.
+Only :mod:`~tango_aio.epics.ioc` and the modules behind it (and :mod:`.flush`) import
+caproto, so the command line and the pure parts work without it.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""tango_aio.bluesky._devices with a real RunEngine against the in-process emulator.
+"""tango_aio.bluesky with a real RunEngine against the in-process emulator.
 
 Synchronous tests: the RunEngine runs its own event loop in a thread; the devices are
 connected on it (``init_devices``), and the tests reach the controller and the emulator
@@ -39,7 +39,7 @@ from helpers import wire_of
 from ophyd_async.core import Watcher, WatcherUpdate, init_devices
 from test_coalesce import motion_lines
 
-from tango_aio.bluesky._devices import (
+from tango_aio.bluesky import (
     MarzhauserFlyer,
     MarzhauserStage,
     MissingAxisError,

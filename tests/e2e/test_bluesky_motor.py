@@ -1,4 +1,4 @@
-"""tango_aio.bluesky._devices axes as drop-ins for ophyd-async's Motor (#29), and the false-success
+"""tango_aio.bluesky axes as drop-ins for ophyd-async's Motor (#29), and the false-success
 fixes of the Bluesky surface (#26).
 
 The side-by-side tests run the same plan once against ophyd-async's ``SimMotor`` and once
@@ -31,7 +31,7 @@ from ophyd_async.sim import SimMotor
 from test_bluesky import emulated, events, failure, model_of, run
 from test_coalesce import motion_lines
 
-from tango_aio.bluesky._devices import (
+from tango_aio.bluesky import (
     MarzhauserAxis,
     MarzhauserFlyer,
     MarzhauserStage,

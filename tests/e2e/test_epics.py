@@ -35,7 +35,8 @@ from helpers import INSTANT, EmulatorFactory, make_model
 from tango_aio.controller._connection import connect
 from tango_aio.controller._controller import Controller
 from tango_aio.epics.access import AccessPolicy
-from tango_aio.epics.ioc import TangoIoc, _start_motion, build_ioc
+from tango_aio.epics.fields import _start_motion
+from tango_aio.epics.ioc import TangoIoc, build_ioc
 from tango_aio.epics.record import Msta
 from tango_aio.sim.serve import serve_tcp
 

@@ -25,7 +25,7 @@ from test_epics import Client, PutFailed, ca_env, one_stage  # noqa: E402, F401 
 from test_epics import serving as serving_in_process  # noqa: E402
 from test_epics_clients import _spy_moves, _stage, run_client, serving  # noqa: E402
 
-from tango_aio.bluesky._devices import MarzhauserAxis, MarzhauserStage  # noqa: E402
+from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.controller._connection import connect  # noqa: E402
 from tango_aio.controller._controller import Controller  # noqa: E402
 from tango_aio.epics.record import Msta  # noqa: E402

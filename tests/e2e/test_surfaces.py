@@ -1,7 +1,7 @@
 """No false success through any surface (#26): a cross-surface matrix.
 
 Rows are surfaces (the async driver, ``tango_aio.sync``, the shell's script mode,
-``tango-aio move``, a Bluesky plan on ``tango_aio.bluesky._devices``); columns are the ways a
+``tango-aio move``, a Bluesky plan on ``tango_aio.bluesky``); columns are the ways a
 move can end (:data:`ENDINGS`). Each cell drives one move of X through its surface into
 one ending, then checks two things:
 
@@ -343,7 +343,7 @@ def move_row(ending: Ending) -> tuple[Outcome, Truth]:
     return Outcome(ok, readback, result.stdout + result.stderr[-2000:]), truth
 
 
-# -- a Bluesky plan (tango_aio.bluesky._devices) ------------------------------------------------
+# -- a Bluesky plan (tango_aio.bluesky) ---------------------------------------------------------
 
 
 def bluesky_row(ending: Ending) -> tuple[Outcome, Truth]:
@@ -357,7 +357,7 @@ def bluesky_row(ending: Ending) -> tuple[Outcome, Truth]:
     from bluesky.run_engine import call_in_bluesky_event_loop
     from ophyd_async.core import init_devices
 
-    from tango_aio.bluesky._devices import MarzhauserStage
+    from tango_aio.bluesky import MarzhauserStage
 
     loop = asyncio.new_event_loop()
     engine = RunEngine({}, loop=loop, context_managers=[])

@@ -258,8 +258,8 @@ def test_every_tango_error_is_defined_in_errors() -> None:
 
 
 def test_the_surfaces_errors_keep_their_old_import_paths() -> None:
+    from tango_aio import bluesky
     from tango_aio import fieldkit as probe
-    from tango_aio.bluesky import _devices as bluesky
     from tango_aio.epics import ioc
     from tango_aio.families import _bulk as bulk
     from tango_aio.link import _protocol as protocol

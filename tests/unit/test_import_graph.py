@@ -208,11 +208,11 @@ def test_every_import_keeps_the_layer_rules() -> None:
     ("tango_aio.fieldkit._trace", "tango_aio.bluesky"),  # an integration, below
     ("tango_aio.link._reconnect", "tango_aio.families"),  # bulk transfers, below
     ("tango_aio.transports._portlink", "tango_aio.group"),  # coalescing, below
-    ("tango_aio.bluesky._devices", "tango_aio.epics"),  # another integration, same layer
+    ("tango_aio.bluesky._flyer", "tango_aio.epics"),  # another integration, same layer
     ("tango_aio.moves._timing", "tango_aio.sansio"),  # the sans-IO link, below
     ("tango_aio.controller._controller", "tango_aio.link._protocol"),  # a private module
     ("tango_aio.sim.model", "tango_aio.sansio"),  # the driver's rules, in the emulator
-    ("tango_aio.bluesky._devices", "tango_aio.sim.wire"),  # the emulator, from the stack
+    ("tango_aio.bluesky._axis", "tango_aio.sim.wire"),  # the emulator, from the stack
 ])
 def test_the_layer_check_sees_a_violation(module: str, target: str) -> None:
     imported = _graph(typing_too=True)[module]

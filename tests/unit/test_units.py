@@ -198,7 +198,7 @@ async def test_bad_values_and_units_are_refused_before_anything_is_sent() -> Non
 
 
 def test_each_dim_has_one_unit_spelt_for_each_surface() -> None:
-    from tango_aio.bluesky._devices import DIM_UNITS as bluesky_units
+    from tango_aio.bluesky._link import DIM_UNITS as bluesky_units
     from tango_aio.epics.record import EGU_BY_DIM
     from tango_aio.units import DIM_UNITS, user_per_rev
 
