@@ -24,10 +24,10 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
     raise ImportError("tango_aio.mm needs pymmcore-plus: pip install 'tango-aio[mm]'"
                       ) from exc
 
-from ._hub import TangoHub
+from ._hub import TangoHub, hub_of
 from ._load import load_tango
 from ._shutter import TangoShutter, TangoStrobe
 from ._stages import TangoXYStage, TangoZStage
 
 __all__ = ["TangoHub", "TangoShutter", "TangoStrobe", "TangoXYStage", "TangoZStage",
-           "load_tango"]
+           "hub_of", "load_tango"]

@@ -603,7 +603,8 @@ def test_stopping_a_running_sequence_stops_the_stage_and_the_output(
     labels = load_tango(core, INSTANT, xy=None, shutter=False)
     hub = hub_of(core, labels)
     core.setProperty("TangoZ", "Trigger sequence", "On")
-    core.loadStageSequence("TangoZ", [1000.0 * k for k in range(1, 40)])  # 4 s at 10 mm/s
+    core.setProperty("TangoZ", "Z Velocity (um/s)", 1000.0)  # the run: 40 s, stopped first
+    core.loadStageSequence("TangoZ", [1000.0 * k for k in range(1, 40)])
     core.startStageSequence("TangoZ")
     deadline = time.monotonic() + HANG
     while not _pulses(hub, TRIGGER_OUT):
