@@ -1,4 +1,4 @@
-"""TANGO stages and the AUX shutter as pure-Python devices of pymmcore-plus's
+"""TANGO stages, the AUX shutter and the LED strobe as pure-Python devices of pymmcore-plus's
 ``UniMMCore`` (``pip install 'tango-aio[mm]'``), for Micro-Manager programs in Python
 (napari-micromanager, pymmcore-gui, scripts).
 
@@ -19,9 +19,10 @@ tested range). See docs/howto/micro-manager.md.
 from __future__ import annotations
 
 from . import _unicore  # noqa: F401 - first: pymmcore-plus, the root logger's level kept
-from ._hub import TangoHub
+from ._hub import TangoHub, hub_of
 from ._load import load_tango
-from ._shutter import TangoShutter
+from ._shutter import TangoShutter, TangoStrobe
 from ._stages import TangoXYStage, TangoZStage
 
-__all__ = ["TangoHub", "TangoShutter", "TangoXYStage", "TangoZStage", "load_tango"]
+__all__ = ["TangoHub", "TangoShutter", "TangoStrobe", "TangoXYStage", "TangoZStage",
+           "hub_of", "load_tango"]

@@ -20,9 +20,6 @@ UNIT = "um"
 #: through their parent label.
 _HUBS: weakref.WeakValueDictionary[str, TangoHub] = weakref.WeakValueDictionary()
 
-JOYSTICK_ON = 2  # ``!joy 2``: the HDI on (manual L7101-7144)
-JOYSTICK_OFF = 0
-
 
 class TangoHub(HubDevice):
     """A TANGO controller: the one link its stages and shutter share.
@@ -104,7 +101,8 @@ class TangoHub(HubDevice):
         """
         return (("TangoXYStage", "two axes of the controller as an XY stage"),
                 ("TangoZStage", "one axis of the controller as a focus (Z) stage"),
-                ("TangoShutter", "the AUX I/O shutter output (!shutter)"))
+                ("TangoShutter", "the AUX I/O shutter output (!shutter)"),
+                ("TangoStrobe", "an LED strobe on the AUX I/O TAKT_OUT pin (!flash)"))
 
     @pymm_property(name="Model", is_read_only=True)
     def model(self) -> str:
@@ -123,12 +121,17 @@ class TangoHub(HubDevice):
 
     @pymm_property(name="Joystick", allowed_values=("On", "Off"))
     def joystick(self) -> str:
-        """Whether the HDI (joystick, trackball) moves the stage (``?joy`` not 0)."""
-        return "Off" if int(self.controller.get("joy")) == JOYSTICK_OFF else "On"
+        """Whether the HDI (joystick, trackball) moves the stage (``?joy`` not 0,
+        manual L7101-7118)."""
+        return "On" if self.controller.joystick.is_enabled() else "Off"
 
     @joystick.setter  # type: ignore[no-redef]
     def joystick(self, value: str) -> None:
-        self.controller.set("joy", JOYSTICK_ON if value == "On" else JOYSTICK_OFF)
+        # ``!joy 2`` / ``!joy 0``, each proven by its read-back (the driver's family).
+        if value == "On":
+            self.controller.joystick.enable()
+        else:
+            self.controller.joystick.disable()
 
 
 def hub_of(label: str) -> TangoHub:

@@ -7,17 +7,18 @@ from typing import Any
 from pymmcore_plus.experimental.unicore import Device, UniMMCore
 
 from ._hub import TangoHub
-from ._shutter import TangoShutter
+from ._shutter import TangoShutter, TangoStrobe
 from ._stages import TangoXYStage, TangoZStage
 
 
 def load_tango(core: UniMMCore, url: str, *, xy: str | None = "xy", z: str | None = "z",
-               shutter: bool = True, prefix: str = "Tango", **options: Any
-               ) -> dict[str, str]:
+               shutter: bool = True, strobe: bool = False, prefix: str = "Tango",
+               **options: Any) -> dict[str, str]:
     """Connect to the TANGO at ``url`` and load its devices into ``core``: the hub, an
-    XY stage on the axes ``xy``, a focus stage on the axis ``z`` and the AUX shutter;
-    each initialised, made the core's XY stage, focus device and shutter, and labelled
-    ``prefix`` + ``Hub``, ``XY``, ``Z``, ``Shutter``.
+    XY stage on the axes ``xy``, a focus stage on the axis ``z``, the AUX shutter and
+    (if asked) the LED strobe; each initialised, made the core's XY stage, focus device
+    and shutter (the AUX shutter, or the strobe without it), and labelled ``prefix`` +
+    ``Hub``, ``XY``, ``Z``, ``Shutter``, ``Strobe``.
 
     Parameters
     ----------
@@ -31,6 +32,9 @@ def load_tango(core: UniMMCore, url: str, *, xy: str | None = "xy", z: str | Non
         The axis of the focus stage (``"z"``, or any axis); ``None`` or ``""``: none.
     shutter
         Whether to load the shutter.
+    strobe
+        Whether to load the LED strobe on TAKT_OUT (:class:`TangoStrobe`; not in the
+        older edition).
     prefix
         The start of every label.
     **options
@@ -39,7 +43,8 @@ def load_tango(core: UniMMCore, url: str, *, xy: str | None = "xy", z: str | Non
     Returns
     -------
     dict[str, str]
-        The label of each loaded device by role (``hub``, ``xy``, ``z``, ``shutter``).
+        The label of each loaded device by role (``hub``, ``xy``, ``z``, ``shutter``,
+        ``strobe``).
 
     Raises
     ------
@@ -59,7 +64,9 @@ def load_tango(core: UniMMCore, url: str, *, xy: str | None = "xy", z: str | Non
         devices["z"] = TangoZStage(hub, axis=z)
     if shutter:
         devices["shutter"] = TangoShutter(hub)
-    names = {"hub": "Hub", "xy": "XY", "z": "Z", "shutter": "Shutter"}
+    if strobe:
+        devices["strobe"] = TangoStrobe(hub)
+    names = {"hub": "Hub", "xy": "XY", "z": "Z", "shutter": "Shutter", "strobe": "Strobe"}
     labels = {role: prefix + names[role] for role in devices}
     loaded: list[str] = []
     try:
@@ -79,6 +86,6 @@ def load_tango(core: UniMMCore, url: str, *, xy: str | None = "xy", z: str | Non
         core.setXYStageDevice(labels["xy"])
     if "z" in labels:
         core.setFocusDevice(labels["z"])
-    if "shutter" in labels:
-        core.setShutterDevice(labels["shutter"])
+    if "shutter" in labels or "strobe" in labels:
+        core.setShutterDevice(labels.get("shutter", labels.get("strobe", "")))
     return labels

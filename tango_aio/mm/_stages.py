@@ -2,16 +2,23 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from pymmcore_plus.experimental.unicore import Device, StageDevice, XYStageDevice
+from pymmcore_plus.experimental.unicore import (
+    Device,
+    StageDevice,
+    XYStageDevice,
+    pymm_property,
+)
 
 import tango_aio.sync
 from tango_aio.units import Measure, to_controller
 
 from ._hub import UNIT, TangoHub, hub_of
 from ._moves import Moves
+from ._sequence import MAX_LENGTH, run_sequence, run_through
 
 AXES = "xyza"
 
@@ -306,6 +313,16 @@ class TangoZStage(_Axes, StageDevice):
     """One axis of a TANGO (Z by default, or any) as a Micro-Manager stage, in µm; busy
     and errors as for :class:`TangoXYStage`.
 
+    Sequenceable through the trigger position list (manual chapter 21): a sequence the
+    core loads (``loadStageSequence``, ``setStageLinearSequence``) becomes the axis's
+    list, and ``startStageSequence`` runs one move through it while the controller
+    pulses its trigger output at each position (to trigger a camera); the stage sets the
+    pace, not an incoming trigger. Off until the ``Trigger sequence`` property is ``On``:
+    an acquisition engine that sequences z on its own (pymmcore-plus's does, whenever
+    the focus stage says it can) would otherwise take free-running frames while the
+    stage moves. The output's wiring (``trigo``, ``trigs``, ``trigl``) is the user's,
+    set once with ``tango.triggers.write_config``.
+
     Parameters
     ----------
     hub
@@ -317,6 +334,8 @@ class TangoZStage(_Axes, StageDevice):
 
     def __init__(self, hub: TangoHub | None = None, *, axis: str = "z") -> None:
         super().__init__(hub, (axis,))
+        self._run: tuple[float, float] | None = None
+        self._sequencing = False
 
     def set_position_um(self, val: float) -> None:
         """Start the move to ``val`` µm; returns at once, :meth:`busy` follows it.
@@ -361,3 +380,124 @@ class TangoZStage(_Axes, StageDevice):
             The new coordinate of the current position, in µm.
         """
         self._call_position({self._axes[0]: newZUm})
+
+    # -- sequences: the trigger position list -----------------------------------------------
+
+    @pymm_property(name="Trigger sequence", allowed_values=("Off", "On"))
+    def trigger_sequence(self) -> str:
+        """Whether the stage offers the core sequences run through the trigger list (only
+        for a camera triggered by the TANGO's trigger output)."""
+        return "On" if self._sequencing else "Off"
+
+    @trigger_sequence.setter  # type: ignore[no-redef]
+    def trigger_sequence(self, value: str) -> None:
+        self._sequencing = value == "On"
+
+    def get_sequence_max_length(self) -> int:
+        """The longest sequence: the trigger list's 10000 entries (L13515, L13773); 0
+        while ``Trigger sequence`` is off.
+
+        Returns
+        -------
+        int
+            The length.
+        """
+        return MAX_LENGTH if self._sequencing else 0
+
+    def is_linear_sequenceable(self) -> bool:
+        """A linear sequence is the manual's trigger range (``!trigr``, L13496-13600),
+        while ``Trigger sequence`` is on.
+
+        Returns
+        -------
+        bool
+            Whether the core may load one.
+        """
+        return self._sequencing
+
+    def _in_dim(self, values: list[float]) -> list[float]:
+        """``values`` µm in the axis's dim unit (the list's unit, L13773-13780)."""
+        scale = self.controller.settings.unit_scales()[self._axes[0]]
+        return [to_controller(value, UNIT, Measure.POSITION, scale) for value in values]
+
+    def send_sequence(self, sequence: tuple[float, ...]) -> None:
+        """Replace the axis's trigger position list with ``sequence`` µm (``!trigp``, in
+        the axis's dim unit, at wire speed; L13767-13830). Checked before any byte.
+
+        Parameters
+        ----------
+        sequence
+            At least two positions, strictly increasing or decreasing.
+
+        Raises
+        ------
+        ValueError
+            A sequence the list cannot hold (nothing written).
+        """
+        self._sequence_on()
+        positions = [float(value) for value in sequence]
+        run = run_through(positions)
+        self._moves.check()
+        self._run = None
+        self.controller.triggers.upload_positions(self._in_dim(positions),
+                                                  axis=self._axes[0])
+        self._run = run
+
+    def set_linear_sequence(self, dZ_um: float, nSlices: int) -> None:
+        """Make the trigger list ``nSlices`` positions ``dZ_um`` apart from where the axis
+        stands (``!trigr``: start, end, count, both ends included; L13496-13600).
+
+        Parameters
+        ----------
+        dZ_um
+            The step, in µm (its sign the direction).
+        nSlices
+            How many positions, at least two.
+
+        Raises
+        ------
+        ValueError
+            Fewer than two slices or no step (nothing written).
+        """
+        self._sequence_on()
+        if isinstance(nSlices, bool) or not isinstance(nSlices, int) or nSlices < 2:
+            raise ValueError(f"a linear sequence has at least two slices, got {nSlices!r}")
+        if not math.isfinite(float(dZ_um)) or float(dZ_um) == 0.0:
+            raise ValueError(f"a linear sequence needs a finite, non-zero step, got {dZ_um!r}")
+        here = self.get_position_um()
+        run = run_through([here + k * float(dZ_um) for k in range(nSlices)])
+        self._run = None
+        start, end = self._in_dim([here, here + (nSlices - 1) * float(dZ_um)])
+        self.controller.triggers.set_range(start, end, nSlices, axis=self._axes[0])
+        self._run = run
+
+    def _sequence_on(self) -> None:
+        if not self._sequencing:
+            raise RuntimeError("set the stage's 'Trigger sequence' property to 'On' first "
+                               "(with a camera triggered by the TANGO's trigger output)")
+
+    def start_sequence(self) -> None:
+        """Start the run through the loaded sequence; returns at once, :meth:`busy` follows
+        it: a move one step behind the first position, the trigger counter reset and the
+        output switched on (``!trigcount 0``, ``!trig 1``), then a move one step past
+        the last; the controller pulses at each position it passes.
+
+        Raises
+        ------
+        RuntimeError
+            No sequence loaded.
+        """
+        if self._run is None:
+            raise RuntimeError("no sequence loaded: loadStageSequence or "
+                               "setStageLinearSequence first")
+        self._start(run_sequence, self.controller.aio, self._axes[0], *self._run)
+
+    def stop_sequence(self) -> None:
+        """Stop a run still going (its axis stops, as :meth:`stop`), then switch the
+        trigger output off (``!trig 0``)."""
+        running = self._moves.stopping()
+        for move in running:
+            move.cancel()
+        if running:
+            self.controller.stop(*self._axes)
+        self.controller.triggers.set_enabled(False)

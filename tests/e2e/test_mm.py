@@ -25,8 +25,16 @@ import useq
 from pymmcore_plus.experimental.unicore import SimpleCameraDevice, UniMMCore
 
 import tango_aio.sync
-from tango_aio import MoveError
-from tango_aio.mm import TangoHub, TangoShutter, TangoXYStage, TangoZStage, load_tango
+from tango_aio import InvalidInstructionError, MoveError
+from tango_aio.mm import (
+    TangoHub,
+    TangoShutter,
+    TangoStrobe,
+    TangoXYStage,
+    TangoZStage,
+    load_tango,
+)
+from tango_aio.sim.devices import TAKT_OUT, TRIGGER_OUT, Pulse
 from tango_aio.sim.profiles import PROFILES, variants
 from tango_aio.testing import faults
 
@@ -461,3 +469,170 @@ def test_importing_keeps_the_root_loggers_level() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, timeout=120).stdout
     assert out.strip() == str(logging.WARNING)
+
+
+# ------------------------------------------------------------------ the joystick ----------
+
+def test_the_joystick_property_switches_the_emulators_hdi(core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT, xy=None, z=None, shutter=False)
+    hub = hub_of(core, labels)
+    core.setProperty("TangoHub", "Joystick", "Off")
+    assert _emulated(hub, "joy") == 0 and core.getProperty("TangoHub", "Joystick") == "Off"
+    core.setProperty("TangoHub", "Joystick", "On")
+    assert _emulated(hub, "joy") == 2 and core.getProperty("TangoHub", "Joystick") == "On"
+
+
+# ------------------------------------------------------------------ the LED strobe --------
+
+def _emulated(hub: TangoHub, name: str) -> Any:
+    """A parameter as the emulator holds it."""
+    tango = hub.controller
+
+    async def read() -> Any:
+        return faults(tango.aio).model.params.first(name)
+
+    return tango.portal.call(read)
+
+
+def _pulses(hub: TangoHub, output: str) -> list[Pulse]:
+    """The pulses the emulator has sent on ``output``, in order."""
+    tango = hub.controller
+
+    async def read() -> list[Pulse]:
+        return list(faults(tango.aio).model.devices.pulses_of(output))
+
+    return tango.portal.call(read)
+
+
+def test_the_strobe_pulses_takt_out_once_per_opening(core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT, xy=None, z=None, shutter=False, strobe=True)
+    hub = hub_of(core, labels)
+    assert labels["strobe"] == "TangoStrobe" and core.getShutterDevice() == "TangoStrobe"
+    # initialising sends one settling pulse of the polarity (manual L9890-9891)
+    assert [(p.width, p.active_high) for p in _pulses(hub, TAKT_OUT)] == [(1e-8, True)]
+    core.setProperty("TangoStrobe", "Pulse (ms)", 2.5)
+    core.setShutterOpen(True)
+    assert core.getShutterOpen()
+    core.setShutterOpen(False)  # nothing sent: the pulse ends by itself
+    assert not core.getShutterOpen()
+    core.setProperty("TangoStrobe", "Polarity", "Active low")  # settles the polarity
+    core.setShutterOpen(True)
+    pulses = _pulses(hub, TAKT_OUT)
+    assert [p.width for p in pulses] == pytest.approx([1e-8, 0.0025, 1e-8, 0.0025])
+    assert [p.active_high for p in pulses] == [True, True, False, False]
+    assert _pulses(hub, TRIGGER_OUT) == []
+
+
+def test_the_older_edition_has_no_strobe_and_nothing_stays_loaded(core: UniMMCore) -> None:
+    with pytest.raises(InvalidInstructionError):
+        load_tango(core, f"{INSTANT}&profile=legacy", xy=None, z=None, strobe=True)
+    assert core.getLoadedDevices() == ("Core",)
+
+
+def test_a_strobe_pulse_out_of_range_is_refused() -> None:
+    with pytest.raises(ValueError, match="L9861-9913"):
+        TangoStrobe(pulse_ms=40_000)
+
+
+# ------------------------------------------------------------------ z sequences -----------
+
+def _set_dim(hub: TangoHub, dim: int) -> None:
+    hub.controller.set("dim", axis=None, z=dim)
+
+
+@pytest.mark.parametrize(("dim", "per_um"), [(2, 0.001), (1, 1.0)], ids=["mm", "um"])
+def test_a_z_sequence_pulses_the_trigger_output_at_each_position(
+        core: UniMMCore, dim: int, per_um: float) -> None:
+    labels = load_tango(core, INSTANT, xy=None, shutter=False)
+    hub = hub_of(core, labels)
+    _set_dim(hub, dim)
+    tango = hub.controller
+    assert not core.isStageSequenceable("TangoZ")  # off unless asked for
+    core.setProperty("TangoZ", "Trigger sequence", "On")
+    assert core.isStageSequenceable("TangoZ")
+    assert core.getStageSequenceMaxLength("TangoZ") == 10_000  # L13773
+    z = [10.0, 22.5, 30.0, 47.5]
+    core.loadStageSequence("TangoZ", z)
+    # the list in the axis's dim unit, written by the family (the emulator's copy)
+    assert tango.triggers.read_positions() == pytest.approx([v * per_um for v in z])
+    core.startStageSequence("TangoZ")
+    assert core.deviceBusy("TangoZ")
+    core.waitForDevice("TangoZ")
+    pulses = _pulses(hub, TRIGGER_OUT)
+    # one pulse at each position, in order, as the stage passed it: the emulator's record
+    assert [p.position for p in pulses] == pytest.approx([v * per_um for v in z])
+    assert [p.time for p in pulses] == sorted(p.time for p in pulses)
+    assert tango.triggers.count() == 4 and _emulated(hub, "trig") == 1
+    assert core.getPosition() == pytest.approx(65.0)  # one step past the last
+    assert emulated(hub)["z"][0] == pytest.approx(65.0, abs=0.01)
+    core.stopStageSequence("TangoZ")
+    assert _emulated(hub, "trig") == 0
+
+
+def test_a_linear_z_sequence_is_a_trigger_range_from_where_the_stage_stands(
+        core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT, xy=None, shutter=False)
+    hub = hub_of(core, labels)
+    core.setPosition(100.0)
+    core.waitForDevice("TangoZ")
+    assert not core.isStageLinearSequenceable("TangoZ")
+    core.setProperty("TangoZ", "Trigger sequence", "On")
+    assert core.isStageLinearSequenceable("TangoZ")
+    core.setStageLinearSequence("TangoZ", -5.0, 5)  # downwards: 100, 95, ... 80
+    assert _emulated(hub, "trigm") == 21  # the controller's down list (L13519-13520)
+    core.startStageSequence("TangoZ")
+    core.waitForDevice("TangoZ")
+    assert [p.position for p in _pulses(hub, TRIGGER_OUT)] == pytest.approx(
+        [0.1, 0.095, 0.09, 0.085, 0.08])  # mm, z's default dim
+    assert core.getPosition() == pytest.approx(75.0)
+    core.stopStageSequence("TangoZ")
+
+
+@pytest.mark.parametrize("sequence", [[10.0], [10.0, 20.0, 15.0], [10.0, 10.0],
+                                      [10.0, float("nan")]],
+                         ids=["one", "turns", "repeats", "nan"])
+def test_a_sequence_the_list_cannot_hold_is_refused_before_any_byte(
+        core: UniMMCore, sequence: list[float]) -> None:
+    labels = load_tango(core, INSTANT, xy=None, shutter=False)
+    hub = hub_of(core, labels)
+    hub.controller.triggers.upload_positions([0.5, 0.6], axis="z")
+    core.setProperty("TangoZ", "Trigger sequence", "On")
+    with pytest.raises(ValueError):
+        core.loadStageSequence("TangoZ", sequence)
+    assert hub.controller.triggers.read_positions() == [0.5, 0.6]  # untouched
+    with pytest.raises(RuntimeError, match="no sequence loaded"):
+        core.startStageSequence("TangoZ")
+    with pytest.raises(ValueError):
+        core.setStageLinearSequence("TangoZ", 0.0, 3)
+    with pytest.raises(ValueError):
+        core.setStageLinearSequence("TangoZ", 1.0, 1)
+
+
+def test_stopping_a_running_sequence_stops_the_stage_and_the_output(
+        core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT, xy=None, shutter=False)
+    hub = hub_of(core, labels)
+    core.setProperty("TangoZ", "Trigger sequence", "On")
+    core.setProperty("TangoZ", "Z Velocity (um/s)", 1000.0)  # the run: 40 s, stopped first
+    core.loadStageSequence("TangoZ", [1000.0 * k for k in range(1, 40)])
+    core.startStageSequence("TangoZ")
+    deadline = time.monotonic() + HANG
+    while not _pulses(hub, TRIGGER_OUT):
+        assert time.monotonic() < deadline, "no pulse"
+    core.stopStageSequence("TangoZ")
+    assert not core.deviceBusy("TangoZ")  # the stopped run is no failure
+    assert not emulated(hub)["z"][1] and _emulated(hub, "trig") == 0
+    seen = len(_pulses(hub, TRIGGER_OUT))
+    assert 0 < seen < 39
+    assert core.getPosition() < 39_000.0
+
+
+def test_a_sequence_needs_the_trigger_sequence_property(core: UniMMCore) -> None:
+    labels = load_tango(core, INSTANT, xy=None, shutter=False)
+    stage = core._pydevices[labels["z"]]
+    assert isinstance(stage, TangoZStage)
+    with pytest.raises(RuntimeError, match="'Trigger sequence' property to 'On'"):
+        stage.send_sequence((1.0, 2.0))
+    with pytest.raises(RuntimeError, match="'Trigger sequence' property to 'On'"):
+        stage.set_linear_sequence(1.0, 3)
+    assert hub_of(core, labels).controller.triggers.read_positions() == []
