@@ -23,8 +23,10 @@ from ._core import (
     Replied,
     RequestLost,
     Unsolicited,
-    expectation,
     is_completion_line,
+)
+from ._expect import (
+    expectation,
 )
 from ._flow import (
     DEFAULT_CHUNK,

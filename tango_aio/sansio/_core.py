@@ -1,5 +1,8 @@
 """The sans-IO protocol core: line reassembly and reply routing. No I/O, no asyncio.
 
+The lines come from ``_lines.py``, what each written line owes from ``_expect.py``, and the
+events yielded are in ``_events.py``; this module routes each line.
+
 Theory of operation
 ===================
 The TANGO interpreter executes one CR-terminated command line at a time, strictly in the
@@ -74,30 +77,61 @@ from __future__ import annotations
 
 import contextlib
 import enum
-import itertools
-import math
 import random
 import re
 from collections import deque
-from collections.abc import Hashable, Iterable
-from dataclasses import dataclass, field
-from typing import Final, NoReturn
+from collections.abc import Hashable
+from typing import Final
 
 from ..catalog import (
     Command,
-    Completion,
     Context,
-    Form,
     Instruction,
-    LineRule,
-    ModeEffect,
-    Shape,
     encode,
-    parse,
-    reply_rule,
 )
-from ..errors import ERROR_DESCRIPTIONS, ProtocolError
-from ..status import ABSENT, LETTERS
+from ..errors import ERROR_DESCRIPTIONS
+from ..status import ABSENT
+from ._events import (
+    Acknowledged,
+    Completed,
+    Dropped,
+    Echoed,
+    Event,
+    Mismatched,
+    Replied,
+    RequestLost,
+    Unsolicited,
+)
+from ._expect import (
+    _FOLLOW_UP,
+    _FOLLOW_UP_COMMAND,
+    _FOLLOW_UP_ECHO,
+    _OPTIONAL,
+    AckReads,
+    Expectation,
+    _acks_itself,
+    _edge,
+    _front,
+    _has_data,
+    _Item,
+    _item_pattern,
+    _owed_items,
+    _Pending,
+    _read_items,
+    _rear,
+    _specific,
+    _sure,
+    expectation,
+    owed_edge,
+    wire_size,
+)
+from ._lines import (
+    _CASED_LEADS,
+    DEFAULT_MAX_LINE,
+    LineAssembler,
+    canonical_case,
+    is_completion_line,
+)
 from ._linktiming import ARRIVAL_MARGIN, earliest_reply
 from ._patterns import (
     ACK_PATTERN,
@@ -131,508 +165,17 @@ __all__ = [
     "owed_edge",
     "wire_size",
 ]
-
-#: Longest line the assembler buffers before it gives up on it. The controller's lines are
-#: far shorter; ``service`` output is the longest.
-DEFAULT_MAX_LINE: Final = 1024
 #: Most lines and bytes one multi-line reply (``service``, ``detext``) may hold before the
 #: request fails (a reply whose end never comes must not grow for ever). The
 #: manual's ``service`` print is a few dozen lines (L2929-2943).
 MAX_REPLY_LINES: Final = 1024
 MAX_REPLY_BYTES: Final = 65536
 
-_CR: Final = 0x0D
-#: The bytes ``str.strip`` removes from a Latin-1 line (a reply is matched stripped).
-_BLANK_BYTES: Final = frozenset(code for code in range(256) if chr(code).isspace())
-
-#: A completion report: one status letter per axis X Y Z A (``-`` = absent), then ``.``
-#: (manual L2087-2089, L6337-6343). Firmware with fewer axes may send fewer letters.
-_COMPLETION_RE: Final = re.compile(f"^[{re.escape(''.join(sorted(LETTERS)))}]{{1,4}}\\.$")
-
 
 #: Why a read answered by its own text fails (:attr:`ProtocolCore.local_echo`).
 LOCAL_ECHO: Final = ("a read came back as itself: the link echoes every byte sent (local "
                      "echo of a serial adapter or RS-485 converter), which the driver does "
                      "not support; turn the adapter's echo off")
-
-#: The words the driver recognises lines by that some firmware may print in another case
-#: (switches ``ack_case``, ``help_case``): the mode-2 acknowledgements ``OK...`` and
-#: ``ERR n`` (L2099-2103, L2150-2152) and ``help``'s ``ERROR n,text`` (L2915-2919), which
-#: the manual prints in capitals and nowhere says must be.
-_CASED_RE: Final = re.compile(
-    r"\s*(?:(error)(?=\s*-?\d+\s*,)|(ok)(?=\.*\s*$)|(err)(?=(?:\s+-?\d+)?\s*$))",
-    re.IGNORECASE)
-
-
-#: The first characters of a line :func:`canonical_case` may change.
-_CASED_LEADS: Final = frozenset("oOeE ")
-
-
-def canonical_case(line: str) -> str:
-    """``line`` with the word it is recognised by in capitals (``ok...`` -> ``OK...``,
-    ``Err 5`` -> ``ERR 5``, ``error 5,number outside range`` -> ``ERROR 5,number outside
-    range``); every other line as it is."""
-    if line[:1] not in _CASED_LEADS or line.startswith(("OK", "ERR")):
-        return line
-    match = _CASED_RE.match(line)
-    if match is None:
-        return line
-    group = next(index for index in (1, 2, 3) if match.group(index) is not None)
-    start, end = match.span(group)
-    return line[:start] + line[start:end].upper() + line[end:]
-
-
-def is_completion_line(line: str) -> bool:
-    """Whether ``line`` is an autostatus completion report such as ``@@@-.``."""
-    return bool(_COMPLETION_RE.match(line))
-
-
-class LineAssembler:
-    """Reassembles CR-terminated lines from arbitrary byte fragments.
-
-    The buffer is bounded: a line longer than ``max_line`` bytes raises
-    :class:`ProtocolError` once, and its bytes are discarded up to the next CR. Each byte
-    is scanned once (the CR search resumes where the previous one stopped). LF bytes are
-    dropped, so a terminal server that turns CR into CR LF does no harm; the controller
-    itself never sends LF (manual L82). Bytes are decoded as Latin-1, one char per byte."""
-
-    def __init__(self, max_line: int = DEFAULT_MAX_LINE) -> None:
-        self._buffer = bytearray()
-        self._scanned = 0
-        self._discarding = False
-        self._max_line = max_line
-        # Where each timed chunk starts (counting every byte ever fed), its number and
-        # when it was read, oldest first; only the chunks the buffer still holds (and the
-        # one its first byte came in).
-        self._stamps: deque[tuple[int, int, float]] = deque()
-        self._offset = 0  # the count of bytes fed before the buffer's first
-        #: Chunks fed with a time so far (and any after the first such).
-        self.feeds = 0
-        #: The number (:attr:`feeds`) of the chunk that brought the first byte of the line
-        #: :meth:`next_line` returned last, and when it was read (the time given to
-        #: :meth:`feed`): leading blanks and LF bytes do not count, they change no reply.
-        #: ``inf`` when not known.
-        self.started_feed: float = math.inf
-        self.started = math.inf
-
-    @property
-    def buffered(self) -> int:
-        """Number of bytes held for an incomplete line."""
-        return len(self._buffer)
-
-    def feed(self, data: bytes, at: float | None = None) -> None:
-        """Add received bytes; collect the lines with :meth:`next_line`."""
-        if data and (at is not None or self._stamps):
-            self.feeds += 1
-            self._stamps.append((self._offset + len(self._buffer), self.feeds,
-                                 math.inf if at is None else at))
-        self._buffer += data
-
-    def next_line(self) -> str | None:
-        """Return the next complete line (without CR), or ``None`` if there is none yet."""
-        end = self._buffer.find(_CR, self._scanned)
-        if end < 0:
-            self._scanned = len(self._buffer)
-            if self._scanned > self._max_line and not self._discarding:
-                self._overflow()
-            if self._discarding:
-                self._consume(len(self._buffer))
-                self._scanned = 0
-            return None
-        raw = bytes(self._buffer[:end])
-        stamps = self._stamps
-        if stamps:
-            offset = self._offset
-            while len(stamps) > 1 and stamps[1][0] <= offset:
-                stamps.popleft()  # chunks that ended before this line
-            if raw and raw[0] in _BLANK_BYTES:
-                self.started_feed, self.started = self._started(raw)
-            else:
-                first, fed, at = stamps[0]
-                if first <= offset:
-                    self.started_feed = fed
-                    self.started = at
-                else:
-                    self.started_feed = self.started = math.inf
-        del self._buffer[: end + 1]
-        self._offset += end + 1
-        self._scanned = 0
-        if self._discarding:
-            self._discarding = False
-            return self.next_line()
-        if len(raw) > self._max_line:
-            raise ProtocolError(f"reply line of {len(raw)} bytes exceeds {self._max_line}")
-        return raw.replace(b"\n", b"").decode("latin-1")
-
-    def _started(self, raw: bytes) -> tuple[float, float]:
-        """The chunk that brought the first byte of ``raw`` (at the buffer's start, led by
-        blanks) that is not blank (the line's own first if it is all blank)."""
-        lead = len(raw) - len(raw.decode("latin-1").lstrip())
-        position = self._offset + (lead if lead < len(raw) else 0)
-        stamps = self._stamps
-        while len(stamps) > 1 and stamps[1][0] <= position:
-            stamps.popleft()
-        first, fed, at = stamps[0]
-        return (fed, at) if first <= position else (math.inf, math.inf)
-
-    def _consume(self, size: int) -> None:
-        """Drop the buffer's first ``size`` bytes, and the stamps of the chunks they
-        ended."""
-        del self._buffer[:size]
-        self._offset += size
-        stamps = self._stamps
-        while len(stamps) > 1 and stamps[1][0] <= self._offset:
-            stamps.popleft()
-
-    def _overflow(self) -> NoReturn:
-        size = len(self._buffer)
-        self._consume(size)
-        self._scanned = 0
-        self._discarding = True
-        raise ProtocolError(f"no CR within {size} bytes: line exceeds {self._max_line} bytes")
-
-    def lines(self, data: bytes) -> list[str]:
-        """Feed ``data`` and return every complete line (raises on an over-long line)."""
-        self.feed(data)
-        out: list[str] = []
-        while (line := self.next_line()) is not None:
-            out.append(line)
-        return out
-
-
-# --------------------------------------------------------------------------------------
-# Events
-
-
-@dataclass(frozen=True, slots=True)
-class Replied:
-    """The data reply of request ``tag``. ``done``: the request owes nothing more."""
-
-    tag: Hashable
-    lines: tuple[str, ...]
-    done: bool = True
-
-
-@dataclass(frozen=True, slots=True)
-class Acknowledged:
-    """``OK...`` (``code == 0``) or ``ERR n`` for request ``tag`` (``code`` None: no number).
-
-    ``deferred``: the verdict is the reply of the ``?err`` written behind a mode-2 move,
-    which arrived where the move's own ``OK...`` was owed (``line`` is that reply). It
-    shows that no error was reported, not that the move line arrived: firmware that
-    sends the ``OK...`` only with the completion report (switch ``move_ok``) and a lost
-    move line look the same here (L2099-2103 do not say when the ``OK...`` comes).
-    """
-
-    tag: Hashable
-    code: int | None
-    line: str
-    done: bool = True
-    deferred: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class Echoed:
-    """The autostatus-4 echo of request ``tag``.
-
-    ``deferred``: no echo came where the move's was owed (``line`` is empty), the reply
-    of the ``?err`` behind it came instead: the echo may come with the completion report
-    (switch ``echo=completion``; L2115-2117 do not say when), or the line was lost.
-    """
-
-    tag: Hashable
-    line: str
-    done: bool = True
-    deferred: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class Completed:
-    """A completion report. ``tag`` is the move it belongs to, ``None`` if unsolicited.
-
-    ``letters`` maps each present axis to its status letter; it is ``None`` for the bare CR
-    of autostatus 3, which carries no status.
-    """
-
-    tag: Hashable | None
-    letters: dict[str, str] | None
-    line: str
-
-
-@dataclass(frozen=True, slots=True)
-class Unsolicited:
-    """A line that no request was waiting for."""
-
-    line: str
-
-
-@dataclass(frozen=True, slots=True)
-class Dropped:
-    """A line discarded while resynchronising."""
-
-    line: str
-
-
-@dataclass(frozen=True, slots=True)
-class Mismatched:
-    """A line arrived for request ``tag`` that cannot be its reply (see
-    :mod:`tango_aio.sansio._patterns`): a reply went missing or a line was added. ``tag`` is
-    ``None`` for the core's own follow-up query. The core drops every line (completion
-    reports excepted) until :meth:`ProtocolCore.resync` is called.
-    """
-
-    tag: Hashable | None
-    line: str
-    expected: ReplyPattern
-    #: Why, when the line itself would fit (a reply grown past its cap).
-    reason: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class RequestLost:
-    """Request ``tag`` will get no reply: its line was discarded, or the stream resynced."""
-
-    tag: Hashable
-
-
-Event = (Replied | Acknowledged | Echoed | Completed | Unsolicited | Dropped | RequestLost
-         | Mismatched)
-
-
-# --------------------------------------------------------------------------------------
-# Expectations
-
-
-class _Item(enum.Enum):
-    """An item of a reply owed by a line."""
-
-    # Hashed by identity, in C: Enum's own __hash__ is a Python function, and these
-    # members are dict keys and set members on the per-line path. Members are
-    # singletons compared by identity, so the two agree.
-    __hash__ = object.__hash__
-
-    ECHO = "echo"
-    DATA = "data"
-    ACK = "ack"
-    #: A line that some firmware sends and some does not (see :meth:`ProtocolCore.send`):
-    #: consumed when the next line fits it, skipped otherwise.
-    ECHO_OPT = "echo?"
-    ACK_OPT = "ack?"
-
-
-_OPTIONAL: Final = frozenset({_Item.ECHO_OPT, _Item.ACK_OPT})
-
-
-@dataclass(slots=True)
-class _Pending:
-    tag: Hashable
-    items: deque[_Item]
-    echo: ReplyPattern | None = None
-    rule: LineRule = field(default_factory=LineRule)
-    pattern: ReplyPattern = ACK_PATTERN  # of the data lines
-    lines: list[str] = field(default_factory=list)
-    size: int = 0  # bytes in lines
-    internal: bool = False
-    marker: str | None = None  # expected reply prefix of a resync marker
-    #: A mode-2 move line: the internal ``?err`` written right behind it, whose reply
-    #: stands in for the move's acknowledgement when that comes only at completion
-    #: (:meth:`ProtocolCore._defer_ack`).
-    follow: _Pending | None = None
-    #: A mode-4 move line: its echo may come only with its completion report
-    #: (:meth:`ProtocolCore._route_echo`).
-    defers_echo: bool = False
-    #: A read's line as written: no reply is ever the read itself (local echo).
-    sent: str = ""
-    #: On such a follow-up, once the move's acknowledgement proved deferred: the move
-    #: whose verdict this reply's error number is.
-    verdict: Hashable | None = None
-    #: A data line whose first byte came in chunk :attr:`LineAssembler.feeds` ``<=
-    #: fed`` was read before this line was written: not its reply (-1: not known).
-    fed: int = -1
-    #: A data line that starts earlier is not this line's reply either: its bytes were
-    #: still on a paced wire (:func:`~tango_aio.sansio._linktiming.earliest_reply`); ``-inf``:
-    #: not known.
-    earliest: float = -math.inf
-    #: The :func:`rear <_rear>` edge of what it owes (``None``: it is sure to get no
-    #: line), set once its items are complete (:meth:`seal`).
-    rear: Edge | None = None
-
-    def done_after(self, item: _Item) -> bool:
-        """Whether nothing but optional lines is owed once ``item`` (the head) is in."""
-        return all(later in _OPTIONAL for later in itertools.islice(self.items, 1, None))
-
-    @property
-    def settled(self) -> bool:
-        """Whether only optional lines are still owed."""
-        return all(item in _OPTIONAL for item in self.items)
-
-    @property
-    def defers(self) -> bool:
-        """Whether it is a move whose echo (mode 4) or acknowledgement (mode 2) may come
-        only with its report."""
-        return self.defers_echo or self.follow is not None
-
-    def owes_sure(self) -> bool:
-        """Whether a line it is sure to get is still owed."""
-        defers = self.defers
-        return any(_sure(item, defers) for item in self.items)
-
-    def seal(self) -> _Pending:
-        """Compute :attr:`rear` from the items owed; return the pending."""
-        defers = self.defers
-        owed = [(_item_pattern(self, item), _sure(item, defers)) for item in self.items]
-        self.rear = _rear(_edge(owed), _edge(reversed(owed)))
-        return self
-
-
-def _item_pattern(pending: _Pending, item: _Item) -> ReplyPattern:
-    if item in (_Item.ECHO, _Item.ECHO_OPT) and pending.echo is not None:
-        return pending.echo
-    return pending.pattern if item is _Item.DATA else ACK_PATTERN
-
-
-def _sure(item: _Item, defers: bool) -> bool:
-    """Whether ``item`` is sure to come in its place (not optional, not deferrable)."""
-    # ``defers``: the echo (mode 4) or acknowledgement (mode 2) of a move, which some
-    # firmware sends only with its report (switches echo=completion, move_ok=completion;
-    # L2099-2103 and L2117 do not say when).
-    return item not in _OPTIONAL and not (defers and item in (_Item.ECHO, _Item.ACK))
-
-
-def _edge(owed: Iterable[tuple[ReplyPattern, bool]]) -> Edge | None:
-    """The edge of lines ``owed`` (pattern, sure; nearest the neighbour first)."""
-    # Up to and with the first sure line; None when none is sure.
-    patterns = []
-    for pattern, sure in owed:
-        patterns.append(pattern)
-        if sure:
-            return Edge(tuple(patterns))
-    return None
-
-
-def _rear(front: Edge | None, back: Edge | None) -> Edge | None:
-    """What a line written after a request must not look like: both its edges."""
-    # The back edge: one line lost or extra shifts its last sure line onto the next
-    # request. The front edge: its own line lost, the next reply lands on its first items.
-    if front is None or back is None:
-        return None
-    if front == back:
-        return front
-    return Edge(tuple(dict.fromkeys(front.patterns + back.patterns)))
-
-
-def _specific(edge: Edge) -> Edge:
-    """``edge`` without free text (which fits every line)."""
-    return Edge(tuple(pattern for pattern in edge.patterns if pattern.kind is not ReplyKind.ANY))
-
-
-def _defers(expect: Expectation) -> bool:
-    """Whether a move's echo or acknowledgement may come only with its report."""
-    return expect.completion is not None and (expect.echo or expect.ack)
-
-
-def owed_edge(command: Command, expect: Expectation, mode: int,
-              context: Context | None = None,
-              ack_reads: AckReads | None = None) -> Edge | None:
-    """The front :class:`~tango_aio.sansio._patterns.Edge` of what ``command`` owes when written
-    in ``mode``: the lines it may get before the first one it is sure to get, and that
-    one (``None``: it is sure to get none; a move's ``?err`` probe then guards it).
-
-    A move whose acknowledgement may come with its report (mode 2) is sure of the reply
-    of the ``?err`` the core writes behind it (:meth:`ProtocolCore.send`), which then
-    ends the edge."""
-    items = _owed_items(command, expect, mode, ack_reads)
-    echo = echo_pattern(command)
-    pattern = reply_pattern(command, context) if _has_data(expect.rule) else ACK_PATTERN
-    return _front(items, echo, pattern, expect, mode, ack_reads)
-
-
-def _front(items: Iterable[_Item], echo: ReplyPattern | None, pattern: ReplyPattern,
-           expect: Expectation, mode: int, ack_reads: AckReads | None) -> Edge | None:
-    """:func:`owed_edge` from the items owed and the patterns of the echo and data."""
-    defers = _defers(expect)
-
-    def owed() -> Iterable[tuple[ReplyPattern, bool]]:
-        for item in items:
-            if item in (_Item.ECHO, _Item.ECHO_OPT) and echo is not None:
-                yield echo, _sure(item, defers)
-            else:
-                yield (pattern if item is _Item.DATA else ACK_PATTERN), _sure(item, defers)
-        if expect.ack and expect.completion is not None:  # its follow-up (see send)
-            follow = _owed_items(_FOLLOW_UP_COMMAND, expectation(_FOLLOW_UP_COMMAND, mode),
-                                 mode, ack_reads)
-            for item in follow:
-                yield ({_Item.DATA: ONE_NUMBER, _Item.ECHO: _FOLLOW_UP_ECHO,
-                        _Item.ECHO_OPT: _FOLLOW_UP_ECHO}.get(item, ACK_PATTERN),
-                       item not in _OPTIONAL)
-
-    return _edge(owed())
-
-
-@dataclass(frozen=True, slots=True)
-class Expectation:
-    """What a command line owes: which reply items and which completion report."""
-
-    echo: bool
-    rule: LineRule
-    ack: bool
-    completion: Completion | None
-    mode_after: int
-
-    @property
-    def expects_reply(self) -> bool:
-        """Whether any line comes back for this request (besides a completion)."""
-        return self.echo or self.ack or _has_data(self.rule)
-
-
-def _has_data(rule: LineRule) -> bool:
-    return rule.count > 0 or rule.terminator is not None or rule.continuation is not None
-
-
-def expectation(command: Command, mode: int, context: Context | None = None) -> Expectation:
-    """What ``command`` owes when it reaches the controller in autostatus ``mode``.
-
-    Decisions where the manual is silent (protocol_notes §5, open points); the emulator
-    offers each of them as a firmware switch (``sim/profiles.py``), read on its own:
-
-    * Mode 4 echoes every executing line (``!`` or an executing bare form such as
-      ``moa``). Reads may be echoed too: optional (see :func:`_owed_items`).
-    * Mode 2 acknowledges every ``!`` line. Reads may be acknowledged too: optional.
-    * ``!autostatus n`` owes nothing for certain: its echo and acknowledgement depend on
-      the firmware (optional, see :func:`_owed_items`).
-    * A line that already answers with ``OK...``/``ERR`` (``save``) is not acknowledged a
-      second time in mode 2.
-    * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
-      the echo first and the report when the move ends, as in mode 1."""
-    entry = command.instruction
-    # Most lines owe what their instruction, form and the mode say, whatever their values:
-    # those expectations are computed once (the protocol asks twice per line written).
-    # Not cached: lines that change the mode, and reads whose reply length depends on the
-    # values or the context (entry.lines).
-    key = (entry.name, command.form, mode)
-    effect = entry.mode_effect
-    cacheable = effect is ModeEffect.NONE and (entry.lines is None or command.executes)
-    if cacheable:
-        hit = _EXPECTATIONS.get(key)
-        if hit is not None and hit[0] is entry:
-            return hit[1]
-    executes = command.executes
-    after = effect.mode_after(command, mode)
-    rule = reply_rule(command, context)
-    owns_ack = entry.exec_reply is Shape.ACK and executes
-    # A mode change owes no mandatory line: whether it is echoed and acknowledged depends
-    # on the firmware (see _owed_items); the protocol reads ?autostatus behind it.
-    changes_mode = effect.owes_nothing(command)
-    result = Expectation(
-        echo=mode == 4 and executes and not changes_mode,
-        rule=rule,
-        ack=after == 2 and command.form is Form.SET and not owns_ack and not changes_mode,
-        completion=entry.completion if executes and after != 0 else None,
-        mode_after=after,
-    )
-    if cacheable:
-        _EXPECTATIONS[key] = (entry, result)
-    return result
 
 
 #: What a read line owes: its bytes, the items owed, its echo's and its data's pattern,
@@ -642,11 +185,6 @@ _Facts = tuple[bytes, tuple[_Item, ...], ReplyPattern | None, ReplyPattern, Edge
 #: Distinct read lines a core keeps at most (reads with many values are forgotten, not
 #: hoarded).
 _LINE_FACTS_MAX: Final = 1024
-#: Cached expectations by (instruction name, form, mode), with the instruction they were
-#: computed for (a hand-made Instruction of the same name does not share them). A memo of
-#: the pure function :func:`expectation`, whose result depends on its key alone, so every
-#: core may share it (what depends on a core's state is cached per core: _line_facts).
-_EXPECTATIONS: dict[tuple[str, Form, int], tuple[Instruction, Expectation]] = {}
 
 
 #: Separators that need no marker number: ``err`` answers one number, ``help`` its text
@@ -656,93 +194,6 @@ _SEPARATORS: Final = ((b"?err\r", ONE_NUMBER), (b"?help\r", ReplyPattern(ReplyKi
 def _echo_of(line: str) -> ReplyPattern:
     """The mode-4 echo of a line the core writes itself."""
     return ReplyPattern(ReplyKind.ECHO, text=normal_line(line))
-
-
-class AckReads(enum.Enum):
-    """Whether reads are acknowledged in autostatus 2, and where (the manual names only
-    lines "with a leading !", L2097-2101): found when mode 2 is entered
-    (:meth:`tango_aio.sansio._session.LinkSession.mode_read`)."""
-
-    NO = "no"  #: a read's reply comes alone
-    BEFORE = "before"  #: ``OK...`` before the read's data
-    AFTER = "after"  #: ``OK...`` after the read's data
-
-
-def _read_acks(ack_reads: AckReads | None) -> tuple[list[_Item], list[_Item]]:
-    """The acknowledgements a read owes in mode 2, before and after its data."""
-    if ack_reads is None:
-        return [_Item.ACK_OPT], [_Item.ACK_OPT]
-    return ([_Item.ACK] if ack_reads is AckReads.BEFORE else []), \
-        ([_Item.ACK] if ack_reads is AckReads.AFTER else [])
-
-
-def _read_items(mode: int, ack_reads: AckReads | None) -> deque[_Item]:
-    """What a one-line read of the core's own (marker, separator) owes in ``mode``."""
-    if mode == 2:
-        before, after = _read_acks(ack_reads)
-        return deque([*before, _Item.DATA, *after])
-    return deque([_Item.DATA] if mode != 4 else [_Item.ECHO_OPT, _Item.DATA, _Item.ECHO_OPT])
-
-
-def _owed_items(command: Command, expect: Expectation, mode: int,
-                ack_reads: AckReads | None = None) -> deque[_Item]:
-    """The lines ``command`` owes when written in autostatus ``mode``, in order, with the
-    ones the manual leaves open as optional items (each one a switch of the emulator's):
-
-    * Mode 4 echoes "the instruction that was sent, in case of set or move instruction"
-      (L2089-2095); the older edition "echoes all input instructions including
-      parameters" (old L723): a read written in mode 4 may be echoed too (``echo_all``).
-    * Whether the echo is written before or after executing is not said, so a line that
-      enters or leaves mode 4 may or may not be echoed, and a read's echo may come after
-      its data (``echo=before|after``).
-    * Mode 2 acknowledges lines "with a leading !" (L2097-2101); whether reads are
-      acknowledged too, before or after their data, is not said (``ack_reads``): the
-      protocol finds out when it enters mode 2 (``ack_reads`` is then an
-      :class:`AckReads`); until then both are optional. (Optional acks after a
-      read cannot be told from the next ``!`` line's: hence the detection.)
-    * Whether ``!autostatus n`` is acknowledged per the old or the new mode is not said
-      (``ack_mode_change``): a line entering or leaving mode 2 may or may not be.
-
-    A mode change is then a barrier: :meth:`TangoProtocol.execute
-    <tango_aio.link._protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it."""
-    items: deque[_Item] = deque()
-    setter = command.name == "autostatus" and command.form is Form.SET
-    after = expect.mode_after
-    if expect.echo and not setter:
-        items.append(_Item.ECHO)
-    elif mode == 4 or (setter and after == 4):
-        items.append(_Item.ECHO_OPT)
-    # A read's echo, if any, comes before its data or (echo written after executing)
-    # after it: optional on both sides; its text tells it from anything else.
-    echo_after = [_Item.ECHO_OPT] if mode == 4 and not expect.echo and _has_data(expect.rule) \
-        else []
-    # Acknowledged reads: ``?`` reads as found (the form the protocol writes). A bare read
-    # (``sa``, ``err``) has neither ``?`` nor the leading ``!`` that L2097-2101 names: never.
-    acked = mode == 2 and command.is_read and command.to_bytes().startswith(b"?")
-    before, trailing = _read_acks(ack_reads) if acked else ([], [])
-    items.extend(before)
-    if _has_data(expect.rule):
-        items.append(_Item.DATA)
-    if setter:
-        if 2 in (mode, after):
-            items.append(_Item.ACK_OPT)
-    elif expect.ack:
-        items.append(_Item.ACK)
-    elif _acks_itself(command, after):
-        items.append(_Item.ACK_OPT)
-    items.extend(trailing)
-    items.extend(echo_after)
-    return items
-
-
-def _acks_itself(command: Command, after: int) -> bool:
-    """Whether ``command`` is a ``!`` line whose own answer is ``OK...`` (``save``,
-    ``restore``: L1738-1762, L2081) written where mode 2 acknowledges ``!`` lines: that
-    answer may be its acknowledgement, or a second ``OK...`` may follow (switch
-    ``save_ack``; L2081 and L2099-2103 do not say). The core writes an ``?err`` behind it,
-    so that the second is told from the next line's acknowledgement by what follows."""
-    return after == 2 and command.form is Form.SET and command.executes \
-        and command.instruction.exec_reply is Shape.ACK
 
 
 #: Error numbers used for markers: ``?help N`` answers ``ERROR N,...`` (L2899-2919). Only
@@ -767,20 +218,6 @@ class HelpStyle(enum.Enum):
     NUMBER = "yes"  #: ``ERROR N,text`` (L2919): markers hold a number of the session's
     TEXT = "no"  #: the text alone: markers use one number whose text was learned
     NONE = "none"  #: not at all (older firmware, old L805-819): resyncs wait for quiet
-_FOLLOW_UP: Final = encode("?err")
-_FOLLOW_UP_COMMAND: Final = parse("?err")
-_FOLLOW_UP_ECHO: Final = echo_pattern(_FOLLOW_UP_COMMAND)
-
-
-def wire_size(command: Command, expect: Expectation) -> int:
-    """Bytes :meth:`ProtocolCore.send` writes for ``command`` owing ``expect``: its line,
-    and the internal ``?err`` follow-up of a read whose end only the next line shows."""
-    size = len(command.to_bytes())
-    # A line acknowledged in mode 2 may get a follow-up (see ProtocolCore.send): its
-    # bytes are reserved whether or not it is written.
-    follows = expect.rule.continuation is not None or expect.ack \
-        or command.instruction.exec_reply is Shape.ACK
-    return size + len(_FOLLOW_UP) if follows else size
 
 
 def _too_early(line: str, head: _Pending) -> str:

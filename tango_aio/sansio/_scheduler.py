@@ -59,7 +59,8 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from ..catalog import Command, parse
-from ._core import Expectation, ProtocolCore, expectation, wire_size
+from ._core import ProtocolCore
+from ._expect import Expectation, expectation, wire_size
 from ._flow import DEFAULT_CHUNK, DEFAULT_LIMIT, MARKER, CreditWindow
 from ._patterns import Edge, ReplyPattern
 

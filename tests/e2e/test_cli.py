@@ -24,20 +24,17 @@ from helpers import WINDOWS, PtySim, posix_only
 
 import tango_aio
 from tango_aio.catalog._instructions import parse
-from tango_aio.cli._main import (
-    PTY_NEEDS_POSIX,
-    Shell,
-    _parser,
-    _PipeReader,
-    _sigint_calls,
+from tango_aio.cli._describe import (
     describe_event,
     describe_exception,
     describe_line,
     describe_reply,
     letters_of_line,
-    main,
-    read_bounded_line,
 )
+from tango_aio.cli._main import _parser, main
+from tango_aio.cli._output import _sigint_calls
+from tango_aio.cli._shell import Shell, _PipeReader, read_bounded_line
+from tango_aio.cli._simcmd import PTY_NEEDS_POSIX
 from tango_aio.errors import MoveError
 from tango_aio.events import ConnectionLost, MoveAborted, MoveFinished, UnsolicitedLine
 

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from tango_aio.cli._main import _escaped, _loop_exception, _parser, _tcp_address, main
+from tango_aio.cli._main import _loop_exception, _parser, main
+from tango_aio.cli._output import _escaped
+from tango_aio.cli._simcmd import _tcp_address
 
 SIM = "sim://?baud=0"
 
@@ -110,7 +112,7 @@ def test_an_empty_trigger_file_is_an_error(capsys: pytest.CaptureFixture[str],
 
 
 def test_shell_help_gives_one_sentence_a_line_and_suggests_names() -> None:
-    from tango_aio.cli._main import Shell
+    from tango_aio.cli._shell import Shell
 
     text = Shell.help("moa")
     assert text.splitlines()[:2] == ["moa: Move X Y Z absolute to positions 10 10 10",

@@ -65,7 +65,7 @@ def test_move_exits_1_on_a_limit_switch_and_0_at_the_target(fast: str) -> None:
 
 
 def test_a_one_axis_stop_is_described_as_such() -> None:
-    from tango_aio.cli._main import describe_event
+    from tango_aio.cli._describe import describe_event
     from tango_aio.events import MoveAborted
 
     assert describe_event(MoveAborted(ctrl_c=False, axes=("x", "z"))) == \

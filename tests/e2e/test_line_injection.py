@@ -15,7 +15,7 @@ from helpers import (
 
 from tango_aio.catalog._encode import build, build_axes
 from tango_aio.catalog._instructions import Command, encode, parse
-from tango_aio.cli._main import Shell
+from tango_aio.cli._shell import Shell
 from tango_aio.controller._controller import Controller
 from tango_aio.errors import (
     ControllerError,

@@ -30,7 +30,7 @@ from tango_aio.catalog._instructions import (
     Param,
     parse,
 )
-from tango_aio.sansio._core import expectation
+from tango_aio.sansio._expect import expectation
 from tango_aio.sansio._patterns import reply_pattern
 from tango_aio.sim.lists import MAX_SNAPSHOTS, MAX_TRIGGERS
 from tango_aio.sim.model import ControllerModel, SimConfig

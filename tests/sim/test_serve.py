@@ -23,8 +23,9 @@ from helpers import serve_pty
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tango_aio.cli._main import _parser, _sim_url, _tcp_address
+from tango_aio.cli._main import _parser
 from tango_aio.cli._main import main as cli_main
+from tango_aio.cli._simcmd import _sim_url, _tcp_address
 from tango_aio.sim.clock import EmulatorClock, ScaledHandler
 from tango_aio.sim.inprocess import configs_from_url, open_sim, speed_from_url
 from tango_aio.sim.model import ControllerModel, SimConfig

@@ -20,7 +20,6 @@ from tango_aio.catalog._instructions import Context, parse
 from tango_aio.catalog._replies import parse_reply
 from tango_aio.errors import ProtocolError
 from tango_aio.sansio._core import (
-    DEFAULT_MAX_LINE,
     LOCAL_ECHO,
     Acknowledged,
     AckReads,
@@ -35,9 +34,10 @@ from tango_aio.sansio._core import (
     RequestLost,
     Unsolicited,
     canonical_case,
-    expectation,
     is_completion_line,
 )
+from tango_aio.sansio._expect import expectation
+from tango_aio.sansio._lines import DEFAULT_MAX_LINE
 from tango_aio.sansio._patterns import reply_pattern
 
 #: Context of a 3-axis controller in extmode 0: ``?lim`` without an axis spans two lines.

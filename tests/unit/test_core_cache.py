@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tango_aio.catalog._instructions import parse
-from tango_aio.sansio._core import AckReads, ProtocolCore, expectation, owed_edge
+from tango_aio.sansio._core import AckReads, ProtocolCore, owed_edge
+from tango_aio.sansio._expect import expectation
 
 LINES = ["?pos", "?pos x", "?vel", "?vel x", "?err", "?statusaxis", "?dim", "?lim x",
          "?version", "?trigc", "?autostatus", "?help", "!vel x 3", "!moa x 1", "sa x",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tango_aio.cli import _main as cli
+from tango_aio.cli import _describe as cli
 from tango_aio.moves import _timing as timing
 from tango_aio.moves import _tracker as tracker
 from tango_aio.status import (

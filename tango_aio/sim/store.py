@@ -1,0 +1,417 @@
+"""The emulated controller's state: its settings (the parameter store mirrored into the
+motion model), the saved parameters, and the trigger list handed to the motion model."""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..catalog import (
+    AXES,
+    INSTRUCTIONS,
+    Command,
+    Kind,
+    Shape,
+)
+from ..errors import ERROR_DESCRIPTIONS
+from .config import SimConfig
+from .devices import TAKT_OUT, TRIGGER_OUT, Devices, Pulse
+from .lists import MAX_TRIGGERS, TriggerList
+from .motion import MotionModel, MotionRefused
+from .params import ParamStore
+from .profiles import Firmware
+from .state import StateFileError, load_state, save_state
+
+
+class Refused(Exception):
+    """An instruction was not executed; ``code`` is the error number to set.
+
+    Parameters
+    ----------
+    code
+        The error number.
+    message
+        What was refused; empty for the error's description.
+    """
+
+    def __init__(self, code: int, message: str = "") -> None:
+        super().__init__(message or ERROR_DESCRIPTIONS.get(code, "error"))
+        self.code = code
+
+
+#: Settings mirrored from the parameter store into the motion model's AxisSettings.
+_AXIS_SETTINGS: dict[str, str] = {
+    "axis": "enable", "dim": "dim", "pitch": "pitch", "gear": "gear", "accel": "accel",
+    "stopaccel": "stopaccel", "secvel": "secvel", "calbspeed": "calbspeed",
+    "caltimeout": "caltimeout", "nosetlimit": "nosetlimit", "calmode": "calmode",
+    "calrequired": "calrequired", "limctr": "limctr", "modulomode": "modulomode",
+}
+_GLOBAL_SETTINGS: dict[str, str] = {
+    "usteps": "usteps", "scanmode": "scanmode", "scanvel": "scanvel", "pause": "pause_ms",
+    "delay": "delay_ms", "extmode": "extmode",
+}
+#: Instructions that change the trigger list or whether it fires (re-armed lazily).
+_TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr",
+                           "trigd"})
+#: The distance modes the emulator generates (L12595-12836): the sense of travel (+1
+#: forward, -1 backward) and the shift in distances; the bidirectional modes (1, 4, 7,
+#: 10) are not modelled (they arm nothing).
+_DISTANCE_MODES = {0: (1, 0.0), 3: (1, 0.0), 2: (-1, 0.0), 5: (-1, 0.0),
+                   6: (1, 0.5), 9: (1, 0.5), 8: (-1, 0.5), 11: (-1, 0.5)}
+
+
+@dataclass
+class _Session:
+    """Volatile state that a reset clears."""
+
+    autostatus: int = 1
+    err: int = 0
+    booted: float = 0.0
+    keys_latched: list[int] = field(default_factory=lambda: [0, 0, 0, 0])
+    #: ``?drop``: drops counted since ``!drop 0``.
+    drops: int = 0
+    #: ``clim``: centre X, centre Y, radius in user units, and whether it is active.
+    clim: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    clim_active: bool = False
+    #: An internal error (>= 20) that ``?err`` shows while the last instruction was fine
+    #: (L2853-2867), and whether ``!err`` cannot clear it (like 29, L2824-2881).
+    internal_err: int = 0
+    internal_permanent: bool = False
+    #: Job ids of moves whose mode-2 ``OK...`` comes with their report (``move_ok``).
+    ok_owed: set[int] = field(default_factory=set)
+    #: Mode-4 echoes of move lines owed at their completion (``echo=completion``), by job.
+    echo_owed: dict[int, str] = field(default_factory=dict)
+    #: ``a``/Ctrl+C owe a report of their own once the axes stand (``abort_report``,
+    #: ``ctrl_c=stop_report``).
+    stop_report_owed: bool = False
+
+
+def _bits_read(command: Command) -> bool:
+    entry = command.instruction
+    return bool(entry.write) and bool(entry.write[0].lead) and \
+        entry.write[0].lead[0].kind is Kind.BITS
+
+
+class ModelStore:
+    """The settings, the saved parameters and the trigger list of an emulated controller."""
+
+    config: SimConfig
+    firmware: Firmware
+    motion: MotionModel
+    params: ParamStore
+    session: _Session
+    triggers: TriggerList
+    devices: Devices
+    _eeprom: tuple[dict[str, list[Any]], dict[str, Any]] | None
+    _triggers_dirty: bool
+    _trigger_base: int
+
+    @property
+    def axes(self) -> int:
+        """Number of configured axes."""
+        return self.config.axes
+
+    # -- generic settings ------------------------------------------------------------------
+
+    def _generic_read(self, command: Command) -> str:
+        name = command.name
+        digits = self._digits(command)
+        if name in self.params.axis_values or name in self.params.global_values:
+            if _bits_read(command):
+                return self._read_bits(command)
+            return self.params.read(command, self.axes, digits)
+        return self._hardware_read(command)
+
+    def _digits(self, command: Command) -> int | None:
+        sig = command.instruction.read[0] if command.instruction.read else None
+        if sig is not None and sig.precision is not None and command.values:
+            return int(command.values[-1])
+        return None
+
+    def store(self, command: Command) -> None:
+        """Keep the values of a plain set command in the settings store.
+
+        Parameters
+        ----------
+        command
+            The set command.
+        """
+        self._generic_write(command)
+
+    def _generic_write(self, command: Command) -> None:
+        first = command.instruction.write[0] if command.instruction.write else None
+        if first is not None and first.lead and first.lead[0].kind is Kind.BITS:
+            self._write_bits(command)
+            return
+        self.params.apply(command, self.axes)
+        self._sync(command.name)
+
+    def _read_bits(self, command: Command) -> str:
+        bits = str(self.params.first(command.name))
+        if command.values:
+            return bits[int(command.values[0])]
+        return bits
+
+    def _write_bits(self, command: Command) -> None:
+        bits = list(str(self.params.first(command.name)))
+        if len(command.values) == 2:
+            bits[int(command.values[0])] = str(command.values[1])
+        else:
+            given = str(command.values[0])
+            bits[: len(given)] = given
+        self.params.put_global(command.name, ("".join(bits),))
+
+    def _hardware_read(self, command: Command) -> str:
+        """Plausible values for reads of hardware state the emulator does not model."""
+        shape = command.instruction.reply
+        count = 1 if command.axis else self.axes
+        if shape is Shape.AXES_INT:
+            return " ".join(["0"] * count)
+        if shape is Shape.AXES_FLOAT:
+            return " ".join(["0.000"] * count)
+        if shape is Shape.AXES_TEXT:
+            return " ".join(["0"] * count)
+        if shape is Shape.FLOAT:
+            return "0.000"
+        return "0"
+
+    def _sync(self, name: str) -> None:
+        if name in _AXIS_SETTINGS or name in ("vel", "calvel", "rmvel", "swact",
+                                               "caliboffset", "rmoffset", "lim",
+                                               "ctr", "ctrd", "encmask"):
+            self._sync_axes()
+        if name in _GLOBAL_SETTINGS:
+            self._sync_globals()
+
+    def _sync_all(self) -> None:
+        self._sync_globals()
+        self._sync_axes()
+
+    def _sync_globals(self) -> None:
+        settings = self.motion.global_settings
+        for name, attr in _GLOBAL_SETTINGS.items():
+            value = self.params.first(name)
+            setattr(settings, attr, type(getattr(settings, attr))(value))
+
+    def _sync_axes(self) -> None:
+        for index in range(self.axes):
+            settings = self.motion.settings(index)
+            for name, attr in _AXIS_SETTINGS.items():
+                value = self.params.first(name, index)
+                setattr(settings, attr, type(getattr(settings, attr))(value))
+            settings.swact = tuple(int(v) for v in self.params.axis("swact", index))  # type: ignore[assignment]
+            units = self.motion.units(index)
+            settings.caliboffset = units.pos_from_user(self.params.number("caliboffset", index))
+            settings.rmoffset = units.pos_from_user(self.params.number("rmoffset", index))
+            settings.calvel = tuple(units.vel_from_user(float(v))  # type: ignore[assignment]
+                                    for v in self.params.axis("calvel", index))
+            settings.rmvel = tuple(units.vel_from_user(float(v))  # type: ignore[assignment]
+                                   for v in self.params.axis("rmvel", index))
+            settings.settle = self._settle_time(index)
+            vel = units.vel_from_user(self.params.number("vel", index))
+            if vel != settings.vel:
+                self.motion.set_vel(index, vel)
+
+    def _settle_time(self, index: int) -> float:
+        """Closed-loop settling of one axis in seconds: ``ctrd`` ms when closed loop is on
+        (``ctr`` 1-4 and the encoder enabled by ``encmask``, "Preconditions for
+        successfully entering closed loop are having ctr and encmask set", L11761-11800),
+        else 0. Choice: ``encmask`` counts at once (the manual activates encoders at
+        power on), and the ±twi window is met at once (no deviation is modelled).
+
+        Returns
+        -------
+        float
+            The seconds.
+        """
+        if int(self.params.first("encmask", index)) != 1 or \
+                int(self.params.first("ctr", index)) == 0:
+            return 0.0
+        return float(self.params.first("ctrd", index)) / 1000.0
+
+    # -- persistence -----------------------------------------------------------------------
+
+    def _saved_names(self) -> list[str]:
+        return [n for n, e in INSTRUCTIONS.items() if e.saved
+                and (n in self.params.axis_values or n in self.params.global_values)]
+
+    def _load_saved(self) -> None:
+        if self.config.state_file is None:
+            if self._eeprom is not None:
+                axes, global_ = copy.deepcopy(self._eeprom)
+                self.params.axis_values.update(axes)
+                self.params.global_values.update(global_)
+            return
+        load_state(self.config.state_file, self.params)  # choices: tango_aio/sim/state.py
+
+    def forget_saved(self) -> None:
+        """Delete the saved parameters (``restore -1``, L1803-1808): the state file, or
+        the ones kept in memory."""
+        self._eeprom = None
+        path = self.config.state_file
+        if path is not None:
+            path.unlink(missing_ok=True)
+
+    def save(self) -> None:
+        """Persist the saved parameters to :attr:`SimConfig.state_file` atomically.
+
+        A failed write is refused with error 73 ("internal error, e.g. eeprom data
+        corruption"; the manual names no number for a failed save) and leaves the previous
+        file intact.
+
+        Raises
+        ------
+        Refused
+            The file could not be written (error 73).
+        """
+        path = self.config.state_file
+        if path is None:
+            names = self._saved_names()
+            self._eeprom = copy.deepcopy((
+                {n: v for n, v in self.params.axis_values.items() if n in names},
+                {n: v for n, v in self.params.global_values.items() if n in names}))
+            return
+        try:
+            save_state(path, self.params, self._saved_names())
+        except (OSError, StateFileError) as exc:
+            raise Refused(73, f"save failed: {exc}") from exc
+
+    def restore(self) -> None:
+        """Reload the saved parameters like at power-on, without a restart (L1791-1800):
+        positions, moves, lists and the autostatus mode stay as they are.
+
+        Choice: only the parameters ``save`` stores are reloaded (their factory value when
+        nothing was saved); unsaved settings such as ``joy`` or ``trig`` keep their value.
+        """
+        factory = ParamStore()
+        for name in self._saved_names():
+            if name in factory.axis_values:
+                self.params.axis_values[name] = list(factory.axis_values[name])
+            else:
+                self.params.global_values[name] = factory.global_values[name]
+        self._load_saved()
+        self._sync_all()
+
+    # -- trigger list ----------------------------------------------------------------------
+
+    def _prepare_triggers(self, command: Command) -> None:
+        """Arm the trigger list in the motion model lazily.
+
+        An executed trigger-list instruction marks the list changed, and the list is armed
+        before the next other instruction runs (moves included), not after each edit:
+        arming converts the whole list, and uploading 10000 ``!trigp`` entries one by one
+        must stay linear. The positions are fixed in the physical frame when armed.
+        """
+        if command.name in _TRIGGER_LIST and command.executes:
+            self._triggers_dirty = True
+        elif self._triggers_dirty:
+            self.arm_triggers()
+
+    def arm_triggers(self) -> None:
+        """Hand the list to the motion model from the list pointer on.
+
+        Choices: list triggers fire only while ``trig`` is 1 and ``trigm`` is 20 or 21
+        ("Trigcount increments on every executed trigger pulse", L13387; the trigger is
+        globally disabled by ``!trig 0``, L12565). Every re-arm (any list instruction,
+        ``!trig 1`` included) starts again at the stored pointer, which is 1 unless
+        ``!trigi n`` moved it; the list then re-arms by travelling back behind that entry.
+        """
+        self._triggers_dirty = False
+        mode = int(self.params.first("trigm"))
+        if int(self.params.first("trig")) == 1 and mode in _DISTANCE_MODES:
+            self._arm_distance(*_DISTANCE_MODES[mode])
+            return
+        entries = self.triggers.entries
+        enabled = int(self.params.first("trig")) == 1 and mode in (20, 21)
+        if not entries or not enabled:
+            self.motion.clear_triggers()
+            return
+        axis = self.trigger_axis()
+        units = self.motion.units(axis)
+        self._trigger_base = self.triggers.pointer - 1
+        try:
+            self.motion.set_trigger_positions(
+                axis, [units.pos_from_user(p) for p in entries[self._trigger_base:]])
+        except MotionRefused:
+            self.motion.clear_triggers()  # the lists module already refused bad orders
+
+    def _arrival_pulse(self, time: float) -> None:
+        """Modes 104 and 105: a pulse with the completion report, which autostatus 0 does
+        not send (L12595-12836). Choice: every completed move counts, the trigger axis'
+        or another's (the emulator does not tell the moves of one axis apart here)."""
+        if int(self.params.first("trig")) == 1 and self.session.autostatus != 0 \
+                and int(self.params.first("trigm")) in (104, 105):
+            self.trigger_pulses(time, 1)
+            self.motion.set_trigger_count(self.motion.trigger_count + 1)
+
+    def _arm_distance(self, sense: int, shift: float) -> None:
+        """Distance modes: a pulse every ``trigd`` from where the axis stands when they are
+        armed (``!trig 1`` defines the start, L12565-12572), the first as the move starts
+        ("First pulse when move starts") or half a distance on (modes 6-11), in the mode's
+        sense; as many as a list holds at most."""
+        axis = min(AXES.index(str(self.params.first("triga"))), self.axes - 1)
+        units = self.motion.units(axis)
+        start = self.motion.to_user(axis, self.motion.position(axis))
+        step = float(self.params.first("trigd")) * sense
+        # The first level a hair beyond the start: the move's first step crosses it.
+        first = max(shift, 1e-9 / abs(step)) if step else shift
+        levels = [start + (k + first) * step for k in range(MAX_TRIGGERS)]
+        self._trigger_base = 0
+        self.motion.set_trigger_positions(axis, [units.pos_from_user(p) for p in levels])
+
+    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
+        """Record ``count`` trigger pulses on the outputs ``trigo`` selects (L12860-12949:
+        bit 0 TRIGGER_OUT, bit 1 TAKT_OUT; 0 and 4, 8, 12 send nothing), ``trigs`` µs long
+        (L12950-12970), spaced by ``1/trigf`` (L13414-13440). The polarity is ``trigl``'s in
+        the list modes 20 and 21 (L14177-14212) and the mode's own otherwise: modes 3-5,
+        9-11 and the odd ones from 101 are active low (L12595-12836).
+
+        Parameters
+        ----------
+        time
+            When the first pulse begins.
+        count
+            How many pulses.
+        position
+            The trigger axis' position where they fired; ``None``: not by position.
+        """
+        outputs = int(self.params.first("trigo"))
+        width = int(self.params.first("trigs")) / 1e6
+        mode = int(self.params.first("trigm"))
+        if mode in (20, 21):
+            high = int(self.params.first("trigl")) == 1
+        elif mode >= 100:
+            high = mode % 2 == 0
+        else:
+            high = mode % 6 < 3
+        period = 1.0 / float(self.params.first("trigf"))
+        for n in range(count):
+            for bit, output in ((1, TRIGGER_OUT), (2, TAKT_OUT)):
+                if outputs & bit:
+                    self.devices.pulses.append(
+                        Pulse(time + n * period, output, width, high, position))
+
+    def trigger_axis(self) -> int:
+        """Index of the trigger axis (``triga``, or the axis the list was written for).
+
+        Returns
+        -------
+        int
+            The axis index.
+        """
+        letter = self.triggers.axis or str(self.params.first("triga"))
+        return min(AXES.index(letter), self.axes - 1)
+
+    def trigger_pointer(self) -> int:
+        """``?trigi``: where the armed list is (1-based), else the stored pointer.
+
+        Returns
+        -------
+        int
+            The pointer.
+        """
+        armed = self.motion.trigger_index()
+        if self._triggers_dirty or armed == 0:
+            return self.triggers.pointer
+        return self._trigger_base + armed
