@@ -81,6 +81,8 @@ P = ParamSpec("P")
 R = TypeVar("R")
 T = TypeVar("T")
 A = TypeVar("A")
+#: The async object a blocking class wraps: a method of a base class of it binds too.
+A_co = TypeVar("A_co", covariant=True)
 
 #: Longest wait, after Ctrl+C, for the cancelled call to finish (axes stopped), seconds.
 STOP_WAIT = 15.0
@@ -413,10 +415,10 @@ def _close_open() -> None:
             wrapper.close()
 
 
-class _Wrapper(Generic[A]):
+class _Wrapper(Generic[A_co]):
     """Base of the blocking classes: the async object and the portal it runs on."""
 
-    def __init__(self, aio: A, portal: Portal, *, owns_portal: bool) -> None:
+    def __init__(self, aio: A_co, portal: Portal, *, owns_portal: bool) -> None:
         self.aio = aio
         """The async object underneath (use it from the driver's thread only)."""
         self._portal = portal
