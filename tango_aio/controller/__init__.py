@@ -19,10 +19,12 @@ from ._connection import (
 )
 from ._controller import (
     Controller,
-    Identity,
 )
 from ._motion import (
     STOP_WAIT,
+)
+from ._reads import (
+    Identity,
 )
 
 __all__ = [

@@ -25,6 +25,11 @@ from ._core import (
     Unsolicited,
     is_completion_line,
 )
+from ._exchange import (
+    STATUS_READ,
+    Exchange,
+    Until,
+)
 from ._expect import (
     expectation,
 )
@@ -32,6 +37,13 @@ from ._flow import (
     DEFAULT_CHUNK,
     DEFAULT_LIMIT,
     CreditWindow,
+)
+from ._linkstate import (
+    Barrier,
+    ModeVerdict,
+    Outcome,
+    Overdue,
+    Silence,
 )
 from ._linktiming import (
     LinkTiming,
@@ -49,15 +61,7 @@ from ._scheduler import (
 )
 from ._session import (
     DEAD_AFTER,
-    STATUS_READ,
-    Barrier,
-    Exchange,
     LinkSession,
-    ModeVerdict,
-    Outcome,
-    Overdue,
-    Silence,
-    Until,
 )
 from ._state import (
     CACHED_SETTINGS,

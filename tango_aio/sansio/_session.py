@@ -35,44 +35,48 @@ Its state is one :class:`LinkState`, changed only through :data:`TRANSITIONS` (a
 the table does not list raises :class:`SessionStateError`: a bug in the adapter, never the
 controller's doing). A Ctrl+C resync may overtake an exchange that is collecting
 (``stop_hard`` from another task): the exchange keeps collecting what the core drops, and
-the table has the transitions for it.
+the table has the transitions for it. The state, the table and the answers are in
+``_linkstate.py``; what an exchange collects, and how its lines are read, in
+``_exchange.py``.
 """
 
 from __future__ import annotations
 
 import collections
-import enum
-import re
 from collections.abc import Container, Hashable, Sequence
-from dataclasses import dataclass, field
 from typing import Final
 
 from ..catalog import encode
 from ..errors import ProtocolError
-from ..status import LETTERS
-from ._core import AckReads, HelpStyle, ProtocolCore, is_completion_line
+from ._core import AckReads, HelpStyle, ProtocolCore
+from ._exchange import (
+    _INTEGER,
+    STATUS_READ,
+    Exchange,
+    Until,
+    _is_help_reply,
+    nothing_trails_help,
+    status_tail,
+)
+from ._linkstate import (
+    REPLY_WAITS,
+    TRANSITIONS,
+    Barrier,
+    LinkEvent,
+    LinkState,
+    ModeVerdict,
+    Outcome,
+    Overdue,
+    SessionStateError,
+    Silence,
+)
 from ._linktiming import MIN_QUIET, LinkTiming
 from ._patterns import ACK_PATTERN, normal_line
 
 __all__ = [
     "DEAD_AFTER",
     "QUIET_INTERVAL",
-    "REPLY_WAITS",
-    "STATUS_READ",
-    "TRANSITIONS",
-    "Barrier",
-    "Exchange",
-    "LinkEvent",
     "LinkSession",
-    "LinkState",
-    "ModeVerdict",
-    "Outcome",
-    "Overdue",
-    "SessionStateError",
-    "Silence",
-    "Until",
-    "nothing_trails_help",
-    "status_tail",
 ]
 
 #: Consecutive unanswered requests after which a link that stays open is declared lost.
@@ -87,238 +91,6 @@ QUIET_INTERVAL: Final = MIN_QUIET
 #: (cancelled, timed out) within its step 0 on the same port, whose replies are still on
 #: the link when the next connect of this process starts; that session is gone by then.
 _RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
-
-_INTEGER: Final = re.compile(r"\s*-?\d+\s*$")
-
-
-class LinkState(enum.Enum):
-    """Where the reply stream stands."""
-
-    IN_STEP = "in step"  #: lines are routed to the requests that owe them
-    RESYNC = "resync"  #: a marker is written; the core drops lines up to its reply
-    QUIET_RESYNC = "quiet resync"  #: ``help`` is written; lines dropped until quiet
-    EXCHANGE = "exchange"  #: an exchange's lines are written; the core drops every line
-    LOST = "lost"  #: closed, or declared dead: nothing leaves this state
-
-
-class LinkEvent(enum.Enum):
-    """What changes the :class:`LinkState` (see :data:`TRANSITIONS`)."""
-
-    MARKER_WRITTEN = "marker written"  #: :meth:`LinkSession.begin_resync` with a marker
-    HELP_WRITTEN = "help written"  #: :meth:`LinkSession.begin_resync` without one
-    EXCHANGE_WRITTEN = "exchange written"  #: :meth:`LinkSession.begin_exchange`
-    MARKER_ANSWERED = "marker answered"  #: :meth:`LinkSession.replied` for the marker
-    QUIET = "quiet"  #: :meth:`LinkSession.quiet_elapsed` ended a quiet resync
-    EXCHANGE_ENDED = "exchange ended"  #: :meth:`LinkSession.end_exchange` (or timed out)
-    DEAD = "dead"  #: :meth:`LinkSession.unanswered` declared the link dead
-    CLOSED = "closed"  #: :meth:`LinkSession.closed`
-
-
-_S, _E = LinkState, LinkEvent
-#: Every transition: (state, event) -> next state. Resyncs may start in any live state (a
-#: newer marker supersedes an older one; Ctrl+C may overtake an exchange); the marker's
-#: reply may come after an exchange that was overtaken has ended (the core still owes it);
-#: an exchange overtaken by a resync ends it when it ends in step (as the core does).
-TRANSITIONS: Final[dict[tuple[LinkState, LinkEvent], LinkState]] = {
-    (_S.IN_STEP, _E.MARKER_WRITTEN): _S.RESYNC,
-    (_S.IN_STEP, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
-    (_S.IN_STEP, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
-    (_S.IN_STEP, _E.MARKER_ANSWERED): _S.IN_STEP,
-    (_S.IN_STEP, _E.EXCHANGE_ENDED): _S.IN_STEP,
-    (_S.RESYNC, _E.MARKER_WRITTEN): _S.RESYNC,
-    (_S.RESYNC, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
-    (_S.RESYNC, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
-    (_S.RESYNC, _E.MARKER_ANSWERED): _S.IN_STEP,
-    (_S.RESYNC, _E.EXCHANGE_ENDED): _S.IN_STEP,
-    (_S.QUIET_RESYNC, _E.MARKER_WRITTEN): _S.RESYNC,
-    (_S.QUIET_RESYNC, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
-    (_S.QUIET_RESYNC, _E.EXCHANGE_WRITTEN): _S.EXCHANGE,
-    (_S.QUIET_RESYNC, _E.QUIET): _S.IN_STEP,
-    (_S.QUIET_RESYNC, _E.EXCHANGE_ENDED): _S.IN_STEP,
-    (_S.EXCHANGE, _E.MARKER_WRITTEN): _S.RESYNC,
-    (_S.EXCHANGE, _E.HELP_WRITTEN): _S.QUIET_RESYNC,
-    (_S.EXCHANGE, _E.EXCHANGE_ENDED): _S.IN_STEP,
-    **{(state, event): _S.LOST for state in _S if state is not _S.LOST
-       for event in (_E.DEAD, _E.CLOSED)},
-    # Lost is final. (The session reports neither quiet nor a dead link once lost.)
-    **{(_S.LOST, event): _S.LOST for event in _E if event not in (_E.QUIET, _E.DEAD)},
-}
-
-
-class SessionStateError(RuntimeError):
-    """An event the transition table does not allow in the current state (the adapter's
-    bug, never the controller's doing)."""
-
-
-class Outcome(enum.Enum):
-    """What the adapter does after a line was dropped, a quiet deadline passed or an
-    exchange ended."""
-
-    NONE = "none"  #: nothing
-    WAIT_QUIET = "wait quiet"  #: (re)arm the quiet deadline (:attr:`LinkSession.quiet_deadline`)
-    COLLECTED = "collected"  #: the exchange has what it waits for: wake it
-    IN_STEP = "in step"  #: a quiet resync (or an exchange) ended: release the lines it held
-    #: An exchange ended without what it waited for: its replies may still come, resync.
-    RESYNC = "resync"
-
-
-class ModeVerdict(enum.Enum):
-    """What a mode exchange's reading means (:meth:`LinkSession.mode_changed`,
-    :meth:`LinkSession.mode_verified`)."""
-
-    IN_FORCE = "in force"  #: the mode asked for (or the driver's) is in force
-    #: A mode change left the controller in another mode (adopted): the change failed.
-    KEPT_ANOTHER = "kept another"
-    #: A read found another mode than the driver's: the controller restarted (power-on
-    #: mode 1, L2062); the driver's mode is selected again.
-    RESTARTED = "restarted"
-
-
-class Overdue(enum.Enum):
-    """What the adapter does with a line whose reply did not come in time
-    (:meth:`LinkSession.reply_overdue`)."""
-
-    #: It went out during the wait (queued when the wait began): its reply gets the time
-    #: once more, from now.
-    WAIT_AGAIN = "wait again"
-    #: Never written, held behind a resync (its marker has a deadline of its own), or
-    #: behind a reply a caller still waits for (its caller's deadline covers it): take it
-    #: back out of the queue, count nothing.
-    WITHDRAW = "withdraw"
-    #: Never written, held in step behind a reply owed to nobody who waits (a credit
-    #: marker, a separator, a list's entry, a cancelled read): no deadline covers that
-    #: reply but this one. Take the line back out of the queue, count the lines ahead
-    #: of it (:meth:`LinkSession.unanswered`) and resync in the background.
-    STALLED = "stalled"
-    #: Written and unanswered: count it (:meth:`LinkSession.unanswered`), then resync in the
-    #: background (its reply may be lost for good).
-    UNANSWERED = "unanswered"
-
-
-class Silence(enum.Enum):
-    """What a line (or marker) left unanswered means for the link
-    (:meth:`LinkSession.unanswered`, :meth:`LinkSession.marker_overdue`)."""
-
-    ALIVE = "alive"  #: counted (or counted already, with the lines in flight with it)
-    DEAD = "dead"  #: the link is now declared dead
-    #: An overdue marker of the newest resync, the stream not in step yet: write a new
-    #: one, so the lines held behind it are not held for ever.
-    MARKER_AGAIN = "marker again"
-
-
-class Barrier(enum.Enum):
-    """Where a barrier (a mode change) stands (:meth:`LinkSession.barrier`)."""
-
-    WAIT = "wait"  #: lines before it are still unwritten or unanswered, or a resync runs
-    CLEAR = "clear"  #: every line before it is written and answered: go
-    #: Ctrl+C discarded the queued lines: the barrier's line is not sent.
-    ABORTED = "aborted"
-
-
-#: Times a line's reply gets its timeout at most: once, and once more from its write when
-#: it was still queued as the wait began (:meth:`LinkSession.reply_overdue`).
-REPLY_WAITS: Final = 2
-
-
-class Until(enum.Enum):
-    """What ends an exchange's collection."""
-
-    NUMBER = "number"  #: one number (the reply of the last line, ``?err``)
-    HELP = "help"  #: ``help``'s reply, then quiet (unless nothing can trail it)
-    MARKER = "marker"  #: the marker's reply twice and then a number; or quiet
-
-
-@dataclass(slots=True)
-class Exchange:
-    """The lines an exchange collected (:meth:`LinkSession.begin_exchange`)."""
-
-    until: Until
-    marker: str | None = None
-    #: The normal forms of the lines written: their echoes (mode 4) are not replies.
-    echoes: frozenset[str] = frozenset()
-    lines: list[str] = field(default_factory=list)
-    #: Marker replies in a row (at most 2), then 3 once the number followed.
-    run: int = 0
-
-    @property
-    def numbered(self) -> bool:
-        """Whether a marker exchange saw the marker's reply twice and then a number."""
-        return self.run == 3
-
-
-def nothing_trails_help(lines: Sequence[str]) -> bool:
-    """In a mode exchange (``...``, ``?autostatus``, ``?help``) whose lines so far hold
-    the reply of ``?help``: whether no line of ``?help``'s own can follow its reply, so
-    that the exchange may end without waiting for a quiet link.
-
-    The first number is the mode ``?help`` runs in (``?autostatus``'s reply; later lines
-    wait). Only two modes add lines to a read: mode 2 acknowledges (L2099-2103; reads
-    too, on some firmware: the ``ack_reads`` switch of the emulator) and mode 4 echoes
-    (L2117; "all input instructions", old L717-725), either before or after the reply.
-    Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
-    lines are move reports), and ``help``'s reply is one line in both editions (L2915-
-    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet.
-
-    Parameters
-    ----------
-    lines
-        The lines the exchange collected so far.
-
-    Returns
-    -------
-    bool
-        Whether the mode in force (the first number) is 0, 1 or 3.
-    """
-    for line in lines:
-        if _INTEGER.match(line):
-            return int(line) in (0, 1, 3)
-    return False
-
-
-#: The read a mode exchange may carry to see how ``?statusaxis`` ends (:func:`status_tail`).
-STATUS_READ: Final = "?statusaxis"
-
-#: The all-axes ``?statusaxis`` reply without a tail: one letter per axis.
-_BARE_LETTERS: Final = re.compile(f"[{re.escape(''.join(sorted(LETTERS)))}]{{1,4}}$")
-
-
-def status_tail(lines: Sequence[str]) -> str | None:
-    """How a unit ends its all-axes ``?statusaxis`` reply, from the lines an exchange
-    that wrote it brought back: ``"yes"`` (``.-``, as the manual says and prints:
-    "an additional '-' after the dot (.- instead of .)", L2668-2670, ``@@@-.-`` L2715),
-    ``"no"`` (the letters alone), or ``"dot"`` (``@@@-.``: the completion report's own
-    shape, L2087-2089, which a read then cannot be told from). A completion report that
-    came meanwhile does not count: a line with ``.-`` or the bare letters decides first.
-
-    Parameters
-    ----------
-    lines
-        The lines collected (stripped or not).
-
-    Returns
-    -------
-    str | None
-        ``"yes"``, ``"no"`` or ``"dot"``; ``None``: no line of letters came.
-    """
-    texts = [line.strip() for line in lines]
-    if any(text.endswith(".-") and is_completion_line(text[:-1]) for text in texts):
-        return "yes"
-    if any(_BARE_LETTERS.match(text) for text in texts):
-        return "no"
-    if any(is_completion_line(text) for text in texts):
-        return "dot"
-    return None
-
-
-def _is_help_reply(text: str) -> bool:
-    """Whether ``text`` (stripped) looks like the reply of ``help``.
-
-    Returns
-    -------
-    bool
-        Whether it is ``ERROR n,text`` (L2915-2919, old L805-819).
-    """
-    return text.startswith("ERROR")
 
 
 class LinkSession:

@@ -1,6 +1,6 @@
 """Sans-IO tests of the link session (tango_aio.sansio._session), driven synchronously.
 
-Every transition of :data:`~tango_aio.sansio._session.TRANSITIONS` is reached through the
+Every transition of :data:`~tango_aio.sansio._linkstate.TRANSITIONS` is reached through the
 session's own methods (the calls the protocol makes), with time passed in. The exchanges
 run against the emulator's interpreter (``ControllerModel``, no event loop), its replies
 split at every point hypothesis picks on the way back.
@@ -19,25 +19,21 @@ from hypothesis import strategies as st
 from tango_aio.catalog._instructions import parse
 from tango_aio.errors import ProtocolError
 from tango_aio.sansio._core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
-from tango_aio.sansio._linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
-from tango_aio.sansio._session import (
-    QUIET_INTERVAL,
+from tango_aio.sansio._exchange import STATUS_READ, Until, nothing_trails_help, status_tail
+from tango_aio.sansio._linkstate import (
     REPLY_WAITS,
-    STATUS_READ,
     TRANSITIONS,
     Barrier,
     LinkEvent,
-    LinkSession,
     LinkState,
     ModeVerdict,
     Outcome,
     Overdue,
     SessionStateError,
     Silence,
-    Until,
-    nothing_trails_help,
-    status_tail,
 )
+from tango_aio.sansio._linktiming import BITS_PER_BYTE, QUIET_BYTES, byte_time
+from tango_aio.sansio._session import QUIET_INTERVAL, LinkSession
 from tango_aio.sim.model import ControllerModel, SimConfig
 from tango_aio.sim.profiles import PROFILES, Firmware
 
