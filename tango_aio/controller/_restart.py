@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import functools
 import logging
 from collections.abc import Awaitable, Callable, Mapping
 from typing import Any, Protocol
@@ -111,6 +112,12 @@ class Restartable(Protocol):
     def autostatus(self) -> int:
         """The mode the driver has in force."""
 
+    def hold_for_check(self) -> None:
+        """Hold the lines submitted from now on until the next read of the mode."""
+
+    def release_check_hold(self) -> None:
+        """End a hold of :meth:`hold_for_check` that no read of the mode took over."""
+
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
         """Read the mode in force; restore the driver's if it differs."""
 
@@ -141,11 +148,21 @@ class RestartWatch:
         protocol.on_restored = self.restored
 
     def suspect(self) -> None:
-        """Something suggests a restart: read the mode in force (once at a time)."""
+        """Something suggests a restart: read the mode in force (once at a time). The
+        lines submitted from now on wait for that read (the call after the one that met
+        the restart goes out in the driver's mode)."""
         if self._protocol is None or (self._checking is not None
                                       and not self._checking.done()):
             return
-        self._checking = self._spawn(self._check(self._protocol))
+        protocol = self._protocol
+        protocol.hold_for_check()
+        self._checking = self._spawn(self._check(protocol))
+        # Whatever ends the check (cancelled before it ran, too), no hold is left behind.
+        self._checking.add_done_callback(functools.partial(self._checked, protocol))
+
+    def _checked(self, protocol: Restartable, task: asyncio.Task[None]) -> None:
+        if task is self._checking:  # (a newer check takes over a hold still standing)
+            protocol.release_check_hold()
 
     def _unanswered(self) -> None:
         if self._protocol is not None and \

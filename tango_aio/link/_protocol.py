@@ -242,7 +242,8 @@ class TangoProtocol(LineRouter):
         (:meth:`~tango_aio.sansio._session.LinkSession.mode_read`)."""
         sent = self.session.mode_lines(lines)
         async with self._barrier_lock:
-            hold = self.scheduler.hold()
+            early, self._check_hold = self._check_hold, None
+            hold = early if restore and early is not None else self.scheduler.hold()
             try:
                 if not await self._idle(hold, timeout):
                     if not self.session.barrier_overdue_resyncs(restore=restore):
@@ -427,6 +428,24 @@ class TangoProtocol(LineRouter):
             with contextlib.suppress(TangoError):
                 await self.verify_autostatus(timeout=self.reply_timeout)
             session.keepalive_probed(self._loop.time())
+
+    def hold_for_check(self) -> None:
+        """A restart is suspected: hold every line submitted from now on until the read
+        of the mode that checks for it (:meth:`verify_autostatus`) has run, so that the
+        call after the one that met the restart is not written in a mode the controller
+        may no longer have (back in mode 1, L2062, it leaves the acknowledgement or echo
+        of modes 2 and 4 unsent, L2099-2117). Nothing is done while a barrier holds
+        lines already; :meth:`release_check_hold` ends a hold no read took over."""
+        if self._check_hold is None and not self._barrier_lock.locked():
+            self._check_hold = self.scheduler.hold()
+
+    def release_check_hold(self) -> None:
+        """Let the lines held by :meth:`hold_for_check` go, if no read of the mode took
+        the hold over."""
+        if self._check_hold is not None:
+            self._check_hold = None
+            self.scheduler.release()
+            self._flush()
 
     async def verify_autostatus(self, *, timeout: float | None) -> bool:
         """Read the mode in force (the way a mode change is confirmed, so that whatever

@@ -155,6 +155,9 @@ class LineRouter(asyncio.Protocol):
         self._quiet_timer: asyncio.TimerHandle | None = None
         self._collected: asyncio.Future[None] | None = None
         self._barrier_lock = asyncio.Lock()
+        #: The hold taken when a restart was suspected (``hold_for_check``), until the
+        #: read of the mode that checks for it takes it over.
+        self._check_hold: int | None = None
         self._queue_drops = 0  # times the queue was dropped (a mode change waiting fails)
 
     @property

@@ -129,10 +129,12 @@ async def test_a_power_cycle_ends_the_move_by_start_rule() -> None:
         assert (await tango.position())["x"] == pytest.approx(nudged + STEP, abs=1e-3)
 
 
-#: The firmware variants of the next-call tests: the 1.71 manual's, and one whose
+#: The firmware variants of the next-call tests: the 1.71 manual's, one whose
 #: ``?version`` line has the older edition's format (old L426), which the driver takes for
-#: the older instruction set: its stop is ``a`` for every axis (old L1907-1919).
-CYCLE_VARIANTS = ("profile=manual", "profile=manual&version_format=old")
+#: the older instruction set: its stop is ``a`` for every axis (old L1907-1919), and two
+#: that acknowledge reads in mode 2, after or before their data (L2099-2103 leave it open).
+CYCLE_VARIANTS = ("profile=manual", "profile=manual&version_format=old",
+                  "profile=manual&ack_reads=after", "profile=manual&ack_reads=before")
 #: The reply timeout of the calls around the one that meets the restart (and of the
 #: restart check): generous, it only bounds a wait that should not happen.
 NEXT_TIMEOUT = 2.0
@@ -140,8 +142,11 @@ NEXT_TIMEOUT = 2.0
 #: before: the restart check waited behind a stop's ``a`` (the older instruction set's)
 #: whose acknowledgement or echo a unit back in mode 1 never sends, then released the
 #: held next call in the wrong mode; and a move that lost its report to the restart left
-#: it unnoticed, so the set after the next move went unanswered.
-DEFAULT_RUN = {("speed", "idle", CYCLE_VARIANTS[1]), ("move", "moving", CYCLE_VARIANTS[1])}
+#: it unnoticed, so the set after the next move went unanswered; and, on firmware that
+#: acknowledges reads after their data, a next call submitted before the restart check
+#: took its hold went out in mode 1 and waited for an ``OK...`` that never came.
+DEFAULT_RUN = {("speed", "idle", CYCLE_VARIANTS[1]), ("move", "moving", CYCLE_VARIANTS[1]),
+               ("move", "idle", CYCLE_VARIANTS[2])}
 
 
 def _next_call_cases() -> list[object]:
