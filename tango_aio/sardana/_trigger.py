@@ -23,16 +23,10 @@ from tango_aio.errors import TangoError
 from tango_aio.families import TriggerConfig, TriggerMode
 from tango_aio.units import Measure, to_controller
 
+from ._controller import _SARDANA_STATES
 from ._links import acquire, release
 from ._state import State
 from ._synch import Group, TriggerPlan, plan, trigger_state
-
-_SARDANA_STATES = {
-    State.ON: SardanaState.On,
-    State.MOVING: SardanaState.Moving,
-    State.ALARM: SardanaState.Alarm,
-    State.FAULT: SardanaState.Fault,
-}
 
 _LIST_MODES = (TriggerMode.LIST_RISING, TriggerMode.LIST_FALLING)
 
