@@ -156,3 +156,19 @@ def test_a_time_domain_description_is_refused_before_anything_is_written(
                            SynchParam.Total: {SynchDomain.Time: 0.1},
                            SynchParam.Repeats: 3}])
     assert tango.triggers.read_config() == before
+
+
+def test_the_trigger_axis_is_one_the_controller_has_and_the_pulses_follow_it(
+        synchronised: Synchronised) -> None:
+    ctrl, tango = synchronised.element.ctrl, synchronised.stage.tango
+    with pytest.raises(ValueError, match="no axis"):
+        ctrl.SetAxisExtraPar(1, "TriggerAxis", "a")  # a 3-axis controller
+    ctrl.SetAxisExtraPar(1, "TriggerAxis", "Y")
+    assert ctrl.GetAxisExtraPar(1, "TriggerAxis") == "y"
+    ctrl.SynchOne(1, [group(0.5, 0.5, 2)])
+    assert tango.triggers.read_config().axis == "y"
+    ctrl.StartOne(1)
+    tango.move_to(x=2.0)  # not the trigger axis: no pulse
+    assert tango.triggers.count() == 0
+    tango.move_to(y=1.5)
+    assert [p.position for p in synchronised.pulses()] == pytest.approx([0.5, 1.0], abs=1e-6)
