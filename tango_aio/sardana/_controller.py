@@ -23,6 +23,7 @@ from tango_aio.errors import TangoError
 from tango_aio.status import switch_states
 from tango_aio.units import LENGTH_UNITS
 
+from ._links import acquire, release
 from ._state import AxisState, Outcome, State, axis_state, switch_bits
 
 _AXES = "xyza"
@@ -143,8 +144,7 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         self._open()
 
     def _open(self) -> None:
-        self._tango = tango_aio.sync.connect(self.URL, units=self.Units,
-                                             reconnect=bool(self.Reconnect))
+        self._tango = acquire(self.URL, self.Units, bool(self.Reconnect))
         with self._lock:
             self._moves = {}  # outcomes of a link closed since: not this link's
 
@@ -165,10 +165,11 @@ class MarzhauserMotorController(MotorController):  # type: ignore[misc]
         return self._tango
 
     def close(self) -> None:
-        """Close the link to the TANGO controller; ``AddDevice`` opens it again."""
+        """Let go of the link to the TANGO controller (closed with the last controller of
+        this URL in the process); ``AddDevice`` opens it again."""
         tango, self._tango = self._tango, None
         if tango is not None:
-            tango.close()
+            release(tango)
 
     def __del__(self) -> None:
         with contextlib.suppress(Exception):

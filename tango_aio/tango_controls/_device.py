@@ -7,6 +7,7 @@ its part by device name before the server starts.
 
 from __future__ import annotations
 
+import json
 import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from tango.server import Device, attribute, command
 from ..controller import Controller
 from ..errors import TangoError
 from ._axis import AxisCore, StageLink
+from ._controller_info import info_field, trigger_config_json, updated_trigger_config
 from ._state import Shown
 
 __all__ = ["SERVING", "MarzhauserAxis", "MarzhauserController", "Serving"]
@@ -270,7 +272,9 @@ def _forget(name: str, value: Any) -> None:
 
 
 class MarzhauserController(Device):  # type: ignore[misc]
-    """A Märzhäuser TANGO stepper-motor controller: its identity and link."""
+    """A Märzhäuser TANGO stepper-motor controller: its identity and link, what it says
+    about itself (``Info`` and its fields), its settings (``Settings``) and its trigger
+    output (``TriggerConfig``, ``TriggerEnabled``, ``TriggerCount``)."""
 
     green_mode = GreenMode.Asyncio
 
@@ -322,3 +326,85 @@ class MarzhauserController(Device):  # type: ignore[misc]
             await self._link.abort()
         except TangoError as exc:
             _refuse(exc)
+
+    # -- what the controller says about itself -------------------------------------------
+
+    async def _ask(self, action: Any) -> Any:
+        try:
+            return await action
+        except (TangoError, ValueError) as exc:
+            _refuse(exc)
+
+    async def _info(self, name: str) -> Any:
+        try:
+            return info_field(await self._ask(self._controller.read_info()), name)
+        except LookupError as exc:
+            _refuse(exc)
+
+    @attribute(dtype=str, doc="everything read_info() reads, as a JSON object (null: a "
+                              "field this controller does not answer)")
+    async def Info(self) -> str:
+        info = await self._ask(self._controller.read_info())
+        return json.dumps(info.as_dict(), sort_keys=True)
+
+    @attribute(dtype=str, doc="the serial number (?readsn)")
+    async def SerialNumber(self) -> str:
+        return str(await self._info("serial_number"))
+
+    @attribute(dtype=str, doc="the version string (?ver)")
+    async def Version(self) -> str:
+        return str(await self._info("version"))
+
+    @attribute(dtype=str, doc="the internal version (?iver)")
+    async def InternalVersion(self) -> str:
+        return str(await self._info("internal_version"))
+
+    @attribute(dtype=int, unit="s", doc="seconds since power-on or reset (?uptime)")
+    async def Uptime(self) -> int:
+        return int(await self._info("uptime"))
+
+    @attribute(dtype=float, unit="degC", doc="the case temperature (?temp)")
+    async def Temperature(self) -> float:
+        return float(await self._info("temperature"))
+
+    @attribute(dtype=str, doc="every setting the controller holds, as the JSON of a "
+                              "settings snapshot (tango_aio's SettingsSnapshot.to_json)")
+    async def Settings(self) -> str:
+        snapshot = await self._ask(self._controller.settings.snapshot())
+        return str(snapshot.to_json())
+
+    # -- the trigger output --------------------------------------------------------------
+
+    @attribute(dtype=str, access=AttrWriteType.READ_WRITE,
+               doc="the trigger configuration as a JSON object (mode, axis, width_us, "
+                   "distance, frequency_hz, output, compensation_us, encoder, "
+                   "list_active_high); write: the fields to change, the others kept")
+    async def TriggerConfig(self) -> str:
+        return trigger_config_json(await self._ask(self._controller.triggers.read_config()))
+
+    @TriggerConfig.write  # type: ignore[no-redef]
+    async def TriggerConfig(self, value: str) -> None:
+        triggers = self._controller.triggers
+        try:
+            config = updated_trigger_config(await triggers.read_config(), value)
+            await triggers.write_config(config)
+        except (TangoError, ValueError) as exc:
+            _refuse(exc)
+
+    @attribute(dtype=bool, access=AttrWriteType.READ_WRITE,
+               doc="the trigger output is switched on (?trig, !trig)")
+    async def TriggerEnabled(self) -> bool:
+        return bool(await self._ask(self._controller.triggers.enabled()))
+
+    @TriggerEnabled.write  # type: ignore[no-redef]
+    async def TriggerEnabled(self, value: bool) -> None:
+        await self._ask(self._controller.triggers.set_enabled(bool(value)))
+
+    @attribute(dtype=int, access=AttrWriteType.READ_WRITE,
+               doc="the trigger events so far (?trigcount); write: set the counter")
+    async def TriggerCount(self) -> int:
+        return int(await self._ask(self._controller.triggers.count()))
+
+    @TriggerCount.write  # type: ignore[no-redef]
+    async def TriggerCount(self, value: int) -> None:
+        await self._ask(self._controller.triggers.set_count(int(value)))

@@ -29,7 +29,7 @@ GENERATED = {"catalog/_table.py", "families/_generated.py"}
 HANDLER_MODULES = {"sim/handlers.py", "sim/peripherals.py"}
 #: A Sardana controller: its methods (``StateOne``, ``StartAll``, ...) and constructor are
 #: the pool's interface, documented once by Sardana; the class docstring says what ours do.
-FRAMEWORK_OVERRIDES = {"sardana/_controller.py"}
+FRAMEWORK_OVERRIDES = {"sardana/_controller.py", "sardana/_trigger.py"}
 #: ``raise _fail(...)``: a helper builds the error, and the Raises sections name the class
 #: it builds (InvalidCommandError), not the helper.
 RAISES_ELSEWHERE = {"catalog/_instructions.py", "catalog/_encode.py"}
