@@ -31,7 +31,7 @@ async def test_a_long_sleep_takes_no_real_time() -> None:
     started, real = loop.time(), time.monotonic()
     await asyncio.sleep(3600)
     # a timer is due within the loop's clock resolution of its time (asyncio's rule)
-    assert loop.time() - started >= 3600 - loop._clock_resolution
+    assert loop.time() - started >= 3600 - time.get_clock_info("monotonic").resolution
     assert time.monotonic() - real < 600  # far less than the hour (a hang bound only)
     assert loop.jumped > 3500
 
