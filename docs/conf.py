@@ -79,6 +79,27 @@ PUBLIC_API = [
 _DOCUMENTED: set[int] = set()
 
 
+def _documented_by_hand() -> set[int]:
+    """The objects a hand-written page documents (an ``auto*`` directive without
+    ``:no-index:``, such as the family pages): the generated pages leave them out."""
+    import importlib
+    import re
+
+    from sphinx.ext.autodoc.mock import mock
+
+    pattern = re.compile(r"^\.\. auto(?:class|function|exception|data):: (\S+)\n"
+                         r"((?:   :.*\n)*)", re.MULTILINE)
+    found: set[int] = set()
+    with mock(autodoc_mock_imports):
+        for page in HERE.rglob("*.md"):
+            for match in pattern.finditer(page.read_text(encoding="utf-8")):
+                if ":no-index:" in match.group(2):
+                    continue
+                module, _, name = match.group(1).rpartition(".")
+                found.add(id(getattr(importlib.import_module(module), name)))
+    return found
+
+
 def _exported(module_name: str) -> list[tuple[str, str]]:
     """(directive, dotted name) for each name ``module_name`` exports but defines in a
     private module: a name defined in another public module is documented there, and one
@@ -125,6 +146,7 @@ def _write_reference() -> None:
     generated, ignored by git)."""
     pages = HERE / "reference" / "api"
     pages.mkdir(exist_ok=True)
+    _DOCUMENTED.update(_documented_by_hand())
     for name in PUBLIC_API:
         _write_if_changed(pages / f"{name}.rst", _module_page(name))
     for stale in pages.glob("*.rst"):
@@ -146,3 +168,7 @@ _write_reference()
 html_theme = "furo"
 html_title = f"tango_aio {release}"
 html_static_path: list[str] = []
+# viewcode shows the source of the public modules that define what they document; the
+# objects a package re-exports from its private modules go without a source link (followed
+# into private modules, its back-links named anchors that no page has).
+viewcode_follow_imported_members = False
