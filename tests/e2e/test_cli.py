@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+import forkrun
 import pytest
 import serial
 from aswindows import environment as as_windows_environment
@@ -45,8 +46,9 @@ CLI = [sys.executable, "-m", "tango_aio"]
 
 
 def run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout,
-                          check=False)
+    """``python -m tango_aio ARGS``, forked from a warm interpreter (``forkrun``)."""
+    return forkrun.run([*CLI, *args], capture_output=True, text=True, timeout=timeout,
+                       check=False)
 
 
 def test_help_of_every_command(capsys: pytest.CaptureFixture[str]) -> None:
@@ -603,8 +605,8 @@ def _axes_state(path: str) -> dict[str, str]:
 
 
 def _decoded(script: bytes, url: str) -> subprocess.CompletedProcess[str]:
-    raw = subprocess.run([*CLI, "shell", url], input=script, capture_output=True,
-                         timeout=60, check=False)
+    raw = forkrun.run([*CLI, "shell", url], input=script, capture_output=True,
+                      timeout=60, check=False)
     return subprocess.CompletedProcess(raw.args, raw.returncode, raw.stdout.decode(),
                                        raw.stderr.decode())
 
