@@ -11,7 +11,8 @@ stderr, working directory, ``sys.argv`` and exit code, and ends as the interpret
 process of its own, and nothing it does reaches the test process or the next program.
 
 Anything else runs in a real subprocess: other interpreter options, an ``env`` other than
-this process's environment at the server's start (``monkeypatch.setenv``), a platform
+this process's environment at the server's start (``monkeypatch.setenv``; but for the
+variables of ``_PER_CALL``), a platform
 without ``os.fork``, or a server that failed to start. Tests about the process itself
 (signals, Ctrl+C, start-up imports, the console script) keep ``subprocess``.
 """
@@ -32,8 +33,9 @@ from typing import Any
 PRELOAD = ("asyncio", "tango_aio", "tango_aio.cli", "tango_aio.sim", "tango_aio.sync",
            "tango_aio.testing", "bluesky", "ophyd_async.core", "tango_aio.bluesky")
 
-#: Variables that change while the test process runs; the child takes the caller's.
-_PER_CALL = ("PYTEST_CURRENT_TEST",)
+#: Variables read only when used, not by an import: the child takes the caller's (``env``
+#: or this process's), and the server serves any value of them.
+_PER_CALL = ("PYTEST_CURRENT_TEST", "PYTEST_ADDOPTS", "TANGO_AIO_HISTORY")
 
 _SERVER = r"""
 import atexit, gc, json, os, runpy, sys, threading, traceback, types
@@ -173,7 +175,7 @@ _server: _Server | None = None
 _broken = False
 
 
-def _warm_server() -> _Server | None:
+def _warm_server(environment: Mapping[str, str]) -> _Server | None:
     global _server, _broken
     if _server is None and not _broken:
         try:
@@ -183,7 +185,7 @@ def _warm_server() -> _Server | None:
             return None
         import atexit
         atexit.register(_server.close)
-    if _server is not None and _server.environment != _stable_environment(os.environ):
+    if _server is not None and _server.environment != _stable_environment(environment):
         return None
     return _server
 
@@ -218,18 +220,21 @@ def run(argv: Sequence[str], *, input: str | bytes | None = None, text: bool = F
     warm interpreter where it can be (the module's docstring says when)."""
     assert capture_output and not check, "only captured, unchecked runs"
     parsed = _parse(argv) if hasattr(os, "fork") else None
-    if parsed is not None and (env is None or dict(env) == dict(os.environ)):
+    environment = os.environ if env is None else env
+    if parsed is not None:
         with _lock:
-            server = _warm_server()
+            server = _warm_server(environment)
             if server is not None:
-                return _forked(server, list(argv), parsed, input, text, timeout, cwd)
+                return _forked(server, list(argv), parsed, input, text, timeout, cwd,
+                               {name: environment.get(name) for name in _PER_CALL})
     return subprocess.run(list(argv), input=input, text=text, timeout=timeout, cwd=cwd,
                           env=env, capture_output=True, check=False)
 
 
 def _forked(server: _Server, argv: list[str], parsed: tuple[str, str, list[str]],
             input: str | bytes | None, text: bool, timeout: float | None,
-            cwd: str | os.PathLike[str] | None) -> subprocess.CompletedProcess[Any]:
+            cwd: str | os.PathLike[str] | None,
+            environment: dict[str, str | None]) -> subprocess.CompletedProcess[Any]:
     with tempfile.TemporaryDirectory(prefix="forkrun-") as folder:
         paths = {name: os.path.join(folder, name) for name in ("stdin", "stdout", "stderr")}
         data = input.encode() if isinstance(input, str) else (input or b"")
@@ -239,7 +244,7 @@ def _forked(server: _Server, argv: list[str], parsed: tuple[str, str, list[str]]
         mode, target, args = parsed
         request = {"argv": argv, "mode": mode, "target": target, "args": args,
                    "cwd": os.fspath(cwd) if cwd is not None else os.getcwd(),
-                   "environment": {name: os.environ.get(name) for name in _PER_CALL}, **paths}
+                   "environment": environment, **paths}
         returncode = server.run(request, timeout)
         with open(paths["stdout"], "rb") as out, open(paths["stderr"], "rb") as err:
             stdout, stderr = out.read(), err.read()

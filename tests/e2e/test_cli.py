@@ -297,9 +297,9 @@ def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
 
 def test_shell_reads_a_script_from_a_pipe(tmp_path: Path) -> None:
     script = "?pos\n!vel 1000\n?help 5\nnot-an-instruction\n!moa 1000000\n?err\n"
-    result = subprocess.run([*CLI, "shell", SIM], input=script, capture_output=True,
-                            text=True, timeout=60, check=False,
-                            env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
+    result = forkrun.run([*CLI, "shell", SIM], input=script, capture_output=True,
+                         text=True, timeout=60, check=False,
+                         env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
     assert result.returncode == 1, result.stderr  # lines failed
     out, err = result.stdout, result.stderr
     assert "0.0000 0.0000 0.0000" in out

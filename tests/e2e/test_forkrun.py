@@ -63,3 +63,13 @@ def test_another_environment_runs_in_a_fresh_interpreter(
     assert forkrun.run(probe, text=True, timeout=60).stdout == "True None\n"
     monkeypatch.setenv("FORKRUN_PROBE", "1")
     assert forkrun.run(probe, text=True, timeout=60).stdout == "False 1\n"
+
+
+def test_a_variable_read_when_used_is_the_callers() -> None:
+    probe = [sys.executable, "-c", "import os, sys; "
+             "print('tango_aio.cli' in sys.modules, os.environ.get('TANGO_AIO_HISTORY'))"]
+    environment = {**os.environ, "TANGO_AIO_HISTORY": "/nowhere/h"}
+    assert forkrun.run(probe, text=True, timeout=60, env=environment).stdout == (
+        "True /nowhere/h\n")
+    environment.pop("TANGO_AIO_HISTORY")
+    assert forkrun.run(probe, text=True, timeout=60, env=environment).stdout == "True None\n"
