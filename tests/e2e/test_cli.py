@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+import forkrun
 import pytest
 import serial
 from aswindows import environment as as_windows_environment
@@ -42,8 +43,9 @@ CLI = [sys.executable, "-m", "tango_aio"]
 
 
 def run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout,
-                          check=False)
+    """``python -m tango_aio ARGS``, forked from a warm interpreter (``forkrun``)."""
+    return forkrun.run([*CLI, *args], capture_output=True, text=True, timeout=timeout,
+                       check=False)
 
 
 def test_help_of_every_command(capsys: pytest.CaptureFixture[str]) -> None:
@@ -292,9 +294,9 @@ def test_shell_ctrl_c_while_a_command_runs_aborts(history: Path) -> None:
 
 def test_shell_reads_a_script_from_a_pipe(tmp_path: Path) -> None:
     script = "?pos\n!vel 1000\n?help 5\nnot-an-instruction\n!moa 1000000\n?err\n"
-    result = subprocess.run([*CLI, "shell", SIM], input=script, capture_output=True,
-                            text=True, timeout=60, check=False,
-                            env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
+    result = forkrun.run([*CLI, "shell", SIM], input=script, capture_output=True,
+                         text=True, timeout=60, check=False,
+                         env={**os.environ, "TANGO_AIO_HISTORY": str(tmp_path / "h")})
     assert result.returncode == 1, result.stderr  # lines failed
     out, err = result.stdout, result.stderr
     assert "0.0000 0.0000 0.0000" in out
@@ -600,8 +602,8 @@ def _axes_state(path: str) -> dict[str, str]:
 
 
 def _decoded(script: bytes, url: str) -> subprocess.CompletedProcess[str]:
-    raw = subprocess.run([*CLI, "shell", url], input=script, capture_output=True,
-                         timeout=60, check=False)
+    raw = forkrun.run([*CLI, "shell", url], input=script, capture_output=True,
+                      timeout=60, check=False)
     return subprocess.CompletedProcess(raw.args, raw.returncode, raw.stdout.decode(),
                                        raw.stderr.decode())
 

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import forkrun
 import pytest
 from helpers import PtySim
 
@@ -16,8 +17,8 @@ CLI = [sys.executable, "-m", "tango_aio"]
 
 def shell(url: str, script: str) -> subprocess.CompletedProcess[str]:
     """``printf SCRIPT | tango-aio shell URL``."""
-    return subprocess.run([*CLI, "shell", url], input=script, capture_output=True,
-                          text=True, timeout=60, check=False)
+    return forkrun.run([*CLI, "shell", url], input=script, capture_output=True,
+                       text=True, timeout=60, check=False)
 
 
 @pytest.fixture
@@ -54,12 +55,12 @@ def test_a_script_whose_moves_arrive_exits_0(fast: str) -> None:
 
 
 def test_move_exits_1_on_a_limit_switch_and_0_at_the_target(fast: str) -> None:
-    bad = subprocess.run([*CLI, "move", fast, "x=60"], capture_output=True, text=True,
-                         timeout=60, check=False)
+    bad = forkrun.run([*CLI, "move", fast, "x=60"], capture_output=True, text=True,
+                      timeout=60, check=False)
     assert bad.returncode == 1 and "X stopped at its upper limit switch" in bad.stderr
     assert "error:" not in bad.stdout
-    good = subprocess.run([*CLI, "move", fast, "x=5", "y=-5"], capture_output=True,
-                          text=True, timeout=60, check=False)
+    good = forkrun.run([*CLI, "move", fast, "x=5", "y=-5"], capture_output=True,
+                       text=True, timeout=60, check=False)
     assert good.returncode == 0, good.stdout
     assert good.stdout.split()[-6:] == ["x=", "5.0000", "y=", "-5.0000", "z=", "0.0000"]
 

@@ -1,6 +1,7 @@
 """The examples run against the embedded emulator, as getting-started.md promises.
 
-Every ``examples/*.py`` runs once, as a subprocess; each must exit with 0 and print
+Every ``examples/*.py`` runs once, in a process of its own (forked from a warm
+interpreter, ``forkrun``); each must exit with 0 and print
 something, and what it prints is checked by the example's function in ``CHECKS`` (one run
 per example, whichever xdist worker it lands on).
 """
@@ -14,6 +15,7 @@ import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
+import forkrun
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,9 +27,9 @@ def run_example(name: str) -> subprocess.CompletedProcess[str]:
     # One pytest process for the example that runs its own tests: this repository's
     # addopts would start 8 xdist workers for its three tests.
     environment = {**os.environ, "PYTEST_ADDOPTS": "-n 0"}
-    return subprocess.run([sys.executable, str(ROOT / "examples" / name)],
-                          capture_output=True, text=True, timeout=90, check=False, cwd=ROOT,
-                          env=environment)
+    return forkrun.run([sys.executable, str(ROOT / "examples" / name)],
+                       capture_output=True, text=True, timeout=90, check=False, cwd=ROOT,
+                       env=environment)
 
 
 def move_and_watch_shows_events_and_positions(out: str) -> None:
