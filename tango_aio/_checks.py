@@ -1,9 +1,4 @@
-"""Checks of the caller's numeric options (timeouts, sizes, limits) at the public boundary.
-
-A NaN compares false with everything, so ``timeout < 0`` lets it through and an
-``asyncio.timeout(nan)`` never fires; these checks refuse it, and other values that cannot
-mean what the caller wants, with a :class:`ValueError` that names the option.
-"""
+"""Checks of the caller's numeric options (timeouts, sizes, limits) at the public boundary."""
 
 from __future__ import annotations
 

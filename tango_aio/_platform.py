@@ -1,13 +1,4 @@
-"""The one place the package asks which platform it runs on.
-
-Windows lacks what the POSIX code paths use: ptys (``os.openpty``), ``termios``, ``tty``,
-``fcntl`` (the ``flock`` port lock), ``resource``, ``signal.pthread_sigmask``, and an event
-loop with ``add_signal_handler``. Code that branches on the platform asks
-:data:`WINDOWS` here rather than ``sys.platform`` or ``os.name`` itself, so that the test
-suite can run the Windows branches on Linux: ``TANGO_AIO_TEST_AS_WINDOWS=1`` makes
-:data:`WINDOWS` true (together with the import blocker of ``tests/windows_site``, which makes
-the POSIX-only modules unimportable as they are on Windows; see ``tests/README.md``).
-"""
+"""The one place the package asks which platform it runs on."""
 
 from __future__ import annotations
 

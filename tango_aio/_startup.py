@@ -1,15 +1,4 @@
-"""Ctrl+C while the command line starts ends quietly.
-
-The ``tango-aio`` command (and ``python -m tango_aio``) calls :func:`install` before
-anything else is imported, so that an interrupt
-while the rest of the command line loads (asyncio, rich, the driver: about 0.2 s) prints
-one line and exits with 130 at once (``os._exit``) instead of a ``KeyboardInterrupt``
-traceback.
-:func:`finished`, called as :func:`tango_aio.cli.main` starts (once the whole module has
-loaded, its definitions too), gives Ctrl+C back to its previous handler; from there on
-``main`` handles it. Nothing is
-installed outside the main thread, or where someone else already handles SIGINT.
-"""
+"""Ctrl+C while the command line starts ends quietly."""
 
 from __future__ import annotations
 

@@ -65,18 +65,7 @@ ACCEL_UNIT = "m/s^2"
 
 def _switches(reply: str, axis: str) -> tuple[int, int]:
     """(lower, upper) limit-switch state of ``axis`` from a ``?readsw`` reply: 12
-    characters, E0 of X Y Z A, then Ref of X Y Z A, then EE of X Y Z A (L5027-5078).
-
-    Returns
-    -------
-    tuple[int, int]
-        The lower and the upper switch, 1 if active.
-
-    Raises
-    ------
-    TangoError
-        The reply is not 12 switch states.
-    """
+    characters, E0 of X Y Z A, then Ref of X Y Z A, then EE of X Y Z A (L5027-5078)."""
     states = switch_states(reply, axis)
     if states is None:
         raise TangoError(f"?readsw replied {reply!r}, not 12 switch states (L5057-5066)")
@@ -159,15 +148,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def move_announced(self, new_position: float, timeout: TimeoutCalculator,
                              arrived: Callable[[], None] | None) -> None:
         """:meth:`move`, ending the announcement ``arrived`` of the coalescer once the
-        request has joined a batch.
-
-        Raises
-        ------
-        MoveError
-            The move failed, unless a successful stop or an arrival all the same excuses it.
-        TimeoutError
-            The move ran out of ``timeout``.
-        """
+        request has joined a batch."""
         # The controller bounds each move with its own estimate (Controller.move_to);
         # an explicit set(timeout=...) is applied on top.
         target = float(new_position)
@@ -205,13 +186,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         stop was asked for it, the line did not end it at a limit switch or timeout
         (``S``/``T``), a fresh ``?statusaxis`` says it is idle (``@``), and a fresh
         ``?pos`` puts it at the target (within 1.5 units of the printed digit, the
-        driver's own rule). Anything else: False, and the line's error stands.
-
-        Returns
-        -------
-        bool
-            Whether the axis arrived.
-        """
+        driver's own rule). Anything else: False, and the line's error stands."""
         ended_short = (AxisStatus.LIMIT_SWITCH, AxisStatus.TIMEOUT)
         if mover.stopped is not None or error.statuses.get(self.axis) in ended_short:
             return False
@@ -229,13 +204,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
     async def _timed_out(self, target: float, limit: float | None) -> NoReturn:
         """Raise the TimeoutError of a move that ran out of ``limit`` seconds (the
         cancelled move has stopped its axes): it names the axis, the target and where
-        the axis stopped.
-
-        Raises
-        ------
-        TimeoutError
-            Always.
-        """
+        the axis stopped."""
         unit = self.link.units.get(self.axis, "")
         try:
             where = f"stopped at {await self.link.position(self.axis)} {unit}"
@@ -300,18 +269,7 @@ class _AxisLogic(MovableLogic[float], FlyableLogic[FlyMotorInfo, _FlyCtx]):
         """The pass's move; False if a stop(success=True) ended it. A number as the
         FlyMotorInfo's ``timeout`` bounds it, as for Motor (the default leaves the bound
         to the driver's own estimate); running out stops the axis and raises a
-        TimeoutError naming the axis, the target and where it stopped.
-
-        Returns
-        -------
-        bool
-            True if the pass ran to its end.
-
-        Raises
-        ------
-        TimeoutError
-            The pass ran out of its timeout.
-        """
+        TimeoutError naming the axis, the target and where it stopped."""
         limit = ctx.info.timeout
         seconds = None if limit is None or isinstance(limit, str) else float(limit)
         timed_out = Mover()
@@ -359,20 +317,7 @@ async def _pass_move(link: StageLink, axis: str, target: float,
     """Move ``axis`` to ``target`` for a fly pass (through the coalescer, published as a
     move of ``axis``); False if a stop that ``stopped_ok`` accepts ended it. After
     ``limit`` seconds the axis is stopped (``a x``) and TimeoutError raised, with
-    ``timed_out.timed_out`` set.
-
-    Returns
-    -------
-    bool
-        True if the move ran to its end.
-
-    Raises
-    ------
-    MoveError
-        The move failed and no accepted stop ended it.
-    TimeoutError
-        The move ran out of ``limit``.
-    """
+    ``timed_out.timed_out`` set."""
     async with link.moving(axis) as mover:
         try:
             await _until_stopped(link.coalescer.move_to(axis, target, arrived), mover,
@@ -394,20 +339,7 @@ async def _until_stopped(move: Awaitable[str], mover: Mover, limit: float | None
     sent ``a x``), let the line end by itself (bounded) instead of cancelling it: the
     driver's cancel would stop every axis of the line with ``a``. After ``limit``
     seconds (a set's or a pass's own timeout): mark ``mover`` timed out, ``halt()`` (the
-    axis's one-axis stop), let the line end the same way and raise TimeoutError.
-
-    Returns
-    -------
-    str
-        The result of ``move``.
-
-    Raises
-    ------
-    CancelledError
-        The await was cancelled (re-raised once the line has ended).
-    TimeoutError
-        ``move`` ran out of ``limit``.
-    """
+    axis's one-axis stop), let the line end the same way and raise TimeoutError."""
     task = asyncio.ensure_future(move)
     try:
         done, _ = await asyncio.wait([task], timeout=limit)

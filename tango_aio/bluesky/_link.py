@@ -337,13 +337,7 @@ class StageLink:
 
     def _confirmed_positions(self) -> dict[str, float] | None:
         """The positions the driver read behind the latest move's report (its
-        confirmation), if it has them.
-
-        Returns
-        -------
-        dict[str, float] or None
-            The positions by axis letter, or ``None``.
-        """
+        confirmation), if it has them."""
         controller = self._controller
         texts = None if controller is None else controller.last_positions
         if not texts:

@@ -10,13 +10,7 @@ from ..units import DIM_MM_VEL, UnitScale
 
 def _vel_bounds() -> tuple[float, float]:
     """The upper bound of ``vel``: rev/s in dims 0-8, mm/s in dim 9 (manual L3452-3525,
-    read from the catalog).
-
-    Returns
-    -------
-    tuple[float, float]
-        The bound in rev/s and in mm/s.
-    """
+    read from the catalog)."""
     param = INSTRUCTIONS["vel"].write[0].per_axis[0]
     assert param.hi is not None
     return float(param.hi), float(param.hi_dim9 if param.hi_dim9 is not None else param.hi)

@@ -125,13 +125,7 @@ class MarzhauserStage(StandardReadable):
 
 def _await_statuses(start: Callable[[], Sequence[Awaitable[Any]]]) -> MsgGenerator[None]:
     """Plan stub: start statuses on the RunEngine's loop, wait for them in turn, and
-    raise the first failure in the plan (``bps.wait_for`` alone swallows it).
-
-    Yields
-    ------
-    Msg
-        The plan's messages.
-    """
+    raise the first failure in the plan (``bps.wait_for`` alone swallows it)."""
     errors: list[BaseException] = []
 
     async def wait() -> None:

@@ -1,23 +1,4 @@
-"""The TANGO instruction catalog: every instruction of the manual as data.
-
-One table (:data:`INSTRUCTIONS`, the data of the generated :mod:`tango_aio.catalog._table`, made
-of the types of :mod:`tango_aio.catalog._schema`, which this module re-exports) drives the whole
-package: validation and encoding of command lines (:func:`encode` here, :func:`build` in
-:mod:`tango_aio.catalog._encode`), the parsing of replies (:func:`parse_reply`), what the
-protocol core expects back (:attr:`Instruction.completion`, :func:`reply_rule`; both in
-:mod:`tango_aio.catalog._replies`), the typed API and the emulator's command parser
-(:func:`parse`).
-
-The grammar of a command line (manual chapter 2 and 4)::
-
-    [!|?]name[ axis][ value ...]CR
-
-``!`` executes/sets, ``?`` reads; some instructions also have a *bare* form without a
-prefix, which either executes (``moa``, ``cal``) or reads (``version``, ``sa``). An axis is
-one of ``x y z a``. Without an axis letter, per-axis values are given in X Y Z A order and a
-single value goes to X (``moa 10.2`` == ``moa x 10.2``), except for the "all axes" group
-(``swtyp``, ``calbspeed``, ...), where one value group without a letter applies to every axis.
-"""
+"""The TANGO instruction catalog: every instruction of the manual as data."""
 
 from __future__ import annotations
 

@@ -1,11 +1,4 @@
-"""Reply-line rules of the reads whose reply length is not one line.
-
-The catalog (:mod:`tango_aio.catalog._table`) names one of these functions in
-:attr:`~tango_aio.catalog._schema.Instruction.lines` where the number of reply lines depends on the
-values of the read or on the controller's state (:class:`~tango_aio.catalog._schema.Context`);
-:func:`tango_aio.catalog._replies.reply_rule` calls it. Each rule cites the manual lines it
-follows.
-"""
+"""Reply-line rules of the reads whose reply length is not one line."""
 
 from __future__ import annotations
 

@@ -1,11 +1,5 @@
 """The types of the instruction catalog: what an instruction, its parameters, its
 signatures and its reply look like, as plain data.
-
-The generated table :mod:`tango_aio.catalog._table` is made of these types only; the logic that
-uses them lives in :mod:`tango_aio.catalog._instructions` (parsing; it re-exports every name
-defined here), :mod:`tango_aio.catalog._encode` (building) and
-:mod:`tango_aio.catalog._replies` (reply parsing). This module imports nothing from the
-package, so the catalog can be loaded on its own (``python -c "import tango_aio.catalog._table"``).
 """
 
 from __future__ import annotations

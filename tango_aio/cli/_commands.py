@@ -102,13 +102,7 @@ def _show_position(tango: Controller, progress: Progress,
 
 async def _demo_scan(tango: Controller, *, rows: int, points: int) -> int:
     """A raster over the field; X carries a trigger list of ``points`` positions. With one
-    axis, the rows are passes of X back and forth.
-
-    Returns
-    -------
-    int
-        The exit status.
-    """
+    axis, the rows are passes of X back and forth."""
     two_d = tango.context.axes >= 2
     await (tango.move_to(x=0.0, y=0.0) if two_d else tango.move_to(x=0.0))
     step = _FIELD / max(points - 1, 1)
@@ -169,13 +163,7 @@ async def _info(args: argparse.Namespace) -> int:
 
 def _with_units(text: str, unit: str | Mapping[str, str], named: bool) -> str:
     """A per-axis reply (``2 2 2``) as ``x=2 mm ...`` (``named``: ``x=2 (mm)``); a reply
-    of another shape as it is, with a single unit behind it.
-
-    Returns
-    -------
-    str
-        The reply with its units.
-    """
+    of another shape as it is, with a single unit behind it."""
     values = text.split()
     units = dict.fromkeys(AXES[: len(values)], unit) if isinstance(unit, str) else dict(unit)
     if len(values) != len(units):
@@ -194,18 +182,7 @@ _TARGET = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Zµ/
 
 def _axis_target(token: str) -> tuple[str, float, str | None]:
     """argparse type of ``x=1.5``, ``x=1mm`` or ``y=-500um``: axis, value and unit
-    (``None``: the controller's unit).
-
-    Returns
-    -------
-    tuple[str, float, str | None]
-        The axis, the value and its unit.
-
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        The token is no such target.
-    """
+    (``None``: the controller's unit)."""
     from ..units import check_unit
 
     axis, sep, text = token.partition("=")
@@ -231,18 +208,7 @@ def _axis_target(token: str) -> tuple[str, float, str | None]:
 def _one_unit(targets: Sequence[tuple[str, float, str | None]]
               ) -> tuple[dict[str, float], str | None]:
     """The targets in one unit: lengths in different units are converted to mm; a unit
-    on some axes and none on others is refused (which unit would the bare ones be?).
-
-    Returns
-    -------
-    tuple[dict[str, float], str | None]
-        The target of each axis, and their unit.
-
-    Raises
-    ------
-    UsageError
-        Units are mixed with bare values, do not convert, or an axis is given twice.
-    """
+    on some axes and none on others is refused (which unit would the bare ones be?)."""
     from ..units import LENGTH_UNITS
 
     units = {unit for _, _, unit in targets}
@@ -330,13 +296,7 @@ async def _monitor(args: argparse.Namespace) -> int:
 
 async def _probe(timeout: float, ports: Sequence[str] | None) -> dict[str, str]:
     """Port → what probing it found, in a few words: "TANGO model firmware", "no
-    answer", "permission denied (...)", "busy (...)", "not found".
-
-    Returns
-    -------
-    dict[str, str]
-        What each port answered, by port name.
-    """
+    answer", "permission denied (...)", "busy (...)", "not found"."""
     from ..group import probe_ports
 
     results = await probe_ports(timeout=timeout, ports=ports or None)
@@ -398,17 +358,7 @@ async def _upload_trigp(args: argparse.Namespace) -> int:
 @contextlib.contextmanager
 def _by_file_line(path: str, lines: Sequence[int]) -> Iterator[None]:
     """Name a bad or rejected entry by its file line (``positions.txt:7``), as the
-    file's own errors are, not by its index in the list.
-
-    Raises
-    ------
-    TangoError
-        For an entry the controller rejected.
-    InvalidCommandError
-        For an entry that is not valid.
-    UploadError
-        An upload error that names no entry of the file.
-    """
+    file's own errors are, not by its index in the list."""
     from ..families import UploadError
 
     try:
@@ -430,28 +380,7 @@ def _by_file_line(path: str, lines: Sequence[int]) -> Iterator[None]:
 
 def read_positions(path: str, lines: list[int] | None = None) -> list[float]:
     """Positions from a text file, one per line (blank lines and ``#`` comments skipped);
-    ``lines`` (if given) receives the file line of each position.
-
-    Reading is bounded: lines of at most 200 bytes, at most 100000 lines and one position
-    more than a trigger list holds (so ``/dev/zero`` or a huge file fails at once).
-
-    Parameters
-    ----------
-    path
-        The file.
-    lines
-        A list that receives the file line of each position; ``None`` for none.
-
-    Returns
-    -------
-    list[float]
-        The positions.
-
-    Raises
-    ------
-    ValueError
-        A line is too long or not a number, or there are too many lines or positions.
-    """
+    ``lines`` (if given) receives the file line of each position."""
     values: list[float] = []
     with open(path, "rb") as handle:
         for number in range(1, _MAX_POSITION_LINES + 2):

@@ -48,53 +48,20 @@ _KIND_NAMES = {"move": "move", "cal": "calibration", "rm": "range measure"}
 
 
 def describe_letters(statuses: Mapping[str, str]) -> str:
-    """``{"x": "@", "y": "E"}`` → ``"x=@ (ok) y=E (error/aborted)"``.
-
-    Parameters
-    ----------
-    statuses
-        The status letter of each axis, by axis letter.
-
-    Returns
-    -------
-    str
-        The letters with their meanings.
-    """
+    """``{"x": "@", "y": "E"}`` → ``"x=@ (ok) y=E (error/aborted)"``."""
     return " ".join(f"{axis}={letter} ({LETTER_MEANINGS.get(letter, 'unknown')})"
                     for axis, letter in statuses.items())
 
 
 def letters_of_line(line: str) -> dict[str, str]:
     """The per-axis letters of a completion or statusaxis line (``@@E-.``, ``@@@-.-``);
-    absent axes (``-``) are left out.
-
-    Parameters
-    ----------
-    line
-        The line, as received.
-
-    Returns
-    -------
-    dict[str, str]
-        The letter of each axis present, by axis letter.
-    """
+    absent axes (``-``) are left out."""
     head = line.strip().split(".", 1)[0]
     return {axis: letter for axis, letter in zip(AXES, head, strict=False) if letter != ABSENT}
 
 
 def describe_error(code: int | None) -> str:
-    """An error number in words, from the manual's error table.
-
-    Parameters
-    ----------
-    code
-        The error number, or ``None`` if the controller gave none.
-
-    Returns
-    -------
-    str
-        The words.
-    """
+    """An error number in words, from the manual's error table."""
     if code is None:
         return "error (the controller gave no number)"
     if code == 0:
@@ -103,20 +70,7 @@ def describe_error(code: int | None) -> str:
 
 
 def describe_reply(command: CommandLine, reply: str) -> str:
-    """The reply text, with error numbers, ``ERR n`` and status letters decoded.
-
-    Parameters
-    ----------
-    command
-        The line that was sent.
-    reply
-        Its reply, lines separated by LF.
-
-    Returns
-    -------
-    str
-        The reply with what it means.
-    """
+    """The reply text, with error numbers, ``ERR n`` and status letters decoded."""
     return "\n".join(_describe_reply_line(command, line) for line in reply.split("\n"))
 
 
@@ -135,18 +89,7 @@ def _describe_reply_line(command: CommandLine, line: str) -> str:
 
 
 def describe_line(line: str) -> str:
-    """An unsolicited line from the controller in words.
-
-    Parameters
-    ----------
-    line
-        The line, as received.
-
-    Returns
-    -------
-    str
-        The words.
-    """
+    """An unsolicited line from the controller in words."""
     text = line.strip()
     if is_completion_line(text):
         return f"status report: {describe_letters(letters_of_line(text))}"
@@ -157,18 +100,7 @@ def describe_line(line: str) -> str:
 
 
 def describe_event(event: TangoEvent) -> str | None:
-    """An event of :meth:`Controller.events` in words (``None``: not worth showing).
-
-    Parameters
-    ----------
-    event
-        The event.
-
-    Returns
-    -------
-    str or None
-        The words, or ``None``.
-    """
+    """An event of :meth:`Controller.events` in words (``None``: not worth showing)."""
     if isinstance(event, MoveFinished):
         what = _KIND_NAMES.get(event.kind, event.kind)
         letters = describe_letters(event.statuses) or "no status letters (autostatus 3)"
@@ -196,18 +128,7 @@ def describe_event(event: TangoEvent) -> str | None:
 
 def describe_exception(exc: BaseException) -> str:
     """An error as one line for the user: the message, with a move's status letters in
-    words, and each member of an exception group.
-
-    Parameters
-    ----------
-    exc
-        The error.
-
-    Returns
-    -------
-    str
-        The line.
-    """
+    words, and each member of an exception group."""
     if isinstance(exc, BaseExceptionGroup):
         return "; ".join(dict.fromkeys(describe_exception(e) for e in exc.exceptions))
     text = _escaped(" ".join(str(exc).split()) or type(exc).__name__)
@@ -228,18 +149,7 @@ _FORM_ORDER = [Form.SET, Form.READ, Form.BARE]
 
 
 def describe_instruction(entry: Instruction) -> str:
-    """Help text of one instruction from the catalog (the shell's ``help NAME``).
-
-    Parameters
-    ----------
-    entry
-        The instruction.
-
-    Returns
-    -------
-    str
-        The help text.
-    """
+    """Help text of one instruction from the catalog (the shell's ``help NAME``)."""
     first, *more = _summary_parts(entry.summary)
     lines = [f"{entry.name}: {first}", *(f"  {part}" for part in more)]
     if entry.aliases:
@@ -260,13 +170,7 @@ def describe_instruction(entry: Instruction) -> str:
 @functools.lru_cache(maxsize=1)
 def _summary_split() -> re.Pattern[str]:
     """Where a catalog summary runs two of the manual's example lines together: before a
-    verb that starts summaries (``... 10 10 10 Move Y axis to ...``).
-
-    Returns
-    -------
-    re.Pattern[str]
-        The pattern.
-    """
+    verb that starts summaries (``... 10 10 10 Move Y axis to ...``)."""
     from ..catalog import INSTRUCTIONS
 
     verbs = {entry.summary.split()[0] for entry in INSTRUCTIONS.values() if entry.summary}

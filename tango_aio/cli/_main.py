@@ -1,16 +1,4 @@
-"""The ``tango-aio`` command line.
-
-Every command takes ``--help``. Errors are printed as one line and give exit code 1
-(2 for usage errors, 130 after Ctrl+C); a move that did not end at its target gives 1,
-in the shell too (docs/reference/cli.md, "Exit codes"). URLs are those of :func:`tango_aio.connect`;
-``sim://`` runs the embedded emulator. Text that comes from the user or the controller is
-printed literally (never as rich markup). Ctrl+C stops the axes that a command started
-before it exits.
-
-This module holds the parser and ``main``; the commands live in ``_commands.py``,
-``_simcmd.py``, ``_shell.py`` and ``_settings.py``, their words in ``_describe.py`` and
-``_output.py``.
-"""
+"""The ``tango-aio`` command line."""
 
 from __future__ import annotations
 
@@ -78,13 +66,7 @@ Command = Callable[[argparse.Namespace], Coroutine[Any, Any, int]]
 
 def _plain(text: str | None) -> str | None:
     """A docstring for ``--help``: Sphinx roles and literals (````?pos````,
-    ``:func:`x```) as plain words.
-
-    Returns
-    -------
-    str or None
-        The plain text (``None`` for no docstring).
-    """
+    ``:func:`x```) as plain words."""
     if text is None:
         return None
     text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
@@ -262,13 +244,7 @@ def _run_loop(args: argparse.Namespace) -> int:
     """``asyncio.run(_run(...))``, but a Ctrl+C cannot land while the event loop is being
     built: one that came meanwhile is delivered once it stands, and the loop is closed as
     usual (``asyncio.run`` would leave a half-built loop behind, whose ``__del__`` prints a
-    traceback, and the command's coroutine never awaited).
-
-    Returns
-    -------
-    int
-        The command's exit status.
-    """
+    traceback, and the command's coroutine never awaited)."""
     runner = asyncio.Runner()  # builds nothing yet (entering it as a context would)
     try:
         with _sigint_deferred():
@@ -314,18 +290,7 @@ def _sigint_recorded() -> Iterator[None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tango-aio`` command: 0 on success, 1 after an error (printed
-    as one line), 2 for usage errors, 130 after Ctrl+C.
-
-    Parameters
-    ----------
-    argv
-        The arguments; ``None`` for the process's own.
-
-    Returns
-    -------
-    int
-        The exit status.
-    """
+    as one line), 2 for usage errors, 130 after Ctrl+C."""
     debug = False
     try:
         # The module's body has run to its end (class and function definitions, not only

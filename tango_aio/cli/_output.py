@@ -30,13 +30,7 @@ _CONTROL = re.compile(r"[\x00-\x09\x0b-\x1f\x7f-\x9f]")
 
 def _escaped(text: str) -> str:
     """``text`` with every control character but the line feed written as ``\\xNN``:
-    text from the controller (or a proxy) never reaches the terminal raw.
-
-    Returns
-    -------
-    str
-        The escaped text.
-    """
+    text from the controller (or a proxy) never reaches the terminal raw."""
     return _CONTROL.sub(lambda match: f"\\x{ord(match.group()):02x}", text)
 
 
@@ -71,13 +65,7 @@ async def _follow(motion: Awaitable[_T], poll: Callable[[], Awaitable[None]],
                   interval: float) -> _T:
     """Await ``motion`` while calling ``poll`` every ``interval`` seconds (errors of a
     poll are ignored). If the caller is cancelled (Ctrl+C), ``motion`` is cancelled and
-    awaited first, so that a move stops its axes before the connection closes.
-
-    Returns
-    -------
-    _T
-        What ``motion`` returned.
-    """
+    awaited first, so that a move stops its axes before the connection closes."""
     job = asyncio.ensure_future(motion)
     try:
         while not job.done():

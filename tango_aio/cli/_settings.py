@@ -19,18 +19,7 @@ __all__ = ["add_settings_command", "info_rows"]
 
 
 def info_rows(info: ControllerInfo) -> list[tuple[str, str]]:
-    """The rows ``tango-aio info`` shows of :meth:`~tango_aio.Controller.read_info`.
-
-    Parameters
-    ----------
-    info
-        What the controller said.
-
-    Returns
-    -------
-    list[tuple[str, str]]
-        ``(name, value)``; ``-`` where the unit does not answer.
-    """
+    """The rows ``tango-aio info`` shows of :meth:`~tango_aio.Controller.read_info`."""
     def shown(value: Any, unit: str = "") -> str:
         return "-" if value is None else f"{value}{unit}"
 
@@ -135,13 +124,7 @@ def _existing_or_stdout(value: str) -> str:
 
 
 def add_settings_command(commands: Any) -> None:
-    """Add ``settings`` and its ``dump``, ``diff`` and ``restore`` to the command line.
-
-    Parameters
-    ----------
-    commands
-        The parser's subcommands (``parser.add_subparsers()``).
-    """
+    """Add ``settings`` and its ``dump``, ``diff`` and ``restore`` to the command line."""
     settings = commands.add_parser(
         "settings", help="back up, compare and restore a controller's settings",
         description="Back up a controller's settings to JSON, compare, restore.")

@@ -70,20 +70,7 @@ class LineReader(Protocol):
     """Where the shell gets its input lines."""
 
     async def read(self) -> str:
-        """The next line; raises EOFError at the end, KeyboardInterrupt for Ctrl+C.
-
-        Returns
-        -------
-        str
-            The line.
-
-        Raises
-        ------
-        EOFError
-            At the end of input.
-        KeyboardInterrupt
-            For Ctrl+C.
-        """
+        """The next line; raises EOFError at the end, KeyboardInterrupt for Ctrl+C."""
         ...
 
 
@@ -132,20 +119,7 @@ def _history_warning(history: Path, exc: OSError) -> None:
 def read_bounded_line(stream: BinaryIO, limit: int) -> tuple[bytes, bool]:
     """The next line, reading at most ``limit + 1`` bytes, and whether it is longer than
     ``limit`` bytes (then it was cut, and the next read continues it). ``b""`` with False
-    at the end of input.
-
-    Parameters
-    ----------
-    stream
-        The binary input.
-    limit
-        The most bytes a line may have.
-
-    Returns
-    -------
-    tuple[bytes, bool]
-        The line (or its first ``limit`` bytes) and whether it was cut.
-    """
+    at the end of input."""
     line = stream.readline(limit + 1)
     return line, len(line) > limit and not line.endswith(b"\n")
 
@@ -204,34 +178,12 @@ class _PipeReader:
 
 
 def history_path() -> Path:
-    """The shell's history file: $TANGO_AIO_HISTORY, or ~/.tango_aio_history.
-
-    Returns
-    -------
-    Path
-        The file.
-    """
+    """The shell's history file: $TANGO_AIO_HISTORY, or ~/.tango_aio_history."""
     return Path(os.environ.get("TANGO_AIO_HISTORY") or HISTORY_FILE).expanduser()
 
 
 class Shell:
-    """The interactive line shell of ``tango-aio shell`` on a connected controller.
-
-    :meth:`run` returns the exit status: 1 when the connection was lost, when a move a
-    line started did not end at its target (judged at ``wait``, when its completion
-    report comes, and on leaving: a move still running then is stopped and counts as
-    failed) or, for a ``script``, when a line failed (invalid, rejected by the
-    controller, an error); else 0.
-
-    Parameters
-    ----------
-    tango
-        The connected controller.
-    reader
-        Where the input lines come from.
-    script
-        The input is piped (a failed line makes the exit status 1).
-    """
+    """The interactive line shell of ``tango-aio shell`` on a connected controller."""
 
     def __init__(self, tango: Controller, reader: LineReader, *, script: bool = False
                  ) -> None:
@@ -253,14 +205,7 @@ class Shell:
 
     async def run(self) -> int:
         """Read, validate and send lines until ``exit``, ``quit``, end of input or the
-        loss of the connection; stop axes still moving when leaving.
-
-        Returns
-        -------
-        int
-            The exit status: 1 if a line of a script or a move failed, or the connection was
-            lost; else 0.
-        """
+        loss of the connection; stop axes still moving when leaving."""
         async with self.tango.events() as events:
             printer = asyncio.ensure_future(self._print_events(events))
             try:
@@ -313,13 +258,7 @@ class Shell:
 
     async def _read(self) -> str | KeyboardInterrupt:
         """A line, or the reader's KeyboardInterrupt as a value: raised inside a task it
-        would stop the event loop.
-
-        Returns
-        -------
-        str or KeyboardInterrupt
-            The line, or the interrupt.
-        """
+        would stop the event loop."""
         try:
             return await self.reader.read()
         except KeyboardInterrupt as interrupt:
@@ -351,13 +290,7 @@ class Shell:
     async def execute(self, line: str) -> None:
         """Run one line: a shell command (``help``, ``wait``), or an instruction line,
         validated first; a read is sent with ``query`` and its decoded reply shown,
-        anything else with ``command`` and confirmed (a rejection raises).
-
-        Parameters
-        ----------
-        line
-            The line typed or piped.
-        """
+        anything else with ``command`` and confirmed (a rejection raises)."""
         words = line.split()
         if words[0].lower() == "help" and len(words) <= 2:
             _say(self.help(words[1] if len(words) == 2 else None))
@@ -429,19 +362,7 @@ class Shell:
 
     @staticmethod
     def help(topic: str | None) -> str:
-        """The shell's help: its commands, an instruction, or an error number.
-
-        Parameters
-        ----------
-        topic
-            A shell command, an instruction name or an error number; ``None`` for the list of
-            the shell's commands.
-
-        Returns
-        -------
-        str
-            The help text.
-        """
+        """The shell's help: its commands, an instruction, or an error number."""
         if topic is None:
             return SHELL_HELP
         if topic.lstrip("-").isdigit():

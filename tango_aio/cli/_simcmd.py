@@ -82,18 +82,7 @@ def _check_pty_platform() -> None:
 
 def _tcp_address(text: str) -> tuple[str, int]:
     """``HOST:PORT``, ``:PORT`` or ``PORT`` (host 127.0.0.1) or ``[IPv6]:PORT`` as (host,
-    port); a usage error with the reason for anything else.
-
-    Returns
-    -------
-    tuple[str, int]
-        The host and the port.
-
-    Raises
-    ------
-    UsageError
-        The text is no such address.
-    """
+    port); a usage error with the reason for anything else."""
     host, _, port_text = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]

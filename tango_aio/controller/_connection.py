@@ -1,16 +1,4 @@
-"""``tango_aio.connect()``: open a link to a controller and set it up.
-
-URLs:
-
-* a serial device (``/dev/ttyUSB0``, ``COM3``), opened at 57600 Bd 8N2 by default;
-* any pyserial URL (``rfc2217://``, ``loop://``, ...);
-* ``socket://host:port`` for ser2net and terminal servers (a plain asyncio TCP connection);
-* ``sim://`` for the in-process emulator, options in the query
-  (``sim://?axes=3&baud=57600``).
-
-Opening is cancel-safe: a ``connect()`` cancelled at any point closes what it opened
-(the serial port, even while it is being opened in a thread; the socket; the emulator).
-"""
+"""``tango_aio.connect()``: open a link to a controller and set it up."""
 
 from __future__ import annotations
 

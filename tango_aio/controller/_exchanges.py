@@ -91,39 +91,7 @@ class _Exchanges(_Reads):
 
     async def command(self, line: str, *, check: bool = True,
                       timeout: float | None = None) -> None:
-        """Send a set/execute line such as ``"!vel y 12.5"``.
-
-        With ``check`` (the default) the controller's error state is read right after the
-        line (``?err``, or the acknowledgement in autostatus 2) and a non-zero error
-        raises the typed :class:`~tango_aio.errors.ControllerError`.
-
-        Parameters
-        ----------
-        line
-            The set or execute line (``!`` form).
-        check
-            Read the controller's error state after the line.
-        timeout
-            Seconds to wait for the answer; ``None``: the connection's ``reply_timeout``.
-
-        Raises
-        ------
-        InvalidCommandError
-            The line is not valid, or is a read.
-        ControllerError
-            With ``check``: the controller reported an error for the line (for a line
-            that starts motion: and ``?statusaxis`` read behind it shows none of its
-            axes moving).
-        GarbledVerdictError
-            With ``check``: the error state read was no clean error number or
-            acknowledgement; the line may or may not have been executed.
-        MoveOutcomeUnknown
-            With ``check``, for a line that starts motion (a move, ``cal``, ``rm``,
-            ``speed``, ``go``): its verdict was lost, garbled, or a refusal its moving
-            axes contradict, or (``speed``, ``go`` in autostatus 0, 1, 3) nothing in the
-            state read behind it shows that it arrived; the message says which axes were
-            stopped or may still move.
-        """
+        """Send a set/execute line such as ``"!vel y 12.5"``."""
         command = parse(line, self.context)
         if command.is_read:
             raise InvalidCommandError(f"{command.line!r} is a read; use query()",
@@ -139,28 +107,7 @@ class _Exchanges(_Reads):
     async def set(self, name: str, /, *args: Value, axis: str | None = None,
                   check: bool = True, **axes: Any) -> None:
         """Set instruction ``name``: ``set("vel", x=10, y=5)``, ``set("vel", 3, axis="z")``,
-        ``set("autostatus", 1)``. Checks the error state like :meth:`command`.
-
-        Parameters
-        ----------
-        name
-            The instruction (``"vel"``, ``"autostatus"``...).
-        *args
-            The values, for a global setting or for ``axis``.
-        axis
-            The one axis ``args`` set; ``None``: a global setting or ``axes``.
-        check
-            Read the controller's error state after the line.
-        **axes
-            The value of each axis (``x=10``).
-
-        Raises
-        ------
-        InvalidCommandError
-            The line is not valid for the instruction or this controller.
-        ControllerError
-            With ``check``: the controller refused the value.
-        """
+        ``set("autostatus", 1)``. Checks the error state like :meth:`command`."""
         command = build(name, *args, form=Form.SET, axis=axis, context=self.context, **axes)
         self._check_axes(command, axes)
         await self._execute(command, check=check)
@@ -323,24 +270,7 @@ class _Exchanges(_Reads):
         order, so the move has started by then if it arrived, and its report (which
         carries the deferred ``OK...`` or echo) came before the reply if it already
         ended (L2087-2089). A moved axis moving, or the report, proves it
-        (:func:`~tango_aio.moves.acceptance_shown`).
-
-        Parameters
-        ----------
-        handle
-            The move line, its verdict 0 received.
-        timeout
-            Seconds the ``?statusaxis`` read may take.
-
-        Raises
-        ------
-        ProtocolError
-            Nothing proves the line arrived (the caller raises it as a
-            :class:`~tango_aio.errors.MoveOutcomeUnknown`); the restart watch reads the
-            mode in force, since a restart loses lines.
-        ControllerTimeoutError, RequestAbortedError, ConnectionLostError
-            The ``?statusaxis`` read failed.
-        """
+        (:func:`~tango_aio.moves.acceptance_shown`)."""
         completion = handle.submission.completion
         if completion is None or _reported(completion):
             return  # its report came (a refusal fails confirm() before this)
@@ -389,26 +319,7 @@ class _Exchanges(_Reads):
         calibration or range measurement, a setup or a reconnect reads them again. A
         target beyond limits changed behind the driver's back (the stage's own keys) is
         still no success: the controller refuses it or stops at its limit (L4526-4540),
-        and the confirmation behind the report finds the axis short of its target.
-
-        Parameters
-        ----------
-        axis
-            The axis letter.
-        cached
-            Whether the limits known from an earlier read may be returned (else ``?lim``
-            is read, and kept).
-
-        Returns
-        -------
-        tuple[float, float]
-            The lower and upper limit.
-
-        Raises
-        ------
-        InvalidCommandError
-            ``axis`` is not an axis of this controller.
-        """
+        and the confirmation behind the report finds the axis short of its target."""
         known = self._limits.get(axis)
         if cached and known is not None:
             return known
@@ -422,13 +333,7 @@ class _Exchanges(_Reads):
     async def _inputs_are_idle(self) -> bool:
         """Whether neither input moves the stage by itself: a snapshot event moves it in
         snapshot modes other than 0 (L14520-14530; snsm 0 only captures, L900), and the
-        pulse/direction input drives an axis in tvr modes other than 0 (L9914-9930).
-
-        Returns
-        -------
-        bool
-            ``True`` if both are off; ``False`` if one is on or cannot be read.
-        """
+        pulse/direction input drives an axis in tvr modes other than 0 (L9914-9930)."""
         known = self._identity
         if known is not None and known.family == "older" and not all(
                 INSTRUCTIONS[name].in_older_manual for name in ("snsm", "tvr")):
@@ -454,13 +359,7 @@ class _Exchanges(_Reads):
 
         A number of 20 and above may be a persistent internal error rather than the
         line's own (L2853-2867: "if the previously executed instruction returned no error,
-        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`.
-
-        Returns
-        -------
-        ControllerError | None
-            The line's error, ``None`` if it was accepted.
-        """
+        the 'err' response is either 0 or ... the internal error"): see :meth:`_blame`."""
         error = await sent.error(timeout)
         if error is not None and error.number >= INTERNAL_ERRORS \
                 and not await self._blame(error.number, timeout):
@@ -476,13 +375,7 @@ class _Exchanges(_Reads):
         the manual does not say whether reading it overwrites the state): 0 means ``code``
         was the line's own, the same number a persistent internal condition. That one is
         not the line's fault: it is published as a :class:`ControllerFault` event (once
-        per change) and the line counts as accepted.
-
-        Returns
-        -------
-        bool
-            ``True`` if the error is the line's own.
-        """
+        per change) and the line counts as accepted."""
         again = await self._internal_error(timeout)
         if again != code:
             self._fault_seen(again)
@@ -518,13 +411,7 @@ class _Exchanges(_Reads):
     async def check_fault(self) -> None:
         """Raise :class:`~tango_aio.errors.InternalControllerError` if the controller is
         in a persistent internal error state (an error number >= 20 that ``?err`` reports
-        after an instruction that itself was fine, L2853-2867); else return.
-
-        Raises
-        ------
-        InternalControllerError
-            The controller reports a persistent internal error.
-        """
+        after an instruction that itself was fine, L2853-2867); else return."""
         code = await self._internal_error()
         self._fault_seen(code)
         if code >= INTERNAL_ERRORS:

@@ -1,27 +1,5 @@
 """Awaitable motion: completion, confirmation, timeouts, cancel and detached moves.
 
-:class:`Controller <tango_aio.Controller>` is the facade; this module follows a move
-and the sans-IO tracker (:class:`~tango_aio.moves.Follow`) decides, read by read, when it
-has ended and whether it ended well. The rule is **no false success**: a move returns
-normally only when every axis it moved stands still at its target.
-
-How a move is followed
-======================
-1. The move line is written, with its check (the autostatus-2 acknowledgement or an
-   ``?err`` probe right behind it). A refused line raises its ``ControllerError``, once
-   a state read behind the refusal shows none of its axes moving: one flipped bit turns
-   the ``?err`` reply ``0`` into a documented refusal (``2``), so the refusal alone
-   proves nothing. A verdict that is no clean error number or acknowledgement
-   (:class:`~tango_aio.errors.GarbledVerdictError`, e.g. ``07``) proves nothing either.
-   When the line's axes move (or stand elsewhere than before, or its report came), it
-   ran: they are stopped, and :class:`~tango_aio.errors.MoveProtocolUnknownError` says
-   which (or which may still move); a garbled verdict with nothing moving raises it
-   too, saying so (:func:`~tango_aio.moves._timing.contest`).
-2. The driver then waits for a *hint*: any completion report (``@@@-.``, or the bare CR
-   of autostatus 3), an abort by the driver, or the time at which the move should have
-   ended (its :attr:`MovePlan.expected` duration). A report is only a hint, because the
-   manual lets reports come that do not mean "this move has ended":
-
    * ``!joy 0`` sends ``@@@-.`` while the axes may still run (L2093, L7154);
    * ``!pause`` delays the report after the axes stopped (L6873-6899), so a report may
      arrive after the move was already settled by polling and be taken for the next one;
@@ -72,23 +50,6 @@ axes, every :data:`POLL_MAX` during the move as well: an early end is seen withi
 :func:`tango_aio.moves._timing.polled_during`); the move fails with
 :class:`ControllerTimeoutError` (axes stopped) when the budget is spent and an axis still
 moves.
-
-A ``move_to`` does not read the position before it is written (that would cost a whole
-round trip per move): its distance, and so its budget, is sized from the positions of
-the driver's latest state read (:attr:`Motion.positions`). Those may be stale (the
-joystick or another program may have moved the stage since), so such a budget is
-provisional: if an axis still moves when it is spent, the rest is sized once more from
-the positions read at that moment (:attr:`MovePlan.extend`), and only that second budget
-is final. A stale position changes nothing else: the target is the caller's, and every
-success is confirmed by the state read after the move.
-
-Cancellation
-============
-Cancelling an awaited move stops the axes (``a``) and waits, shielded, up to
-:data:`STOP_WAIT` for them to stand still. With ``stop_on_cancel=False`` the move goes on
-*detached*: it is followed to its end in the background and the next move waits for it.
-A move cancelled while it waits behind a detached move leaves the detached move recorded
-(it is forgotten only once it has ended).
 """
 
 from __future__ import annotations

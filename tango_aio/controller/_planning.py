@@ -55,13 +55,7 @@ def _line_groups(axes: Mapping[str, float]) -> list[dict[str, float]]:
     and changes a setting. So a set that starts at X without gaps is one vector line; any
     other set is moved axis by axis, one line after the other, each followed to its end
     (the controller's behaviour for a second move line while axes run is not documented,
-    so moves never overlap).
-
-    Returns
-    -------
-    list[dict[str, float]]
-        The values of each line's axes, one mapping per line, in writing order.
-    """
+    so moves never overlap)."""
     order = [axis for axis in AXES if axis in axes]
     unknown = set(axes) - set(AXES)
     if unknown or not order:
@@ -204,13 +198,7 @@ class _Planning(_Setup):
         """Targets and timing of a motion line, from where its axes are now (called once
         the previous move has ended). ``targets``: the line's values per axis, distances
         for ``mor`` (relative to the current position, L6365-6376), absolute positions for
-        ``moa``. ``last``: the positions (as printed) the driver read last, if any.
-
-        Returns
-        -------
-        MovePlan
-            The line's moved axes, targets and time budget.
-        """
+        ``moa``. ``last``: the positions (as printed) the driver read last, if any."""
         relative = command.name == "mor"
         moved = moved_axes(command, AXES[: self.context.axes])
         reports = self.autostatus != 0
@@ -247,13 +235,7 @@ class _Planning(_Setup):
 
     def _start_reader(self, batch: object) -> Callable[[], Awaitable[dict[str, str]]]:
         """Write ``?pos`` now (in ``batch``); return what reads its reply, one text per
-        present axis (awaitable again after a cancelled wait).
-
-        Returns
-        -------
-        Callable[[], Awaitable[dict[str, str]]]
-            What reads the positions (empty if the reply had another number of values).
-        """
+        present axis (awaitable again after a cancelled wait)."""
         present = AXES[: self.context.axes]
         submission = self._protocol.submit(_read_command("pos", None, self.context),
                                            batch=batch)
@@ -271,11 +253,5 @@ class _Planning(_Setup):
     def _rest_budget(self, targets: Mapping[str, float], budget: Budget,
                      now: Mapping[str, str]) -> float:
         """Seconds a move to ``targets`` may still take from the positions printed
-        ``now`` (:func:`~tango_aio.moves._timing.rest_budget` with the settings in force).
-
-        Returns
-        -------
-        float
-            The seconds left.
-        """
+        ``now`` (:func:`~tango_aio.moves._timing.rest_budget` with the settings in force)."""
         return rest_budget(self._settings, targets, now, budget.fallback)

@@ -138,25 +138,7 @@ class _Reads:
 
     async def query(self, line: str, timeout: float | None = None) -> str:
         """Send a read such as ``"?pos x"`` and return its reply text (lines joined by
-        ``"\\n"``). Raises :class:`InvalidCommandError` for a line that does not read.
-
-        Parameters
-        ----------
-        line
-            The read line (``?`` form, or an alias that reads).
-        timeout
-            Seconds to wait for the reply; ``None``: the connection's ``reply_timeout``.
-
-        Returns
-        -------
-        str
-            The reply's lines, joined by ``"\\n"``.
-
-        Raises
-        ------
-        InvalidCommandError
-            The line is not valid, or does not read.
-        """
+        ``"\\n"``). Raises :class:`InvalidCommandError` for a line that does not read."""
         command = parse(line, self.context)
         if not command.is_read:
             raise InvalidCommandError(f"{command.line!r} does not read; use command()",
@@ -173,24 +155,7 @@ class _Reads:
         arguments (``get("trigp", 3)``). ``lim`` and ``swtyp`` are read axis by axis, as
         the manual recommends (L4559, L4814); any other per-axis reply with fewer or more
         values than axes is read again axis by axis, so that no value is credited to the
-        wrong axis (a unit that leaves disabled axes out).
-
-        Parameters
-        ----------
-        name
-            The instruction (``"vel"``, ``"pos"``, an alias...).
-        *args
-            Extra read arguments (an index).
-        axis
-            Read one axis (``"x"``); ``None``: every axis the reply holds.
-        timeout
-            Seconds to wait for the reply; ``None``: the connection's ``reply_timeout``.
-
-        Returns
-        -------
-        Any
-            The parsed reply: a value by axis, a scalar or the instruction's reply type.
-        """
+        wrong axis (a unit that leaves disabled axes out)."""
         if axis is not None:
             check_axis_word(axis, name)  # "" or "y 5" would read something else
         command = build(name, *args, form=Form.READ, axis=axis, context=self.context) \
@@ -219,32 +184,14 @@ class _Reads:
 
     async def position(self, *, unit: str | None = None) -> dict[str, float]:
         """The position of every present axis, in ``unit`` (default: the connection's
-        ``units``, else the axis' dim unit).
-
-        Parameters
-        ----------
-        unit
-            The unit of the values (``"mm"``, ``"um"``...); ``None``: the connection's
-            ``units``, else the controller's dim unit.
-
-        Returns
-        -------
-        dict[str, float]
-            The position of each present axis.
-        """
+        ``units``, else the axis' dim unit)."""
         chosen = self._reading_unit(unit, Measure.POSITION)
         positions = await self.get("pos")
         assert isinstance(positions, dict)
         return await self._from_controller(positions, chosen, Measure.POSITION)
 
     async def status(self) -> dict[str, str]:
-        """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...).
-
-        Returns
-        -------
-        dict[str, str]
-            The status letter of each present axis.
-        """
+        """The ``statusaxis`` letter of every present axis (``@`` idle, ``M`` moving...)."""
         letters = await self.get("statusaxis")
         assert isinstance(letters, dict)
         self._turning.difference_update(a for a, s in letters.items() if s != MOVING)
@@ -252,13 +199,7 @@ class _Reads:
 
     async def _position_texts(self) -> dict[str, str]:
         """``?pos`` as printed (the number of digits gives the resolution), one text per
-        present axis; read axis by axis when the reply has another number of values.
-
-        Returns
-        -------
-        dict[str, str]
-            The position of each present axis, as printed.
-        """
+        present axis; read axis by axis when the reply has another number of values."""
         present = AXES[: self.context.axes]
         response = await self._request(_read_command("pos", None, self.context))
         texts = " ".join(response.lines).split()
@@ -272,25 +213,13 @@ class _Reads:
         return out
 
     async def axis_status(self) -> dict[str, AxisStatus]:
-        """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members.
-
-        Returns
-        -------
-        dict[str, AxisStatus]
-            The status of each present axis.
-        """
+        """Like :meth:`status`, as :class:`~tango_aio.status.AxisStatus` members."""
         return axis_statuses(await self.status())
 
     async def read_info(self) -> ControllerInfo:
         """The controller's serial number, versions, temperature, uptime, axes, maximum
         current and the serial numbers of connected stages (``?readsn``, ``?ver``, ...,
-        manual chapter 6).
-
-        Returns
-        -------
-        ControllerInfo
-            What the unit answers; a field it lacks is ``None``.
-        """
+        manual chapter 6)."""
         return await self.info.read()
 
     def _transfer(self) -> ListTransfer:
@@ -298,13 +227,7 @@ class _Reads:
 
     async def _resolution(self) -> list[float]:
         """Per present axis, one unit of the last digit ``?pos`` prints (the position
-        resolution, L4080-4100).
-
-        Returns
-        -------
-        list[float]
-            The resolution of each present axis, X first.
-        """
+        resolution, L4080-4100)."""
         texts = await self._position_texts()
         return [position_tolerance(text) / 1.5 for text in texts.values()]
 
@@ -336,34 +259,14 @@ class _Reads:
         ``separate_after``: a separator follows in the same write (a move's confirmation:
         the next move's ``?err`` probe would otherwise need one in front of its line).
         A reply with another number of values than axes is read again the plain way,
-        axis by axis (:meth:`status`, :meth:`_position_texts`).
-
-        ``axes``: the one axis whose position is wanted (a move's confirmation), on
-        a unit whose per-axis reads were found to answer one value (identify,
-        ``per_axis_replies``): ``?pos x`` instead of ``?pos``, and only that position is
-        returned. Its reply is 7 bytes against 21 on a 3-axis unit (about 2.7 ms at
-        57600 Bd, on the path of every move). The letters are still read first, for every
-        axis: an axis that reads stopped cannot move again before the position read right
-        behind it (no line is written in between), so the position is where it stopped.
-
-        Returns
-        -------
-        tuple[dict[str, str], dict[str, str]]
-            The status letter and the position (as printed) of each axis read.
-        """
+        axis by axis (:meth:`status`, :meth:`_position_texts`)."""
         if self._letters_by_axis:
             return await self._state_by_axis()
         return await self._state_replies(self._submit_state(separate_after, axes))
 
     async def _state_by_axis(self) -> tuple[dict[str, str], dict[str, str]]:
         """The state on a unit whose letters are read axis by axis: the letters first
-        (:meth:`status`), then the positions (:meth:`_position_texts`).
-
-        Returns
-        -------
-        tuple[dict[str, str], dict[str, str]]
-            The status letter and the position (as printed) of each present axis.
-        """
+        (:meth:`status`), then the positions (:meth:`_position_texts`)."""
         letters = await self.status()
         positions = await self._position_texts()
         self._motion.saw(positions)
@@ -371,13 +274,7 @@ class _Reads:
 
     def _submit_state(self, separate_after: bool, axes: Sequence[str]) -> _StateRead:
         """Submit the two lines of :meth:`_status_and_positions` (written at once where
-        the credit allows); :meth:`_state_replies` reads their replies.
-
-        Returns
-        -------
-        _StateRead
-            The lines and their submissions.
-        """
+        the credit allows); :meth:`_state_replies` reads their replies."""
         context = self.context
         identity = self._identity
         read = self._moves.confirmation(
@@ -392,13 +289,7 @@ class _Reads:
     async def _state_replies(self, read: _StateRead
                              ) -> tuple[dict[str, str], dict[str, str]]:
         """The letters and positions of a read :meth:`_submit_state` submitted (see
-        :meth:`_status_and_positions`).
-
-        Returns
-        -------
-        tuple[dict[str, str], dict[str, str]]
-            The status letter and the position (as printed) of each axis read.
-        """
+        :meth:`_status_and_positions`)."""
         status, first, second = read.status, read.first, read.second
         try:
             letters = parse_reply(status, (await self._protocol.wait_reply(
@@ -464,11 +355,5 @@ _SHORT_STATUS: Final = _spelled("sa")
 def _read_command(name: str, axis: str | None, context: Context) -> Command:
     """The read line of instruction ``name`` without arguments (``?pos``, ``?vel x``),
     built once per name, axis and context: commands are immutable values, and the
-    per-request path need not validate the same line again.
-
-    Returns
-    -------
-    Command
-        The read line.
-    """
+    per-request path need not validate the same line again."""
     return build(name, form=Form.READ, axis=axis, context=context)

@@ -16,22 +16,6 @@ controller executes it. So the driver reads the mode in force
   any in mode 0, one with letters in mode 3, which sends a bare CR, L2107-2110);
 * the keepalive's periodic read of the mode (``connect(keepalive=...)``).
 
-In autostatus 1, the power-on mode itself, a restart leaves nothing this read can tell
-apart: the mode is the one the driver set, every line is answered as before. What the
-restart changed is then not noticed: the controller is back at its saved settings while
-the driver's cache keeps the values the session set, until :meth:`refresh_settings
-<tango_aio.Controller.refresh_settings>`, and the positions restart at 0. No move
-succeeds falsely for it: each is confirmed by reading the position and status after its
-report (a ``move_by`` whose remembered start the restart changed fails: the axis does
-not stand at the target it was given).
-
-A mode other than the one the driver set means the controller restarted: the protocol
-selects the driver's mode again and calls its ``on_restored``; the watch then reads the
-cached settings again (move timing must not rest on values the restart replaced) and
-publishes :class:`~tango_aio.events.ControllerRestarted` with what changed. A move that
-failed meanwhile says that it may have run (:class:`~tango_aio.errors.MoveOutcomeUnknown`,
-raised by :mod:`tango_aio.controller._motion`).
-
 Choice: the settings are read, not written back. What the session had set and not saved
 is reported as changed in the event; writing it back would move on values the user may
 no longer want after a restart, and the manual's own recipe after ``reset`` is to poll and

@@ -53,35 +53,7 @@ class _Setup(_Exchanges):
     _reconnector: Reconnector[Any] | None
 
     async def setup(self, *, autostatus: int | None = 1, identify: bool = True) -> None:
-        """Bring the controller into a known state (called by :func:`connect`).
-
-        Drains stale input by resynchronising, identifies the controller, reads the
-        settings the driver needs and selects ``autostatus`` (``None``: keep the mode the
-        controller is in). The mode in force is read first (the way a mode change is
-        confirmed, whatever the mode echoes or acknowledges): a previous session may have
-        left any mode behind, and how ``!autostatus`` itself is answered depends on it.
-        A link that echoes every byte sent (local echo of an adapter) is refused with a
-        :class:`~tango_aio.errors.ConnectError` naming it, whatever mode the controller
-        was left in: before mode 2 or 4 is kept or selected, one read runs in a mode that
-        answers a read with its data alone (:meth:`_check_local_echo`). A reply out of step
-        (a controller still answering an earlier program's lines) starts it over once.
-
-        Parameters
-        ----------
-        autostatus
-            The autostatus mode to select; ``None`` keeps the mode in force.
-        identify
-            Read the identity (:meth:`identify`); ``False`` skips it.
-
-        Raises
-        ------
-        ConnectError
-            A step failed on a link that echoes every byte back (local echo).
-        ProtocolError
-            A reply was out of step twice.
-        TangoError
-            A step failed (no answer, a garbled reply, an error the controller reported).
-        """
+        """Bring the controller into a known state (called by :func:`connect`)."""
         self._forget_power_state()
         try:
             try:
@@ -132,18 +104,7 @@ class _Setup(_Exchanges):
         names ``!`` lines only), and a line where an acknowledgement is owed is passed over.
         Modes 0, 1 and 3 neither echo nor acknowledge a read (L2060-2113), so a unit in
         mode 2 or 4 is taken to mode 1 (the power-on mode, L2062) for the read; the caller
-        selects its mode again.
-
-        Parameters
-        ----------
-        current
-            The mode in force.
-
-        Returns
-        -------
-        int
-            The mode in force afterwards (1 if ``current`` was 2 or 4).
-        """
+        selects its mode again."""
         if current in _ECHO_BLIND:
             await self.command("!autostatus 1")
             current = 1
@@ -152,13 +113,7 @@ class _Setup(_Exchanges):
 
     async def identify(self) -> Identity:
         """Read ``?version`` and ``?det`` (model, firmware, number of axes) and record
-        which firmware family and behaviours were detected (:class:`Identity`).
-
-        Returns
-        -------
-        Identity
-            The controller's model, firmware and axes, and what the driver detected.
-        """
+        which firmware family and behaviours were detected (:class:`Identity`)."""
         command = build("version", form=Form.READ)
         raw = await self._request(command)
         version = parse_reply(command, raw.lines)
@@ -185,12 +140,7 @@ class _Setup(_Exchanges):
 
     async def refresh_settings(self) -> None:
         """Re-read what move timeouts depend on: dim, pitch, vel, accel, secvel, extmode,
-        delay and pause (L6845-6899) and the closed-loop timeout ctrt (L11616-11631).
-
-        Which settings these are is the catalog's
-        (:attr:`~tango_aio.catalog._schema.Instruction.cached`). ``extmode``, ``delay``, ``pause``
-        and ``ctrt`` count as 0 on a controller that does not know them (older firmware
-        answers error 4)."""
+        delay and pause (L6845-6899) and the closed-loop timeout ctrt (L11616-11631)."""
         settings = self._settings
         older = self._identity is not None and self._identity.family == "older"
         for entry in CACHED_SETTINGS:  # the catalog's cached settings, in manual order
@@ -212,13 +162,7 @@ class _Setup(_Exchanges):
         """Read the global setting ``name``, which a unit may lack (an optional module,
         a smaller model: no reply at all, error 4, L970): a separator goes right behind
         the read in the same write, so a missing reply shows at once, as the separator's
-        reply in its place (:class:`ProtocolError`), and not after the reply timeout.
-
-        Returns
-        -------
-        Any
-            The parsed reply.
-        """
+        reply in its place (:class:`ProtocolError`), and not after the reply timeout."""
         command = _read_command(name, None, self.context)
         (submission,) = self._protocol.submit_together((command,), separate_after=True)
         response = await self._protocol.wait_reply(submission, self.reply_timeout)
@@ -226,13 +170,7 @@ class _Setup(_Exchanges):
 
     async def _reload_settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """Read the cached settings again (after a restart); their values before and
-        after (:func:`~tango_aio.controller._restart.settings_of`).
-
-        Returns
-        -------
-        tuple[dict[str, Any], dict[str, Any]]
-            The cached settings before and after.
-        """
+        after (:func:`~tango_aio.controller._restart.settings_of`)."""
         before = settings_of(self._settings)
         self._forget_power_state()
         await self.refresh_settings()
@@ -243,20 +181,7 @@ class _Setup(_Exchanges):
         ``quiet`` seconds while it reboots ("more than 1 second, where the controller is
         not responding", manual L1837-1838), poll until it answers (L1845-1860), select
         the driver's autostatus mode again (it restarts in mode 1, L2062) and read the
-        cached settings again.
-
-        Parameters
-        ----------
-        quiet
-            Seconds to wait before the first poll.
-
-        Raises
-        ------
-        ControllerTimeoutError
-            It did not answer in time.
-        ConnectionLostError
-            The link was declared lost meanwhile.
-        """
+        cached settings again."""
         await asyncio.sleep(quiet)
         for attempt in range(2):  # the link counts as dead after two unanswered polls
             try:

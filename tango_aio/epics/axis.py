@@ -63,22 +63,7 @@ class AxisHost(Protocol):
 
 
 class AxisServer:
-    """Drives one axis for its motor record and publishes what the poller reads.
-
-    Motion requests (VAL and the fields that move: DVAL, RLV, TWF/TWR, HOMF/HOMR) run one
-    at a time. A new request first stops the running one (VAL during a move retargets)
-    and replaces a request still waiting (the record has one VAL, so nothing piles up).
-    STOP and SPMG Stop/Pause stop the running request and drop the waiting one. Every
-    request carries a number (:attr:`_request`); one that is no longer the newest when
-    its turn comes fails without moving.
-
-    Parameters
-    ----------
-    server
-        The controller's server.
-    letter
-        The axis letter.
-    """
+    """Drives one axis for its motor record and publishes what the poller reads."""
 
     def __init__(self, server: AxisHost, letter: str) -> None:
         self.server = server
@@ -125,13 +110,7 @@ class AxisServer:
         return self._fault != NO_ALARM
 
     async def _set_alarm(self, status: AlarmStatus, severity: AlarmSeverity) -> None:
-        """Set the record's alarm and that of its fields (RBV shows INVALID too).
-
-        caproto gives the record one alarm and its fields another, shared by all of them;
-        each is written once. A numeric channel written *with* verification re-applies
-        the alarm its own value limits give (none here), which would clear this one: the
-        readbacks are therefore written with ``verify_value=False``.
-        """
+        """Set the record's alarm and that of its fields (RBV shows INVALID too)."""
         fields = self.record.fields
         alarms = {id(c.alarm): c.alarm for c in (self.record, *(fields[name] for name in
                                                                   ALARM_FIELDS))}
@@ -156,27 +135,7 @@ class AxisServer:
     # -- field puts ----------------------------------------------------------------------
 
     async def put_field(self, field: str, value: Any) -> Any:
-        """A client put ``value`` to ``field``: act on it, return the value to store.
-
-        Raises (the put fails, ECA_PUTFAIL) for a value this IOC does not carry out.
-
-        Parameters
-        ----------
-        field
-            The motor record field (``"VAL"``, ``"VELO"``...).
-        value
-            The value put.
-
-        Returns
-        -------
-        Any
-            The value the field stores.
-
-        Raises
-        ------
-        TangoError
-            The IOC does not carry the value out (the put fails, ECA_PUTFAIL).
-        """
+        """A client put ``value`` to ``field``: act on it, return the value to store."""
         stored = await self._put_field(field, value)
         if field in AUTOSAVED:
             self._save_soon()
@@ -202,13 +161,7 @@ class AxisServer:
                       exc)
 
     async def restore(self, saved: Mapping[str, float]) -> None:
-        """Put back the autosaved fields (at start, once the controller is connected).
-
-        Parameters
-        ----------
-        saved
-            The autosaved value of each field, by field name.
-        """
+        """Put back the autosaved fields (at start, once the controller is connected)."""
         f = self._f
         if "DLLM" in saved or "DHLM" in saved:
             low = saved.get("DLLM", f.dial_low_limit.value)
@@ -307,22 +260,7 @@ class AxisServer:
     # -- motion --------------------------------------------------------------------------
 
     async def move(self, target: float) -> bool:
-        """VAL was put: move there (or redefine the position with SET=Set).
-
-        The put announces itself to the coalescer as it starts, so a merged move being
-        collected waits for it (puts to other axes that arrive together join one line)
-        and a lone put waits for no time at all (see :mod:`tango_aio.group._coalesce`).
-
-        Parameters
-        ----------
-        target
-            The new VAL (user units).
-
-        Returns
-        -------
-        bool
-            Whether VAL was published (a move, as it started); False for SET=Set.
-        """
+        """VAL was put: move there (or redefine the position with SET=Set)."""
         arrived = self.server.coalescer.announce()
         try:
             self._require_link()
@@ -353,13 +291,7 @@ class AxisServer:
     async def _check_limits(self, dial: float) -> None:
         """Refuse a target beyond the soft limits as the motor record does: LVIO=1, VAL
         and DVAL kept, no motion, DMOV blinks (0, then 1 at once: a client waiting for
-        DMOV's end sees one), and the put fails with the axis's alarm raised.
-
-        Raises
-        ------
-        MotorRefusedError
-            The target is beyond the soft limits.
-        """
+        DMOV's end sees one), and the put fails with the axis's alarm raised."""
         f = self._f
         low, high = f.dial_low_limit.value, f.dial_high_limit.value
         violation = limit_violation(dial, low, high)
@@ -381,23 +313,7 @@ class AxisServer:
                    ) -> None:
         """Run ``motion`` once it is this request's turn, with DMOV=0; before returning,
         publish RBV, MOVN=0 and DMOV=1 (unless another request follows) and wait until
-        those updates are on the wire to every client.
-
-        ``confirmed``: where ``motion`` leaves the positions its move's confirmation read
-        behind the report (the axis read stopped, then its position, nothing written in
-        between); after a successful move RBV comes from there instead of another ``?pos``
-        (a round trip, about 4 ms at 57600 Bd, on the path of every put).
-
-        The motion runs in a task of its own, which :meth:`stop` cancels: a move not yet
-        sent is withdrawn, a running one is stopped (by the coalescer or the controller).
-
-        Raises
-        ------
-        MoveStoppedError
-            The request was replaced or stopped before it started, or the move was stopped.
-        TangoError
-            The motion failed (the record shows the alarm).
-        """
+        those updates are on the wire to every client."""
         f = self._f
         self._request += 1
         request = self._request
@@ -535,13 +451,7 @@ class AxisServer:
         A move this IOC started and not yet sent is withdrawn; otherwise the axis gets the
         one-axis stop ``a x`` (L6785-6844): the other axes of a merged line go on. VAL and
         DVAL are then set to where the axis stands, but with ``keep_target`` (SPMG=Pause,
-        which the motor record resumes toward VAL on Go).
-
-        Parameters
-        ----------
-        keep_target
-            Leave VAL and DVAL at the stopped target.
-        """
+        which the motor record resumes toward VAL on Go)."""
         self._request += 1  # every waiting request is now stale
         stopped = self._request
         self._settle = not keep_target
@@ -564,24 +474,12 @@ class AxisServer:
             await self._finish(settle=not keep_target and self._request == stopped)
 
     async def tweak(self, sign: int) -> None:
-        """TWF/TWR: move VAL by TWV.
-
-        Parameters
-        ----------
-        sign
-            +1 for TWF, -1 for TWR.
-        """
+        """TWF/TWR: move VAL by TWV."""
         f = self._f
         await self.move(self.record.value + sign * abs(f.tweak_step_size.value))
 
     async def home(self, *, forward: bool) -> None:
-        """HOMF: ``rm`` (upper switch); HOMR: ``cal`` (lower switch).
-
-        Parameters
-        ----------
-        forward
-            True for HOMF, False for HOMR.
-        """
+        """HOMF: ``rm`` (upper switch); HOMR: ``cal`` (lower switch)."""
         self._require_link()
         self._require_go()
         run = self.controller.measure_range if forward else self.controller.calibrate
@@ -604,25 +502,7 @@ class AxisServer:
 
     async def set_velocity(self, velo: float, *, vmax: float | None = None) -> float:
         """VELO was put: set ``vel`` (a VELO above VMAX is VMAX, as in the motor record);
-        returns the VELO the controller took.
-
-        Parameters
-        ----------
-        velo
-            The VELO put (EGU/s).
-        vmax
-            The VMAX in force; ``None`` for the field's current value.
-
-        Returns
-        -------
-        float
-            The VELO the controller took.
-
-        Raises
-        ------
-        MotorRefusedError
-            ``velo`` is not positive.
-        """
+        returns the VELO the controller took."""
         self._require_link()
         await self._units_now()
         top = self._f.max_velocity.value if vmax is None else vmax
@@ -636,23 +516,7 @@ class AxisServer:
         return value
 
     async def set_acceleration_time(self, accl: float) -> float:
-        """ACCL was put: set ``accel`` so VELO is reached in ``accl`` seconds.
-
-        Parameters
-        ----------
-        accl
-            The ACCL put (seconds).
-
-        Returns
-        -------
-        float
-            The ACCL the controller took.
-
-        Raises
-        ------
-        MotorRefusedError
-            ``accl`` is not a positive number of seconds.
-        """
+        """ACCL was put: set ``accel`` so VELO is reached in ``accl`` seconds."""
         self._require_link()
         await self._units_now()
         try:
@@ -665,20 +529,7 @@ class AxisServer:
         return value
 
     async def set_limit(self, *, high: bool, dial: float) -> float:
-        """HLM/LLM/DHLM/DLLM was put: set the controller's soft limits (``!lim``).
-
-        Parameters
-        ----------
-        high
-            True for the high limit, False for the low one.
-        dial
-            The new limit, in dial units.
-
-        Returns
-        -------
-        float
-            The user limit the controller took.
-        """
+        """HLM/LLM/DHLM/DLLM was put: set the controller's soft limits (``!lim``)."""
         self._require_link()
         f = self._f
         low, up = f.dial_low_limit.value, f.dial_high_limit.value
@@ -689,18 +540,7 @@ class AxisServer:
         return limit
 
     async def offset_changed(self, offset: float) -> None:
-        """OFF changed: republish every user value (user = dial + OFF).
-
-        Parameters
-        ----------
-        offset
-            The new OFF.
-
-        Raises
-        ------
-        MotorRefusedError
-            ``offset`` is out of range.
-        """
+        """OFF changed: republish every user value (user = dial + OFF)."""
         f = self._f
         if abs(offset) > MAX_MAGNITUDE:
             raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
@@ -710,18 +550,7 @@ class AxisServer:
         await self._publish_drive_limits(offset)
 
     async def set_enabled(self, enabled: bool) -> None:
-        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919-3960).
-
-        The manual does not say what disabling a moving axis does to its move (it may go
-        on, stop, or the line be refused: the emulator's ``disable_during_move``), so a
-        moving axis is first stopped as by STOP (its put fails, VAL is where it stood,
-        no alarm), then disabled: the same outcome whatever the controller does.
-
-        Parameters
-        ----------
-        enabled
-            The CNEN put.
-        """
+        """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919-3960)."""
         self._require_link()
         if not enabled and (self._busy or
                             (await self.controller.status()).get(self.letter) == MOVING):
@@ -765,17 +594,7 @@ class AxisServer:
     async def units_read(self, units: AxisUnits, decimals: int, *,
                          force: bool = False) -> None:
         """Publish what follows from the unit settings (EGU, PREC, MRES, UREV, SREV,
-        RDBD, and the speeds in EGU/s) if they changed since last read (or ``force``).
-
-        Parameters
-        ----------
-        units
-            The axis's unit settings, as just read.
-        decimals
-            The decimals the controller prints positions with (PREC).
-        force
-            Publish even if nothing changed.
-        """
+        RDBD, and the speeds in EGU/s) if they changed since last read (or ``force``)."""
         f = self._f
         if not force and units == self.units and decimals == self._decimals:
             return
@@ -866,15 +685,7 @@ class AxisServer:
 
     async def poll_update(self, dial: float, letter: str) -> None:
         """Publish a polled position and status letter (DMOV=1 once a move that lost
-        its link is seen to stand).
-
-        Parameters
-        ----------
-        dial
-            The position read, in dial units.
-        letter
-            The axis's status letter.
-        """
+        its link is seen to stand)."""
         await self._publish_dial(dial)
         if not self._busy:
             moving = letter == MOVING
@@ -887,15 +698,7 @@ class AxisServer:
         await self._publish_status(moving=letter == MOVING)
 
     async def slow_update(self, readsw: str, statuslimit: str) -> None:
-        """Publish the limit switches and the homed state.
-
-        Parameters
-        ----------
-        readsw
-            The ``?readsw`` reply.
-        statuslimit
-            The ``?statuslimit`` reply.
-        """
+        """Publish the limit switches and the homed state."""
         self._switches = limit_switches(readsw, self.letter)
         self._homed = calibrated(statuslimit, self.letter)
         f = self._f
@@ -917,13 +720,7 @@ class AxisServer:
             await f.motor_status.write(word, verify_value=False)
 
     async def link_changed(self, up: bool) -> None:
-        """The link went down (INVALID/COMM alarm) or came back (settings re-read).
-
-        Parameters
-        ----------
-        up
-            Whether the link is up.
-        """
+        """The link went down (INVALID/COMM alarm) or came back (settings re-read)."""
         if up:
             await self.read_settings()
         await self._show_alarm(up)  # the fault of a failed move outlives the link's loss

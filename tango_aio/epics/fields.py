@@ -64,24 +64,7 @@ def _number(text: str | None) -> float | None:
 
 def _start_motion(motion: Callable[[], Awaitable[Any]]
                  ) -> tuple[asyncio.Task[Any], asyncio.Future[None]]:
-    """Run ``motion`` in a task; return it and a future set once it has ended.
-
-    The future is set in the motion's own last step, so whoever awaits it resumes one loop
-    turn after the motion ended (awaiting the task through ``asyncio.wait`` takes two: the
-    done-callback's turn, then the waiter's), and finds the task done. A task cancelled
-    before its first step never runs the motion; its done-callback sets the future then.
-    Cancelling the future's waiter leaves the task alone.
-
-    Parameters
-    ----------
-    motion
-        Makes the coroutine to run.
-
-    Returns
-    -------
-    tuple[asyncio.Task[Any], asyncio.Future[None]]
-        The task, and the future set once it has ended.
-    """
+    """Run ``motion`` in a task; return it and a future set once it has ended."""
     ended: asyncio.Future[None] = asyncio.get_running_loop().create_future()
 
     def settle(_: object = None) -> None:
@@ -149,18 +132,7 @@ class _Handled:
     putter: Any
 
     async def verify_value(self, value: Any) -> Any:
-        """Hand the value to the put handler without caproto's checks.
-
-        Parameters
-        ----------
-        value
-            The value put.
-
-        Returns
-        -------
-        Any
-            What the handler returns.
-        """
+        """Hand the value to the put handler without caproto's checks."""
         if self.putter is not None:
             return await self.putter(self, value)
         return value
@@ -180,17 +152,7 @@ class HandledInteger(_Handled, PvpropertyInteger):  # type: ignore[misc]
 
 @register_record
 class TangoMotorFields(MotorFields):  # type: ignore[misc]
-    """The motor record's fields, with handlers that drive a TANGO axis.
-
-    Registered under its own record type name, so caproto's plain ``motor`` record is left
-    alone; RTYP still reads ``motor``. (A field's handler can only be replaced by declaring
-    the field again in a subclass.) Fields not in :data:`WRITABLE` refuse writes.
-
-    Parameters
-    ----------
-    *args, **kwargs
-        caproto's arguments of a record's fields.
-    """
+    """The motor record's fields, with handlers that drive a TANGO axis."""
 
     _record_type = "tango_motor"
 
@@ -264,18 +226,7 @@ _FAILED: ContextVar[Exception | None] = ContextVar("_FAILED", default=None)
 async def _failure_is_ours(put: Awaitable[Any]) -> Any:
     """Await a put handler; a failure skips caproto's WRITE/MAJOR alarm, as the axis's
     alarm follows its own rule (:func:`~.record.fault_after`); the put still fails:
-    :func:`_guard` answers ECA_PUTFAIL.
-
-    Returns
-    -------
-    Any
-        What the handler returned.
-
-    Raises
-    ------
-    SkipWrite
-        The handler raised.
-    """
+    :func:`_guard` answers ECA_PUTFAIL."""
     try:
         return await put
     except Exception as exc:
@@ -291,15 +242,7 @@ async def _put_val(group: AxisGroup, instance: Any, value: float) -> Any:
 
 
 class AxisGroup(PVGroup):  # type: ignore[misc]
-    """One motor record (the PV is the group's prefix, e.g. ``P:X``).
-
-    Parameters
-    ----------
-    prefix
-        The record's PV name.
-    axis
-        The axis it drives.
-    """
+    """One motor record (the PV is the group's prefix, e.g. ``P:X``)."""
 
     motor = pvproperty(name="", value=0.0, dtype=HandledDouble, record="tango_motor",
                        precision=4, doc="TANGO axis", put=_put_val)

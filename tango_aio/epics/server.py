@@ -33,20 +33,7 @@ UNITS_EVERY = 5 * SLOW_EVERY
 
 
 class ControllerServer:
-    """The PVs of one controller: its axes and controller PVs, and the poller.
-
-    Parameters
-    ----------
-    controller
-        The connected controller.
-    prefix
-        The PV prefix of its PVs.
-    poll, window, merge, autosave
-        As for :func:`build_ioc`.
-    group
-        The controller PVs, if already served (a waiting controller's); ``None`` for new
-        ones.
-    """
+    """The PVs of one controller: its axes and controller PVs, and the poller."""
 
     def __init__(self, controller: Controller, prefix: str, *, poll: float = 0.1,
                  window: float = 0.02, merge: str = "turn",
@@ -93,13 +80,7 @@ class ControllerServer:
 
     async def read_units(self) -> tuple[dict[str, AxisUnits], int]:
         """Read every axis's unit settings (``dim``, ``pitch``, ``gear``, ``usteps``) and
-        the decimals of printed positions (``resolution``), pipelined.
-
-        Returns
-        -------
-        tuple[dict[str, AxisUnits], int]
-            The unit settings by axis letter, and the decimals.
-        """
+        the decimals of printed positions (``resolution``), pipelined."""
         c = self.controller
         dims, pitch, gear, usteps, decimals = await asyncio.gather(
             c.get("dim"), c.get("pitch"), self._optional("gear", None),
@@ -112,13 +93,7 @@ class ControllerServer:
 
     async def _optional(self, name: str, default: Any) -> Any:
         """Read ``name``; a controller that refuses it (older firmware may lack gear,
-        usteps or resolution) gives ``default``, with one warning, and is not asked again.
-
-        Returns
-        -------
-        Any
-            The value read, or ``default``.
-        """
+        usteps or resolution) gives ``default``, with one warning, and is not asked again."""
         if name in self._lacking:
             return default
         try:
@@ -140,13 +115,7 @@ class ControllerServer:
         await self._set_link(False)
 
     async def report_error(self, exc: BaseException) -> None:
-        """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``).
-
-        Parameters
-        ----------
-        exc
-            The error.
-        """
+        """Publish ``exc`` as the last error (``P:ERROR``, ``P:ERROR:TEXT``)."""
         number = exc.number if isinstance(exc, ControllerError) else -1
         await self.group.error.write(number, verify_value=False)
         await self.group.error_text.write(str(exc)[:255], verify_value=False)
@@ -240,12 +209,7 @@ def _guard(pv: Any, policy: AccessPolicy,
            on_error: Callable[[BaseException], Awaitable[None]], *,
            writable: bool = True) -> None:
     """Make ``pv`` refuse writes to clients the policy does not allow (status
-    ECA_NOWTACCESS), and answer a put whose handler failed with the status ECA_PUTFAIL.
-
-    caproto answers a failed put with an error message, which clients waiting for the
-    put's callback do not all match to their put (caproto's own client then times out);
-    EPICS base's server answers with the put-callback's status, as done here.
-    """
+    ECA_NOWTACCESS), and answer a put whose handler failed with the status ECA_PUTFAIL."""
     own_check, own_write = pv.check_access, pv.auth_write
 
     def check_access(hostname: str, username: str) -> AccessRights:
@@ -279,23 +243,7 @@ def _guard(pv: Any, policy: AccessPolicy,
 
 
 class WaitingServer:
-    """A controller that could not be reached when the IOC started.
-
-    Its controller PVs are served at once (``CONNECTED`` 0, the others INVALID); ``open``
-    is tried again every ``retry`` seconds, and once it gives a controller the axes'
-    motor records are added and served like those of the others.
-
-    Parameters
-    ----------
-    open_controller
-        Opens the controller.
-    prefix
-        The PV prefix of its PVs.
-    poll, window, merge, autosave
-        As for :class:`ControllerServer`.
-    retry
-        Seconds between two tries.
-    """
+    """A controller that could not be reached when the IOC started."""
 
     def __init__(self, open_controller: Callable[[], Awaitable[Controller]], prefix: str,
                  *, poll: float, window: float, autosave: Autosave | None,
@@ -323,13 +271,7 @@ class WaitingServer:
                                           verify_value=False)
 
     async def connect(self) -> ControllerServer:
-        """Try until the controller answers; return its server (started).
-
-        Returns
-        -------
-        ControllerServer
-            The server of the connected controller.
-        """
+        """Try until the controller answers; return its server (started)."""
         while True:
             try:
                 controller = await self.open_controller()
@@ -347,17 +289,7 @@ class WaitingServer:
 
 
 class TangoIoc:
-    """An IOC serving one or more controllers. Build it with :func:`build_ioc`.
-
-    Parameters
-    ----------
-    servers
-        The servers of the connected controllers.
-    policy
-        Who may write.
-    waiting
-        The controllers not reachable yet.
-    """
+    """An IOC serving one or more controllers. Build it with :func:`build_ioc`."""
 
     def __init__(self, servers: Sequence[ControllerServer], policy: AccessPolicy,
                  waiting: Sequence[WaitingServer] = ()) -> None:
@@ -400,18 +332,7 @@ class TangoIoc:
         await server.run()
 
     async def run(self, interfaces: Sequence[str] = ("127.0.0.1",)) -> None:
-        """Serve on ``interfaces`` until cancelled; stops the moves this IOC started.
-
-        Parameters
-        ----------
-        interfaces
-            The addresses to serve Channel Access on.
-
-        Raises
-        ------
-        RuntimeError
-            The Channel Access server stopped.
-        """
+        """Serve on ``interfaces`` until cancelled; stops the moves this IOC started."""
         context = self._context = FlushingContext(self.pvdb, list(interfaces))
         for server in self.servers:
             server.context = context
@@ -454,47 +375,7 @@ async def build_ioc(controllers: Mapping[str, Controller], prefix: str, *,
                     autosave: str | os.PathLike[str] | None = None,
                     waiting: Mapping[str, Callable[[], Awaitable[Controller]]] | None = None,
                     retry: float = 2.0) -> TangoIoc:
-    """Build (and :meth:`~TangoIoc.start`) an IOC for ``controllers``.
-
-    ``controllers`` maps a name to a connected controller; the name ``""`` gives PVs
-    ``<prefix>X``, any other name ``<prefix><name>:X``. ``poll`` is the seconds between
-    position reads.
-    ``autosave``: a file that keeps OFF, the soft limits, VELO and VMAX across restarts
-    (:mod:`.autosave`); its values are put back once each controller is connected.
-    ``waiting`` maps names (as ``controllers``) to functions that open a controller not
-    reachable yet: its controller PVs are served at once with ``CONNECTED`` 0, the
-    function is tried every ``retry`` seconds, and its axes are served once it works.
-
-    Parameters
-    ----------
-    controllers
-        Connected controllers, by name.
-    prefix
-        The PV prefix.
-    policy
-        Who may write; ``None`` lets every client write.
-    poll
-        Seconds between position reads.
-    window
-        The longest wait of a merged move for puts to other axes, in seconds
-        (``merge="window"``: the wait every move pays).
-    merge
-        How puts to different axes become one ``!moa`` line: ``"turn"`` merges
-        the puts that arrive together (announced as they start, no fixed wait),
-        ``"window"`` makes every put wait ``window`` seconds for others
-        (:class:`~tango_aio.group._coalesce.MoveCoalescer`'s ``collect``).
-    autosave
-        The autosave file; ``None`` for none.
-    waiting
-        Functions that open controllers not reachable yet, by name.
-    retry
-        Seconds between two tries of a ``waiting`` function.
-
-    Returns
-    -------
-    TangoIoc
-        The started IOC; serve it with :meth:`~TangoIoc.run`.
-    """
+    """Build (and :meth:`~TangoIoc.start`) an IOC for ``controllers``."""
     saved = Autosave(autosave) if autosave is not None else None
     if saved is not None:
         saved.load()

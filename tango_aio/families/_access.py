@@ -1,8 +1,5 @@
 """The few moves every generated accessor is made of: read through the port and convert,
 write one value group per axis, and name the manual's values.
-
-The generated classes (:mod:`._generated`) call only these, so an accessor is one line of
-data (instruction, converter, arguments) and its behaviour is tested once here.
 """
 
 from __future__ import annotations

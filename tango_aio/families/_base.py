@@ -1,11 +1,4 @@
-"""What every family object stands on: the port it reaches the controller through.
-
-A family (settings, joystick, I/O, encoders, closed loop, triggers, snapshots, ...) groups
-the instructions of one chapter of the manual behind named, typed methods. It holds no
-link of its own: it speaks in intents (read a setting, write a proven setting, send a
-line) through a :class:`FamilyPort`, which the controller fills with its own methods, so a
-family never imports the controller and the controller stays a thin facade.
-"""
+"""What every family object stands on: the port it reaches the controller through."""
 
 from __future__ import annotations
 

@@ -1,21 +1,4 @@
-"""Bulk transfers of trigger and snapshot lists at wire speed.
-
-Uploads stream their lines through the protocol's write-credit limiter (see
-:mod:`tango_aio.sansio._flow`), which never lets more than 255 unprocessed bytes reach the
-controller and confirms them with pipelined ``err`` markers, so the link stays busy and
-nothing overflows. Every ``CHECKPOINT`` entries the upload also asks for the list's length
-(``?trigc`` / ``?snsc``): its reply reports progress and proves that every entry so far was
-accepted. When the count falls short, the upload stops, finds the first rejected entry by
-reading the list back, and raises :class:`UploadError` with its index and error code.
-
-Downloads pipeline one read per entry; each reply confirms its own bytes, so no markers
-are needed.
-
-Order of an upload: every entry is validated and its line built first (:func:`prepare`);
-only then is the list cleared and sent, so a bad value anywhere leaves the controller's
-list untouched. Uploads of one controller are serialised (:attr:`ListTransfer.lock`): two
-concurrent uploads would interleave their clears and appends.
-"""
+"""Bulk transfers of trigger and snapshot lists at wire speed."""
 
 from __future__ import annotations
 

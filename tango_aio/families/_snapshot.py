@@ -1,11 +1,6 @@
 """A controller's settings as data: which settings a snapshot holds, in which order a
 restore writes them, how two sets of values differ, and the snapshot's JSON form.
 
-Nothing here reads or writes the controller (:mod:`._settings` does); it is tested
-without a loop.
-
-Choices, each where the manual decides:
-
 * A snapshot holds every readable setting that ``save`` stores (the catalog's ``saved``,
   the manual's "Save" column, L267-923) and the software limits ``lim``, which it does
   not store but which a restore must bring back after ``dim`` and ``pitch``.

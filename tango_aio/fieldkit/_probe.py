@@ -1,35 +1,5 @@
 """``tango-aio probe``: learn what a controller's firmware does, from the wire.
 
-The manual leaves many details open (:mod:`tango_aio.sim.profiles` lists them as the
-emulator's *switches*). The probe finds, on a real unit, the value of every switch that can
-be observed from the wire, and writes a **fingerprint**: JSON with the switch values, the
-lines behind each, the unit's identity, axes and settings, and the project's version.
-``sim://?fingerprint=FILE`` then emulates that unit, and the wire trace
-(``--trace FILE``, :mod:`tango_aio.fieldkit._trace`) replays as a test
-(:func:`tango_aio.testing.replay`).
-
-What it does to the controller:
-
-* By default it only reads, and sets back what it changed: it selects autostatus modes
-  1, 2 and 4 in turn (the mode it found is restored at the end), sets ``extmode`` to the
-  other value for one ``?lim`` (restored at once), and sends a refused set line in mode 2
-  (``!vel x -1``), which changes nothing. No move line is written.
-* ``--save`` also sends ``!save`` once in mode 2, to see how it is acknowledged: that
-  writes the present settings to the controller's memory as its power-on settings.
-* ``--moves`` also moves one axis (X) by small distances inside its limits (a few
-  tenths of a second of travel each): a move and its way back, a zero move, a move refused
-  beyond the limit, a move sent during a move, ``a`` and Ctrl+C during a move, a move with
-  a ``pause``, ``!joy 0`` during a move (the joystick setting is restored), and in modes 2
-  and 4 a move with a read during it. At the end the axis returns to where it was (to the
-  precision of ``?pos``).
-
-The probe talks to the port below :class:`~tango_aio.Controller`: it writes
-raw lines and reads every line the controller sends, since the driver's routing would hide
-(or refuse) exactly what it needs to see. It opens the link with
-:mod:`tango_aio.controller._connection`'s code. Reads in mode 1 are followed by ``?err`` and
-``?version``, whose known answers end each exchange; in modes 2 and 4 an exchange ends after
-``settle`` seconds of silence.
-
 The decisions from the observed lines are pure functions (``decide_*``), tested without
 I/O; a value no switch has is recorded under ``unknown`` with its lines, and the command
 asks the user to send the file. An instruction the unit answers with nothing and error 4

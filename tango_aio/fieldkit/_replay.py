@@ -1,37 +1,5 @@
 """Replay a recorded wire trace as a test: the controller's side plays back, the driver's
 lines are checked. Use it as :func:`tango_aio.testing.replay`.
-
-A trace (the driver's wire log, :func:`~tango_aio.fieldkit.record_trace`,
-or ``tango-aio probe --trace``) holds every line written to the controller (``->``) and
-received from it (``<-``). :func:`replay` serves it on a loopback TCP port: each line
-the client writes must be the trace's next ``->`` line; each ``<-`` line is sent once every
-``->`` line before it in the trace has arrived, as long after the last of them as it came
-in the recording (``timing="recorded"``) or at once (``timing="fast"``). So a session
-recorded on a real unit becomes a regression test without hardware::
-
-    async with tango_aio.testing.replay("session.trace") as player:
-        async with tango_aio.connect(player.url) as tango:
-            await tango.move_to(x=1.0)      # the program that was recorded
-
-The replayed program must be the recorded one (the same calls with the same options),
-not one that does the same thing: it must write the very lines of the trace. A trace of
-``tango-aio move URL x=1`` replayed by ``move_to(x=1.0)`` fails at the command's first
-``?pos``: the command reads where the axes start, to show the distance covered.
-
-The first line that differs ends the replay: the link is closed (the client fails with
-:class:`~tango_aio.errors.ConnectionLostError`) and leaving the block raises
-:class:`ReplayMismatch` naming the trace line, what the trace has and what was written.
-Leaving the block before every ``->`` line was written raises it as well.
-
-Marker numbers: the driver starts each session at a random ``?help N`` marker number
-(:mod:`tango_aio.sansio._core`), so a written ``?help N`` matches the trace's ``?help K`` when
-every K stands for one N throughout (and one N for one K); replies ``ERROR K,text`` are
-then sent as ``ERROR N,text``.
-
-Limits: a line the trace shows cut (longer than ``TRACE_LINE`` bytes) is compared by
-its start and length, and cannot be sent (a trace with such a ``<-`` line is refused).
-What the client does depends on time only where the recording did: with
-``timing="recorded"`` replies come as late as they came then.
 """
 
 from __future__ import annotations

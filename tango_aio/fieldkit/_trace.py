@@ -1,24 +1,5 @@
 """Wire traces: one format for the driver's wire log, ``tango-aio probe --trace`` and
 :func:`tango_aio.testing.replay`.
-
-A trace is text, one record per line, exactly the messages of the ``tango_aio.wire``
-logger (:mod:`tango_aio.link._router`)::
-
-    # tango_aio wire trace, tango-aio 0.5.0
-    1234.567890 -> b'?version'
-    1234.569120 <- b'TANGO-DT, Version 1.71, Jun  4 2019 , 12:00:00'
-
-Each record is a monotonic timestamp in seconds, ``->`` for a line written to the
-controller or ``<-`` for a line received, and the line's bytes as a Python bytes literal
-with its CR removed (so a CR LF line end shows as a leading ``\\n`` of the next line). A
-line longer than :data:`~tango_aio.link._router.TRACE_LINE` bytes is cut and followed by its
-length (``b'...'... (300 bytes)``). Lines starting with ``#`` are comments; text before a
-record on its line (a log formatter's prefix such as ``DEBUG tango_aio.wire:``) is
-ignored, and so are lines without a record, so a log file with other records in it reads
-too.
-
-:func:`record_trace` writes the driver's wire log to such a file; :func:`read_trace` and
-:func:`parse_trace` read one back.
 """
 
 from __future__ import annotations

@@ -1,43 +1,4 @@
-"""Merge single-axis moves that arrive together into one multi-axis move.
-
-Moves on one :class:`~tango_aio.Controller` run one after another. Frameworks
-that drive each axis as a separate motor (Bluesky's ``bps.mv(x, 1, y, 2)``, an EPICS IOC
-with one motor record per axis) ask for several single-axis moves at nearly the same
-moment; run one by one they take the sum of their durations. :class:`MoveCoalescer`
-collects the requests that arrive within a short window and sends them as one ``!moa``
-line, so the axes travel together::
-
-    coalescer = MoveCoalescer(tango)
-    await asyncio.gather(coalescer.move_to("x", 1.0), coalescer.move_to("y", 2.0))
-    # -> a single "!moa 1 2"
-
-Rules:
-
-* A batch collects requests for ``window`` seconds from its first request, then runs as
-  one :meth:`Controller.move_to <tango_aio.Controller.move_to>`. With
-  ``collect="announced"`` it waits no fixed time: callers :meth:`~MoveCoalescer.announce`
-  a request before they prepare it (Bluesky's ``set()`` does, as the RunEngine calls it);
-  a batch runs one loop turn after its first request as soon as no announced request is
-  still on its way (those join it), and at most ``window`` seconds after it began. A
-  single move then costs no waiting at all. A second request
-  for an axis already in the batch being collected closes that batch at once (it runs
-  now) and starts the next one; batches run in the order they were started.
-* Every caller of a batch gets the batch's outcome: its own axis's status letter, or the
-  same :class:`~tango_aio.errors.MoveError` / :class:`~tango_aio.errors.TangoError`.
-* Invalid input (an axis the controller lacks, a non-finite target) raises
-  :class:`~tango_aio.errors.InvalidCommandError` for that caller alone, before it joins a
-  batch.
-* Cancelling a caller before its batch was sent only withdraws its axis (nothing has
-  moved). Cancelling a caller whose batch is moving stops the merged move, all of its
-  axes, and returns once they are stopped (bounded), as cancelling
-  :meth:`Controller.move_to` does; the batch's other callers then get a ``MoveError``
-  with status ``E`` for the batch's axes.
-* :meth:`MoveCoalescer.aclose` stops what is pending or moving the same way; later
-  requests raise :class:`~tango_aio.errors.TangoError`.
-
-Targets are in the controller's position unit (the axis's ``dim`` unit); any unit
-conversion is the caller's.
-"""
+"""Merge single-axis moves that arrive together into one multi-axis move."""
 
 from __future__ import annotations
 

@@ -1,42 +1,4 @@
-"""Several controllers at once: :class:`ControllerGroup`.
-
-:class:`ControllerGroup` opens many controllers concurrently and runs operations on them
-concurrently (one task per controller in an anyio task group)::
-
-    async with ControllerGroup({"stage": "sim://?axes=2", "focus": "sim://?axes=1"}) as group:
-        await group.calibrate()
-        await group.move_to({"stage": {"x": 1, "y": 2}, "focus": {"x": 0.5}})
-        group["stage"]                       # the Controller named "stage"
-
-Failure policy (the same for every group operation, opening included):
-
-* One controller's error or lost connection never stops or hangs the others: by default
-  every other member's operation runs to its end, and the group raises after all have
-  finished. ``fail_fast=True`` cancels the others at the first failure instead (a
-  cancelled move stops its axes, as when cancelling :meth:`Controller.move_to`).
-* Failures are raised together as one :class:`GroupError`, an :class:`ExceptionGroup`.
-  Its members are the *original* exceptions, unwrapped, so ``except* OutOfRangeError``
-  and ``except* MoveError`` work; each carries a note (:pep:`678`) naming its controller,
-  ``"controller 'stage' (sim://?axes=2)"``, shown in tracebacks. Programmatically,
-  ``GroupError.failures`` maps controller name → exception (also on the sub-groups that
-  ``except*`` hands out), and ``GroupError.results`` holds what the members that
-  succeeded returned.
-* Input is checked for every member before anything is written: an unknown controller
-  name raises :class:`KeyError`, invalid targets (bad axis letters, out-of-range values,
-  an axis the controller does not have) raise a :class:`GroupError` of
-  :class:`~tango_aio.errors.InvalidCommandError`, and no controller moves.
-* Opening: if any controller fails to open, the others are still opened to the end, then
-  every one that opened is closed again and a :class:`GroupError` names those that failed.
-* Cancelling a group operation (or ``fail_fast``) cancels each member's operation exactly
-  once and waits (shielded, bounded) until it has cleaned up, so each controller stops
-  its axes before the cancellation goes on, even under anyio's level-triggered scopes.
-
-:meth:`ControllerGroup.events` merges the members' event streams into one bounded
-stream of ``(name, event)`` pairs that drops its oldest events on overflow
-(:class:`GroupSubscription`).
-
-Finding the controllers to put in a group is :func:`tango_aio.discover`'s job.
-"""
+"""Several controllers at once: :class:`ControllerGroup`."""
 
 from __future__ import annotations
 

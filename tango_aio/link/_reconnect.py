@@ -1,27 +1,4 @@
-"""Automatic reconnection: the backoff policy and what a reconnect needs.
-
-Opt in with ``connect(url, reconnect=True)``. After the link is lost the
-:class:`~tango_aio.Controller` keeps its identity as an object and, in a
-background task, waits, opens the same URL again, sets the new link up like the first one
-(resync, identity check, the autostatus mode in force when the link was lost) and swaps
-it in; see :meth:`Controller.wait_connected <tango_aio.Controller.wait_connected>`.
-
-Choices:
-
-* The first attempt also waits :attr:`ReconnectPolicy.initial`: right after a loss the
-  other end is usually still going away (a TCP server restarting, a USB adapter being
-  re-enumerated), so an immediate attempt mostly fails.
-* Nothing that was in flight is retried: a move may or may not have run, and only the
-  caller can decide whether to send it again. Its await raises
-  :class:`~tango_aio.errors.ConnectionLostError`.
-* A different controller answering (model, firmware or number of axes changed) is not a
-  transient error: the driver's cached settings and the caller's assumptions no longer
-  hold, so reconnecting stops with :class:`IdentityMismatchError`.
-
-The controller owns one :class:`Reconnector` (built from ``Controller(reconnect=...)``), and
-the Reconnector sees its controller only through :class:`ReconnectPort`, as
-:class:`~tango_aio.controller._motion.Motion` does through its port.
-"""
+"""Automatic reconnection: the backoff policy and what a reconnect needs."""
 
 from __future__ import annotations
 

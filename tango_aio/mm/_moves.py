@@ -40,14 +40,7 @@ class Moves:
                 self._failure = error
 
     def check(self) -> None:
-        """Raise the failure of a move that ended since the last check, once.
-
-        Raises
-        ------
-        BaseException
-            The driver's error of that move (a :class:`~tango_aio.MoveError` that names
-            the axis and why it stopped, a controller error, a timeout...).
-        """
+        """Raise the failure of a move that ended since the last check, once."""
         with self._lock:
             self._collect()
             failure, self._failure = self._failure, None
@@ -56,25 +49,13 @@ class Moves:
 
     def busy(self) -> bool:
         """Whether a move started here has not had its verdict yet; raises a failed
-        move's error (see :meth:`check`).
-
-        Returns
-        -------
-        bool
-            ``True`` until every started move has ended.
-        """
+        move's error (see :meth:`check`)."""
         self.check()
         with self._lock:
             return bool(self._running)
 
     def ended(self) -> bool:
-        """Whether a move has ended since the last call (the position changed): once.
-
-        Returns
-        -------
-        bool
-            ``True`` the first time it is asked after a move ended.
-        """
+        """Whether a move has ended since the last call (the position changed): once."""
         with self._lock:
             self._collect()
             ended, self._ended = self._ended, False
@@ -82,13 +63,7 @@ class Moves:
 
     def stopping(self) -> list[concurrent.futures.Future[Any]]:
         """Mark the running moves as stopped on purpose (their error is not a failure to
-        report) and return them.
-
-        Returns
-        -------
-        list[concurrent.futures.Future]
-            The moves that were running.
-        """
+        report) and return them."""
         with self._lock:
             running = list(self._running)
             self._stopped.update(running)

@@ -18,24 +18,7 @@ def run_through(positions: Sequence[float]) -> tuple[float, float]:
     """Where the move that passes ``positions`` starts and ends: one step before the first
     and one step past the last, as the manual's example runs ``!trigr x 10 20 11`` with
     ``moa 9`` then ``moa 21`` (L13700-13720); "the move must start from below the start
-    position and travel past the end position" (L13585-13586).
-
-    Parameters
-    ----------
-    positions
-        The positions, at least two, finite and strictly increasing or decreasing (the
-        list is unidirectional, its direction set by the first two entries, L13810-13812).
-
-    Returns
-    -------
-    tuple[float, float]
-        The start and the end of the move.
-
-    Raises
-    ------
-    ValueError
-        Fewer than two positions, one not finite, or not strictly monotonic.
-    """
+    position and travel past the end position" (L13585-13586)."""
     values = [float(value) for value in positions]
     if len(values) < 2:
         raise ValueError(f"a sequence passes at least two positions, got {len(values)}")

@@ -66,13 +66,7 @@ class _Axes(_Base):
         return self.hub.controller
 
     def initialize(self) -> None:
-        """Check the axes against the controller and add the per-axis properties.
-
-        Raises
-        ------
-        ValueError
-            An axis the controller does not have.
-        """
+        """Check the axes against the controller and add the per-axis properties."""
         identity = self.controller.identity
         present = AXES[: identity.axes]
         missing = [axis for axis in self._axes if axis not in present]
@@ -114,32 +108,13 @@ class _Axes(_Base):
              lambda dev, v: dev.set_limits_um(axis, dev.limits_um(axis)[0], v))
 
     def limits_um(self, axis: str) -> tuple[float, float]:
-        """The software limits of ``axis`` (``?lim``) in µm: the stage's travel range.
-
-        Parameters
-        ----------
-        axis
-            One of this device's axes.
-
-        Returns
-        -------
-        tuple[float, float]
-            The lower and upper limit.
-        """
+        """The software limits of ``axis`` (``?lim``) in µm: the stage's travel range."""
         self._moves.check()
         lower, upper = self.controller.settings.limits()[axis]
         return float(lower), float(upper)
 
     def set_limits_um(self, axis: str, lower: float, upper: float) -> None:
-        """Set the software limits of ``axis`` (``!lim``) in µm.
-
-        Parameters
-        ----------
-        axis
-            One of this device's axes.
-        lower, upper
-            The new limits.
-        """
+        """Set the software limits of ``axis`` (``!lim``) in µm."""
         self._moves.check()
         self.controller.settings.set_limits(**_by_axis({axis: (lower, upper)}))
 
@@ -163,22 +138,7 @@ class _Axes(_Base):
         return {axis: where[axis] for axis in self._axes}
 
     def busy(self) -> bool:
-        """Whether a move of these axes has not ended with the driver's verdict yet.
-
-        The first call that finds the moves ended tells the core's listeners where the
-        axes stand (``XYStagePositionChanged``, ``stagePositionChanged``), read then.
-
-        Returns
-        -------
-        bool
-            ``True`` from the set until every moved axis stands at its target.
-
-        Raises
-        ------
-        MoveError
-            A move that ended since the last call stopped short (a limit switch, a
-            disabled axis, ...): raised once, by the next call.
-        """
+        """Whether a move of these axes has not ended with the driver's verdict yet."""
         busy = self._moves.busy()
         if not busy and self._moves.ended():
             self._announce()

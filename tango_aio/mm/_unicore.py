@@ -1,9 +1,4 @@
-"""pymmcore-plus, imported so that the root logger keeps its level.
-
-pymmcore-plus sets the root logger to DEBUG when it is imported (its
-``configure_logging``): every library's debug records, the driver's wire trace among them,
-would then be made and handed to the root's handlers. The caller's level is put back.
-"""
+"""pymmcore-plus, imported so that the root logger keeps its level."""
 
 from __future__ import annotations
 

@@ -1,12 +1,5 @@
 """Move timing without I/O: how long a move may take and what counts as its target.
 
-Theory of operation
-===================
-The driver never waits for a move without a bound (no false success, and every failure
-in bounded time). That bound is computed here, from the settings the driver caches
-(:class:`MoveTiming`, which :class:`~tango_aio.sansio._state.DriverState` extends and keeps in
-step with every accepted set) and from the geometry of the move:
-
 * :meth:`MoveTiming.travel` converts a distance in the axis's user unit (``dim``,
   ``pitch``) to motor revolutions and times a trapezoid profile (:func:`travel_time`) at
   the slowest plausible speed: ``vel`` capped by the security speed ``secvel``, with the
@@ -40,9 +33,6 @@ step with every accepted set) and from the geometry of the move:
   running moves, or the result it asks for holds; :func:`stop_time` bounds the wait
   for an axis it stops, :func:`speed_shown` reads the speed in force of one that ran
   before it.
-
-Everything here is a pure function of its arguments, tested synchronously
-(``tests/unit/test_timing.py``); :mod:`tango_aio.controller._motion` asks it and does the waiting.
 """
 
 from __future__ import annotations

@@ -1,12 +1,5 @@
 """The move tracker without I/O: what a move does next, driven by events, answering intents.
 
-Theory of operation
-===================
-:class:`MoveTracker` is a connection's knowledge about its moves, and :class:`Follow` one
-motion line followed to its end; the asyncio adapter (:mod:`tango_aio.controller._motion`
-and the controller's move methods) feeds them what happened and carries out what they
-answer, as the link session (:mod:`tango_aio.sansio._session`) does for the link.
-
 * **Planning** (:meth:`MoveTracker.start`): where a ``move_by``'s start comes from. The
   position the driver read last is its start only while nothing but this driver's own
   lines can have moved the stage since: the HDI was turned off on this link (``!joy 0``;

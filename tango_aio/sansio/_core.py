@@ -1,43 +1,5 @@
 """The sans-IO protocol core: line reassembly and reply routing. No I/O, no asyncio.
 
-The lines come from ``_lines.py``, what each written line owes from ``_expect.py``, and the
-events yielded are in ``_events.py``; this module routes each line.
-
-Theory of operation
-===================
-The TANGO interpreter executes one CR-terminated command line at a time, strictly in the
-order received, and everything it sends back is a CR-terminated line. A line is one of:
-
-1. a **data reply** to a read (``?pos`` → ``1.0000 2.0000``), one or more lines, in the
-   order of the reads;
-2. an **acknowledgement** ``OK...`` / ``ERR n`` of every ``!`` line in autostatus 2, sent
-   after the line was executed (``save`` and ``?restore`` answer like this in every mode);
-3. an **echo** of every executed set/move line in autostatus 4, sent before executing it;
-4. a **completion report** of a move, ``cal`` or ``rm``: ``@@@-.`` (modes 1, 2, 4) or an
-   empty line (mode 3). It is pushed when the axes stop, so it may fall between any two
-   other lines, and it is matched to the oldest move still waiting for one;
-5. anything else: unsolicited (``!joy 0`` reports ``@@@-.`` when it disables the joystick).
-
-Because the interpreter is sequential, items 1-3 arrive in the order the lines were
-written. :class:`ProtocolCore` therefore keeps a FIFO of *expectations*: for each line
-written, the items it still owes (echo, data, ack, in that order), computed from the
-instruction catalog and the autostatus mode in force when the line reaches the controller.
-The core tracks that mode from the ``!autostatus`` lines it encodes itself. Completion
-reports have a shape no reply has, so they are recognised by pattern first.
-
-When the stream can no longer be trusted (a reply was lost, or Ctrl+C made the controller
-discard its input buffer) the core *resynchronises*: every pending request is reported
-lost, a marker query ``?help N`` is sent, and every line up to its unique reply
-``ERROR N,...`` is dropped (or, on firmware whose ``help`` takes no number, every line
-until the protocol sees the link quiet after the reply of ``help``: :class:`HelpStyle`).
-Completion reports keep flowing during a resync.
-
-Where the manual is silent on whether a line comes at all (a read echoed in mode 4, a
-read or a mode change acknowledged in mode 2), the line is an *optional* item: consumed
-when the next line fits it, skipped otherwise (:func:`_owed_items`).
-
-Some lines come *late* on some firmware, and the core tells from the stream:
-
 * Mode 2 may acknowledge a move only when it completes, next to its report (switch
   ``move_ok=completion``; L2099-2103 do not say when). So the core writes an ``?err``
   behind every mode-2 move: its reply arriving where the move's ``OK...`` is owed shows
@@ -58,19 +20,6 @@ Some lines come *late* on some firmware, and the core tells from the stream:
 * A read answered by its own text means the link echoes what is sent (local echo of an
   adapter; switch ``local_echo``): a :class:`Mismatched` with :data:`LOCAL_ECHO`, and
   :attr:`ProtocolCore.local_echo` is set; the controller refuses the link at connect.
-
-A line is also judged by its timing where the protocol gives it (arrival times with the
-bytes): a data line whose first byte (blanks aside) was read before its request was
-written is not its reply, nor, on a paced wire (:attr:`ProtocolCore.wire_seconds`,
-:attr:`ProtocolCore.write_time`), one that started while the request's bytes were still
-on the wire (:func:`~tango_aio.sansio._linktiming.earliest_reply`): stray bytes without a CR
-glued in front of the reply. Which came first, the chunk or the write, is known by the
-order they were handled in, not by a clock. Such a line is a :class:`Mismatched` with its
-reason, like a line of the wrong shape.
-
-The core is fed raw bytes with :meth:`ProtocolCore.receive_data` and yields events from
-:meth:`ProtocolCore.next_event`, like h11. Only :class:`~tango_aio.errors.ProtocolError` is
-ever raised for bad input; the core stays usable afterwards.
 """
 
 from __future__ import annotations
@@ -234,10 +183,7 @@ def _is_ok(text: str) -> bool:
 
 
 class ProtocolCore:
-    """Routes the controller's lines to requests, acknowledgements and events.
-
-    Call :meth:`send` for every command line written (it returns the bytes to write) and
-    :meth:`receive_data` with every chunk read; then drain :meth:`next_event`."""
+    """Routes the controller's lines to requests, acknowledgements and events."""
 
     def __init__(self, *, autostatus: int = 1, context: Context | None = None,
                  max_line: int = DEFAULT_MAX_LINE, check_replies: bool = True,
@@ -367,12 +313,7 @@ class ProtocolCore:
 
     def send(self, command: Command, tag: Hashable,
              known: tuple[int, Expectation] | None = None) -> tuple[bytes, Expectation]:
-        """Register ``command`` under ``tag`` and return the bytes to write.
-
-        A read whose end can only be seen from the next line (``detext``) is followed by an
-        internal ``?err`` whose reply closes it; its bytes are included. ``known`` is an
-        expectation the caller already computed and the mode it computed it for: it is
-        used when that is the mode in force (and the reply does not depend on the context)."""
+        """Register ``command`` under ``tag`` and return the bytes to write."""
         if known is not None and known[0] == self._autostatus \
                 and command.instruction.lines is None:  # else it depends on the context
             expect = known[1]

@@ -55,11 +55,7 @@ class Echoed:
 
 @dataclass(frozen=True, slots=True)
 class Completed:
-    """A completion report. ``tag`` is the move it belongs to, ``None`` if unsolicited.
-
-    ``letters`` maps each present axis to its status letter; it is ``None`` for the bare CR
-    of autostatus 3, which carries no status.
-    """
+    """A completion report. ``tag`` is the move it belongs to, ``None`` if unsolicited."""
 
     tag: Hashable | None
     letters: dict[str, str] | None

@@ -61,18 +61,7 @@ def nothing_trails_help(lines: Sequence[str]) -> bool:
     (L2117; "all input instructions", old L717-725), either before or after the reply.
     Modes 0, 1 and 3 answer a read with its reply alone (L2079-2113: their only other
     lines are move reports), and ``help``'s reply is one line in both editions (L2915-
-    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet.
-
-    Parameters
-    ----------
-    lines
-        The lines the exchange collected so far.
-
-    Returns
-    -------
-    bool
-        Whether the mode in force (the first number) is 0, 1 or 3.
-    """
+    2919, old L805-819). In modes 2 and 4 the exchange waits for quiet."""
     for line in lines:
         if _INTEGER.match(line):
             return int(line) in (0, 1, 3)
@@ -92,18 +81,7 @@ def status_tail(lines: Sequence[str]) -> str | None:
     "an additional '-' after the dot (.- instead of .)", L2668-2670, ``@@@-.-`` L2715),
     ``"no"`` (the letters alone), or ``"dot"`` (``@@@-.``: the completion report's own
     shape, L2087-2089, which a read then cannot be told from). A completion report that
-    came meanwhile does not count: a line with ``.-`` or the bare letters decides first.
-
-    Parameters
-    ----------
-    lines
-        The lines collected (stripped or not).
-
-    Returns
-    -------
-    str | None
-        ``"yes"``, ``"no"`` or ``"dot"``; ``None``: no line of letters came.
-    """
+    came meanwhile does not count: a line with ``.-`` or the bare letters decides first."""
     texts = [line.strip() for line in lines]
     if any(text.endswith(".-") and is_completion_line(text[:-1]) for text in texts):
         return "yes"
@@ -115,11 +93,5 @@ def status_tail(lines: Sequence[str]) -> str | None:
 
 
 def _is_help_reply(text: str) -> bool:
-    """Whether ``text`` (stripped) looks like the reply of ``help``.
-
-    Returns
-    -------
-    bool
-        Whether it is ``ERROR n,text`` (L2915-2919, old L805-819).
-    """
+    """Whether ``text`` (stripped) looks like the reply of ``help``."""
     return text.startswith("ERROR")

@@ -168,11 +168,7 @@ def owed_edge(command: Command, expect: Expectation, mode: int,
               ack_reads: AckReads | None = None) -> Edge | None:
     """The front :class:`~tango_aio.sansio._patterns.Edge` of what ``command`` owes when written
     in ``mode``: the lines it may get before the first one it is sure to get, and that
-    one (``None``: it is sure to get none; a move's ``?err`` probe then guards it).
-
-    A move whose acknowledgement may come with its report (mode 2) is sure of the reply
-    of the ``?err`` the core writes behind it (:meth:`ProtocolCore.send`), which then
-    ends the edge."""
+    one (``None``: it is sure to get none; a move's ``?err`` probe then guards it)."""
     items = _owed_items(command, expect, mode, ack_reads)
     echo = echo_pattern(command)
     pattern = reply_pattern(command, context) if _has_data(expect.rule) else ACK_PATTERN
@@ -222,20 +218,7 @@ def _has_data(rule: LineRule) -> bool:
 
 
 def expectation(command: Command, mode: int, context: Context | None = None) -> Expectation:
-    """What ``command`` owes when it reaches the controller in autostatus ``mode``.
-
-    Decisions where the manual is silent (protocol_notes §5, open points); the emulator
-    offers each of them as a firmware switch (``sim/profiles.py``), read on its own:
-
-    * Mode 4 echoes every executing line (``!`` or an executing bare form such as
-      ``moa``). Reads may be echoed too: optional (see :func:`_owed_items`).
-    * Mode 2 acknowledges every ``!`` line. Reads may be acknowledged too: optional.
-    * ``!autostatus n`` owes nothing for certain: its echo and acknowledgement depend on
-      the firmware (optional, see :func:`_owed_items`).
-    * A line that already answers with ``OK...``/``ERR`` (``save``) is not acknowledged a
-      second time in mode 2.
-    * Moves complete with a report in modes 1, 2, 4 and a bare CR in mode 3; mode 4 sends
-      the echo first and the report when the move ends, as in mode 1."""
+    """What ``command`` owes when it reaches the controller in autostatus ``mode``."""
     entry = command.instruction
     # Most lines owe what their instruction, form and the mode say, whatever their values:
     # those expectations are computed once (the protocol asks twice per line written).
@@ -315,10 +298,7 @@ def _owed_items(command: Command, expect: Expectation, mode: int,
       :class:`AckReads`); until then both are optional. (Optional acks after a
       read cannot be told from the next ``!`` line's: hence the detection.)
     * Whether ``!autostatus n`` is acknowledged per the old or the new mode is not said
-      (``ack_mode_change``): a line entering or leaving mode 2 may or may not be.
-
-    A mode change is then a barrier: :meth:`TangoProtocol.execute
-    <tango_aio.link._protocol.TangoProtocol.execute>` reads ``?autostatus`` right behind it."""
+      (``ack_mode_change``): a line entering or leaving mode 2 may or may not be."""
     items: deque[_Item] = deque()
     setter = command.name == "autostatus" and command.form is Form.SET
     after = expect.mode_after

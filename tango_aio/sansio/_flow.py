@@ -7,21 +7,6 @@ belong to; bytes that arrive while 256 are buffered are lost without notice (man
 L129-131, L14093). The driver therefore counts every byte it writes as *outstanding* until
 it knows the controller has processed it, and never lets the outstanding bytes exceed the
 *limit* (255 by default).
-
-What confirms bytes: a line's reply is sent after the line was processed, so a reply to
-request R confirms R's bytes and every byte written before them. (An autostatus-4 echo is
-sent *before* executing, so it confirms only the bytes before its line.)
-
-Lines that owe no reply (``!trigp -1 2.5`` in autostatus 1) confirm nothing. So when such
-lines pile up, the driver appends a *marker*: the bare read ``err`` (4 bytes), whose reply
-confirms everything before it and tells whether the last line before it failed. Markers
-are inserted every ``chunk`` bytes of reply-less traffic, so several are in flight and
-credit keeps coming back while the link stays busy; and whenever the queue is blocked on
-credit with unconfirmed reply-less bytes at the tail. Ordinary request/reply traffic never
-needs one.
-
-This module is sans-IO: :class:`CreditWindow` only does the arithmetic; the write
-scheduler (:mod:`tango_aio.sansio._scheduler`) decides what to write.
 """
 
 from __future__ import annotations
@@ -66,11 +51,7 @@ class CreditWindow:
         self.peak = 0
 
     def fits(self, size: int, has_reply: bool) -> bool:
-        """Whether a line of ``size`` bytes may be written now.
-
-        A reply-less line must also leave room for the marker that will confirm it. A line
-        too long for that is written only when nothing is outstanding (it can only happen
-        for lines of more than ``limit - 4`` bytes, which no typed API produces)."""
+        """Whether a line of ``size`` bytes may be written now."""
         reserve = 0 if has_reply else len(MARKER)
         if size + reserve > self.limit:
             return self.outstanding == 0
@@ -93,11 +74,7 @@ class CreditWindow:
         return self.unmarked + next_size + reserve > self.limit
 
     def marker_fits(self) -> bool:
-        """Whether a marker may be written now.
-
-        Also when it overshoots the limit but nothing in flight could ever confirm the
-        outstanding bytes: that only follows a reply-less line longer than
-        ``limit - 4`` bytes, and waiting would never end."""
+        """Whether a marker may be written now."""
         if self.outstanding + len(MARKER) <= self.limit:
             return True
         return all(item.tag is None for item in self._written)
@@ -120,11 +97,7 @@ class CreditWindow:
         """Record reply-less lines of a run (``ends``: where each line ends in the run's
         bytes): line ``first``, which the caller found may go, and the lines after it
         while each :meth:`fits` and no marker is due (:meth:`marker_due`) before it.
-        Returns the index after the last line taken.
-
-        The same counts as :meth:`wrote` line by line with those checks between
-        (tests/unit/test_flow.py compares them), in one pass of local arithmetic: a
-        list upload takes tens of lines at a time."""
+        Returns the index after the last line taken."""
         start = ends[first - 1] if first else 0
         self.wrote(ends[first] - start, None)
         unmarked, outstanding = self.unmarked, self.outstanding

@@ -1,10 +1,5 @@
 """How long a quiet link must stay quiet before the driver takes it as done (sans-IO).
 
-Where no reply is unique, an exchange of connect's (:meth:`TangoProtocol.detect
-<tango_aio.link._protocol.TangoProtocol.detect>`, the mode exchange) and every resync on
-firmware whose ``help`` takes no number end on a *quiet* link: no byte for a while after
-the line that looks like the last reply. How long "a while" must be depends on the link:
-
 * its speed: the controller answers a line only once the whole line has reached it
   (CR-terminated lines, L28-30), so the gap between two replies can be as long as the next
   command line takes on the wire; at 1200 Bd 8N2 (L8-10: 11 bits per byte) one byte takes
@@ -22,11 +17,6 @@ measures on the link
 (from writing an exchange to the first byte back), which also covers links whose speed it
 cannot know (``socket://`` to a serial-to-TCP adapter, the emulator's ``sim://``).
 :class:`LinkTiming` keeps the measurements; :func:`quiet_interval` is the rule.
-
-The same timing says when a line *cannot* be a request's reply: :func:`earliest_reply`.
-The link has no checksum, so stray bytes without a CR in front of a reply become part of
-it (``1`` + ``91.125`` reads ``191.125``). But a reply starts only after its request has
-reached the controller, so a line whose first byte was read before that is not its reply.
 """
 
 from __future__ import annotations
@@ -82,8 +72,6 @@ def earliest_reply(sent_at: float, wire_free: float, size: int, byte_seconds: fl
                    margin: float = ARRIVAL_MARGIN) -> tuple[float, float]:
     """The time before which a line that starts is not the reply to a line of ``size``
     bytes written at ``sent_at``, and when that line's last byte has passed.
-
-    Why the bound is safe (it must never reject a true reply):
 
     * ``sent_at`` is read before the bytes are handed to the transport, and a line's
       arrival time after its bytes were read, both from the one event-loop clock, which

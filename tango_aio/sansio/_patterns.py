@@ -1,46 +1,4 @@
-"""What a reply line looks like, so that a line is never taken for a reply it is not.
-
-The controller's replies carry no request id: the protocol core matches them to requests
-by order alone (see :mod:`tango_aio.sansio._core`). When one line goes missing (a dropped reply) or
-one line too many arrives (line noise, a garbled completion report), every later reply
-would be taken by the request before its own. Two rules stop that:
-
-1. **Check.** Every reply line is checked against the pattern its request's instruction
-   gives (:func:`reply_pattern`, from the catalog's reply shape): ``?vel x`` must answer
-   one number, ``?statusaxis`` status letters, a mode-2 acknowledgement ``OK``/``ERR n``.
-   A line that does not fit is not this request's reply: the core reports a mismatch and
-   the protocol resynchronises instead of handing it over.
-2. **Separate.** Two requests in a row whose replies could be taken for each other
-   (``?vel x`` then ``?accel y``, one number each) get a *separator* written between
-   them: a read whose reply looks like neither (``err``, ``help`` or ``?help N``, see
-   :meth:`ProtocolCore.separate <tango_aio.sansio._core.ProtocolCore.separate>`). "In a row"
-   means in write order, whether or not the first is answered yet: its real reply may
-   still be on its way. What is compared are the edges (:class:`Edge`) where the replies
-   meet, built from the lines each request is *sure* to get, in every autostatus mode:
-   the first request's last sure line and its first (its own line lost, the next reply
-   lands there), against the second's first sure line, each with the optional lines
-   around it (a read's echo in mode 4, a read's acknowledgement in mode 2 before it is
-   detected), which may come and so may be taken too, but never hide a sure line.
-
-Together they guarantee that a single lost, extra or garbled line is never delivered to a
-later request: a line too many shifts the replies after it by one, and the shift is
-caught at the next boundary between requests of different patterns (a separator, at the
-latest). The request the stray line reached may take it (when it fits: no protocol
-without ids can tell) or fail; every later one gets its own reply or a typed error. A lost
-reply times out, or its neighbour's reply lands where it does not fit (a ProtocolError,
-and the resync aborts what was in flight). (A garbled line that still fits its own
-pattern reaches its own caller, garbled: no protocol without checksums can tell.) A read
-whose reply is free text (:data:`ANY_PATTERN`: ``?version``, ``detext``, ``?lim`` of
-every axis) fits any line: when its own reply or line is lost it takes the next line,
-and only the request after it is protected. Two faults close together can still fool
-the check.
-
-Lines of one all-or-nothing batch (a list upload or download, which fails as a whole when
-any of its lines fails) need no separators between them. With
-``TangoProtocol(separators=False)`` the older rule applies instead: the second request
-waits until the first is answered (no extra line, but a stray line that fits the waiting
-request shifts every later reply: benchmarks/separators.py compares the two).
-"""
+"""What a reply line looks like, so that a line is never taken for a reply it is not."""
 
 from __future__ import annotations
 
@@ -153,15 +111,7 @@ class Edge:
     the back, the last line it is sure to get and the lines after it. "Sure" excludes the
     lines some firmware sends and some does not (a read's echo in mode 4, a read's
     acknowledgement in mode 2 before it is detected) and those that may come much later
-    (a move's echo or acknowledgement that some firmware sends only with its report).
-
-    A single lost or extra line moves the sure line of one end onto the other end, and a
-    lost request line moves the next request's reply onto the front of the lost one's.
-    So two requests in a row need something between them when the front edge of the
-    second :meth:`overlaps` either edge of the first (the core's *rear* edge). An
-    optional line is part of an edge because when it does come it may be taken there
-    too.
-    """
+    (a move's echo or acknowledgement that some firmware sends only with its report)."""
 
     patterns: tuple[ReplyPattern, ...]
 
@@ -236,10 +186,7 @@ def echo_pattern(command: Command) -> ReplyPattern:
 
 def reply_pattern(command: Command, context: Context | None = None) -> ReplyPattern:
     """The pattern of each data line ``command`` replies with (reads, and the ``OK``/``ERR``
-    of ``save``); :data:`ANY_PATTERN` for free text and replies of several lines.
-
-    Per-axis replies name the axes present, so without an axis letter they hold between one
-    and four axes' values (the driver's idea of the axis count may be stale)."""
+    of ``save``); :data:`ANY_PATTERN` for free text and replies of several lines."""
     entry = command.instruction
     shape = entry.reply if command.is_read else entry.exec_reply
     rule = reply_rule(command, context)

@@ -1,18 +1,5 @@
 """The write scheduler: which queued line goes on the wire next, and what goes with it.
 
-Theory of operation
-===================
-Every line the driver writes on its own behalf passes through one FIFO queue. The
-scheduler decides when the head of that queue may be written, and what has to be written
-just before it. It is sans-IO (in the manner of h11): it never touches a transport, a
-future or an event loop. Commands go in (:meth:`WriteScheduler.submit`), bytes to write
-come out (:meth:`WriteScheduler.next_write`), and the caller reports back what arrived
-(:meth:`WriteScheduler.replied`). Everything it writes is registered with the
-:class:`~tango_aio.sansio._core.ProtocolCore` it is given, so the core knows what each line owes;
-both are plain objects and can be driven synchronously (``tests/unit/test_scheduler.py``).
-
-Four rules decide what is written:
-
 1. **Order.** Lines go out in submission order. A line waiting for credit holds back
    every line behind it.
 2. **Credit** (:mod:`tango_aio.sansio._flow`). The bytes written and not yet confirmed by a reply
@@ -35,18 +22,6 @@ Four rules decide what is written:
    reaches the controller. That is the mode the core believes in force, carried forward
    through the lines still queued (:meth:`WriteScheduler.plan`). Withdrawing lines or a
    resync recomputes it (:meth:`WriteScheduler.reproject`).
-
-A mode change is a barrier: :meth:`WriteScheduler.hold` stops the queue after the lines
-submitted so far, until :meth:`WriteScheduler.release`.
-
-A run of list entries that owe nothing (``!trigp -1 pos`` in autostatus 1) is one
-:class:`Run` record from :meth:`WriteScheduler.pack`: one bytes blob and its line ends,
-not one object per line. It goes on the wire line by line under the same rules:
-the same bytes, markers and separators as one :class:`Line` per entry
-(``tests/unit/test_scheduler.py`` compares the two on random traffic).
-
-The size of a line on the wire, and of the probe a read may need behind it, comes from
-:func:`tango_aio.sansio._core.wire_size`, the function that also builds those bytes.
 """
 
 from __future__ import annotations
@@ -153,12 +128,7 @@ class Line:
 @dataclass(eq=False, slots=True)
 class Run(Line):
     """A run of reply-less lines kept as one record: their bytes in one blob, and where
-    each line ends (a list upload: one record per run, not one object per line).
-
-    ``command`` is the first line (for messages), ``expectation`` what every line owes
-    (nothing). The run leaves the queue when its last line is written; :attr:`size` is
-    the size of the line to write next.
-    """
+    each line ends (a list upload: one record per run, not one object per line)."""
 
     blob: bytes = b""
     #: Offset just past each line's CR in :attr:`blob`.
@@ -385,14 +355,7 @@ class WriteScheduler:
     def _trailing_separator(self) -> bytes:
         """A separator behind the line just written (:attr:`Line.separate_after`), chosen
         so that neither that line's reply nor a number (the ``?err`` of a checked line)
-        can be taken for its reply; nothing when none exists or the credit is short.
-
-        It is written ahead of need: the next request then finds a line owed last that
-        does not look like its own and goes out without a separator (rule 3 decides that
-        as always, so skipping this one never weakens rule 3). Written in the same write
-        as the line, its bytes are on the wire while the controller still answers that
-        line, instead of in front of the next request (6 bytes, about 1.1 ms at
-        57600 Bd, before every move)."""
+        can be taken for its reply; nothing when none exists or the credit is short."""
         last = self._last_owed
         probe = self._edge_of(_PROBE)
         if not self.separators or last is None or probe is None:

@@ -1,12 +1,5 @@
 """The link session: what a link decides about its own state. No I/O, no asyncio.
 
-:class:`LinkSession` is the sans-IO half of :class:`~tango_aio.link._protocol.TangoProtocol`,
-in the way h11's ``Connection`` is of an HTTP client: the protocol feeds it what happened
-(a line dropped by the core, a marker's reply, a deadline reached, a line unanswered, the
-link closed), with the time where time matters (``now``, the event loop's clock), and does
-what it answers, an enum for each kind of answer (write these bytes, arm this deadline,
-wake the exchange, the stream is in step, wait once more, the link is dead). It owns:
-
 * **resync and quiet resync**: a resync writes the marker ``?help N`` and the core drops
   every line up to its unique reply; on firmware without ``?help N``
   (:attr:`~tango_aio.sansio._core.HelpStyle.NONE`) ``help`` is written and the stream is in step
@@ -30,14 +23,6 @@ wake the exchange, the stream is in step, wait once more, the link is dead). It 
   (:meth:`LinkSession.baud_known`) and the round trips of its exchanges, measured from the
   times the adapter passes in (:meth:`LinkSession.bytes_received`); quiet means no byte,
   not no line (:mod:`tango_aio.sansio._linktiming`).
-
-Its state is one :class:`LinkState`, changed only through :data:`TRANSITIONS` (an event
-the table does not list raises :class:`SessionStateError`: a bug in the adapter, never the
-controller's doing). A Ctrl+C resync may overtake an exchange that is collecting
-(``stop_hard`` from another task): the exchange keeps collecting what the core drops, and
-the table has the transitions for it. The state, the table and the answers are in
-``_linkstate.py``; what an exchange collects, and how its lines are read, in
-``_exchange.py``.
 """
 
 from __future__ import annotations
@@ -94,23 +79,7 @@ _RECENT_DETECT_CODES: collections.deque[int] = collections.deque(maxlen=4)
 
 
 class LinkSession:
-    """The link's state, resyncs, exchanges, detection and liveness (see the module).
-
-    Parameters
-    ----------
-    core
-        The core whose resyncs the session starts and ends.
-    dead_after
-        Consecutive unanswered requests, with no line in between, that declare the link
-        dead.
-    keepalive
-        Seconds of silence after which an idle link is probed (``None``: never).
-    detect
-        Whether the first resync runs the detection instead (set by ``connect``).
-    quiet_interval
-        Seconds of silence after the reply of ``help`` that end a quiet resync (grown by
-        what :attr:`timing` learns, never shrunk by it).
-    """
+    """The link's state, resyncs, exchanges, detection and liveness (see the module)."""
 
     def __init__(self, core: ProtocolCore, *, dead_after: int = DEAD_AFTER,
                  keepalive: float | None = None, detect: bool = False,
@@ -162,21 +131,7 @@ class LinkSession:
     def begin_resync(self, tag: Hashable, *, ctrl_c: bool = False) -> bytes:
         """Start a resync whose marker (if this controller has markers) is registered
         under ``tag``; return the bytes to write (see
-        :meth:`~tango_aio.sansio._core.ProtocolCore.resync`).
-
-        Parameters
-        ----------
-        tag
-            The tag the marker's reply is reported under.
-        ctrl_c
-            Whether Ctrl+C goes first (it stops all axes and empties the controller's input
-            buffer, L6808-6814).
-
-        Returns
-        -------
-        bytes
-            The bytes to write: ``?help N`` (or ``help``), behind 0x03 with ``ctrl_c``.
-        """
+        :meth:`~tango_aio.sansio._core.ProtocolCore.resync`)."""
         data = self.core.resync(tag, ctrl_c=ctrl_c)
         quiet = self.core.quiet
         self._marker = None if quiet else tag
@@ -186,41 +141,14 @@ class LinkSession:
 
     def detects_first(self, *, ctrl_c: bool) -> bool:
         """Whether a resync asked for now runs the detection instead: the first one of a
-        link opened by ``connect``, unless it is a Ctrl+C.
-
-        Parameters
-        ----------
-        ctrl_c
-            Whether the resync asked for starts with Ctrl+C.
-
-        Returns
-        -------
-        bool
-            Whether to run the detection instead.
-        """
+        link opened by ``connect``, unless it is a Ctrl+C."""
         return self.detect_at_connect and not self.detected and not ctrl_c
 
     def marker_overdue(self, serial: int, written: int, *, newest: bool) -> Silence:
         """A resync's marker got no reply in time: count it unanswered (:meth:`unanswered`);
         if the link lives on, a new marker follows when the overdue one was the newest
         resync's and the stream is not in step yet, so lines held behind it are not held
-        for ever.
-
-        Parameters
-        ----------
-        serial
-            The serial of the marker's line (the scheduler's count of lines written).
-        written
-            The lines written so far.
-        newest
-            Whether the overdue marker is the newest resync's.
-
-        Returns
-        -------
-        Silence
-            :attr:`Silence.DEAD`, :attr:`Silence.MARKER_AGAIN` (write a new marker) or
-            :attr:`Silence.ALIVE` (nothing more to do).
-        """
+        for ever."""
         silence = self.unanswered(serial, written)
         if silence is Silence.ALIVE and newest and self.core.resyncing:
             return Silence.MARKER_AGAIN
@@ -228,18 +156,7 @@ class LinkSession:
 
     def replied(self, tag: Hashable) -> bool:
         """A :class:`~tango_aio.sansio._core.Replied` event for ``tag``: whether it is the reply
-        of the marker the core awaited (then the stream is in step).
-
-        Parameters
-        ----------
-        tag
-            The tag of the :class:`~tango_aio.sansio._core.Replied` event.
-
-        Returns
-        -------
-        bool
-            Whether it was the marker's reply.
-        """
+        of the marker the core awaited (then the stream is in step)."""
         if tag is None or tag != self._marker:
             return False
         self._marker = None
@@ -248,21 +165,7 @@ class LinkSession:
 
     def line_dropped(self, line: str, now: float) -> Outcome:
         """A line the core dropped (a :class:`~tango_aio.sansio._core.Dropped` event) at loop time
-        ``now``: collected by the exchange, or watched by a quiet resync.
-
-        Parameters
-        ----------
-        line
-            The line, as the core reported it.
-        now
-            The loop time it arrived at.
-
-        Returns
-        -------
-        Outcome
-            What the adapter does next: nothing, (re)arm the quiet deadline, or wake the
-            exchange.
-        """
+        ``now``: collected by the exchange, or watched by a quiet resync."""
         exchange = self.exchange
         if exchange is not None:
             exchange.lines.append(line)
@@ -290,13 +193,7 @@ class LinkSession:
         """A line the core took for a completion report (it routes them even while it
         drops every other line): a mode exchange under way keeps it among its lines,
         where :func:`status_tail` may find it to be the reply of ``?statusaxis`` (the
-        other exchanges take only their own replies).
-
-        Parameters
-        ----------
-        line
-            The line, as the core reported it.
-        """
+        other exchanges take only their own replies)."""
         if self.exchange is not None and self.exchange.until is Until.HELP:
             self.exchange.lines.append(line)
 
@@ -325,15 +222,7 @@ class LinkSession:
 
     def quiet_elapsed(self) -> Outcome:
         """The quiet deadline armed last has passed with no line since: the exchange
-        has what it waits for, or the quiet resync ends (the core is in step).
-
-        Returns
-        -------
-        Outcome
-            :attr:`Outcome.COLLECTED` (wake the exchange), :attr:`Outcome.IN_STEP` (the quiet
-            resync ended: release what it held) or :attr:`Outcome.NONE` (``help``'s reply was
-            not the last line, or the link is lost).
-        """
+        has what it waits for, or the quiet resync ends (the core is in step)."""
         self.quiet_deadline = None
         if not self.core.quiet or not self._help_last or self.lost:
             return Outcome.NONE
@@ -347,14 +236,7 @@ class LinkSession:
 
     def baud_known(self, byte_seconds: float) -> None:
         """The link runs at a known baud rate (a serial port the driver opened): its
-        quiet interval spans :data:`~tango_aio.sansio._linktiming.QUIET_BYTES` byte times at least.
-
-        Parameters
-        ----------
-        byte_seconds
-            Seconds one byte takes on the line
-            (:func:`~tango_aio.sansio._linktiming.byte_time`).
-        """
+        quiet interval spans ``QUIET_BYTES`` byte times at least."""
         self.timing.byte_seconds = byte_seconds
         self.quiet_interval = max(self.quiet_interval, self.timing.quiet_interval)
 
@@ -363,18 +245,7 @@ class LinkSession:
         The first after an exchange's write measures the link's round trip, which may
         lengthen the quiet interval; and a quiet deadline already armed starts again, since
         quiet means no byte, not no line (on a slow link a line takes longer than the
-        interval).
-
-        Parameters
-        ----------
-        now
-            The loop time the bytes arrived at.
-
-        Returns
-        -------
-        Outcome
-            :attr:`Outcome.WAIT_QUIET` (re-arm the quiet deadline) or :attr:`Outcome.NONE`.
-        """
+        interval)."""
         if self._sent_at is not None:
             if self.timing.observe(now - self._sent_at):
                 self.quiet_interval = max(self.quiet_interval, self.timing.quiet_interval)
@@ -391,24 +262,7 @@ class LinkSession:
         (only when nothing is owed); return the bytes to write. With ``marker``
         (:attr:`Until.MARKER`), quiet after any line ends the exchange too. With ``now``
         (the loop time of the write), the first byte back measures the link's round trip
-        (:meth:`bytes_received`).
-
-        Parameters
-        ----------
-        lines
-            The lines to write.
-        until
-            What ends the collection.
-        marker
-            The text the marker replies start with (:attr:`Until.MARKER` only).
-        now
-            The loop time the lines are written at (``None``: measure nothing).
-
-        Returns
-        -------
-        bytes
-            The bytes to write.
-        """
+        (:meth:`bytes_received`)."""
         self.core.drop_all()
         self._marker = None
         self._go(LinkEvent.EXCHANGE_WRITTEN)
@@ -429,21 +283,7 @@ class LinkSession:
 
     def end_exchange(self, *, in_step: bool) -> Outcome:
         """The exchange is over (``in_step``: it got what it waited for; else it was
-        cancelled or timed out).
-
-        Parameters
-        ----------
-        in_step
-            Whether the exchange got what it waited for.
-
-        Returns
-        -------
-        Outcome
-            :attr:`Outcome.IN_STEP` (it got what it waited for: release the lines held),
-            :attr:`Outcome.RESYNC` (cancelled: its replies may still come) or
-            :attr:`Outcome.NONE` (timed out, ended by :meth:`exchange_timed_out`, or
-            overtaken by a marker resync that is still under way).
-        """
+        cancelled or timed out)."""
         self.exchange = None
         self.quiet_deadline = None
         self._sent_at = None
@@ -458,18 +298,7 @@ class LinkSession:
     @staticmethod
     def mode_lines(lines: Sequence[str]) -> list[str]:
         """The lines of a mode exchange: ``lines`` (a mode change, or none), then
-        ``?autostatus`` and ``?help``, whose reply ends it (:attr:`Until.HELP`).
-
-        Parameters
-        ----------
-        lines
-            The lines before the read (``!autostatus n``, or none).
-
-        Returns
-        -------
-        list[str]
-            The lines to write.
-        """
+        ``?autostatus`` and ``?help``, whose reply ends it (:attr:`Until.HELP`)."""
         return [*lines, "?autostatus", "?help"]
 
     def mode_read(self, sent: Sequence[str], received: Sequence[str]) -> int:
@@ -478,25 +307,7 @@ class LinkSession:
         after their data (an ``OK...`` between the two replies, or after the last).
         Echoes (of any of the lines, mode 4) and acknowledgements of the lines are
         whatever they are: they are left out. Raises :class:`ProtocolError` when the
-        lines hold no reply of ``?autostatus``.
-
-        Parameters
-        ----------
-        sent
-            The lines the exchange wrote (:meth:`mode_lines`).
-        received
-            The lines it collected.
-
-        Returns
-        -------
-        int
-            The mode in force.
-
-        Raises
-        ------
-        ProtocolError
-            When no reply of ``?autostatus`` (or of ``?help``) is among the lines.
-        """
+        lines hold no reply of ``?autostatus``."""
         normals = {normal_line(line) for line in sent}
         kept = [line.strip() for line in received if normal_line(line) not in normals]
         numbers = [index for index, line in enumerate(kept) if _INTEGER.match(line)]
@@ -530,20 +341,7 @@ class LinkSession:
         and waiting for it would keep the read of the mode that finds the restart from
         ever being written. The exchange behind the barrier drops every line: an
         ``OK...`` that does come arrives before the exchange's own replies (the
-        controller answers in order) and is dropped with the rest.
-
-        Parameters
-        ----------
-        queued_before
-            Whether lines submitted before the barrier are still queued.
-        queue_dropped
-            Whether the write queue was dropped since the barrier began to wait.
-
-        Returns
-        -------
-        Barrier
-            :attr:`Barrier.CLEAR`, :attr:`Barrier.ABORTED` or :attr:`Barrier.WAIT`.
-        """
+        controller answers in order) and is dropped with the rest."""
         owed = bool(self.core.pending_tags) and not self.core.marker_acks_only
         if not (owed or self.core.resyncing or queued_before):
             return Barrier.CLEAR
@@ -559,38 +357,13 @@ class LinkSession:
         before it owes in mode 2 or 4, and a line nobody awaits (a stop) would hold the
         barrier for ever; giving up would release the held lines, written then for a
         mode the controller no longer has. A mode change gives up (its caller sees the
-        timeout).
-
-        Parameters
-        ----------
-        restore
-            Whether the barrier is a read of the mode that restores the driver's.
-
-        Returns
-        -------
-        bool
-            Whether to resync and go on.
-        """
+        timeout)."""
         return restore
 
     @staticmethod
     def mode_changed(asked: int, actual: int) -> ModeVerdict:
         """The verdict on a mode change (``!autostatus asked``) from the mode its exchange
-        read back (:meth:`mode_read`, which adopted it).
-
-        Parameters
-        ----------
-        asked
-            The mode the change selects.
-        actual
-            The mode in force after it.
-
-        Returns
-        -------
-        ModeVerdict
-            :attr:`ModeVerdict.IN_FORCE`, or :attr:`ModeVerdict.KEPT_ANOTHER` (the change
-            failed: the controller kept another mode, now the driver's).
-        """
+        read back (:meth:`mode_read`, which adopted it)."""
         return ModeVerdict.IN_FORCE if actual == asked else ModeVerdict.KEPT_ANOTHER
 
     @staticmethod
@@ -598,21 +371,7 @@ class LinkSession:
         """The verdict on a read of the mode in force (:meth:`mode_read`) against the mode
         the driver had in force once every line before was answered: another mode means
         the controller restarted behind the link (power-on mode 1, L2062), and the driver's
-        mode (``driver``) is selected again before any later line.
-
-        Parameters
-        ----------
-        driver
-            The driver's mode before the read.
-        actual
-            The mode the read found.
-
-        Returns
-        -------
-        ModeVerdict
-            :attr:`ModeVerdict.IN_FORCE`, or :attr:`ModeVerdict.RESTARTED` (restore
-            ``driver``).
-        """
+        mode (``driver``) is selected again before any later line."""
         return ModeVerdict.IN_FORCE if actual == driver else ModeVerdict.RESTARTED
 
     # -- detection ----------------------------------------------------------------------
@@ -624,19 +383,7 @@ class LinkSession:
         leaves its replies on the link, and a step 0 with the same number would take them
         for its own, then hand its own late replies to the next requests (a connect
         then fails with ``not a version reply: '1'``). The core's codes cycle through
-        more numbers than ``recent`` holds.
-
-        Parameters
-        ----------
-        recent
-            The step-0 numbers used lately, the number chosen appended (``None``: this
-            process's, :data:`_RECENT_DETECT_CODES`).
-
-        Returns
-        -------
-        int
-            The marker number for step 0.
-        """
+        more numbers than ``recent`` holds."""
         if recent is None:
             recent = _RECENT_DETECT_CODES
         self.core.help_style = HelpStyle.NONE
@@ -651,40 +398,12 @@ class LinkSession:
     def numbered_marker_lines(code: int) -> tuple[list[str], str]:
         """Step 0 of the detection: ``help``, ``?help code`` twice and ``?err`` in one
         write, and the text the marker replies start with (an exchange
-        :attr:`Until.MARKER`; :attr:`Exchange.numbered` tells whether they came in a row).
-
-        An earlier session of this driver may still be sending: its markers and
-        separators are ``?help`` with the codes in turn, one code never twice in a row
-        (:meth:`~tango_aio.sansio._core.ProtocolCore.pick_marker_code`), so its replies cannot
-        look like this pair. Only its own step 0 with the same code could, had it been
-        cut off within those few lines.
-
-        Parameters
-        ----------
-        code
-            The marker number (from :meth:`begin_detect`).
-
-        Returns
-        -------
-        tuple[list[str], str]
-            The lines to write, and the text their marker replies start with.
-        """
+        :attr:`Until.MARKER`; :attr:`Exchange.numbered` tells whether they came in a row)."""
         return ["help", f"?help {code}", f"?help {code}", "?err"], f"ERROR {code},"
 
     def numbered_read(self, exchange: Exchange) -> bool:
         """Whether step 0 (``exchange``) found ``?help N`` answering ``ERROR N,...``
-        (firmware 1.71, L2919): then the stream is in step and markers hold a number.
-
-        Parameters
-        ----------
-        exchange
-            Step 0's exchange, once collected.
-
-        Returns
-        -------
-        bool
-            Whether the marker's reply came twice in a row and then a number.
-        """
+        (firmware 1.71, L2919): then the stream is in step and markers hold a number."""
         if exchange.numbered:
             self.core.help_style = HelpStyle.NUMBER
         return exchange.numbered
@@ -692,35 +411,14 @@ class LinkSession:
     @staticmethod
     def help_lines(code: int) -> list[str]:
         """Step 2 of the detection: ``?help code`` then ``?err`` (an exchange
-        :attr:`Until.NUMBER`, read by :meth:`help_read`).
-
-        Parameters
-        ----------
-        code
-            The marker number to ask about.
-
-        Returns
-        -------
-        list[str]
-            The lines to write.
-        """
+        :attr:`Until.NUMBER`, read by :meth:`help_read`)."""
         return [f"?help {code}", "?err"]
 
     def help_read(self, code: int, sent: Sequence[str], received: Sequence[str]) -> None:
         """How ``?help code`` answered, from the lines step 2 brought back (the last is
         the ``?err`` number): ``ERROR code,...`` (firmware 1.71, L2919): markers hold a
         number; the text alone: the markers use ``code`` and wait for that text; nothing
-        (older firmware, whose ``help`` takes no parameter): resyncs wait for quiet.
-
-        Parameters
-        ----------
-        code
-            The marker number asked about.
-        sent
-            The lines written (:meth:`help_lines`).
-        received
-            The lines collected, the ``?err`` number last.
-        """
+        (older firmware, whose ``help`` takes no parameter): resyncs wait for quiet."""
         normals = {normal_line(line) for line in sent}
         kept = [line.strip() for line in received
                 if not ACK_PATTERN.accepts(line.strip()) and normal_line(line) not in normals]
@@ -748,13 +446,7 @@ class LinkSession:
 
     def reply_heard(self, now: float) -> None:
         """A reply line arrived at loop time ``now``: the link answers (the keepalive
-        waits from here).
-
-        Parameters
-        ----------
-        now
-            The loop time the reply arrived at.
-        """
+        waits from here)."""
         self.last_reply = now
 
     def reply_overdue(self, *, queued: bool, written: bool, waits: int,
@@ -764,35 +456,7 @@ class LinkSession:
         for credit) and written during it has had less than the timeout to be answered:
         its reply gets the time once more from then (at most :data:`REPLY_WAITS` timeouts
         in all), instead of being declared lost moments after its write, which would
-        resync the stream under the lines written with it.
-
-        A line never written went nowhere and is withdrawn. What held it decides whether
-        anything else is done: a resync that has not ended (its marker has its own
-        deadline), or the oldest reply still owed, for which the line waited (for credit,
-        or as a look-alike). When a caller waits for that reply (in ``awaited``), its own
-        deadline covers it. When nobody does (a credit marker's, a separator's, a list
-        entry's echo, a cancelled read's), no deadline but this one ever will: that reply
-        is taken as lost, the lines ahead are counted and the stream resynchronised
-        (:attr:`Overdue.STALLED`); else the next call would be held, or its reply taken
-        for the lost one.
-
-        Parameters
-        ----------
-        queued
-            Whether the line was still queued when the wait began.
-        written
-            Whether it is written now.
-        waits
-            How many timeouts its reply has had.
-        awaited
-            The tags of the lines whose callers wait for their replies now.
-
-        Returns
-        -------
-        Overdue
-            :attr:`Overdue.WAIT_AGAIN`, :attr:`Overdue.WITHDRAW`,
-            :attr:`Overdue.STALLED` or :attr:`Overdue.UNANSWERED`.
-        """
+        resync the stream under the lines written with it."""
         if not written:
             owed = self.core.pending_tags
             if self.state is LinkState.IN_STEP and not self.core.resyncing and owed \
@@ -810,21 +474,7 @@ class LinkSession:
         that stopped). ``serial`` numbers the line among those written, ``written`` is how
         many lines are written now: lines in flight together count once (they time out
         together when one reply is lost), so each count is a line written after the
-        previous count.
-
-        Parameters
-        ----------
-        serial
-            The serial of the unanswered line (the scheduler's count of lines written).
-        written
-            The lines written so far.
-
-        Returns
-        -------
-        Silence
-            :attr:`Silence.DEAD` when the link is now declared dead, else
-            :attr:`Silence.ALIVE`.
-        """
+        previous count."""
         if serial <= self._counted_upto:
             return Silence.ALIVE
         self._counted_upto = written
@@ -840,25 +490,7 @@ class LinkSession:
 
     def keepalive_wait(self, now: float, *, busy: bool) -> float:
         """Seconds from ``now`` until the keepalive probes the link; ``0.0``: probe now.
-        ``busy``: requests are in flight (they have their own deadlines).
-
-        Parameters
-        ----------
-        now
-            The loop time.
-        busy
-            Whether requests are in flight.
-
-        Returns
-        -------
-        float
-            Seconds to wait before asking again; ``0.0``: probe now.
-
-        Raises
-        ------
-        ValueError
-            When the session has no keepalive.
-        """
+        ``busy``: requests are in flight (they have their own deadlines)."""
         interval = self.keepalive
         if interval is None:
             raise ValueError("this session has no keepalive")
@@ -869,12 +501,6 @@ class LinkSession:
 
     def keepalive_probed(self, now: float) -> None:
         """A keepalive probe ended at ``now`` (answered or not): the next one is due half
-        an interval later at the earliest.
-
-        Parameters
-        ----------
-        now
-            The loop time the probe ended at.
-        """
+        an interval later at the earliest."""
         assert self.keepalive is not None
         self.last_reply = max(self.last_reply, now - self.keepalive / 2)

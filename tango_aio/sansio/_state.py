@@ -1,19 +1,4 @@
-"""The driver's cached view of the controller's settings, without I/O.
-
-The driver times moves and validates lines from settings it reads once
-(:meth:`~tango_aio.Controller.refresh_settings`) and then keeps in step with
-every set the controller accepts. Which settings these are, and which attribute mirrors
-each, is a catalog fact (:attr:`~tango_aio.catalog._schema.Instruction.cached`): ``dim``,
-``pitch``, ``vel``, ``accel``, ``secvel`` (per axis, move timing), ``extmode`` (reply
-layout), ``delay``, ``pause`` and ``ctrt`` (waits around a move). :class:`DriverState`
-holds them, updates them from one accepted command (:meth:`DriverState.observe`) or from
-a value read back (:meth:`DriverState.load`), and derives the validation
-:class:`~tango_aio.catalog._schema.Context` the protocol holds.
-
-The autostatus mode is not kept here: the protocol core owns the mode in force (it
-depends on what was written and on the reads that verify it); the rule for how an
-instruction changes it is the catalog's :class:`~tango_aio.catalog._schema.ModeEffect`.
-"""
+"""The driver's cached view of the controller's settings, without I/O."""
 
 from __future__ import annotations
 

@@ -60,24 +60,7 @@ def axis_state(outcome: Outcome | None, *, letter: str | None = None, switches: 
     """Decide an axis' state. A move of this controller reads MOVING until the driver's
     verdict is in (its final position is then what ``?pos`` reads); only the verdict
     makes an axis stopped. Without a move in flight, the link, the status letter and the
-    switches decide; a failed move keeps ALARM, with its reason, until the next move.
-
-    Parameters
-    ----------
-    outcome
-        This controller's latest move of the axis; ``None``: none since it connected.
-    letter
-        The axis' ``statusaxis`` letter, if read.
-    switches
-        The actuated limit switches (Sardana's bits), if read.
-    unreadable
-        Why the letter and switches could not be read (the link is lost...).
-
-    Returns
-    -------
-    AxisState
-        The state, a status text for the pool, and the switches.
-    """
+    switches decide; a failed move keeps ALARM, with its reason, until the next move."""
     if outcome is not None and outcome.running:
         return AxisState(State.MOVING, "moving: the move's verdict is not in yet", switches)
     if unreadable is not None:

@@ -379,13 +379,7 @@ class ControllerModel(ModelStore, ReplyStyle):
         """Switch ``instruction_set=older``: instructions the older edition lacks, and
         values for those that took none there (``help N``, ``version 1``; old L414,
         old L805-819), are unknown to it: error 4 ("invalid instruction"); with
-        ``version_value=line`` a value for ``version`` is ignored instead.
-
-        Returns
-        -------
-        bool
-            Whether the older edition does not know the line.
-        """
+        ``version_value=line`` a value for ``version`` is ignored instead."""
         if self.firmware.instruction_set != "older":
             return False
         entry = command.instruction
@@ -394,12 +388,7 @@ class ControllerModel(ModelStore, ReplyStyle):
                                              and bool(command.values))
 
     def _rejected(self, text: str, code: int) -> None:
-        """A line the parser refused: nothing runs, the error is set.
-
-        Mode 4 echoes it when it looks like a set line (``!``), or always with
-        ``echo_all``; mode 2 answers ``ERR`` for a ``!`` line (and a ``?`` line when reads
-        are acknowledged).
-        """
+        """A line the parser refused: nothing runs, the error is set."""
         self.session.err = code
         mode, firmware = self.session.autostatus, self.firmware
         if mode == 4 and (text.startswith("!") or firmware.echo_all == "yes"):

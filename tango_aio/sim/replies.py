@@ -27,13 +27,7 @@ def _plus(match: re.Match[str]) -> str:
 
 def _reprint(token: str) -> str:
     """A token as a re-formatting firmware prints it: numbers shortest (``1.50`` -> ``1.5``,
-    ``+2.0`` -> ``2``), other words as they are.
-
-    Returns
-    -------
-    str
-        The token as printed.
-    """
+    ``+2.0`` -> ``2``), other words as they are."""
     if not _NUMBER_TOKEN.fullmatch(token):
         return token
     text = format(Decimal(token).normalize(), "f")
@@ -48,13 +42,7 @@ class ReplyStyle:
     def _echoes(self, command: Command, mode: int) -> bool:
         """Mode 4 echoes "the instruction that was sent, in case of set or move
         instruction" (L2117): executing lines, ``!`` or bare (``moa 1``); with
-        ``echo_all`` every line, reads included (old L723: "echoes all input").
-
-        Returns
-        -------
-        bool
-            Whether the line is echoed.
-        """
+        ``echo_all`` every line, reads included (old L723: "echoes all input")."""
         return mode == 4 and (command.executes or self.firmware.echo_all == "yes")
 
     def _echo_text(self, text: str) -> str:
@@ -71,13 +59,7 @@ class ReplyStyle:
         Only ``!`` lines are acknowledged (L2099-2103; ``vel 10`` without ``!`` gets
         nothing, L2154), reads with ``ack_reads``. A line that answers ``OK...`` itself
         (``save``) is not acknowledged twice. A line that changes the mode is judged by
-        the mode after it (``ack_mode_change=new``) or before it (``old``).
-
-        Returns
-        -------
-        str or None
-            The acknowledgement, or ``None``.
-        """
+        the mode after it (``ack_mode_change=new``) or before it (``old``)."""
         mode = after if self.firmware.ack_mode_change == "new" else before
         if mode != 2:
             return None
@@ -104,13 +86,7 @@ class ReplyStyle:
     def _restyle(self, reply: str, numeric: bool) -> str:
         """Numbers of a data reply per switch ``numbers``: a value that rounds to zero from
         below prints ``0.0000`` (``plain``) or ``-0.0000`` (``negzero``); ``plus`` puts
-        ``+`` before positive values of ``numeric`` replies (not in ``?version`` text).
-
-        Returns
-        -------
-        str
-            The reply.
-        """
+        ``+`` before positive values of ``numeric`` replies (not in ``?version`` text)."""
         style = self.firmware.numbers
         if style == "negzero":
             return reply

@@ -130,13 +130,7 @@ class ModelStore:
         return None
 
     def store(self, command: Command) -> None:
-        """Keep the values of a plain set command in the settings store.
-
-        Parameters
-        ----------
-        command
-            The set command.
-        """
+        """Keep the values of a plain set command in the settings store."""
         self._generic_write(command)
 
     def _generic_write(self, command: Command) -> None:
@@ -218,13 +212,7 @@ class ModelStore:
         (``ctr`` 1-4 and the encoder enabled by ``encmask``, "Preconditions for
         successfully entering closed loop are having ctr and encmask set", L11761-11800),
         else 0. Choice: ``encmask`` counts at once (the manual activates encoders at
-        power on), and the ±twi window is met at once (no deviation is modelled).
-
-        Returns
-        -------
-        float
-            The seconds.
-        """
+        power on), and the ±twi window is met at once (no deviation is modelled)."""
         if int(self.params.first("encmask", index)) != 1 or \
                 int(self.params.first("ctr", index)) == 0:
             return 0.0
@@ -254,17 +242,7 @@ class ModelStore:
             path.unlink(missing_ok=True)
 
     def save(self) -> None:
-        """Persist the saved parameters to :attr:`SimConfig.state_file` atomically.
-
-        A failed write is refused with error 73 ("internal error, e.g. eeprom data
-        corruption"; the manual names no number for a failed save) and leaves the previous
-        file intact.
-
-        Raises
-        ------
-        Refused
-            The file could not be written (error 73).
-        """
+        """Persist the saved parameters to :attr:`SimConfig.state_file` atomically."""
         path = self.config.state_file
         if path is None:
             names = self._saved_names()
@@ -279,11 +257,7 @@ class ModelStore:
 
     def restore(self) -> None:
         """Reload the saved parameters like at power-on, without a restart (L1791-1800):
-        positions, moves, lists and the autostatus mode stay as they are.
-
-        Choice: only the parameters ``save`` stores are reloaded (their factory value when
-        nothing was saved); unsaved settings such as ``joy`` or ``trig`` keep their value.
-        """
+        positions, moves, lists and the autostatus mode stay as they are."""
         factory = ParamStore()
         for name in self._saved_names():
             if name in factory.axis_values:
@@ -296,13 +270,7 @@ class ModelStore:
     # -- trigger list ----------------------------------------------------------------------
 
     def _prepare_triggers(self, command: Command) -> None:
-        """Arm the trigger list in the motion model lazily.
-
-        An executed trigger-list instruction marks the list changed, and the list is armed
-        before the next other instruction runs (moves included), not after each edit:
-        arming converts the whole list, and uploading 10000 ``!trigp`` entries one by one
-        must stay linear. The positions are fixed in the physical frame when armed.
-        """
+        """Arm the trigger list in the motion model lazily."""
         if command.name in _TRIGGER_LIST and command.executes:
             self._triggers_dirty = True
         elif self._triggers_dirty:
@@ -365,17 +333,7 @@ class ModelStore:
         bit 0 TRIGGER_OUT, bit 1 TAKT_OUT; 0 and 4, 8, 12 send nothing), ``trigs`` µs long
         (L12950-12970), spaced by ``1/trigf`` (L13414-13440). The polarity is ``trigl``'s in
         the list modes 20 and 21 (L14177-14212) and the mode's own otherwise: modes 3-5,
-        9-11 and the odd ones from 101 are active low (L12595-12836).
-
-        Parameters
-        ----------
-        time
-            When the first pulse begins.
-        count
-            How many pulses.
-        position
-            The trigger axis' position where they fired; ``None``: not by position.
-        """
+        9-11 and the odd ones from 101 are active low (L12595-12836)."""
         outputs = int(self.params.first("trigo"))
         width = int(self.params.first("trigs")) / 1e6
         mode = int(self.params.first("trigm"))
@@ -393,24 +351,12 @@ class ModelStore:
                         Pulse(time + n * period, output, width, high, position))
 
     def trigger_axis(self) -> int:
-        """Index of the trigger axis (``triga``, or the axis the list was written for).
-
-        Returns
-        -------
-        int
-            The axis index.
-        """
+        """Index of the trigger axis (``triga``, or the axis the list was written for)."""
         letter = self.triggers.axis or str(self.params.first("triga"))
         return min(AXES.index(letter), self.axes - 1)
 
     def trigger_pointer(self) -> int:
-        """``?trigi``: where the armed list is (1-based), else the stored pointer.
-
-        Returns
-        -------
-        int
-            The pointer.
-        """
+        """``?trigi``: where the armed list is (1-based), else the stored pointer."""
         armed = self.motion.trigger_index()
         if self._triggers_dirty or armed == 0:
             return self.triggers.pointer

@@ -365,18 +365,7 @@ async def _subscribe(controller: AsyncController | AsyncGroup, maxsize: int) -> 
 def _parameters_of(source: Callable[P, object]
                    ) -> Callable[[Callable[..., T]], Callable[P, T]]:
     """Give the decorated function ``source``'s parameters (for type checkers, editors
-    and ``inspect.signature``), keeping its own return type and docstring.
-
-    Parameters
-    ----------
-    source
-        The function whose parameters the decorated function shows.
-
-    Returns
-    -------
-    Callable
-        The decorator.
-    """
+    and ``inspect.signature``), keeping its own return type and docstring."""
     def decorate(func: Callable[..., T]) -> Callable[P, T]:
         own = inspect.signature(func).return_annotation
         func.__signature__ = inspect.signature(source).replace(  # type: ignore[attr-defined]

@@ -49,30 +49,13 @@ class _Blocking(Generic[A, P, R]):
 
     def __call__(self, obj: _Wrapper[A], /, *args: P.args, **kwargs: P.kwargs) -> R:
         """Call through the class (``Controller.move_to(tango, x=1)``); this also makes
-        the method callable for introspection (documentation tools).
-
-        Returns
-        -------
-        R
-            What the async method returned.
-        """
+        the method callable for introspection (documentation tools)."""
         return self.__get__(obj, type(obj))(*args, **kwargs)
 
 
 def _without_returns(doc: str | None) -> str:
     """``doc`` dedented, so that its numpydoc sections still parse after the line put
-    before it, and without its Returns section: a ``start_*`` call returns the future.
-
-    Parameters
-    ----------
-    doc
-        The async method's docstring.
-
-    Returns
-    -------
-    str
-        The text to follow that line.
-    """
+    before it, and without its Returns section: a ``start_*`` call returns the future."""
     text = inspect.cleandoc(doc or "")
     return re.sub(r"(?ms)^Returns\n-+\n.*?(?=^\S[^\n]*\n-+\n|\Z)", "", text).rstrip()
 
@@ -120,15 +103,7 @@ class _Wrapper(Generic[A_co]):
 
     def _join_started(self) -> None:
         """Wait for every ``start_*`` call so far; raise the first one's error, if any
-        (a started move that failed must not pass for an idle stage).
-
-        Raises
-        ------
-        KeyboardInterrupt
-            Re-raised after the started moves have been stopped.
-        BaseException
-            The first error a started call ended with.
-        """
+        (a started move that failed must not pass for an idle stage)."""
         started = list(self._started)
         try:
             concurrent.futures.wait(started)

@@ -205,13 +205,7 @@ class _Started:
     def wrap(self, func: Callable[P, Awaitable[R]], *args: P.args, **kwargs: P.kwargs
              ) -> Callable[[], Awaitable[R]]:
         """The task to start: ``func(*args, **kwargs)`` in a cancel scope of its own,
-        not begun at all if it was cancelled before it could begin.
-
-        Returns
-        -------
-        Callable
-            A coroutine function without arguments, to hand to the portal.
-        """
+        not begun at all if it was cancelled before it could begin."""
         async def run() -> R:
             try:
                 with anyio.CancelScope() as scope:

@@ -1,14 +1,6 @@
 """The asyncio side of the device server, without pytango: one :class:`AxisCore` per axis
 (its motions, settings and shown state) and the :class:`StageLink` that reads the
 controller for all of them and follows the driver's events.
-
-A motion starts and the call returns at once (a Tango Controls client's default timeout is
-3 s); the axis shows ``MOVING`` from then until the driver's verdict. At the verdict the
-final position is published first (the one read behind the controller's report to
-confirm the arrival), then the new state, so no client reads ``ON`` beside a position
-from the middle of the move. A position read that was under way when a motion ended
-carries older news and is dropped (each axis counts its verdicts; a read is applied only
-if none came while it was on the wire).
 """
 
 from __future__ import annotations
@@ -50,20 +42,7 @@ def _ignore(name: str, value: Any) -> None:
 def switches(readsw: str, axis: str) -> tuple[bool, bool, bool]:
     """The lower (E0), upper (EE) and reference switch of ``axis`` in a ``?readsw``
     reply (manual L5027-5080: 12 digits, E0 of X Y Z A, then Ref, then EE); a reply of
-    another length reads as none actuated.
-
-    Parameters
-    ----------
-    readsw
-        The ``?readsw`` reply.
-    axis
-        The axis letter.
-
-    Returns
-    -------
-    tuple[bool, bool, bool]
-        Lower, upper, reference.
-    """
+    another length reads as none actuated."""
     text = readsw.strip()
     index = "xyza".index(axis)
     if len(text) < 12:
@@ -73,15 +52,7 @@ def switches(readsw: str, axis: str) -> tuple[bool, bool, bool]:
 
 class AxisCore:
     """One axis as its Tango Controls device sees it: positions in the axis's dim unit,
-    user position = dial position + :attr:`offset`.
-
-    Parameters
-    ----------
-    controller
-        The connected controller.
-    letter
-        The axis letter.
-    """
+    user position = dial position + :attr:`offset`."""
 
     def __init__(self, controller: Controller, letter: str) -> None:
         self.controller = controller
@@ -125,13 +96,7 @@ class AxisCore:
     # -- settings ------------------------------------------------------------------------
 
     async def read_settings(self) -> None:
-        """Read the axis's unit, position, switches and calibration, then show it ready.
-
-        Raises
-        ------
-        TangoError
-            A read failed (the axis stays ``INIT`` or ``FAULT``).
-        """
+        """Read the axis's unit, position, switches and calibration, then show it ready."""
         c = self.controller
         dim = int(await c.get("dim", axis=self.letter))
         self.unit = DIM_UNITS[dim].ascii if dim in DIM_UNITS else f"dim {dim}"
@@ -154,13 +119,7 @@ class AxisCore:
             self.publish("Calibrated", calibrated)
 
     def link(self, up: bool) -> None:
-        """The link went down or came back (ready again once :meth:`read_settings` ran).
-
-        Parameters
-        ----------
-        up
-            Whether the link is up.
-        """
+        """The link went down or came back (ready again once :meth:`read_settings` ran)."""
         if up != self.view.link_up:
             self._show(self.view.link(up))
 
@@ -171,17 +130,7 @@ class AxisCore:
                                   "calibration lost)", last=self.view.last or "standing"))
 
     def read(self, verdicts: int, letter: str, dial: float) -> None:
-        """Apply a state read that started when :attr:`verdicts` was ``verdicts``.
-
-        Parameters
-        ----------
-        verdicts
-            :attr:`verdicts` when the read was written.
-        letter
-            The axis's status letter.
-        dial
-            Its position, as read right behind the letter.
-        """
+        """Apply a state read that started when :attr:`verdicts` was ``verdicts``."""
         if verdicts != self.verdicts:
             return  # a motion ended while this read was on the wire: older news
         self._set_dial(dial)
@@ -191,22 +140,7 @@ class AxisCore:
     # -- motions -------------------------------------------------------------------------
 
     async def move_to(self, target: float) -> None:
-        """Start a move to the user position ``target`` and return once it is under way.
-
-        Parameters
-        ----------
-        target
-            The user position.
-
-        Raises
-        ------
-        AxisBusyError
-            A motion of this axis has no verdict yet.
-        LimitError
-            The target is beyond the soft limits.
-        InvalidCommandError
-            The target is not a number the controller takes.
-        """
+        """Start a move to the user position ``target`` and return once it is under way."""
         dial = target - self.offset
         self._check_free()
         targets: dict[str, Any] = {self.letter: dial}
@@ -220,20 +154,7 @@ class AxisCore:
                      lambda: self.controller.move_to(**targets))
 
     async def move_by(self, distance: float) -> None:
-        """Start a relative move and return once it is under way.
-
-        Parameters
-        ----------
-        distance
-            The distance, in the axis's unit.
-
-        Raises
-        ------
-        AxisBusyError
-            A motion of this axis has no verdict yet.
-        InvalidCommandError
-            The distance is not a number the controller takes.
-        """
+        """Start a relative move and return once it is under way."""
         self._check_free()
         distances: dict[str, Any] = {self.letter: distance}
         self.controller.validate_move(relative=True, **distances)
@@ -306,15 +227,7 @@ class AxisCore:
 
 
 class StageLink:
-    """Reads one controller for all its axis devices and follows its events.
-
-    Parameters
-    ----------
-    controller
-        The connected controller (opened with ``reconnect=True`` to ride out a lost link).
-    interval
-        Seconds between two state reads.
-    """
+    """Reads one controller for all its axis devices and follows its events."""
 
     #: State reads per read of the switches and the calibration flags.
     SLOW_EVERY = 5

@@ -1,13 +1,5 @@
 """The ``tango-aio tango-server`` subcommand: serve a Märzhäuser TANGO controller's axes as
 Tango Controls devices.
-
-``tango-aio tango-server /dev/ttyUSB0`` registers and serves ``marzhauser/stage/x`` ...
-and ``marzhauser/stage/controller`` in the Tango database ``TANGO_HOST`` names;
-``--nodb --port 10000`` serves them without a database
-(``tango://127.0.0.1:10000/marzhauser/stage/x#dbase=no``). See
-``docs/howto/tango-controls.md``.
-
-This module does not import pytango (the ``tango-controls`` extra) until the command runs.
 """
 
 from __future__ import annotations

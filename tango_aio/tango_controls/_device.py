@@ -31,14 +31,7 @@ log = logging.getLogger("tango_aio.tango_controls")
 @dataclass
 class Serving:
     """What the running server serves, by device name (lower case), and the thread that
-    pushes its change events.
-
-    Events are pushed from a thread of their own, in the order they were published:
-    pushing takes the device's lock, which a request holds until it has answered (the
-    server runs with one request at a time per device), so a push never changes an
-    attribute's value while a request is reading it, and the event loop, which the
-    request may be waiting for, never waits for that lock.
-    """
+    pushes its change events."""
 
     axes: dict[str, AxisCore] = field(default_factory=dict)
     controllers: dict[str, StageLink] = field(default_factory=dict)
@@ -81,19 +74,7 @@ def _refuse(exc: Exception) -> None:
 
 
 class MarzhauserAxis(Device):  # type: ignore[misc]
-    """One axis of a Märzhäuser TANGO stepper-motor controller.
-
-    ``Position`` reads the position the driver last confirmed or read (user units:
-    ``DialPosition + Offset``, in ``Unit``); writing it starts a move and returns at once.
-    ``State``: ``MOVING`` from the accepted move to the driver's verdict, ``ON`` once it
-    arrived (``Position`` already shows the final value), ``ALARM`` when it ended short
-    (why: ``Status``), ``FAULT`` while the link is lost, ``INIT`` while settings are read.
-
-    One request sees one moment: ``State``, ``Status``, ``Position`` and ``DialPosition``
-    are taken together when a request starts (``always_executed_hook``), so a
-    ``read_attributes`` of ``Position`` and ``State`` (which Tango reads after the others)
-    never pairs a position from the middle of a move with the ``ON`` of its end.
-    """
+    """One axis of a Märzhäuser TANGO stepper-motor controller."""
 
     green_mode = GreenMode.Asyncio
 

@@ -1,10 +1,6 @@
 """Running the Tango Controls device server: connect to the Märzhäuser TANGO, declare the
 devices (in a Tango database, or in a file for a server without one), run pytango's server
 loop on the event loop the controller was opened on, and close everything at the end.
-
-pytango's server wants a thread of its own for its event loop (it blocks in
-``run_until_complete``), so :func:`serve` blocks; the command line runs it in a worker
-thread.
 """
 
 from __future__ import annotations
@@ -166,13 +162,7 @@ def _port() -> int:
 def _declared(options: ServerOptions, axes: Sequence[str], controller: str
               ) -> Iterator[list[str]]:
     """The server's command line, the devices declared where the server looks for them:
-    a file (no database), or the Tango database (TANGO_HOST), where they are added.
-
-    Yields
-    ------
-    list[str]
-        The arguments of pytango's ``run``.
-    """
+    a file (no database), or the Tango database (TANGO_HOST), where they are added."""
     endpoint = ["-ORBendPoint", f"giop:tcp:{options.interface}:{options.port or ''}"]
     if not options.nodb:
         _register(options, axes, controller)

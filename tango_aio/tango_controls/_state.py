@@ -1,16 +1,5 @@
 """What an axis device's ``State`` and ``Status`` say, decided from what the server knows
 (sans-IO: no pytango, no event loop).
-
-The order of precedence, highest first:
-
-* ``FAULT``: the link to the controller is down (nothing the device shows can be trusted);
-* ``INIT``: the link is up but the axis's settings are not read yet (at start, after a
-  reconnect);
-* ``MOVING``: a motion this server started has not had the driver's verdict yet, or the
-  axis reads moving (``M``) with none of ours in flight (the joystick, a stray motion);
-* ``ALARM``: the last motion ended short of its target (the reason is kept), until a
-  motion arrives;
-* ``ON``: standing, and the last motion (if any) arrived.
 """
 
 from __future__ import annotations

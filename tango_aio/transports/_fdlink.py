@@ -1,30 +1,4 @@
-"""A serial port's file descriptor as an asyncio transport, read and written directly.
-
-Theory of operation
-===================
-pyserial opens and configures the port (baud rate, 8N2, the advisory lock); this
-transport then does the I/O on its file descriptor itself, the way asyncio's own pipe
-transports do: the event loop's reader callback takes what has arrived with one
-non-blocking ``os.read``, and ``write`` hands the bytes to ``os.write`` at once, keeping
-only what the kernel did not take and writing it when the descriptor is writable again.
-
-Why not pyserial-asyncio: its reads go through ``Serial.read``, which calls
-``select`` before every ``os.read`` (two system calls and a Python loop per received
-chunk). At 57600 Bd a reply arrives in chunks of a few bytes, so per-chunk costs are what
-a position watch or a many-link upload pays for; ``benchmarks/watch.py`` and
-``benchmarks/scaling.py`` measure the difference.
-
-Only POSIX ports whose ``fileno()`` is a real descriptor use it (``serial.Serial`` on
-Linux and macOS); other pyserial URL handlers keep pyserial-asyncio
-(:func:`tango_aio.controller._connection._open_serial`).
-
-Ending: an error on the descriptor (``EIO`` when a USB adapter is unplugged or a pty's
-other side closes) or end of file ends the link with ``connection_lost(exc)``; ``close()``
-writes what is buffered first (for at most :data:`CLOSE_DRAIN` seconds); ``abort()``
-drops it. Closing the port itself can block
-(a driver draining its output), so ``port.close()`` runs in a worker thread, and the
-protocol hears ``connection_lost`` after it returned.
-"""
+"""A serial port's file descriptor as an asyncio transport, read and written directly."""
 
 from __future__ import annotations
 

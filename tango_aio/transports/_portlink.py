@@ -1,23 +1,4 @@
-"""What the two serial-port transports share: an open pyserial port as an asyncio transport.
-
-Theory of operation
-===================
-:class:`~tango_aio.transports._fdlink.FdTransport` (POSIX: the port's descriptor in the event loop)
-and :class:`~tango_aio.transports._threadlink.ThreadTransport` (Windows: a reader and a writer
-thread) differ in how bytes move, not in how a link begins and ends. This base holds the
-part that is the same:
-
-* the transport's bookkeeping (its protocol, whether it closes, whether it reads);
-* :meth:`PortTransport.close`: stop reading, let what is buffered be written for at most
-  :data:`CLOSE_DRAIN` seconds, then end; :meth:`~PortTransport.abort` ends at once;
-* the end itself, once: the port is closed in a worker thread (closing can block while a
-  driver drains its output), and only then does the protocol hear ``connection_lost``.
-
-A subclass says how it stops reading (:meth:`PortTransport._stop_reading`), how many
-bytes still wait to be written (:meth:`~PortTransport.get_write_buffer_size`), how it
-drops them and ends at once (:meth:`~PortTransport._fail`), and what closing the port
-takes (:meth:`~PortTransport._close_blocking`, run in the worker thread).
-"""
+"""What the two serial-port transports share: an open pyserial port as an asyncio transport."""
 
 from __future__ import annotations
 

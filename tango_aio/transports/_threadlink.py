@@ -1,47 +1,4 @@
-"""A pyserial port as an asyncio transport, read and written by two threads (Windows).
-
-Theory of operation
-===================
-Windows has no file descriptor an event loop could watch for a serial port: its loop (the
-proactor) completes overlapped I/O on sockets and pipes, not on COM handles, and
-pyserial-asyncio's Windows path polls ``in_waiting`` every 0.5 ms instead (a core kept
-busy, and up to 0.5 ms added to every reply). pyserial's own Windows ``Serial``
-already does overlapped I/O and waits for it in the kernel, so this transport lets two
-threads wait there, and hands what they did to the loop:
-
-* The **reader thread** calls ``port.read(port.in_waiting or 1)``: it blocks until at
-  least one byte arrived (or :data:`READ_TIMEOUT` passed, then the read returns ``b""``
-  and the thread looks whether it should stop), then takes whatever else is waiting, so
-  a reply arrives as one chunk or a few, never byte by byte. Each chunk reaches
-  ``protocol.data_received`` on the loop through ``call_soon_threadsafe``, in order. A
-  read that raises (``SerialException``/``OSError``: the USB adapter was unplugged, the
-  port vanished) ends the link: ``connection_lost`` gets that exception.
-* The **writer thread** writes what :meth:`ThreadTransport.write` buffered: ``write``
-  returns at once (it only appends and wakes the thread); the thread takes everything
-  buffered, calls ``port.write``, which returns when the bytes were handed to the
-  driver (write completion of the overlapped write), and then tells the loop how many
-  went out, so :meth:`~ThreadTransport.get_write_buffer_size` counts what is not yet
-  written. A write that raises ends the link like a failed read.
-
-Ending: :meth:`~ThreadTransport.close` stops reading, lets buffered bytes be written (for
-at most :data:`CLOSE_DRAIN` seconds), then stops both threads (``cancel_read`` and
-``cancel_write`` end a blocked read or write at once where the port has them; otherwise
-the read timeout does), closes the port in a worker thread and calls
-``connection_lost(None)`` once, as :class:`~tango_aio.transports._fdlink.FdTransport` does on POSIX.
-:meth:`~ThreadTransport.abort` drops what is buffered. Pausing reading stops the reader
-thread from reading, so the driver's input buffer fills as it would on POSIX.
-
-Exclusive access is the operating system's: Windows opens a COM port for one program at
-a time (a second open fails with "Access is denied", which ``connect()`` raises as
-:class:`~tango_aio.errors.PortBusyError`), so no lock is taken here; on POSIX pyserial's
-``flock`` does it (:mod:`tango_aio.controller._connection`).
-
-:func:`tango_aio.controller._connection._open_serial` uses this transport for every pyserial port on
-Windows; the POSIX descriptor transport (:mod:`tango_aio.transports._fdlink`) stays the choice on
-Linux and macOS. It also works on POSIX (pyserial's POSIX ``Serial`` has the same blocking
-API), which is how the tests run it over a pty; ``benchmarks/threadlink.py`` compares the
-two there.
-"""
+"""A pyserial port as an asyncio transport, read and written by two threads (Windows)."""
 
 from __future__ import annotations
 
