@@ -1,7 +1,7 @@
 """What a standard client reads from the IOC is what a motor record would answer.
 
 Soft limits, alarms, VAL after a stop, metadata, and the clients' own pitfalls; each client
-(pyepics, classic ophyd, ophyd-async) in a process of its own, on the loopback CA
+(pyepics, classic ophyd, ophyd-async, caproto's own client) in a process of its own, on the loopback CA
 environment of :mod:`test_epics`, every client call bounded by a timeout.
 """
 
@@ -95,6 +95,20 @@ elif client == "ophyd":
     except Exception as exc:
         out["refused"] = type(exc).__name__
     out["position"] = motor.position
+elif client == "caproto":
+    from caproto import ChannelType
+    from caproto.threading.client import Context
+    val, lvio, rbv = Context().get_pvs(x, x + ".LVIO", x + ".RBV", timeout=30)
+    for pv in (val, lvio, rbv):
+        pv.wait_for_connection(timeout=30)
+    ctrl = val.read(data_type=ChannelType.CTRL_DOUBLE, timeout=10).metadata
+    out["limits"] = [ctrl.lower_ctrl_limit, ctrl.upper_ctrl_limit]
+    out["put"] = val.write([target], wait=True, notify=True, timeout=30).status.name
+    out["lvio"] = int(lvio.read(timeout=10).data[0])
+    out["val"] = float(val.read(timeout=10).data[0])
+    reading = rbv.read(data_type=ChannelType.TIME_DOUBLE, timeout=10)
+    out["position"] = float(reading.data[0])
+    out["severity"] = int(reading.metadata.severity)
 else:
     from ophyd_async.epics.motor import Motor
 
@@ -114,7 +128,8 @@ print(json.dumps(out))
 
 @pytest.mark.parametrize("client", [
     "ophyd", pytest.param("pyepics", marks=pytest.mark.slow),
-    pytest.param("ophyd-async", marks=pytest.mark.slow)])
+    pytest.param("ophyd-async", marks=pytest.mark.slow),
+    pytest.param("caproto", marks=pytest.mark.slow)])
 async def test_a_move_beyond_the_soft_limits_fails_at_once(client: str) -> None:
     # Classic ophyd hung here: VAL served no control limits, so its own check let
     # the move through, the IOC refused the put, and DMOV never moved.
@@ -133,8 +148,10 @@ async def test_a_move_beyond_the_soft_limits_fails_at_once(client: str) -> None:
         # Past its check the IOC refuses, DMOV blinks with RBV in alarm: a failure.
         assert result["refused"] == "UnknownStatusFailure", result  # success=False
         return
-    # A put beyond them: LVIO, VAL kept, no motion, DMOV blinks, the axis in alarm.
-    assert result["dmov"][-2:] == [0, 1], result  # (the first monitor may come late)
+    if client == "caproto":  # the put with completion ends at once, failed
+        assert result["put"] == "ECA_PUTFAIL", result
+    else:  # LVIO, VAL kept, no motion, DMOV blinks, the axis in alarm
+        assert result["dmov"][-2:] == [0, 1], result  # (the first monitor may come late)
     assert result["lvio"] == 1
     assert result["val"] == 0.0
     assert result["severity"] == 2  # MAJOR
@@ -244,6 +261,36 @@ async def test_val_after_a_failed_move_is_where_the_axis_stands() -> None:
 
 
 # ------------------------------------------------------------------------ metadata
+
+#: Names asked for that no motor record has (motorRecord.dbd of motor R7 lists none of
+#: them; POSM was deleted from the record in motor R4): a motor record IOC answers no
+#: search for them, and neither does this one.
+NOT_MOTOR_RECORD_FIELDS = ("RDBK", "HOMS", "POSM")
+
+
+def _served(fields: type) -> set[str]:
+    return {prop.pvspec.name for prop in fields._pvs_.values()}
+
+
+def test_every_field_served_is_a_motor_record_field_but_the_drive_limits() -> None:
+    from caproto.server.records import MotorFields
+
+    from tango_aio.epics.fields import TangoMotorFields
+    served = _served(TangoMotorFields)
+    # caproto's copy of the record predates ACCS/ACCU (motor R6-10); DRVH/DRVL, which
+    # the record serves as VAL's control limits only, are also served as fields.
+    assert served - _served(MotorFields) == {"ACCS", "ACCU", "DRVH", "DRVL"}
+    assert not served & set(NOT_MOTOR_RECORD_FIELDS)
+
+
+async def test_a_search_for_a_field_no_motor_record_has_finds_no_channel() -> None:
+    async with one_stage() as (_, _, client):
+        assert await client.get("X.ATHM") == 0  # a motor record field: found
+        for name in NOT_MOTOR_RECORD_FIELDS:
+            (pv,) = await client.context.get_pvs(f"T:X.{name}", timeout=1)
+            with pytest.raises(TimeoutError):
+                await pv.wait_for_connection(timeout=1)
+
 
 
 async def _bluesky_facts(axis: MarzhauserAxis) -> dict[str, float]:
