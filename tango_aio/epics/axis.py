@@ -32,11 +32,14 @@ from .record import (
     AxisUnits,
     Ending,
     LimitSwitches,
+    Mip,
     calibrated,
+    derived_fields,
     fault_after,
     limit_switches,
     limit_violation,
     msta,
+    revolution_speeds,
     shown_alarm,
 )
 
@@ -172,6 +175,7 @@ class AxisServer:
             await f.user_offset.write(saved["OFF"], verify_value=False)
             await self.offset_changed(saved["OFF"])
             await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+            await self._publish_derived()
         if "VMAX" in saved:
             await f.max_velocity.write(saved["VMAX"], verify_value=False)
         if "VELO" in saved:
@@ -255,6 +259,7 @@ class AxisServer:
                                     f"{self._vmax_ceiling():g}] {self.units.egu}/s")
         if self._f.velocity.value > vmax:
             await self.set_velocity(vmax, vmax=vmax)
+        await self._publish_speeds(vmax)
         return vmax
 
     # -- motion --------------------------------------------------------------------------
@@ -274,6 +279,7 @@ class AxisServer:
             await self._check_limits(dial)
             await self.record.write(target, verify_value=False)  # VAL: the newest target
             await f.dial_desired_value.write(dial, verify_value=False)
+            await self._publish_derived()
             confirmed: dict[str, str] = {}
             await self._run(lambda: self.server.coalescer.move_to(
                 self.letter, dial, arrived, positions=confirmed),
@@ -309,8 +315,8 @@ class AxisServer:
                                 f"limits [{low}, {high}] (LVIO)")
 
     async def _run(self, motion: Callable[[], Awaitable[Any]], *,
-                   positive: bool = True, confirmed: Mapping[str, str] | None = None
-                   ) -> None:
+                   positive: bool = True, confirmed: Mapping[str, str] | None = None,
+                   mip: int = Mip.MOVE) -> None:
         """Run ``motion`` once it is this request's turn, with DMOV=0; before returning,
         publish RBV, MOVN=0 and DMOV=1 (unless another request follows) and wait until
         those updates are on the wire to every client."""
@@ -341,6 +347,8 @@ class AxisServer:
                 self._require_go()
                 self._positive = positive
                 moving = True
+                await self._publish_fields({"TDIR": int(positive), "CDIR": int(positive),
+                                            "MIP": mip})
                 await self._motion_of(motion, request)
             except MoveStoppedError:
                 settle = self._settle  # a STOP's; a newer request sets VAL itself
@@ -427,6 +435,7 @@ class AxisServer:
             self._standing_unknown = True
             await self.server.link_lost()
         elif not self._busy:
+            await self._publish_fields({"MIP": Mip.DONE})
             if f.motor_is_moving.value != 0:
                 await f.motor_is_moving.write(0, verify_value=False)
             if f.done_moving_to_value.value != 1:
@@ -443,6 +452,7 @@ class AxisServer:
         user = self._dial + f.user_offset.value
         if self.record.value != user:
             await self.record.write(user, verify_value=False)
+        await self._publish_derived()
 
     async def stop(self, *, keep_target: bool = False) -> None:
         """STOP, or SPMG Stop/Pause: stop this axis, drop every waiting request, and
@@ -484,11 +494,13 @@ class AxisServer:
         self._require_go()
         run = self.controller.measure_range if forward else self.controller.calibrate
         try:
-            await self._run(lambda: run(self.letter), positive=forward)
+            await self._run(lambda: run(self.letter), positive=forward,
+                            mip=Mip.HOMF if forward else Mip.HOMR)
         finally:
             with contextlib.suppress(TangoError):
                 await self._read_limits()
             await self.record.write(self.record.fields["RBV"].value, verify_value=False)
+            await self._publish_derived()
 
     async def _redefine(self, target: float) -> None:
         f = self._f
@@ -545,9 +557,12 @@ class AxisServer:
         if abs(offset) > MAX_MAGNITUDE:
             raise MotorRefusedError(f"{self.record.pvname}.OFF {offset!r} is out of range")
         await f.user_readback_value.write(self._dial + offset, verify_value=False)
+        # VAL follows too (the dial target is kept), as in the motor record.
+        await self.record.write(f.dial_desired_value.value + offset, verify_value=False)
         await f.user_high_limit.write(f.dial_high_limit.value + offset, verify_value=False)
         await f.user_low_limit.write(f.dial_low_limit.value + offset, verify_value=False)
         await self._publish_drive_limits(offset)
+        await self._publish_derived()
 
     async def set_enabled(self, enabled: bool) -> None:
         """CNEN was put: ``!axis x 1`` or ``!axis x 0`` (L3919-3960)."""
@@ -607,6 +622,8 @@ class AxisServer:
                       "RDBD", "MRES", "UREV"):
             await self.record.fields[field].write_metadata(precision=decimals, units=egu)
         for field, value in ((f.motor_step_size, units.mres),
+                             (f.encoder_step_size, units.mres),  # no encoder: ERES=MRES
+                             (f.display_precision, decimals),
                              (f.egu_s_per_revolution, units.urev),
                              (f.steps_per_revolution, units.srev),
                              (f.retry_deadband, units.rdbd(decimals))):
@@ -637,6 +654,7 @@ class AxisServer:
         accs = self.units.accs_from_accel(accel)
         if f.move_acceleration.value != accs:
             await f.move_acceleration.write(accs, verify_value=False)
+        await self._publish_speeds(f.max_velocity.value)
 
     async def _read_limits(self) -> None:
         await self._publish_limits(*await self.controller.axis_limits(self.letter,
@@ -672,6 +690,25 @@ class AxisServer:
         f = self._f
         await self._publish_changed(f.dial_readback_value, self._dial)
         await self._publish_changed(f.user_readback_value, self._dial + f.user_offset.value)
+        await self._publish_derived()
+
+    async def _publish_derived(self) -> None:
+        """The raw, difference and last-value fields (:func:`~.record.derived_fields`)."""
+        f = self._f
+        await self._publish_fields(derived_fields(
+            val=self.record.value, dval=f.dial_desired_value.value,
+            drbv=f.dial_readback_value.value, mres=self.units.mres))
+
+    async def _publish_speeds(self, vmax: float) -> None:
+        await self._publish_fields(revolution_speeds(velo=self._f.velocity.value,
+                                                     vmax=vmax, urev=self.units.urev))
+
+    async def _publish_fields(self, values: Mapping[str, float]) -> None:
+        """Write each field whose value changed."""
+        fields = self.record.fields
+        for name, value in values.items():
+            if fields[name].value != value:
+                await fields[name].write(value, verify_value=False)
 
     async def _publish_changed(self, channel: Any, value: float) -> None:
         """Write ``value`` to a readback only if it moved by more than MDEL from the value
@@ -706,6 +743,9 @@ class AxisServer:
             await f.user_high_limit_switch.write(int(self._switches.high), verify_value=False)
         if f.user_low_limit_switch.value != int(self._switches.low):
             await f.user_low_limit_switch.write(int(self._switches.low), verify_value=False)
+        # DIR is always Pos: the raw switches are the user ones.
+        await self._publish_fields({"RHLS": int(self._switches.high),
+                                    "RLLS": int(self._switches.low)})
         await self._publish_status()
 
     async def _publish_status(self, moving: bool | None = None) -> None:

@@ -25,7 +25,9 @@ the axis's own (a move that failed with the link still shows its fault). Every f
 also publishes the soft limits the driver knows (read again after any line that may
 change them), and every 25th reads the unit settings (``dim``, ``pitch``, ``gear``,
 ``usteps``, ``resolution``), so the limits, EGU, PREC, MRES, UREV, SREV, RDBD and the
-speeds follow a change made through any path.
+speeds follow a change made through any path. The fields the motor record derives
+(RVAL, RRBV, DIFF, the last values, S/SMAX, TDIR, MIP: :func:`~.record.derived_fields`)
+are published with the values they derive from.
 
 Choices (the motor record documentation leaves room, the TANGO has no such concepts):
 

@@ -14,7 +14,12 @@
   controller prints, at least MRES).
 * Limit switches: ``?readsw`` gives 12 characters, E0 (lower, cal) of X Y Z A, the
   reference switches, then EE (upper, rm) of X Y Z A (L5027-5078).
-* MSTA: the bits of the motor record's status word that a TANGO axis can fill.
+* MSTA: the bits of the motor record's status word that a TANGO axis can fill; MIP the
+  motion in progress (a move, a home forward or reverse).
+* Derived fields (:func:`derived_fields`): the raw values in microsteps (RVAL, RRBV, RMP,
+  RDIF: dial / MRES, rounded as the motor record's NINT rounds), DIFF (DVAL - DRBV), the
+  last desired values (LVAL, LDVL, LRVL: after processing, the record's current ones),
+  and the speeds in revolutions per second (S, SMAX, SBAS: EGU/s over UREV).
 * Alarms: one rule for every PV of an axis (:func:`fault_after`, :func:`shown_alarm`): a
   failed move raises the alarm, only a move that ends at its target clears it, and a stop
   (STOP, SPMG) leaves it as it was; while the link is down every PV shows INVALID/COMM.
@@ -41,12 +46,16 @@ __all__ = [
     "AxisUnits",
     "Ending",
     "LimitSwitches",
+    "Mip",
     "Msta",
     "calibrated",
+    "derived_fields",
     "fault_after",
     "limit_switches",
     "limit_violation",
     "msta",
+    "nint",
+    "revolution_speeds",
     "shown_alarm",
 ]
 
@@ -170,6 +179,39 @@ def msta(*, moving: bool, switches: LimitSwitches, problem: bool, comm_error: bo
         if on:
             word |= bit
     return word
+
+
+class Mip:
+    """Bits of the motor record's MIP word (motion in progress)."""
+
+    DONE = 0
+    HOMF = 0x0008
+    HOMR = 0x0010
+    MOVE = 0x0020
+
+
+def nint(value: float) -> int:
+    """The nearest integer, halves away from zero (the motor record's NINT)."""
+    return int(math.copysign(math.floor(abs(value) + 0.5), value))
+
+
+def derived_fields(*, val: float, dval: float, drbv: float, mres: float
+                   ) -> dict[str, float]:
+    """The fields the motor record derives from VAL, DVAL, DRBV and MRES."""
+    def raw(dial: float) -> int:
+        return nint(dial / mres) if mres > 0 else 0
+
+    diff = dval - drbv
+    return {"RVAL": raw(dval), "RRBV": raw(drbv), "RMP": raw(drbv), "DIFF": diff,
+            "RDIF": raw(diff), "LVAL": val, "LDVL": dval, "LRVL": raw(dval)}
+
+
+def revolution_speeds(*, velo: float, vmax: float, urev: float) -> dict[str, float]:
+    """S and SMAX (revolutions per second) from VELO and VMAX (EGU/s); SBAS is 0 (VBAS)."""
+    per_rev = abs(urev)
+    if per_rev == 0:
+        return {"S": 0.0, "SMAX": 0.0, "SBAS": 0.0}
+    return {"S": velo / per_rev, "SMAX": vmax / per_rev, "SBAS": 0.0}
 
 
 class Alarm(NamedTuple):

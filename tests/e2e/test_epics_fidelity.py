@@ -1,8 +1,8 @@
 """What a standard client reads from the IOC is what a motor record would answer.
 
 Soft limits, alarms, VAL after a stop, metadata, and the clients' own pitfalls; each client
-(pyepics, classic ophyd, ophyd-async, caproto's own client) in a process of its own, on the loopback CA
-environment of :mod:`test_epics`, every client call bounded by a timeout.
+(pyepics, classic ophyd, ophyd-async, caproto's own client) in a process of its own, on
+the loopback CA environment of :mod:`test_epics`, every client call bounded by a timeout.
 """
 
 from __future__ import annotations
@@ -268,7 +268,7 @@ async def test_val_after_a_failed_move_is_where_the_axis_stands() -> None:
 NOT_MOTOR_RECORD_FIELDS = ("RDBK", "HOMS", "POSM")
 
 
-def _served(fields: type) -> set[str]:
+def _served(fields: Any) -> set[str]:
     return {prop.pvspec.name for prop in fields._pvs_.values()}
 
 
@@ -301,6 +301,33 @@ async def _bluesky_facts(axis: MarzhauserAxis) -> dict[str, float]:
 
 async def _ioc_facts(client: Client) -> dict[str, float]:
     return {name: await client.get(f"X.{name}") for name in ("MRES", "SREV", "UREV")}
+
+
+async def test_derived_fields_follow_a_move_as_the_motor_record_derives_them() -> None:
+    # Classic ophyd reads TDIR when DMOV returns to 1 (which switch to check);
+    # ophyd-async reads PREC and ERES; RRBV, RVAL, DIFF and the rest are the record's own.
+    async with one_stage() as (_, _, client):
+        mres, urev = await client.get("X.MRES"), await client.get("X.UREV")
+        assert await client.get("X.PREC") == 4  # the decimals the controller prints
+        assert await client.get("X.ERES") == mres  # no encoder: the record's rule
+        assert await client.get("X.S") == pytest.approx(await client.get("X.VELO") / urev)
+        assert await client.get("X.SMAX") == pytest.approx(await client.get("X.VMAX") / urev)
+        move = asyncio.create_task(client.put("X", 3.0))
+        await client.until("X.MIP", 0x20)  # a move (not a jog or home) in progress
+        await move
+        steps = round(3.0 / mres)
+        assert [await client.get(f"X.{name}") for name in (
+            "RVAL", "RRBV", "RMP", "RDIF", "LRVL", "TDIR", "CDIR", "MIP")] == [
+            steps, steps, steps, 0, steps, 1, 1, 0]
+        assert [await client.get(f"X.{name}") for name in ("DIFF", "LVAL", "LDVL")] == [
+            0.0, 3.0, 3.0]
+        await client.put("X", 1.0)
+        assert (await client.get("X.TDIR"), await client.get("X.RRBV")) == (
+            0, round(1.0 / mres))
+        # OFF (FOFF Variable) moves VAL with RBV; the dial target stays.
+        await client.put("X.OFF", 0.5)
+        assert (await client.get("X"), await client.get("X.DVAL")) == (1.5, 1.0)
+        assert await client.get("X.LVAL") == 1.5
 
 
 async def test_resolution_fields_match_the_bluesky_device_and_follow_a_pitch_change() -> None:

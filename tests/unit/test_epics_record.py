@@ -13,8 +13,11 @@ from tango_aio.epics.record import (
     Alarm,
     AxisUnits,
     Ending,
+    derived_fields,
     fault_after,
     limit_violation,
+    nint,
+    revolution_speeds,
     shown_alarm,
 )
 from tango_aio.units import UnitScale
@@ -89,6 +92,31 @@ def test_accs_is_accel_in_egu_per_s2() -> None:
     velo = 20.0
     accl = units.accl_from_accel(velo, 0.2)
     assert velo / accl == pytest.approx(units.accs_from_accel(0.2))
+
+
+@given(st.floats(-1e9, 1e9))
+def test_nint_is_the_nearest_integer_halves_away_from_zero(value: float) -> None:
+    rounded = nint(value)
+    assert abs(rounded - value) <= 0.5
+    assert nint(-value) == -rounded
+
+
+def test_nint_rounds_halves_as_c_does_not_to_even() -> None:
+    assert [nint(v) for v in (0.5, 1.5, 2.5, -0.5, -2.5)] == [1, 2, 3, -1, -3]
+
+
+def test_the_raw_fields_are_the_dial_values_in_microsteps() -> None:
+    fields = derived_fields(val=4.0, dval=3.0, drbv=2.9999, mres=2.5e-5)
+    assert fields == {"RVAL": 120000, "RRBV": 119996, "RMP": 119996,
+                      "DIFF": pytest.approx(1e-4), "RDIF": 4, "LVAL": 4.0, "LDVL": 3.0,
+                      "LRVL": 120000}
+
+
+def test_speeds_in_revolutions_per_second_are_egu_per_s_over_urev() -> None:
+    assert revolution_speeds(velo=5.0, vmax=20.0, urev=2.0) == {
+        "S": 2.5, "SMAX": 10.0, "SBAS": 0.0}
+    assert revolution_speeds(velo=5.0, vmax=20.0, urev=-2.0)["S"] == 2.5
+    assert revolution_speeds(velo=5.0, vmax=20.0, urev=0.0)["S"] == 0.0
 
 
 def test_allowed_hosts_are_compared_whole_without_trimming_blanks() -> None:
