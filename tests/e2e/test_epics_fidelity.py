@@ -95,6 +95,14 @@ elif client == "ophyd":
     except Exception as exc:
         out["refused"] = type(exc).__name__
     out["position"] = motor.position
+elif client == "pyepics-motor":
+    import epics
+    motor = epics.Motor(x, timeout=30)
+    out["limits"] = [motor.LLM, motor.HLM]
+    out["checked"] = motor.move(target, wait=True, timeout=30)  # its own check first
+    out["refused"] = motor.move(target, wait=True, timeout=30, ignore_limits=True)
+    out["position"] = motor.get_position(readback=True)
+    out["steps"] = motor.get_position(readback=True, raw=True)
 elif client == "caproto":
     from caproto import ChannelType
     from caproto.threading.client import Context
@@ -129,7 +137,8 @@ print(json.dumps(out))
 @pytest.mark.parametrize("client", [
     "ophyd", pytest.param("pyepics", marks=pytest.mark.slow),
     pytest.param("ophyd-async", marks=pytest.mark.slow),
-    pytest.param("caproto", marks=pytest.mark.slow)])
+    pytest.param("caproto", marks=pytest.mark.slow),
+    pytest.param("pyepics-motor", marks=pytest.mark.slow)])
 async def test_a_move_beyond_the_soft_limits_fails_at_once(client: str) -> None:
     # Classic ophyd hung here: VAL served no control limits, so its own check let
     # the move through, the IOC refused the put, and DMOV never moved.
@@ -143,6 +152,11 @@ async def test_a_move_beyond_the_soft_limits_fails_at_once(client: str) -> None:
         return
     # VAL's control limits are the soft limits: the clients check before they put.
     assert result["limits"] == pytest.approx([-5.0, 2600.0])
+    if client == "pyepics-motor":  # pyepics' epics.Motor: codes, not exceptions
+        assert result["checked"] == -12  # outside the soft limits: not attempted
+        assert result["refused"] == -4  # put anyway: finished, soft limit violation seen
+        assert result["steps"] == 0
+        return
     if client == "ophyd":
         assert result["checked"] == "LimitError"
         # Past its check the IOC refuses, DMOV blinks with RBV in alarm: a failure.
@@ -429,6 +443,8 @@ async def test_puts_from_two_threads_within_the_merge_window_are_merged() -> Non
 # Each test states what a client should do and fails because the client does otherwise
 # (strict xfail: should a fixed release come, the test passes and the mark must go).
 
+#: ``pyepics-motor``: pyepics' ``epics.Motor.move(wait=True)`` of a move that fails (a
+#: disabled axis): the status code it returned.
 #: ``ophyd-async``: ``Motor.set`` of a move that fails (a disabled axis): did it raise?
 #: ``ophyd-stop``: ``EpicsMotor.move`` that another client stops: did it raise?
 #: ``ophyd-after-caput``: pyepics ``caput(wait=True)``, then ``EpicsMotor.move`` on the
@@ -440,7 +456,12 @@ warnings.simplefilter("ignore")
 prefix, case, rounds = sys.argv[1], sys.argv[2], int(sys.argv[3])
 x = prefix + "X"
 out = {}
-if case == "ophyd-async":
+if case == "pyepics-motor":
+    import epics
+    motor = epics.Motor(x, timeout=30)
+    out["status"] = motor.move(15.0, wait=True, timeout=60)  # 0: "finished OK"
+    out["position"] = motor.get_position(readback=True)
+elif case == "ophyd-async":
     from ophyd_async.epics.motor import Motor
 
     async def main():
@@ -477,6 +498,18 @@ else:
         out["early"] = early
 print(json.dumps(out))
 """
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="pyepics' epics.Motor.move(wait=True) returns 0 "
+                   "(finished OK) whenever the put's callback came, LVIO is 0 and no limit "
+                   "switch is on: it reads neither the put's status nor the alarm")
+async def test_pitfall_pyepics_motor_move_reports_a_failed_move() -> None:
+    async with connect(INSTANT) as tango, serving({"": tango}, "PFM:"):
+        await tango.command("!axis x 0")
+        result = await run_client(PITFALLS, "PFM:", "pyepics-motor", 0, timeout=120)
+        assert (await tango.position())["x"] == 0.0  # the move failed
+    assert result["status"] != 0, result
 
 
 @pytest.mark.slow
