@@ -15,6 +15,15 @@ sys.path.insert(0, str(HERE.parent))
 
 import tango_aio  # noqa: E402
 
+# pymmcore-plus turns the root logger to DEBUG when first imported, and Sphinx's source
+# reader imports it for real while documenting tango_aio.mm: import it now through
+# tango_aio.mm, which keeps the root logger's level (else every library's debug lines
+# fill the build's output).
+try:
+    import tango_aio.mm  # noqa: E402, F401
+except ImportError:  # the mm extra is not installed: nothing imports pymmcore-plus
+    pass
+
 project = "tango_aio"
 author = "tango_aio developers"
 copyright = "tango_aio developers"

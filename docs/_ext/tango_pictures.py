@@ -90,13 +90,15 @@ async def record_move() -> list[WireLine]:
     wire = logging.getLogger("tango_aio.wire")
     recorder = _WireRecorder()
     async with tango_aio.connect("sim://?baud=0&speed=20") as tango:
-        level = wire.level
+        level, propagate = wire.level, wire.propagate
         wire.addHandler(recorder)
         wire.setLevel(logging.DEBUG)
+        wire.propagate = False  # the recorder's lines only, not the build's log
         try:
             await tango.move_to(x=10.0, y=5.0)
         finally:
             wire.setLevel(level)
+            wire.propagate = propagate
             wire.removeHandler(recorder)
     return label_replies(recorder.lines)
 
