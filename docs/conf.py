@@ -6,6 +6,7 @@ after ``pip install -e '.[docs]'``.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from pathlib import Path
 
@@ -19,10 +20,8 @@ import tango_aio  # noqa: E402
 # reader imports it for real while documenting tango_aio.mm: import it now through
 # tango_aio.mm, which keeps the root logger's level (else every library's debug lines
 # fill the build's output).
-try:
-    import tango_aio.mm  # noqa: E402, F401
-except ImportError:  # the mm extra is not installed: nothing imports pymmcore-plus
-    pass
+with contextlib.suppress(ImportError):  # without the mm extra nothing imports it
+    import tango_aio.mm  # noqa: F401
 
 project = "tango_aio"
 author = "tango_aio developers"
