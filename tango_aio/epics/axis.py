@@ -274,6 +274,7 @@ class AxisServer:
             _finite(self.record.pvname, "VAL", target)
             if f.set_use_switch.value == "Set":
                 await self._redefine(target)
+                await self.server.flush()  # the new RBV and OFF before the put's reply
                 return False
             dial = target - f.user_offset.value
             await self._check_limits(dial)
@@ -368,7 +369,11 @@ class AxisServer:
                 arrived_at = (confirmed or {}).get(self.letter)
             finally:
                 self._ended(request)
-                await self._finish(arrived_at, settle=settle)
+                # A client reads the switches when DMOV returns to 1 (classic ophyd the
+                # one TDIR points to): read them first unless the move arrived with none
+                # shown actuated (the poll reads them every fifth time).
+                await self._finish(arrived_at, settle=settle, switches=arrived_at is None
+                                   or self._switches.low or self._switches.high)
 
     def _ended(self, request: int) -> None:
         self._busy -= 1
@@ -417,12 +422,14 @@ class AxisServer:
             await self.controller.stop(self.letter)
         await asyncio.wait([task])
 
-    async def _finish(self, confirmed: str | None = None, *, settle: bool = False) -> None:
+    async def _finish(self, confirmed: str | None = None, *, settle: bool = False,
+                      switches: bool = True) -> None:
         """A request ended: publish the position (``confirmed``, as printed by the read
         that confirmed its move's arrival, else read now), with ``settle`` VAL and DVAL
         too (where the axis stopped); unless another request follows, publish MOVN=0 and
         DMOV=1 (only while the link is up: a move that lost its link has not been seen to
-        stand); then wait until every client has those updates."""
+        stand); with ``switches`` the limit switches are read first; then wait until every
+        client has those updates."""
         f = self._f
         self.finished += 1  # a poll in flight read the axis before this request ended
         dial = _number(confirmed)
@@ -431,6 +438,10 @@ class AxisServer:
                                      else await self.controller.get("pos", axis=self.letter))
             if settle:
                 await self._settle_target()
+            if switches:
+                c = self.controller
+                await self.slow_update(await c.query("?readsw"),
+                                       await c.query("?statuslimit"))
         if not self.controller.connected:
             self._standing_unknown = True
             await self.server.link_lost()

@@ -8,7 +8,9 @@ the loopback CA environment of :mod:`test_epics`, every client call bounded by a
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
+from collections.abc import AsyncIterator
 from importlib.util import find_spec
 from typing import Any
 
@@ -20,6 +22,7 @@ if _MISSING:
     pytest.skip(f"not installed: {', '.join(_MISSING)}", allow_module_level=True)
 
 from caproto import AlarmSeverity, AlarmStatus  # noqa: E402
+from caproto.asyncio.client import Context as ClientContext  # noqa: E402
 from helpers import INSTANT  # noqa: E402
 from test_epics import Client, PutFailed, ca_env, one_stage  # noqa: E402, F401 - a fixture
 from test_epics import serving as serving_in_process  # noqa: E402
@@ -28,6 +31,7 @@ from test_epics_clients import _spy_moves, _stage, run_client, serving  # noqa: 
 from tango_aio.bluesky import MarzhauserAxis, MarzhauserStage  # noqa: E402
 from tango_aio.controller._connection import connect  # noqa: E402
 from tango_aio.controller._controller import Controller  # noqa: E402
+from tango_aio.epics.ioc import build_ioc  # noqa: E402
 from tango_aio.epics.record import Msta  # noqa: E402
 from tango_aio.sim.profiles import SWITCHES  # noqa: E402
 
@@ -272,6 +276,74 @@ async def test_val_after_a_failed_move_is_where_the_axis_stands() -> None:
         assert stood != pytest.approx(5.0)
         assert await client.get("X") == pytest.approx(stood, abs=1e-3)
         assert await client.get("X.DVAL") == pytest.approx(stood, abs=1e-3)
+
+
+# ------------------------------------------------------------------ switches and SET
+
+
+@contextlib.asynccontextmanager
+async def _unpolled(tango: Controller) -> AsyncIterator[Client]:
+    """The IOC polling once, at its start: only a request's own end reads the switches."""
+    ioc = await build_ioc({"": tango}, "T:", poll=3600)
+    task = asyncio.create_task(ioc.run(["127.0.0.1"]))
+    context = ClientContext()
+    try:
+        client = Client(context, "T:")
+        assert await client.get("X.DMOV") == 1
+        yield client
+    finally:
+        await context.disconnect()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+async def test_the_switches_are_read_before_dmov_returns_to_one() -> None:
+    # Classic ophyd reads HLS or LLS (by TDIR) when DMOV returns to 1, pyepics' Motor
+    # both: a move that ended on a switch shows it, a home that left it shows it free.
+    async with connect("sim://?baud=0&speed=20") as tango:  # the emulator's clock 20x
+        await tango.command("!lim x -1000 1000")  # soft limits beyond the switches
+        async with _unpolled(tango) as client:
+            with pytest.raises(PutFailed):
+                await client.put("X", 500.0)  # stops on the upper switch
+            assert (await client.get("X.HLS"), await client.get("X.TDIR")) == (1, 1)
+            assert await client.get("X.MSTA") & Msta.PLUS_LS
+            await client.put("X.HOMR", 1)  # cal: to the lower switch, then out of it
+            assert (await client.get("X.HLS"), await client.get("X.LLS")) == (0, 0)
+            assert await client.get("X.MSTA") & Msta.HOMED
+
+
+#: Classic ophyd: ``set_current_position`` (SET, VAL, SET) and what it reads right after,
+#: then ``home`` forward and reverse: whether each raised, and where the axis stood.
+OPHYD_HOME = """
+import json, sys, warnings
+warnings.simplefilter("ignore")
+from ophyd import EpicsMotor
+motor = EpicsMotor(sys.argv[1] + "X", name="x")
+motor.wait_for_connection(timeout=30)
+out = {}
+motor.set_current_position(5.0)
+out["redefined"] = [motor.position, motor.user_setpoint.get(), motor.user_offset.get()]
+for direction in ("forward", "reverse"):
+    try:
+        motor.home(direction, wait=True, timeout=60)
+        out[direction] = ["done", motor.high_limit_switch.get(), motor.low_limit_switch.get()]
+    except Exception as exc:
+        out[direction] = [type(exc).__name__]
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+async def test_classic_ophyd_redefines_and_homes() -> None:
+    # Each home ends out of its switch (the manual's cal and rm travel out of it, L5292,
+    # L5376): ophyd, reading the switch TDIR points to as DMOV returns to 1, must see it
+    # free; and after set_current_position its monitors already hold the new position.
+    async with connect("sim://?baud=0&speed=20") as tango, serving({"": tango}, "OH:"):
+        result = await run_client(OPHYD_HOME, "OH:", timeout=120)
+    assert result["redefined"] == [5.0, 5.0, 5.0], result
+    assert result["forward"] == ["done", 0, 0], result
+    assert result["reverse"] == ["done", 0, 0], result
 
 
 # ------------------------------------------------------------------------ metadata
