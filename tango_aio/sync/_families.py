@@ -57,19 +57,18 @@ class Settings(CommunicationAccess[AsyncSettings], SystemAccess[AsyncSettings],
     reset = _Blocking(AsyncSettings.reset)
 
     def check(self, snapshot: SettingsSnapshot) -> None:
-        """Refuse a snapshot of another model, or with axes this controller lacks (see
-        :meth:`tango_aio.families.Settings.check`). Runs in the caller's thread: it reads
-        only the identity and the context the driver holds.
+        """:meth:`tango_aio.families.Settings.check`, in the caller's thread (it reads only
+        the identity and the context the driver holds, no line is written).
 
         Parameters
         ----------
         snapshot
-            The snapshot.
+            The snapshot to check against this controller.
 
         Raises
         ------
         SnapshotMismatchError
-            It does not fit this controller.
+            The snapshot is of another model, or has axes this controller lacks.
         """
         self.aio.check(snapshot)
 
