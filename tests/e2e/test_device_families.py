@@ -334,6 +334,25 @@ def test_blocking_twins() -> None:
             tango.io.no_such_method()  # type: ignore[attr-defined]
 
 
+async def test_the_device_families_reach_the_controller_itself(
+        emulator: EmulatorFactory) -> None:
+    # One way to the link: every family's port is the controller, no wrapper of it.
+    emu = await emulator(f"{INSTANT}&axes=2")
+    tango = emu.tango
+    for family in (tango.settings, tango.info, tango.joystick, tango.io, tango.encoders,
+                   tango.closed_loop, tango.triggers, tango.snapshots):
+        assert family._port is tango
+    assert tango.axes == ("x", "y")
+    await tango.move_to(x=1.5)
+    letters, texts = await tango.state()
+    assert letters == {"x": "@", "y": "@"} and tango.last_positions == texts
+    assert await tango.user_positions(texts) == await tango.position()
+    assert await tango.read_if_known("trigcomp") is not None
+    assert len(await tango.resolution()) == 2 and not tango.moving()
+    with pytest.raises(InvalidCommandError):
+        tango.check_axes(tango_aio.catalog.build("trigp", 0, axis="z"))
+
+
 async def test_generated_bool_setters_reach_the_controller(emulator: EmulatorFactory) -> None:
     # A bool goes on the wire as 0/1, for one value and per axis alike.
     emu = await emulator()
