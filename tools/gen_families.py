@@ -204,7 +204,9 @@ class Writer:
             if entry.name in ENUM_NAMES:
                 members = [(ENUM_NAMES[entry.name][v], v) for _, v in members]
             body = "\n".join(f"    {member} = {value}" for member, value in members)
-            doc = _words(notes) or f"The values of {entry.name}'s {param.name}"
+            # A "|" would open a reST substitution (``stoppol |= 4``).
+            doc = (_words(notes).replace("|", "\\\\|")
+                   or f"The values of {entry.name}'s {param.name}")
             where = _lines(self.refs[entry.name], entry)
             chapter.enums.append(
                 f"class {name}(ManualEnum):\n"
