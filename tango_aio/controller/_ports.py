@@ -86,7 +86,7 @@ class _Devices(_Setup):
 
     async def state(self) -> tuple[dict[str, str], dict[str, str]]:
         """The status letters and the positions (as printed) of every present axis, read
-        in one round trip; the positions become ``last_positions()``.
+        in one round trip; the positions become :attr:`last_positions`.
 
         Returns
         -------
@@ -159,5 +159,10 @@ class _Devices(_Setup):
         ----------
         command
             The line.
+
+        Raises
+        ------
+        InvalidCommandError
+            The line names an axis this controller does not have.
         """
         self._check_axes(command)
