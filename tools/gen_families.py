@@ -1,5 +1,6 @@
 """Generate ``tango_aio/families/_generated.py``: one typed accessor per instruction of the
-manual's family chapters, from the instruction catalog and the shared reference.
+manual's family chapters, from the instruction catalog and the shared reference; and
+``tango_aio/sync/_generated.py``: the blocking twin of each accessor class.
 
 Instructions are data: the catalog knows each instruction's forms, parameters, ranges and
 per-axis shape; the reference (``reference/instructions.json``) adds the manual's section
@@ -14,7 +15,7 @@ Run from the repository root::
 
     python tools/gen_families.py
 
-``tests/unit/test_families_sync.py`` checks that the committed module is this output.
+``tests/unit/test_families_sync.py`` checks that the committed modules are this output.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from tango_aio.catalog._schema import Bare  # noqa: E402
 
 DEFAULT_JSON = ROOT / "reference" / "instructions.json"
 OUTPUT = ROOT / "tango_aio" / "families" / "_generated.py"
+TWINS_OUTPUT = ROOT / "tango_aio" / "sync" / "_generated.py"
 
 #: Manual chapter -> (class name, what the chapter is about, in the manual's heading).
 CHAPTERS: dict[str, tuple[str, str]] = {
@@ -160,6 +162,10 @@ class Chapter:
         self.title = title
         self.enums: list[str] = []
         self.methods: list[str] = []
+        #: The blocking twin of each method: a descriptor line, or (a per-axis read)
+        #: its overloads written out.
+        self.twins: list[str] = []
+        self.twin_methods: list[str] = []
         self.routes: dict[str, list[str]] = {}
 
 
@@ -198,7 +204,9 @@ class Writer:
             if entry.name in ENUM_NAMES:
                 members = [(ENUM_NAMES[entry.name][v], v) for _, v in members]
             body = "\n".join(f"    {member} = {value}" for member, value in members)
-            doc = _words(notes) or f"The values of {entry.name}'s {param.name}"
+            # A "|" would open a reST substitution (``stoppol |= 4``).
+            doc = (_words(notes).replace("|", "\\\\|")
+                   or f"The values of {entry.name}'s {param.name}")
             where = _lines(self.refs[entry.name], entry)
             chapter.enums.append(
                 f"class {name}(ManualEnum):\n"
@@ -274,6 +282,18 @@ class Writer:
                 f'        """{doc}"""\n'
                 f"        return await read_axes(self._port, {entry.name!r}, {convert}{args},"
                 f" axis=axis)  # type: ignore[no-any-return]\n")
+            # A descriptor keeps only an overload's first signature: the twin spells
+            # them out, and hands the call to the portal.
+            chapter.twin_methods.append(
+                f"    @overload\n"
+                f"    def {method}({params}) -> dict[str, {annotation}]: ...\n"
+                f"    @overload\n"
+                f"    def {method}({params}, *, axis: str) -> {annotation}: ...\n"
+                f"    def {method}({params}, *, axis: str | None = None"
+                f") -> dict[str, {annotation}] | {annotation}:\n"
+                f'        """{doc}"""\n'
+                f"        return self._per_axis({method!r}{args}, axis=axis)"
+                f"  # type: ignore[no-any-return]\n")
         else:
             extra = ["*", "axis: str | None = None"] if signature.axis is not AxisRule.NONE \
                 else []
@@ -283,6 +303,7 @@ class Writer:
                 f"    async def {method}({params}) -> {annotation}:\n"
                 f'        """{doc}"""\n'
                 f"        return await read(self._port, {entry.name!r}, {convert}{args}{axis})\n")
+            chapter.twins.append(_descriptor(chapter, method))
         chapter.routes.setdefault(entry.name, []).append(method)
 
     def writer(self, chapter: Chapter, entry: Instruction) -> None:
@@ -325,7 +346,12 @@ class Writer:
             f"    async def {method}({params}) -> None:\n"
             f'        """{doc}"""\n'
             f"{body}")
+        chapter.twins.append(_descriptor(chapter, method))
         chapter.routes.setdefault(entry.name, []).append(method)
+
+
+def _descriptor(chapter: Chapter, method: str) -> str:
+    return f"    {method} = _Blocking(_f.{chapter.cls}.{method})\n"
 
 
 def _identifier(name: str) -> str:
@@ -345,7 +371,8 @@ def family_entries() -> dict[str, list[Instruction]]:
     return out
 
 
-def render(refs: dict[str, dict[str, Any]]) -> str:
+def chapters_of(refs: dict[str, dict[str, Any]]) -> tuple[Writer, list[tuple[str, Chapter]]]:
+    """Each family chapter's source, gathered from its instructions."""
     writer = Writer(refs)
     chapters = []
     for number, entries in family_entries().items():
@@ -359,6 +386,11 @@ def render(refs: dict[str, dict[str, Any]]) -> str:
             if entry.write:
                 writer.writer(chapter, entry)
         chapters.append((number, chapter))
+    return writer, chapters
+
+
+def render(refs: dict[str, dict[str, Any]]) -> str:
+    writer, chapters = chapters_of(refs)
     out = [HEADER]
     for _, chapter in chapters:
         out.extend(f"\n\n{text}" for text in chapter.enums)
@@ -387,6 +419,51 @@ def render(refs: dict[str, dict[str, Any]]) -> str:
                                            key=lambda n: (not n.isupper(), n)))
         + "]\n")
     return "".join(out)
+
+
+def render_twins(refs: dict[str, dict[str, Any]]) -> str:
+    """The blocking twins of the accessor classes (``tango_aio/sync/_generated.py``)."""
+    writer, chapters = chapters_of(refs)
+    body = []
+    for number, chapter in chapters:
+        body.append(
+            f"\n_{chapter.cls} = TypeVar(\"_{chapter.cls}\", bound=_f.{chapter.cls}, "
+            "covariant=True)\n"
+            f"\n\nclass {chapter.cls}(_Wrapper[_{chapter.cls}]):\n"
+            f'    """The blocking twin of :class:`tango_aio.families.{chapter.cls}` '
+            f'(manual chapter {number}): each method blocks until the driver\'s thread has '
+            'run it."""\n\n')
+        body.extend(chapter.twins)
+        body.extend(f"\n{method}" for method in chapter.twin_methods)
+        body.append("\n")
+    text = "".join(body)
+    enums = sorted((name for name in writer.enum_names if re.search(rf"\b{name}\b", text)),
+                   key=str.lower)
+    imports = "".join(f"    {name},\n" for name in enums)
+    names = "".join(f"    {name!r},\n" for name in sorted(c.cls for _, c in chapters))
+    return (TWINS_HEADER + (f"from ..families import (\n{imports})\n" if enums else "")
+            + "from ._blocking import _Blocking, _Wrapper\n" + text
+            + f"\n__all__ = [\n{names}]\n")
+
+
+TWINS_HEADER = '''"""The blocking twins of the typed access of the manual's family chapters.
+GENERATED by tools/gen_families.py with ``tango_aio/families/_generated.py``: edit the
+generator, not this file.
+
+Each class is generic in the async family it wraps, so that a family built on an accessor
+class (``tango_aio.families.Joystick`` on ``JoystickAccess``) has a blocking twin built on
+this one (:mod:`tango_aio.sync`). A per-axis read's overloads are written out: a blocking
+descriptor would keep only the first.
+"""
+
+# ruff: noqa: E501
+
+from __future__ import annotations
+
+from typing import TypeVar, overload
+
+from .. import families as _f
+'''
 
 
 HEADER = '''"""Typed access to every instruction of the manual's family chapters. GENERATED by
@@ -430,8 +507,10 @@ def _same(value: Any) -> Any:
 
 def main() -> None:
     source = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_JSON
-    OUTPUT.write_text(render(load(source)), encoding="utf-8")
-    print(f"wrote {OUTPUT.relative_to(ROOT)}")
+    refs = load(source)
+    OUTPUT.write_text(render(refs), encoding="utf-8")
+    TWINS_OUTPUT.write_text(render_twins(refs), encoding="utf-8")
+    print(f"wrote {OUTPUT.relative_to(ROOT)} and {TWINS_OUTPUT.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":

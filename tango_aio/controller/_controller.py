@@ -46,6 +46,7 @@ from ..events import (
 from ..families import (
     IO,
     ClosedLoop,
+    DevicePort,
     Encoders,
     Info,
     Joystick,
@@ -99,7 +100,7 @@ log = logging.getLogger("tango_aio")
 CLOSE_SETTLE = 0.25
 
 
-class Controller(_Planning):
+class Controller(_Planning, _Devices):
     """A connected TANGO controller. Get one with :func:`tango_aio.connect`.
 
     Every method validates its input with the instruction catalog before a byte is
@@ -198,7 +199,7 @@ class Controller(_Planning):
         #: (:mod:`tango_aio.controller._restart`).
         self._restarts = RestartWatch(self._reload_settings, self._hub.publish, reply_timeout)
         self._restarts.attach(protocol)
-        devices = _Devices(self)
+        devices: DevicePort = self  # the device families' port: the controller itself
         #: The HDI: on and off around automated moves (:class:`~tango_aio.families.Joystick`).
         self.joystick = Joystick(devices)
         #: Digital and analogue I/O, shutter, LED strobe (:class:`~tango_aio.families.IO`).

@@ -1,6 +1,6 @@
 """What the controller hands over: :class:`_Port` (the controller as
-:class:`~tango_aio.controller._motion.Motion` sees it) and :class:`_Devices` (as the
-device families see it), each made of the controller's own methods."""
+:class:`~tango_aio.controller._motion.Motion` sees it, made of the controller's own
+methods), and :class:`_Devices`, the controller's intents the device families need."""
 
 from __future__ import annotations
 
@@ -17,8 +17,6 @@ from ..catalog import (
     AXES,
     INSTRUCTIONS,
     Command,
-    Context,
-    Value,
 )
 from ..errors import (
     ControllerError,
@@ -30,15 +28,13 @@ from ..events import (
     TangoEvent,
 )
 from ..families import (
-    RESTART_QUIET,
     ListTransfer,
 )
 from ..link import (
     MoveHandle,
 )
 from ..units import Measure
-from ._planning import _Planning
-from ._reads import Identity
+from ._setup import _Setup
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,86 +51,118 @@ class _Port:
     unreported: Callable[[], None]
 
 
-class _Devices:
-    """The port of the device families: the controller's own methods."""
-
-    __slots__ = ("_controller",)
-
-    def __init__(self, controller: _Planning) -> None:
-        self._controller = controller
-
-    @property
-    def context(self) -> Context:
-        return self._controller.context
-
-    @property
-    def identity(self) -> Identity:
-        return self._controller.identity
-
-    @property
-    def units(self) -> str | None:
-        return self._controller.units
-
-    @units.setter
-    def units(self, value: str | None) -> None:
-        self._controller.units = value
-
-    async def refresh_settings(self) -> None:
-        await self._controller.refresh_settings()
-
-    async def wait_restarted(self, *, quiet: float = RESTART_QUIET) -> None:
-        await self._controller.wait_restarted(quiet=quiet)
+class _Devices(_Setup):
+    """The intents the device families send the controller beyond a family's reads and
+    writes (:class:`~tango_aio.families.DevicePort`): the controller is their port."""
 
     @property
     def axes(self) -> tuple[str, ...]:
-        known = self._controller._identity
-        return tuple(AXES[: known.axes if known else self._controller.context.axes])
-
-    async def get(self, name: str, *args: Value, axis: str | None = None,
-                  timeout: float | None = None) -> Any:
-        return await self._controller.get(name, *args, axis=axis, timeout=timeout)
-
-    async def set(self, name: str, /, *args: Value, axis: str | None = None,
-                  check: bool = True, **axes: Any) -> None:
-        await self._controller.set(name, *args, axis=axis, check=check, **axes)
-
-    async def query(self, line: str, timeout: float | None = None) -> str:
-        return await self._controller.query(line, timeout)
-
-    async def command(self, line: str, *, check: bool = True,
-                      timeout: float | None = None) -> None:
-        await self._controller.command(line, check=check, timeout=timeout)
+        """The letters of the present axes (``("x", "y", "z")``)."""
+        known = self._identity
+        return tuple(AXES[: known.axes if known else self.context.axes])
 
     async def read_if_known(self, name: str) -> Any:
-        controller = self._controller
-        known = controller._identity
+        """Read the global setting ``name``, or ``None`` where this controller does not
+        know it (older firmware, a unit without the module), without waiting a timeout.
+
+        Parameters
+        ----------
+        name
+            The instruction (``"trigcomp"``).
+
+        Returns
+        -------
+        Any
+            The parsed reply, or ``None``.
+        """
+        known = self._identity
         if known is not None and known.family == "older" \
                 and not INSTRUCTIONS[name].in_older_manual:
             return None
         try:
-            return await controller._read_or_absent(name)
+            return await self._read_or_absent(name)
         except (InvalidInstructionError, ProtocolError):
             return None
 
     async def state(self) -> tuple[dict[str, str], dict[str, str]]:
-        return await self._controller._status_and_positions()
+        """The status letters and the positions (as printed) of every present axis, read
+        in one round trip; the positions become :attr:`last_positions`.
+
+        Returns
+        -------
+        tuple[dict[str, str], dict[str, str]]
+            The letters and the positions, by axis.
+        """
+        return await self._status_and_positions()
 
     async def user_positions(self, texts: Mapping[str, str]) -> dict[str, float]:
-        controller = self._controller
-        return await controller._from_controller(
-            texts, controller._reading_unit(None, Measure.POSITION), Measure.POSITION)
+        """Positions as :meth:`state` gives them, converted as :meth:`position`
+        converts its reads.
+
+        Parameters
+        ----------
+        texts
+            The printed position of each axis.
+
+        Returns
+        -------
+        dict[str, float]
+            Each axis' position in the connection's unit (``units``), else the dim unit.
+        """
+        return await self._from_controller(
+            texts, self._reading_unit(None, Measure.POSITION), Measure.POSITION)
 
     def publish(self, event: TangoEvent) -> None:
-        self._controller._hub.publish(event)
+        """Hand ``event`` to every subscription of :meth:`events` (never blocks).
+
+        Parameters
+        ----------
+        event
+            What the subscribers receive.
+        """
+        self._hub.publish(event)
 
     def moving(self) -> bool:
-        return self._controller._motion.busy or bool(self._controller._motion_calls)
+        """Whether a move of this driver is in flight (no read: see :meth:`is_busy`).
+
+        Returns
+        -------
+        bool
+            ``True`` while one is.
+        """
+        return self._motion.busy or bool(self._motion_calls)
 
     def list_transfer(self) -> ListTransfer:
-        return self._controller._transfer()
+        """The list transfer of this connection (one upload or download at a time).
+
+        Returns
+        -------
+        ListTransfer
+            The transfer.
+        """
+        return self._transfer()
 
     async def resolution(self) -> list[float]:
-        return await self._controller._resolution()
+        """Per present axis, one unit of the last digit ``?pos`` prints.
+
+        Returns
+        -------
+        list[float]
+            The resolution of each present axis, X first.
+        """
+        return await self._resolution()
 
     def check_axes(self, command: Command) -> None:
-        self._controller._check_axes(command)
+        """Refuse a line for an axis this controller does not have, before any byte.
+
+        Parameters
+        ----------
+        command
+            The line.
+
+        Raises
+        ------
+        InvalidCommandError
+            The line names an axis this controller does not have.
+        """
+        self._check_axes(command)

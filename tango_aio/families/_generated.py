@@ -267,7 +267,7 @@ class CtrMode(ManualEnum):
 
 
 class CtrsmMode(ManualEnum):
-    """ctrsm mode: 0 continue (default); 1 limit closed-loop velocity; 2 disable CL until back in range; 3 disable CL permanently; 4 latched stop (stoppol |= 4, release with !stop 0); 5 switch off all power stages (manual L12184-12252)."""
+    """ctrsm mode: 0 continue (default); 1 limit closed-loop velocity; 2 disable CL until back in range; 3 disable CL permanently; 4 latched stop (stoppol \\|= 4, release with !stop 0); 5 switch off all power stages (manual L12184-12252)."""
 
     CONTINUE = 0
     LIMIT_CLOSED_LOOP = 1

@@ -1,6 +1,7 @@
 """What the device families (joystick, I/O, encoders, closed loop, triggers, snapshots)
 need of their controller beyond a :class:`FamilyPort`: the present axes, the state read
-that keeps ``last_positions()`` current, the event hub, and the list transfers."""
+that keeps ``last_positions()`` current, the event hub, and the list transfers. The
+controller is the port: it has these intents itself."""
 
 from __future__ import annotations
 

@@ -238,9 +238,7 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         InvalidCommandError
             ``unit`` is not a unit of velocity.
         """
-        chosen = reading_unit(self._port, unit, Measure.VELOCITY)
-        return await convert_from(self._port, await self._port.get("vel"), chosen,
-                                  Measure.VELOCITY)
+        return await self._read_in("vel", unit, Measure.VELOCITY)
 
     async def set_velocity(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``vel`` per axis (``set_velocity(x=5, unit="mm/s")``), see :meth:`velocity`.
@@ -275,9 +273,7 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         InvalidCommandError
             ``unit`` is not a unit of acceleration.
         """
-        chosen = reading_unit(self._port, unit, Measure.ACCELERATION)
-        return await convert_from(self._port, await self._port.get("accel"), chosen,
-                                  Measure.ACCELERATION)
+        return await self._read_in("accel", unit, Measure.ACCELERATION)
 
     async def set_acceleration(self, /, *, unit: str | None = None, **axes: float) -> None:
         """Set ``accel`` per axis, see :meth:`acceleration`.
@@ -311,9 +307,13 @@ class Settings(CommunicationAccess, SystemAccess, OperatingModesAccess, Adjustme
         InvalidCommandError
             ``unit`` is not a unit of length.
         """
-        chosen = reading_unit(self._port, unit, Measure.POSITION)
-        return await convert_from(self._port, await self._port.get("lim"), chosen,
-                                  Measure.POSITION)
+        return await self._read_in("lim", unit, Measure.POSITION)
+
+    async def _read_in(self, name: str, unit: str | None, measure: Measure
+                       ) -> dict[str, Any]:
+        """Read the per-axis ``name`` and convert it to ``unit`` (checked first)."""
+        chosen = reading_unit(self._port, unit, measure)
+        return await convert_from(self._port, await self._port.get(name), chosen, measure)
 
     async def set_limits(self, /, *, unit: str | None = None,
                          **axes: tuple[float, float]) -> None:

@@ -52,15 +52,14 @@ from .. import controller as _connection
 from ..controller import Controller as AsyncController
 from ..controller import Identity
 from ..events import PositionUpdate, Subscription, TangoEvent
-from ..families import Family
 from ..group import ControllerGroup as AsyncGroup
 from ..group import ControllerSpec, GroupEvent, GroupSubscription
 from ._blocking import _Blocking, _Starter, _Wrapper
-from ._families import IO, ClosedLoop, Encoders, Joystick, Snapshots, Triggers
+from ._families import IO, ClosedLoop, Encoders, Info, Joystick, Settings, Snapshots, Triggers
 from ._portal import STOP_WAIT, Portal, stop_started
 
 __all__ = ["IO", "STOP_WAIT", "ClosedLoop", "Controller", "ControllerGroup", "Encoders",
-           "Joystick", "Portal", "Snapshots", "Triggers", "connect", "family_twin",
+           "Info", "Joystick", "Portal", "Settings", "Snapshots", "Triggers", "connect",
            "stop_started"]
 
 P = ParamSpec("P")
@@ -76,54 +75,6 @@ def _close_open() -> None:
     for wrapper in list(_OPEN):
         with contextlib.suppress(Exception):
             wrapper.close()
-
-
-def _passing(name: str) -> Callable[..., Any]:
-    """A method of a blocking twin that calls the async object's plain method ``name``."""
-    def call(self: _Wrapper[Any], *args: Any, **kwargs: Any) -> Any:
-        return getattr(self.aio, name)(*args, **kwargs)
-
-    call.__name__ = name
-    return call
-
-
-#: The blocking twin of each family class made so far.
-_TWINS: dict[str, type[_Wrapper[Any]]] = {}
-
-
-def family_twin(cls: type[Family]) -> type[_Wrapper[Any]]:
-    """The blocking twin of a family class (:class:`tango_aio.families.Family`): each of
-    its public async methods made blocking by the same descriptor as the controller's.
-
-    Parameters
-    ----------
-    cls
-        The async family class (``type(tango.settings)``).
-
-    Returns
-    -------
-    type
-        A class whose instances wrap one family object: ``twin(family, portal,
-        owns_portal=False)``.
-    """
-    key = f"{cls.__module__}.{cls.__qualname__}"
-    if key in _TWINS:
-        return _TWINS[key]
-    members: dict[str, Any] = {
-        "__doc__": f"The blocking form of :class:`tango_aio.families.{cls.__name__}`: "
-                   "each method blocks until the driver's thread has run it.",
-        "__module__": __name__, "__qualname__": cls.__name__}
-    for name in dir(cls):
-        member = getattr(cls, name)
-        if name.startswith("_") or not inspect.isfunction(member):
-            continue
-        # A plain method (Settings.check) reads only what the family holds: it runs in
-        # the caller's thread, as validate_move does.
-        members[name] = _Blocking(member) if inspect.iscoroutinefunction(member) \
-            else _passing(name)
-    twin: type[_Wrapper[Any]] = type(cls.__name__, (_Wrapper,), members)
-    _TWINS[key] = twin
-    return twin
 
 
 class Controller(_Wrapper[AsyncController]):
@@ -161,6 +112,10 @@ class Controller(_Wrapper[AsyncController]):
     axis_limits = _Blocking(AsyncController.axis_limits)
     read_info = _Blocking(AsyncController.read_info)
     wait_restarted = _Blocking(AsyncController.wait_restarted)
+    read_if_known = _Blocking(AsyncController.read_if_known)
+    state = _Blocking(AsyncController.state)
+    user_positions = _Blocking(AsyncController.user_positions)
+    resolution = _Blocking(AsyncController.resolution)
 
     # -- non-blocking starts (Zaber's wait_until_idle=False)
     start_move_to = _Starter(AsyncController.move_to)
@@ -292,17 +247,15 @@ class Controller(_Wrapper[AsyncController]):
         self.aio.validate_move(relative=relative, **axes)
 
     @functools.cached_property
-    def settings(self) -> Any:
+    def settings(self) -> Settings:
         """The blocking twin of :attr:`tango_aio.Controller.settings`: every setting by
         name, snapshot, diff, restore, save (each method blocks)."""
-        return family_twin(type(self.aio.settings))(self.aio.settings, self._portal,
-                                                    owns_portal=False)
+        return Settings(self.aio.settings, self._portal, owns_portal=False)
 
     @functools.cached_property
-    def info(self) -> Any:
+    def info(self) -> Info:
         """The blocking twin of :attr:`tango_aio.Controller.info` (each method blocks)."""
-        return family_twin(type(self.aio.info))(self.aio.info, self._portal,
-                                                owns_portal=False)
+        return Info(self.aio.info, self._portal, owns_portal=False)
 
     @property
     def identity(self) -> Identity:

@@ -115,31 +115,12 @@ class _Wrapper(Generic[A_co]):
             if not future.cancelled() and future.exception() is not None:
                 raise future.exception()  # type: ignore[misc]
 
+    def _per_axis(self, name: str, /, *args: Any, axis: str | None) -> Any:
+        """Run the async per-axis read ``name`` (one value with ``axis``, else a dict by
+        axis) in the driver's thread."""
+        return self._portal.call(getattr(self.aio, name), *args, axis=axis)
+
     @property
     def portal(self) -> Portal:
         """The thread running the driver's event loop."""
         return self._portal
-
-
-class _Family(_Wrapper[A]):
-    """A blocking family: its own methods are declared; any other coroutine method of
-    the async family (the generated typed access, ``tango.io.set_anamode(...)``) is
-    made blocking when first looked up."""
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("_") or name == "aio":
-            raise AttributeError(name)
-        method = getattr(self.aio, name)
-        if not inspect.iscoroutinefunction(method):
-            raise AttributeError(f"{type(self).__name__} has no blocking {name!r}")
-
-        @functools.wraps(method)
-        def call(*args: Any, **kwargs: Any) -> Any:
-            return self._portal.call(method, *args, **kwargs)
-
-        return call
-
-    def __dir__(self) -> list[str]:
-        return sorted({*super().__dir__(), *(
-            name for name in dir(self.aio) if not name.startswith("_")
-            and inspect.iscoroutinefunction(getattr(self.aio, name)))})

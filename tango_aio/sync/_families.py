@@ -1,4 +1,5 @@
-"""The blocking twins of the device families (``tango.joystick``, ``tango.io``, ...)."""
+"""The blocking twins of the controller's families (``tango.settings``, ``tango.info``,
+``tango.joystick``, ``tango.io``, ...), each built on the twins of its accessor classes."""
 
 from __future__ import annotations
 
@@ -10,13 +11,75 @@ from ..events import InputsChanged, JoystickMoved
 from ..families import IO as AsyncIO
 from ..families import ClosedLoop as AsyncClosedLoop
 from ..families import Encoders as AsyncEncoders
+from ..families import Info as AsyncInfo
 from ..families import Joystick as AsyncJoystick
+from ..families import Settings as AsyncSettings
+from ..families import SettingsSnapshot
 from ..families import Snapshots as AsyncSnapshots
 from ..families import Triggers as AsyncTriggers
-from ._blocking import _Blocking, _Family
+from ._blocking import _Blocking
+from ._generated import (
+    AdjustmentsAccess,
+    CalibrationAccess,
+    ClosedLoopAccess,
+    CommunicationAccess,
+    ControllerInfoAccess,
+    EncoderAccess,
+    IOAccess,
+    JoystickAccess,
+    LimitSwitchAccess,
+    MREncoderAccess,
+    OperatingModesAccess,
+    SnapshotAccess,
+    SystemAccess,
+    TriggerAccess,
+)
 
 
-class Joystick(_Family[AsyncJoystick]):
+class Settings(CommunicationAccess[AsyncSettings], SystemAccess[AsyncSettings],
+               OperatingModesAccess[AsyncSettings], AdjustmentsAccess[AsyncSettings],
+               LimitSwitchAccess[AsyncSettings], CalibrationAccess[AsyncSettings]):
+    """The blocking twin of :class:`tango_aio.families.Settings` (``tango.settings``)."""
+
+    unit_scales = _Blocking(AsyncSettings.unit_scales)
+    velocity = _Blocking(AsyncSettings.velocity)
+    set_velocity = _Blocking(AsyncSettings.set_velocity)
+    acceleration = _Blocking(AsyncSettings.acceleration)
+    set_acceleration = _Blocking(AsyncSettings.set_acceleration)
+    limits = _Blocking(AsyncSettings.limits)
+    set_limits = _Blocking(AsyncSettings.set_limits)
+    snapshot = _Blocking(AsyncSettings.snapshot)
+    diff = _Blocking(AsyncSettings.diff)
+    restore = _Blocking(AsyncSettings.restore)
+    save = _Blocking(AsyncSettings.save)
+    reload = _Blocking(AsyncSettings.reload)
+    factory_reset = _Blocking(AsyncSettings.factory_reset)
+    reset = _Blocking(AsyncSettings.reset)
+
+    def check(self, snapshot: SettingsSnapshot) -> None:
+        """:meth:`tango_aio.families.Settings.check`, in the caller's thread (it reads only
+        the identity and the context the driver holds, no line is written).
+
+        Parameters
+        ----------
+        snapshot
+            The snapshot to check against this controller.
+
+        Raises
+        ------
+        SnapshotMismatchError
+            The snapshot is of another model, or has axes this controller lacks.
+        """
+        self.aio.check(snapshot)
+
+
+class Info(ControllerInfoAccess[AsyncInfo]):
+    """The blocking twin of :class:`tango_aio.families.Info` (``tango.info``)."""
+
+    read = _Blocking(AsyncInfo.read)
+
+
+class Joystick(JoystickAccess[AsyncJoystick]):
     """The blocking twin of :class:`tango_aio.families.Joystick` (``tango.joystick``)."""
 
     enable = _Blocking(AsyncJoystick.enable)
@@ -24,7 +87,7 @@ class Joystick(_Family[AsyncJoystick]):
     is_enabled = _Blocking(AsyncJoystick.is_enabled)
 
 
-class IO(_Family[AsyncIO]):
+class IO(IOAccess[AsyncIO]):
     """The blocking twin of :class:`tango_aio.families.IO` (``tango.io``)."""
 
     set_shutter = _Blocking(AsyncIO.set_shutter)
@@ -53,7 +116,7 @@ class IO(_Family[AsyncIO]):
         return self._portal.iterate(self.aio.watch_inputs(interval))
 
 
-class Encoders(_Family[AsyncEncoders]):
+class Encoders(EncoderAccess[AsyncEncoders], MREncoderAccess[AsyncEncoders]):
     """The blocking twin of :class:`tango_aio.families.Encoders` (``tango.encoders``)."""
 
     mask = _Blocking(AsyncEncoders.mask)
@@ -63,7 +126,7 @@ class Encoders(_Family[AsyncEncoders]):
     position_error = _Blocking(AsyncEncoders.position_error)
 
 
-class ClosedLoop(_Family[AsyncClosedLoop]):
+class ClosedLoop(ClosedLoopAccess[AsyncClosedLoop]):
     """The blocking twin of :class:`tango_aio.families.ClosedLoop` (``tango.closed_loop``)."""
 
     enable = _Blocking(AsyncClosedLoop.enable)
@@ -71,7 +134,7 @@ class ClosedLoop(_Family[AsyncClosedLoop]):
     settle = _Blocking(AsyncClosedLoop.settle)
 
 
-class Triggers(_Family[AsyncTriggers]):
+class Triggers(TriggerAccess[AsyncTriggers]):
     """The blocking twin of :class:`tango_aio.families.Triggers` (``tango.triggers``)."""
 
     read_config = _Blocking(AsyncTriggers.read_config)
@@ -86,7 +149,7 @@ class Triggers(_Family[AsyncTriggers]):
     set_range = _Blocking(AsyncTriggers.set_range)
 
 
-class Snapshots(_Family[AsyncSnapshots]):
+class Snapshots(SnapshotAccess[AsyncSnapshots]):
     """The blocking twin of :class:`tango_aio.families.Snapshots` (``tango.snapshots``)."""
 
     read_config = _Blocking(AsyncSnapshots.read_config)

@@ -331,26 +331,26 @@ def test_blocking_twins() -> None:
         tango.io.set_pump(True)
         assert tango.io.pump() is True
         with pytest.raises(AttributeError):
-            tango.io.no_such_method()
+            tango.io.no_such_method()  # type: ignore[attr-defined]
 
 
-def test_every_family_method_has_a_blocking_twin() -> None:
-    import inspect
-
-    from tango_aio import families
-    attributes = {"Joystick": "joystick", "IO": "io", "Encoders": "encoders",
-                  "ClosedLoop": "closed_loop", "Triggers": "triggers",
-                  "Snapshots": "snapshots"}
-    with tango_aio.sync.connect(INSTANT) as tango:
-        for name, attribute in attributes.items():
-            async_cls = getattr(families, name)
-            methods = {m for m in dir(async_cls) if not m.startswith("_") and (
-                inspect.iscoroutinefunction(getattr(async_cls, m))
-                or inspect.isasyncgenfunction(getattr(async_cls, m)))}
-            blocking = getattr(tango, attribute)
-            assert isinstance(blocking, getattr(tango_aio.sync, name))
-            assert len(methods) > 3 and not {m for m in methods
-                                              if not hasattr(blocking, m)}, name
+async def test_the_device_families_reach_the_controller_itself(
+        emulator: EmulatorFactory) -> None:
+    # One way to the link: every family's port is the controller, no wrapper of it.
+    emu = await emulator(f"{INSTANT}&axes=2")
+    tango = emu.tango
+    for family in (tango.settings, tango.info, tango.joystick, tango.io, tango.encoders,
+                   tango.closed_loop, tango.triggers, tango.snapshots):
+        assert family._port is tango
+    assert tango.axes == ("x", "y")
+    await tango.move_to(x=1.5)
+    letters, texts = await tango.state()
+    assert letters == {"x": "@", "y": "@"} and tango.last_positions == texts
+    assert await tango.user_positions(texts) == await tango.position()
+    assert await tango.read_if_known("trigcomp") is not None
+    assert len(await tango.resolution()) == 2 and not tango.moving()
+    with pytest.raises(InvalidCommandError):
+        tango.check_axes(tango_aio.catalog.build("trigp", 0, axis="z"))
 
 
 async def test_generated_bool_setters_reach_the_controller(emulator: EmulatorFactory) -> None:

@@ -1,5 +1,5 @@
-"""The committed ``tango_aio/families/_generated.py`` is exactly what
-``tools/gen_families.py`` makes of the catalog and the reference."""
+"""The committed ``tango_aio/families/_generated.py`` and ``tango_aio/sync/_generated.py``
+are exactly what ``tools/gen_families.py`` makes of the catalog and the reference."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from helpers import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
 GENERATED = ROOT / "tango_aio" / "families" / "_generated.py"
+TWINS = ROOT / "tango_aio" / "sync" / "_generated.py"
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +23,13 @@ def test_committed_accessors_are_the_generated_ones(generator: ModuleType) -> No
     expected = generator.render(generator.load()).encode("utf-8")
     assert GENERATED.read_bytes() == expected, (
         "tango_aio/families/_generated.py is out of date or was edited by hand: "
+        "run `.venv/bin/python tools/gen_families.py`")
+
+
+def test_committed_blocking_twins_are_the_generated_ones(generator: ModuleType) -> None:
+    expected = generator.render_twins(generator.load()).encode("utf-8")
+    assert TWINS.read_bytes() == expected, (
+        "tango_aio/sync/_generated.py is out of date or was edited by hand: "
         "run `.venv/bin/python tools/gen_families.py`")
 
 
