@@ -280,7 +280,6 @@ class AxisServer:
             await self._check_limits(dial)
             await self.record.write(target, verify_value=False)  # VAL: the newest target
             await f.dial_desired_value.write(dial, verify_value=False)
-            await self._publish_derived()
             confirmed: dict[str, str] = {}
             await self._run(lambda: self.server.coalescer.move_to(
                 self.letter, dial, arrived, positions=confirmed),
@@ -348,9 +347,9 @@ class AxisServer:
                 self._require_go()
                 self._positive = positive
                 moving = True
-                await self._publish_fields({"TDIR": int(positive), "CDIR": int(positive),
-                                            "MIP": mip})
-                await self._motion_of(motion, request)
+                await self._motion_of(motion, request, {
+                    "TDIR": int(positive), "CDIR": int(positive), "MIP": mip,
+                    **self._derived()})
             except MoveStoppedError:
                 settle = self._settle  # a STOP's; a newer request sets VAL itself
                 raise
@@ -381,20 +380,24 @@ class AxisServer:
         if ended is not None:
             ended.set()
 
-    async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int) -> None:
-        """Run ``motion`` in a task :meth:`stop` can cancel; raise what ended it short."""
+    async def _motion_of(self, motion: Callable[[], Awaitable[Any]], request: int,
+                         start: Mapping[str, float]) -> None:
+        """Run ``motion`` in a task :meth:`stop` can cancel, publishing the ``start``
+        fields while its line goes out; raise what ended it short."""
         f = self._f
         if f.motor_is_moving.value != 1:
             await f.motor_is_moving.write(1, verify_value=False)
         await self._publish_status()
         task, ended = _start_motion(motion)
         self._motion = task
+        published = asyncio.ensure_future(self._publish_fields(start))  # after its step
         try:
             await ended  # set in the motion's last step: one loop turn, not two
         except asyncio.CancelledError:  # the IOC shuts down: stop the move
             task.cancel()
-            await asyncio.wait([task])
+            await asyncio.wait([task, published])
             raise
+        await published
         if task.cancelled() or request != self._request:
             if not task.cancelled():
                 task.exception()  # retrieved: the stop is what is reported
@@ -703,12 +706,14 @@ class AxisServer:
         await self._publish_changed(f.user_readback_value, self._dial + f.user_offset.value)
         await self._publish_derived()
 
-    async def _publish_derived(self) -> None:
+    def _derived(self) -> dict[str, float]:
         """The raw, difference and last-value fields (:func:`~.record.derived_fields`)."""
         f = self._f
-        await self._publish_fields(derived_fields(
-            val=self.record.value, dval=f.dial_desired_value.value,
-            drbv=f.dial_readback_value.value, mres=self.units.mres))
+        return derived_fields(val=self.record.value, dval=f.dial_desired_value.value,
+                              drbv=f.dial_readback_value.value, mres=self.units.mres)
+
+    async def _publish_derived(self) -> None:
+        await self._publish_fields(self._derived())
 
     async def _publish_speeds(self, vmax: float) -> None:
         await self._publish_fields(revolution_speeds(velo=self._f.velocity.value,
