@@ -97,4 +97,7 @@ async def run_tango_server(args: argparse.Namespace) -> int:
                             instance=args.instance or args.prefix.rpartition("/")[2],
                             nodb=args.nodb, port=args.port, interface=args.interface,
                             interval=args.poll)
-    return await asyncio.to_thread(serve, options)
+    code = await asyncio.to_thread(serve, options)
+    if code == 130:
+        print("interrupted", file=sys.stderr)  # Tango's signal thread took the Ctrl+C
+    return code

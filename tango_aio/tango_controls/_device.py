@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,6 +36,8 @@ class Serving:
 
     axes: dict[str, AxisCore] = field(default_factory=dict)
     controllers: dict[str, StageLink] = field(default_factory=dict)
+    #: Set when Ctrl+C (SIGINT) ended the server: the command then exits with 130.
+    interrupted: bool = False
     pusher: ThreadPoolExecutor = field(
         default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="tango-events"))
 
@@ -263,6 +266,13 @@ class MarzhauserController(Device):  # type: ignore[misc]
         await super().init_device()
         self._link = SERVING.controllers[self.get_name().lower()]
         self.set_state(DevState.ON)
+        # Tango's own signal thread ends the server on Ctrl+C; this says it was one.
+        self.register_signal(signal.SIGINT)
+
+    def signal_handler(self, signo: int) -> None:
+        """Note a Ctrl+C (the server then shuts down as Tango does on it)."""
+        if signo == signal.SIGINT:
+            SERVING.interrupted = True
 
     @property
     def _controller(self) -> Controller:

@@ -76,7 +76,7 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
     Returns
     -------
     int
-        0 once the server has shut down cleanly.
+        0 once the server has shut down cleanly, 130 if Ctrl+C (SIGINT) ended it.
     """
     import tango
     from tango import GreenMode
@@ -120,7 +120,7 @@ def serve(options: ServerOptions, out: TextIO | None = None) -> int:
         loop.run_until_complete(_close(link, running))
     finally:
         loop.close()
-    return 0
+    return 130 if SERVING.interrupted else 0
 
 
 async def _close(link: object, running: list[asyncio.Task[None]]) -> None:

@@ -17,6 +17,7 @@ import contextlib
 import json
 import os
 import re
+import signal
 import socket
 import sys
 from collections.abc import AsyncIterator, Callable
@@ -359,3 +360,17 @@ async def test_a_terminated_server_stops_the_moves_it_started() -> None:
         await wait_until(lambda: not served.model.motion.is_moving("x"), timeout=HANG)
         motion = served.model.motion
         assert motion.to_user("x", motion.position("x")) < 29.0  # stopped on its way
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a console's Ctrl+C is no POSIX signal")
+async def test_ctrl_c_ends_the_server_with_130_after_stopping_its_moves() -> None:
+    # Tango's own signal thread takes SIGINT and shuts the server down; the controller
+    # device notes it, so the command exits as every tango-aio command does after Ctrl+C.
+    async with serving() as served, client_of(served) as client:
+        await client.ask(op="write", attr="Position", value=30.0)  # 10 mm/s: 3 s
+        await wait_until(served.moving, timeout=HANG)
+        assert served.server is not None
+        served.server.send_signal(signal.SIGINT)
+        await ended(served.server)
+        assert served.server.returncode == 130
+        await wait_until(lambda: not served.model.motion.is_moving("x"), timeout=HANG)
