@@ -17,8 +17,8 @@ pytest.importorskip("useq")
 
 import numpy as np
 import useq
-from pymmcore_plus.experimental.unicore import SimpleCameraDevice, UniMMCore
-from test_mm import HANG, INSTANT, emulated, hub_of, make_fast
+from pymmcore_plus.experimental.unicore import UniMMCore
+from test_mm import HANG, INSTANT, Camera, emulated, hub_of, make_fast
 
 from tango_aio import MoveError
 from tango_aio.errors import NotSupportedByFirmwareError
@@ -243,33 +243,23 @@ def test_starting_without_the_property_is_refused(core: UniMMCore) -> None:
 
 # ------------------------------------------------------------------ an MDA -----------------
 
-class TriggeringCamera(SimpleCameraDevice):
+class TriggeringCamera(Camera):
     """A camera whose trigger output drives the TANGO's snapshot input: in a sequence it
     pulses it after each frame's exposure. Its frame interval outlasts a step (it waits
     until the emulated stage stands before the next exposure); at each exposure it
     records where the emulated axes are and whether they move."""
 
     def __init__(self, hub: TangoHub) -> None:
-        super().__init__()
-        self.hub = hub
-        self.seen: list[dict[str, tuple[float, bool]]] = []
+        super().__init__(hub)
         self._sequence = False
-        self._exposure = 1.0
-
-    def dtype(self) -> Any:
-        return np.uint16
-
-    def sensor_shape(self) -> tuple[int, int]:
-        return (4, 4)
 
     def snap(self, buffer: np.ndarray[Any, Any]) -> Mapping[str, Any]:
         if self._sequence:
             standing(self.hub)
-        self.seen.append(emulated(self.hub))
-        buffer[:] = len(self.seen)
+        meta = super().snap(buffer)
         if self._sequence:
             trigger(self.hub)
-        return {}
+        return meta
 
     def start_sequence(self, n: int | None, get_buffer: Any) -> Iterator[Mapping[str, Any]]:
         self._sequence = True
@@ -277,12 +267,6 @@ class TriggeringCamera(SimpleCameraDevice):
             yield from super().start_sequence(n, get_buffer)
         finally:
             self._sequence = False
-
-    def get_exposure(self) -> float:
-        return self._exposure
-
-    def set_exposure(self, exposure: float) -> None:
-        self._exposure = exposure
 
 
 def _mda(core: UniMMCore, z_plan: Any) -> tuple[TangoHub, TriggeringCamera,
