@@ -160,8 +160,11 @@ def test_a_step_into_a_limit_switch_is_reported_at_the_stop(core: UniMMCore) -> 
 
 # ------------------------------------------------------------------ XY, and XY with Z ------
 
-def test_the_xy_stage_steps_and_shares_the_array_with_z(core: UniMMCore) -> None:
-    hub = loaded(core, shutter=False)
+@pytest.mark.parametrize("variant", ["", "snapshot_pointer=advance"],
+                         ids=["manual", "advance"])
+def test_the_xy_stage_steps_and_shares_the_array_with_z(core: UniMMCore,
+                                                        variant: str) -> None:
+    hub = loaded(core, variant, shutter=False)
     for label in ("TangoXY", "TangoZ"):
         core.setProperty(label, "Camera trigger sequence", "On")
     assert core.isXYStageSequenceable("TangoXY")
