@@ -173,6 +173,24 @@ class Faults:
         return {axis: model.motion.observe(index, now)
                 for index, axis in enumerate("xyza"[: model.axes])}
 
+    def pulse_snapshot_input(self, index: int = 3) -> None:
+        """One pulse on the emulated AUX input ``index`` (3, the SnapShot pin, by
+        default), now: to its active level and back, as a camera's trigger output drives
+        it (a snapshot event if the input has the snapshot function: manual chapter 23).
+
+        Parameters
+        ----------
+        index
+            The AUX input, from 0.
+        """
+        def action(wire: Wire) -> None:
+            model = wire.handler
+            assert isinstance(model, ControllerModel)
+            model.pulse_snapshot_input(index, wire.clock() if wire.clock is not None
+                                       else wire.now)
+            wire.handler_changed()
+        self._do(action)
+
     def _do(self, action: Callable[[Wire], None]) -> None:
         wire = self.wire
         if self._run is None:

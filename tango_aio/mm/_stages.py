@@ -14,11 +14,14 @@ from pymmcore_plus.experimental.unicore import (
 )
 
 import tango_aio.sync
+from tango_aio.errors import NotSupportedByFirmwareError
 from tango_aio.units import Measure, to_controller
 
 from ._hub import UNIT, TangoHub, hub_of
 from ._moves import Moves
 from ._sequence import MAX_LENGTH, run_sequence, run_through
+from ._stepseq import MAX_LENGTH as STEPS_MAX_LENGTH
+from ._stepseq import CameraSteps
 
 AXES = "xyza"
 
@@ -50,6 +53,8 @@ class _Axes(_Base):
         self._hub = hub
         self._axes = axes
         self._moves = Moves()
+        self._camera = False
+        self._steps: CameraSteps | None = None
 
     # -- wiring ---------------------------------------------------------------------------
 
@@ -186,6 +191,44 @@ class _Axes(_Base):
         """Stop following the moves (the hub closes the link)."""
         self._moves.stopping()
 
+    # -- camera-triggered sequences: the snapshot array -----------------------------------
+
+    @pymm_property(name="Camera trigger sequence", allowed_values=("Off", "On"))
+    def camera_sequence(self) -> str:
+        """Whether the stage offers the core sequences it steps through on each trigger
+        from the camera (the camera's trigger output wired to the TANGO's snapshot input;
+        manual chapter 23)."""
+        return "On" if self._camera else "Off"
+
+    @camera_sequence.setter  # type: ignore[no-redef]
+    def camera_sequence(self, value: str) -> None:
+        if value == "On" and getattr(self, "_sequencing", False):
+            raise ValueError("switch 'Trigger sequence' off first: one kind of sequence "
+                             "at a time")
+        if value == "On" and self.controller.identity.family == "older":
+            # The older edition steps on the key F2 only, without snsi or snse (old
+            # L3113-3118, L3191-3227).
+            raise NotSupportedByFirmwareError("snsi")
+        self._camera = value == "On"
+
+    @pymm_property(name="Sequence stopped at", is_read_only=True)
+    def sequence_stopped_at(self) -> str:
+        """Where the last camera-triggered sequence left the stage: its entry and the
+        positions read ("" before the first stop)."""
+        stopped = self._steps.stopped if self._steps is not None else None
+        return "" if stopped is None else str(stopped)
+
+    def _camera_steps(self) -> CameraSteps:
+        if self._steps is None:
+            self._steps = CameraSteps(self.hub, self._axes, self._moves)
+        return self._steps
+
+    def _camera_on(self) -> None:
+        if not self._camera:
+            raise RuntimeError("set the stage's 'Camera trigger sequence' property to 'On' "
+                               "first (with the camera's trigger output on the TANGO's "
+                               "snapshot input)")
+
 
 def _by_axis(values: Mapping[str, Any]) -> dict[str, Any]:
     """Per-axis values as keyword arguments of the driver's calls."""
@@ -268,6 +311,48 @@ class TangoXYStage(_Axes, XYStageDevice):
         ax, ay = self._axes
         self._call_position({ax: x, ay: y})
 
+    def get_sequence_max_length(self) -> int:
+        """The longest sequence: the snapshot array's 1024 entries (L14550); 0 while
+        ``Camera trigger sequence`` is off.
+
+        Returns
+        -------
+        int
+            The length.
+        """
+        return STEPS_MAX_LENGTH if self._camera else 0
+
+    def send_sequence(self, sequence: tuple[tuple[float, float], ...]) -> None:
+        """Make ``sequence`` ((x, y) µm each) the stage's columns of the snapshot array
+        (``!snsa``, in each axis's dim unit); checked before any byte.
+
+        Parameters
+        ----------
+        sequence
+            1..1024 positions.
+
+        Raises
+        ------
+        ValueError
+            A sequence the array cannot hold (nothing written).
+        """
+        self._camera_on()
+        pairs = [tuple(pair) for pair in sequence]
+        if any(len(pair) != 2 for pair in pairs):
+            raise ValueError(f"an XY sequence holds (x, y) pairs, got {sequence!r}")
+        self._camera_steps().load([[p[0] for p in pairs], [p[1] for p in pairs]])
+
+    def start_sequence(self) -> None:
+        """Move to the first position, then step to the next one on each trigger from
+        the camera; :meth:`busy` until armed (see :class:`TangoZStage`)."""
+        self._camera_on()
+        self._camera_steps().start()
+
+    def stop_sequence(self) -> None:
+        """Stop stepping (see :class:`TangoZStage`): the stage stands, where it stands is
+        ``Sequence stopped at``; a step that ended short raises its MoveError."""
+        self._camera_steps().stop()
+
 
 class TangoZStage(_Axes, StageDevice):
     """One axis of a TANGO (Z by default, or any) as a Micro-Manager stage, in µm; busy
@@ -282,6 +367,15 @@ class TangoZStage(_Axes, StageDevice):
     the focus stage says it can) would otherwise take free-running frames while the
     stage moves. The output's wiring (``trigo``, ``trigs``, ``trigl``) is the user's,
     set once with ``tango.triggers.write_config``.
+
+    Sequenceable in Micro-Manager's convention too, through the snapshot array (manual
+    chapter 23) while the ``Camera trigger sequence`` property is ``On``: the camera's
+    trigger output drives the TANGO's snapshot input, ``startStageSequence`` moves the
+    stage to the first position and arms step mode 5, and each trigger moves it to the
+    next position (frame k is taken at position k when the camera triggers after each
+    exposure and its frame interval outlasts a step). ``stopStageSequence`` switches the
+    snapshot input off, lets a step under way end, and says where the stage stands
+    (``Sequence stopped at``); a step that ended short raises its ``MoveError`` there.
 
     Parameters
     ----------
@@ -351,6 +445,9 @@ class TangoZStage(_Axes, StageDevice):
 
     @trigger_sequence.setter  # type: ignore[no-redef]
     def trigger_sequence(self, value: str) -> None:
+        if value == "On" and self._camera:
+            raise ValueError("switch 'Camera trigger sequence' off first: one kind of "
+                             "sequence at a time")
         self._sequencing = value == "On"
 
     def get_sequence_max_length(self) -> int:
@@ -362,6 +459,8 @@ class TangoZStage(_Axes, StageDevice):
         int
             The length.
         """
+        if self._camera:
+            return STEPS_MAX_LENGTH
         return MAX_LENGTH if self._sequencing else 0
 
     def is_linear_sequenceable(self) -> bool:
@@ -373,7 +472,7 @@ class TangoZStage(_Axes, StageDevice):
         bool
             Whether the core may load one.
         """
-        return self._sequencing
+        return self._sequencing or self._camera
 
     def _in_dim(self, values: list[float]) -> list[float]:
         """``values`` µm in the axis's dim unit (the list's unit, L13773-13780)."""
@@ -394,6 +493,9 @@ class TangoZStage(_Axes, StageDevice):
         ValueError
             A sequence the list cannot hold (nothing written).
         """
+        if self._camera:
+            self._camera_steps().load([sequence])
+            return
         self._sequence_on()
         positions = [float(value) for value in sequence]
         run = run_through(positions)
@@ -419,12 +521,16 @@ class TangoZStage(_Axes, StageDevice):
         ValueError
             Fewer than two slices or no step (nothing written).
         """
-        self._sequence_on()
+        if not self._camera:
+            self._sequence_on()
         if isinstance(nSlices, bool) or not isinstance(nSlices, int) or nSlices < 2:
             raise ValueError(f"a linear sequence has at least two slices, got {nSlices!r}")
         if not math.isfinite(float(dZ_um)) or float(dZ_um) == 0.0:
             raise ValueError(f"a linear sequence needs a finite, non-zero step, got {dZ_um!r}")
         here = self.get_position_um()
+        if self._camera:
+            self._camera_steps().load([[here + k * float(dZ_um) for k in range(nSlices)]])
+            return
         run = run_through([here + k * float(dZ_um) for k in range(nSlices)])
         self._run = None
         start, end = self._in_dim([here, here + (nSlices - 1) * float(dZ_um)])
@@ -447,6 +553,9 @@ class TangoZStage(_Axes, StageDevice):
         RuntimeError
             No sequence loaded.
         """
+        if self._camera:
+            self._camera_steps().start()
+            return
         if self._run is None:
             raise RuntimeError("no sequence loaded: loadStageSequence or "
                                "setStageLinearSequence first")
@@ -454,7 +563,10 @@ class TangoZStage(_Axes, StageDevice):
 
     def stop_sequence(self) -> None:
         """Stop a run still going (its axis stops, as :meth:`stop`), then switch the
-        trigger output off (``!trig 0``)."""
+        trigger output off (``!trig 0``); a camera-triggered one as described above."""
+        if self._camera:
+            self._camera_steps().stop()
+            return
         running = self._moves.stopping()
         for move in running:
             move.cancel()

@@ -56,7 +56,8 @@ class Devices:
     deflection: dict[int, float] = field(default_factory=dict)
 
     def set_input(self, group: str, index: int, level: bool) -> None:
-        """Set input ``index`` (from 0) of ``group`` (``digin``, ``edigin``, ``adigin``)."""
+        """Set input ``index`` (from 0) of ``group`` (``digin``, ``edigin``, ``adigin``):
+        the level only; ``ControllerModel.set_input`` also acts on a snapshot input's edge."""
         self.inputs[group][index] = int(level)
 
     def pulses_of(self, output: str) -> list[Pulse]:

@@ -16,6 +16,7 @@ from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
 from .params import format_value
 from .peripherals import Peripherals
 from .port import ModelPort
+from .snapshot import key_event
 
 __all__ = ["Handlers", "build_handlers"]
 
@@ -466,9 +467,10 @@ class Handlers(Peripherals):
 
     # -- snapshot array -------------------------------------------------------------------
 
-    def _row_text(self, row: tuple[float, ...], indices: list[int]) -> str:
+    def _row_text(self, row: tuple[float | None, ...], indices: list[int]) -> str:
         def one(axis: int) -> str:
-            value = row[axis] if axis < len(row) else 0.0
+            value = row[axis] if axis < len(row) else None
+            value = 0.0 if value is None else value  # choice: an invalid entry reads 0
             return self.position_text(axis, self.m.motion.from_user(axis, value))
 
         return self.axes_text(indices, one)
@@ -482,8 +484,12 @@ class Handlers(Peripherals):
             snapshots.clear()
             return None
         values = self.m.axis_map(c, skip_lead=1)
-        row = tuple(values.get(axis, 0.0) for axis in range(self.m.axes))
-        snapshots.write(index, row)
+        if c.axis is not None:
+            (axis, value), = values.items()
+            snapshots.write_axis(index, axis, value, self.m.axes)
+            return None
+        # The axes not given hold no position: a step leaves them (L15389-15390).
+        snapshots.write(index, tuple(values.get(axis) for axis in range(self.m.axes)))
         return None
 
     def i_snsc(self, c: Command) -> Reply:
@@ -509,15 +515,20 @@ class Handlers(Peripherals):
 
     def i_snse(self, c: Command) -> Reply:
         """Emulate key F1..F4 (L15392): the key is latched (``keyl``) and, with snapshots
-        enabled (``sns 1``), the current position is captured. Choice: every key captures;
-        the key-specific snsm functions are not modelled."""
-        self.m.session.keys_latched[int(c.values[0]) - 1] = 1
-        if int(self.m.params.first("sns")) != 1:
-            return None
-        motion = self.m.motion
-        row = tuple(motion.to_user(i, motion.position(i)) for i in range(self.m.axes))
-        self.m.snapshots.capture(row)
+        enabled (``sns 1``), does what the mode does with it (:mod:`.snapshot`)."""
+        key_event(self.m, int(c.values[0]))
         return None
+
+    def _snapshot_setting(self, c: Command) -> Reply:
+        """``!sns`` and ``!snsm`` also clear the latched keys (L14650-14652,
+        L14841-14843)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        self.m.store(c)
+        self.m.session.keys_latched[:] = [0] * len(self.m.session.keys_latched)
+        return None
+
+    i_sns = i_snsm = _snapshot_setting
 
     def i_snsv(self, c: Command) -> Reply:
         voltages = self.m.snapshots.voltages

@@ -155,13 +155,19 @@ class TriggerList:
         self.pointer = index
 
 
+#: One snapshot entry: a position per axis, ``None`` where the entry holds none (the
+#: manual's "invalid", L14586-14632): a step leaves that axis where it stands
+#: (``!snsa -1 8.5 50.2``: "only X and Y axes will be used for positioning", L15389-15390).
+Row = tuple[float | None, ...]
+
+
 @dataclass
 class SnapshotList:
     """The snapshot position array (``snsa``, ``snsc``, ``snsi``, ``snsp``)."""
 
-    entries: list[tuple[float, ...]] = field(default_factory=list)
+    entries: list[Row] = field(default_factory=list)
     pointer: int = 0
-    last: tuple[float, ...] = ()
+    last: Row = ()
     voltages: dict[int, int] = field(default_factory=dict)
 
     def count(self) -> int:
@@ -173,17 +179,40 @@ class SnapshotList:
         self.entries.clear()
         self.pointer = 0
 
-    def write(self, index: int, row: tuple[float, ...]) -> None:
+    def write(self, index: int, row: Row) -> None:
         """``!snsa index pos...``: -1 or count+1 appends, 1..count overwrites."""
         _put(self.entries, _write_slot(self.entries, index, MAX_SNAPSHOTS, "array"), row)
 
-    def capture(self, row: tuple[float, ...]) -> None:
+    def write_axis(self, index: int, axis: int, value: float, axes: int) -> None:
+        """``!snsa x index pos``: one axis of an entry (``!snsa x 1 20.5``, L15384);
+        appending makes an entry that holds this axis only."""
+        slot = _write_slot(self.entries, index, MAX_SNAPSHOTS, "array")
+        old = self.entries[slot - 1] if slot <= len(self.entries) else ()
+        row = tuple(value if i == axis else (old[i] if i < len(old) else None)
+                    for i in range(axes))
+        _put(self.entries, slot, row)
+
+    def step(self, *, advance_first: bool) -> Row | None:
+        """A step of modes 1 and 5: the entry to move to, the pointer moved on, wrapping
+        at the end (L14520-14526); ``advance_first``: the pointer moves on first (switch
+        ``snapshot_pointer``). ``None``: the array is empty, nothing to move to."""
+        if not self.entries:
+            return None
+        count = len(self.entries)
+        if advance_first:
+            self.pointer = (self.pointer + 1) % count
+            return self.entries[self.pointer]
+        row = self.entries[self.pointer % count]
+        self.pointer = (self.pointer + 1) % count
+        return row
+
+    def capture(self, row: Row) -> None:
         """A snapshot event: append the current position (captures always append)."""
         self.last = row
         if len(self.entries) < MAX_SNAPSHOTS:
             self.entries.append(row)
 
-    def read(self, index: int) -> tuple[float, ...]:
+    def read(self, index: int) -> Row:
         """``?snsa n`` (1-based) or ``?snsa -1`` (last)."""
         return _read(self.entries, index, "snapshot array")
 

@@ -68,6 +68,7 @@ from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished, Trig
 from .params import ParamStore
 from .profiles import Firmware
 from .replies import ReplyStyle
+from .snapshot import active_level, input_changed
 from .store import (
     ModelStore,
     Refused,
@@ -310,7 +311,10 @@ class ControllerModel(ModelStore, ReplyStyle):
             if isinstance(event, MoveFinished):
                 if event.kind == "cal":
                     self._record_cal_zero(event.letters)
-                self._report_completion(event.letters, event.job_id)
+                stepped = event.job_id in self.session.snapshot_jobs
+                self.session.snapshot_jobs.discard(event.job_id)
+                if not stepped or self.firmware.snapshot_step_report == "yes":
+                    self._report_completion(event.letters, event.job_id)
                 self._arrival_pulse(event.time)
             elif isinstance(event, TriggerFired):
                 self.trigger_pulses(event.time, 1,
@@ -346,6 +350,56 @@ class ControllerModel(ModelStore, ReplyStyle):
         else:
             self.devices.deflection[index] = fraction
         self.follow_joystick()
+
+    def set_input(self, group: str, index: int, level: bool,
+                  now: float | None = None) -> None:
+        """Drive input ``index`` (from 0) of ``group`` (``digin``, ``edigin``,
+        ``adigin``) to ``level``. A change of an AUX input with the snapshot function
+        (``adiginfunc`` 2, input 3 by default, L9203-9218) to its active level is a
+        snapshot event (:mod:`tango_aio.sim.snapshot`).
+
+        Parameters
+        ----------
+        group
+            The input group.
+        index
+            The input, from 0.
+        level
+            The new level.
+        now
+            The time (default: the host clock).
+
+        Raises
+        ------
+        ValueError
+            No such input.
+        """
+        levels = self.devices.inputs.get(group)
+        if levels is None or not 0 <= index < len(levels):
+            raise ValueError(f"no input {group} {index}")
+        now = host_now() if now is None else now
+        self.poll(now)
+        before = levels[index]
+        self.devices.set_input(group, index, level)
+        if group == "adigin" and before != int(level):
+            input_changed(self, index, bool(level), now)
+
+    def pulse_snapshot_input(self, index: int = 3, now: float | None = None) -> None:
+        """One pulse on AUX input ``index`` (3, the SnapShot pin, by default): to its
+        active level (``snsl``) and back, as a camera's trigger output drives it; from
+        the active level, it first goes inactive.
+
+        Parameters
+        ----------
+        index
+            The AUX input, from 0.
+        now
+            The time (default: the host clock).
+        """
+        now = host_now() if now is None else now
+        active = active_level(self)
+        for level in (not active, active, not active):
+            self.set_input("adigin", index, level, now)
 
     def follow_joystick(self) -> None:
         """Drive the deflected axes as the HDI settings allow (nothing while it is off)."""

@@ -67,6 +67,10 @@ class SessionView(Protocol):
     clim: tuple[float, float, float]
     #: Whether the circular limit is active.
     clim_active: bool
+    #: Job ids of the moves snapshot steps started.
+    snapshot_jobs: set[int]
+    #: A change of the snapshot input before this time is not detected (``snsf``).
+    snapshot_quiet_until: float
 
 
 class ModelPort(Protocol):

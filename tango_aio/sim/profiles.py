@@ -121,6 +121,21 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "error 2 (`refuse`)."),
     SwitchDoc("zero_move_report", ("yes", "no"), "L2087-2089",
               "A move to where the axes already are sends a report (`yes`) or nothing."),
+    # -- snapshot steps (snsm 1 and 5) ----------------------------------------------------------
+    SwitchDoc("snapshot_pointer", ("next", "advance"), "L14520-14526, L15171-15190",
+              "A snapshot step (`snsm 1` on F2 or `snse 2`, `snsm 5` on the snapshot "
+              "input) moves to the entry `snsi` points at and then moves the pointer on "
+              "(`next`: `snsi` is \"the array index where move target positions are read "
+              "from\", L15182-15185), or first moves the pointer on and then moves to the "
+              "entry it points at (`advance`); either wraps at the end of the array."),
+    SwitchDoc("snapshot_step_report", ("no", "yes"), "L2087-2089, L14520-14526",
+              "A snapshot step sends no completion report (`no`: autostatus reports follow "
+              "\"an automatic move (!moa,!mor,m,!moc,!mol)\", L2087, and no line started "
+              "it), or reports like a `moa` (`yes`)."),
+    SwitchDoc("snapshot_while_moving", ("move", "ignore"), "L14520-14526, L6606",
+              "A snapshot step while an axis still moves is a move like a `moa` "
+              "line then (`move`: the switch `move_during_move` decides; refused, the "
+              "axes show `E`), or the event is ignored and the pointer stays (`ignore`)."),
     # -- reports and status ------------------------------------------------------------------
     SwitchDoc("report_width", ("four", "axes"), "L2089, L2141, L5404",
               "Completion reports carry letters for X Y Z A always, absent axes `-` "
@@ -229,6 +244,13 @@ class Firmware:
     disable_during_move: str = "continue"
     #: A move to where the axes are sends a report (``yes``/``no``).
     zero_move_report: str = "yes"
+    #: A snapshot step reads the entry at the pointer first (``next``) or moves the
+    #: pointer first (``advance``).
+    snapshot_pointer: str = "next"
+    #: A snapshot step sends a completion report (``no``/``yes``).
+    snapshot_step_report: str = "no"
+    #: A snapshot event while an axis moves: ``move`` or ``ignore``.
+    snapshot_while_moving: str = "move"
     #: Report letters for ``four`` axes always or as many as the unit has (``axes``).
     report_width: str = "four"
     #: ``?statusaxis`` ends with ``.-`` (``yes``), nothing (``no``) or ``.`` (``dot``).

@@ -85,6 +85,10 @@ class _Session:
     #: ``a``/Ctrl+C owe a report of their own once the axes stand (``abort_report``,
     #: ``ctrl_c=stop_report``).
     stop_report_owed: bool = False
+    #: Job ids of the moves snapshot steps started (switch ``snapshot_step_report``).
+    snapshot_jobs: set[int] = field(default_factory=set)
+    #: A change of the snapshot input before this time is not detected (``snsf``).
+    snapshot_quiet_until: float = float("-inf")
 
 
 def _bits_read(command: Command) -> bool:

@@ -461,6 +461,12 @@ class Wire:
         """
         return b"".join(self.poll_chunks(now))
 
+    def handler_changed(self) -> None:
+        """The handler's state changed outside a line (a test drove an input): read its
+        next deadline again and wake whoever serves the wire."""
+        self._handler_deadline = self.handler.next_deadline()
+        self._notify()
+
     def next_deadline(self) -> float | None:
         """When :meth:`poll` should next be called, or None if only new input can matter.
 

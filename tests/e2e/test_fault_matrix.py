@@ -403,7 +403,8 @@ async def op_upload(rig: Rig, second: bool, what: str) -> None:
     else:
         rows = [[base + i, -float(i), 0.25] for i in range(1, 9)]
         result = await outcome(tango.snapshots.upload_positions(rows))
-        held = [list(row) for row in rig.model.snapshots.entries]
+        held = [[math.nan if value is None else value for value in row]  # None: no value
+                for row in rig.model.snapshots.entries]
     same = len(held) == len(rows) and all(
         len(h) == len(r) and all(math.isclose(a, b) for a, b in zip(h, r, strict=True))
         for h, r in zip(held, rows, strict=True))
