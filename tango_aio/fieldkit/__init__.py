@@ -13,6 +13,7 @@ from ._decide import (
     MOVE_SWITCHES,
     SAVE_SWITCHES,
     SWITCH_NAMES,
+    TRIGGER_SWITCHES,
     Exchange,
     Observation,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "MOVE_SWITCHES",
     "SAVE_SWITCHES",
     "SWITCH_NAMES",
+    "TRIGGER_SWITCHES",
     "Exchange",
     "Observation",
     "ProbeError",

@@ -32,6 +32,7 @@ from ._decide import (
     MOVE_SWITCHES,
     SAVE_SWITCHES,
     SWITCH_NAMES,
+    TRIGGER_SWITCHES,
     Exchange,
     Observation,
     _seen,
@@ -364,6 +365,7 @@ class _Prober:
             if name not in self.obs:
                 reason = ("seen only with --moves" if name in MOVE_SWITCHES else
                           "seen only with --save" if name in SAVE_SWITCHES else
+                          "the trigger output is not probed" if name in TRIGGER_SWITCHES else
                           "not observed")
                 self.obs[name] = Observation(None, reason)
         return ProbeResult({name: self.obs[name] for name in SWITCH_NAMES}, self.identity,
