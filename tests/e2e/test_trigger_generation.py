@@ -152,3 +152,35 @@ async def test_the_secondary_settings_round_trip(emulator: EmulatorFactory,
     params = emu.model.params
     assert (params.first("trigbwidth"), params.first("trigbdelay"),
             params.first("trigbf")) == (65.4, 112.03, 50000005.0)
+
+
+@pytest.mark.parametrize(("rounding", "held"), [("nearest", 2500.0), ("down", 2777.78)])
+async def test_a_frequency_between_ticks_is_proven_on_either_firmware(
+        emulator: EmulatorFactory, rounding: str, held: float) -> None:
+    emu = await emulator(f"{INSTANT}&trigf_round={rounding}")
+    await emu.tango.triggers.write_config(TriggerConfig(mode=TriggerMode.PERIODIC,
+                                                        frequency_hz=2600.0))
+    assert (await emu.tango.triggers.read_config()).frequency_hz == pytest.approx(held)
+
+
+@pytest.mark.parametrize("first", ["enable", "period"])
+async def test_the_first_periodic_pulse_on_either_firmware(
+        emulator: EmulatorFactory, monkeypatch: pytest.MonkeyPatch, first: str) -> None:
+    emu = await emulator(f"{INSTANT}&periodic_first={first}")
+    model, triggers = emu.model, emu.tango.triggers
+    enabled: list[float] = []
+    real = model.handle_line
+
+    def spy(line: bytes, now: float) -> None:
+        if line.strip() == b"!trig 1":
+            enabled.append(now)
+        real(line, now)
+
+    monkeypatch.setattr(model, "handle_line", spy)
+    await triggers.write_config(TriggerConfig(mode=TriggerMode.PERIODIC, frequency_hz=1000.0))
+    await triggers.set_enabled(True)
+    await asyncio.sleep(0.005)
+    await triggers.set_enabled(False)
+    pulses = model.devices.pulses_of(TRIGGER_OUT)
+    assert pulses[0].time == pytest.approx(enabled[0] + (0.0 if first == "enable" else 0.001))
+    assert await triggers.count() == len(pulses)
