@@ -70,7 +70,7 @@ class Devices:
     #: an eighth more between two trims).
     pulses: list[Pulse] = field(default_factory=list)
     #: How many pulses the record keeps; older ones are dropped.
-    limit: int = 100_000
+    limit: int = 50_000
     #: How many pulses were dropped from the record, or never recorded beyond the limit.
     dropped: int = 0
     #: Each axis' encoder drift (index: :class:`Drift`); an axis not listed has none.

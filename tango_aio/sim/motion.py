@@ -474,6 +474,9 @@ class MotionModel(MotionEngine):
         ax = self._axis(axis)
         frame = ax.origin - ax.offset
         self.trigger_source = Source(lead, scale, (1.0 - scale) * frame + offset)
+        if isinstance(self._trigger, Grid):
+            grid = self._trigger
+            grid.place(self.trigger_source.at(self._phys(self._axes[grid.axis])))
 
     def compared_position(self, axis: AxisRef) -> float:
         """Where the compared position of ``axis`` stands now (user frame, revolutions)."""

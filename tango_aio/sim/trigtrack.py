@@ -6,6 +6,7 @@ frame), times in seconds."""
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -85,6 +86,15 @@ class Grid:
     cell: float = 0.0
     #: The first move away from level 0 still fires (the non-shifted modes).
     pending: bool = True
+
+    def place(self, position: float) -> None:
+        """Put the compared position at ``position`` (it jumped: a new encoder drift)."""
+        index = (position - self.origin) / self.step
+        if abs(index - round(index)) <= 1e-9:
+            self.pending = self.pending and round(index) == self.cell
+            self.cell = float(round(index))
+        else:
+            self.cell, self.pending = math.floor(index) + 0.5, False
 
     def level(self, index: float) -> float:
         """The position of level ``index``."""

@@ -309,3 +309,12 @@ def test_the_record_keeps_the_latest_pulses_of_a_fast_output() -> None:
     assert len(devices.pulses) <= 1000 * 9 // 8
     assert len(devices.pulses) + devices.dropped == int((sim.now - enabled) * 66e6) + 1
     assert devices.pulses[-1].time == pytest.approx(sim.now, abs=1 / 66e6)
+
+
+def test_a_bidirectional_grid_follows_a_drift_set_while_armed() -> None:
+    sim = Model()
+    fitted(sim)
+    sim.send("!trigd 1", "!trigenc 1", "!trigm 1", "!trig 1", "?trig")
+    sim.model.set_encoder_drift("x", offset=0.3)  # the encoder now reads 0.3 mm ahead
+    sim.travel(2.0, 0.0)
+    assert positions(sim.out1()) == pytest.approx([0.7, 1.7, 1.7, 0.7])
