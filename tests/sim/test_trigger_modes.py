@@ -13,31 +13,22 @@ from tango_aio.sim.devices import TAKT_OUT, TRIGGER_OUT, Pulse
 from tango_aio.sim.model import ControllerModel
 from tango_aio.sim.profiles import Firmware
 
+from .test_devices import Model as DeviceModel
+
 #: The default axis: 1 mm per revolution, ``vel`` 10 (10 mm/s), ramps 1 m/s².
 SPEED = 10.0
 
 
-class Model:
-    """A default 3-axis emulated controller driven in virtual time, 1 ms per line."""
+class Model(DeviceModel):
+    """A default 3-axis emulated controller driven in virtual time, under ``switches``."""
 
     def __init__(self, **switches: str) -> None:
-        self.out: list[bytes] = []
-        self.now = 0.0
+        super().__init__()
         config = SimConfig(firmware=Firmware.from_options("manual", **switches))
         self.model = ControllerModel(self.out.append, config, now=0.0)
 
     def send(self, *lines: str) -> str:
-        for line in lines:
-            self.now += 0.001
-            self.model.handle_line(line.encode(), self.now)
-        self.model.poll(self.now)
-        text = b"".join(self.out).decode()
-        self.out.clear()
-        return text.strip("\r")
-
-    def wait(self, seconds: float) -> None:
-        self.now += seconds
-        self.model.poll(self.now)
+        return "".join(super(Model, self).send(line) for line in lines)
 
     def out1(self) -> list[Pulse]:
         return self.model.devices.pulses_of(TRIGGER_OUT)
