@@ -79,9 +79,10 @@ NO_READ_BACK: Final[dict[str, str]] = {
 
 #: Values the controller rounds to a documented step, by instruction (``!trigs 90``
 #: holds 80, ``!trigs 100`` holds 120, read back corrected: L12965-12967). The step of
-#: the secondary output's delay and width too (L12976-12981). A value equal to the one
-#: written is accepted as well (a firmware that keeps it as written).
-STEPS: Final[dict[str, int]] = {"trigs": 40}
+#: the secondary output's delay and width too (L12976-12981), and ``trigcomp``'s
+#: "smallest step is 10µs" (L13060). A value equal to the one written is accepted as
+#: well (a firmware that keeps it as written).
+STEPS: Final[dict[str, int]] = {"trigs": 40, "trigcomp": 10}
 
 #: Frequencies the controller runs at a whole number of ticks of its clock and reads back
 #: so: the tick in seconds, by instruction (``trigf``: 40 µs, ``!trigf 2600`` reads the

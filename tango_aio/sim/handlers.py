@@ -13,7 +13,7 @@ from ..catalog import Command
 from ..errors import ERROR_DESCRIPTIONS
 from .lists import MAX_TRIGGERS, ListError
 from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
-from .outputs import true_frequency
+from .outputs import compensation_step, true_frequency
 from .params import format_value
 from .peripherals import Peripherals
 from .port import ModelPort
@@ -466,6 +466,17 @@ class Handlers(Peripherals):
             # "The 2nd and 3rd parameter cannot be read back by ?trigs" (L13001-13003).
             return [self.m.params.read(c, self.m.axes).split()[0]]
         self.m.params.put_global("trigs", tuple((int(v) + 20) // 40 * 40 for v in c.values))
+        return None
+
+    def i_trigcomp(self, c: Command) -> Reply:
+        """Kept as written, or on its 10 µs step (switch ``trigcomp_read``, L13057-13167);
+        the trigger works with the step either way (``compensation_step``)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        value = int(c.values[0])
+        if self.m.firmware.trigcomp_read == "step":
+            value = compensation_step(value)
+        self.m.params.put_global("trigcomp", (value,))
         return None
 
     def i_trigf(self, c: Command) -> Reply:

@@ -3,7 +3,8 @@ outputs one trigger event drives and for how long, the clocks of the periodic mo
 the secondary output's own frequency, and the frequency ``?trigf`` reads back.
 
 Choices where the manual is silent are switches of :mod:`tango_aio.sim.profiles`
-(``trigf_round``, ``periodic_first``); the others are named with their lines below.
+(``trigf_round``, ``periodic_first``, ``trigcomp_read``); the others are named with their
+lines below.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from dataclasses import dataclass
 
 from .devices import TAKT_OUT, TRIGGER_OUT, Pulse
 
-__all__ = ["TICK", "Clock", "OutputSettings", "event_pulses", "precise", "true_frequency"]
+__all__ = ["TICK", "Clock", "OutputSettings", "compensation_step", "event_pulses", "precise",
+           "true_frequency"]
 
 #: The trigger signals are processed in a 40 µs interval (L12525), the resolution of
 #: ``trigs`` (L12959-12967) and of ``trigf``'s period (L13234, L13240-13250).
@@ -28,6 +30,11 @@ def precise(microseconds: float) -> float:
     """A precise delay or width (``trigbdelay``, ``trigbwidth``) in seconds, on its
     1/132 µs step."""
     return round(microseconds * 132) * PRECISE_STEP
+
+
+def compensation_step(microseconds: int) -> int:
+    """``trigcomp`` on its "smallest step is 10µs" (L13060): the nearest, halves up."""
+    return math.floor(microseconds / 10 + 0.5) * 10
 
 
 def true_frequency(hz: float, rounding: str) -> float:

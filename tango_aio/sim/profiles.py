@@ -189,6 +189,10 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("periodic_first", ("enable", "period"), "L12565-12594, L12754-12770",
               "In the periodic modes 100 and 101 the first pulse comes as the trigger is "
               "enabled (`enable`) or one period later (`period`)."),
+    SwitchDoc("trigcomp_read", ("written", "step"), "L13057-13167",
+              "`trigcomp` works in steps of 10 µs (L13060); `?trigcomp` reads the value as "
+              "written (`written`), or the step it works with, the nearest, halves up "
+              "(`step`: `!trigcomp 15` reads 20)."),
     # -- the link ------------------------------------------------------------------------
     SwitchDoc("local_echo", ("no", "yes"), "L8-10, L2117",
               "The link returns only the controller's replies (`no`), or, like a serial "
@@ -274,6 +278,8 @@ class Firmware:
     trigf_round: str = "nearest"
     #: The periodic modes' first pulse: at ``!trig 1`` (``enable``) or a ``period`` later.
     periodic_first: str = "enable"
+    #: ``?trigcomp``: the value as ``written`` or on its 10 µs ``step``.
+    trigcomp_read: str = "written"
     #: The link echoes every byte sent (``no``/``yes``: an adapter with local echo).
     local_echo: str = "no"
 

@@ -19,7 +19,7 @@ from .config import SimConfig
 from .devices import TAKT_OUT, Devices, Drift, Pulse
 from .lists import MAX_TRIGGERS, TriggerList
 from .motion import MotionModel, MotionRefused
-from .outputs import Clock, OutputSettings, event_pulses, precise
+from .outputs import Clock, OutputSettings, compensation_step, event_pulses, precise
 from .params import ParamStore
 from .profiles import Firmware
 from .state import StateFileError, load_state, save_state
@@ -66,8 +66,6 @@ _DISTANCE_MODES = {0: (1, 0.0), 3: (1, 0.0), 2: (-1, 0.0), 5: (-1, 0.0),
 _BIDIRECTIONAL = {1: False, 4: False, 7: True, 10: True}
 #: The periodic modes, "Does not depend on position" (L12754-12784).
 _PERIODIC = (100, 101)
-#: ``trigcomp``'s "smallest step is 10µs" (L13060), in µs.
-_COMP_STEP = 10
 
 
 @dataclass
@@ -408,8 +406,7 @@ class ModelStore:
         (L13168-13210)."""
         axis = self._distance_axis() if int(self.params.first("trigm")) not in (20, 21) \
             else self.trigger_axis()
-        compensation = int(self.params.first("trigcomp"))
-        lead = round(compensation / _COMP_STEP) * _COMP_STEP / 1e6
+        lead = compensation_step(int(self.params.first("trigcomp"))) / 1e6
         drift = Drift()
         if int(self.params.first("trigenc")) == 1 and self.encoder_active(axis):
             drift = self.devices.drift.get(axis, Drift())

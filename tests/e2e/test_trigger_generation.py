@@ -184,3 +184,12 @@ async def test_the_first_periodic_pulse_on_either_firmware(
     pulses = model.devices.pulses_of(TRIGGER_OUT)
     assert pulses[0].time == pytest.approx(enabled[0] + (0.0 if first == "enable" else 0.001))
     assert await triggers.count() == len(pulses)
+
+
+@pytest.mark.parametrize("reading", ["written", "step"])
+async def test_a_compensation_between_steps_is_proven_on_either_firmware(
+        emulator: EmulatorFactory, reading: str) -> None:
+    emu = await emulator(f"{INSTANT}&trigcomp_read={reading}")
+    await emu.tango.triggers.write_config(TriggerConfig(compensation_us=15))
+    held = (await emu.tango.triggers.read_config()).compensation_us
+    assert held == (15 if reading == "written" else 20)

@@ -309,3 +309,18 @@ def test_a_bidirectional_grid_follows_a_drift_set_while_armed() -> None:
     sim.model.set_encoder_drift("x", offset=0.3)  # the encoder now reads 0.3 mm ahead
     sim.travel(2.0, 0.0)
     assert positions(sim.out1()) == pytest.approx([0.7, 1.7, 1.7, 0.7])
+
+
+@pytest.mark.parametrize(("reading", "shown"), [("written", ["15", "-15"]),
+                                                ("step", ["20", "-10"])])
+def test_trigcomp_reads_as_written_or_on_its_step_and_works_on_its_step(
+        reading: str, shown: list[str]) -> None:
+    """"smallest step is 10µs" (L13060): what ``?trigcomp`` shows the manual does not say
+    (switch ``trigcomp_read``); the pulse moves by the step either way."""
+    for value, text in zip((15, -15), shown, strict=True):
+        sim = Model(trigcomp_read=reading)
+        sim.send("!trigd 1", f"!trigcomp {value}", "!trigm 0", "!trig 1")
+        assert sim.send("?trigcomp") == text
+        sim.travel(2.5)
+        step = 20 if value > 0 else -10
+        assert sim.out1()[1].position == pytest.approx(1.0 - SPEED * step / 1e6)

@@ -99,6 +99,10 @@ def test_every_instruction_left_out_has_a_reason_and_a_read_form() -> None:
     ("!trigf 2600", ["2600.00"], None),  # a firmware that keeps the value as written
     ("!trigf 2600", ["2272.73"], "2272.73"),  # two ticks off
     ("!trigf 0.01", ["0.01"], None),
+    ("!trigcomp 15", ["20"], None),  # its 10 µs step (L13060)
+    ("!trigcomp -15", ["-10"], None),
+    ("!trigcomp 15", ["15"], None),
+    ("!trigcomp 15", ["10"], "10"),
     ("!delay 10", ["ERROR 4,parameter"], "ERROR 4,parameter"),
 ])
 def test_the_reply_is_compared_at_the_controller_s_precision(
