@@ -24,7 +24,7 @@ SWITCH_NAMES: tuple[str, ...] = (
     "status_tail", "absent_axes", "joystick_letter", "abort_letter", "abort_report",
     "ctrl_c", "help_number", "help_case", "service_end", "lim_cr_bug", "version_format",
     "version_value", "line_end", "numbers", "instruction_set", "trigf_round",
-    "periodic_first", "trigcomp_read", "local_echo")
+    "periodic_first", "bidirectional_next", "trigcomp_read", "local_echo")
 
 #: Switches only moves show (observed with ``--moves``). ``echo`` tells ``after`` from
 #: the others without moves, ``before`` from ``completion`` only with a move; ``numbers``
@@ -37,7 +37,8 @@ MOVE_SWITCHES = frozenset({
 SAVE_SWITCHES = frozenset({"save_ack"})
 
 #: Switches of the trigger output, which the probe does not change: not observed.
-TRIGGER_SWITCHES = frozenset({"trigf_round", "periodic_first", "trigcomp_read"})
+TRIGGER_SWITCHES = frozenset({"trigf_round", "periodic_first", "bidirectional_next",
+                              "trigcomp_read"})
 
 _REPORT = re.compile(r"^[A-Za-z@\-]{1,4}\.$")
 _ACK = re.compile(r"^(ok\.\.\.|err( \d+)?)$", re.IGNORECASE)

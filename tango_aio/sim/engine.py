@@ -908,7 +908,8 @@ class MotionEngine:
         assert isinstance(grid, Grid)
         # Reaching a level fires there; leaving one (the first move) fires where it was.
         level = grid.level(cell if cell == int(cell) else grid.cell)
-        grid.cell = cell
+        if not (grid.neighbours and fires and cell != int(cell)):
+            grid.cell = cell  # (the first move of ``neighbours`` stays on the level it fired)
         if fires:
             grid.pending = False
             self._fired(t, grid.axis, 0, level)

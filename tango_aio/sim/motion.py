@@ -456,15 +456,16 @@ class MotionModel(MotionEngine):
         return tl.index + 1 if isinstance(tl, _TriggerList) else 0
 
     def set_trigger_grid(self, axis: AxisRef, start: float, step: float, *,
-                         shifted: bool) -> None:
+                         shifted: bool, neighbours: bool = False) -> None:
         """Bidirectional distance modes: a level every ``step`` revolutions from ``start``
         (user frame, the compared position where ``!trig 1`` ran), half a step off it when
-        ``shifted``; each fires when the axis reaches it either way
-        (:class:`~tango_aio.sim.trigtrack.Grid`)."""
+        ``shifted``; each fires when the axis reaches it either way, or only next to the
+        last one that fired (``neighbours``; :class:`~tango_aio.sim.trigtrack.Grid`)."""
         ax = self._axis(axis)
         origin = start + ax.origin - ax.offset
-        self._trigger = Grid(ax.index, origin + step / 2, step, cell=-0.5, pending=False) \
-            if shifted else Grid(ax.index, origin, step)
+        self._trigger = Grid(ax.index, origin + step / 2, step, cell=-0.5, pending=False,
+                             neighbours=neighbours) \
+            if shifted else Grid(ax.index, origin, step, neighbours=neighbours)
 
     def set_trigger_source(self, axis: AxisRef, *, lead: float = 0.0, scale: float = 1.0,
                            offset: float = 0.0) -> None:

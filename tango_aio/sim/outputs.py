@@ -3,8 +3,8 @@ outputs one trigger event drives and for how long, the clocks of the periodic mo
 the secondary output's own frequency, and the frequency ``?trigf`` reads back.
 
 Choices where the manual is silent are switches of :mod:`tango_aio.sim.profiles`
-(``trigf_round``, ``periodic_first``, ``trigcomp_read``); the others are named with their
-lines below.
+(``trigf_round``, ``periodic_first``, ``trigcomp_read``; ``bidirectional_next`` in
+:mod:`tango_aio.sim.trigtrack`); the others are named with their lines below.
 """
 
 from __future__ import annotations

@@ -189,6 +189,11 @@ _DOCS: tuple[SwitchDoc, ...] = (
     SwitchDoc("periodic_first", ("enable", "period"), "L12565-12594, L12754-12770",
               "In the periodic modes 100 and 101 the first pulse comes as the trigger is "
               "enabled (`enable`) or one period later (`period`)."),
+    SwitchDoc("bidirectional_next", ("reach", "neighbours"), "L12595-12836",
+              "In the bidirectional distance modes (1, 4, 7, 10) every level the axis "
+              "reaches fires, from either side (`reach`: going back and forth across one "
+              "fires it each time), or only the levels one distance either side of the "
+              "last that fired (`neighbours`)."),
     SwitchDoc("trigcomp_read", ("written", "step"), "L13057-13167",
               "`trigcomp` works in steps of 10 µs (L13060); `?trigcomp` reads the value as "
               "written (`written`), or the step it works with, the nearest, halves up "
@@ -278,6 +283,8 @@ class Firmware:
     trigf_round: str = "nearest"
     #: The periodic modes' first pulse: at ``!trig 1`` (``enable``) or a ``period`` later.
     periodic_first: str = "enable"
+    #: Bidirectional modes: each level reached fires (``reach``), or the ``neighbours``.
+    bidirectional_next: str = "reach"
     #: ``?trigcomp``: the value as ``written`` or on its 10 µs ``step``.
     trigcomp_read: str = "written"
     #: The link echoes every byte sent (``no``/``yes``: an adapter with local echo).

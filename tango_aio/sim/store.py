@@ -312,7 +312,8 @@ class ModelStore:
             self.motion.set_trigger_grid(
                 axis, self.motion.compared_position(axis),
                 self.motion.from_user(axis, float(self.params.first("trigd")))
-                - self.motion.from_user(axis, 0.0), shifted=_BIDIRECTIONAL[mode])
+                - self.motion.from_user(axis, 0.0), shifted=_BIDIRECTIONAL[mode],
+                neighbours=self.firmware.bidirectional_next == "neighbours")
             return
         entries = self.triggers.entries
         enabled = on and mode in (20, 21)

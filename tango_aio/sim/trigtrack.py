@@ -71,12 +71,15 @@ class Grid:
     """The levels ``origin + k * step`` (every integer ``k``) of a bidirectional distance
     mode (1, 4, 7, 10: L12595-12836), and where the compared position is among them.
 
-    A pulse fires each time the position reaches a level, from either side. Where the
-    trigger was enabled (``!trig 1``) is level 0 and "First pulse when move starts"
-    (L12614-12632): the first move away from it, either way, fires there. The shifted
-    modes put the levels half a distance off the start (L12689-12717) and fire nothing
-    at the start. Choice: leaving a level fires nothing, so an axis that stops on a level
-    and turns back fires there once.
+    Where the trigger was enabled (``!trig 1``) is level 0 and "First pulse when move
+    starts" (L12614-12632): the first move away from it, either way, fires there. The
+    shifted modes put the levels half a distance off the start (L12689-12717) and fire
+    nothing at the start. Leaving a level fires nothing, so an axis that stops on a level
+    and turns back fires there once. Which level fires next the manual does not say
+    (switch ``bidirectional_next``): each one the position reaches, from either side
+    (``reach``: an axis that goes back and forth across a level fires each time), or only
+    the neighbours of the last one that fired (``neighbours``: a comparator armed at one
+    distance either way).
     """
 
     axis: int
@@ -86,6 +89,8 @@ class Grid:
     cell: float = 0.0
     #: The first move away from level 0 still fires (the non-shifted modes).
     pending: bool = True
+    #: Only the neighbours of the last level that fired fire next.
+    neighbours: bool = False
 
     def place(self, position: float) -> None:
         """Put the compared position at ``position`` (it jumped: a new encoder drift)."""
@@ -103,6 +108,13 @@ class Grid:
     def candidates(self, traj: Trajectory, t_min: float) -> Iterator[tuple[float, float, bool]]:
         """The next changes of :attr:`cell` on ``traj`` (the compared position): their
         time, the new cell and whether a pulse fires."""
+        if self.cell == int(self.cell) and self.neighbours and not self.pending:
+            for upward, target in ((True, self.cell + 1), (False, self.cell - 1)):
+                t = traj.first_entry(self.level(target), upward=upward, closed=True,
+                                     t_min=t_min)
+                if t is not None:
+                    yield t, target, True
+            return
         if self.cell == int(self.cell):  # on a level: the departures
             here = self.level(self.cell)
             for upward, side in ((True, 0.5), (False, -0.5)):

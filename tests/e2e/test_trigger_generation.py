@@ -44,14 +44,18 @@ async def test_the_periodic_mode_pulses_at_the_frequency_it_reads_back(
     assert await triggers.count() == count  # switched off: no more
 
 
-@pytest.mark.parametrize(("mode", "fired"), [
-    (TriggerMode.BIDIRECTIONAL, [0.0, 0.5, 1.0, 1.5, 2.0, 1.5, 1.0, 0.5]),
-    (TriggerMode.BIDIRECTIONAL_SHIFTED_LOW, [0.25, 0.75, 1.25, 1.75, 1.75, 1.25, 0.75, 0.25]),
+@pytest.mark.parametrize(("mode", "rule", "fired"), [
+    (TriggerMode.BIDIRECTIONAL, "reach", [0.0, 0.5, 1.0, 1.5, 2.0, 1.5, 1.0, 0.5]),
+    (TriggerMode.BIDIRECTIONAL, "neighbours", [0.0, 0.5, 1.0, 1.5, 2.0, 1.5, 1.0, 0.5]),
+    (TriggerMode.BIDIRECTIONAL_SHIFTED_LOW, "reach",
+     [0.25, 0.75, 1.25, 1.75, 1.75, 1.25, 0.75, 0.25]),  # the turn at 2 crosses 1.75 again
+    (TriggerMode.BIDIRECTIONAL_SHIFTED_LOW, "neighbours",
+     [0.25, 0.75, 1.25, 1.75, 1.25, 0.75, 0.25]),
 ])
 async def test_a_bidirectional_scan_pulses_both_ways(emulator: EmulatorFactory,
-                                                     mode: TriggerMode,
+                                                     mode: TriggerMode, rule: str,
                                                      fired: list[float]) -> None:
-    emu = await emulator()
+    emu = await emulator(f"{INSTANT}&bidirectional_next={rule}")
     tango, model = emu.tango, emu.model
     await tango.set("vel", x=20)
     await tango.triggers.write_config(TriggerConfig(mode=mode, distance=0.5, width_us=40))

@@ -324,3 +324,17 @@ def test_trigcomp_reads_as_written_or_on_its_step_and_works_on_its_step(
         sim.travel(2.5)
         step = 20 if value > 0 else -10
         assert sim.out1()[1].position == pytest.approx(1.0 - SPEED * step / 1e6)
+
+
+@pytest.mark.parametrize(("rule", "targets", "fired"), [
+    ("reach", (2.0, 1.5, 2.0, 0.0), [0.0, 1.0, 2.0, 2.0, 1.0, 0.0]),  # 2 again
+    ("neighbours", (2.0, 1.5, 2.0, 0.0), [0.0, 1.0, 2.0, 1.0, 0.0]),  # after 2: 1 or 3
+    ("reach", (3.2, 0.0), [0.0, 1.0, 2.0, 3.0, 3.0, 2.0, 1.0, 0.0]),  # back across 3
+    ("neighbours", (3.2, 0.0), [0.0, 1.0, 2.0, 3.0, 2.0, 1.0, 0.0]),
+])
+def test_which_bidirectional_level_fires_next_on_either_firmware(
+        rule: str, targets: tuple[float, ...], fired: list[float]) -> None:
+    sim = Model(bidirectional_next=rule)
+    sim.send("!trigd 1", "!trigm 1", "!trig 1")
+    sim.travel(*targets)
+    assert positions(sim.out1()) == pytest.approx(fired)
