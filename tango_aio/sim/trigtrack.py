@@ -8,7 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .trajectory import Segment, Trajectory
 
@@ -48,6 +48,9 @@ def view(traj: Trajectory, source: Source) -> Trajectory:
     if source.plain:
         return traj
     segments = [part for segment in traj.segments for part in _mapped(segment, source)]
+    if segments and math.isfinite(segments[-1].t1):
+        # A move ends at rest: exactly where the motor's end is seen (no rounding drift).
+        segments[-1] = replace(segments[-1], x1=source.at(traj.end_pos))
     return Trajectory(traj.start_time, source.at(traj.start_pos), tuple(segments))
 
 

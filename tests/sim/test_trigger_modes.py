@@ -338,3 +338,11 @@ def test_which_bidirectional_level_fires_next_on_either_firmware(
     sim.send("!trigd 1", "!trigm 1", "!trig 1")
     sim.travel(*targets)
     assert positions(sim.out1()) == pytest.approx(fired)
+
+
+def test_a_level_where_the_encoder_ends_a_move_fires() -> None:
+    sim = Model()
+    fitted(sim, slip=0.2)
+    sim.send("!trigd 1", "!trigenc 1", "!trigm 0", "!trig 1")
+    sim.travel(2.5)  # the encoder ends on 2.0 exactly
+    assert positions(sim.out1()) == pytest.approx([0.0, 1.25, 2.5], abs=1e-6)
