@@ -98,9 +98,11 @@ class TriggerConfig:
     (:meth:`Triggers.read_config`, :meth:`Triggers.write_config`).
 
     A field ``None`` is not written (and reads ``None`` on a firmware without its
-    instruction: ``trigo``, ``trigcomp``, ``trigenc`` and ``trigl`` are not in the older
-    edition of the manual). Every value is checked when the object is made, before any
-    byte goes out.
+    instruction: ``trigo``, ``trigcomp``, ``trigenc``, ``trigl`` and the secondary
+    output's ``trigbwidth``, ``trigbdelay`` and ``trigbf`` are not in the older edition of
+    the manual). The secondary output's fields are ``None`` unless given, as not every
+    controller has that output (L12925-12934). Every value is checked when the object is
+    made, before any byte goes out.
     """
 
     #: ``trigm`` (L12595-12836).
@@ -126,6 +128,15 @@ class TriggerConfig:
     #: ``trigl``: the pulse polarity of the list modes, ``True`` active high
     #: (L14177-14212).
     list_active_high: bool | None = True
+    #: ``trigbwidth``: the secondary output's precise pulse width in µs, 0..32500000, in
+    #: force with ``output`` 4-7 (L13318-13350, L14334-14345).
+    secondary_width_us: float | None = None
+    #: ``trigbdelay``: the secondary output's precise delay after the primary's edge in
+    #: µs, 0..32500000, in force with ``output`` 8-11 (L13279-13316, L14377-14394).
+    secondary_delay_us: float | None = None
+    #: ``trigbf``: the secondary output's own frequency in Hz, 0.01..66000000, in force
+    #: with ``output`` 12-15 (L13353-13386, L14444-14476).
+    secondary_frequency_hz: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mode", _member(TriggerMode, self.mode, "trigm"))
@@ -142,6 +153,12 @@ class TriggerConfig:
         _checked("trigf", self.frequency_hz, 0.01, 25_000.0)
         if self.compensation_us is not None:
             _checked("trigcomp", self.compensation_us, -10_000, 10_000, integer=True)
+        for name, precise, low, high in (
+                ("trigbwidth", self.secondary_width_us, 0.0, 32_500_000.0),
+                ("trigbdelay", self.secondary_delay_us, 0.0, 32_500_000.0),
+                ("trigbf", self.secondary_frequency_hz, 0.01, 66_000_000.0)):
+            if precise is not None:
+                _checked(name, precise, low, high)
 
     def lines(self) -> list[Command]:
         """The set lines that write this configuration, the axis first (``trigd``'s unit
@@ -163,7 +180,9 @@ class TriggerConfig:
                 "(L12595-12836); upload the list instead", instruction="trigm", number=5)
         values: list[tuple[str, Any]] = [
             ("triga", self.axis.lower()), ("trigm", int(self.mode)),
-            ("trigo", _int_or_none(self.output)), ("trigs", self.width_us),
+            ("trigo", _int_or_none(self.output)), ("trigbwidth", self.secondary_width_us),
+            ("trigbdelay", self.secondary_delay_us), ("trigbf", self.secondary_frequency_hz),
+            ("trigs", self.width_us),
             ("trigd", self.distance), ("trigf", self.frequency_hz),
             ("trigcomp", self.compensation_us), ("trigenc", _int_or_none(self.encoder)),
             ("trigl", _int_or_none(self.list_active_high))]
@@ -211,8 +230,8 @@ class Triggers(TriggerAccess):
 
     async def read_config(self) -> TriggerConfig:
         """Read the whole configuration (``?triga ?trigm ?trigo ?trigs ?trigd ?trigf
-        ?trigcomp ?trigenc ?trigl``); a field whose instruction this firmware does not
-        know reads ``None``.
+        ?trigcomp ?trigenc ?trigl ?trigbwidth ?trigbdelay ?trigbf``); a field whose
+        instruction this firmware does not know reads ``None``.
 
         Returns
         -------
@@ -222,6 +241,8 @@ class Triggers(TriggerAccess):
         optional = self._port.read_if_known
         output, compensation = await optional("trigo"), await optional("trigcomp")
         encoder, level = await optional("trigenc"), await optional("trigl")
+        precise = [await optional(name) for name in ("trigbwidth", "trigbdelay", "trigbf")]
+        width_b, delay_b, frequency_b = (None if v is None else float(v) for v in precise)
         width = await self._port.get("trigs")
         return TriggerConfig(
             mode=TriggerMode(int(await self._port.get("trigm"))),
@@ -232,7 +253,9 @@ class Triggers(TriggerAccess):
             output=None if output is None else TriggerOutput(int(output)),
             compensation_us=None if compensation is None else int(compensation),
             encoder=None if encoder is None else bool(int(encoder)),
-            list_active_high=None if level is None else bool(int(level)))
+            list_active_high=None if level is None else bool(int(level)),
+            secondary_width_us=width_b, secondary_delay_us=delay_b,
+            secondary_frequency_hz=frequency_b)
 
     async def write_config(self, config: TriggerConfig) -> None:
         """Write a whole configuration, each line proven like any set (its read-back);

@@ -24,7 +24,8 @@ SWITCH_NAMES: tuple[str, ...] = (
     "snapshot_step_report", "snapshot_while_moving", "report_width", "status_tail",
     "absent_axes", "joystick_letter", "abort_letter", "abort_report", "ctrl_c", "help_number",
     "help_case", "service_end", "lim_cr_bug", "version_format", "version_value", "line_end",
-    "numbers", "instruction_set", "local_echo")
+    "numbers", "instruction_set", "trigf_round", "periodic_first", "bidirectional_next",
+    "trigcomp_read", "local_echo")
 
 #: Switches only moves show (observed with ``--moves``). ``echo`` tells ``after`` from
 #: the others without moves, ``before`` from ``completion`` only with a move; ``numbers``
@@ -37,10 +38,12 @@ MOVE_SWITCHES = frozenset({
 SAVE_SWITCHES = frozenset({"save_ack"})
 
 #: Switches the probe does not observe: what a snapshot step does (a step moves the
-#: stage, and the snapshot input may not be fitted). ``tango_aio.mm`` finds the pointer's
-#: reading with a step of its own and works with each of the others.
+#: stage, and the snapshot input may not be fitted; ``tango_aio.mm`` finds the pointer's
+#: reading with a step of its own and works with each of the others), and the trigger
+#: output's (the probe leaves the output alone).
 UNPROBED_SWITCHES = frozenset({"snapshot_pointer", "snapshot_step_report",
-                               "snapshot_while_moving"})
+                               "snapshot_while_moving", "trigf_round", "periodic_first",
+                               "bidirectional_next", "trigcomp_read"})
 
 _REPORT = re.compile(r"^[A-Za-z@\-]{1,4}\.$")
 _ACK = re.compile(r"^(ok\.\.\.|err( \d+)?)$", re.IGNORECASE)

@@ -12,7 +12,8 @@ proves that it arrived, and the ``?err`` behind it that it was accepted.
 catalog's facts (its forms, signatures and reply shape) alone; :func:`mismatch` compares
 the reply with what was written at the precision the controller prints (``?vel x``
 answers ``55.500`` for 55.5, or for 55.4999), and with the rounding the manual documents
-(``!trigs``: multiples of 40 µs, L12965-12967). Sans-IO: the protocol writes the read and
+(``!trigs``: multiples of 40 µs, L12965-12967; ``!trigf``: whole 40 µs periods,
+L13234-13278). Sans-IO: the protocol writes the read and
 hands its reply here.
 
 What no read-back proves, each with its reason in :data:`NO_READ_BACK`: instructions
@@ -78,9 +79,21 @@ NO_READ_BACK: Final[dict[str, str]] = {
 
 #: Values the controller rounds to a documented step, by instruction (``!trigs 90``
 #: holds 80, ``!trigs 100`` holds 120, read back corrected: L12965-12967). The step of
-#: the secondary output's delay and width too (L12976-12981). A value equal to the one
-#: written is accepted as well (a firmware that keeps it as written).
-STEPS: Final[dict[str, int]] = {"trigs": 40}
+#: the secondary output's delay and width too (L12976-12981), and ``trigcomp``'s
+#: "smallest step is 10µs" (L13060). A value equal to the one written is accepted as
+#: well (a firmware that keeps it as written).
+STEPS: Final[dict[str, int]] = {"trigs": 40, "trigcomp": 10}
+
+#: Frequencies the controller runs at a whole number of ticks of its clock and reads back
+#: so: the tick in seconds, by instruction (``trigf``: 40 µs, ``!trigf 2600`` reads the
+#: true value, 2500 or 2777.78, L13234-13278). Both neighbours of the value written are
+#: accepted, and the value itself.
+TICKS: Final[dict[str, Decimal]] = {"trigf": Decimal("40e-6")}
+
+#: Instructions whose read shows only the first value of their set line, by instruction
+#: (``!trigs 120 40 80``: "The 2nd and 3rd parameter cannot be read back by ?trigs",
+#: L13001-13003); the others are not proven.
+FIRST_ONLY: Final[frozenset[str]] = frozenset({"trigs"})
 
 _PER_AXIS_REPLIES: Final = frozenset({Shape.AXES_FLOAT, Shape.AXES_INT, Shape.AXES_TEXT})
 _GLOBAL_REPLIES: Final = frozenset({Shape.INT, Shape.FLOAT, Shape.TEXT, Shape.INTS,
@@ -143,7 +156,8 @@ def read_back(command: Command, context: Context) -> ReadBack | None:
     # values in force (L13496-13580).
     axis = command.axis if read_sig.axis is not AxisRule.NONE else None
     read = build(entry.name, form=Form.READ, axis=axis, context=context)
-    return ReadBack(command, read, command.tokens, flags=entry.reply is Shape.FLAGS)
+    tokens = command.tokens[:1] if entry.name in FIRST_ONLY else command.tokens
+    return ReadBack(command, read, tokens, flags=entry.reply is Shape.FLAGS)
 
 
 def _flags(command: Command, context: Context) -> ReadBack:
@@ -162,8 +176,9 @@ def mismatch(proof: ReadBack, lines: Sequence[str]) -> str | None:
 
     A number matches when the reply, at the digits it prints, is the value written
     rounded (``55.500`` for 55.5 or 55.4999; ``2`` for a factor the controller prints as
-    an integer, L11904-11908), or the documented step's multiple nearest to it
-    (:data:`STEPS`); a word matches ignoring case; flags match character by character."""
+    an integer, L11904-11908), the documented step's multiple nearest to it
+    (:data:`STEPS`), or the frequency of a whole number of ticks next to it
+    (:data:`TICKS`); a word matches ignoring case; flags match character by character."""
     text = " ".join(line.strip() for line in lines)
     expected = proof.expected
     if proof.flags:
@@ -171,15 +186,15 @@ def mismatch(proof: ReadBack, lines: Sequence[str]) -> str | None:
         wanted = "".join(expected)
         return None if held.lower().startswith(wanted.lower()) else text
     tokens = _tokens(proof, text)
-    step = STEPS.get(proof.command.name)
+    rounding = (STEPS.get(proof.command.name), TICKS.get(proof.command.name))
     size = len(expected)
     if proof.every_group:
         groups = [tokens[i:i + size] for i in range(0, len(tokens), size)]
         complete = [group for group in groups if len(group) == size]
         ok = bool(complete) and len(complete) == len(groups) and all(
-            _same(group, expected, step) for group in complete)
+            _same(group, expected, rounding) for group in complete)
     else:
-        ok = len(tokens) >= size and _same(tokens[:size], expected, step)
+        ok = len(tokens) >= size and _same(tokens[:size], expected, rounding)
     return None if ok else text
 
 
@@ -192,11 +207,14 @@ def _tokens(proof: ReadBack, text: str) -> list[str]:
     return tokens
 
 
-def _same(held: list[str], sent: tuple[str, ...], step: int | None) -> bool:
-    return all(_one(h, s, step) for h, s in zip(held, sent, strict=True))
+_Rounding = tuple[int | None, Decimal | None]
 
 
-def _one(held: str, sent: str, step: int | None) -> bool:
+def _same(held: list[str], sent: tuple[str, ...], rounding: _Rounding) -> bool:
+    return all(_one(h, s, rounding) for h, s in zip(held, sent, strict=True))
+
+
+def _one(held: str, sent: str, rounding: _Rounding) -> bool:
     value, written = _decimal(held), _decimal(sent)
     if value is None or written is None:
         return held.lower() == sent.lower()
@@ -204,6 +222,11 @@ def _one(held: str, sent: str, step: int | None) -> bool:
     digits = -exponent if isinstance(exponent, int) and exponent < 0 else 0
     half = Decimal(5).scaleb(-digits - 1)
     candidates = [written]
+    step, tick = rounding
+    if tick is not None and written > 0:
+        ticks = 1 / (written * tick)
+        candidates += [1 / (max(Decimal(1), ticks.to_integral_value(rounding=way)) * tick)
+                       for way in ("ROUND_FLOOR", "ROUND_CEILING")]
     if step is not None:
         candidates.append((written / step + Decimal("0.5")).to_integral_value(
             rounding="ROUND_FLOOR") * step)

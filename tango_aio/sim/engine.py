@@ -16,6 +16,7 @@ from typing import Literal
 from tango_aio.units import DEFAULT_USTEPS
 
 from .trajectory import Phase, Trajectory, plan_stop, plan_to_target, plan_velocity
+from .trigtrack import Grid, Source, view
 
 __all__ = [
     "AXIS_NAMES",
@@ -98,7 +99,8 @@ class MoveFinished:
 
 @dataclass(frozen=True, slots=True)
 class TriggerFired:
-    """The trigger axis passed entry ``index`` (1-based) of the trigger list."""
+    """The trigger axis passed entry ``index`` (1-based) of the trigger list, or a level
+    of a bidirectional distance mode (``index`` 0); ``position`` is the motor's."""
 
     time: float
     axis: int
@@ -272,7 +274,9 @@ class MotionEngine:
         ]
         self._jobs: list[_Job] = []
         self._next_job_id = 1
-        self._trigger: _TriggerList | None = None
+        self._trigger: _TriggerList | Grid | None = None
+        self.trigger_source = Source()
+        """What position triggers compare (``trigcomp``, ``trigenc``)."""
         self._trigger_count = 0
         self._out: list[MotionEvent] = []
         self.abort_letter = "E"
@@ -860,7 +864,11 @@ class MotionEngine:
         tl = self._trigger
         if tl is None:
             return
-        traj = self._axes[tl.axis].traj
+        traj = view(self._axes[tl.axis].traj, self.trigger_source)
+        if isinstance(tl, Grid):
+            for key, (when, cell, fires) in enumerate(tl.candidates(traj, self._time)):
+                yield _Action(when, _P_TRIGGER, key, partial(self._on_grid, cell, fires))
+            return
         if tl.index < len(tl.levels):
             t = traj.first_entry(tl.levels[tl.index], upward=tl.increasing, closed=True,
                                  t_min=self._time)
@@ -890,13 +898,30 @@ class MotionEngine:
 
     def _on_trigger_fire(self, t: float) -> None:
         tl = self._trigger
-        assert tl is not None
-        ax = self._axes[tl.axis]
+        assert isinstance(tl, _TriggerList)
         level = tl.levels[tl.index]
         tl.index += 1
+        self._fired(t, tl.axis, tl.index, level)
+
+    def _on_grid(self, cell: float, fires: bool, t: float) -> None:
+        grid = self._trigger
+        assert isinstance(grid, Grid)
+        # Reaching a level fires there; leaving one (the first move) fires where it was.
+        level = grid.level(cell if cell == int(cell) else grid.cell)
+        if not (grid.neighbours and fires and cell != int(cell)):
+            grid.cell = cell  # (the first move of ``neighbours`` stays on the level it fired)
+        if fires:
+            grid.pending = False
+            self._fired(t, grid.axis, 0, level)
+
+    def _fired(self, t: float, axis: int, index: int, level: float) -> None:
+        """A position trigger fired: at ``level`` itself, or where the motor is when the
+        compared position reached it (:class:`~tango_aio.sim.trigtrack.Source`)."""
+        ax = self._axes[axis]
+        where = level if self.trigger_source.plain else ax.traj.position(t)
         self._trigger_count += 1
-        self._out.append(TriggerFired(t, tl.axis, tl.index, self._user_frame(ax, level)))
+        self._out.append(TriggerFired(t, axis, index, self._user_frame(ax, where)))
 
     def _on_trigger_rearm(self, t: float) -> None:
-        assert self._trigger is not None
+        assert isinstance(self._trigger, _TriggerList)
         self._trigger.index = 0

@@ -13,6 +13,7 @@ from ..catalog import Command
 from ..errors import ERROR_DESCRIPTIONS
 from .lists import MAX_TRIGGERS, ListError
 from .motion import ERR_NOT_EXECUTABLE, MotionConfig, MotionRefused
+from .outputs import compensation_step, true_frequency
 from .params import format_value
 from .peripherals import Peripherals
 from .port import ModelPort
@@ -243,10 +244,18 @@ class Handlers(Peripherals):
     # -- positions ------------------------------------------------------------------------
 
     def i_pos(self, c: Command) -> Reply:
+        """``?pos`` reads the encoder where ``!encpos`` 1 chose it and it is active, else
+        the motor (L11193-11247)."""
         motion = self.m.motion
+
+        def where(axis: int) -> float:
+            if int(self.m.params.first("encpos", axis)) == 1 and self.m.encoder_active(axis):
+                return self.m.encoder_position(axis)
+            return motion.position(axis)
+
         if c.is_read:
             return [self.axes_text(self.m.present(c),
-                                     lambda i: self.position_text(i, motion.position(i)))]
+                                   lambda i: self.position_text(i, where(i)))]
         for axis, revs in self.to_revs(self.m.axis_map(c)).items():
             motion.set_position(axis, revs)
         return None
@@ -455,8 +464,29 @@ class Handlers(Peripherals):
         """Widths and delay in steps of 40 µs, each rounded to the nearest (90 → 80,
         100 → 120) and read back so (L12959-12967, the secondary ones L12976-12981)."""
         if c.is_read:
-            return [self.m.params.read(c, self.m.axes)]
+            # "The 2nd and 3rd parameter cannot be read back by ?trigs" (L13001-13003).
+            return [self.m.params.read(c, self.m.axes).split()[0]]
         self.m.params.put_global("trigs", tuple((int(v) + 20) // 40 * 40 for v in c.values))
+        return None
+
+    def i_trigcomp(self, c: Command) -> Reply:
+        """Kept as written, or on its 10 µs step (switch ``trigcomp_read``, L13057-13167);
+        the trigger works with the step either way (``compensation_step``)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        value = int(c.values[0])
+        if self.m.firmware.trigcomp_read == "step":
+            value = compensation_step(value)
+        self.m.params.put_global("trigcomp", (value,))
+        return None
+
+    def i_trigf(self, c: Command) -> Reply:
+        """The controller keeps the frequency its 40 µs ticks give and reads back "the
+        true value" (L13234-13278; switch ``trigf_round``)."""
+        if c.is_read:
+            return [self.m.params.read(c, self.m.axes)]
+        hz = true_frequency(float(c.values[0]), self.m.firmware.trigf_round)
+        self.m.params.put_global("trigf", (hz,))
         return None
 
     def i_trigcount(self, c: Command) -> Reply:

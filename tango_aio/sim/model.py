@@ -61,7 +61,7 @@ from ..catalog import (
 from ..errors import InvalidCommandError
 from .clock import host_now
 from .config import SimConfig
-from .devices import Devices
+from .devices import Devices, Drift
 from .handlers import build_handlers
 from .lists import ListError, SnapshotList, TriggerList
 from .motion import MotionConfig, MotionModel, MotionRefused, MoveFinished, TriggerFired
@@ -142,6 +142,8 @@ class ControllerModel(ModelStore, ReplyStyle):
         self.cal_zero = [0.0] * len(AXES)
         self._triggers_dirty = False
         self._trigger_base = 0
+        self._trigger_time = now
+        self._periodic = self._wave = None
         self._load_saved()
         self._sync_all()
 
@@ -319,7 +321,37 @@ class ControllerModel(ModelStore, ReplyStyle):
             elif isinstance(event, TriggerFired):
                 self.trigger_pulses(event.time, 1,
                                     self.motion.to_user(event.axis, event.position))
+        self.start_clocks()
+        self.run_clocks(now)
         self._send_stop_report()
+
+    def set_encoder_drift(self, axis: str, slip: float = 0.0, offset: float = 0.0) -> None:
+        """Let the encoder of ``axis`` deviate from the motor position: it reads
+        ``motor * (1 - slip) + offset`` (``offset`` in the axis' dim unit now). ``?pos``
+        shows it with ``!encpos`` 1 (L11193-11247), ``?ctrdiff`` in closed loop
+        (L12396-12443), and triggers compare it with ``trigenc 1`` (L13168-13210), where
+        the encoder is active.
+
+        Parameters
+        ----------
+        axis
+            The axis letter.
+        slip
+            The fraction of the motor's travel the encoder does not see, below 1.
+        offset
+            A constant deviation, in the axis' dim unit.
+
+        Raises
+        ------
+        ValueError
+            ``slip`` is 1 or more.
+        """
+        if not slip < 1.0:
+            raise ValueError(f"a slip is below 1, not {slip}")
+        index = AXES.index(axis)
+        revs = self.motion.from_user(index, offset) - self.motion.from_user(index, 0.0)
+        self.devices.drift[index] = Drift(slip, revs)
+        self._arm_source()
 
     def deflect(self, axis: str, fraction: float, now: float | None = None) -> None:
         """Hold the joystick deflected along ``axis`` (``fraction`` of full deflection,

@@ -107,6 +107,7 @@ from .trajectory import (
     plan_to_target,
     plan_velocity,
 )
+from .trigtrack import Grid, Source
 
 __all__ = [
     "AXIS_NAMES",
@@ -451,7 +452,37 @@ class MotionModel(MotionEngine):
 
     def trigger_index(self) -> int:
         """``?trigi``: 1-based index of the next trigger entry (N+1 when all passed; 0 = none)."""
-        return self._trigger.index + 1 if self._trigger is not None else 0
+        tl = self._trigger
+        return tl.index + 1 if isinstance(tl, _TriggerList) else 0
+
+    def set_trigger_grid(self, axis: AxisRef, start: float, step: float, *,
+                         shifted: bool, neighbours: bool = False) -> None:
+        """Bidirectional distance modes: a level every ``step`` revolutions from ``start``
+        (user frame, the compared position where ``!trig 1`` ran), half a step off it when
+        ``shifted``; each fires when the axis reaches it either way, or only next to the
+        last one that fired (``neighbours``; :class:`~tango_aio.sim.trigtrack.Grid`)."""
+        ax = self._axis(axis)
+        origin = start + ax.origin - ax.offset
+        self._trigger = Grid(ax.index, origin + step / 2, step, cell=-0.5, pending=False,
+                             neighbours=neighbours) \
+            if shifted else Grid(ax.index, origin, step, neighbours=neighbours)
+
+    def set_trigger_source(self, axis: AxisRef, *, lead: float = 0.0, scale: float = 1.0,
+                           offset: float = 0.0) -> None:
+        """What position triggers compare: ``scale * (user + lead * v) + offset`` of the
+        motor's user-frame position (revolutions) and velocity; ``lead`` in seconds
+        (:class:`~tango_aio.sim.trigtrack.Source`)."""
+        ax = self._axis(axis)
+        frame = ax.origin - ax.offset
+        self.trigger_source = Source(lead, scale, (1.0 - scale) * frame + offset)
+        if isinstance(self._trigger, Grid):
+            grid = self._trigger
+            grid.place(self.trigger_source.at(self._phys(self._axes[grid.axis])))
+
+    def compared_position(self, axis: AxisRef) -> float:
+        """Where the compared position of ``axis`` stands now (user frame, revolutions)."""
+        ax = self._axis(axis)
+        return self._user_frame(ax, self.trigger_source.at(self._phys(ax)))
 
     def set_trigger_positions(self, axis: AxisRef, positions: Sequence[float]) -> None:
         """``trigp`` list: user-frame positions, monotonic; an empty list disarms.

@@ -133,8 +133,8 @@ class Peripherals:
         negative one (L9861-9913); ``?flash`` answers nothing ("Response: None")."""
         if not c.is_read:
             ms = float(c.values[0])
-            self.m.devices.pulses.append(Pulse(self.m.motion.now, TAKT_OUT, abs(ms) / 1000,
-                                               ms > 0))
+            self.m.devices.record([Pulse(self.m.motion.now, TAKT_OUT, abs(ms) / 1000,
+                                         ms > 0)])
         return None
 
     def i_trigger(self, c: Command) -> Reply:
@@ -254,10 +254,7 @@ class Peripherals:
         if not c.is_read:
             self.m.store(c)
             return None
-        devices = self.m.devices
-        return [" ".join(str(int(int(self.m.params.first("enc", i)) == 1
-                                 or (i in devices.encoders and self._masked(i))))
-                         for i in self.m.present(c))]
+        return [" ".join(str(int(self.m.encoder_active(i))) for i in self.m.present(c))]
 
     def _masked(self, axis: int) -> bool:
         return int(self.m.params.first("encmask", axis)) == 1
@@ -285,12 +282,14 @@ class Peripherals:
 
     def i_ctrdiff(self, c: Command) -> Reply:
         """The difference between motor and encoder position, printed as a position
-        (L12396-12443): what a test set in ``devices.position_error`` on an axis in closed
-        loop, else 0."""
+        (L12396-12443), on an axis in closed loop, else 0: the encoder's drift
+        (``devices.drift``) plus what a test set in ``devices.position_error``."""
         def difference(axis: int) -> str:
-            error = self.m.devices.position_error.get(axis, 0.0) \
-                if self._closed_loop(axis) else 0.0
-            return self.position_text(axis, self.m.motion.from_user(axis, error))
+            if not self._closed_loop(axis):
+                return self.position_text(axis, 0.0)
+            error = self.m.motion.from_user(axis, self.m.devices.position_error.get(axis, 0.0))
+            drift = self.m.motion.position(axis) - self.m.encoder_position(axis)
+            return self.position_text(axis, error + drift)
         return [self.axes_text(self.m.present(c), difference)]
 
     def i_mrt(self, c: Command) -> Reply:

@@ -152,6 +152,12 @@ class ModelPort(Protocol):
     def reboot(self) -> None:
         """Restart like a power cycle."""
 
+    def encoder_active(self, axis: int) -> bool:
+        """``?enc`` of axis index ``axis``."""
+
+    def encoder_position(self, axis: int) -> float:
+        """The encoder's position of ``axis`` (user frame, revolutions)."""
+
     def trigger_axis(self) -> int:
         """The trigger axis's index."""
 

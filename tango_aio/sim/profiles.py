@@ -195,6 +195,24 @@ _DOCS: tuple[SwitchDoc, ...] = (
               "Every instruction of the 1.71 manual (`full`), or only those of the older "
               "edition: the others, and values for `help`/`version` (which took none "
               "there), answer error 4."),
+    # -- the trigger outputs -------------------------------------------------------------
+    SwitchDoc("trigf_round", ("nearest", "down"), "L13234-13278",
+              "`trigf`'s period is a whole number of 40 µs ticks and `?trigf` reads \"the "
+              "true value\": the tick count is the nearest to the frequency asked "
+              "(`nearest`: `!trigf 2600` runs and reads 2500) or rounded down (`down`: "
+              "2777.78)."),
+    SwitchDoc("periodic_first", ("enable", "period"), "L12565-12594, L12754-12770",
+              "In the periodic modes 100 and 101 the first pulse comes as the trigger is "
+              "enabled (`enable`) or one period later (`period`)."),
+    SwitchDoc("bidirectional_next", ("reach", "neighbours"), "L12595-12836",
+              "In the bidirectional distance modes (1, 4, 7, 10) every level the axis "
+              "reaches fires, from either side (`reach`: going back and forth across one "
+              "fires it each time), or only the levels one distance either side of the "
+              "last that fired (`neighbours`)."),
+    SwitchDoc("trigcomp_read", ("written", "step"), "L13057-13167",
+              "`trigcomp` works in steps of 10 µs (L13060); `?trigcomp` reads the value as "
+              "written (`written`), or the step it works with, the nearest, halves up "
+              "(`step`: `!trigcomp 15` reads 20)."),
     # -- the link ------------------------------------------------------------------------
     SwitchDoc("local_echo", ("no", "yes"), "L8-10, L2117",
               "The link returns only the controller's replies (`no`), or, like a serial "
@@ -283,6 +301,14 @@ class Firmware:
     numbers: str = "plain"
     #: Instructions known: ``full`` (1.71) or ``older`` (the older edition's).
     instruction_set: str = "full"
+    #: ``trigf``'s 40 µs tick count: ``nearest`` or rounded ``down``.
+    trigf_round: str = "nearest"
+    #: The periodic modes' first pulse: at ``!trig 1`` (``enable``) or a ``period`` later.
+    periodic_first: str = "enable"
+    #: Bidirectional modes: each level reached fires (``reach``), or the ``neighbours``.
+    bidirectional_next: str = "reach"
+    #: ``?trigcomp``: the value as ``written`` or on its 10 µs ``step``.
+    trigcomp_read: str = "written"
     #: The link echoes every byte sent (``no``/``yes``: an adapter with local echo).
     local_echo: str = "no"
 

@@ -16,9 +16,10 @@ from ..catalog import (
 )
 from ..errors import ERROR_DESCRIPTIONS
 from .config import SimConfig
-from .devices import TAKT_OUT, TRIGGER_OUT, Devices, Pulse
+from .devices import TAKT_OUT, Devices, Drift, Pulse
 from .lists import MAX_TRIGGERS, TriggerList
 from .motion import MotionModel, MotionRefused
+from .outputs import Clock, OutputSettings, compensation_step, event_pulses, precise
 from .params import ParamStore
 from .profiles import Firmware
 from .state import StateFileError, load_state, save_state
@@ -51,14 +52,20 @@ _GLOBAL_SETTINGS: dict[str, str] = {
     "usteps": "usteps", "scanmode": "scanmode", "scanvel": "scanvel", "pause": "pause_ms",
     "delay": "delay_ms", "extmode": "extmode",
 }
-#: Instructions that change the trigger list or whether it fires (re-armed lazily).
+#: Instructions that change the trigger list, whether or how it fires, or the clocks of
+#: the periodic outputs (re-armed lazily; "Before enabling the trigger function by '!trig
+#: 1', please ensure that all trigger settings have been made", L12529-12530).
 _TRIGGER_LIST = frozenset({"trig", "trigm", "triga", "trigp", "trigc", "trigi", "trigr",
-                           "trigd"})
-#: The distance modes the emulator generates (L12595-12836): the sense of travel (+1
-#: forward, -1 backward) and the shift in distances; the bidirectional modes (1, 4, 7,
-#: 10) are not modelled (they arm nothing).
+                           "trigd", "trigf", "trigo", "trigbf", "trigcomp", "trigenc"})
+#: The one-way distance modes (L12595-12836): the sense of travel (+1 forward, -1
+#: backward) and the shift in distances.
 _DISTANCE_MODES = {0: (1, 0.0), 3: (1, 0.0), 2: (-1, 0.0), 5: (-1, 0.0),
                    6: (1, 0.5), 9: (1, 0.5), 8: (-1, 0.5), 11: (-1, 0.5)}
+#: The bidirectional distance modes (L12632, L12707) and whether they are shifted by
+#: half a distance (7, 10: L12689-12717).
+_BIDIRECTIONAL = {1: False, 4: False, 7: True, 10: True}
+#: The periodic modes, "Does not depend on position" (L12754-12784).
+_PERIODIC = (100, 101)
 
 
 @dataclass
@@ -110,6 +117,11 @@ class ModelStore:
     _eeprom: tuple[dict[str, list[Any]], dict[str, Any]] | None
     _triggers_dirty: bool
     _trigger_base: int
+    #: When the last trigger instruction ran: where the periodic clocks start.
+    _trigger_time: float
+    #: The periodic mode's clock (100, 101) and the secondary output's own (trigo 12-15).
+    _periodic: Clock | None
+    _wave: Clock | None
 
     @property
     def axes(self) -> int:
@@ -277,6 +289,8 @@ class ModelStore:
         """Arm the trigger list in the motion model lazily."""
         if command.name in _TRIGGER_LIST and command.executes:
             self._triggers_dirty = True
+            self._trigger_time = self.motion.now
+            self._periodic = self._wave = None  # until re-armed, from this line's time
         elif self._triggers_dirty:
             self.arm_triggers()
 
@@ -291,11 +305,22 @@ class ModelStore:
         """
         self._triggers_dirty = False
         mode = int(self.params.first("trigm"))
-        if int(self.params.first("trig")) == 1 and mode in _DISTANCE_MODES:
+        on = int(self.params.first("trig")) == 1
+        self._arm_clocks(on, mode)
+        self._arm_source()
+        if on and mode in _DISTANCE_MODES:
             self._arm_distance(*_DISTANCE_MODES[mode])
             return
+        if on and mode in _BIDIRECTIONAL:
+            axis = self._distance_axis()
+            self.motion.set_trigger_grid(
+                axis, self.motion.compared_position(axis),
+                self.motion.from_user(axis, float(self.params.first("trigd")))
+                - self.motion.from_user(axis, 0.0), shifted=_BIDIRECTIONAL[mode],
+                neighbours=self.firmware.bidirectional_next == "neighbours")
+            return
         entries = self.triggers.entries
-        enabled = int(self.params.first("trig")) == 1 and mode in (20, 21)
+        enabled = on and mode in (20, 21)
         if not entries or not enabled:
             self.motion.clear_triggers()
             return
@@ -322,37 +347,118 @@ class ModelStore:
         armed (``!trig 1`` defines the start, L12565-12572), the first as the move starts
         ("First pulse when move starts") or half a distance on (modes 6-11), in the mode's
         sense; as many as a list holds at most."""
-        axis = min(AXES.index(str(self.params.first("triga"))), self.axes - 1)
+        axis = self._distance_axis()
         units = self.motion.units(axis)
-        start = self.motion.to_user(axis, self.motion.position(axis))
+        start = self.motion.to_user(axis, self.motion.compared_position(axis))
         step = float(self.params.first("trigd")) * sense
         # The first level a hair beyond the start: the move's first step crosses it.
         first = max(shift, 1e-9 / abs(step)) if step else shift
-        levels = [start + (k + first) * step for k in range(MAX_TRIGGERS)]
+        levels = [start + (k + (first if k == 0 else shift)) * step
+                  for k in range(MAX_TRIGGERS)]
         self._trigger_base = 0
         self.motion.set_trigger_positions(axis, [units.pos_from_user(p) for p in levels])
 
-    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
-        """Record ``count`` trigger pulses on the outputs ``trigo`` selects (L12860-12949:
-        bit 0 TRIGGER_OUT, bit 1 TAKT_OUT; 0 and 4, 8, 12 send nothing), ``trigs`` µs long
-        (L12950-12970), spaced by ``1/trigf`` (L13414-13440). The polarity is ``trigl``'s in
-        the list modes 20 and 21 (L14177-14212) and the mode's own otherwise: modes 3-5,
-        9-11 and the odd ones from 101 are active low (L12595-12836)."""
+    def _distance_axis(self) -> int:
+        return min(AXES.index(str(self.params.first("triga"))), self.axes - 1)
+
+    def _arm_clocks(self, on: bool, mode: int) -> None:
+        """The periodic mode's pulses every ``1/trigf`` (L12754-12770, L13223-13278), the
+        first at ``!trig 1`` or a period later (switch ``periodic_first``); the secondary
+        output's own square wave at ``trigbf`` (trigo 14, 15: "fixed width of 50%",
+        L14444-14476) while the trigger is enabled (L12578-12580)."""
+        start = self._trigger_time
+        if on and mode in _PERIODIC and self._periodic is None:
+            period = 1.0 / float(self.params.first("trigf"))
+            first = start if self.firmware.periodic_first == "enable" else start + period
+            self._periodic = Clock(first, period)
         outputs = int(self.params.first("trigo"))
-        width = int(self.params.first("trigs")) / 1e6
+        if on and outputs >= 12 and outputs & 2 and self._wave is None:
+            self._wave = Clock(start, 1.0 / float(self.params.first("trigbf")))
+        self.run_clocks(self.motion.now)
+
+    def start_clocks(self) -> None:
+        """Start the periodic outputs a trigger instruction enabled, at once (the
+        position triggers wait for the next other instruction, :meth:`arm_triggers`)."""
+        if self._triggers_dirty:
+            self._arm_clocks(int(self.params.first("trig")) == 1,
+                             int(self.params.first("trigm")))
+
+    def run_clocks(self, now: float) -> None:
+        """Record the periodic outputs' pulses up to ``now`` (the last :attr:`Devices.limit`
+        of them when more are due; ``trigcount`` counts every periodic event, L13387-13389,
+        but not the precise frequency's, L13368)."""
+        devices, high = self.devices, self._active_high()
+        if self._periodic is not None:
+            first, count = self._periodic.due(now)
+            self.motion.set_trigger_count(self.motion.trigger_count + count)
+            settings = self._output_settings()
+            shown = min(count, devices.limit)
+            devices.dropped += (count - shown) * len(event_pulses(0.0, high, settings))
+            times = [self._periodic.time(k) for k in range(first + count - shown, first + count)]
+            devices.record(p for t in times for p in event_pulses(t, high, settings))
+        if self._wave is not None:
+            first, count = self._wave.due(now)
+            shown = min(count, devices.limit)
+            devices.dropped += count - shown
+            half = self._wave.period / 2
+            devices.record(Pulse(self._wave.time(k), TAKT_OUT, half, high)
+                           for k in range(first + count - shown, first + count))
+
+    def _arm_source(self) -> None:
+        """What position triggers compare: ``trigcomp`` looks ahead by its time at the
+        current velocity (L13057-13167, in its 10 µs steps); ``trigenc 1`` compares the
+        encoder position where the axis' encoder is active, else the motor's
+        (L13168-13210)."""
+        axis = self._distance_axis() if int(self.params.first("trigm")) not in (20, 21) \
+            else self.trigger_axis()
+        lead = compensation_step(int(self.params.first("trigcomp"))) / 1e6
+        drift = Drift()
+        if int(self.params.first("trigenc")) == 1 and self.encoder_active(axis):
+            drift = self.devices.drift.get(axis, Drift())
+        self.motion.set_trigger_source(axis, lead=lead, scale=1.0 - drift.slip,
+                                       offset=drift.offset)
+
+    def encoder_active(self, axis: int) -> bool:
+        """``?enc``: active where ``encmask`` is set and an encoder is fitted (the
+        controller activates encoders, L10485-10545), or where ``!enc 1`` forced it (the
+        manual advises against it, L10527-10545, but allows it)."""
+        return int(self.params.first("enc", axis)) == 1 or (
+            axis in self.devices.encoders and int(self.params.first("encmask", axis)) == 1)
+
+    def encoder_position(self, axis: int) -> float:
+        """The encoder's position of ``axis`` (user frame, revolutions): the motor's, as
+        :attr:`Devices.drift` deviates it."""
+        drift = self.devices.drift.get(axis, Drift())
+        return self.motion.position(axis) * (1.0 - drift.slip) + drift.offset
+
+    def _output_settings(self) -> OutputSettings:
+        trigs = self.params.global_values["trigs"]
+        # '!trigs w d w2' gives OUT2 a delay and width in the 1:1 mode (L12973-13001);
+        # '!trigs w' and the power-on values (read as 0 0) leave it a copy of OUT1.
+        out2 = (int(trigs[1]) / 1e6, int(trigs[2]) / 1e6) \
+            if len(trigs) == 3 and (int(trigs[1]), int(trigs[2])) != (0, 0) else None
+        return OutputSettings(int(self.params.first("trigo")), int(trigs[0]) / 1e6, out2,
+                              precise(self.params.number("trigbwidth")),
+                              precise(self.params.number("trigbdelay")))
+
+    def _active_high(self) -> bool:
+        """The polarity: ``trigl``'s in the list modes 20 and 21 (L14177-14212), the
+        mode's own otherwise: modes 3-5, 9-11 and the odd ones from 101 are active low
+        (L12595-12836)."""
         mode = int(self.params.first("trigm"))
         if mode in (20, 21):
-            high = int(self.params.first("trigl")) == 1
-        elif mode >= 100:
-            high = mode % 2 == 0
-        else:
-            high = mode % 6 < 3
+            return int(self.params.first("trigl")) == 1
+        return mode % 2 == 0 if mode >= 100 else mode % 6 < 3
+
+    def trigger_pulses(self, time: float, count: int, position: float | None = None) -> None:
+        """Record ``count`` trigger events, spaced by ``1/trigf`` (L13414-13440), on the
+        outputs ``trigo`` selects (L12860-12949: bit 0 TRIGGER_OUT, bit 1 TAKT_OUT), OUT1
+        ``trigs`` µs long (L12950-12970), OUT2 as its function says
+        (:func:`~tango_aio.sim.outputs.event_pulses`, chapter 22)."""
+        settings, high = self._output_settings(), self._active_high()
         period = 1.0 / float(self.params.first("trigf"))
-        for n in range(count):
-            for bit, output in ((1, TRIGGER_OUT), (2, TAKT_OUT)):
-                if outputs & bit:
-                    self.devices.pulses.append(
-                        Pulse(time + n * period, output, width, high, position))
+        self.devices.record(pulse for n in range(count) for pulse in
+                            event_pulses(time + n * period, high, settings, position))
 
     def trigger_axis(self) -> int:
         """Index of the trigger axis (``triga``, or the axis the list was written for)."""

@@ -117,7 +117,9 @@ async def test_out_of_range_is_refused_before_any_byte(
 @pytest.mark.parametrize(("field", "value"), [
     ("width_us", 2_500_040), ("width_us", 1.5), ("distance", 0.0), ("frequency_hz", 0.001),
     ("compensation_us", 10_010), ("mode", 12), ("output", 16), ("axis", "q"),
-    ("encoder", 1)])
+    ("encoder", 1), ("secondary_width_us", 32_500_000.5), ("secondary_width_us", -1.0),
+    ("secondary_delay_us", 32_500_001.0), ("secondary_delay_us", "1"),
+    ("secondary_frequency_hz", 0.005), ("secondary_frequency_hz", 66_000_001.0)])
 def test_a_trigger_configuration_is_checked_when_made(field: str, value: Any) -> None:
     with pytest.raises(InvalidCommandError):
         TriggerConfig(**{field: value})
@@ -141,7 +143,10 @@ async def test_trigger_configuration_round_trip(emulator: EmulatorFactory,
                            output=None if legacy else TriggerOutput.BOTH,
                            compensation_us=None if legacy else -30,
                            encoder=None if legacy else True,
-                           list_active_high=None if legacy else False)
+                           list_active_high=None if legacy else False,
+                           secondary_width_us=None if legacy else 5.01,
+                           secondary_delay_us=None if legacy else 0.35,
+                           secondary_frequency_hz=None if legacy else 0.01)
     await triggers.write_config(config)
     assert await triggers.read_config() == config
     assert emu.model.params.first("triga") == "y"
@@ -319,7 +324,8 @@ def test_blocking_twins() -> None:
         tango.io.set_shutter(True)
         assert tango.io.shutter() is True
         assert tango.joystick.is_enabled() is True
-        config = TriggerConfig(width_us=80)
+        config = TriggerConfig(width_us=80, secondary_width_us=40.0, secondary_delay_us=0.0,
+                               secondary_frequency_hz=1000.0)
         tango.triggers.write_config(config)
         assert tango.triggers.read_config() == config
         tango.triggers.upload_positions([1.0, 2.0])

@@ -85,7 +85,7 @@ def expected(firmware: Firmware, options: ProbeOptions) -> dict[str, str | None]
         if name in SAVE_SWITCHES and not options.save:
             value = None  # only !save shows it
         if name in UNPROBED_SWITCHES:
-            value = None  # a snapshot step: not probed
+            value = None  # a snapshot step or the trigger output: not probed
         if name == "echo" and not options.moves and value != "after":
             value = None  # before and completion differ only for a move
         if name == "numbers" and not options.moves and value != "plus":

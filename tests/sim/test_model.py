@@ -504,6 +504,8 @@ READ_AS_INTEGER = frozenset({"ctrf"})
 #: Settings the controller rounds to a step and reads back rounded (``trigs``: 40 µs,
 #: L12965-12967).
 READ_IN_STEPS: dict[str, int] = {"trigs": 40}
+#: ``trigf`` reads "the true value" its 40 µs ticks give (L13234-13278).
+TICKS_OF_40_US = 25_000.0
 #: Settings written as ``index value`` and read back per index.
 WRITTEN_WITH_INDEX = frozenset({"joyspeed", "zwtravel", "adiginfunc"})
 
@@ -566,18 +568,22 @@ def test_setting_stores_and_reads_back(name: str) -> None:
     if name in READ_IN_STEPS:
         step = READ_IN_STEPS[name]
         expect = [str((int(v) + step // 2) // step * step) for v in expect]
+    if name == "trigf":
+        expect = [f"{TICKS_OF_40_US / round(TICKS_OF_40_US / float(v)):.2f}" for v in expect]
     assert all(_same(w, r) for w, r in zip(expect, got, strict=True)), (name, values, after)
 
 
 def test_trigger_widths_are_rounded_to_40_us() -> None:
     """"If the parameter is not a multiple of 40 it will be rounded to the nearest
     multiple: e.g. 90 → 80, 100 → 120. When read back, the corrected (nearest) value is
-    returned" (L12965-12967); the secondary output's delay and width too (L12976-12981)."""
+    returned" (L12965-12967); the secondary output's delay and width too (L12976-12981),
+    which "cannot be read back by ?trigs" (L13001-13003)."""
     sim = Sim()
     sim.send("!trigs 90")
-    assert sim.ask("?trigs").split()[0] == "80"
+    assert sim.ask("?trigs") == "80"
     sim.send("!trigs 100 30 60")
-    assert sim.ask("?trigs") == "120 40 80"
+    assert sim.ask("?trigs") == "120"
+    assert sim.model.params.global_values["trigs"] == (120, 40, 80)
     assert sim.err == 0
 
 

@@ -92,6 +92,17 @@ def test_every_instruction_left_out_has_a_reason_and_a_read_form() -> None:
     ("!trigs 100", ["120"], None),
     ("!trigs 100", ["100"], None),  # a firmware that keeps the value as written
     ("!trigs 100", ["80"], "80"),
+    ("!trigs 100 30 60", ["120"], None),  # OUT2's delay and width are not read (L13001)
+    ("!trigs 100 30 60", ["80"], "80"),
+    ("!trigf 2600", ["2500.00"], None),  # the true value: whole 40 µs periods (L13278)
+    ("!trigf 2600", ["2777.78"], None),  # the tick count rounded down
+    ("!trigf 2600", ["2600.00"], None),  # a firmware that keeps the value as written
+    ("!trigf 2600", ["2272.73"], "2272.73"),  # two ticks off
+    ("!trigf 0.01", ["0.01"], None),
+    ("!trigcomp 15", ["20"], None),  # its 10 µs step (L13060)
+    ("!trigcomp -15", ["-10"], None),
+    ("!trigcomp 15", ["15"], None),
+    ("!trigcomp 15", ["10"], "10"),
     ("!delay 10", ["ERROR 4,parameter"], "ERROR 4,parameter"),
 ])
 def test_the_reply_is_compared_at_the_controller_s_precision(
