@@ -70,7 +70,7 @@ class ClosedLoop(ClosedLoopAccess):
                                           instruction="ctr", number=5)
             line = build("ctr", int(mode) if on else 0, axis=axis.lower(),
                          context=self._port.context)
-            self._port.check_axes(line)
+            self._port._check_axes(line)
             lines.append((axis.lower(), on, line))
         for axis, on, _ in lines:
             if on:

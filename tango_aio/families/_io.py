@@ -265,17 +265,17 @@ class IO(IOAccess):
                 changed = tuple(i for i, (a, b) in enumerate(zip(levels, now, strict=False))
                                 if a != b)
                 event: InputsChanged | JoystickMoved = InputsChanged(now, changed)
-                self._port.publish(event)
+                self._port._publish_event(event)
                 yield event
             levels = now
-            driven = self._port.moving()
-            _, positions = await self._port.state()
-            driven = driven or self._port.moving()
+            driven = self._port._in_motion()
+            _, positions = await self._port._status_and_positions()
+            driven = driven or self._port._in_motion()
             if texts is not None and positions != texts and not driven:
-                values = await self._port.user_positions(positions)
-                self._port.publish(PositionUpdate(values))
+                values = await self._port._user_positions(positions)
+                self._port._publish_event(PositionUpdate(values))
                 event = JoystickMoved(values)
-                self._port.publish(event)
+                self._port._publish_event(event)
                 yield event
             # A move of this driver is not the joystick's: compare from after its end.
             texts = None if driven else positions

@@ -158,8 +158,8 @@ class Snapshots(SnapshotAccess):
             The controller rejected an entry.
         """
         values = validate_rows(rows, len(self._port.axes))
-        check_resolution(values, await self._port.resolution(), "snsa")
-        await self._port.list_transfer().replace(
+        check_resolution(values, await self._port._resolution(), "snsa")
+        await self._port._transfer().replace(
             snapshot_spec(), lambda: self._port.command("!snsa 0"), values, progress)
 
     async def read_positions(self) -> list[list[float]]:
@@ -171,4 +171,4 @@ class Snapshots(SnapshotAccess):
         list[list[float]]
             The snapshot rows, in array order.
         """
-        return await self._port.list_transfer().download(snapshot_spec())
+        return await self._port._transfer().download(snapshot_spec())

@@ -238,7 +238,7 @@ class Triggers(TriggerAccess):
         TriggerConfig
             The configuration the controller holds.
         """
-        optional = self._port.read_if_known
+        optional = self._port._read_if_known
         output, compensation = await optional("trigo"), await optional("trigcomp")
         encoder, level = await optional("trigenc"), await optional("trigl")
         precise = [await optional(name) for name in ("trigbwidth", "trigbdelay", "trigbf")]
@@ -389,11 +389,11 @@ class Triggers(TriggerAccess):
         """
         letter = check_axis(axis)
         values = validate_trigger_positions(positions)
-        self._port.check_axes(build("trigp", 0, axis=letter))  # before any byte
-        resolution = await self._port.resolution()
+        self._port._check_axes(build("trigp", 0, axis=letter))  # before any byte
+        resolution = await self._port._resolution()
         rows = Column(values)
         check_resolution(rows, [resolution[AXES.index(letter)]], "trigp")
-        await self._port.list_transfer().replace(
+        await self._port._transfer().replace(
             trigger_spec(), lambda: self._port.command(f"!trigp {letter} 0"), rows, progress)
 
     async def read_positions(self) -> list[float]:
@@ -404,7 +404,7 @@ class Triggers(TriggerAccess):
         list[float]
             The trigger positions, in list order.
         """
-        rows = await self._port.list_transfer().download(trigger_spec())
+        rows = await self._port._transfer().download(trigger_spec())
         return [row[0] for row in rows]
 
     async def set_range(self, start: float, end: float, count: int,
@@ -437,14 +437,14 @@ class Triggers(TriggerAccess):
             The controller refused the line.
         """
         command = build("trigr", start, end, count, axis=axis, context=self._port.context)
-        self._port.check_axes(command)
+        self._port._check_axes(command)
         for value in (start, end):
             if abs(float(value)) > MAX_TRIGGER_POSITION:
                 raise InvalidCommandError(
                     f"trigr: position {value!r} is beyond any stage's travel (at most "
                     f"{MAX_TRIGGER_POSITION:g} in the dim unit)", instruction="trigr",
                     parameter="position", number=5)
-        quantum = min(await self._port.resolution())
+        quantum = min(await self._port._resolution())
         check_resolution([[float(start), float(end)]], [quantum], "trigr")
         await self._port.set("trigr", start, end, count, axis=axis)
 

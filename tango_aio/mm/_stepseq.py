@@ -12,6 +12,7 @@ the answer for the connection.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import threading
@@ -44,6 +45,9 @@ class StepArray:
     """One controller's snapshot array as its stages loaded it (thread-safe)."""
 
     lock: threading.Lock = field(default_factory=threading.Lock)
+    #: Held while a start arms the array or a stop disarms it (in the driver's loop): the
+    #: XY and the Z stage start together, and their lines must not interleave.
+    arming: asyncio.Lock = field(default_factory=asyncio.Lock)
     #: The positions of each axis, in µm, one per entry.
     columns: dict[str, tuple[float, ...]] = field(default_factory=dict)
     #: Whether a step moves the pointer on before reading its entry; ``None``: not known.
@@ -204,6 +208,12 @@ async def start(tango: Any, array: StepArray, axes: Sequence[str]) -> None:
             raise RuntimeError("no camera-triggered sequence loaded for this stage (another "
                                "stage's sequence of another length replaced it)")
         array.running.update(axes)
+    async with array.arming:
+        await _arm(tango, array, axes, columns)
+
+
+async def _arm(tango: Any, array: StepArray, axes: Sequence[str],
+               columns: Mapping[str, tuple[float, ...]]) -> None:
     snapshots = tango.snapshots
     try:
         await snapshots.set_sns(False)
@@ -244,6 +254,11 @@ async def stop(tango: Any, array: StepArray, axes: Sequence[str]) -> StepStop | 
     stage any more), a step under way ended, the user's snapshot mode back once no
     sequence runs; where the stage stands, checked against the entry the last step went
     to."""
+    async with array.arming:
+        return await _disarm(tango, array, axes)
+
+
+async def _disarm(tango: Any, array: StepArray, axes: Sequence[str]) -> StepStop | None:
     snapshots = tango.snapshots
     with array.lock:
         if not array.running.intersection(axes):

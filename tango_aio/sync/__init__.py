@@ -112,10 +112,6 @@ class Controller(_Wrapper[AsyncController]):
     axis_limits = _Blocking(AsyncController.axis_limits)
     read_info = _Blocking(AsyncController.read_info)
     wait_restarted = _Blocking(AsyncController.wait_restarted)
-    read_if_known = _Blocking(AsyncController.read_if_known)
-    state = _Blocking(AsyncController.state)
-    user_positions = _Blocking(AsyncController.user_positions)
-    resolution = _Blocking(AsyncController.resolution)
 
     # -- non-blocking starts (Zaber's wait_until_idle=False)
     start_move_to = _Starter(AsyncController.move_to)

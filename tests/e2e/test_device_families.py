@@ -27,6 +27,7 @@ from tango_aio import (
     TriggerMode,
     TriggerOutput,
 )
+from tango_aio.families import DevicePort
 from tango_aio.sim.devices import TAKT_OUT, TRIGGER_OUT
 
 PROFILES = ["manual", "legacy"]
@@ -350,13 +351,14 @@ async def test_the_device_families_reach_the_controller_itself(
         assert family._port is tango
     assert tango.axes == ("x", "y")
     await tango.move_to(x=1.5)
-    letters, texts = await tango.state()
+    port: DevicePort = tango  # the intents are private: the families are its parts
+    letters, texts = await port._status_and_positions()
     assert letters == {"x": "@", "y": "@"} and tango.last_positions == texts
-    assert await tango.user_positions(texts) == await tango.position()
-    assert await tango.read_if_known("trigcomp") is not None
-    assert len(await tango.resolution()) == 2 and not tango.moving()
+    assert await port._user_positions(texts) == await tango.position()
+    assert await port._read_if_known("trigcomp") is not None
+    assert len(await port._resolution()) == 2 and not port._in_motion()
     with pytest.raises(InvalidCommandError):
-        tango.check_axes(tango_aio.catalog.build("trigp", 0, axis="z"))
+        port._check_axes(tango_aio.catalog.build("trigp", 0, axis="z"))
 
 
 async def test_generated_bool_setters_reach_the_controller(emulator: EmulatorFactory) -> None:

@@ -5,6 +5,7 @@ pymmcore-plus MDA with hardware z sequencing."""
 
 from __future__ import annotations
 
+import asyncio
 import gc
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -20,9 +21,11 @@ import useq
 from pymmcore_plus.experimental.unicore import UniMMCore
 from test_mm import HANG, INSTANT, Camera, emulated, hub_of, make_fast
 
+import tango_aio
 from tango_aio import MoveError
 from tango_aio.errors import NotSupportedByFirmwareError
 from tango_aio.mm import TangoHub, TangoXYStage, TangoZStage, load_tango
+from tango_aio.mm._stepseq import StepArray, start, upload
 from tango_aio.testing import faults
 
 
@@ -307,3 +310,25 @@ def test_an_mda_with_hardware_z_sequencing_takes_each_frame_at_its_position(
     # the stop after the last frame: the wrap step back to the first entry, nothing after
     assert core.getProperty("TangoZ", "Sequence stopped at") == "entry 1 of 5 (z=10 um)"
     assert snapshot_state(hub) == (0, True)
+
+
+async def test_two_stages_starting_together_arm_the_array_one_after_the_other() -> None:
+    # Micro-Manager starts the XY and the Z stage's sequences together, on one array:
+    # without turns both would find the pointer's reading at once (two steps of F2).
+    async with tango_aio.connect(INSTANT, units="um") as tango:  # as the hub's
+        array = StepArray()
+        array.load(("x", "y"), [(100.0, -200.0, 300.0), (50.0, 60.0, -70.0)])
+        await upload(tango, array, array.load(("z",), [(5.0, 6.0, 7.0)]))
+        keys: list[str] = []
+        submit = tango.protocol.submit
+
+        def spy(command: Any, *args: Any, **kwargs: Any) -> Any:
+            if "snse" in command.line:
+                keys.append(command.line)
+            return submit(command, *args, **kwargs)
+
+        tango.protocol.submit = spy  # type: ignore[method-assign]
+        await asyncio.gather(start(tango, array, ("x", "y")), start(tango, array, ("z",)))
+        assert keys == ["!snse 2"]  # one step finds the reading
+        assert array.running == {"x", "y", "z"}
+        assert await tango.snapshots.sns()
