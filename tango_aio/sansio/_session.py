@@ -458,9 +458,11 @@ class LinkSession:
         in all), instead of being declared lost moments after its write, which would
         resync the stream under the lines written with it."""
         if not written:
+            # Behind a line of the core's own (the ?err behind a move) nobody waits
+            # either: it counts as owed when it is still sure to get a line (its tail).
             owed = self.core.pending_tags
-            if self.state is LinkState.IN_STEP and not self.core.resyncing and owed \
-                    and owed[0] not in awaited:
+            if self.state is LinkState.IN_STEP and not self.core.resyncing and (
+                    owed[0] not in awaited if owed else self.core.tail is not None):
                 return Overdue.STALLED
             return Overdue.WITHDRAW
         if queued and waits < REPLY_WAITS:

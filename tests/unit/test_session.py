@@ -542,6 +542,23 @@ def test_a_line_held_behind_a_reply_nobody_awaits_stalls_instead_of_being_withdr
     assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.WITHDRAW
 
 
+def test_a_line_held_behind_the_err_the_core_wrote_behind_a_move_stalls() -> None:
+    """Mode 2, reads acknowledged after their data: the ``?err`` the core writes behind a
+    move got its number, then the power went (its ``OK...`` never comes; back in mode 1
+    the controller acknowledges nothing, L2062, L2099-2103). No caller awaits that line,
+    so only the held line's deadline covers it: STALLED (withdraw, count, resync; the
+    restart is then found), not WITHDRAW, which would leave every later line held."""
+    link = Link()
+    core, session = link.core, link.session
+    core.autostatus, core.ack_reads = 2, AckReads.AFTER
+    assert core.send(parse("!moa 3.0"), "move")[0] == b"!moa 3.0\r?err\r"
+    core.events(b"OK...\r0\r")
+    assert core.pending_tags == [] and core.tail is not None  # the ?err's OK... is owed
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.STALLED
+    core.events(b"OK...\r")
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.WITHDRAW
+
+
 # -- the mode ----------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("asked", "actual", "verdict"), [
