@@ -788,16 +788,16 @@ class ProtocolCore:
             if head.follow is not None:
                 self._defer_ack(head, line)
                 return
-            if head.internal and _Item.DATA in head.items and head.pattern.accepts(text):
-                # The reply of a follow-up ``?err`` where its ``OK...`` is owed (reads
-                # acknowledged before their data): a line before it took that OK... (its
-                # own lost on the way, a move line lost), or the number is extra. Nothing
-                # else would ever answer the follow-up, and the lines behind it would
-                # wait for it: out of step.
-                self._desynced = True
-                self._events.append(Mismatched(None, line, ACK_PATTERN))
+            if not self.check_replies:
+                self._events.append(Unsolicited(line))
                 return
-            self._events.append(Unsolicited(line))
+            # Not an acknowledgement where one is owed: the head's line or its OK... was
+            # lost (the line is a reply owed behind it: the number of a read written
+            # next, or of the ?err behind it), or the line is extra. Passed over, it
+            # would leave the head to take the next line's OK... for its own: out of step.
+            self._desynced = True
+            self._events.append(Mismatched(None if head.internal else head.tag, line,
+                                           ACK_PATTERN))
             return
         if self._deferred:
             # An OK... of a deferred move may come before this line's acknowledgement

@@ -135,3 +135,17 @@ def test_the_set_after_a_lost_move_and_a_read_is_written() -> None:
     unit.call("?pos")
     assert unit.core.tail is None
     assert unit.call("!vel x 5").written
+
+
+def test_a_set_whose_line_was_lost_does_not_take_the_ok_of_the_read_behind_it() -> None:
+    # Mode 2, reads acknowledged after their data: '!vel' lost on the way, a read
+    # written behind it answers its number, then its OK.... The number where the set's
+    # OK... is owed puts the stream out of step; passed over, the read's OK... would
+    # have acknowledged the set (a false success).
+    core = ProtocolCore(autostatus=2)
+    core.ack_reads = AckReads.AFTER
+    core.send(parse("!vel z 91.875"), "set")
+    core.send(parse("?delay"), "read")
+    events = core.events(b"0\rOK...\r")
+    assert not [e for e in events if isinstance(e, Acknowledged)]
+    assert isinstance(events[0], Mismatched) and events[0].tag == "set"
