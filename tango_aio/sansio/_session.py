@@ -56,7 +56,7 @@ from ._linkstate import (
     Silence,
 )
 from ._linktiming import MIN_QUIET, LinkTiming
-from ._patterns import ACK_PATTERN, normal_line
+from ._patterns import ACK_PATTERN, ReplyPattern, normal_line
 
 __all__ = [
     "DEAD_AFTER",
@@ -468,6 +468,15 @@ class LinkSession:
         if queued and waits < REPLY_WAITS:
             return Overdue.WAIT_AGAIN
         return Overdue.UNANSWERED
+
+    @staticmethod
+    def acknowledgement_missing(expected: ReplyPattern) -> bool:
+        """Whether a line that cannot be the reply it would be taken for (a
+        :class:`~tango_aio.sansio._core.Mismatched` expecting ``expected``) came where an
+        acknowledgement was owed: that acknowledgement went unanswered, as from a
+        controller back in its power-on mode 1, which acknowledges nothing (L2062,
+        L2099-2103). It tells the adapter's owner so, as an unanswered line does."""
+        return expected is ACK_PATTERN
 
     def unanswered(self, serial: int, written: int) -> Silence:
         """Count a request (or marker) that got no reply in time; returns whether the link

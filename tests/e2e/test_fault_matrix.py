@@ -700,6 +700,15 @@ SOAK_HISTORIES = [
                   ("noise", "set", False), ("drop", "upload", True),
                   ("cycle_idle", "upload", False), ("lose", "set", True)),
                  id="after-lost-set-behind-a-reread"),
+    # The power cycled while a move runs: the unit, back in mode 1, sends no OK..., and
+    # the number of the next line came where one was owed. Out of step (above), which
+    # must also suspect the restart, as the timeout it replaces did: otherwise every
+    # later line meets the mode-1 replies and is aborted in turn.
+    pytest.param("ack_reads=after", 607421839,
+                 (("drop", "set", False), ("noise", "speed", True), ("drop", "speed", False),
+                  ("lose", "reads", True), ("garble", "reads", False),
+                  ("cycle_idle", "speed", True), ("cycle_moving", "move", False)),
+                 id="after-power-cycle-while-moving"),
 ]
 
 
