@@ -157,10 +157,14 @@ class _Exchanges(_Reads):
         except (ControllerTimeoutError, RequestAbortedError, ProtocolError,
                 ConnectionLostError) as error:
             if not raw_move:
-                raise
-            if starts and not isinstance(error, ConnectionLostError):
-                await self._contest(error, command)  # it may have run: is it running?
-            raise outcome_unknown(error, command.line) from error.__cause__
+                if not (isinstance(error, RequestAbortedError) and check and not starts
+                        and await self._held_after_abort(command, timeout)):
+                    raise
+                response = Response()
+            else:
+                if starts and not isinstance(error, ConnectionLostError):
+                    await self._contest(error, command)  # it may have run: is it running?
+                raise outcome_unknown(error, command.line) from error.__cause__
         if unanswered:
             await self._prove_started(command, busy, self._timeout(timeout))
         self._track(command)
@@ -169,6 +173,16 @@ class _Exchanges(_Reads):
         if self._moves.accepted(command):
             self._moves.inputs_read(await self._inputs_are_idle())
         return response
+
+    async def _held_after_abort(self, command: Command, timeout: float | None) -> bool:
+        """A set line a resync aborted in flight (its answer went with the stream, the
+        line may have run): whether its read-back, written once the stream is in step,
+        shows the value. Another value, or no read that proves it: the abort stands."""
+        try:
+            return await self._protocol.prove_set(command, self._timeout(timeout),
+                                                  aborted=True)
+        except TangoError:
+            return False
 
     def _turned(self, command: Command) -> None:
         """An accepted line that starts motion nobody follows: its axes may move on."""

@@ -330,15 +330,21 @@ class TangoProtocol(LineRouter):
         expect = expectation(command, self.core.autostatus, self.core.context)
         return expect.ack or expect.echo
 
-    async def prove_set(self, command: Command, timeout: float | None) -> None:
+    async def prove_set(self, command: Command, timeout: float | None, *,
+                        aborted: bool = False) -> bool:
         """Read the setting the set line ``command`` wrote, where the line owes no answer
         of its own (autostatus 0, 1, 3), and raise unless the reply shows the value (see
-        :mod:`tango_aio.sansio._readback`; no read: nothing to do). For a line whose ``?err``
-        answered only a standing internal error (L2853-2867), which proves nothing."""
+        :mod:`tango_aio.sansio._readback`; no read: nothing to do); return whether a read
+        was made. For a line whose ``?err`` answered only a standing internal error
+        (L2853-2867), which proves nothing; with ``aborted``, for a line whose answer a
+        resync took (in every mode: its acknowledgement or echo is gone)."""
         expect = expectation(command, self.core.autostatus, self.core.context)
-        back = None if expect.ack or expect.echo else read_back(command, self.core.context)
-        if back is not None:
-            _judge(back, (await self.query(back.read, timeout=timeout)).lines)
+        owes = expect.ack or expect.echo
+        back = None if owes and not aborted else read_back(command, self.core.context)
+        if back is None:
+            return False
+        _judge(back, (await self.query(back.read, timeout=timeout)).lines)
+        return True
 
     async def stop_soft(self, *, axes: Sequence[str] = ()) -> None:
         """Stop every axis with ``a`` (queued lines stay), or with ``axes`` one ``a x``

@@ -691,6 +691,9 @@ class LineRouter(asyncio.Protocol):
                                    "lost or added")
             _fail(submission.reply, ProtocolError(
                 f"{why} ({command!r}); the reply stream was resynchronised"))
+        if self.session.acknowledgement_missing(event.expected) \
+                and self.on_unanswered is not None and self._lost is None:
+            self.on_unanswered()  # (a controller that restarted acknowledges nothing)
         # The controller answers fine (a line was lost or added on the way), so lines not
         # yet written go out after the marker.
         self._background_resync(self.reply_timeout)

@@ -225,6 +225,10 @@ class ProtocolCore:
         #: ``move_ok``), oldest first; and ack lines held until it is known whose they
         #: are (:meth:`_resolve_held`).
         self._deferred: deque[Hashable] = deque()
+        #: Deferred moves whose completion report came: once a line that is not an
+        #: acknowledgement follows the report, their OK... no longer can
+        #: (:meth:`_retire_reported`).
+        self._reported: set[Hashable] = set()
         #: What each read line owes, by (line, mode, ack_reads), with the instruction and
         #: the expectation it was computed for (:meth:`_line_facts`); this core's own.
         self._facts: dict[tuple[str, int, AckReads | None],
@@ -499,6 +503,7 @@ class ProtocolCore:
         # After a resync an OK... still owed arrives before the marker's reply (dropped)
         # or, with no request waiting, as an unsolicited line.
         self._deferred.clear()
+        self._reported.clear()
         self._held.clear()
         self._deferred_echoes.clear()
 
@@ -630,8 +635,10 @@ class ProtocolCore:
         text = line.strip()
         if self._route_completion(line, text):
             return
-        if self._held and not ACK_PATTERN.accepts(text):
-            self._resolve_held()
+        if (self._held or self._reported) and not ACK_PATTERN.accepts(text):
+            if self._held:
+                self._resolve_held()
+            self._retire_reported()
         if self._desynced:
             self._events.append(Dropped(line))
             return
@@ -688,7 +695,7 @@ class ProtocolCore:
             # the move ends, which may differ from the mode of the last line written.
             if self._in_multiline():
                 return False
-            tag = self._moves.popleft() if self._moves else None
+            tag = self._report_tag()
             self._events.append(Completed(tag, None, line) if tag is not None
                                 else Unsolicited(line))
             return True
@@ -696,9 +703,29 @@ class ProtocolCore:
             return False
         letters = dict(zip(("x", "y", "z", "a"), text[:-1], strict=False))
         present = {axis: letter for axis, letter in letters.items() if letter != ABSENT}
-        tag = self._moves.popleft() if self._moves else None
+        tag = self._report_tag()
         self._events.append(Completed(tag, present, line))
         return True
+
+    def _report_tag(self) -> Hashable | None:
+        """The move a completion report belongs to (the oldest awaiting one), noted if its
+        OK... is deferred (:meth:`_retire_reported`)."""
+        tag = self._moves.popleft() if self._moves else None
+        if tag is not None and tag in self._deferred:
+            self._reported.add(tag)
+        return tag
+
+    def _retire_reported(self) -> None:
+        """A line that is not an acknowledgement came after the completion report of a
+        deferred move: a deferred OK... comes with the report, before it or right behind
+        it, so one still counted now never comes. Its move's acknowledgement only looked
+        deferred (lost or garbled on the way, the ``?err`` behind it answering in its
+        place); counted on, it would take a later line's acknowledgement, and that line
+        would wait for one that never comes."""
+        for tag in self._reported:
+            with contextlib.suppress(ValueError):
+                self._deferred.remove(tag)
+        self._reported.clear()
 
     def _in_multiline(self) -> bool:
         # Only a reply read by count or up to a terminator (service) can hold an empty
@@ -761,16 +788,37 @@ class ProtocolCore:
             if head.follow is not None:
                 self._defer_ack(head, line)
                 return
-            self._events.append(Unsolicited(line))
+            if not self.check_replies:
+                self._events.append(Unsolicited(line))
+                return
+            # Not an acknowledgement where one is owed: the head's line or its OK... was
+            # lost (the line is a reply owed behind it: the number of a read written
+            # next, or of the ?err behind it), or the line is extra. Passed over, it
+            # would leave the head to take the next line's OK... for its own: out of step.
+            self._desynced = True
+            self._events.append(Mismatched(None if head.internal else head.tag, line,
+                                           ACK_PATTERN))
             return
         if self._deferred:
             # An OK... of a deferred move may come before this line's acknowledgement
             # (its move ended first): hold the ack lines until it is known whose each is.
             self._held.append(line)
-            if not _is_ok(text) or len(self._held) > len(self._deferred):
+            if not _is_ok(text) or len(self._held) > len(self._deferred) \
+                    or self._nothing_tells(head):
                 self._resolve_held()
             return
         self._acknowledge(head, line, text)
+
+    def _nothing_tells(self, head: _Pending) -> bool:
+        """Whether no line will come to tell whose a held ``OK...`` is: the head owes only
+        the acknowledgement a read sends after its data (``ack_reads=after``) and nothing
+        is owed behind it. That acknowledgement is no verdict (the data is in), so the
+        head takes it; a deferred ``OK...`` arriving later is counted as one. Held, it
+        would wait for a line that is written only once it is in: the next line that
+        looks like it (a set's ``OK...``; no separator fits, each read is acknowledged
+        after its data too) waits for the head's reply."""
+        return len(self._pending) == 1 and len(head.items) == 1 \
+            and head.pattern is not ACK_PATTERN
 
     def _defer_ack(self, head: _Pending, line: str) -> None:
         """A line that is not an acknowledgement came for a mode-2 move: its OK... comes
@@ -883,6 +931,7 @@ class ProtocolCore:
                 self.forget_completion(head.verdict)
                 with contextlib.suppress(ValueError):
                     self._deferred.remove(head.verdict)
+                self._reported.discard(head.verdict)
             self._events.append(Acknowledged(head.verdict, code, lines[0] if lines else "",
                                              deferred=True))
             return

@@ -117,7 +117,8 @@ class Overdue(enum.Enum):
     #: back out of the queue, count nothing.
     WITHDRAW = "withdraw"
     #: Never written, held in step behind a reply owed to nobody who waits (a credit
-    #: marker, a separator, a list's entry, a cancelled read): no deadline covers that
+    #: marker, a separator, a list's entry, a cancelled read, the ``?err`` the core
+    #: writes behind a move, whose acknowledgement a restart lost): no deadline covers that
     #: reply but this one. Take the line back out of the queue, count the lines ahead
     #: of it (:meth:`LinkSession.unanswered`) and resync in the background.
     STALLED = "stalled"

@@ -56,7 +56,7 @@ from ._linkstate import (
     Silence,
 )
 from ._linktiming import MIN_QUIET, LinkTiming
-from ._patterns import ACK_PATTERN, normal_line
+from ._patterns import ACK_PATTERN, ReplyPattern, normal_line
 
 __all__ = [
     "DEAD_AFTER",
@@ -458,14 +458,25 @@ class LinkSession:
         in all), instead of being declared lost moments after its write, which would
         resync the stream under the lines written with it."""
         if not written:
+            # Behind a line of the core's own (the ?err behind a move) nobody waits
+            # either: it counts as owed when it is still sure to get a line (its tail).
             owed = self.core.pending_tags
-            if self.state is LinkState.IN_STEP and not self.core.resyncing and owed \
-                    and owed[0] not in awaited:
+            if self.state is LinkState.IN_STEP and not self.core.resyncing and (
+                    owed[0] not in awaited if owed else self.core.tail is not None):
                 return Overdue.STALLED
             return Overdue.WITHDRAW
         if queued and waits < REPLY_WAITS:
             return Overdue.WAIT_AGAIN
         return Overdue.UNANSWERED
+
+    @staticmethod
+    def acknowledgement_missing(expected: ReplyPattern) -> bool:
+        """Whether a line that cannot be the reply it would be taken for (a
+        :class:`~tango_aio.sansio._core.Mismatched` expecting ``expected``) came where an
+        acknowledgement was owed: that acknowledgement went unanswered, as from a
+        controller back in its power-on mode 1, which acknowledges nothing (L2062,
+        L2099-2103). It tells the adapter's owner so, as an unanswered line does."""
+        return expected is ACK_PATTERN
 
     def unanswered(self, serial: int, written: int) -> Silence:
         """Count a request (or marker) that got no reply in time; returns whether the link

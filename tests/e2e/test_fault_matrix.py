@@ -451,7 +451,8 @@ async def run_operation(rig: Rig, op: str, fault: str | None, what: str,
         if op != "move":
             background = asyncio.ensure_future(rig.tango.move_to(**as_axes(background_target)))
             await until_moving(rig, "x", background)
-            power_cycle(rig)
+            if not background.done():  # (one that ended first is judged where it ended)
+                power_cycle(rig)
     elif fault == "cycle_idle":
         power_cycle(rig)
     elif fault is None:
@@ -462,7 +463,10 @@ async def run_operation(rig: Rig, op: str, fault: str | None, what: str,
 
     async def power_goes(call: asyncio.Future[Any]) -> None:
         await until_moving(rig, "x", call)
-        power_cycle(rig)
+        if not call.done():
+            # A move that returned first is judged where it ended: a restart after it
+            # puts the positions to 0 (L1837-1857), which is no verdict on the move.
+            power_cycle(rig)
 
     if op == "reads":
         await op_reads(rig, lines, bit_flips=fault == "garble", what=what)
@@ -661,15 +665,88 @@ async def test_the_call_after_a_restart_in_mode_2_with_reads_acknowledged_after_
 
 
 
-#: The failure of the first rule the soak still finds in autostatus 2 (2026-11-28): after
-#: some history of faulted runs on one connection, the call after a faulted one fails with
-#: a typed error naming what may still move (a timeout, or a request aborted by a resync),
-#: never a false success or a misdelivered reply (0 of each in every run). The soak's
-#: seeds: ack_reads=after 400335278 and 5016179 (moves), ack_reads=before 930568548,
-#: move_ok=completion 317151209 (a set). It depends on timing (it hid while another pytest
-#: plugin slowed the runs); the same cells on a fresh connection pass. Until it is found,
-#: the mode-2 soak is an expected failure (not strict): it still runs and reports.
-KNOWN_SOAK_FAILURE = "autostatus 2: the call after a faulted one, after a faulted history"
+#: Histories the mode-2 soak drew on one connection (variant, its seed, and per run the
+#: fault, the operation and which values the call after it writes), each ending in the
+#: run whose next call failed. The first three: a move line lost, or its ``OK...``
+#: garbled, looks like a move acknowledged only at completion (switch ``move_ok``), and
+#: the acknowledgements after it were counted against an ``OK...`` that never came.
+#: Reads acknowledged after their data: the last ``OK...`` in was held with nothing
+#: behind it to tell whose it was, and the next move waited for it ("it was not
+#: written, a reply owed before it did not come"); before their data: a later line's
+#: ``OK...`` went to the phantom, and the ``?err`` behind that line waited for ever.
+SOAK_HISTORIES = [
+    pytest.param("ack_reads=after", 400335278,
+                 (("noise", "set", False), ("lose", "reads", True), ("extra", "set", False),
+                  ("garble", "set", True), ("lose", "move", False)), id="after-lost-move"),
+    pytest.param("ack_reads=after", 5016179,
+                 (("noise", "move", True), ("junk", "upload", False),
+                  ("cycle_idle", "speed", True), ("cycle_moving", "upload", False),
+                  ("extra", "set", True), ("lose", "move", False)),
+                 id="after-lost-move-after-cycles"),
+    pytest.param("ack_reads=before", 930568548,
+                 (("cycle_idle", "speed", True), ("garble", "upload", False),
+                  ("extra", "upload", True), ("drop", "set", False),
+                  ("cycle_idle", "speed", True), ("noise", "move", False)),
+                 id="before-garbled-move-ok"),
+    # The faulted run's drop takes the reply of a read the driver makes on its own (the
+    # settings read again after the restart the run before found); the next call's set,
+    # written behind that read, puts its OK... where the read's number is owed: the
+    # mismatch resyncs the stream with the set in flight, which its read-back proves.
+    pytest.param("ack_case=lower", 494902982,
+                 (("extra", "speed", False), ("cycle_moving", "speed", True),
+                  ("cycle_moving", "set", False), ("cycle_idle", "reads", True),
+                  ("drop", "set", False)),
+                 id="drop-after-restart-reread"),
+    # A set line lost while that read runs behind it: the read's number came where the
+    # set's OK... was owed and was passed over, and the read's OK... acknowledged the
+    # set (a false success, on main too); it now puts the stream out of step.
+    pytest.param("ack_reads=after", 226313994,
+                 (("cycle_idle", "speed", False), ("lose", "speed", True),
+                  ("noise", "set", False), ("drop", "upload", True),
+                  ("cycle_idle", "upload", False), ("lose", "set", True)),
+                 id="after-lost-set-behind-a-reread"),
+    # The power cycled while a move runs: the unit, back in mode 1, sends no OK..., and
+    # the number of the next line came where one was owed. Out of step (above), which
+    # must also suspect the restart, as the timeout it replaces did: otherwise every
+    # later line meets the mode-1 replies and is aborted in turn.
+    pytest.param("ack_reads=after", 607421839,
+                 (("drop", "set", False), ("noise", "speed", True), ("drop", "speed", False),
+                  ("lose", "reads", True), ("garble", "reads", False),
+                  ("cycle_idle", "speed", True), ("cycle_moving", "move", False)),
+                 id="after-power-cycle-while-moving"),
+]
+
+
+@pytest.mark.slow
+async def test_the_call_after_a_power_cycle_while_moving_on_the_pty_in_mode_2(
+        tmp_path: Path) -> None:
+    """``ack_reads=after``, ``speed`` while a move runs and the power goes, over the pty
+    at 57600 Bd, twelve runs: where the power went between the number of the ``?err``
+    the core writes behind the move and its ``OK...``, the ``!speed`` behind it waited
+    for that ``OK...`` and was withdrawn without a resync, and so was every later call
+    (it failed in 2 to 5 of the 12 runs, depending on the timing)."""
+    posix_only("the pty emulator at 57600 Bd")
+    counts: Counter[str] = Counter()
+    bad: list[str] = []
+    for seed in range(12):
+        bad += await run_cell(2, "cycle_moving", "speed", "ack_reads=after", pty=True,
+                              seed=seed, counts=counts, state=tmp_path / f"{seed}.json")
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize(("variant", "seed", "runs"), SOAK_HISTORIES)
+async def test_the_call_after_a_faulted_one_after_a_faulted_history_in_mode_2(
+        tmp_path: Path, variant: str, seed: int, runs: tuple[tuple[str, str, bool], ...]
+        ) -> None:
+    counts: Counter[str] = Counter()
+    async with opened_rig(variant, 2, pty=False, seed=seed, counts=counts,
+                          state=tmp_path / "state.json") as rig:
+        for fault, op, second in runs:
+            await run_operation(rig, op, fault, f"{fault} {op}")
+            await next_call(rig, op, second=second)
+            assert not rig.bad, f"{variant} seed {seed} {fault} {op}: " + "\n".join(rig.bad)
+            await bounded(reset_values(rig))
+
 
 # --------------------------------------------------------------------------------------
 # The soak
@@ -695,11 +772,9 @@ SOAK: dict[str, Any] = {}
 
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", MODES)
-async def test_soak(tmp_path: Path, mode: int, request: pytest.FixtureRequest) -> None:
+async def test_soak(tmp_path: Path, mode: int) -> None:
     """Random cells, one after another on one connection per variant, for
     :func:`soak_seconds`: no bad verdict, RSS about flat."""
-    if mode == 2:
-        request.applymarker(pytest.mark.xfail(reason=KNOWN_SOAK_FAILURE, strict=False))
     rng = random.Random(mode)
     counts: Counter[str] = Counter()
     gc.collect()

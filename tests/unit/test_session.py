@@ -18,7 +18,14 @@ from hypothesis import strategies as st
 
 from tango_aio.catalog._instructions import parse
 from tango_aio.errors import ProtocolError
-from tango_aio.sansio._core import AckReads, Dropped, HelpStyle, ProtocolCore, Replied
+from tango_aio.sansio._core import (
+    AckReads,
+    Dropped,
+    HelpStyle,
+    Mismatched,
+    ProtocolCore,
+    Replied,
+)
 from tango_aio.sansio._exchange import STATUS_READ, Until, nothing_trails_help, status_tail
 from tango_aio.sansio._linkstate import (
     REPLY_WAITS,
@@ -540,6 +547,45 @@ def test_a_line_held_behind_a_reply_nobody_awaits_stalls_instead_of_being_withdr
     assert session.silent == 0 and session.state is S.IN_STEP  # it decides, counts nothing
     link.resync()
     assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.WITHDRAW
+
+
+def test_a_line_held_behind_the_err_the_core_wrote_behind_a_move_stalls() -> None:
+    """Mode 2, reads acknowledged after their data: the ``?err`` the core writes behind a
+    move got its number, then the power went (its ``OK...`` never comes; back in mode 1
+    the controller acknowledges nothing, L2062, L2099-2103). No caller awaits that line,
+    so only the held line's deadline covers it: STALLED (withdraw, count, resync; the
+    restart is then found), not WITHDRAW, which would leave every later line held."""
+    link = Link()
+    core, session = link.core, link.session
+    core.autostatus, core.ack_reads = 2, AckReads.AFTER
+    assert core.send(parse("!moa 3.0"), "move")[0] == b"!moa 3.0\r?err\r"
+    core.events(b"OK...\r0\r")
+    assert core.pending_tags == [] and core.tail is not None  # the ?err's OK... is owed
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.STALLED
+    core.events(b"OK...\r")
+    assert session.reply_overdue(queued=True, written=False, waits=1) is Overdue.WITHDRAW
+
+
+def test_a_line_where_an_acknowledgement_was_owed_counts_as_that_acknowledgement_missing(
+        ) -> None:
+    """Mode 2: a unit back in its power-on mode 1 acknowledges nothing (L2062,
+    L2099-2103), so the next reply comes where an ``OK...`` is owed; the core puts the
+    stream out of step, and the session says that acknowledgement went unanswered (the
+    restart check follows, as after a timeout). A data reply that does not fit does not."""
+    link = Link()
+    core, session = link.core, link.session
+    core.autostatus, core.ack_reads = 2, AckReads.AFTER
+    core.send(parse("!vel x 5"), "set")
+    core.send(parse("?pos"), "read")
+    [mismatch] = core.events(b"0.0000 0.0000 0.0000\r")
+    assert isinstance(mismatch, Mismatched) and mismatch.tag == "set"
+    assert session.acknowledgement_missing(mismatch.expected)
+    other = ProtocolCore(autostatus=2)
+    other.ack_reads = AckReads.AFTER
+    other.send(parse("?pos"), "read")
+    [mismatch] = other.events(b"OK...\r")
+    assert isinstance(mismatch, Mismatched)
+    assert not session.acknowledgement_missing(mismatch.expected)
 
 
 # -- the mode ----------------------------------------------------------------------------
