@@ -572,15 +572,21 @@ print(json.dumps(out))
 """
 
 
+async def _failed_move_by(case: str, prefix: str) -> Any:
+    """What the PITFALLS ``case`` reports of a move that fails (X disabled)."""
+    async with connect(INSTANT) as tango, serving({"": tango}, prefix):
+        await tango.command("!axis x 0")
+        result = await run_client(PITFALLS, prefix, case, 0, timeout=120)
+        assert (await tango.position())["x"] == 0.0  # the move failed
+    return result
+
+
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="pyepics' epics.Motor.move(wait=True) returns 0 "
                    "(finished OK) whenever the put's callback came, LVIO is 0 and no limit "
                    "switch is on: it reads neither the put's status nor the alarm")
 async def test_pitfall_pyepics_motor_move_reports_a_failed_move() -> None:
-    async with connect(INSTANT) as tango, serving({"": tango}, "PFM:"):
-        await tango.command("!axis x 0")
-        result = await run_client(PITFALLS, "PFM:", "pyepics-motor", 0, timeout=120)
-        assert (await tango.position())["x"] == 0.0  # the move failed
+    result = await _failed_move_by("pyepics-motor", "PFM:")
     assert result["status"] != 0, result
 
 
@@ -589,10 +595,7 @@ async def test_pitfall_pyepics_motor_move_reports_a_failed_move() -> None:
                    "the put fails: its retry loop (stamina over tenacity) takes aioca's "
                    "CANothing, falsy for a failure, for a success")
 async def test_pitfall_ophyd_async_set_raises_when_the_move_fails() -> None:
-    async with connect(INSTANT) as tango, serving({"": tango}, "PFA:"):
-        await tango.command("!axis x 0")
-        result = await run_client(PITFALLS, "PFA:", "ophyd-async", 0, timeout=120)
-        assert (await tango.position())["x"] == 0.0  # the move failed
+    result = await _failed_move_by("ophyd-async", "PFA:")
     assert result["raised"], result
 
 
