@@ -266,8 +266,12 @@ class MarzhauserController(Device):  # type: ignore[misc]
         await super().init_device()
         self._link = SERVING.controllers[self.get_name().lower()]
         self.set_state(DevState.ON)
-        # Tango's own signal thread ends the server on Ctrl+C; this says it was one.
-        self.register_signal(signal.SIGINT)
+        # Tango's own signal thread ends the server on Ctrl+C; this says it was one. Where
+        # Tango will not register it, the server still ends; only the exit code is 0.
+        try:
+            self.register_signal(signal.SIGINT)
+        except tango.DevFailed:
+            log.debug("SIGINT not registered: Ctrl+C will end the server with 0")
 
     def signal_handler(self, signo: int) -> None:
         """Note a Ctrl+C (the server then shuts down as Tango does on it)."""
