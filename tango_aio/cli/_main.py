@@ -288,9 +288,17 @@ def _sigint_recorded() -> Iterator[None]:
             signal.raise_signal(signal.SIGINT)
 
 
+def _ignore_sigint() -> None:
+    """Ignore SIGINT from now on (main thread only): the process is already on its way
+    out after a Ctrl+C."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tango-aio`` command: 0 on success, 1 after an error (printed
-    as one line), 2 for usage errors, 130 after Ctrl+C."""
+    as one line), 2 for usage errors, 130 after Ctrl+C (from then on the process ignores
+    SIGINT: it is on its way out)."""
     debug = False
     try:
         # The module's body has run to its end (class and function definitions, not only
@@ -307,6 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return 1
             return _run_loop(args)
     except KeyboardInterrupt:
+        _ignore_sigint()  # a further Ctrl+C while we say so must not end in a traceback
         _complain("interrupted", "yellow")
         return 130
     except UsageError as exc:

@@ -249,6 +249,21 @@ def test_ctrl_c_while_the_event_loop_is_built_ends_quietly() -> None:
     assert (done.returncode, done.stdout, done.stderr) == (130, "", "interrupted\n")
 
 
+def test_a_second_ctrl_c_while_interrupted_is_printed_ends_quietly() -> None:
+    # Deterministically: the second Ctrl+C of an impatient user lands while main() says
+    # "interrupted" (seen in CI at a random moment: a traceback from inside rich).
+    probe = ("import os, signal, sys; import tango_aio.cli._main as m; "
+             "import tango_aio.cli._output as o\n"
+             "def first(args):\n    raise KeyboardInterrupt\n"
+             "said = o._complain\n"
+             "def complain(text, style=''):\n"
+             "    os.kill(os.getpid(), signal.SIGINT)\n"
+             "    said(text, style)\n"
+             "m._run_loop = first; m._complain = complain\n"
+             "sys.exit(m.main(['info', 'sim://?baud=0']))")
+    assert _run_probe(probe) == (130, "", "interrupted\n")
+
+
 @pytest.mark.parametrize("delay", [0.0, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.25])
 def test_ctrl_c_at_any_moment_of_start_up_shows_no_traceback(delay: float) -> None:
     with subprocess.Popen([sys.executable, "-c", _EARLY, "info", "sim://?baud=0"],
