@@ -12,9 +12,8 @@ from collections.abc import (
     Mapping,
     Sequence,
 )
-from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, Protocol
+from typing import Any
 
 from .._checks import check_count, check_timeout
 from ..catalog import (
@@ -82,7 +81,7 @@ from ._motion import (
     annotate,
 )
 from ._planning import Speed, _line_groups, _Planning
-from ._ports import _Devices, _Port
+from ._ports import _Devices, _Port, _Relink
 from ._reads import Identity, _read_command
 from ._restart import (
     RestartWatch,
@@ -971,29 +970,3 @@ class Controller(_Planning, _Devices):
         self._protocol.give_up(lost)
         self._hub.close()
         self._link_changed()
-
-
-@dataclass(frozen=True, slots=True)
-class _Relink:
-    """The controller as its :class:`~tango_aio.link._reconnect.Reconnector` sees it
-    (:class:`~tango_aio.link._reconnect.ReconnectPort`): the controller's own methods, handed
-    over."""
-
-    url_of: Callable[[], str]
-    signature: _SignatureOf
-    release_link: Callable[[], Coroutine[Any, Any, None]]
-    stage: Callable[[TangoProtocol, Closer | None], Controller]
-    adopt: Callable[[Controller, Closer | None], None]
-    reconnected: Callable[[int], None]
-    give_up: Callable[[ConnectionLostError], None]
-
-    @property
-    def url(self) -> str:
-        """The URL that is opened again."""
-        return self.url_of()
-
-
-class _SignatureOf(Protocol):
-    def __call__(self, controller: Controller | None = None) -> Signature | None: ...
-
-

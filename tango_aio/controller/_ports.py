@@ -1,6 +1,7 @@
 """What the controller hands over: :class:`_Port` (the controller as
 :class:`~tango_aio.controller._motion.Motion` sees it, made of the controller's own
-methods), and :class:`_Devices`, the controller's intents the device families need."""
+methods), :class:`_Relink` (the same for its reconnector), and :class:`_Devices`, the
+controller's intents the device families need."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from collections.abc import (
     Sequence,
 )
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 from ..catalog import (
     AXES,
@@ -19,6 +20,7 @@ from ..catalog import (
     Command,
 )
 from ..errors import (
+    ConnectionLostError,
     ControllerError,
     InvalidInstructionError,
     ProtocolError,
@@ -28,10 +30,17 @@ from ..events import (
     TangoEvent,
 )
 from ..link import (
+    Closer,
     MoveHandle,
+    Signature,
+    TangoProtocol,
 )
 from ..units import Measure
 from ._setup import _Setup
+
+#: The controller a reconnect stages (the :class:`Controller` itself).
+StagedT = TypeVar("StagedT")
+StagedT_contra = TypeVar("StagedT_contra", contravariant=True)
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,3 +93,29 @@ class _Devices(_Setup):
     def _in_motion(self) -> bool:
         """Whether a move of this driver is in flight (no read: see :meth:`is_busy`)."""
         return self._motion.busy or bool(self._motion_calls)
+
+
+@dataclass(frozen=True, slots=True)
+class _Relink(Generic[StagedT]):
+    """The controller as its :class:`~tango_aio.link._reconnect.Reconnector` sees it
+    (:class:`~tango_aio.link._reconnect.ReconnectPort`): the controller's own methods, handed
+    over."""
+
+    url_of: Callable[[], str]
+    signature: _SignatureOf[StagedT]
+    release_link: Callable[[], Coroutine[Any, Any, None]]
+    stage: Callable[[TangoProtocol, Closer | None], StagedT]
+    adopt: Callable[[StagedT, Closer | None], None]
+    reconnected: Callable[[int], None]
+    give_up: Callable[[ConnectionLostError], None]
+
+    @property
+    def url(self) -> str:
+        """The URL that is opened again."""
+        return self.url_of()
+
+
+class _SignatureOf(Protocol[StagedT_contra]):
+    def __call__(self, controller: StagedT_contra | None = None) -> Signature | None: ...
+
+
