@@ -227,7 +227,7 @@ async def opened_rig(variant: str, mode: int, *, pty: bool, seed: int,
                      counts: Counter[str], state: Path) -> AsyncIterator[Rig]:
     """A controller in ``mode`` on a fresh emulator of ``variant`` (in-process at
     ``baud=0``, or over a pty at 57600 Bd), every (setting, axis) distinct and saved."""
-    firmware = dict(variants())[variant]
+    firmware = firmware_of(variant)
     server = None
     if pty:
         def factory(emit: Callable[[bytes], None]) -> ControllerModel:
@@ -596,8 +596,23 @@ def _params(transport: str) -> list[Any]:
     return out
 
 
-#: Every variant, ``manual`` first.
-VARIANTS = [name for name, _ in variants()]
+#: Switch values the manual leaves open that a real unit may combine, where no single
+#: variant shows what they do together: mode 2's acknowledged reads with a move's
+#: ``OK...`` at its completion (L2099-2103), mode 4's echo at a move's completion with
+#: each other echo switch (L2117, L2168, old L723). Named ``switch=value&switch=value``.
+COMBINED = ("ack_reads=before&move_ok=completion", "ack_reads=after&move_ok=completion",
+            "echo=completion&echo_report=no", "echo=completion&echo_all=yes",
+            "echo=completion&echo_text=normalized", "echo=completion&echo_text=nobang")
+
+#: Every variant, ``manual`` first, then the combined ones.
+VARIANTS = [*(name for name, _ in variants()), *COMBINED]
+
+
+def firmware_of(variant: str) -> Firmware:
+    """The firmware of a variant of :func:`variants` or of :data:`COMBINED`."""
+    if variant in PROFILES:
+        return PROFILES[variant]
+    return Firmware().with_(**dict(pair.split("=", 1) for pair in variant.split("&")))
 
 
 def cell_runs(mode: int, fault: str, op: str, transport: str, slow: bool
@@ -643,6 +658,40 @@ async def test_fault_matrix_pty(request: pytest.FixtureRequest, tmp_path: Path, 
                                 fault: str, op: str) -> None:
     posix_only("the pty emulator at 57600 Bd")
     await _check_cell(request, tmp_path, mode, fault, op, "pty")
+
+
+#: The mode each combined variant's switches act in (elsewhere they change nothing).
+COMBINED_MODE = {name: 4 if name.startswith("echo=") else 2 for name in COMBINED}
+#: The combined cells of the default run: a move's acknowledgement or echo lost, garbled
+#: or cut off by a power cycle, and a read's acknowledgement lost, on each combination.
+COMBINED_SAMPLE = (("lose", "move"), ("garble", "move"), ("cycle_moving", "speed"),
+                   ("drop", "reads"))
+#: Seeds of each combined cell under ``slow``.
+COMBINED_SEEDS = 4
+
+
+def _combined_params() -> list[Any]:
+    return [pytest.param(variant, fault, op, id=f"{variant}-{fault}-{op}",
+                         marks=[] if (fault, op) in COMBINED_SAMPLE else [pytest.mark.slow])
+            for variant in COMBINED for fault in FAULTS for op in OPS]
+
+
+@pytest.mark.parametrize(("variant", "fault", "op"), _combined_params())
+async def test_fault_matrix_on_combined_switches(
+        request: pytest.FixtureRequest, tmp_path: Path, variant: str, fault: str, op: str
+        ) -> None:
+    """Every cell of the mode a :data:`COMBINED` variant's switches act in, on that
+    variant (one seed in the default run, :data:`COMBINED_SEEDS` under ``slow``)."""
+    mode = COMBINED_MODE[variant]
+    slow = request.node.get_closest_marker("slow") is not None
+    counts = COUNTS[f"sim mode {mode} {fault} {op} {variant}"]
+    base = 7000 + FAULTS.index(fault) * 10 + OPS.index(op)
+    bad: list[str] = []
+    for i in range(COMBINED_SEEDS if slow else 1):
+        bad += await run_cell(mode, fault, op, variant, pty=False, seed=base + 100 * i,
+                              counts=counts, state=tmp_path / f"{i}.json")
+        counts["runs"] += 1
+    assert not bad, "\n".join(bad)
 
 
 #: Mode 2 on firmware that acknowledges reads after their data (``ack_reads=after``): a
