@@ -16,11 +16,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tango_aio.catalog._instructions import parse
-from tango_aio.sansio._core import Acknowledged, AckReads, Mismatched, ProtocolCore, Replied
+from tango_aio.sansio._core import (
+    Acknowledged,
+    AckReads,
+    Completed,
+    Mismatched,
+    ProtocolCore,
+    Replied,
+)
 from tango_aio.sansio._exchange import reads_acknowledged
 from tango_aio.sansio._scheduler import Line, WriteScheduler
 
@@ -96,7 +104,7 @@ def histories(draw: st.DrawFn) -> list[tuple[str, int | None]]:
 
 
 @given(ack_reads=st.sampled_from(list(AckReads)), history=histories())
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=200, deadline=None)
 def test_moves_acknowledged_at_completion_keep_the_stream_in_step(
         ack_reads: AckReads, history: list[tuple[str, int | None]]) -> None:
     unit = DeferringUnit(ack_reads)
@@ -116,29 +124,23 @@ def test_moves_acknowledged_at_completion_keep_the_stream_in_step(
             assert [e.code for e in got if isinstance(e, Acknowledged)] == [0]
 
 
-def test_a_move_whose_ok_is_deferred_where_reads_are_acknowledged_before_data() -> None:
-    # '!moa' and the ?err behind it: 'OK...' '0' is the ?err's acknowledgement and
-    # number (the move's OK... comes with its report), not the move's OK... followed by
-    # a number where the ?err's OK... is owed.
+@pytest.mark.parametrize(("replies", "deferred"), [
+    # 'OK...' '0': the ?err's acknowledgement and number; the move's OK... comes with its
+    # report (not the move's OK... and a number where the ?err's OK... is owed).
+    (b"OK...\r0\r", True),
+    # The move's OK... at once, then the ?err's.
+    (b"OK...\rOK...\r0\r", False)])
+def test_a_move_where_reads_are_acknowledged_before_their_data(replies: bytes,
+                                                               deferred: bool) -> None:
     core = ProtocolCore(autostatus=2)
     core.ack_reads = AckReads.BEFORE
     core.send(parse("!moa 1 2"), "move")
-    events = core.events(b"OK...\r0\r")
+    events = core.events(replies)
     assert not [e for e in events if isinstance(e, Mismatched)]
     assert [(e.code, e.deferred) for e in events if isinstance(e, Acknowledged)] == \
-        [(0, True)]
-    assert core.events(b"OK...\r@@@-.\r")[-1].tag == "move"
-    assert core.pending_tags == []
-
-
-def test_a_move_acknowledged_at_once_where_reads_are_acknowledged_before_data() -> None:
-    core = ProtocolCore(autostatus=2)
-    core.ack_reads = AckReads.BEFORE
-    core.send(parse("!moa 1 2"), "move")
-    events = core.events(b"OK...\rOK...\r0\r")
-    assert not [e for e in events if isinstance(e, Mismatched)]
-    assert [(e.code, e.deferred) for e in events if isinstance(e, Acknowledged)] == \
-        [(0, False)]
+        [(0, deferred)]
+    report = b"OK...\r@@@-.\r" if deferred else b"@@@-.\r"
+    assert [e.tag for e in core.events(report) if isinstance(e, Completed)] == ["move"]
     assert core.pending_tags == []
 
 
