@@ -637,7 +637,7 @@ class ProtocolCore:
             return
         if (self._held or self._reported) and not ACK_PATTERN.accepts(text):
             if self._held:
-                self._resolve_held()
+                self._resolve_held(complete=True)
             self._retire_reported()
         if self._desynced:
             self._events.append(Dropped(line))
@@ -799,15 +799,29 @@ class ProtocolCore:
             self._events.append(Mismatched(None if head.internal else head.tag, line,
                                            ACK_PATTERN))
             return
-        if self._deferred:
+        behind = self._acked_behind(head)
+        if self._deferred or (head.follow is not None and behind):
             # An OK... of a deferred move may come before this line's acknowledgement
-            # (its move ended first): hold the ack lines until it is known whose each is.
+            # (its move ended first), and a move's own may be deferred while the ?err
+            # behind it is acknowledged before its number (ack_reads=before): hold the
+            # ack lines until it is known whose each is.
             self._held.append(line)
-            if not _is_ok(text) or len(self._held) > len(self._deferred) \
-                    or self._nothing_tells(head):
-                self._resolve_held()
+            if not _is_ok(text) or self._nothing_tells(head):
+                self._resolve_held(complete=False)
+            elif len(self._held) > len(self._deferred) + behind:
+                self._resolve_held(complete=True)
             return
         self._acknowledge(head, line, text)
+
+    def _acked_behind(self, head: _Pending) -> int:
+        """1 if ``head`` owes only its acknowledgement and the ``?err`` written behind it
+        owes an ``OK...`` before its number (reads acknowledged before their data): held
+        ``OK...`` lines may include that one. Else 0."""
+        if len(head.items) != 1 or len(self._pending) < 2:
+            return 0
+        behind = self._pending[1]
+        return int(behind.internal and behind.items[0] is _Item.ACK
+                   and behind.pattern is not ACK_PATTERN)
 
     def _nothing_tells(self, head: _Pending) -> bool:
         """Whether no line will come to tell whose a held ``OK...`` is: the head owes only
@@ -820,7 +834,7 @@ class ProtocolCore:
         return len(self._pending) == 1 and len(head.items) == 1 \
             and head.pattern is not ACK_PATTERN
 
-    def _defer_ack(self, head: _Pending, line: str) -> None:
+    def _defer_ack(self, head: _Pending, line: str | None) -> None:
         """A line that is not an acknowledgement came for a mode-2 move: its OK... comes
         with its completion report (switch ``move_ok=completion``). The reply of the
         ``?err`` written behind it (the line now, if nothing was lost) is its verdict."""
@@ -831,16 +845,23 @@ class ProtocolCore:
         head.items.popleft()
         if not head.items:
             self._pending.remove(head)
-        self._route(line)
+        if line is not None:
+            self._route(line)
 
-    def _resolve_held(self) -> None:
+    def _resolve_held(self, *, complete: bool) -> None:
         """Hand the held ack lines out: the head's own acknowledgement and the OK...s of
         deferred moves. A deferred one is always ``OK...`` (a refused move is refused at
         once, with ``ERR``), so an ``ERR`` among them is the head's; among OKs it does
         not matter which is whose, only how many. A move at the head may have deferred
-        its own: then the deferred moves take the OKs first."""
+        its own: then the deferred moves take the OKs first. ``complete``: a line that is
+        not an acknowledgement follows (or every OK... that can come is in), so where the
+        ``?err`` behind the head is acknowledged before its number, the last OK... is
+        that acknowledgement, and a move at the head that got none deferred its own."""
         held, self._held = self._held, []
         head = self._pending[0]
+        behind = None
+        if complete and self._acked_behind(head) and held and _is_ok(held[-1].strip()):
+            behind = held.pop()
         pick = next((i for i, line in enumerate(held) if not _is_ok(line.strip())), None)
         if pick is None:
             pick = len(self._deferred) if head.follow is not None else 0
@@ -854,6 +875,15 @@ class ProtocolCore:
                 self._events.append(Unsolicited(line))
         if pick < len(held):
             self._acknowledge(head, held[pick], held[pick].strip())
+        elif behind is not None and head.follow is not None:
+            self._defer_ack(head, None)
+        if behind is None:
+            return
+        follow = self._pending[0] if self._pending else None
+        if follow is not None and follow is not head and follow.items[0] is _Item.ACK:
+            self._acknowledge(follow, behind, behind.strip())
+        else:  # the head got no acknowledgement of its own: out of step, as it shows
+            self._events.append(Unsolicited(behind))
 
     def _acknowledge(self, head: _Pending, line: str, text: str) -> None:
         if head.follow is not None:

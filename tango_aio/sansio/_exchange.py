@@ -11,13 +11,15 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from ..status import LETTERS
-from ._core import is_completion_line
+from ._core import AckReads, is_completion_line
+from ._patterns import ACK_PATTERN
 
 __all__ = [
     "STATUS_READ",
     "Exchange",
     "Until",
     "nothing_trails_help",
+    "reads_acknowledged",
     "status_tail",
 ]
 
@@ -66,6 +68,30 @@ def nothing_trails_help(lines: Sequence[str]) -> bool:
         if _INTEGER.match(line):
             return int(line) in (0, 1, 3)
     return False
+
+
+def reads_acknowledged(kept: Sequence[str], number: int, help_reply: int) -> AckReads:
+    """Whether, and where, mode 2 acknowledges reads, from the stripped lines of a mode
+    exchange (``?autostatus`` then ``?help``): ``kept[number]`` is the reply of
+    ``?autostatus``, ``kept[help_reply]`` that of ``?help``. An ``OK...`` after the help
+    reply is an acknowledgement after the data; one between the two replies (and none
+    after), before it. A move acknowledged only at its completion (switch ``move_ok``;
+    L2099-2103 do not say when) sends its ``OK...`` with its report, right before it or
+    behind it: an ``OK...`` after the help reply next to a report may be that one, so it
+    counts only if the ``?autostatus`` reply was not acknowledged before its data."""
+    def ack(index: int) -> bool:
+        return 0 <= index < len(kept) and ACK_PATTERN.accepts(kept[index])
+
+    def by_report(index: int) -> bool:
+        return any(0 <= i < len(kept) and is_completion_line(kept[i])
+                   for i in (index - 1, index + 1))
+
+    after = [i for i in range(help_reply + 1, len(kept)) if ack(i)]
+    if after and not (all(map(by_report, after)) and ack(number - 1)):
+        return AckReads.AFTER
+    if any(ack(i) for i in range(number + 1, help_reply)):
+        return AckReads.BEFORE
+    return AckReads.NO
 
 
 #: The read a mode exchange may carry to see how ``?statusaxis`` ends (:func:`status_tail`).

@@ -33,7 +33,7 @@ from typing import Final
 
 from ..catalog import encode
 from ..errors import ProtocolError
-from ._core import AckReads, HelpStyle, ProtocolCore
+from ._core import HelpStyle, ProtocolCore
 from ._exchange import (
     _INTEGER,
     STATUS_READ,
@@ -41,6 +41,7 @@ from ._exchange import (
     Until,
     _is_help_reply,
     nothing_trails_help,
+    reads_acknowledged,
     status_tail,
 )
 from ._linkstate import (
@@ -319,10 +320,7 @@ class LinkSession:
         if STATUS_READ in sent and (tail := status_tail(kept)) is not None:
             self.detected["status_tail"] = tail
         if actual == 2:
-            between = kept[numbers[0] + 1:helps[-1]]
-            after = kept[helps[-1] + 1:]
-            acks = AckReads.AFTER if any(map(ACK_PATTERN.accepts, after)) else \
-                AckReads.BEFORE if any(map(ACK_PATTERN.accepts, between)) else AckReads.NO
+            acks = reads_acknowledged(kept, numbers[0], helps[-1])
             self.core.ack_reads = acks
             self.detected["ack_reads"] = acks.value
         return actual
