@@ -209,7 +209,9 @@ async def test_change_events_arrive_without_polling() -> None:
         events = await client.events(until="ON")
         assert states(events)[-2:] == ["MOVING", "ON"]
         positions = [e[2] for e in events if e[1] == "position"]
-        assert len(positions) >= 3 and 0 < positions[-2] < 3.0  # some from mid-move
+        # Some from mid-move; the final one is pushed again at the confirmation, also when
+        # a poll read it already (under load the axis may stand before that).
+        assert len(positions) >= 3 and any(0 < p < 3.0 for p in positions)
         final_position_before_final_state(events, 3.0)
         assert any(e[1] == "status" and "arrived" in e[2] for e in events)
 
