@@ -109,6 +109,12 @@ def test_emulator_url_checks_its_options() -> None:
         emulator_url(axes=5)
 
 
+#: pytest in a user's project. Sardana's plugin (an extra of this environment, not of the
+#: user's) would import taurus and sardana for nothing, as pyproject's addopts says.
+PYTEST = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+          "-p", "no:sardana_pool_plugins"]
+
+
 def test_command_line_options(tmp_path: Path) -> None:
     test_file = tmp_path / "test_cli_options.py"
     test_file.write_text(textwrap.dedent('''
@@ -120,7 +126,7 @@ def test_command_line_options(tmp_path: Path) -> None:
             assert "baud=57600" in tango_emulator.url
     '''))
     result = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--tango-axes", "2",
+        [*PYTEST, "--tango-axes", "2",
          "--tango-speed", "real", str(test_file)],
         capture_output=True, text=True, timeout=120, check=False, cwd=tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
@@ -147,7 +153,7 @@ def test_the_readme_example_passes(tmp_path: Path) -> None:
     test_file = tmp_path / "test_readme_example.py"
     test_file.write_text(code)
     result = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(test_file)],
+        [*PYTEST, str(test_file)],
         capture_output=True, text=True, timeout=120, check=False, cwd=tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "1 passed" in result.stdout

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import random
 from pathlib import Path
 
@@ -46,6 +47,7 @@ def values_of(name: str) -> list[str]:
 DRIVER_MODULES = {"sansio", "moves", "transports", "link", "families", "controller", "group"}
 
 
+@functools.cache  # each file once: the scan reaches most modules from every start
 def _imports(path: Path, package: str) -> list[str]:
     """Dotted names of the tango_aio modules one file imports (absolute or relative);
     ``package`` is the file's package (``tango_aio.sim``)."""

@@ -9,6 +9,7 @@ Read from the source (ast), so that a module needing an optional extra is checke
 from __future__ import annotations
 
 import ast
+import collections
 import copy
 import functools
 import inspect
@@ -60,22 +61,43 @@ def _file_of(module: str) -> Path:
 
 def _defined_in(path: Path, name: str) -> Path | None:
     """The file that defines ``name``, following ``path``'s relative imports of it."""
+    found = _definitions(path).get(name)
+    if found is None or isinstance(found, Path):
+        return found
+    source, original = found
+    return _defined_in(source, original) if source.is_file() else None
+
+
+@functools.cache  # each worker collects this module: read each file once
+def _definitions(path: Path) -> dict[str, Path | tuple[Path, str]]:
+    """Each name ``path`` defines at its top level (to ``path``) or imports relatively (to
+    the file it imports it from and its name there), the first one in ``ast.walk``'s order."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    for node in ast.walk(tree):
+    top = {id(node) for node in tree.body}
+    found: dict[str, Path | tuple[Path, str]] = {}
+    for node in _statements(tree):
         if isinstance(node, ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef) \
-                and node.name == name and node in tree.body:
-            return path
-        if isinstance(node, ast.ImportFrom) and node.level and any(
-                (alias.asname or alias.name) == name for alias in node.names):
+                and id(node) in top:
+            found.setdefault(node.name, path)
+        elif isinstance(node, ast.ImportFrom) and node.level:
             base = path.parent
             for _ in range(node.level - 1):
                 base = base.parent
             target = base.joinpath(*(node.module or "").split(".")) if node.module else base
             source = target / "__init__.py" if target.is_dir() else target.with_suffix(".py")
-            original = next(alias.name for alias in node.names
-                            if (alias.asname or alias.name) == name)
-            return _defined_in(source, original) if source.is_file() else None
-    return None
+            for alias in node.names:
+                found.setdefault(alias.asname or alias.name, (source, alias.name))
+    return found
+
+
+def _statements(tree: ast.Module) -> Iterator[ast.AST]:
+    """``ast.walk(tree)`` without the expressions (no statement is inside one)."""
+    todo: collections.deque[ast.AST] = collections.deque([tree])
+    while todo:
+        node = todo.popleft()
+        todo.extend(child for child in ast.iter_child_nodes(node)
+                    if isinstance(child, ast.stmt | ast.excepthandler | ast.match_case))
+        yield node
 
 
 def _exported_names(module: str) -> list[str]:

@@ -29,15 +29,10 @@ def _imports(path: Path, modules: set[str], typing_too: bool = False) -> set[str
     included: they make cycles too, only later; imports under ``if TYPE_CHECKING:`` left
     out unless ``typing_too``)."""
     name = _module_name(path)
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    typing_only = {id(node) for block in ast.walk(tree) if isinstance(block, ast.If)
-                   and ast.unparse(block.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")
-                   for statement in block.body for node in ast.walk(statement)}
+    package = _package_of(path)
     found: set[str] = set()
-    for node in ast.walk(tree):
-        if not isinstance(node, ast.Import | ast.ImportFrom) or (
-                id(node) in typing_only and not typing_too):
+    for node, typing_only in _import_statements(path):
+        if typing_only and not typing_too:
             continue
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
@@ -46,6 +41,24 @@ def _imports(path: Path, modules: set[str], typing_too: bool = False) -> set[str
         found.update([base, *(f"{base}.{alias.name}" for alias in node.names)])
     # A module's own package (its __init__) runs before it anyway: not an edge.
     return {m for m in found if m in modules and not name.startswith(m + ".") and m != name}
+
+
+def _package_of(path: Path) -> str:
+    """The package a relative import in ``path`` starts from."""
+    name = _module_name(path)
+    return name if path.name == "__init__.py" else name.rpartition(".")[0]
+
+
+@functools.cache  # parsed once per process: several tests read the same imports
+def _import_statements(path: Path) -> list[tuple[ast.Import | ast.ImportFrom, bool]]:
+    """Each import statement anywhere in ``path``, and whether it is under
+    ``if TYPE_CHECKING:``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    typing_only = {id(node) for block in ast.walk(tree) if isinstance(block, ast.If)
+                   and ast.unparse(block.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")
+                   for statement in block.body for node in ast.walk(statement)}
+    return [(node, id(node) in typing_only) for node in ast.walk(tree)
+            if isinstance(node, ast.Import | ast.ImportFrom)]
 
 
 @functools.cache  # read once per process: each test only reads it
@@ -224,7 +237,7 @@ def test_sans_io_layers_import_no_loop_clock_or_port() -> None:
     for path in sorted(PACKAGE.rglob("*.py")):
         if path == PACKAGE / "__init__.py" or _home(_module_name(path)) not in SANS_IO:
             continue
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        for node, _ in _import_statements(path):
             names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom)
                      and node.level == 0 else [])
@@ -234,9 +247,8 @@ def test_sans_io_layers_import_no_loop_clock_or_port() -> None:
 
 def test_the_package_is_imported_only_for_its_version() -> None:
     for path in sorted(PACKAGE.rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            package = _module_name(path) if path.name == "__init__.py" else \
-                _module_name(path).rpartition(".")[0]
+        package = _package_of(path)
+        for node, _ in _import_statements(path):
             if isinstance(node, ast.ImportFrom) and node.module is None and node.level \
                     and resolve_name("." * node.level, package) == PACKAGE_FACADE:
                 names = [alias.name for alias in node.names]
